@@ -26,24 +26,20 @@ from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
 import scipy.sparse
 import scipy.sparse.linalg
 
 from agent.coverage import (
-    Cell,
+    CellBatch,
     Domain,
-    _domain,
     _require_uniform,
-    _tessellate,
-    cell_neighbors,
-    clipped_cell,
-    distance_order,
+    boundary_rates,
+    build_cells,
     jacobian_blocks,
+    make_domain,
+    tessellate,
     validate_positions,
 )
-from agent.coverage import boundary_rate as _boundary_rate
-from agent.coverage import nearest_point_derivatives as _nearest_point_derivatives
 
 MAX_AMPLIFICATION = 10.0
 
@@ -62,66 +58,55 @@ class LocalStep:
     mass: float
 
 
-def _reference(
-    index: int, cell: Cell, points: np.ndarray, domain: Domain, kappa: float, feedforward: bool
+def _references(
+    batch: CellBatch, points: np.ndarray, domain: Domain, kappa: float, feedforward: bool
 ) -> np.ndarray:
-    """r_i = kappa (c_i - p_i) + dc_i/dt: the term TVD-C and TVD-D1 both act on, (2,)."""
-    if cell.empty:
-        target, _, rate = _nearest_point_derivatives(domain, points[index])
-    else:
-        target, rate = cell.centroid, _boundary_rate(cell, domain)
-    reference = kappa * (target - points[index])
-    return reference + rate if feedforward else reference
+    """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K, 2): what both laws act on."""
+    reference = kappa * (batch.centroid - points[batch.owners])
+    if feedforward:
+        reference = reference + boundary_rates(batch, points, domain)
+    return reference
 
 
-def _d1_row(
-    reference: np.ndarray,
-    diagonal: np.ndarray,
-    off: np.ndarray,
+def _d1_rows(
+    batch: CellBatch,
+    points: np.ndarray,
+    own: np.ndarray,
     neighbor_references: np.ndarray,
     max_amplification: float,
 ) -> np.ndarray:
-    """Row i of (I + dc/dp) r with the amplification guard.
+    """Rows of (I + dc/dp) r for the batch's robots, with the amplification guard.
 
-    reference: (2,) r_i; diagonal: (2, 2) dc_i/dp_i; off: (E, 2, 2) dc_i/dp_j;
-    neighbor_references: (E, 2) r_j.
+    own: (K, 2) r_i; neighbor_references: (K, L, 2) r_j of the robot each line comes from
+    (ignored where the line is not a shared edge). Empty cells keep r_i.
     """
-    velocity = reference + diagonal @ reference + np.einsum("eab,eb->a", off, neighbor_references)
-    scale = max(
-        float(np.linalg.norm(reference)),
-        float(np.max(np.linalg.norm(neighbor_references, axis=1), initial=0.0)),
-    )
-    return _limit(velocity, max_amplification * scale)
-
-
-def _limit(velocity: np.ndarray, bound: float) -> np.ndarray:
-    speed = float(np.linalg.norm(velocity))
-    if not np.isfinite(speed):
-        return np.zeros(2)
-    return velocity * (bound / speed) if speed > bound else velocity
-
-
-def _team_terms(
-    positions: np.ndarray,
-    polygon: np.ndarray,
-    polygon_velocity: np.ndarray,
-    kappa: float,
-    feedforward: bool,
-) -> tuple[np.ndarray, list[Cell], np.ndarray]:
-    _check_kappa(kappa)
-    points, domain, all_cells = _tessellate(positions, polygon, polygon_velocity)
-    references = np.array(
-        [
-            _reference(i, cell, points, domain, kappa, feedforward)
-            for i, cell in enumerate(all_cells)
-        ]
-    ).reshape(-1, 2)
-    return points, all_cells, references
+    off, diagonal = jacobian_blocks(batch, points)
+    shared = batch.shared[..., None]
+    others = np.where(shared, neighbor_references, 0.0)
+    velocity = own + np.einsum("kab,kb->ka", diagonal, own) + np.einsum("klab,klb->ka", off, others)
+    scale = np.maximum(np.linalg.norm(own, axis=1), np.linalg.norm(others, axis=2).max(axis=1))
+    bound = max_amplification * scale
+    speed = np.linalg.norm(velocity, axis=1)
+    factor = np.where(speed > bound, bound / np.where(speed > 0.0, speed, 1.0), 1.0)
+    velocity = velocity * factor[:, None]
+    return np.where(batch.empty[:, None], own, velocity)
 
 
 def _check_kappa(kappa: float) -> None:
     if not (np.isfinite(kappa) and kappa > 0.0):
         raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
+
+
+def _team(
+    positions: np.ndarray,
+    polygon: np.ndarray,
+    polygon_velocity: np.ndarray,
+    kappa: float,
+    feedforward: bool,
+) -> tuple[np.ndarray, CellBatch, np.ndarray]:
+    _check_kappa(kappa)
+    points, domain, batch = tessellate(positions, polygon, polygon_velocity)
+    return points, batch, _references(batch, points, domain, kappa, feedforward)
 
 
 def tvd_d1(
@@ -138,39 +123,26 @@ def tvd_d1(
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).
     """
     _require_uniform(density)
-    points, all_cells, references = _team_terms(
-        positions, polygon, polygon_velocity, kappa, feedforward
+    points, batch, references = _team(positions, polygon, polygon_velocity, kappa, feedforward)
+    return _d1_rows(
+        batch, points, references, references[np.maximum(batch.labels, 0)], max_amplification
     )
-    velocities = references.copy()
-    for i, cell in enumerate(all_cells):
-        if cell.empty:
-            continue
-        columns, off, diagonal = jacobian_blocks(i, cell, points)
-        velocities[i] = _d1_row(
-            references[i], diagonal, off, references[columns], max_amplification
-        )
-    return velocities
 
 
-def _control_jacobian(points: np.ndarray, all_cells: list[Cell]) -> scipy.sparse.csr_array:
+def _control_jacobian(batch: CellBatch, points: np.ndarray) -> scipy.sparse.csr_array:
     """Sparse dc/dp with the rows of empty cells zero (those robots do not use it)."""
-    rows, cols, values = [], [], []
-    for i, cell in enumerate(all_cells):
-        if cell.empty:
-            continue
-        columns, off, diagonal = jacobian_blocks(i, cell, points)
-        blocks = np.concatenate([diagonal[None], off])
-        block_columns = np.concatenate([[i], columns])
-        a, b = np.meshgrid(np.arange(2), np.arange(2), indexing="ij")
-        rows.append(np.broadcast_to(2 * i + a, blocks.shape).ravel())
-        cols.append((2 * block_columns[:, None, None] + b[None]).ravel())
-        values.append(blocks.ravel())
-    n2 = 2 * len(points)
-    if not rows:
-        return scipy.sparse.csr_array((n2, n2))
-    return scipy.sparse.csr_array(
-        (np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))), shape=(n2, n2)
+    off, diagonal = jacobian_blocks(batch, points)
+    shared = batch.shared
+    block_rows = np.concatenate(
+        [batch.owners, np.broadcast_to(batch.owners[:, None], shared.shape)[shared]]
     )
+    block_cols = np.concatenate([batch.owners, batch.labels[shared]])
+    blocks = np.concatenate([diagonal, off[shared]])
+    a, b = np.meshgrid(np.arange(2), np.arange(2), indexing="ij")
+    rows = (2 * block_rows[:, None, None] + a).ravel()
+    cols = (2 * block_cols[:, None, None] + b).ravel()
+    n2 = 2 * len(points)
+    return scipy.sparse.csr_array((blocks.ravel(), (rows, cols)), shape=(n2, n2))
 
 
 def tvd_c(
@@ -189,28 +161,22 @@ def tvd_c(
     amplifies a robot's speed beyond ``max_amplification`` times max |r| (module notes).
     """
     _require_uniform(density)
-    points, all_cells, references = _team_terms(
-        positions, polygon, polygon_velocity, kappa, feedforward
-    )
-    jacobian = _control_jacobian(points, all_cells)
+    points, batch, references = _team(positions, polygon, polygon_velocity, kappa, feedforward)
+    jacobian = _control_jacobian(batch, points)
     system = scipy.sparse.eye_array(jacobian.shape[0], format="csc") - jacobian.tocsc()
     rhs = references.ravel()
     try:
-        if len(points) <= 200:
-            solution = scipy.linalg.solve(system.toarray(), rhs, check_finite=False)
-        else:
-            solution = scipy.sparse.linalg.splu(system).solve(rhs)
+        solution = scipy.sparse.linalg.splu(system).solve(rhs)
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
         solution = None
     if solution is not None:
         velocities = solution.reshape(-1, 2)
         bound = max_amplification * float(np.max(np.linalg.norm(references, axis=1)))
-        if np.all(np.isfinite(velocities)) and np.all(
-            np.linalg.norm(velocities, axis=1) <= bound
-        ):
+        speeds = np.linalg.norm(velocities, axis=1)
+        if np.all(np.isfinite(speeds)) and np.all(speeds <= bound):
             return velocities
-    return tvd_d1(
-        points, polygon, polygon_velocity, kappa, feedforward, max_amplification=max_amplification
+    return _d1_rows(
+        batch, points, references, references[np.maximum(batch.labels, 0)], max_amplification
     )
 
 
@@ -236,26 +202,30 @@ def local_step(
         raise ValueError(f"positions must include the robot itself ({me!r})")
     ids = _ordered_ids(positions)
     points = validate_positions(np.array([positions[key] for key in ids], dtype=np.float64))
-    domain = _domain(polygon, polygon_velocity)
-    index = ids.index(me)
+    domain = make_domain(polygon, polygon_velocity)
     everyone = np.arange(len(ids))
-
-    def cell_of(i: int) -> Cell:
-        return clipped_cell(i, points, distance_order(points, i, everyone), domain)
-
-    cell = cell_of(index)
-    reference = _reference(index, cell, points, domain, kappa, feedforward)
-    if cell.empty:
-        return LocalStep(reference, frozenset(), cell.centroid, 0.0)
-    columns, off, diagonal = jacobian_blocks(index, cell, points)
-    references = {
-        int(j): _reference(int(j), cell_of(int(j)), points, domain, kappa, feedforward)
-        for j in np.unique(columns)
-    }
-    neighbor_references = np.array([references[int(j)] for j in columns]).reshape(-1, 2)
-    velocity = _d1_row(reference, diagonal, off, neighbor_references, max_amplification)
-    neighbor_ids = frozenset(ids[j] for j in cell_neighbors(cell, domain.tol))
-    return LocalStep(velocity, neighbor_ids, cell.centroid.copy(), cell.mass)
+    mine = build_cells(points, np.array([ids.index(me)]), everyone[None], domain)
+    own = _references(mine, points, domain, kappa, feedforward)
+    shared = mine.shared[0]
+    neighbor_indices = np.unique(mine.labels[0][shared])
+    by_robot = np.zeros((len(ids), 2))
+    if len(neighbor_indices):
+        theirs = build_cells(
+            points,
+            neighbor_indices,
+            np.broadcast_to(everyone, (len(neighbor_indices), len(ids))),
+            domain,
+        )
+        by_robot[neighbor_indices] = _references(theirs, points, domain, kappa, feedforward)
+    velocity = _d1_rows(mine, points, own, by_robot[np.maximum(mine.labels, 0)], max_amplification)[
+        0
+    ]
+    return LocalStep(
+        velocity=velocity,
+        neighbors=frozenset(ids[j] for j in neighbor_indices),
+        centroid=mine.centroid[0].copy(),
+        mass=float(mine.mass[0]),
+    )
 
 
 def local_velocity(

@@ -16,13 +16,19 @@ Conventions. ``positions: (n, 2)``; ``polygon: (k, 2)`` vertices of S in either 
 vertices moving with the linear interpolation of their velocities. Jacobians are ordered
 ``[x0, y0, x1, y1, ...]``.
 
-How a cell is built. Cell i is S clipped by the bisector half-planes of the other robots,
-taken in order of distance from robot i and stopped as soon as the next robot is farther
-than twice the cell's radius around p_i (no farther robot can cut the cell). This needs no
-Delaunay triangulation, so collinear and coincident layouts, which Qhull refuses, are
-ordinary inputs here, and a cell built from any superset of a robot's true neighbours is
-the same cell: that is what lets one robot compute its control from its two-hop
-neighbourhood alone (``agent.control.local_step``).
+How a cell is built. A convex cell is the intersection of half-planes: the edges of S and
+the bisectors with the robot's candidate neighbours. Every candidate line's piece inside all
+the other half-planes is found at once, for a whole batch of cells, as a one-dimensional
+linear programme vectorised over (cells, lines, constraints); the lines whose piece has
+positive length are the cell's edges, already oriented counter-clockwise and labelled with
+the robot or polygon edge they come from, which is all the mass, centroid, dc/dp and dc/dt
+need. No Delaunay triangulation is involved, so collinear and coincident layouts, which
+Qhull refuses, are ordinary inputs here. A constraint that does not touch the cell changes
+nothing, so any superset of a robot's true neighbours gives the same cell: that is what lets
+one robot compute its control from its two-hop neighbourhood alone
+(``agent.control.local_step``). For the whole team, candidates are the nearest robots from a
+k-d tree; a cell not closed within half the distance to its farthest candidate is rebuilt
+with every robot as a candidate.
 
 Degenerate layouts have defined behaviour:
 - coincident robots: the one that comes first (lowest index) owns the cell, the others
@@ -69,21 +75,44 @@ class Domain:
 
 
 @dataclass(frozen=True)
-class Cell:
-    """One robot's Voronoi cell clipped to S.
+class CellBatch:
+    """The cells of robots ``owners`` as labelled edges, K cells of L candidate lines each.
 
-    vertices: (m, 2) counter-clockwise, (0, 2) when empty; labels: (m,) the origin of the edge
-    from vertex k to vertex k + 1 (see the module notes); mass and centroid: Section 4.2.
+    owners: (K,) robot indices; start, end: (K, L, 2) counter-clockwise edge ends; labels:
+    (K, L) the robot (>= 0) or polygon edge (-(l + 1)) each line comes from; present: (K, L)
+    the line is an edge of positive length; mass: (K,) m_i, 0 for an empty cell; centroid:
+    (K, 2) c_i, the nearest point of S for an empty cell (Section 4.2).
     """
 
-    vertices: np.ndarray
+    owners: np.ndarray
+    start: np.ndarray
+    end: np.ndarray
     labels: np.ndarray
-    mass: float
+    present: np.ndarray
+    mass: np.ndarray
     centroid: np.ndarray
 
     @property
-    def empty(self) -> bool:
+    def empty(self) -> np.ndarray:
         return self.mass == 0.0
+
+    @property
+    def shared(self) -> np.ndarray:
+        """(K, L) edges shared with another robot's cell."""
+        return self.present & (self.labels >= 0)
+
+    @property
+    def boundary(self) -> np.ndarray:
+        """(K, L) edges on the boundary of S."""
+        return self.present & (self.labels < 0)
+
+    def vertices(self, k: int) -> np.ndarray:
+        """Counter-clockwise vertices (m, 2) of cell k, (0, 2) when empty."""
+        if self.empty[k]:
+            return np.empty((0, 2))
+        corners = self.start[k][self.present[k]]
+        angle = np.arctan2(*(corners - self.centroid[k]).T[::-1])
+        return corners[np.argsort(angle)]
 
 
 def _require_uniform(density: object) -> None:
@@ -100,7 +129,7 @@ def validate_polygon(polygon: np.ndarray) -> np.ndarray:
     repeated consecutive vertices, zero area, a reflex vertex (non-convex) or a boundary
     that winds around more than once (self-intersecting). Collinear vertices are allowed.
     """
-    return _domain(polygon, None).vertices
+    return make_domain(polygon).vertices
 
 
 def validate_positions(positions: np.ndarray) -> np.ndarray:
@@ -114,8 +143,12 @@ def validate_positions(positions: np.ndarray) -> np.ndarray:
     return points
 
 
-def _domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None) -> Domain:
-    """Validate S and its vertex velocities; orient both counter-clockwise."""
+def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None) -> Domain:
+    """Validate S (``polygon: (k, 2)``) and its vertex velocities; orient both CCW.
+
+    ``polygon_velocity: (k, 2)`` defaults to a still domain. Raises ValueError (see
+    ``validate_polygon``).
+    """
     vertices = np.asarray(polygon, dtype=np.float64)
     if vertices.ndim != 2 or vertices.shape[1] != 2:
         raise ValueError(f"polygon must have shape (k, 2), got {vertices.shape}")
@@ -135,98 +168,192 @@ def _domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None) -> Domain:
             )
         if not np.all(np.isfinite(velocities)):
             raise ValueError("polygon_velocity contains NaN or inf")
-    size = float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1))) * 2.0
+    size = 2.0 * float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
     edges = np.roll(vertices, -1, axis=0) - vertices
-    lengths = np.linalg.norm(edges, axis=1)
-    if size == 0.0 or np.any(lengths <= GEOMETRY_TOL * size):
-        first = int(np.argmax(lengths <= GEOMETRY_TOL * size)) if size else 0
+    short = np.linalg.norm(edges, axis=1) <= GEOMETRY_TOL * size
+    if size == 0.0 or short.any():
+        first = int(np.argmax(short))
         raise ValueError(
             f"polygon vertex {first} repeats vertex {(first + 1) % k}: zero-length edge"
         )
-    area2 = float(np.sum(_cross(vertices, np.roll(vertices, -1, axis=0))))
+    area2 = float(np.sum(cross(vertices, np.roll(vertices, -1, axis=0))))
     if abs(area2) <= 1e-9 * size * size:
         raise ValueError("polygon has zero area (its vertices are collinear)")
     if area2 < 0.0:
         vertices = vertices[::-1].copy()
         velocities = velocities[::-1].copy()
         edges = np.roll(vertices, -1, axis=0) - vertices
-    turn = _cross(np.roll(edges, 1, axis=0), edges)
+    turn = cross(np.roll(edges, 1, axis=0), edges)
     if np.any(turn < -1e-9 * size * size):
-        bad = int(np.argmin(turn))
-        raise ValueError(f"polygon is not convex: reflex angle at vertex {bad}")
+        raise ValueError(f"polygon is not convex: reflex angle at vertex {int(np.argmin(turn))}")
     turning = np.arctan2(turn, np.sum(np.roll(edges, 1, axis=0) * edges, axis=1))
     if abs(float(np.sum(turning)) - 2.0 * np.pi) > 1e-6:
         raise ValueError("polygon is self-intersecting: its boundary winds around more than once")
     return Domain(vertices=vertices, velocities=velocities, size=size)
 
 
-def _cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """z-component of the cross product of stacked 2-vectors: (..., 2) x (..., 2) -> (...)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
-def _clip(
-    vertices: np.ndarray, labels: np.ndarray, normal: np.ndarray, offset: float, label: int
-) -> tuple[np.ndarray, np.ndarray]:
-    """Clip a convex polygon to the half-plane ``normal . q <= offset``.
+def build_cells(
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: Domain
+) -> CellBatch:
+    """The clipped Voronoi cells of ``owners: (K,)`` among ``points: (n, 2)``.
 
-    vertices: (m, 2) counter-clockwise; labels: (m,). The new edge gets ``label``.
-    Convexity means the kept vertices form one cyclic run, so the result is that run plus
-    the exit and entry points, computed without a loop over vertices.
+    candidates: (K, D) robot indices whose bisectors may cut each cell, -1 for padding (the
+    owner itself is ignored). A robot coincident with the owner and of lower index owns the
+    cell, leaving the owner's cell empty; one of higher index is ignored.
     """
-    side = vertices @ normal - offset
-    inside = side <= 0.0
-    if inside.all():
-        return vertices, labels
-    if not inside.any():
-        return vertices[:0], labels[:0]
-    following = np.roll(inside, -1)
-    exit_edge = int(np.flatnonzero(inside & ~following)[0])
-    entry_edge = int(np.flatnonzero(~inside & following)[0])
-    m = len(vertices)
-    a, b = vertices[exit_edge], vertices[(exit_edge + 1) % m]
-    exit_point = a + (b - a) * (side[exit_edge] / (side[exit_edge] - side[(exit_edge + 1) % m]))
-    a, b = vertices[entry_edge], vertices[(entry_edge + 1) % m]
-    entry_point = a + (b - a) * (
-        side[entry_edge] / (side[entry_edge] - side[(entry_edge + 1) % m])
+    tol = domain.tol
+    me = points[owners]  # work relative to the owner: cells far from the origin keep digits
+    valid = (candidates >= 0) & (candidates != owners[:, None])
+    offsets_to = points[np.maximum(candidates, 0)] - me[:, None, :]
+    distance = np.linalg.norm(offsets_to, axis=2)
+    coincident = valid & (distance <= tol)
+    dominated = np.any(coincident & (candidates < owners[:, None]), axis=1)
+    valid &= ~coincident
+    safe = np.where(valid, distance, 1.0)
+    bisector_normal = offsets_to / safe[:, :, None]
+    bisector_offset = np.where(valid, 0.5 * distance, np.inf)
+
+    k = len(domain.vertices)
+    edges = np.roll(domain.vertices, -1, axis=0) - domain.vertices
+    polygon_normal = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+    polygon_normal /= np.linalg.norm(polygon_normal, axis=1)[:, None]
+    polygon_offset = np.sum(polygon_normal * domain.vertices, axis=1) - me @ polygon_normal.T
+
+    # Polygon edges first: where a bisector lies on an edge of S, the lower line index wins.
+    count = len(owners)
+    normal = np.concatenate(
+        [np.broadcast_to(polygon_normal, (count, k, 2)), bisector_normal], axis=1
     )
-    run = np.arange(entry_edge + 1, entry_edge + 1 + np.count_nonzero(inside)) % m
-    new_vertices = np.concatenate([vertices[run], exit_point[None], entry_point[None]])
-    new_labels = np.concatenate([labels[run], [label, labels[entry_edge]]])
-    # The last kept vertex starts the edge towards the exit point, which lies on the same
-    # original edge, so it keeps that edge's label; already true because run ends at exit_edge.
-    return new_vertices, new_labels
+    offset = np.concatenate([polygon_offset, bisector_offset], axis=1)
+    active = np.concatenate([np.ones((count, k), dtype=bool), valid], axis=1)
+    labels = np.concatenate([np.broadcast_to(-(np.arange(k) + 1), (count, k)), candidates], axis=1)
+
+    finite_offset = np.where(active, offset, 0.0)
+    nx, ny = normal[..., 0], normal[..., 1]
+    foot = normal * finite_offset[:, :, None]  # closest point of each line to the owner
+    direction = np.stack([-ny, nx], axis=-1)  # interior on the left: counter-clockwise edges
+    # Line l, foot_l + t direction_l, must satisfy normal_m . q <= offset_m for every m:
+    # t rate_lm <= slack_lm. Indices [cell, line l, constraint m].
+    cosine = nx[:, :, None] * nx[:, None, :] + ny[:, :, None] * ny[:, None, :]
+    rate = nx[:, :, None] * ny[:, None, :] - ny[:, :, None] * nx[:, None, :]
+    slack = finite_offset[:, None, :] - finite_offset[:, :, None] * cosine
+    parallel = np.abs(rate) <= 1e-12
+    bound = slack / np.where(parallel, 1.0, rate)
+    constraining = active[:, None, :] & ~np.eye(normal.shape[1], dtype=bool)
+    upper = np.where(constraining & (rate > 1e-12), bound, np.inf).min(axis=2)
+    lower = np.where(constraining & (rate < -1e-12), bound, -np.inf).max(axis=2)
+    # A parallel constraint either excludes the whole line or none of it; of two identical
+    # lines (same side, same offset) only the first is kept, so no edge counts twice.
+    earlier = np.tri(normal.shape[1], k=-1, dtype=bool)  # [l, m]: m < l
+    excluded = (
+        constraining
+        & parallel
+        & ((slack < -tol) | ((cosine > 0.0) & (np.abs(slack) <= tol) & earlier))
+    )
+    length = upper - lower
+    present = active & ~excluded.any(axis=2) & (length > tol) & ~dominated[:, None]
+
+    lower = np.where(present, lower, 0.0)
+    upper = np.where(present, upper, 0.0)
+    start = foot + lower[..., None] * direction
+    end = foot + upper[..., None] * direction
+    start = np.where(present[..., None], start, 0.0)
+    end = np.where(present[..., None], end, 0.0)
+    twice_area = cross(start, end)
+    mass = 0.5 * np.sum(twice_area, axis=1)
+    empty = mass <= tol * tol
+    mass = np.where(empty, 0.0, mass)
+    moment = np.sum((start + end) * twice_area[..., None], axis=1)
+    centroid = me + moment / (6.0 * np.where(empty, 1.0, mass))[:, None]
+    for i in np.flatnonzero(empty):
+        centroid[i] = nearest_point(domain, me[i])[0]
+    present &= ~empty[:, None]
+    return CellBatch(
+        owners=owners,
+        start=start + me[:, None, :],
+        end=end + me[:, None, :],
+        labels=labels,
+        present=present,
+        mass=mass,
+        centroid=centroid,
+    )
 
 
-def _drop_short_edges(
-    vertices: np.ndarray, labels: np.ndarray, tol: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Remove vertices that start an edge shorter than ``tol`` (clipping through a vertex)."""
-    if len(vertices) == 0:
-        return vertices, labels
-    lengths = np.linalg.norm(np.roll(vertices, -1, axis=0) - vertices, axis=1)
-    keep = lengths > tol
-    if keep.all():
-        return vertices, labels
-    if np.count_nonzero(keep) < 3:
-        return vertices[:0], labels[:0]
-    return vertices[keep], labels[keep]
+def cell_radius(batch: CellBatch, points: np.ndarray) -> np.ndarray:
+    """(K,) the largest distance from each owner to its cell's vertices (0 when empty)."""
+    me = points[batch.owners][:, None, :]
+    reach = np.linalg.norm(batch.start - me, axis=2)
+    return np.where(batch.present, reach, 0.0).max(axis=1)
 
 
-def _polygon_mass_centroid(vertices: np.ndarray) -> tuple[float, np.ndarray]:
-    """Area and centroid of a counter-clockwise polygon (Section 4.2, wrapping sums).
+# Nearest robots offered to each cell of the whole team; a cell needing more is rebuilt.
+TEAM_CANDIDATES = 16
+# Cells built per vectorised batch: bounds the (K, L, L) temporaries to a few tens of MB.
+BATCH_CELLS = 512
 
-    Computed relative to the first vertex so that far-from-origin cells keep their digits.
-    """
-    origin = vertices[0]
-    local = vertices - origin
-    following = np.roll(local, -1, axis=0)
-    cross = _cross(local, following)
-    area = 0.5 * float(np.sum(cross))
-    if area <= 0.0:
-        return 0.0, origin.copy()
-    centroid = origin + np.sum((local + following) * cross[:, None], axis=0) / (6.0 * area)
-    return area, centroid
+
+def team_cells(points: np.ndarray, domain: Domain) -> CellBatch:
+    """Every robot's cell, ``points: (n, 2)``; owners are 0..n-1 in order."""
+    n = len(points)
+    everyone = np.arange(n)
+    if n <= TEAM_CANDIDATES + 1:
+        return build_cells(points, everyone, np.broadcast_to(everyone, (n, n)), domain)
+    tree = cKDTree(points)
+    distance, nearest = tree.query(points, k=TEAM_CANDIDATES + 1)
+    batch = _concatenate(
+        [
+            build_cells(points, everyone[s : s + BATCH_CELLS], nearest[s : s + BATCH_CELLS], domain)
+            for s in range(0, n, BATCH_CELLS)
+        ]
+    )
+    # Robots beyond the farthest candidate cannot cut a cell within half that distance; cells
+    # that reach farther (large boundary cells) are rebuilt with twice the candidates.
+    width = TEAM_CANDIDATES + 1
+    unclosed = np.flatnonzero(distance[:, -1] <= 2.0 * cell_radius(batch, points) + domain.tol)
+    while len(unclosed) and width < n:
+        width = min(n, 2 * width)
+        distance, nearest = tree.query(points[unclosed], k=width)
+        rebuilt = build_cells(points, unclosed, nearest, domain)
+        batch = _replace(batch, unclosed, rebuilt)
+        still = distance[:, -1] <= 2.0 * cell_radius(rebuilt, points) + domain.tol
+        unclosed = unclosed[still]
+    return batch
+
+
+def _concatenate(parts: list[CellBatch]) -> CellBatch:
+    if len(parts) == 1:
+        return parts[0]
+    return CellBatch(
+        **{
+            name: np.concatenate([getattr(part, name) for part in parts])
+            for name in CellBatch.__dataclass_fields__
+        }
+    )
+
+
+def _replace(batch: CellBatch, rows: np.ndarray, rebuilt: CellBatch) -> CellBatch:
+    """``batch`` with ``rows`` replaced by ``rebuilt`` (which may have more lines per cell)."""
+    width = max(batch.labels.shape[1], rebuilt.labels.shape[1])
+
+    def widen(array: np.ndarray, fill: float | int | bool) -> np.ndarray:
+        pad = [(0, 0), (0, width - array.shape[1])] + [(0, 0)] * (array.ndim - 2)
+        return np.pad(array, pad, constant_values=fill)
+
+    fields = {}
+    for name in CellBatch.__dataclass_fields__:
+        old, new = getattr(batch, name), getattr(rebuilt, name)
+        if old.ndim >= 2 and name not in ("centroid",):
+            fill = False if old.dtype == bool else 0
+            old, new = widen(old, fill), widen(new, fill)
+        merged = old.copy()
+        merged[rows] = new
+        fields[name] = merged
+    return CellBatch(**fields)
 
 
 def nearest_point(domain: Domain, point: np.ndarray) -> tuple[np.ndarray, int, float]:
@@ -247,235 +374,13 @@ def nearest_point(domain: Domain, point: np.ndarray) -> tuple[np.ndarray, int, f
     return candidates[edge], edge, float(sigma[edge])
 
 
-def clipped_cell(index: int, points: np.ndarray, order: np.ndarray, domain: Domain) -> Cell:
-    """Cell of robot ``index`` among ``points: (n, 2)``, clipped to S.
-
-    order: indices of the other robots sorted by distance from robot ``index``, ties by index
-    (see ``distance_order``). It may hold only the nearest ones: clipping stops once the next
-    is beyond twice the cell's radius, so any superset of the true neighbours gives the same
-    cell. Labels of bisector edges are indices into ``points``.
-    """
-    me = points[index]
-    vertices = domain.vertices - me
-    k = len(vertices)
-    labels = -(np.arange(k) + 1)
-    radius = float(np.sqrt(np.max(np.sum(vertices * vertices, axis=1))))
-    tol = domain.tol
-    for other in order:
-        other = int(other)
-        if other == index:
-            continue
-        normal = points[other] - me
-        distance = float(np.hypot(normal[0], normal[1]))
-        if distance > 2.0 * radius + tol:
-            break
-        if distance <= tol:
-            if other < index:  # a coincident robot that comes first owns the cell
-                vertices = vertices[:0]
-                break
-            continue
-        vertices, labels = _clip(vertices, labels, normal, 0.5 * distance * distance, other)
-        if len(vertices) == 0:
-            break
-        radius = float(np.sqrt(np.max(np.sum(vertices * vertices, axis=1))))
-    vertices, labels = _drop_short_edges(vertices, labels, tol)
-    if len(vertices) == 0:
-        nearest, _, _ = nearest_point(domain, me)
-        return Cell(np.empty((0, 2)), np.empty(0, dtype=np.int64), 0.0, nearest)
-    vertices = vertices + me
-    mass, centroid = _polygon_mass_centroid(vertices)
-    if mass <= tol * tol:
-        nearest, _, _ = nearest_point(domain, me)
-        return Cell(np.empty((0, 2)), np.empty(0, dtype=np.int64), 0.0, nearest)
-    return Cell(vertices, labels.astype(np.int64), mass, centroid)
-
-
-def distance_order(points: np.ndarray, index: int, candidates: np.ndarray) -> np.ndarray:
-    """``candidates`` sorted by distance from robot ``index``, ties broken by index.
-
-    The tie-break makes coincident robots clip in index order, so a cell's bisector edge is
-    labelled with the duplicate that owns a cell.
-    """
-    distance = np.sum((points[candidates] - points[index]) ** 2, axis=1)
-    return candidates[np.lexsort((candidates, distance))]
-
-
-def _all_cells(points: np.ndarray, domain: Domain) -> list[Cell]:
-    """Every robot's cell; candidates come from a k-d tree, widened until each cell closes."""
-    n = len(points)
-    if n == 1:
-        return [clipped_cell(0, points, np.empty(0, dtype=np.int64), domain)]
-    tree = cKDTree(points)
-    k = min(n, 16)
-    _, nearest = tree.query(points, k=k)
-    result = []
-    for i in range(n):
-        order = distance_order(points, i, nearest[i])
-        while True:
-            cell = clipped_cell(i, points, order, domain)
-            if len(order) >= n or _closed(cell, points[i], points[order[-1]], domain):
-                break
-            _, wider = tree.query(points[i], k=min(n, 2 * len(order)))
-            order = distance_order(points, i, wider)
-        result.append(cell)
-    return result
-
-
-def _closed(cell: Cell, me: np.ndarray, farthest: np.ndarray, domain: Domain) -> bool:
-    """True when no robot beyond ``farthest`` can cut the cell (it is within the radius)."""
-    distance = float(np.linalg.norm(farthest - me))
-    if cell.empty:
-        return True
-    radius = float(np.sqrt(np.max(np.sum((cell.vertices - me) ** 2, axis=1))))
-    return distance > 2.0 * radius + domain.tol
-
-
-def _tessellate(
-    positions: np.ndarray, polygon: np.ndarray, polygon_velocity: np.ndarray | None = None
-) -> tuple[np.ndarray, Domain, list[Cell]]:
-    points = validate_positions(positions)
-    domain = _domain(polygon, polygon_velocity)
-    return points, domain, _all_cells(points, domain)
-
-
-def cells(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> list[np.ndarray]:
-    """Each robot's Voronoi cell clipped to S.
-
-    positions: (n, 2); polygon: (k, 2). Returns n arrays of counter-clockwise vertices
-    (m_i, 2), an empty (0, 2) array for an empty cell.
-    """
-    _require_uniform(density)
-    _, _, all_cells = _tessellate(positions, polygon)
-    return [cell.vertices.copy() for cell in all_cells]
-
-
-def mass_centroid(
-    positions: np.ndarray, polygon: np.ndarray, density: object = None
-) -> tuple[np.ndarray, np.ndarray]:
-    """Mass m_i and centroid c_i of every cell for uniform density (Section 4.2).
-
-    positions: (n, 2); polygon: (k, 2). Returns mass (n,) and centroid (n, 2); an empty
-    cell has mass 0 and the nearest point of S as its centroid.
-    """
-    _require_uniform(density)
-    _, _, all_cells = _tessellate(positions, polygon)
-    return _masses(all_cells), _centroids(all_cells)
-
-
-def _masses(all_cells: list[Cell]) -> np.ndarray:
-    return np.array([cell.mass for cell in all_cells], dtype=np.float64)
-
-
-def _centroids(all_cells: list[Cell]) -> np.ndarray:
-    return np.array([cell.centroid for cell in all_cells], dtype=np.float64).reshape(-1, 2)
-
-
-def cell_neighbors(cell: Cell, tol: float) -> np.ndarray:
-    """Labels of the bisector edges of ``cell`` with positive length (its Voronoi neighbours)."""
-    if cell.empty:
-        return np.empty(0, dtype=np.int64)
-    lengths = np.linalg.norm(np.roll(cell.vertices, -1, axis=0) - cell.vertices, axis=1)
-    return np.unique(cell.labels[(cell.labels >= 0) & (lengths > tol)])
-
-
-def neighbors(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> list[set[int]]:
-    """Delaunay neighbours of each robot whose shared cell edge inside S has positive length.
-
-    positions: (n, 2); polygon: (k, 2). Returns n sets of robot indices.
-    """
-    _require_uniform(density)
-    _, domain, all_cells = _tessellate(positions, polygon)
-    return [set(cell_neighbors(cell, domain.tol).tolist()) for cell in all_cells]
-
-
-def _edge_moments(
-    start: np.ndarray, end: np.ndarray, centroid: np.ndarray, anchor: np.ndarray
-) -> np.ndarray:
-    """Line integral of (q - c)(q - a)^T along segments (the Lemma's bracket times length).
-
-    start, end: (E, 2) segment ends; centroid: (E, 2) c; anchor: (E, 2) a. Returns (E, 2, 2):
-    |d| [ (v1 - c)(v1 - a)^T + ((v1 - c) d^T + d (v1 - a)^T) / 2 + d d^T / 3 ], d = v2 - v1.
-    """
-    d = end - start
-    u = start - centroid
-    w = start - anchor
-    bracket = (
-        u[:, :, None] * w[:, None, :]
-        + 0.5 * (u[:, :, None] * d[:, None, :] + d[:, :, None] * w[:, None, :])
-        + d[:, :, None] * d[:, None, :] / 3.0
-    )
-    return np.linalg.norm(d, axis=1)[:, None, None] * bracket
-
-
-def jacobian_blocks(
-    index: int, cell: Cell, points: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The non-zero blocks of row ``index`` of dc/dp from its non-empty cell.
-
-    Returns (columns (E,), off-diagonal blocks (E, 2, 2) = dc_i/dp_j by eq. (dcidpj), and the
-    diagonal block (2, 2) = dc_i/dp_i by eq. (dcidpi)). Several edges may share a column only
-    through clipping artefacts; callers add them.
-    """
-    if cell.empty:
-        return np.empty(0, dtype=np.int64), np.empty((0, 2, 2)), np.zeros((2, 2))
-    following = np.roll(cell.vertices, -1, axis=0)
-    interior = cell.labels >= 0
-    columns = cell.labels[interior]
-    start, end = cell.vertices[interior], following[interior]
-    if len(columns) == 0:
-        return columns, np.empty((0, 2, 2)), np.zeros((2, 2))
-    me = points[index]
-    others = points[columns]
-    scale = 1.0 / (cell.mass * np.linalg.norm(others - me, axis=1))
-    centroid = np.broadcast_to(cell.centroid, start.shape)
-    off = -scale[:, None, None] * _edge_moments(start, end, centroid, others)
-    diagonal = np.sum(
-        scale[:, None, None] * _edge_moments(start, end, centroid, np.broadcast_to(me, start.shape)),
-        axis=0,
-    )
-    return columns, off, diagonal
-
-
-def boundary_rate(cell: Cell, domain: Domain) -> np.ndarray:
-    """dc_i/dt from the motion of S (Proposition 1, second term) for a non-empty cell: (2,).
-
-    On a cell edge lying on edge l of S, the outward normal speed nu is linear in position
-    (vertex velocities interpolate linearly), so with nu1, nu2 at the edge's ends
-    integral (q - c) nu ds = |d| [ (v1 - c)(nu1 + nu2) / 2 + d (nu1 / 6 + nu2 / 3) ].
-    """
-    boundary = cell.labels < 0
-    if cell.empty or not boundary.any():
-        return np.zeros(2)
-    following = np.roll(cell.vertices, -1, axis=0)
-    start, end = cell.vertices[boundary], following[boundary]
-    edge = -cell.labels[boundary] - 1
-    a = domain.vertices[edge]
-    e = domain.vertices[(edge + 1) % len(domain.vertices)] - a
-    ua = domain.velocities[edge]
-    ub = domain.velocities[(edge + 1) % len(domain.vertices)]
-    length2 = np.sum(e * e, axis=1)
-    outward = np.stack([e[:, 1], -e[:, 0]], axis=1) / np.sqrt(length2)[:, None]
-
-    def normal_speed(q: np.ndarray) -> np.ndarray:
-        s = np.sum((q - a) * e, axis=1) / length2
-        return np.sum(((1.0 - s)[:, None] * ua + s[:, None] * ub) * outward, axis=1)
-
-    nu1, nu2 = normal_speed(start), normal_speed(end)
-    d = end - start
-    integral = np.linalg.norm(d, axis=1)[:, None] * (
-        (start - cell.centroid) * (0.5 * (nu1 + nu2))[:, None]
-        + d * (nu1 / 6.0 + nu2 / 3.0)[:, None]
-    )
-    return np.sum(integral, axis=0) / cell.mass
-
-
 def nearest_point_derivatives(
     domain: Domain, point: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The nearest point q of S to ``point`` and its derivatives: (q (2,), dq/dp (2, 2), dq/dt (2,)).
+    """The nearest point q of S to ``point: (2,)`` and (q, dq/dp (2, 2), dq/dt (2,)).
 
-    This is the "centroid" of an empty cell. Inside S, q = p; on an edge's interior region q
-    slides along the moving edge; in a vertex region q is the vertex.
+    This is the "centroid" of an empty cell. Inside S, q = p; in an edge's region q slides
+    along the moving edge; in a vertex's region q is the vertex.
     """
     q, edge, sigma = nearest_point(domain, point)
     if edge < 0:
@@ -491,10 +396,129 @@ def nearest_point_derivatives(
     de = ub - ua
     h = float(e @ e)
     g = float((point - a) @ e)
-    dg = float(-ua @ e + (point - a) @ de)
-    dh = 2.0 * float(e @ de)
-    dsigma = (dg * h - g * dh) / (h * h)
+    dsigma = ((-ua @ e + (point - a) @ de) * h - g * 2.0 * (e @ de)) / (h * h)
     return q, np.outer(e, e) / h, ua + dsigma * e + sigma * de
+
+
+def _edge_moments(
+    start: np.ndarray, end: np.ndarray, centroid: np.ndarray, anchor: np.ndarray
+) -> np.ndarray:
+    """Line integrals of (q - c)(q - a)^T along segments: the Lemma's bracket times |d|.
+
+    start, end, centroid, anchor: (..., 2), broadcast. Returns (..., 2, 2):
+    |d| [ (v1 - c)(v1 - a)^T + ((v1 - c) d^T + d (v1 - a)^T) / 2 + d d^T / 3 ], d = v2 - v1.
+    """
+    d = end - start
+    u = start - centroid
+    w = start - anchor
+    bracket = (
+        u[..., :, None] * w[..., None, :]
+        + 0.5 * (u[..., :, None] * d[..., None, :] + d[..., :, None] * w[..., None, :])
+        + d[..., :, None] * d[..., None, :] / 3.0
+    )
+    return np.linalg.norm(d, axis=-1)[..., None, None] * bracket
+
+
+def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Closed-form blocks of dc/dp for the batch's rows (non-empty cells).
+
+    Returns off: (K, L, 2, 2), dc_i/dp_j by eq. (dcidpj) for the edge shared with robot
+    labels[k, l] (zero where there is none), and diagonal: (K, 2, 2), dc_i/dp_i by eq.
+    (dcidpi). Empty cells get zero blocks.
+    """
+    me = points[batch.owners]
+    others = points[np.maximum(batch.labels, 0)]
+    separation = np.linalg.norm(others - me[:, None, :], axis=2)
+    shared = batch.shared
+    scale = np.where(
+        shared,
+        1.0 / (np.where(shared, separation, 1.0) * np.maximum(batch.mass, 1e-300)[:, None]),
+        0.0,
+    )
+    centroid = batch.centroid[:, None, :]
+    off = -scale[..., None, None] * _edge_moments(batch.start, batch.end, centroid, others)
+    diagonal = np.sum(
+        scale[..., None, None] * _edge_moments(batch.start, batch.end, centroid, me[:, None, :]),
+        axis=1,
+    )
+    return off, diagonal
+
+
+def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.ndarray:
+    """dc_i/dt of Proposition 1 for the batch's cells, (K, 2).
+
+    The boundary term: on a cell edge lying on edge l of S the outward normal speed nu is
+    linear in position (vertex velocities interpolate linearly), so with nu1, nu2 at its ends
+    integral (q - c) nu ds = |d| [ (v1 - c)(nu1 + nu2) / 2 + d (nu1 / 6 + nu2 / 3) ].
+    An empty cell gets the velocity of its nearest point of S.
+    """
+    k = len(domain.vertices)
+    edge = np.where(batch.boundary, -batch.labels - 1, 0)
+    a = domain.vertices[edge]
+    e = domain.vertices[(edge + 1) % k] - a
+    ua = domain.velocities[edge]
+    ub = domain.velocities[(edge + 1) % k]
+    length2 = np.sum(e * e, axis=-1)
+    outward = np.stack([e[..., 1], -e[..., 0]], axis=-1) / np.sqrt(length2)[..., None]
+
+    def normal_speed(q: np.ndarray) -> np.ndarray:
+        s = (np.sum((q - a) * e, axis=-1) / length2)[..., None]
+        return np.sum(((1.0 - s) * ua + s * ub) * outward, axis=-1)
+
+    nu1, nu2 = normal_speed(batch.start), normal_speed(batch.end)
+    d = batch.end - batch.start
+    integral = np.linalg.norm(d, axis=-1)[..., None] * (
+        (batch.start - batch.centroid[:, None, :]) * (0.5 * (nu1 + nu2))[..., None]
+        + d * (nu1 / 6.0 + nu2 / 3.0)[..., None]
+    )
+    integral = np.where(batch.boundary[..., None], integral, 0.0)
+    rates = np.sum(integral, axis=1) / np.where(batch.empty, 1.0, batch.mass)[:, None]
+    for i in np.flatnonzero(batch.empty):
+        rates[i] = nearest_point_derivatives(domain, points[batch.owners[i]])[2]
+    return rates
+
+
+def tessellate(
+    positions: np.ndarray, polygon: np.ndarray, polygon_velocity: np.ndarray | None = None
+) -> tuple[np.ndarray, Domain, CellBatch]:
+    """Validate the inputs and build every robot's cell: (points, domain, cells)."""
+    points = validate_positions(positions)
+    domain = make_domain(polygon, polygon_velocity)
+    return points, domain, team_cells(points, domain)
+
+
+def cells(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> list[np.ndarray]:
+    """Each robot's Voronoi cell clipped to S.
+
+    positions: (n, 2); polygon: (k, 2). Returns n arrays of counter-clockwise vertices
+    (m_i, 2), an empty (0, 2) array for an empty cell.
+    """
+    _require_uniform(density)
+    points, _, batch = tessellate(positions, polygon)
+    return [batch.vertices(i) for i in range(len(points))]
+
+
+def mass_centroid(
+    positions: np.ndarray, polygon: np.ndarray, density: object = None
+) -> tuple[np.ndarray, np.ndarray]:
+    """Mass m_i and centroid c_i of every cell for uniform density (Section 4.2).
+
+    positions: (n, 2); polygon: (k, 2). Returns mass (n,) and centroid (n, 2); an empty
+    cell has mass 0 and the nearest point of S as its centroid.
+    """
+    _require_uniform(density)
+    _, _, batch = tessellate(positions, polygon)
+    return batch.mass.copy(), batch.centroid.copy()
+
+
+def neighbors(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> list[set[int]]:
+    """Delaunay neighbours of each robot whose shared cell edge inside S has positive length.
+
+    positions: (n, 2); polygon: (k, 2). Returns n sets of robot indices.
+    """
+    _require_uniform(density)
+    points, _, batch = tessellate(positions, polygon)
+    return [set(batch.labels[i][batch.shared[i]].tolist()) for i in range(len(points))]
 
 
 def centroid_jacobian(
@@ -503,20 +527,21 @@ def centroid_jacobian(
     """dc/dp for uniform density, eqs. (dcidpj)/(dcidpi) in closed form.
 
     positions: (n, 2); polygon: (k, 2). Returns a dense (2n, 2n) array ordered
-    [x0, y0, x1, y1, ...]. The row of an empty cell is the derivative of the nearest point of S.
+    [x0, y0, x1, y1, ...]. The row of an empty cell is the derivative of the nearest point
+    of S.
     """
     _require_uniform(density)
-    points, domain, all_cells = _tessellate(positions, polygon)
+    points, domain, batch = tessellate(positions, polygon)
     n = len(points)
-    jacobian = np.zeros((n, 2, n, 2))
-    for i, cell in enumerate(all_cells):
-        if cell.empty:
-            jacobian[i, :, i, :] = nearest_point_derivatives(domain, points[i])[1]
-            continue
-        columns, off, diagonal = jacobian_blocks(i, cell, points)
-        np.add.at(jacobian, (i, slice(None), columns, slice(None)), off)
-        jacobian[i, :, i, :] += diagonal
-    return jacobian.reshape(2 * n, 2 * n)
+    off, diagonal = jacobian_blocks(batch, points)
+    jacobian = np.zeros((n, n, 2, 2))
+    rows = np.broadcast_to(batch.owners[:, None], batch.labels.shape)
+    shared = batch.shared
+    np.add.at(jacobian, (rows[shared], batch.labels[shared]), off[shared])
+    jacobian[batch.owners, batch.owners] += diagonal
+    for i in np.flatnonzero(batch.empty):
+        jacobian[i, i] = nearest_point_derivatives(domain, points[i])[1]
+    return jacobian.transpose(0, 2, 1, 3).reshape(2 * n, 2 * n)
 
 
 def centroid_rate(
@@ -531,23 +556,12 @@ def centroid_rate(
     it is the velocity of the nearest point of S.
     """
     _require_uniform(density)
-    points, domain, all_cells = _tessellate(positions, polygon, polygon_velocity)
-    return _rates(points, domain, all_cells)
-
-
-def _rates(points: np.ndarray, domain: Domain, all_cells: list[Cell]) -> np.ndarray:
-    return np.array(
-        [
-            nearest_point_derivatives(domain, points[i])[2]
-            if cell.empty
-            else boundary_rate(cell, domain)
-            for i, cell in enumerate(all_cells)
-        ]
-    ).reshape(-1, 2)
+    points, domain, batch = tessellate(positions, polygon, polygon_velocity)
+    return boundary_rates(batch, points, domain)
 
 
 def aggregate_error(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> float:
     """Aggregated CVT error e_a = ||p - c(p, t)|| over the whole team (Section 5), metres."""
     _require_uniform(density)
-    points, _, all_cells = _tessellate(positions, polygon)
-    return float(np.linalg.norm(points - _centroids(all_cells)))
+    points, _, batch = tessellate(positions, polygon)
+    return float(np.linalg.norm(points - batch.centroid))

@@ -1,0 +1,663 @@
+"""``covswarm agent``: the brain of one robot, as its own process.
+
+Each agent knows only its neighbourhood: what it receives per second depends on how many
+robots are near it, never on the team size.
+
+Neighbour discovery
+-------------------
+- **Own robot**: subscribes to ``robot/<me>/pose``; publishes ``robot/<me>/cmd``.
+- **Domain**: subscribes to the broadcast ``domain`` and extrapolates it between messages
+  (vertices + velocities * time since its stamp, for at most ``--max-extrapolation`` s; after
+  that the domain holds still and its velocities count as zero).
+- **Beacons (bootstrap)**: every ``--beacon-period`` (1 s) the agent publishes a Beacon on
+  ``beacon/<tx>/<ty>/<me>``, (tx, ty) = floor(position / tile_size), and subscribes to the
+  (2r+1)^2 tiles around its own with ``beacon/<tx>/<ty>/*`` selectors, re-declared when it
+  changes tile. r starts at 1 (3x3 tiles) and grows, up to ``--max-tile-radius``, while its
+  cell is too large for the tiles to hold every robot that could cut it (a robot farther
+  than twice the cell radius cannot); the radius is estimated as |p - c| + sqrt(2 m) from
+  the cell's centroid c and mass m. Beacon-only robots are candidates at their beacon
+  position.
+- **Two-hop set**: the agent publishes AgentState (position and current Voronoi neighbour
+  ids) at the control rate; it subscribes to the AgentState of its one-hop neighbours, and
+  to the poses of its two-hop set (one-hop neighbours and their neighbours), declaring and
+  undeclaring per-id subscribers as the set changes (a subscriber lingers ``--linger`` s
+  after its id leaves the set, so a neighbour flickering across a Voronoi vertex does not
+  churn subscriptions).
+- Positions are taken from the freshest of a robot's pose and AgentState while younger than
+  ``--stale-timeout`` (receipt time, so clock skew between machines does not matter), else
+  from its beacon while younger than ``--beacon-timeout``; older robots are dropped.
+
+Each step the agent calls agent.control.local_step on itself plus these candidates (the
+local partial Voronoi diagram of its two-hop neighbourhood; a superset of the true
+neighbours gives the same cell), maps the velocity to wheel speeds with
+agent.drive.wheel_speeds and publishes a WheelCommand. Waiting/done, no domain, or no fresh
+own pose give a (0, 0) command; so does any failure of the math (the robot stops rather
+than crash or receive NaN).
+
+Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k two-hop robots, b robots
+in the beacon tiles): receives 20 (own pose) + domain rate + 20 k (poses) + 10 |one-hop|
+(states) + b (beacons) per second; sends 10 commands + 10 states + 1 beacon per second.
+
+Zenoh callbacks only store the newest payload per key under a lock (:class:`Inbox`); all
+decoding and math happen in the main loop. The decision logic (:class:`AgentBrain`) is
+pure and unit-tested without Zenoh.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+import protocol
+from agent.control import local_step
+from agent.coverage import validate_polygon
+from agent.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+
+log = logging.getLogger("covswarm.agent")
+
+STATS_WINDOW = 5.0  # s over which rates are measured
+TIMING_SAMPLES = 256  # step durations kept for the p50/p99
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Tunables of one agent; times in seconds, distances in metres."""
+
+    kappa: float | None = None  # None: use the kappa broadcast with the domain
+    feedforward: bool = True
+    stale_timeout: float = 1.0
+    beacon_period: float = 1.0
+    beacon_timeout: float = 3.0
+    tile_size: float = 1.0
+    max_tile_radius: int = 3
+    max_extrapolation: float = 1.0
+    linger: float = 1.0
+    robot: DiffDrive = KHEPERA_IV
+
+
+@dataclass
+class Track:
+    """Last known position of another robot and when (monotonic) it was received."""
+
+    x: float
+    y: float
+    received: float
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Outcome of one control step: wheel speeds and why."""
+
+    left: float
+    right: float
+    reason: str  # "running" or why the robot holds still
+    velocity: tuple[float, float] = (0.0, 0.0)
+
+
+def extrapolate_domain(
+    domain: protocol.Domain, now_wall: float, max_extrapolation: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices and vertex velocities of the domain at ``now_wall`` (s since the epoch).
+
+    Moves the vertices along their velocities for the time since the domain's stamp, at most
+    ``max_extrapolation`` s; beyond that the domain holds still (zero velocities), so a lost
+    coordinator cannot drag the swarm away.
+    """
+    vertices = np.array(domain.vertices, dtype=float)
+    velocities = np.array(domain.velocities, dtype=float)
+    elapsed = now_wall - domain.stamp
+    if elapsed > max_extrapolation:
+        return vertices + velocities * max_extrapolation, np.zeros_like(velocities)
+    return vertices + velocities * max(elapsed, 0.0), velocities
+
+
+def tile_radius(
+    distance_to_centroid: float, mass: float, tile_size: float, current: int, max_radius: int
+) -> int:
+    """Beacon tile radius r ((2r+1)^2 tiles) large enough to hold every possible neighbour.
+
+    Robots farther than twice the cell radius R cannot cut the cell; R is estimated as
+    |p - c| + sqrt(2 m). Grows at once, shrinks only with a 50 % margin (no flapping).
+    """
+    reach = 2.0 * (distance_to_centroid + math.sqrt(2.0 * max(mass, 0.0)))
+    needed = min(max(1, math.ceil(reach / tile_size)), max_radius)
+    if needed >= current:
+        return needed
+    relaxed = min(max(1, math.ceil(1.5 * reach / tile_size)), max_radius)
+    return relaxed if relaxed < current else current
+
+
+class _Percentiles:
+    """Rolling p50/p99 of the last ``TIMING_SAMPLES`` values."""
+
+    def __init__(self) -> None:
+        self._values: deque[float] = deque(maxlen=TIMING_SAMPLES)
+
+    def add(self, value: float) -> None:
+        self._values.append(value)
+
+    def get(self, q: float) -> float:
+        if not self._values:
+            return 0.0
+        ordered = sorted(self._values)
+        return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+class _Rate:
+    """Events per second over the last ``STATS_WINDOW`` seconds from a cumulative count."""
+
+    def __init__(self) -> None:
+        self._samples: deque[tuple[float, int]] = deque()
+
+    def add(self, now: float, total: int) -> float:
+        self._samples.append((now, total))
+        while self._samples[0][0] < now - STATS_WINDOW:
+            self._samples.popleft()
+        (t0, n0), (t1, n1) = self._samples[0], self._samples[-1]
+        return (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+
+
+@dataclass
+class Counters:
+    """Dropped and processed input, reported in AgentState.stats."""
+
+    received: int = 0  # payloads that reached the main loop
+    coalesced: int = 0  # overwritten by a newer payload on the same key before processing
+    invalid: int = 0  # failed protocol validation
+    wrong_id: int = 0  # key and message disagree about the robot id
+    bad_domain: int = 0  # valid message, invalid polygon (non-convex, ...)
+    old_domain: int = 0  # older than the domain already held
+    stale: int = 0  # robots dropped from the local set because their data aged out
+    step_errors: int = 0  # control steps that failed (robot commanded to stop)
+    steps: int = 0
+
+
+class AgentBrain:
+    """Pure decision logic of one agent: feed it messages, ask it for commands. No I/O.
+
+    ``now`` arguments are monotonic seconds (receipt and staleness), ``now_wall`` seconds
+    since the epoch (domain extrapolation and message stamps).
+    """
+
+    def __init__(self, robot_id: int, config: AgentConfig | None = None) -> None:
+        self.id = protocol.check_id(robot_id)
+        self.config = config or AgentConfig()
+        self.pose: protocol.Pose | None = None
+        self.pose_received = -math.inf
+        self.domain: protocol.Domain | None = None
+        self.poses: dict[int, Track] = {}
+        self.state_tracks: dict[int, Track] = {}
+        self.beacons: dict[int, Track] = {}
+        self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
+        self.one_hop: frozenset[int] = frozenset()
+        self.radius = 1
+        self.counters = Counters()
+        self._wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
+        self._fresh: set[int] = set()  # ids usable as candidates at the last step
+        self._last_beacon = -math.inf
+        self._seq = 0
+        self._step_us = _Percentiles()
+        self._step_rate = _Rate()
+        self._rx_rate = _Rate()
+        self._rates = (0.0, 0.0)
+
+    # --- input -------------------------------------------------------------------------
+
+    def receive(self, kind: str, payload: bytes, now: float, key_id: int | None = None) -> bool:
+        """Decode and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
+        "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
+        self.counters.received += 1
+        cls = _MESSAGE_TYPES[kind]
+        try:
+            message = cls.decode(payload)
+        except protocol.ProtocolError as exc:
+            self.counters.invalid += 1
+            log.debug("agent %d: dropped %s: %s", self.id, kind, exc)
+            return False
+        if key_id is not None and message.id != key_id:
+            self.counters.wrong_id += 1
+            return False
+        return _HANDLERS[kind](self, message, now)
+
+    def on_pose(self, pose: protocol.Pose, now: float) -> bool:
+        if pose.id == self.id:
+            self.pose, self.pose_received = pose, now
+        else:
+            self.poses[pose.id] = Track(pose.x, pose.y, now)
+        return True
+
+    def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
+        if state.id == self.id:
+            return False
+        self.state_tracks[state.id] = Track(state.x, state.y, now)
+        self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
+        return True
+
+    def on_beacon(self, beacon: protocol.Beacon, now: float) -> bool:
+        if beacon.id == self.id:
+            return False  # our own beacon, heard through our own tile subscription
+        self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
+        return True
+
+    def on_domain(self, domain: protocol.Domain, now: float) -> bool:
+        if self.domain is not None and domain.stamp < self.domain.stamp:
+            self.counters.old_domain += 1
+            return False
+        try:
+            validate_polygon(np.array(domain.vertices))
+        except ValueError as exc:
+            self.counters.bad_domain += 1
+            log.debug("agent %d: dropped domain: %s", self.id, exc)
+            return False
+        self.domain = domain
+        return True
+
+    # --- neighbourhood -----------------------------------------------------------------
+
+    def candidates(self, now: float) -> dict[int, np.ndarray]:
+        """Positions of the other robots known well enough to enter the local diagram."""
+        stale, beacon_timeout = self.config.stale_timeout, self.config.beacon_timeout
+        out: dict[int, np.ndarray] = {}
+        for rid in self.poses.keys() | self.state_tracks.keys() | self.beacons.keys():
+            fresh = [
+                t
+                for t in (self.poses.get(rid), self.state_tracks.get(rid))
+                if t is not None and now - t.received <= stale
+            ]
+            beacon = self.beacons.get(rid)
+            if fresh:
+                track = max(fresh, key=lambda t: t.received)
+            elif beacon is not None and now - beacon.received <= beacon_timeout:
+                track = beacon
+            else:
+                continue
+            out[rid] = np.array([track.x, track.y])
+        self.counters.stale += len(self._fresh - out.keys())
+        self._fresh = set(out)
+        self._forget(now)
+        return out
+
+    def _forget(self, now: float) -> None:
+        """Drop records far older than any timeout, so memory stays bounded."""
+        horizon = 2.0 * max(
+            self.config.stale_timeout, self.config.beacon_timeout, self.config.linger
+        )
+        for table in (self.poses, self.state_tracks, self.beacons):
+            for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
+                del table[rid]
+        for rid in [rid for rid, (_, t) in self.neighbor_sets.items() if now - t > horizon]:
+            del self.neighbor_sets[rid]
+
+    def two_hop(self, now: float) -> frozenset[int]:
+        """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
+        ids = set(self.one_hop)
+        for rid in self.one_hop:
+            entry = self.neighbor_sets.get(rid)
+            if entry is not None and now - entry[1] <= self.config.stale_timeout:
+                ids |= entry[0]
+        ids.discard(self.id)
+        return frozenset(ids)
+
+    def wanted_pose_ids(self, now: float) -> set[int]:
+        """Ids whose pose to subscribe to: the two-hop set, lingering ``linger`` s."""
+        for rid in self.two_hop(now):
+            self._wanted[rid] = now
+        for rid in [r for r, t in self._wanted.items() if now - t > self.config.linger]:
+            del self._wanted[rid]
+        return set(self._wanted)
+
+    def wanted_state_ids(self) -> set[int]:
+        """Ids whose AgentState to subscribe to: the one-hop neighbours."""
+        return set(self.one_hop)
+
+    def wanted_tiles(self) -> set[tuple[int, int]]:
+        """Beacon tiles to subscribe to: (2r+1)^2 around our own tile (none without a pose)."""
+        if self.pose is None:
+            return set()
+        tx, ty = protocol.tile_of(self.pose.x, self.pose.y, self.config.tile_size)
+        r = self.radius
+        return {(tx + i, ty + j) for i in range(-r, r + 1) for j in range(-r, r + 1)}
+
+    # --- control -------------------------------------------------------------------------
+
+    def step(self, now: float, now_wall: float) -> Decision:
+        """One control step: the wheel speeds to send now, (0, 0) whenever unsure."""
+        self.counters.steps += 1
+        self._rates = (
+            self._step_rate.add(now, self.counters.steps),
+            self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
+        )
+        others = self.candidates(now)
+        if self.pose is None or now - self.pose_received > self.config.stale_timeout:
+            return Decision(0.0, 0.0, "no-pose")
+        if self.domain is None:
+            return Decision(0.0, 0.0, "no-domain")
+        started = time.perf_counter()
+        try:
+            decision = self._control(others, now_wall)
+        # Any failure of the geometry (degenerate input the math rejects, or a bug) must
+        # stop this robot, not kill the process and leave the robot on its last command.
+        except Exception as exc:
+            self.counters.step_errors += 1
+            log.warning("agent %d: control step failed: %r", self.id, exc)
+            return Decision(0.0, 0.0, "error")
+        self._step_us.add((time.perf_counter() - started) * 1e6)
+        return decision
+
+    def _control(self, others: dict[int, np.ndarray], now_wall: float) -> Decision:
+        assert self.pose is not None and self.domain is not None
+        vertices, velocities = extrapolate_domain(
+            self.domain, now_wall, self.config.max_extrapolation
+        )
+        me = np.array([self.pose.x, self.pose.y])
+        kappa = self.config.kappa if self.config.kappa is not None else self.domain.kappa
+        result = local_step(
+            self.id,
+            {**others, self.id: me},
+            vertices,
+            velocities,
+            kappa,
+            feedforward=self.config.feedforward,
+        )
+        # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
+        self.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        if result.mass > 0.0:
+            self.radius = tile_radius(
+                float(np.linalg.norm(result.centroid - me)),
+                result.mass,
+                self.config.tile_size,
+                self.radius,
+                self.config.max_tile_radius,
+            )
+        if self.domain.state != "running":
+            return Decision(0.0, 0.0, self.domain.state)
+        velocity = np.asarray(result.velocity, dtype=float)
+        if not np.all(np.isfinite(velocity)):
+            raise ValueError(f"non-finite velocity {velocity}")
+        left, right = wheel_speeds(np.array([self.pose.theta]), velocity[None], self.config.robot)[
+            0
+        ]
+        return Decision(
+            float(left), float(right), "running", (float(velocity[0]), float(velocity[1]))
+        )
+
+    # --- output --------------------------------------------------------------------------
+
+    def command(self, decision: Decision, stamp: float) -> protocol.WheelCommand:
+        """The wheel command for ``decision``; non-finite speeds become (0, 0)."""
+        left, right = decision.left, decision.right
+        if not (math.isfinite(left) and math.isfinite(right)):
+            left = right = 0.0
+        self._seq += 1
+        return protocol.WheelCommand(
+            id=self.id,
+            left=left,
+            right=right,
+            stamp=stamp,
+            seq=self._seq,
+            pose_stamp=self.pose.stamp if self.pose is not None else 0.0,
+        )
+
+    def stats(self) -> dict[str, float | int]:
+        """Measurements and counters for AgentState.stats (names <= 32 chars)."""
+        c = self.counters
+        return {
+            "rate_hz": round(self._rates[0], 3),
+            "step_us_p50": round(self._step_us.get(0.50), 1),
+            "step_us_p99": round(self._step_us.get(0.99), 1),
+            "rx_per_s": round(self._rates[1], 1),
+            "rx_total": c.received + c.coalesced,
+            "drop_coalesced": c.coalesced,
+            "drop_invalid": c.invalid,
+            "drop_wrong_id": c.wrong_id,
+            "drop_bad_domain": c.bad_domain,
+            "drop_old_domain": c.old_domain,
+            "stale_dropped": c.stale,
+            "step_errors": c.step_errors,
+            "candidates": len(self._fresh),
+            "neighbors": len(self.one_hop),
+            "pose_subs": len(self._wanted),
+            "tile_radius": self.radius,
+        }
+
+    def agent_state(self, stamp: float) -> protocol.AgentState | None:
+        """Our AgentState, or None before our own pose is known."""
+        if self.pose is None:
+            return None
+        return protocol.AgentState(
+            id=self.id,
+            x=self.pose.x,
+            y=self.pose.y,
+            stamp=stamp,
+            neighbors=sorted(self.one_hop),
+            stats=self.stats(),
+        )
+
+    def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
+        """(tile, Beacon) if one is due at ``now`` (every ``beacon_period``), else None."""
+        if self.pose is None or now - self._last_beacon < self.config.beacon_period:
+            return None
+        self._last_beacon = now
+        tile = protocol.tile_of(self.pose.x, self.pose.y, self.config.tile_size)
+        return tile, protocol.Beacon(id=self.id, x=self.pose.x, y=self.pose.y, stamp=stamp)
+
+
+_MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
+    "pose": protocol.Pose,
+    "state": protocol.AgentState,
+    "beacon": protocol.Beacon,
+    "domain": protocol.Domain,
+}
+_HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
+    "pose": AgentBrain.on_pose,
+    "state": AgentBrain.on_agent_state,
+    "beacon": AgentBrain.on_beacon,
+    "domain": AgentBrain.on_domain,
+}
+
+
+class Inbox:
+    """Newest payload per key, filled by Zenoh callbacks, drained by the main loop.
+
+    Callbacks run on Zenoh's threads: they only copy bytes under a lock (cheap, no decoding),
+    and a newer payload on the same key replaces an unprocessed older one (latest-value
+    semantics; the replaced ones are counted as coalesced).
+    """
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._latest: dict[str, tuple[str, bytes]] = {}
+        self._coalesced = 0
+
+    def callback(self, kind: str) -> Callable[[zenoh.Sample], None]:
+        def store(sample: zenoh.Sample) -> None:
+            payload = sample.payload.to_bytes()
+            with self._lock:
+                if self._latest.get(key := str(sample.key_expr)) is not None:
+                    self._coalesced += 1
+                self._latest[key] = (kind, payload)
+
+        return store
+
+    def drain(self) -> tuple[list[tuple[str, str, bytes]], int]:
+        """([(kind, key, payload)], payloads coalesced since the last drain)."""
+        with self._lock:
+            items, self._latest = self._latest, {}
+            coalesced, self._coalesced = self._coalesced, 0
+        return [(kind, key, payload) for key, (kind, payload) in items.items()], coalesced
+
+
+class Subscriptions:
+    """A set of per-key subscribers of one kind, reconciled with a wanted set of keys."""
+
+    def __init__(self, session: zenoh.Session, inbox: Inbox, kind: str) -> None:
+        self._session = session
+        self._callback = inbox.callback(kind)
+        self._subscribers: dict[str, zenoh.Subscriber] = {}
+
+    def update(self, keys: set[str]) -> None:
+        for key in self._subscribers.keys() - keys:
+            self._subscribers.pop(key).undeclare()
+        for key in keys - self._subscribers.keys():
+            self._subscribers[key] = self._session.declare_subscriber(key, self._callback)
+
+    def __len__(self) -> int:
+        return len(self._subscribers)
+
+
+def _key_id(kind: str, key: str, swarm: str) -> int | None:
+    """The robot id encoded in the key a payload arrived on (None for the domain)."""
+    return None if kind == "domain" else protocol.parse_id(key, swarm, kind)
+
+
+def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) -> Counters:
+    """Zenoh shell around ``brain``: runs until SIGINT/SIGTERM, returns the counters."""
+    stop = StopFlag()
+    config = session_config(connect, None, "client")
+    alive = protocol.alive_key(swarm, "agent", brain.id)
+    inbox = Inbox()
+    with zenoh.open(config) as session:
+        if token_exists(session, alive):
+            raise click.ClickException(f"agent {brain.id} is already running in swarm {swarm!r}")
+        drop = zenoh.CongestionControl.DROP
+        cmd_pub = session.declare_publisher(
+            protocol.cmd_key(swarm, brain.id), congestion_control=drop
+        )
+        state_pub = session.declare_publisher(
+            protocol.agent_state_key(swarm, brain.id), congestion_control=drop
+        )
+        session.declare_subscriber(protocol.domain_key(swarm), inbox.callback("domain"))
+        own_pose = protocol.pose_key(swarm, brain.id)
+        poses = Subscriptions(session, inbox, "pose")
+        states = Subscriptions(session, inbox, "state")
+        tiles = Subscriptions(session, inbox, "beacon")
+        poses.update({own_pose})
+        token = session.liveliness().declare_token(alive)
+        log.info("agent %d ready in swarm %s", brain.id, swarm)
+        ticker = Ticker(rate)
+        try:
+            while not stop.is_set():
+                now = ticker.wait(stop)
+                items, coalesced = inbox.drain()
+                brain.counters.coalesced += coalesced
+                for kind, key, payload in items:
+                    try:
+                        key_id = _key_id(kind, key, swarm)
+                    except ValueError:
+                        brain.counters.wrong_id += 1
+                        continue
+                    brain.receive(kind, payload, now, key_id)
+                wall = time.time()
+                decision = brain.step(now, wall)
+                cmd_pub.put(brain.command(decision, wall).encode())
+                state = brain.agent_state(wall)
+                if state is not None:
+                    state_pub.put(state.encode())
+                beacon = brain.beacon(now, wall)
+                if beacon is not None:
+                    (tx, ty), message = beacon
+                    session.put(
+                        protocol.beacon_key(swarm, tx, ty, brain.id),
+                        message.encode(),
+                        congestion_control=drop,
+                    )
+                pose_keys = {protocol.pose_key(swarm, rid) for rid in brain.wanted_pose_ids(now)}
+                poses.update(pose_keys | {own_pose})
+                states.update(
+                    {protocol.agent_state_key(swarm, r) for r in brain.wanted_state_ids()}
+                )
+                tiles.update(
+                    {
+                        protocol.beacon_tile_selector(swarm, tx, ty)
+                        for tx, ty in brain.wanted_tiles()
+                    }
+                )
+        finally:
+            # Stop the robot at once rather than after its command timeout.
+            cmd_pub.put(brain.command(Decision(0.0, 0.0, "stopped"), time.time()).encode())
+            token.undeclare()
+        log.info(
+            "agent %d stopping: %s, stats %s, %d ticks, %d overruns",
+            brain.id,
+            brain.counters,
+            brain.stats(),
+            ticker.ticks,
+            ticker.overruns,
+        )
+    return brain.counters
+
+
+@click.command("agent")
+@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), required=True)
+@click.option(
+    "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
+)
+@click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
+@click.option("--rate", type=click.FloatRange(min=0.5), default=10.0, show_default=True)
+@click.option(
+    "--kappa",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    help="Gain; default: the kappa broadcast with the domain.",
+)
+@click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt term (ablation).")
+@click.option("--stale-timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
+@click.option("--beacon-period", type=click.FloatRange(min=0.05), default=1.0, show_default=True)
+@click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=3.0, show_default=True)
+@click.option(
+    "--tile-size", type=click.FloatRange(min=0.0, min_open=True), default=1.0, show_default=True
+)
+@click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
+@click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
+@click.option("--linger", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
+@click.option(
+    "--max-wheel-speed",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=0.8,
+    show_default=True,
+    help="Rim speed limit (m/s) the commands are saturated to.",
+)
+@click.option("--verbose", is_flag=True, help="Log at INFO level.")
+def agent_command(
+    robot_id: int,
+    connect: tuple[str, ...],
+    swarm: str,
+    rate: float,
+    kappa: float | None,
+    no_feedforward: bool,
+    stale_timeout: float,
+    beacon_period: float,
+    beacon_timeout: float,
+    tile_size: float,
+    max_tile_radius: int,
+    max_extrapolation: float,
+    linger: float,
+    max_wheel_speed: float,
+    verbose: bool,
+) -> None:
+    """Run the coverage-control brain of one robot (local two-hop Voronoi, TVD-D1)."""
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
+    try:
+        protocol.check_swarm(swarm)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--swarm") from exc
+    config = AgentConfig(
+        kappa=kappa,
+        feedforward=not no_feedforward,
+        stale_timeout=stale_timeout,
+        beacon_period=beacon_period,
+        beacon_timeout=beacon_timeout,
+        tile_size=tile_size,
+        max_tile_radius=max_tile_radius,
+        max_extrapolation=max_extrapolation,
+        linger=linger,
+        robot=DiffDrive(max_wheel_speed=max_wheel_speed),
+    )
+    run_agent(AgentBrain(robot_id, config), swarm, list(connect), rate)
