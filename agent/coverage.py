@@ -53,6 +53,8 @@ from scipy.spatial import cKDTree
 # Relative tolerances, scaled by the size of S: below GEOMETRY_TOL * size two points are the
 # same point and an edge has no length.
 GEOMETRY_TOL = 1e-12
+# Validation compares every pair of polygon edges; larger polygons are refused, not slow.
+MAX_POLYGON_VERTICES = 1024
 
 # Label of a cell edge: j >= 0 is the bisector with robot j; -(l + 1) is edge l of S, the
 # edge from polygon vertex l to vertex l + 1.
@@ -155,6 +157,8 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
     k = vertices.shape[0]
     if k < 3:
         raise ValueError(f"polygon needs at least 3 vertices, got {k}")
+    if k > MAX_POLYGON_VERTICES:
+        raise ValueError(f"polygon has {k} vertices, more than the {MAX_POLYGON_VERTICES} allowed")
     if not np.all(np.isfinite(vertices)):
         raise ValueError("polygon vertices contain NaN or inf")
     if polygon_velocity is None:
@@ -176,6 +180,11 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
         raise ValueError(
             f"polygon vertex {first} repeats vertex {(first + 1) % k}: zero-length edge"
         )
+    crossing = _crossing_edges(vertices)
+    if crossing is not None:
+        raise ValueError(
+            f"polygon is self-intersecting: edge {crossing[0]} crosses edge {crossing[1]}"
+        )
     area2 = float(np.sum(cross(vertices, np.roll(vertices, -1, axis=0))))
     if abs(area2) <= 1e-9 * size * size:
         raise ValueError("polygon has zero area (its vertices are collinear)")
@@ -186,10 +195,23 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
     turn = cross(np.roll(edges, 1, axis=0), edges)
     if np.any(turn < -1e-9 * size * size):
         raise ValueError(f"polygon is not convex: reflex angle at vertex {int(np.argmin(turn))}")
-    turning = np.arctan2(turn, np.sum(np.roll(edges, 1, axis=0) * edges, axis=1))
-    if abs(float(np.sum(turning)) - 2.0 * np.pi) > 1e-6:
-        raise ValueError("polygon is self-intersecting: its boundary winds around more than once")
     return Domain(vertices=vertices, velocities=velocities, size=size)
+
+
+def _crossing_edges(vertices: np.ndarray) -> tuple[int, int] | None:
+    """The first pair of non-adjacent edges that intersect, or None for a simple polygon."""
+    k = len(vertices)
+    a, b = vertices, np.roll(vertices, -1, axis=0)
+    d = b - a
+    # Orientation of each edge's ends relative to every other edge: [i, j] = edge i vs ends of j.
+    side_a = cross(d[:, None, :], a[None, :, :] - a[:, None, :])
+    side_b = cross(d[:, None, :], b[None, :, :] - a[:, None, :])
+    straddles = (side_a * side_b) < 0.0  # proper crossings; touching is left to convexity
+    index = np.arange(k)
+    gap = np.abs(index[:, None] - index[None, :])
+    non_adjacent = (gap > 1) & (gap < k - 1)
+    hits = np.argwhere(straddles & straddles.T & non_adjacent)
+    return (int(hits[0][0]), int(hits[0][1])) if len(hits) else None
 
 
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:

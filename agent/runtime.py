@@ -53,12 +53,15 @@ from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 
+import click
 import numpy as np
+import zenoh
 
 import protocol
 from agent.control import local_step
 from agent.coverage import validate_polygon
 from agent.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from protocol.session import StopFlag, Ticker, session_config, token_exists
 
 log = logging.getLogger("covswarm.agent")
 
