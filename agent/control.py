@@ -204,27 +204,32 @@ def local_step(
     points = validate_positions(np.array([positions[key] for key in ids], dtype=np.float64))
     domain = make_domain(polygon, polygon_velocity)
     everyone = np.arange(len(ids))
-    mine = build_cells(points, np.array([ids.index(me)]), everyone[None], domain)
-    own = _references(mine, points, domain, kappa, feedforward)
-    shared = mine.shared[0]
-    neighbor_indices = np.unique(mine.labels[0][shared])
-    by_robot = np.zeros((len(ids), 2))
-    if len(neighbor_indices):
-        theirs = build_cells(
-            points,
-            neighbor_indices,
-            np.broadcast_to(everyone, (len(neighbor_indices), len(ids))),
-            domain,
-        )
-        by_robot[neighbor_indices] = _references(theirs, points, domain, kappa, feedforward)
-    velocity = _d1_rows(mine, points, own, by_robot[np.maximum(mine.labels, 0)], max_amplification)[
-        0
-    ]
+    # One vectorised pass builds every known robot's cell (cheaper than two passes); only
+    # the cells of ``me`` and its neighbours are exact, and only those are used.
+    local = build_cells(points, everyone, np.broadcast_to(everyone, (len(ids), len(ids))), domain)
+    references = _references(local, points, domain, kappa, feedforward)
+    index = ids.index(me)
+    mine = _select(local, index)
+    neighbor_indices = np.unique(mine.labels[0][mine.shared[0]])
+    velocity = _d1_rows(
+        mine,
+        points,
+        references[index : index + 1],
+        references[np.maximum(mine.labels, 0)],
+        max_amplification,
+    )[0]
     return LocalStep(
         velocity=velocity,
         neighbors=frozenset(ids[j] for j in neighbor_indices),
         centroid=mine.centroid[0].copy(),
         mass=float(mine.mass[0]),
+    )
+
+
+def _select(batch: CellBatch, row: int) -> CellBatch:
+    """The one-cell batch holding row ``row`` of ``batch``."""
+    return CellBatch(
+        **{name: getattr(batch, name)[row : row + 1] for name in CellBatch.__dataclass_fields__}
     )
 
 

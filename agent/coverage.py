@@ -180,22 +180,28 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
         raise ValueError(
             f"polygon vertex {first} repeats vertex {(first + 1) % k}: zero-length edge"
         )
-    crossing = _crossing_edges(vertices)
-    if crossing is not None:
-        raise ValueError(
-            f"polygon is self-intersecting: edge {crossing[0]} crosses edge {crossing[1]}"
-        )
     area2 = float(np.sum(cross(vertices, np.roll(vertices, -1, axis=0))))
-    if abs(area2) <= 1e-9 * size * size:
-        raise ValueError("polygon has zero area (its vertices are collinear)")
     if area2 < 0.0:
         vertices = vertices[::-1].copy()
         velocities = velocities[::-1].copy()
         edges = np.roll(vertices, -1, axis=0) - vertices
     turn = cross(np.roll(edges, 1, axis=0), edges)
+    turning = np.arctan2(turn, np.sum(np.roll(edges, 1, axis=0) * edges, axis=1))
+    # Only left turns adding up to one full turn: a simple convex polygon. Anything else is
+    # examined further, to say what is wrong.
+    if abs(area2) > 1e-9 * size * size and np.all(turn >= -1e-9 * size * size):
+        if abs(float(np.sum(turning)) - 2.0 * np.pi) <= 1e-6:
+            return Domain(vertices=vertices, velocities=velocities, size=size)
+    crossing = _crossing_edges(vertices)
+    if crossing is not None:
+        raise ValueError(
+            f"polygon is self-intersecting: edge {crossing[0]} crosses edge {crossing[1]}"
+        )
+    if abs(area2) <= 1e-9 * size * size:
+        raise ValueError("polygon has zero area (its vertices are collinear)")
     if np.any(turn < -1e-9 * size * size):
         raise ValueError(f"polygon is not convex: reflex angle at vertex {int(np.argmin(turn))}")
-    return Domain(vertices=vertices, velocities=velocities, size=size)
+    raise ValueError("polygon is self-intersecting: its boundary winds around more than once")
 
 
 def _crossing_edges(vertices: np.ndarray) -> tuple[int, int] | None:
