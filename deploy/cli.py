@@ -18,6 +18,7 @@ SUBCOMMANDS: dict[str, str] = {
     "agent": "agent.runtime:agent_command",
     "robot": "sim_robot.process:robot_command",
     "coordinator": "coordinator.process:coordinator_command",
+    "bench": "deploy.bench:bench_command",
 }
 
 

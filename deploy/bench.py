@@ -1,0 +1,259 @@
+"""``covswarm bench``: is one robot's work really independent of the team size?
+
+The paper's Section 5 claims each robot's control step is O(1) on average because it needs
+only its two-hop neighbourhood. This benchmark measures it in this implementation:
+
+1. per-agent compute vs N: every robot's complete ``agent.control.local_step`` (building
+   its local partial Voronoi diagram included) from exactly its two-hop neighbourhood, on
+   random and near-CVT layouts, several seeds;
+2. the centralised baseline: full-team ``tvd_c`` and ``tvd_d1`` per step vs N;
+3. the neighbour-count histogram vs N (the paper's Table 1 at N = 100).
+
+The domain is a square whose side grows as sqrt(N) (constant density), so N changes and the
+local geometry does not. Timings are wall-clock on this machine, reported, never asserted.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import time
+from collections import Counter
+from dataclasses import dataclass
+from pathlib import Path
+
+import click
+import numpy as np
+
+from agent.control import local_step, tvd_c, tvd_d1
+from agent.coverage import mass_centroid, neighbors
+
+FULL_SIZES = (10, 30, 100, 300, 1000, 3000)
+QUICK_SIZES = (10, 30, 100, 300)
+SPACING = 0.5  # metres between robots on average: side = SPACING * sqrt(N)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A team layout to time: positions (n, 2) in a square of side ``side``."""
+
+    kind: str
+    seed: int
+    positions: np.ndarray
+    polygon: np.ndarray
+
+
+def square(side: float) -> np.ndarray:
+    """Counter-clockwise square [0, side]^2: (4, 2)."""
+    return np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]])
+
+
+def make_layout(n: int, kind: str, seed: int, lloyd_iterations: int = 40) -> Layout:
+    """Random uniform positions, or near-CVT ones after Lloyd iterations (p <- c(p))."""
+    side = SPACING * np.sqrt(n)
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(0.0, side, size=(n, 2))
+    polygon = square(side)
+    if kind == "cvt":
+        for _ in range(lloyd_iterations):
+            positions = mass_centroid(positions, polygon)[1]
+    return Layout(kind, seed, positions, polygon)
+
+
+def two_hop(adjacency: list[set[int]], me: int) -> set[int]:
+    """Robot ``me``, its neighbours and their neighbours."""
+    known = {me} | adjacency[me]
+    for j in adjacency[me]:
+        known |= adjacency[j]
+    return known
+
+
+def time_local_steps(
+    layout: Layout, sample: int | None, kappa: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Microseconds of each sampled robot's local step, and its two-hop neighbourhood size."""
+    adjacency = neighbors(layout.positions, layout.polygon)
+    n = len(layout.positions)
+    robots = np.arange(n)
+    if sample is not None and sample < n:
+        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    times, sizes = [], []
+    for me in robots:
+        known = two_hop(adjacency, int(me))
+        view = {j: layout.positions[j] for j in known}
+        start = time.perf_counter()
+        local_step(int(me), view, layout.polygon, velocity, kappa)
+        times.append((time.perf_counter() - start) * 1e6)
+        sizes.append(len(known))
+    return np.array(times), np.array(sizes)
+
+
+def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[str, float]:
+    """Median milliseconds of one full-team step of each law."""
+    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    result = {}
+    for name, law in (("tvd_c", tvd_c), ("tvd_d1", tvd_d1)):
+        samples = []
+        for _ in range(repeats):
+            start = time.perf_counter()
+            law(layout.positions, layout.polygon, velocity, kappa)
+            samples.append((time.perf_counter() - start) * 1e3)
+        result[f"{name}_ms"] = float(np.median(samples))
+    return result
+
+
+def run_bench(
+    sizes: tuple[int, ...], seeds: int, sample: int | None, repeats: int, progress=None
+) -> list[dict]:
+    """One row per (N, layout kind): per-agent and centralised figures pooled over seeds."""
+    rows = []
+    for n in sizes:
+        for kind in ("random", "cvt"):
+            times, hood, histogram, central = [], [], Counter(), []
+            for seed in range(seeds):
+                layout = make_layout(n, kind, seed)
+                t, s = time_local_steps(layout, sample)
+                times.append(t)
+                hood.append(s)
+                histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
+                central.append(time_centralized(layout, repeats))
+                if progress is not None:
+                    progress(n, kind, seed)
+            t = np.concatenate(times)
+            rows.append(
+                {
+                    "agents": n,
+                    "layout": kind,
+                    "seeds": seeds,
+                    "steps_timed": int(t.size),
+                    "local_step_p50_us": float(np.percentile(t, 50)),
+                    "local_step_p99_us": float(np.percentile(t, 99)),
+                    "local_step_mean_us": float(np.mean(t)),
+                    "two_hop_mean": float(np.mean(np.concatenate(hood))),
+                    "tvd_c_ms": float(np.median([c["tvd_c_ms"] for c in central])),
+                    "tvd_d1_ms": float(np.median([c["tvd_d1_ms"] for c in central])),
+                    "neighbor_histogram": {
+                        str(k): round(v / seeds, 2) for k, v in sorted(histogram.items())
+                    },
+                }
+            )
+    return rows
+
+
+def write_bench(out: Path, rows: list[dict]) -> None:
+    """bench.json, bench.csv and the log-log plots into ``out``."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "bench.json").write_text(json.dumps(rows, indent=2, sort_keys=True) + "\n")
+    columns = [key for key in rows[0] if key != "neighbor_histogram"]
+    with open(out / "bench.csv", "w", newline="") as handle:
+        writer = csv.DictWriter(handle, fieldnames=columns)
+        writer.writeheader()
+        for row in rows:
+            writer.writerow({key: row[key] for key in columns})
+
+    fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for kind, marker in (("random", "o"), ("cvt", "s")):
+        subset = [row for row in rows if row["layout"] == kind]
+        n = [row["agents"] for row in subset]
+        left.loglog(
+            n, [row["local_step_p50_us"] for row in subset], marker + "-", label=f"p50 {kind}"
+        )
+        left.loglog(
+            n, [row["local_step_p99_us"] for row in subset], marker + "--", label=f"p99 {kind}"
+        )
+        right.loglog(
+            n, [row["tvd_c_ms"] * 1e3 for row in subset], marker + "-", label=f"TVD-C {kind}"
+        )
+        right.loglog(
+            n, [row["tvd_d1_ms"] * 1e3 for row in subset], marker + "--", label=f"TVD-D1 {kind}"
+        )
+        right.loglog(
+            n,
+            [row["local_step_mean_us"] for row in subset],
+            marker + ":",
+            label=f"one agent {kind}",
+        )
+    left.set(
+        xlabel="team size N", ylabel="one robot's control step [us]", title="Per-agent compute"
+    )
+    right.set(
+        xlabel="team size N",
+        ylabel="one step [us]",
+        title="Centralised full-team step vs one agent",
+    )
+    for axis in (left, right):
+        axis.grid(True, which="both", alpha=0.3)
+        axis.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "per_agent_compute.png", dpi=120)
+    plt.close(fig)
+
+    fig, axis = plt.subplots(figsize=(6, 4))
+    cvt = [row for row in rows if row["layout"] == "cvt"]
+    width = 0.8 / max(len(cvt), 1)
+    for i, row in enumerate(cvt):
+        counts = {int(k): v / row["agents"] for k, v in row["neighbor_histogram"].items()}
+        keys = np.array(sorted(counts))
+        axis.bar(keys + i * width, [counts[k] for k in keys], width, label=f"N = {row['agents']}")
+    axis.set(xlabel="neighbours", ylabel="fraction of robots", title="Neighbour counts, near-CVT")
+    axis.legend(fontsize=7)
+    fig.tight_layout()
+    fig.savefig(out / "neighbor_histogram.png", dpi=120)
+    plt.close(fig)
+
+
+@click.command("bench")
+@click.option("--quick", is_flag=True, help="N up to 300, 1 seed, sampled robots (< 2 min).")
+@click.option("--sizes", default=None, help="Comma-separated team sizes (default 10..3000).")
+@click.option("--seeds", default=3, show_default=True, help="Layouts per (N, kind).")
+@click.option("--sample", default=300, show_default=True, help="Robots timed per layout.")
+@click.option("--repeats", default=3, show_default=True, help="Full-team steps timed per layout.")
+@click.option("--out", type=click.Path(path_type=Path), default=None, help="Output folder.")
+def bench_command(
+    quick: bool, sizes: str | None, seeds: int, sample: int, repeats: int, out: Path | None
+) -> None:
+    """Measure per-agent compute vs team size against the centralised baseline."""
+    from rich.console import Console
+    from rich.progress import Progress
+    from rich.table import Table
+
+    chosen = (
+        tuple(int(s) for s in sizes.split(",")) if sizes else (QUICK_SIZES if quick else FULL_SIZES)
+    )
+    if quick:
+        seeds, sample, repeats = 1, min(sample, 100), 1
+    out = out or Path("runs") / f"bench-{time.strftime('%Y%m%d-%H%M%S')}"
+    with Progress() as bar:
+        task = bar.add_task("layouts", total=len(chosen) * 2 * seeds)
+        rows = run_bench(
+            chosen,
+            seeds,
+            sample,
+            repeats,
+            progress=lambda n, kind, seed: bar.update(task, advance=1, description=f"N={n} {kind}"),
+        )
+    write_bench(out, rows)
+    table = Table(title="covswarm bench: one robot's control step vs team size")
+    for name in ("N", "layout", "p50 us", "p99 us", "mean us", "two-hop", "TVD-C ms", "TVD-D1 ms"):
+        table.add_column(name, justify="right")
+    for row in rows:
+        table.add_row(
+            str(row["agents"]),
+            row["layout"],
+            f"{row['local_step_p50_us']:.0f}",
+            f"{row['local_step_p99_us']:.0f}",
+            f"{row['local_step_mean_us']:.0f}",
+            f"{row['two_hop_mean']:.1f}",
+            f"{row['tvd_c_ms']:.1f}",
+            f"{row['tvd_d1_ms']:.1f}",
+        )
+    Console().print(table)
+    Console().print(
+        f"wrote {out}/bench.json, bench.csv, per_agent_compute.png, neighbor_histogram.png"
+    )
