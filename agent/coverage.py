@@ -65,11 +65,21 @@ class Domain:
     """A validated subdomain S: counter-clockwise vertices and matching vertex velocities.
 
     vertices: (k, 2) counter-clockwise; velocities: (k, 2); size: the diameter of S.
+    Derived once for the hot path: normals (k, 2) unit outward normal of edge l (from vertex
+    l to l + 1) and offsets (k,) with S = {q : normals q <= offsets}; edge_param (k, 2) the
+    edge vector over its squared length (q . edge_param gives the edge parameter);
+    normal_speed (k,) the outward speed at vertex l and normal_speed_change (k,) its change
+    to vertex l + 1, both along edge l.
     """
 
     vertices: np.ndarray
     velocities: np.ndarray
     size: float
+    normals: np.ndarray
+    offsets: np.ndarray
+    edge_param: np.ndarray
+    normal_speed: np.ndarray
+    normal_speed_change: np.ndarray
 
     @property
     def tol(self) -> float:
@@ -191,7 +201,7 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
     # examined further, to say what is wrong.
     if abs(area2) > 1e-9 * size * size and np.all(turn >= -1e-9 * size * size):
         if abs(float(np.sum(turning)) - 2.0 * np.pi) <= 1e-6:
-            return Domain(vertices=vertices, velocities=velocities, size=size)
+            return _derive(vertices, velocities, size)
     crossing = _crossing_edges(vertices)
     if crossing is not None:
         raise ValueError(
@@ -202,6 +212,25 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
     if np.any(turn < -1e-9 * size * size):
         raise ValueError(f"polygon is not convex: reflex angle at vertex {int(np.argmin(turn))}")
     raise ValueError("polygon is self-intersecting: its boundary winds around more than once")
+
+
+def _derive(vertices: np.ndarray, velocities: np.ndarray, size: float) -> Domain:
+    """The Domain of valid CCW ``vertices`` and ``velocities``, with its derived arrays."""
+    edges = np.roll(vertices, -1, axis=0) - vertices
+    length2 = np.sum(edges * edges, axis=1)
+    normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1) / np.sqrt(length2)[:, None]
+    start_speed = np.sum(velocities * normals, axis=1)
+    end_speed = np.sum(np.roll(velocities, -1, axis=0) * normals, axis=1)
+    return Domain(
+        vertices=vertices,
+        velocities=velocities,
+        size=size,
+        normals=normals,
+        offsets=np.sum(normals * vertices, axis=1),
+        edge_param=edges / length2[:, None],
+        normal_speed=start_speed,
+        normal_speed_change=end_speed - start_speed,
+    )
 
 
 def _crossing_edges(vertices: np.ndarray) -> tuple[int, int] | None:
@@ -247,10 +276,8 @@ def build_cells(
     bisector_offset = np.where(valid, 0.5 * distance, np.inf)
 
     k = len(domain.vertices)
-    edges = np.roll(domain.vertices, -1, axis=0) - domain.vertices
-    polygon_normal = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
-    polygon_normal /= np.linalg.norm(polygon_normal, axis=1)[:, None]
-    polygon_offset = np.sum(polygon_normal * domain.vertices, axis=1) - me @ polygon_normal.T
+    polygon_normal = domain.normals
+    polygon_offset = domain.offsets - me @ polygon_normal.T
 
     # Polygon edges first: where a bisector lies on an edge of S, the lower line index wins.
     count = len(owners)
@@ -275,16 +302,15 @@ def build_cells(
     constraining = active[:, None, :] & ~np.eye(normal.shape[1], dtype=bool)
     upper = np.where(constraining & (rate > 1e-12), bound, np.inf).min(axis=2)
     lower = np.where(constraining & (rate < -1e-12), bound, -np.inf).max(axis=2)
+    length = upper - lower
+    present = active & (length > tol) & ~dominated[:, None]
     # A parallel constraint either excludes the whole line or none of it; of two identical
     # lines (same side, same offset) only the first is kept, so no edge counts twice.
-    earlier = np.tri(normal.shape[1], k=-1, dtype=bool)  # [l, m]: m < l
-    excluded = (
-        constraining
-        & parallel
-        & ((slack < -tol) | ((cosine > 0.0) & (np.abs(slack) <= tol) & earlier))
-    )
-    length = upper - lower
-    present = active & ~excluded.any(axis=2) & (length > tol) & ~dominated[:, None]
+    parallel &= constraining
+    if parallel.any():
+        earlier = np.tri(normal.shape[1], k=-1, dtype=bool)  # [l, m]: m < l
+        excluded = parallel & ((slack < -tol) | ((cosine > 0.0) & (np.abs(slack) <= tol) & earlier))
+        present &= ~excluded.any(axis=2)
 
     lower = np.where(present, lower, 0.0)
     upper = np.where(present, upper, 0.0)
@@ -480,20 +506,12 @@ def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.n
     integral (q - c) nu ds = |d| [ (v1 - c)(nu1 + nu2) / 2 + d (nu1 / 6 + nu2 / 3) ].
     An empty cell gets the velocity of its nearest point of S.
     """
-    k = len(domain.vertices)
     edge = np.where(batch.boundary, -batch.labels - 1, 0)
     a = domain.vertices[edge]
-    e = domain.vertices[(edge + 1) % k] - a
-    ua = domain.velocities[edge]
-    ub = domain.velocities[(edge + 1) % k]
-    length2 = np.sum(e * e, axis=-1)
-    outward = np.stack([e[..., 1], -e[..., 0]], axis=-1) / np.sqrt(length2)[..., None]
-
-    def normal_speed(q: np.ndarray) -> np.ndarray:
-        s = (np.sum((q - a) * e, axis=-1) / length2)[..., None]
-        return np.sum(((1.0 - s) * ua + s * ub) * outward, axis=-1)
-
-    nu1, nu2 = normal_speed(batch.start), normal_speed(batch.end)
+    param = domain.edge_param[edge]
+    speed, change = domain.normal_speed[edge], domain.normal_speed_change[edge]
+    nu1 = speed + change * np.sum((batch.start - a) * param, axis=-1)
+    nu2 = speed + change * np.sum((batch.end - a) * param, axis=-1)
     d = batch.end - batch.start
     integral = np.linalg.norm(d, axis=-1)[..., None] * (
         (batch.start - batch.centroid[:, None, :]) * (0.5 * (nu1 + nu2))[..., None]

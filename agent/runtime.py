@@ -417,7 +417,7 @@ class AgentBrain:
             "step_us_p99": round(self._step_us.get(0.99), 1),
             "rx_per_s": round(self._rates[1], 1),
             "rx_total": c.received + c.coalesced,
-            "drop_coalesced": c.coalesced,
+            "coalesced": c.coalesced,
             "drop_invalid": c.invalid,
             "drop_wrong_id": c.wrong_id,
             "drop_bad_domain": c.bad_domain,
@@ -520,72 +520,94 @@ def _key_id(kind: str, key: str, swarm: str) -> int | None:
     return None if kind == "domain" else protocol.parse_id(key, swarm, kind)
 
 
-def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) -> Counters:
-    """Zenoh shell around ``brain``: runs until SIGINT/SIGTERM, returns the counters."""
-    stop = StopFlag()
-    config = session_config(connect, None, "client")
-    alive = protocol.alive_key(swarm, "agent", brain.id)
-    inbox = Inbox()
-    with zenoh.open(config) as session:
-        if token_exists(session, alive):
-            raise click.ClickException(f"agent {brain.id} is already running in swarm {swarm!r}")
+class AgentLink:
+    """The Zenoh side of one agent: its publishers and its changing subscriptions."""
+
+    def __init__(self, session: zenoh.Session, swarm: str, brain: AgentBrain) -> None:
+        self.session, self.swarm, self.brain = session, swarm, brain
+        self.inbox = Inbox()
         drop = zenoh.CongestionControl.DROP
-        cmd_pub = session.declare_publisher(
+        self.cmd_pub = session.declare_publisher(
             protocol.cmd_key(swarm, brain.id), congestion_control=drop
         )
-        state_pub = session.declare_publisher(
+        self.state_pub = session.declare_publisher(
             protocol.agent_state_key(swarm, brain.id), congestion_control=drop
         )
-        session.declare_subscriber(protocol.domain_key(swarm), inbox.callback("domain"))
-        own_pose = protocol.pose_key(swarm, brain.id)
-        poses = Subscriptions(session, inbox, "pose")
-        states = Subscriptions(session, inbox, "state")
-        tiles = Subscriptions(session, inbox, "beacon")
-        poses.update({own_pose})
-        token = session.liveliness().declare_token(alive)
-        log.info("agent %d ready in swarm %s", brain.id, swarm)
+        session.declare_subscriber(protocol.domain_key(swarm), self.inbox.callback("domain"))
+        self.own_pose = protocol.pose_key(swarm, brain.id)
+        self.poses = Subscriptions(session, self.inbox, "pose")
+        self.states = Subscriptions(session, self.inbox, "state")
+        self.tiles = Subscriptions(session, self.inbox, "beacon")
+        self.poses.update({self.own_pose})
+
+    def receive(self, now: float) -> None:
+        """Hand everything that arrived since the last tick to the brain."""
+        items, coalesced = self.inbox.drain()
+        self.brain.counters.coalesced += coalesced
+        for kind, key, payload in items:
+            try:
+                key_id = _key_id(kind, key, self.swarm)
+            except ValueError:
+                self.brain.counters.wrong_id += 1
+                continue
+            self.brain.receive(kind, payload, now, key_id)
+
+    def send_command(self, decision: Decision, wall: float) -> None:
+        self.cmd_pub.put(self.brain.command(decision, wall).encode())
+
+    def publish(self, now: float, wall: float) -> None:
+        """AgentState every tick, a beacon when due."""
+        state = self.brain.agent_state(wall)
+        if state is not None:
+            self.state_pub.put(state.encode())
+        beacon = self.brain.beacon(now, wall)
+        if beacon is not None:
+            (tx, ty), message = beacon
+            key = protocol.beacon_key(self.swarm, tx, ty, self.brain.id)
+            self.session.put(key, message.encode(), congestion_control=zenoh.CongestionControl.DROP)
+
+    def resubscribe(self, now: float) -> None:
+        """Follow the brain's two-hop set and beacon tiles (only differences are declared)."""
+        swarm, brain = self.swarm, self.brain
+        self.poses.update(
+            {protocol.pose_key(swarm, r) for r in brain.wanted_pose_ids(now)} | {self.own_pose}
+        )
+        self.states.update({protocol.agent_state_key(swarm, r) for r in brain.wanted_state_ids()})
+        self.tiles.update(
+            {protocol.beacon_tile_selector(swarm, tx, ty) for tx, ty in brain.wanted_tiles()}
+        )
+
+
+def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) -> Counters:
+    """Zenoh shell around ``brain``: runs until SIGINT/SIGTERM, returns the counters.
+
+    The liveliness token (what launcher and coordinator wait for) is declared once the
+    agent hears its own robot, so "every agent alive" means "every agent can steer".
+    """
+    stop = StopFlag()
+    alive = protocol.alive_key(swarm, "agent", brain.id)
+    with zenoh.open(session_config(connect, None, "client")) as session:
+        if token_exists(session, alive):
+            raise click.ClickException(f"agent {brain.id} is already running in swarm {swarm!r}")
+        link = AgentLink(session, swarm, brain)
+        token: zenoh.LivelinessToken | None = None
         ticker = Ticker(rate)
         try:
             while not stop.is_set():
                 now = ticker.wait(stop)
-                items, coalesced = inbox.drain()
-                brain.counters.coalesced += coalesced
-                for kind, key, payload in items:
-                    try:
-                        key_id = _key_id(kind, key, swarm)
-                    except ValueError:
-                        brain.counters.wrong_id += 1
-                        continue
-                    brain.receive(kind, payload, now, key_id)
+                link.receive(now)
                 wall = time.time()
-                decision = brain.step(now, wall)
-                cmd_pub.put(brain.command(decision, wall).encode())
-                state = brain.agent_state(wall)
-                if state is not None:
-                    state_pub.put(state.encode())
-                beacon = brain.beacon(now, wall)
-                if beacon is not None:
-                    (tx, ty), message = beacon
-                    session.put(
-                        protocol.beacon_key(swarm, tx, ty, brain.id),
-                        message.encode(),
-                        congestion_control=drop,
-                    )
-                pose_keys = {protocol.pose_key(swarm, rid) for rid in brain.wanted_pose_ids(now)}
-                poses.update(pose_keys | {own_pose})
-                states.update(
-                    {protocol.agent_state_key(swarm, r) for r in brain.wanted_state_ids()}
-                )
-                tiles.update(
-                    {
-                        protocol.beacon_tile_selector(swarm, tx, ty)
-                        for tx, ty in brain.wanted_tiles()
-                    }
-                )
+                link.send_command(brain.step(now, wall), wall)
+                link.publish(now, wall)
+                link.resubscribe(now)
+                if token is None and brain.pose is not None:
+                    token = session.liveliness().declare_token(alive)
+                    log.info("agent %d ready in swarm %s", brain.id, swarm)
         finally:
             # Stop the robot at once rather than after its command timeout.
-            cmd_pub.put(brain.command(Decision(0.0, 0.0, "stopped"), time.time()).encode())
-            token.undeclare()
+            link.send_command(Decision(0.0, 0.0, "stopped"), time.time())
+            if token is not None:
+                token.undeclare()
         log.info(
             "agent %d stopping: %s, stats %s, %d ticks, %d overruns",
             brain.id,
