@@ -90,7 +90,8 @@ class Domain:
 class CellBatch:
     """The cells of robots ``owners`` as labelled edges, K cells of L candidate lines each.
 
-    owners: (K,) robot indices; start, end: (K, L, 2) counter-clockwise edge ends; labels:
+    owners: (K,) robot indices; start, end: (K, L, 2) edge ends, the present edges first and
+    in counter-clockwise order, each edge's end the next one's start; labels:
     (K, L) the robot (>= 0) or polygon edge (-(l + 1)) each line comes from; present: (K, L)
     the line is an edge of positive length; mass: (K,) m_i, 0 for an empty cell; centroid:
     (K, 2) c_i, the nearest point of S for an empty cell (Section 4.2).
@@ -120,11 +121,7 @@ class CellBatch:
 
     def vertices(self, k: int) -> np.ndarray:
         """Counter-clockwise vertices (m, 2) of cell k, (0, 2) when empty."""
-        if self.empty[k]:
-            return np.empty((0, 2))
-        corners = self.start[k][self.present[k]]
-        angle = np.arctan2(*(corners - self.centroid[k]).T[::-1])
-        return corners[np.argsort(angle)]
+        return self.start[k][self.present[k]]
 
 
 def _require_uniform(density: object) -> None:
@@ -312,12 +309,21 @@ def build_cells(
         excluded = parallel & ((slack < -tol) | ((cosine > 0.0) & (np.abs(slack) <= tol) & earlier))
         present &= ~excluded.any(axis=2)
 
-    lower = np.where(present, lower, 0.0)
-    upper = np.where(present, upper, 0.0)
-    start = foot + lower[..., None] * direction
-    end = foot + upper[..., None] * direction
+    start = foot + np.where(present, lower, 0.0)[..., None] * direction
     start = np.where(present[..., None], start, 0.0)
-    end = np.where(present[..., None], end, 0.0)
+    # Each vertex is computed once, as the start of its edge, and reused as the end of the
+    # previous edge: nearly parallel bisectors (nearly coincident robots) make a vertex
+    # ill-conditioned, and two independent copies of it would leave the boundary open.
+    count = present.sum(axis=1)
+    centre = start.sum(axis=1) / np.maximum(count, 1)[:, None]
+    angle = np.arctan2(start[..., 1] - centre[:, 1:], start[..., 0] - centre[:, :1])
+    order = np.argsort(np.where(present, angle, np.inf), axis=1)
+    start = np.take_along_axis(start, order[..., None], axis=1)
+    labels = np.take_along_axis(labels, order, axis=1)
+    present = np.take_along_axis(present, order, axis=1)
+    position = np.arange(present.shape[1])
+    following = np.where(position + 1 < count[:, None], position + 1, 0)
+    end = np.where(present[..., None], np.take_along_axis(start, following[..., None], axis=1), 0.0)
     twice_area = cross(start, end)
     mass = 0.5 * np.sum(twice_area, axis=1)
     empty = mass <= tol * tol

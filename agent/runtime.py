@@ -14,9 +14,8 @@ Neighbour discovery
   (2r+1)^2 tiles around its own with ``beacon/<tx>/<ty>/*`` selectors, re-declared when it
   changes tile. r starts at 1 (3x3 tiles) and grows, up to ``--max-tile-radius``, while its
   cell is too large for the tiles to hold every robot that could cut it (a robot farther
-  than twice the cell radius cannot); the radius is estimated as |p - c| + sqrt(2 m) from
-  the cell's centroid c and mass m. Beacon-only robots are candidates at their beacon
-  position.
+  than twice the cell radius cannot; see :func:`cell_reach`). Beacon-only robots are
+  candidates at their beacon position.
 - **Two-hop set**: the agent publishes AgentState (position and current Voronoi neighbour
   ids) at the control rate; it subscribes to the AgentState of its one-hop neighbours, and
   to the poses of its two-hop set (one-hop neighbours and their neighbours), declaring and
@@ -67,6 +66,7 @@ log = logging.getLogger("covswarm.agent")
 
 STATS_WINDOW = 5.0  # s over which rates are measured
 TIMING_SAMPLES = 256  # step durations kept for the p50/p99
+LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see relevant())
 
 
 @dataclass(frozen=True)
@@ -121,19 +121,26 @@ def extrapolate_domain(
     return vertices + velocities * max(elapsed, 0.0), velocities
 
 
-def tile_radius(
-    distance_to_centroid: float, mass: float, tile_size: float, current: int, max_radius: int
-) -> int:
-    """Beacon tile radius r ((2r+1)^2 tiles) large enough to hold every possible neighbour.
+def cell_reach(distance_to_centroid: float, mass: float) -> float:
+    """Distance within which a robot can cut this cell: twice the cell radius R.
 
-    Robots farther than twice the cell radius R cannot cut the cell; R is estimated as
-    |p - c| + sqrt(2 m). Grows at once, shrinks only with a 50 % margin (no flapping).
+    R is estimated from the cell's centroid c and mass m as |p - c| + sqrt(m): 1.4x the
+    true R of a square cell centred on p, about R for a 4:1 rectangle; the two-hop set
+    covers what the estimate misses.
     """
-    reach = 2.0 * (distance_to_centroid + math.sqrt(2.0 * max(mass, 0.0)))
+    return 2.0 * (distance_to_centroid + math.sqrt(max(mass, 0.0)))
+
+
+def tile_radius(reach: float, tile_size: float, current: int, max_radius: int) -> int:
+    """Beacon tile radius r ((2r+1)^2 tiles) that holds every robot within ``reach``.
+
+    Grows at once, shrinks only with a 25 % margin so a cell hovering at a tile boundary
+    does not flap the subscriptions.
+    """
     needed = min(max(1, math.ceil(reach / tile_size)), max_radius)
     if needed >= current:
         return needed
-    relaxed = min(max(1, math.ceil(1.5 * reach / tile_size)), max_radius)
+    relaxed = min(max(1, math.ceil(1.25 * reach / tile_size)), max_radius)
     return relaxed if relaxed < current else current
 
 
@@ -201,9 +208,11 @@ class AgentBrain:
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
         self.one_hop: frozenset[int] = frozenset()
         self.radius = 1
+        self.reach: float | None = None  # cell_reach of our last non-empty cell
         self.counters = Counters()
         self._wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
         self._fresh: set[int] = set()  # ids usable as candidates at the last step
+        self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
         self._seq = 0
         self._step_us = _Percentiles()
@@ -298,6 +307,26 @@ class AgentBrain:
         for rid in [rid for rid, (_, t) in self.neighbor_sets.items() if now - t > horizon]:
             del self.neighbor_sets[rid]
 
+    def relevant(self, others: dict[int, np.ndarray], now: float) -> dict[int, np.ndarray]:
+        """The candidates that can matter to our control, to keep the local diagram small.
+
+        The two-hop set (neighbours' reported neighbours) plus every robot within
+        LOCAL_MARGIN x our cell's reach: our cell is cut only within ``reach``, and since the
+        reach overestimates (1.4x for a square cell) this also holds the second ring around
+        us, i.e. our neighbours' neighbours, before their AgentStates arrive. Every known
+        robot is used until a first non-empty cell gives a reach.
+        """
+        if self.reach is None or self.pose is None:
+            return others
+        limit = LOCAL_MARGIN * self.reach
+        keep = self.two_hop(now)
+        x, y = self.pose.x, self.pose.y
+        return {
+            rid: p
+            for rid, p in others.items()
+            if rid in keep or math.hypot(p[0] - x, p[1] - y) <= limit
+        }
+
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
         ids = set(self.one_hop)
@@ -344,7 +373,7 @@ class AgentBrain:
             return Decision(0.0, 0.0, "no-domain")
         started = time.perf_counter()
         try:
-            decision = self._control(others, now_wall)
+            decision = self._control(self.relevant(others, now), now_wall)
         # Any failure of the geometry (degenerate input the math rejects, or a bug) must
         # stop this robot, not kill the process and leave the robot on its last command.
         except Exception as exc:
@@ -371,14 +400,14 @@ class AgentBrain:
         )
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         self.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        self._local = len(others)
         if result.mass > 0.0:
+            self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.mass)
             self.radius = tile_radius(
-                float(np.linalg.norm(result.centroid - me)),
-                result.mass,
-                self.config.tile_size,
-                self.radius,
-                self.config.max_tile_radius,
+                self.reach, self.config.tile_size, self.radius, self.config.max_tile_radius
             )
+        else:
+            self.reach = None
         if self.domain.state != "running":
             return Decision(0.0, 0.0, self.domain.state)
         velocity = np.asarray(result.velocity, dtype=float)
@@ -425,6 +454,7 @@ class AgentBrain:
             "stale_dropped": c.stale,
             "step_errors": c.step_errors,
             "candidates": len(self._fresh),
+            "local_set": self._local,
             "neighbors": len(self.one_hop),
             "pose_subs": len(self._wanted),
             "tile_radius": self.radius,
