@@ -26,12 +26,15 @@ Neighbour discovery
   ``--stale-timeout`` (receipt time, so clock skew between machines does not matter), else
   from its beacon while younger than ``--beacon-timeout``; older robots are dropped.
 
-Each step the agent calls agent.control.local_step on itself plus these candidates (the
-local partial Voronoi diagram of its two-hop neighbourhood; a superset of the true
-neighbours gives the same cell), maps the velocity to wheel speeds with
-agent.drive.wheel_speeds and publishes a WheelCommand. Waiting/done, no domain, or no fresh
-own pose give a (0, 0) command; so does any failure of the math (the robot stops rather
-than crash or receive NaN).
+Each step the agent calls agent.control.local_step on itself plus the candidates that can
+matter (its two-hop set and robots within 1.25x its cell's reach, see
+:meth:`AgentBrain.relevant`): the local partial Voronoi diagram of its two-hop
+neighbourhood, whose cost grows with the square of its size, so beacon-only robots far
+away are left out. It maps the velocity to wheel speeds with agent.drive.wheel_speeds and
+publishes a WheelCommand. Waiting/done, no domain, or no fresh own pose give a (0, 0)
+command; so does any failure of the math (the robot stops rather than crash or receive
+NaN). Neighbours are computed while waiting too, so the sets are warm at the start. The
+liveliness token ``alive/agent/<id>`` is declared once the agent hears its own robot.
 
 Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k two-hop robots, b robots
 in the beacon tiles): receives 20 (own pose) + domain rate + 20 k (poses) + 10 |one-hop|

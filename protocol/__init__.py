@@ -1,0 +1,96 @@
+"""The covswarm wire protocol: key expressions, message types, session configuration.
+
+Import-light on purpose (msgpack only): robot processes import this module at start-up.
+``session_config`` lives in :mod:`protocol.session` (it imports zenoh) and is re-exported
+lazily.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from protocol.keys import (
+    MAX_ID,
+    PREFIX,
+    ROLES,
+    agent_state_key,
+    alive_key,
+    alive_selector,
+    all_agent_states_selector,
+    all_beacons_selector,
+    all_cmds_selector,
+    all_poses_selector,
+    beacon_key,
+    beacon_tile_selector,
+    check_id,
+    check_swarm,
+    cmd_key,
+    domain_key,
+    new_swarm_name,
+    parse_alive_key,
+    parse_id,
+    pose_key,
+    status_key,
+    tile_of,
+)
+from protocol.messages import (
+    MAX_PAYLOAD,
+    MAX_VERTICES,
+    SCHEMA_VERSION,
+    STATES,
+    AgentState,
+    Beacon,
+    Domain,
+    Message,
+    Pose,
+    ProtocolError,
+    Status,
+    WheelCommand,
+)
+
+__all__ = [
+    "MAX_ID",
+    "MAX_PAYLOAD",
+    "MAX_VERTICES",
+    "PREFIX",
+    "ROLES",
+    "SCHEMA_VERSION",
+    "STATES",
+    "AgentState",
+    "Beacon",
+    "Domain",
+    "Message",
+    "Pose",
+    "ProtocolError",
+    "Status",
+    "WheelCommand",
+    "agent_state_key",
+    "alive_key",
+    "alive_selector",
+    "all_agent_states_selector",
+    "all_beacons_selector",
+    "all_cmds_selector",
+    "all_poses_selector",
+    "beacon_key",
+    "beacon_tile_selector",
+    "check_id",
+    "check_swarm",
+    "cmd_key",
+    "domain_key",
+    "new_swarm_name",
+    "parse_alive_key",
+    "parse_id",
+    "pose_key",
+    "session_config",
+    "status_key",
+    "tile_of",
+]
+
+
+def __getattr__(name: str) -> Any:
+    # Lazy so that importing the protocol does not import zenoh (tests, offline tools).
+    if name == "session_config":
+        from protocol.session import session_config
+
+        return session_config
+    raise AttributeError(f"module 'protocol' has no attribute {name!r}")

@@ -1,0 +1,151 @@
+"""Pure bookkeeping of the coordinator: mission clock, liveness, error record, summary.
+
+No I/O and no zenoh here: coordinator.process feeds these from its subscriptions, so the
+logic that decides when the mission starts, who died when and what the summary says is
+unit-tested without a network.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+
+import numpy as np
+
+WAITING, RUNNING, DONE = "waiting", "running", "done"
+
+
+@dataclass
+class MissionClock:
+    """waiting -> running (once the team is up) -> done (at ``duration``).
+
+    Times are monotonic seconds; mission time is 0 until the start and frozen at
+    ``duration`` once done, so agents never see a domain past the end of the scenario.
+    """
+
+    duration: float
+    started_at: float | None = None
+    stopped_at: float | None = None
+
+    @property
+    def state(self) -> str:
+        if self.started_at is None:
+            return WAITING
+        return DONE if self.stopped_at is not None else RUNNING
+
+    def update(self, now: float, team_ready: bool) -> str:
+        """Advance the state machine; returns the state at ``now``."""
+        if self.started_at is None and team_ready:
+            self.started_at = now
+        if self.state == RUNNING and now - self.started_at >= self.duration:
+            self.stopped_at = self.started_at + self.duration
+        return self.state
+
+    def stop(self, now: float) -> None:
+        """End early (operator interrupt): done from ``now`` if running, else stays waiting."""
+        if self.state == RUNNING:
+            self.stopped_at = now
+
+    def mission_time(self, now: float) -> float:
+        if self.started_at is None:
+            return 0.0
+        end = self.stopped_at if self.stopped_at is not None else now
+        return min(end - self.started_at, self.duration)
+
+
+@dataclass(frozen=True)
+class LivenessEvent:
+    """A process appeared (``alive``) or its liveliness token disappeared."""
+
+    role: str
+    id: int
+    alive: bool
+    wall: float
+    t: float | None  # mission time, None before the mission started
+
+
+@dataclass
+class Liveness:
+    """Which processes hold a liveliness token, and the history of changes."""
+
+    alive: dict[str, set[int]] = field(default_factory=dict)
+    events: list[LivenessEvent] = field(default_factory=list)
+
+    def update(
+        self, role: str, ident: int, alive: bool, wall: float, t: float | None
+    ) -> LivenessEvent | None:
+        """Record a token put/delete; None if it changes nothing (e.g. a repeated put)."""
+        members = self.alive.setdefault(role, set())
+        if (ident in members) == alive:
+            return None
+        if alive:
+            members.add(ident)
+        else:
+            members.discard(ident)
+        event = LivenessEvent(role, ident, alive, wall, t)
+        self.events.append(event)
+        return event
+
+    def count(self, role: str) -> int:
+        return len(self.alive.get(role, ()))
+
+
+@dataclass
+class ErrorRecord:
+    """e_a(t) samples with the robot positions and domain they were computed from."""
+
+    t: list[float] = field(default_factory=list)
+    error: list[float] = field(default_factory=list)
+    positions: list[dict[int, tuple[float, float]]] = field(default_factory=list)
+    polygons: list[np.ndarray] = field(default_factory=list)
+
+    def add(
+        self, t: float, error: float, positions: Mapping[int, tuple[float, float]], polygon
+    ) -> None:
+        self.t.append(float(t))
+        self.error.append(float(error))
+        self.positions.append(dict(positions))
+        self.polygons.append(np.asarray(polygon, dtype=float))
+
+    def robot_ids(self) -> list[int]:
+        """Every robot seen in any sample, sorted (the trajectory columns)."""
+        return sorted({i for sample in self.positions for i in sample})
+
+    def trajectories(self) -> np.ndarray:
+        """(T, n, 2) positions, NaN where a robot was unknown or not alive."""
+        ids = self.robot_ids()
+        column = {ident: k for k, ident in enumerate(ids)}
+        out = np.full((len(self.t), len(ids), 2), np.nan)
+        for row, sample in enumerate(self.positions):
+            for ident, xy in sample.items():
+                out[row, column[ident]] = xy
+        return out
+
+
+# What the launcher shows and summary.json lists per agent (agent.runtime's stat names):
+# control rate achieved, compute time per step, messages received per second.
+HEADLINE_STATS = ("rate_hz", "step_us_p50", "step_us_p99", "rx_per_s")
+
+
+def agent_figures(stats: Mapping[int, Mapping[str, float]]) -> dict:
+    """Team mean/min/max of every stat the agents report, and the headline stats per agent.
+
+    ``stats``: the latest AgentState.stats of each agent. Stats an agent does not report are
+    skipped, so a newer or older agent never breaks the summary.
+    """
+    team: dict[str, dict[str, float]] = {}
+    names = sorted({name for entry in stats.values() for name in entry})
+    for name in names:
+        values = [float(e[name]) for e in stats.values() if name in e and math.isfinite(e[name])]
+        if values:
+            team[name] = {"mean": float(np.mean(values)), "min": min(values), "max": max(values)}
+    per_agent = {
+        str(i): {k: stats[i][k] for k in HEADLINE_STATS if k in stats[i]} for i in sorted(stats)
+    }
+    return {"team": team, "per_agent": per_agent}
+
+
+def losses_summary(events: Iterable[LivenessEvent]) -> list[dict]:
+    """Tokens that disappeared (processes that died or hung), for summary.json."""
+    return [{"role": e.role, "id": e.id, "t": e.t, "wall": e.wall} for e in events if not e.alive]

@@ -1,0 +1,385 @@
+"""``covswarm coordinator``: broadcasts the moving domain S(t) and monitors the team.
+
+The coordinator is the mission clock. It broadcasts Domain messages at a fixed rate
+(vertices, vertex velocities, wall-clock stamp, mission time) so agents can extrapolate
+between messages; it holds the domain at t = 0 ("waiting") until every agent and robot holds
+a liveliness token, runs the scenario for its duration, says "done" for a moment and exits.
+
+It is the one process that subscribes to every pose: it samples the aggregate error e_a(t)
+over the robots alive, publishes Status, reports processes whose liveliness token
+disappears and at the end writes the same outputs as ``covswarm sim`` (coordinator.report).
+The bookkeeping is in coordinator.monitor; this module is the network shell around it.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from coordinator.monitor import (
+    DONE,
+    RUNNING,
+    WAITING,
+    ErrorRecord,
+    Liveness,
+    MissionClock,
+    agent_figures,
+    losses_summary,
+)
+from coordinator.scenarios import Scenario, load_scenario
+from protocol.session import StopFlag, Ticker
+
+log = logging.getLogger("covswarm.coordinator")
+
+DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
+STATUS_PERIOD = 0.5  # s
+# e_a costs ~30 ms for 100 robots: never spend more than about a third of the time on it.
+SAMPLE_BUDGET = 3.0
+
+
+@dataclass(frozen=True)
+class Settings:
+    """What one coordinator run does (CLI options, scenario defaults filled in)."""
+
+    scenario: Scenario
+    swarm: str
+    agents: int
+    duration: float
+    kappa: float
+    rate: float  # Hz of Domain broadcasts
+    sample_rate: float  # Hz of e_a samples (at most)
+    feedforward: bool  # what the agents were started with, recorded in the summary
+
+
+@dataclass
+class Observed:
+    """Everything the coordinator learnt from the network during the run."""
+
+    record: ErrorRecord = field(default_factory=ErrorRecord)
+    liveness: Liveness = field(default_factory=Liveness)
+    poses: dict[int, tuple[float, float]] = field(default_factory=dict)
+    agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
+    rejected: int = 0  # messages dropped as malformed (ProtocolError)
+    started_wall: float | None = None
+
+
+class Coordinator:
+    """The coordinator's subscriptions, publishers and loop on one open zenoh session."""
+
+    def __init__(self, session: Any, settings: Settings) -> None:
+        import zenoh
+
+        from protocol import (
+            alive_key,
+            alive_selector,
+            all_agent_states_selector,
+            all_poses_selector,
+            domain_key,
+            status_key,
+        )
+
+        self.settings = settings
+        self.observed = Observed()
+        self.clock = MissionClock(settings.duration)
+        swarm, n = settings.swarm, settings.agents
+        self._delete = zenoh.SampleKind.DELETE
+        # Liveliness changes must never be dropped (FIFO); poses and agent states are
+        # "latest wins" and drained every tick, so a ring that overwrites is right.
+        ring = max(1024, 8 * n)
+        self._token = session.liveliness().declare_token(alive_key(swarm, "coordinator", 0))
+        self._alive = session.liveliness().declare_subscriber(
+            alive_selector(swarm), zenoh.handlers.FifoChannel(max(1024, 4 * n)), history=True
+        )
+        self._poses = session.declare_subscriber(
+            all_poses_selector(swarm), zenoh.handlers.RingChannel(ring)
+        )
+        self._states = session.declare_subscriber(
+            all_agent_states_selector(swarm), zenoh.handlers.RingChannel(ring)
+        )
+        self._domain = session.declare_publisher(domain_key(swarm))
+        self._status = session.declare_publisher(status_key(swarm))
+        self._seq = 0
+
+    # -- inputs ---------------------------------------------------------------------------
+
+    def _drain(self, now: float) -> None:
+        from protocol import AgentState, Pose, ProtocolError, parse_alive_key
+
+        obs, swarm = self.observed, self.settings.swarm
+        t = self.clock.mission_time(now) if self.clock.state != WAITING else None
+        while (sample := self._alive.try_recv()) is not None:
+            try:
+                role, ident = parse_alive_key(str(sample.key_expr), swarm)
+            except ValueError:
+                obs.rejected += 1
+                continue
+            alive = sample.kind != self._delete
+            # Tokens vanishing after "done" are processes shutting down, not failures.
+            if self.clock.state == DONE and not alive:
+                continue
+            event = obs.liveness.update(role, ident, alive, time.time(), t)
+            if event is not None and not alive:
+                when = "before the start" if t is None else f"at t = {t:.1f} s"
+                log.warning("%s %d lost its liveliness token %s", role, ident, when)
+        for subscriber, kind in ((self._poses, Pose), (self._states, AgentState)):
+            while (sample := subscriber.try_recv()) is not None:
+                try:
+                    message = kind.decode(sample.payload)
+                except ProtocolError:
+                    obs.rejected += 1
+                    continue
+                if kind is Pose:
+                    obs.poses[message.id] = (message.x, message.y)
+                else:
+                    obs.agent_stats[message.id] = dict(message.stats)
+
+    def team_ready(self) -> bool:
+        live = self.observed.liveness
+        n = self.settings.agents
+        return live.count("agent") >= n and live.count("robot") >= n
+
+    def alive_positions(self) -> dict[int, tuple[float, float]]:
+        """Latest pose of every robot that still holds its liveliness token."""
+        alive = self.observed.liveness.alive.get("robot", set())
+        return {i: xy for i, xy in self.observed.poses.items() if i in alive}
+
+    # -- outputs --------------------------------------------------------------------------
+
+    def _publish_domain(self, state: str, t: float) -> np.ndarray:
+        from protocol import Domain
+
+        vertices, velocities = self.settings.scenario.domain(t)
+        if state != RUNNING:
+            velocities = np.zeros_like(velocities)  # held still while waiting / done
+        self._domain.put(
+            Domain(
+                seq=self._seq,
+                stamp=time.time(),
+                t=t,
+                state=state,
+                vertices=vertices,
+                velocities=velocities,
+                kappa=self.settings.kappa,
+            ).encode()
+        )
+        self._seq += 1
+        return vertices
+
+    def _sample(self, t: float, polygon: np.ndarray) -> None:
+        from agent.coverage import aggregate_error
+
+        positions = self.alive_positions()
+        if not positions:
+            return
+        ids = sorted(positions)
+        error = aggregate_error(np.array([positions[i] for i in ids]), polygon)
+        self.observed.record.add(t, error, positions, polygon)
+
+    def _publish_status(self, state: str, t: float) -> None:
+        from protocol import Status
+
+        live, record = self.observed.liveness, self.observed.record
+        self._status.put(
+            Status(
+                stamp=time.time(),
+                t=t,
+                state=state,
+                error=record.error[-1] if record.error else None,
+                alive_agents=live.count("agent"),
+                alive_robots=live.count("robot"),
+            ).encode()
+        )
+
+    # -- loop -----------------------------------------------------------------------------
+
+    def run(self, stop: StopFlag) -> None:
+        """Broadcast until the mission is done (or ``stop`` is set), sampling on the way."""
+        ticker = Ticker(self.settings.rate)
+        next_status = time.monotonic()
+        # e_a every ``sample_every`` ticks, fewer if computing it costs too much.
+        sample_every = max(1, round(self.settings.rate / self.settings.sample_rate))
+        done_since: float | None = None
+        log.info("waiting for %d agents and %d robots", self.settings.agents, self.settings.agents)
+        while True:
+            now = ticker.wait(stop)
+            self._drain(now)
+            if stop.is_set():
+                self.clock.stop(now)
+            before = self.clock.state
+            state = self.clock.update(now, self.team_ready())
+            if state == WAITING and stop.is_set():
+                log.info("stopped before the mission started")
+                return
+            if before == WAITING and state == RUNNING:
+                self.observed.started_wall = time.time()
+                log.info("team ready: mission started")
+            t = self.clock.mission_time(now)
+            polygon = self._publish_domain(state, t)
+            if state == RUNNING and ticker.ticks % sample_every == 0:
+                began = time.monotonic()
+                self._sample(t, polygon)
+                cost = time.monotonic() - began
+                budget_ticks = math.ceil(SAMPLE_BUDGET * cost * self.settings.rate)
+                sample_every = max(sample_every, budget_ticks)
+            if state == DONE and done_since is None:
+                done_since = now
+                self._sample(t, polygon)  # the final error, at the end of the mission
+                log.info("mission done at t = %.1f s (%d overrun ticks)", t, ticker.overruns)
+            finished = done_since is not None and now - done_since >= DONE_HOLD
+            if now >= next_status or finished:
+                self._publish_status(state, t)
+                next_status = now + STATUS_PERIOD
+            if finished:
+                return
+
+
+def build_summary(settings: Settings, observed: Observed) -> dict[str, Any]:
+    """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
+    from coordinator.report import neighbor_histogram, steady_state_mean
+
+    record = observed.record
+    final = record.positions[-1]
+    ids = sorted(final)
+    return {
+        "scenario": settings.scenario.name,
+        "agents": settings.agents,
+        "law": "d1",
+        "feedforward": settings.feedforward,
+        "kappa": float(settings.kappa),
+        "duration": float(settings.duration),
+        "mission_time": record.t[-1],
+        "dynamics": "unicycle",
+        "samples": len(record.t),
+        "steady_state_error_mean": steady_state_mean(np.array(record.t), np.array(record.error)),
+        "final_error": record.error[-1],
+        "initial_error": record.error[0],
+        "neighbor_histogram": neighbor_histogram(
+            np.array([final[i] for i in ids]), record.polygons[-1]
+        ),
+        "alive_at_end": {
+            "agents": observed.liveness.count("agent"),
+            "robots": observed.liveness.count("robot"),
+        },
+        "lost_processes": losses_summary(observed.liveness.events),
+        "agent_stats": agent_figures(observed.agent_stats),
+        "rejected_messages": observed.rejected,
+        "started_wall": observed.started_wall,
+    }
+
+
+def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> None:
+    """summary.json, error.csv, error.png, trajectories.png through coordinator.report."""
+    from coordinator.report import write_outputs
+
+    record = observed.record
+    write_outputs(
+        out_dir,
+        summary=build_summary(settings, observed),
+        t=np.array(record.t),
+        error=np.array(record.error),
+        trajectories=record.trajectories(),
+        polygons=record.polygons,
+        obstacles=list(settings.scenario.obstacles),
+        workspace=settings.scenario.workspace,
+    )
+
+
+@click.command("coordinator")
+@click.option(
+    "--scenario",
+    "scenario_name",
+    default="passage",
+    show_default=True,
+    help="Built-in scenario (circle, passage) or a .toml file.",
+)
+@click.option(
+    "--connect",
+    multiple=True,
+    required=True,
+    help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable).",
+)
+@click.option("--swarm", required=True, help="Swarm name (key prefix) shared by the run.")
+@click.option("--agents", type=click.IntRange(min=1), help="Team size to wait for [scenario].")
+@click.option(
+    "--duration", type=click.FloatRange(min=0, min_open=True), help="Mission length, s [scenario]."
+)
+@click.option(
+    "--rate",
+    type=click.FloatRange(min=0, min_open=True),
+    default=20.0,
+    show_default=True,
+    help="Domain broadcasts per second.",
+)
+@click.option(
+    "--sample-rate",
+    type=click.FloatRange(min=0, min_open=True),
+    default=10.0,
+    show_default=True,
+    help="e_a samples per second (at most).",
+)
+@click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
+@click.option(
+    "--feedforward/--no-feedforward",
+    default=True,
+    help="How the agents run (recorded in summary.json).",
+)
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Output folder.",
+)
+def coordinator_command(
+    scenario_name: str,
+    connect: Sequence[str],
+    swarm: str,
+    agents: int | None,
+    duration: float | None,
+    rate: float,
+    sample_rate: float,
+    kappa: float | None,
+    feedforward: bool,
+    out_dir: Path,
+) -> None:
+    """Broadcast the moving domain, monitor the team, write the run's outputs."""
+    import zenoh
+
+    from protocol import alive_key, check_swarm
+    from protocol.session import session_config, token_exists
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s coordinator %(message)s")
+    try:
+        scenario = load_scenario(scenario_name)
+        check_swarm(swarm)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    settings = Settings(
+        scenario=scenario,
+        swarm=swarm,
+        agents=scenario.agents if agents is None else agents,
+        duration=scenario.duration if duration is None else duration,
+        kappa=scenario.kappa if kappa is None else kappa,
+        rate=rate,
+        sample_rate=sample_rate,
+        feedforward=feedforward,
+    )
+    stop = StopFlag()
+    with zenoh.open(session_config(list(connect))) as session:
+        if token_exists(session, alive_key(swarm, "coordinator", 0)):
+            raise click.ClickException(f"swarm {swarm!r} already has a coordinator")
+        coordinator = Coordinator(session, settings)
+        coordinator.run(stop)
+    if not coordinator.observed.record.t:
+        log.info("no samples recorded: no outputs written")
+        return
+    write_run_outputs(out_dir, settings, coordinator.observed)
+    log.info("wrote %s", out_dir)

@@ -1,0 +1,280 @@
+"""``covswarm sim``: the deterministic in-process simulator (no Zenoh, no processes).
+
+Fixed-step over the whole team: at each step the domain S(t) comes from the scenario, the
+centralised (TVD-C) or one-hop (TVD-D1) law gives every robot's velocity, and robots move as
+single integrators or as Khepera IV unicycles (wheel mapping + exact arc integration).
+Same seed, same options -> byte-identical summary.json and error.csv.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from coordinator.scenarios import Scenario, load_scenario
+
+LAWS = ("c", "d1")
+DYNAMICS = ("single", "unicycle")
+
+
+@dataclass(frozen=True, eq=False)
+class SimResult:
+    """One simulated run. T = number of samples (steps + 1, t[0] = 0), n = team size."""
+
+    t: np.ndarray  # (T,) s
+    error: np.ndarray  # (T,) e_a = ||p - c(p, t)|| in m
+    trajectories: np.ndarray  # (T, n, 2)
+    headings: np.ndarray  # (T, n), zeros for single integrators
+    polygons: list[np.ndarray]  # T arrays (k, 2): S(t) at each sample
+    positions: np.ndarray  # (n, 2) final positions
+
+    @property
+    def final_polygon(self) -> np.ndarray:
+        return self.polygons[-1]
+
+
+def simulate(
+    scenario: Scenario,
+    *,
+    agents: int | None = None,
+    law: str = "d1",
+    feedforward: bool = True,
+    kappa: float | None = None,
+    dt: float | None = None,
+    duration: float | None = None,
+    seed: int = 0,
+    dynamics: str | None = None,
+    progress: Callable[[int, int], None] | None = None,
+) -> SimResult:
+    """Run the scenario; None options take the scenario's defaults.
+
+    progress(step, steps) is called after every step.
+    """
+    from agent import control
+    from agent.coverage import aggregate_error
+    from agent.drive import wheel_speeds
+    from sim_robot.model import integrate
+
+    n = scenario.agents if agents is None else agents
+    kappa = scenario.kappa if kappa is None else kappa
+    dt = scenario.dt if dt is None else dt
+    duration = scenario.duration if duration is None else duration
+    dynamics = scenario.dynamics if dynamics is None else dynamics
+    if law not in LAWS:
+        raise ValueError(f"law must be one of {LAWS}, not {law!r}")
+    if dynamics not in DYNAMICS:
+        raise ValueError(f"dynamics must be one of {DYNAMICS}, not {dynamics!r}")
+    if n < 1 or kappa <= 0 or dt <= 0 or duration <= 0:
+        raise ValueError("agents, kappa, dt and duration must be positive")
+    velocity_law = control.tvd_c if law == "c" else control.tvd_d1
+
+    steps = max(1, round(duration / dt))
+    positions = scenario.initial_positions(n, seed)
+    # Headings from their own stream so positions match the single-integrator run.
+    headings = np.random.default_rng([seed, 1]).uniform(-np.pi, np.pi, size=n)
+    if dynamics == "single":
+        headings = np.zeros(n)
+
+    t = np.arange(steps + 1) * dt
+    error = np.empty(steps + 1)
+    trajectories = np.empty((steps + 1, n, 2))
+    heading_log = np.empty((steps + 1, n))
+    polygons: list[np.ndarray] = []
+    for k in range(steps + 1):
+        polygon, polygon_velocity = scenario.domain(t[k])
+        polygons.append(polygon)
+        trajectories[k] = positions
+        heading_log[k] = headings
+        error[k] = aggregate_error(positions, polygon)
+        if k == steps:
+            break
+        velocity = velocity_law(
+            positions, polygon, polygon_velocity, kappa, feedforward=feedforward
+        )
+        if not np.all(np.isfinite(velocity)):
+            raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {t[k]:.4g} s")
+        if dynamics == "single":
+            positions = positions + dt * velocity
+        else:
+            poses = integrate(
+                np.column_stack([positions, headings]), wheel_speeds(headings, velocity), dt
+            )
+            positions, headings = poses[:, :2], poses[:, 2]
+        if progress is not None:
+            progress(k + 1, steps)
+    return SimResult(t, error, trajectories, heading_log, polygons, positions)
+
+
+def build_summary(
+    scenario: Scenario,
+    result: SimResult,
+    *,
+    law: str,
+    feedforward: bool,
+    kappa: float,
+    dt: float,
+    duration: float,
+    seed: int,
+    dynamics: str,
+    without: SimResult | None = None,
+) -> dict[str, Any]:
+    """summary.json contents: run parameters and error statistics, no timestamps."""
+    from coordinator.report import neighbor_histogram, steady_state_mean
+
+    summary: dict[str, Any] = {
+        "scenario": scenario.name,
+        "agents": int(result.positions.shape[0]),
+        "law": law,
+        "feedforward": feedforward,
+        "kappa": float(kappa),
+        "dt": float(dt),
+        "duration": float(duration),
+        "seed": int(seed),
+        "dynamics": dynamics,
+        "steps": int(result.t.size - 1),
+        "steady_state_error_mean": steady_state_mean(result.t, result.error),
+        "final_error": float(result.error[-1]),
+        "initial_error": float(result.error[0]),
+        "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
+    }
+    if without is not None:
+        ss_without = steady_state_mean(without.t, without.error)
+        summary["steady_state_error_mean_without_feedforward"] = ss_without
+        summary["final_error_without_feedforward"] = float(without.error[-1])
+        summary["improvement"] = (ss_without - summary["steady_state_error_mean"]) / ss_without
+    return summary
+
+
+@click.command("sim")
+@click.option(
+    "--scenario",
+    "scenario_name",
+    default="circle",
+    show_default=True,
+    help="Built-in scenario (circle, passage) or a .toml file.",
+)
+@click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
+@click.option(
+    "--law",
+    type=click.Choice(LAWS),
+    default="d1",
+    show_default=True,
+    help="c: centralised TVD-C, d1: one-hop TVD-D1.",
+)
+@click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt feedforward term.")
+@click.option(
+    "--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario default]."
+)
+@click.option(
+    "--dt", type=click.FloatRange(min=0, min_open=True), help="Step, s [scenario default]."
+)
+@click.option(
+    "--duration",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Mission length, s [scenario default].",
+)
+@click.option("--seed", type=int, default=0, show_default=True, help="Initial positions/headings.")
+@click.option("--dynamics", type=click.Choice(DYNAMICS), help="Robot model [scenario default].")
+@click.option(
+    "--out",
+    "out_dir",
+    type=click.Path(file_okay=False, path_type=Path),
+    help="Output folder [runs/sim-<scenario>-<timestamp>].",
+)
+@click.option("--compare", is_flag=True, help="Also run without feedforward and compare.")
+def sim_command(
+    scenario_name: str,
+    agents: int | None,
+    law: str,
+    no_feedforward: bool,
+    kappa: float | None,
+    dt: float | None,
+    duration: float | None,
+    seed: int,
+    dynamics: str | None,
+    out_dir: Path | None,
+    compare: bool,
+) -> None:
+    """Simulate coverage of a moving domain in-process and write plots and a summary."""
+    from rich.console import Console
+    from rich.progress import (
+        BarColumn,
+        Progress,
+        TextColumn,
+        TimeElapsedColumn,
+        TimeRemainingColumn,
+    )
+
+    from coordinator.report import write_outputs
+
+    if compare and no_feedforward:
+        raise click.UsageError("--compare already runs without feedforward; drop --no-feedforward")
+    try:
+        scenario = load_scenario(scenario_name)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    options = {
+        "agents": scenario.agents if agents is None else agents,
+        "law": law,
+        "kappa": scenario.kappa if kappa is None else kappa,
+        "dt": scenario.dt if dt is None else dt,
+        "duration": scenario.duration if duration is None else duration,
+        "seed": seed,
+        "dynamics": scenario.dynamics if dynamics is None else dynamics,
+    }
+    runs = [not no_feedforward] + ([False] if compare else [])
+    console = Console()
+    results: list[SimResult] = []
+    started = time.perf_counter()
+    with Progress(
+        TextColumn("{task.description}"),
+        BarColumn(),
+        TextColumn("{task.percentage:>5.1f}%"),
+        TimeElapsedColumn(),
+        TimeRemainingColumn(),
+        console=console,
+        transient=False,
+    ) as bar:
+        for feedforward in runs:
+            label = f"{scenario.name} tvd_{law} {'with' if feedforward else 'without'} dc/dt"
+            task = bar.add_task(label, total=max(1, round(options["duration"] / options["dt"])))
+            results.append(simulate(
+                scenario, feedforward=feedforward,
+                progress=lambda step, _total, task=task: bar.update(task, completed=step),
+                **options,
+            ))  # fmt: skip
+    elapsed = time.perf_counter() - started
+
+    summary = build_summary(
+        scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
+        **{k: v for k, v in options.items() if k != "agents"},
+    )  # fmt: skip
+    if out_dir is None:
+        out_dir = Path("runs") / f"sim-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    write_outputs(
+        out_dir,
+        summary=summary,
+        t=results[0].t,
+        error=results[0].error,
+        trajectories=results[0].trajectories,
+        polygons=results[0].polygons,
+        error_compare=results[1].error if compare else None,
+        obstacles=list(scenario.obstacles),
+        workspace=scenario.workspace,
+    )
+    console.print(f"steady-state mean e_a: {summary['steady_state_error_mean']:.4g} m", end="")
+    if compare:
+        console.print(
+            f", without dc/dt {summary['steady_state_error_mean_without_feedforward']:.4g} m"
+            f" ({100 * summary['improvement']:.1f}% better with it)",
+            end="",
+        )
+    console.print(f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s")
+    console.print(f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png)")

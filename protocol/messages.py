@@ -1,0 +1,372 @@
+"""Message types of the covswarm wire protocol: msgpack maps with a schema version.
+
+Every message is a frozen dataclass validated on construction (``__post_init__``), so an
+invalid message can neither be decoded nor encoded: ``decode`` and the constructor raise
+:class:`ProtocolError` (a ValueError) with the reason, and callers drop and count.
+
+Validation is strict: payload size, schema version ``"v"``, every field present, **unknown
+fields rejected** (a new field means a new SCHEMA_VERSION; silently ignoring one would hide
+a version mismatch between processes), exact types (bool is not a number), finite numbers,
+ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES and magnitudes within sane bounds. Ints
+are accepted where floats are expected (other languages' encoders drop ``.0``). Geometry
+(convexity) is not checked here: that is agent.coverage.validate_polygon's job.
+"""
+
+from __future__ import annotations
+
+import math
+import numbers
+from collections.abc import Callable
+from dataclasses import dataclass, fields
+from typing import Any, ClassVar, TypeVar
+
+import msgpack
+
+from protocol.keys import MAX_ID
+
+SCHEMA_VERSION = 1
+
+MAX_PAYLOAD = 8192  # bytes; the largest valid message (64-vertex Domain) is ~2.4 kB
+MAX_VERTICES = 64
+MAX_NEIGHBORS = 256
+MAX_STATS = 32
+MAX_STAT_NAME = 32
+MAX_COORD = 1.0e4  # m: positions and vertices
+MAX_ANGLE = 1.0e4  # rad: headings need not be wrapped, but must be bounded
+MAX_WHEEL_SPEED = 10.0  # m/s on the wire; the robot clamps to its own, lower limit
+MAX_VERTEX_SPEED = 1.0e3  # m/s
+MAX_KAPPA = 1.0e3
+MAX_STAMP = 1.0e11  # s since the epoch
+MAX_TIME = 1.0e9  # s of mission time
+MAX_SEQ = 2**63 - 1
+MAX_STAT = 1.0e15
+STATES = ("waiting", "running", "done")
+
+
+class ProtocolError(ValueError):
+    """A payload or message that violates the wire protocol; the message says why."""
+
+
+Checker = Callable[[Any, str], Any]
+
+
+def _real(lo: float, hi: float) -> Checker:
+    """A finite number in [lo, hi], returned as float."""
+
+    def check(value: Any, name: str) -> float:
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            raise ProtocolError(f"{name}: expected a number, got {type(value).__name__}")
+        out = float(value)
+        if not math.isfinite(out):
+            raise ProtocolError(f"{name}: not finite ({out})")
+        if not lo <= out <= hi:
+            raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
+        return out
+
+    return check
+
+
+def _positive(hi: float) -> Checker:
+    """A finite number in (0, hi]."""
+    bounded = _real(0.0, hi)
+
+    def check(value: Any, name: str) -> float:
+        out = bounded(value, name)
+        if out <= 0.0:
+            raise ProtocolError(f"{name}: must be > 0, got {out}")
+        return out
+
+    return check
+
+
+def _int(lo: int, hi: int) -> Checker:
+    """An int in [lo, hi] (numpy integers accepted on the sending side)."""
+
+    def check(value: Any, name: str) -> int:
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+            raise ProtocolError(f"{name}: expected an int, got {type(value).__name__}")
+        out = int(value)
+        if not lo <= out <= hi:
+            raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
+        return out
+
+    return check
+
+
+def _optional(inner: Checker) -> Checker:
+    """None, or whatever ``inner`` accepts."""
+
+    def check(value: Any, name: str) -> Any:
+        return None if value is None else inner(value, name)
+
+    return check
+
+
+def _choice(options: tuple[str, ...]) -> Checker:
+    def check(value: Any, name: str) -> str:
+        if not isinstance(value, str) or value not in options:
+            raise ProtocolError(f"{name}: expected one of {options}, got {value!r}")
+        return value
+
+    return check
+
+
+def _sequence(value: Any, name: str) -> list[Any]:
+    """A list/tuple (or, when sending, anything with ``tolist`` such as a numpy array)."""
+    if hasattr(value, "tolist") and not isinstance(value, (list, tuple)):
+        value = value.tolist()
+    if not isinstance(value, (list, tuple)):
+        raise ProtocolError(f"{name}: expected an array, got {type(value).__name__}")
+    return list(value)
+
+
+def _points(min_n: int, max_n: int, bound: float) -> Checker:
+    """A list of [x, y] pairs, returned as a tuple of float pairs."""
+    coord = _real(-bound, bound)
+
+    def check(value: Any, name: str) -> tuple[tuple[float, float], ...]:
+        items = _sequence(value, name)
+        if not min_n <= len(items) <= max_n:
+            raise ProtocolError(f"{name}: {len(items)} points, expected {min_n}..{max_n}")
+        out = []
+        for i, item in enumerate(items):
+            pair = _sequence(item, f"{name}[{i}]")
+            if len(pair) != 2:
+                raise ProtocolError(f"{name}[{i}]: expected [x, y], got {len(pair)} values")
+            out.append((coord(pair[0], f"{name}[{i}].x"), coord(pair[1], f"{name}[{i}].y")))
+        return tuple(out)
+
+    return check
+
+
+def _ids(max_n: int) -> Checker:
+    """A list of distinct robot ids, returned as a sorted tuple."""
+    one = _int(0, MAX_ID)
+
+    def check(value: Any, name: str) -> tuple[int, ...]:
+        # Senders may pass a set of ids (msgpack never decodes to one).
+        items = _sequence(list(value) if isinstance(value, (set, frozenset)) else value, name)
+        if len(items) > max_n:
+            raise ProtocolError(f"{name}: {len(items)} ids, at most {max_n}")
+        ids = [one(item, f"{name}[{i}]") for i, item in enumerate(items)]
+        if len(set(ids)) != len(ids):
+            raise ProtocolError(f"{name}: duplicate ids")
+        return tuple(sorted(ids))
+
+    return check
+
+
+def _stats(value: Any, name: str) -> dict[str, float | int]:
+    """Small flat map of named numbers (counters and measurements)."""
+    if not isinstance(value, dict):
+        raise ProtocolError(f"{name}: expected a map, got {type(value).__name__}")
+    if len(value) > MAX_STATS:
+        raise ProtocolError(f"{name}: {len(value)} entries, at most {MAX_STATS}")
+    number = _real(-MAX_STAT, MAX_STAT)
+    integer = _int(-MAX_SEQ, MAX_SEQ)
+    out: dict[str, float | int] = {}
+    for key, item in value.items():
+        if not isinstance(key, str) or not 1 <= len(key) <= MAX_STAT_NAME:
+            raise ProtocolError(f"{name}: bad entry name {key!r}")
+        is_int = isinstance(item, numbers.Integral) and not isinstance(item, bool)
+        out[key] = integer(item, key) if is_int else number(item, key)
+    return out
+
+
+_ID = _int(0, MAX_ID)
+_COORD = _real(-MAX_COORD, MAX_COORD)
+_STAMP = _real(0.0, MAX_STAMP)
+_SEQ = _int(0, MAX_SEQ)
+_TIME = _real(-MAX_TIME, MAX_TIME)
+
+M = TypeVar("M", bound="Message")
+
+
+def _unpack(payload: Any) -> Any:
+    """Bytes (or a zenoh ZBytes) -> msgpack object, ProtocolError on anything malformed."""
+    if isinstance(payload, (bytes, bytearray, memoryview)):
+        data = bytes(payload)
+    elif hasattr(payload, "to_bytes"):  # zenoh.ZBytes
+        data = payload.to_bytes()
+    else:
+        raise ProtocolError(f"payload: expected bytes, got {type(payload).__name__}")
+    if len(data) > MAX_PAYLOAD:
+        raise ProtocolError(f"payload: {len(data)} bytes, limit {MAX_PAYLOAD}")
+    try:
+        return msgpack.unpackb(data, raw=False, strict_map_key=True)
+    # msgpack signals malformed input with many exception types (ExtraData, FormatError,
+    # StackError, UnicodeDecodeError, ValueError, ...): all of them mean "bad payload".
+    except Exception as exc:
+        raise ProtocolError(f"payload: not valid msgpack ({type(exc).__name__}: {exc})") from exc
+
+
+class Message:
+    """Base of all wire messages: schema-checked construction, encode and decode.
+
+    Subclasses are frozen dataclasses whose fields are the wire fields (besides "v") and
+    declare one checker per field in ``_SPEC``.
+    """
+
+    __slots__ = ()
+    _SPEC: ClassVar[dict[str, Checker]]
+
+    def __post_init__(self) -> None:
+        # Canonicalise every field (float/int/tuple) so equal messages compare equal.
+        for name, check in self._SPEC.items():
+            object.__setattr__(self, name, check(getattr(self, name), name))
+
+    def encode(self) -> bytes:
+        """msgpack bytes of this message, with the schema version."""
+        wire = {"v": SCHEMA_VERSION}
+        wire.update({f.name: getattr(self, f.name) for f in fields(self)})  # type: ignore[arg-type]
+        return msgpack.packb(wire, use_bin_type=True)
+
+    @classmethod
+    def decode(cls: type[M], payload: Any) -> M:
+        """Parse and validate a payload; raise ProtocolError with the reason."""
+        raw = _unpack(payload)
+        if not isinstance(raw, dict):
+            raise ProtocolError(f"{cls.__name__}: expected a map, got {type(raw).__name__}")
+        version = raw.pop("v", None)
+        if version != SCHEMA_VERSION or isinstance(version, bool):
+            raise ProtocolError(
+                f"{cls.__name__}: schema version {version!r}, expected {SCHEMA_VERSION}"
+            )
+        missing = [name for name in cls._SPEC if name not in raw]
+        if missing:
+            raise ProtocolError(f"{cls.__name__}: missing fields {missing}")
+        unknown = sorted(repr(name) for name in raw if name not in cls._SPEC)
+        if unknown:
+            raise ProtocolError(f"{cls.__name__}: unknown fields {', '.join(unknown)}")
+        return cls(**raw)
+
+
+@dataclass(frozen=True, slots=True)
+class Pose(Message):
+    """Robot -> everyone interested: pose at ``stamp`` (s since the epoch)."""
+
+    id: int
+    x: float
+    y: float
+    theta: float
+    stamp: float
+    seq: int
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "id": _ID,
+        "x": _COORD,
+        "y": _COORD,
+        "theta": _real(-MAX_ANGLE, MAX_ANGLE),
+        "stamp": _STAMP,
+        "seq": _SEQ,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class WheelCommand(Message):
+    """Agent -> robot: rim speeds in m/s; ``pose_stamp`` is the pose it was computed from."""
+
+    id: int
+    left: float
+    right: float
+    stamp: float
+    seq: int
+    pose_stamp: float
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "id": _ID,
+        "left": _real(-MAX_WHEEL_SPEED, MAX_WHEEL_SPEED),
+        "right": _real(-MAX_WHEEL_SPEED, MAX_WHEEL_SPEED),
+        "stamp": _STAMP,
+        "seq": _SEQ,
+        "pose_stamp": _STAMP,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class Domain(Message):
+    """Coordinator -> all: subdomain S(t) at mission time ``t`` and its vertex velocities."""
+
+    seq: int
+    stamp: float
+    t: float
+    state: str
+    vertices: tuple[tuple[float, float], ...]
+    velocities: tuple[tuple[float, float], ...]
+    kappa: float
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "seq": _SEQ,
+        "stamp": _STAMP,
+        "t": _TIME,
+        "state": _choice(STATES),
+        "vertices": _points(3, MAX_VERTICES, MAX_COORD),
+        "velocities": _points(3, MAX_VERTICES, MAX_VERTEX_SPEED),
+        "kappa": _positive(MAX_KAPPA),
+    }
+
+    def __post_init__(self) -> None:
+        Message.__post_init__(self)
+        if len(self.velocities) != len(self.vertices):
+            raise ProtocolError(
+                f"Domain: {len(self.velocities)} velocities for {len(self.vertices)} vertices"
+            )
+
+
+@dataclass(frozen=True, slots=True)
+class AgentState(Message):
+    """Agent -> one-hop neighbours and monitors: position, Voronoi neighbour ids, stats."""
+
+    id: int
+    x: float
+    y: float
+    stamp: float
+    neighbors: tuple[int, ...]
+    stats: dict[str, float | int]
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "id": _ID,
+        "x": _COORD,
+        "y": _COORD,
+        "stamp": _STAMP,
+        "neighbors": _ids(MAX_NEIGHBORS),
+        "stats": _stats,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class Beacon(Message):
+    """Agent -> agents in nearby tiles: "I am here" for neighbour discovery (~1 Hz)."""
+
+    id: int
+    x: float
+    y: float
+    stamp: float
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "id": _ID,
+        "x": _COORD,
+        "y": _COORD,
+        "stamp": _STAMP,
+    }
+
+
+@dataclass(frozen=True, slots=True)
+class Status(Message):
+    """Coordinator -> all: mission state, aggregate error (None until known), live counts."""
+
+    stamp: float
+    t: float
+    state: str
+    error: float | None
+    alive_agents: int
+    alive_robots: int
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "stamp": _STAMP,
+        "t": _TIME,
+        "state": _choice(STATES),
+        "error": _optional(_real(0.0, MAX_COORD * MAX_ID)),
+        "alive_agents": _int(0, MAX_ID + 1),
+        "alive_robots": _int(0, MAX_ID + 1),
+    }

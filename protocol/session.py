@@ -1,0 +1,115 @@
+"""Process plumbing shared by every covswarm process: Zenoh session config, stop, timing.
+
+Explicit endpoints only: multicast scouting and gossip are off, so a process talks to the
+router it was told about and nothing else (runs on one machine never cross by discovery).
+"""
+
+from __future__ import annotations
+
+import json
+import signal
+import threading
+import time
+from collections.abc import Callable
+
+import zenoh
+
+MODES = ("client", "peer", "router")
+
+
+def session_config(
+    connect: list[str] | None,
+    listen: list[str] | None = None,
+    mode: str = "client",
+    *,
+    max_sessions: int | None = None,
+) -> zenoh.Config:
+    """A zenoh.Config with explicit endpoints and no scouting.
+
+    ``connect``/``listen`` are endpoint lists such as ``["tcp/127.0.0.1:7447"]``. A client
+    must connect somewhere; a router must be told where to listen (zenoh's default would be
+    every interface). ``max_sessions`` raises the router's client limit (default 1000).
+    """
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if mode == "client" and not connect:
+        raise ValueError("a client session needs at least one --connect endpoint")
+    if mode == "router" and not listen:
+        raise ValueError("a router session needs at least one listen endpoint")
+    config = zenoh.Config()
+    config.insert_json5("mode", json.dumps(mode))
+    config.insert_json5("scouting/multicast/enabled", "false")
+    config.insert_json5("scouting/gossip/enabled", "false")
+    if connect:
+        config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+    if listen:
+        config.insert_json5("listen/endpoints", json.dumps(list(listen)))
+    if max_sessions is not None:
+        config.insert_json5("transport/unicast/max_sessions", json.dumps(int(max_sessions)))
+    return config
+
+
+def token_exists(session: zenoh.Session, key: str, timeout: float = 1.0) -> bool:
+    """True if a liveliness token matching ``key`` is alive (used to refuse duplicate ids).
+
+    Two processes started within the same instant can both pass this check; the launcher
+    never does that, and the check exists to catch operator mistakes.
+    """
+    replies = session.liveliness().get(key, timeout=timeout)
+    return any(reply.ok is not None for reply in replies)
+
+
+class StopFlag:
+    """Set by SIGINT/SIGTERM so the main loop can exit and close its session cleanly.
+
+    Zenoh callbacks run on background threads that keep a process alive until the session
+    is closed, so processes must leave their ``with zenoh.open(...)`` block, not just die.
+    """
+
+    def __init__(self) -> None:
+        self._event = threading.Event()
+        for signum in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(signum, self._handle)
+
+    def _handle(self, signum: int, frame: object) -> None:
+        self._event.set()
+
+    def set(self) -> None:
+        self._event.set()
+
+    def is_set(self) -> bool:
+        return self._event.is_set()
+
+    def sleep(self, seconds: float) -> None:
+        """Sleep, waking early if a stop was requested."""
+        self._event.wait(max(0.0, seconds))
+
+
+class Ticker:
+    """Fixed-rate loop timing on the monotonic clock, with overrun accounting.
+
+    Deadlines advance by whole periods so the average rate holds; after an overrun of more
+    than one period the schedule restarts from now instead of bursting to catch up.
+    """
+
+    def __init__(self, rate_hz: float, clock: Callable[[], float] = time.monotonic) -> None:
+        if not rate_hz > 0:
+            raise ValueError(f"rate must be positive, got {rate_hz!r}")
+        self.period = 1.0 / rate_hz
+        self._clock = clock
+        self._next = clock() + self.period
+        self.ticks = 0
+        self.overruns = 0
+
+    def wait(self, stop: StopFlag) -> float:
+        """Sleep until the next deadline (or a stop); returns the monotonic time of the tick."""
+        now = self._clock()
+        if now > self._next:
+            self.overruns += 1  # the deadline passed before we were ready to wait for it
+        if now > self._next + self.period:
+            self._next = now
+        else:
+            stop.sleep(self._next - now)
+        self._next += self.period
+        self.ticks += 1
+        return self._clock()

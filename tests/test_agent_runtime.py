@@ -1,0 +1,413 @@
+"""Agent decision logic with synthetic messages, plus one real-process run over Zenoh."""
+
+from __future__ import annotations
+
+import math
+import os
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import protocol
+from agent import runtime
+from agent.runtime import (
+    AgentBrain,
+    AgentConfig,
+    Decision,
+    cell_reach,
+    extrapolate_domain,
+    tile_radius,
+)
+
+WALL = 1.7e9
+SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
+
+
+def pose(rid: int, x: float, y: float, theta: float = 0.0) -> protocol.Pose:
+    return protocol.Pose(id=rid, x=x, y=y, theta=theta, stamp=WALL, seq=0)
+
+
+def domain(
+    state: str = "running", stamp: float = WALL, vertices: list | None = None, velocity=(0.0, 0.0)
+) -> protocol.Domain:
+    vertices = SQUARE if vertices is None else vertices
+    return protocol.Domain(
+        seq=1,
+        stamp=stamp,
+        t=0.0,
+        state=state,
+        vertices=vertices,
+        velocities=[list(velocity)] * len(vertices),
+        kappa=1.0,
+    )
+
+
+def brain_at(x: float, y: float, theta: float = 0.0, **config: object) -> AgentBrain:
+    brain = AgentBrain(0, AgentConfig(**config))
+    brain.on_pose(pose(0, x, y, theta), now=0.0)
+    return brain
+
+
+# --- pure helpers -----------------------------------------------------------------------
+
+
+def test_extrapolation_moves_then_holds_still() -> None:
+    d = domain(velocity=(0.1, 0.0))
+    vertices, velocities = extrapolate_domain(d, WALL + 0.5, max_extrapolation=1.0)
+    assert vertices == pytest.approx(np.array(SQUARE) + [0.05, 0.0])
+    assert velocities == pytest.approx(np.tile([0.1, 0.0], (4, 1)))
+    vertices, velocities = extrapolate_domain(d, WALL + 5.0, max_extrapolation=1.0)
+    assert vertices == pytest.approx(np.array(SQUARE) + [0.1, 0.0])
+    assert not velocities.any()
+    vertices, _ = extrapolate_domain(d, WALL - 1.0, max_extrapolation=1.0)  # clock skew
+    assert vertices == pytest.approx(np.array(SQUARE))
+
+
+def test_tile_radius_grows_at_once_and_shrinks_with_margin() -> None:
+    assert cell_reach(0.0, 0.04) == pytest.approx(0.4)
+    assert tile_radius(0.4, 1.0, current=1, max_radius=3) == 1
+    assert tile_radius(5.0, 1.0, current=1, max_radius=3) == 3  # capped
+    assert tile_radius(1.6, 1.0, current=3, max_radius=3) == 2
+    assert tile_radius(1.8, 1.0, current=2, max_radius=3) == 2  # 1.25 x 1.8 > 2: no flap
+    assert tile_radius(0.8, 1.0, current=3, max_radius=3) == 1
+
+
+# --- control decisions ------------------------------------------------------------------
+
+
+def test_no_pose_or_no_domain_gives_zero() -> None:
+    brain = AgentBrain(0)
+    assert brain.step(0.0, WALL).reason == "no-pose"
+    brain.on_pose(pose(0, 0.5, 0.5), now=0.0)
+    assert brain.step(0.1, WALL).reason == "no-domain"
+    brain.on_domain(domain(), now=0.0)
+    assert brain.step(5.0, WALL).reason == "no-pose"  # own pose went stale
+
+
+def test_running_drives_toward_centroid() -> None:
+    brain = brain_at(0.5, 1.0, theta=0.0)
+    brain.on_domain(domain(), now=0.0)
+    decision = brain.step(0.1, WALL)
+    assert decision.reason == "running"
+    assert decision.velocity[0] > 0.0  # alone in the square: centroid (1, 1) is to the right
+    assert decision.left > 0.0 and decision.right > 0.0
+    assert max(abs(decision.left), abs(decision.right)) <= 0.8
+
+
+@pytest.mark.parametrize("state", ["waiting", "done"])
+def test_waiting_and_done_give_zero_but_learn_neighbours(state: str) -> None:
+    brain = brain_at(0.5, 0.5)
+    brain.on_domain(domain(state), now=0.0)
+    brain.on_pose(pose(1, 1.5, 0.5), now=0.0)
+    decision = brain.step(0.1, WALL)
+    assert (decision.left, decision.right, decision.reason) == (0.0, 0.0, state)
+    assert brain.one_hop == {1}
+
+
+def test_two_hop_bookkeeping() -> None:
+    brain = brain_at(0.5, 1.0)
+    brain.on_domain(domain(), now=0.0)
+    brain.on_pose(pose(1, 1.5, 1.0), now=0.0)  # my only Voronoi neighbour in the square
+    brain.on_agent_state(
+        protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0, 7, 9], stats={}),
+        now=0.0,
+    )
+    brain.step(0.1, WALL)
+    assert brain.one_hop == {1}
+    assert brain.wanted_state_ids() == {1}
+    assert brain.two_hop(0.1) == {1, 7, 9}
+    assert brain.wanted_pose_ids(0.1) == {1, 7, 9}
+    # Robot 1 reports new neighbours: 7 and 9 linger for ``linger`` s, then go.
+    brain.on_agent_state(
+        protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0], stats={}), now=0.5
+    )
+    assert brain.wanted_pose_ids(0.5) == {1, 7, 9}
+    assert brain.wanted_pose_ids(1.2) == {1}
+    # A stale neighbour list no longer extends the set.
+    brain.on_agent_state(
+        protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0, 4], stats={}), now=1.3
+    )
+    assert brain.two_hop(1.4) == {1, 4}
+    assert brain.two_hop(3.0) == {1}
+
+
+def test_stale_poses_are_dropped() -> None:
+    brain = brain_at(0.5, 1.0, stale_timeout=1.0, beacon_timeout=3.0)
+    brain.on_domain(domain(), now=0.0)
+    brain.on_pose(pose(1, 1.5, 1.0), now=0.0)
+    assert set(brain.candidates(0.5)) == {1}
+    brain.on_pose(pose(0, 0.5, 1.0), now=2.0)  # our own pose stays fresh
+    assert brain.candidates(2.0) == {}
+    assert brain.counters.stale == 1
+    brain.step(2.0, WALL)
+    assert brain.one_hop == frozenset()
+
+
+def test_far_candidates_are_left_out_of_the_local_diagram() -> None:
+    brain = brain_at(0.5, 0.5)
+    brain.on_domain(domain(vertices=[[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]]), 0.0)
+    grid = [(i, j) for i in range(10) for j in range(10) if (i, j) != (0, 0)]
+    for rid, (i, j) in enumerate(grid, start=1):
+        brain.on_beacon(protocol.Beacon(id=rid, x=i + 0.5, y=j + 0.5, stamp=WALL), now=0.0)
+    brain.step(0.1, WALL)  # no reach yet: everything known is used
+    assert brain.stats()["local_set"] == 99
+    # Our cell is the unit square around us: reach 2 (1.4x the true 2R), local radius 2.5 m.
+    assert brain.reach == pytest.approx(2.0)
+    brain.step(0.2, WALL)
+    assert brain.stats()["local_set"] == sum(1 for i, j in grid if math.hypot(i, j) <= 2.5)
+
+
+def test_local_view_matches_the_full_team_law() -> None:
+    """Fed only what its subscriptions would deliver, an interior agent's velocity equals
+    row ``me`` of TVD-D1 computed on the whole team."""
+    from agent.control import tvd_d1
+    from agent.coverage import neighbors
+
+    rng = np.random.default_rng(3)
+    side, spacing = 10, 0.5
+    size = side * spacing
+    square = [[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]]
+    grid = [((i + 0.5) * spacing, (j + 0.5) * spacing) for i in range(side) for j in range(side)]
+    points = np.array(grid) + rng.uniform(-0.1, 0.1, (side * side, 2))
+    me = 5 * side + 4
+    brain = AgentBrain(me, AgentConfig(tile_size=1.0))
+    brain.on_domain(domain(vertices=square, velocity=(0.05, -0.02)), now=0.0)
+    truth = neighbors(points, np.array(square))
+    for k in range(5):  # subscriptions converge within a few steps
+        now = 0.1 * k
+        brain.on_pose(pose(me, *points[me]), now)
+        tiles = brain.wanted_tiles()
+        for i, (x, y) in enumerate(points):
+            if protocol.tile_of(x, y, 1.0) in tiles:
+                brain.on_beacon(protocol.Beacon(id=i, x=x, y=y, stamp=WALL), now)
+        for i in brain.wanted_state_ids():
+            state = protocol.AgentState(
+                id=i, x=points[i][0], y=points[i][1], stamp=WALL, neighbors=truth[i], stats={}
+            )
+            brain.on_agent_state(state, now)
+        for i in brain.wanted_pose_ids(now):
+            brain.on_pose(pose(i, *points[i]), now)
+        decision = brain.step(now, WALL)
+    expected = tvd_d1(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
+    assert brain.one_hop == truth[me]
+    assert brain.stats()["local_set"] < 30  # not the whole team of 100
+    assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
+
+
+def test_beacon_candidates_until_pose_arrives() -> None:
+    brain = brain_at(0.5, 1.0)
+    brain.on_beacon(protocol.Beacon(id=3, x=1.2, y=1.0, stamp=WALL), now=0.0)
+    assert brain.candidates(0.1)[3] == pytest.approx([1.2, 1.0])
+    brain.on_pose(pose(3, 1.4, 1.0), now=0.2)
+    assert brain.candidates(0.3)[3] == pytest.approx([1.4, 1.0])
+    # Pose stale (> 1 s) but beacon not yet (< 3 s): back to the beacon position.
+    assert brain.candidates(2.0)[3] == pytest.approx([1.2, 1.0])
+    assert 3 not in brain.candidates(3.5)
+    assert not brain.on_beacon(protocol.Beacon(id=0, x=0.0, y=0.0, stamp=WALL), now=0.0)
+
+
+def test_wanted_tiles_follow_own_position() -> None:
+    brain = AgentBrain(0, AgentConfig(tile_size=1.0))
+    assert brain.wanted_tiles() == set()
+    brain.on_pose(pose(0, 0.5, -0.5), now=0.0)
+    assert brain.wanted_tiles() == {(i, j) for i in (-1, 0, 1) for j in (-2, -1, 0)}
+    brain.on_pose(pose(0, 1.5, -0.5), now=0.1)
+    assert (2, 0) in brain.wanted_tiles() and (-1, 0) not in brain.wanted_tiles()
+
+
+def test_domain_order_and_validation() -> None:
+    brain = brain_at(0.5, 0.5)
+    assert brain.on_domain(domain(stamp=WALL + 1), now=0.0)
+    assert not brain.on_domain(domain(stamp=WALL), now=0.0)
+    assert brain.counters.old_domain == 1
+    bowtie = [[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]]
+    assert not brain.on_domain(domain(stamp=WALL + 2, vertices=bowtie), now=0.0)
+    assert brain.counters.bad_domain == 1
+    assert brain.domain.stamp == WALL + 1
+
+
+def test_bad_payloads_are_counted_not_raised() -> None:
+    brain = brain_at(0.5, 0.5)
+    assert not brain.receive("pose", b"\xff\x00", now=0.0)
+    assert not brain.receive("domain", b"", now=0.0)
+    assert brain.counters.invalid == 2
+    assert not brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, key_id=6)
+    assert brain.counters.wrong_id == 1
+    assert brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, key_id=5)
+    assert 5 in brain.poses
+
+
+def test_failing_math_stops_the_robot(monkeypatch: pytest.MonkeyPatch) -> None:
+    def boom(*args: object, **kwargs: object) -> None:
+        raise IndexError("bug")
+
+    monkeypatch.setattr(runtime, "local_step", boom)
+    brain = brain_at(0.5, 0.5)
+    brain.on_domain(domain(), now=0.0)
+    decision = brain.step(0.1, WALL)
+    assert (decision.left, decision.right, decision.reason) == (0.0, 0.0, "error")
+    assert brain.counters.step_errors == 1
+
+
+def test_nan_never_reaches_a_wheel_command() -> None:
+    brain = brain_at(0.5, 0.5)
+    message = brain.command(Decision(math.nan, 0.3, "running"), WALL)
+    assert (message.left, message.right) == (0.0, 0.0)
+
+
+def test_beacon_period_and_agent_state() -> None:
+    brain = AgentBrain(0)
+    assert brain.beacon(0.0, WALL) is None and brain.agent_state(WALL) is None
+    brain.on_pose(pose(0, 2.5, -0.5), now=0.0)
+    tile, beacon = brain.beacon(0.0, WALL)
+    assert tile == (2, -1) and beacon.id == 0
+    assert brain.beacon(0.5, WALL) is None
+    assert brain.beacon(1.0, WALL) is not None
+    brain.on_domain(domain(), now=0.0)
+    brain.step(0.1, WALL)
+    state = brain.agent_state(WALL)
+    assert protocol.AgentState.decode(state.encode()) == state
+    assert state.stats["step_us_p50"] > 0.0
+
+
+class _Sample:
+    def __init__(self, key: str, payload: bytes) -> None:
+        self.key_expr = key
+        self.payload = self
+        self._payload = payload
+
+    def to_bytes(self) -> bytes:
+        return self._payload
+
+
+def test_inbox_keeps_newest_per_key() -> None:
+    inbox = runtime.Inbox()
+    store = inbox.callback("pose")
+    store(_Sample("a", b"1"))
+    store(_Sample("a", b"2"))
+    store(_Sample("b", b"3"))
+    items, coalesced = inbox.drain()
+    assert sorted(items) == [("pose", "a", b"2"), ("pose", "b", b"3")]
+    assert coalesced == 1
+    assert inbox.drain() == ([], 0)
+
+
+# --- real processes ---------------------------------------------------------------------
+
+REPO = Path(__file__).resolve().parent.parent
+COVSWARM = str(Path(sys.executable).with_name("covswarm"))
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+class Latest:
+    """Newest decoded message per key, filled from Zenoh callbacks."""
+
+    def __init__(self, cls: type[protocol.Message]) -> None:
+        self.cls = cls
+        self.lock = threading.Lock()
+        self.values: dict[int, protocol.Message] = {}
+
+    def __call__(self, sample: object) -> None:
+        message = self.cls.decode(sample.payload.to_bytes())
+        with self.lock:
+            self.values[message.id] = message
+
+    def snapshot(self) -> dict[int, protocol.Message]:
+        with self.lock:
+            return dict(self.values)
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(120)
+def test_three_robots_and_agents_over_zenoh() -> None:
+    zenoh = pytest.importorskip("zenoh")
+    from agent.coverage import mass_centroid
+
+    swarm = protocol.new_swarm_name()
+    starts = [(0.3, 0.3), (0.6, 0.4), (0.4, 0.7)]
+    children: list[subprocess.Popen] = []
+    for attempt in range(5):  # the port can be taken between probing and binding
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        try:
+            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
+            break
+        except zenoh.ZError:
+            if attempt == 4:
+                raise
+    try:
+        poses = Latest(protocol.Pose)
+        states = Latest(protocol.AgentState)
+        session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
+        session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+        env = {**os.environ, "PYTHONUNBUFFERED": "1"}
+        for rid, (x, y) in enumerate(starts):
+            common = ["--id", str(rid), "--connect", endpoint, "--swarm", swarm]
+            robot = [COVSWARM, "robot", *common, "--x", str(x), "--y", str(y)]
+            children.append(subprocess.Popen(robot, cwd=REPO, env=env))
+            children.append(subprocess.Popen([COVSWARM, "agent", *common], cwd=REPO, env=env))
+
+        def publish(state: str, seq: int) -> None:
+            message = protocol.Domain(
+                seq=seq,
+                stamp=time.time(),
+                t=0.0,
+                state=state,
+                vertices=SQUARE,
+                velocities=[[0.0, 0.0]] * 4,
+                kappa=1.0,
+            )
+            session.put(protocol.domain_key(swarm), message.encode())
+
+        # Wait (domain "waiting") until every agent reports, i.e. sees its own pose.
+        seq, deadline = 0, time.monotonic() + 60.0
+        while len(states.snapshot()) < 3:
+            assert time.monotonic() < deadline, "agents did not come up"
+            assert all(child.poll() is None for child in children), "a child exited"
+            seq += 1
+            publish("waiting", seq)
+            time.sleep(0.1)
+
+        def error() -> float:
+            positions = np.array([[p.x, p.y] for _, p in sorted(poses.snapshot().items())])
+            _, centroids = mass_centroid(positions, np.array(SQUARE))
+            return float(np.linalg.norm(positions - centroids))
+
+        initial = error()
+        still = np.array([[p.x, p.y] for _, p in sorted(poses.snapshot().items())])
+        assert still == pytest.approx(np.array(starts), abs=1e-9)  # waiting: nobody moved
+        end = time.monotonic() + 6.0
+        while time.monotonic() < end:
+            seq += 1
+            publish("running", seq)
+            time.sleep(0.1)
+        final = error()
+        assert final < 0.5 * initial, (initial, final)
+        for state in states.snapshot().values():
+            assert state.stats["rate_hz"] > 5.0
+            assert state.stats["drop_invalid"] == 0
+            assert set(state.neighbors) <= {0, 1, 2} - {state.id}
+    finally:
+        for child in children:
+            if child.poll() is None:
+                child.send_signal(signal.SIGTERM)
+        codes = []
+        for child in children:
+            try:
+                codes.append(child.wait(timeout=10))
+            except subprocess.TimeoutExpired:
+                child.kill()
+                codes.append(child.wait())
+        session.close()
+    assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"

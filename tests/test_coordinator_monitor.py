@@ -1,0 +1,135 @@
+"""Pure bookkeeping of the coordinator: mission clock, liveness, error record, figures."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from coordinator.monitor import (
+    DONE,
+    RUNNING,
+    WAITING,
+    ErrorRecord,
+    Liveness,
+    MissionClock,
+    agent_figures,
+    losses_summary,
+)
+
+
+def test_clock_waits_until_the_team_is_ready() -> None:
+    clock = MissionClock(duration=10.0)
+    assert clock.update(100.0, team_ready=False) == WAITING
+    assert clock.mission_time(105.0) == 0.0
+    assert clock.update(107.0, team_ready=True) == RUNNING
+    assert clock.mission_time(110.5) == pytest.approx(3.5)
+
+
+def test_clock_is_done_at_duration_and_time_is_frozen_there() -> None:
+    clock = MissionClock(duration=10.0)
+    clock.update(0.0, team_ready=True)
+    assert clock.update(9.99, team_ready=True) == RUNNING
+    # A late tick (overloaded machine) still ends the mission exactly at its duration.
+    assert clock.update(10.7, team_ready=True) == DONE
+    assert clock.mission_time(10.7) == 10.0
+    assert clock.mission_time(50.0) == 10.0
+
+
+def test_clock_never_goes_back_to_waiting_when_processes_die() -> None:
+    clock = MissionClock(duration=10.0)
+    clock.update(0.0, team_ready=True)
+    assert clock.update(1.0, team_ready=False) == RUNNING
+
+
+def test_stop_ends_a_running_mission_early_but_not_a_waiting_one() -> None:
+    waiting = MissionClock(duration=10.0)
+    waiting.stop(1.0)
+    assert waiting.state == WAITING
+    running = MissionClock(duration=10.0)
+    running.update(0.0, team_ready=True)
+    running.stop(4.0)
+    assert running.update(5.0, team_ready=True) == DONE
+    assert running.mission_time(5.0) == 4.0
+
+
+def test_liveness_counts_and_records_changes_only() -> None:
+    live = Liveness()
+    assert live.update("robot", 1, True, wall=1.0, t=None) is not None
+    assert live.update("robot", 1, True, wall=1.1, t=None) is None  # repeated put
+    live.update("robot", 2, True, wall=1.2, t=None)
+    live.update("agent", 1, True, wall=1.3, t=None)
+    assert live.count("robot") == 2 and live.count("agent") == 1 and live.count("x") == 0
+    lost = live.update("robot", 2, False, wall=5.0, t=3.0)
+    assert lost is not None and not lost.alive and lost.t == 3.0
+    assert live.update("robot", 9, False, wall=5.0, t=3.0) is None  # never seen
+    assert live.count("robot") == 1
+    assert losses_summary(live.events) == [{"role": "robot", "id": 2, "t": 3.0, "wall": 5.0}]
+
+
+def test_liveness_records_a_process_that_comes_back() -> None:
+    live = Liveness()
+    live.update("agent", 4, True, wall=0.0, t=None)
+    live.update("agent", 4, False, wall=1.0, t=0.5)
+    live.update("agent", 4, True, wall=2.0, t=1.5)
+    assert live.count("agent") == 1
+    assert [e.alive for e in live.events] == [True, False, True]
+
+
+def test_error_record_trajectories_have_nan_where_unknown() -> None:
+    record = ErrorRecord()
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    record.add(0.0, 0.5, {3: (0.1, 0.2), 7: (0.3, 0.4)}, square)
+    record.add(0.1, 0.4, {7: (0.35, 0.45)}, square)  # robot 3 died
+    record.add(0.2, 0.3, {3: (0.2, 0.2), 5: (0.9, 0.9), 7: (0.4, 0.5)}, square)
+    assert record.robot_ids() == [3, 5, 7]
+    traj = record.trajectories()
+    assert traj.shape == (3, 3, 2)
+    np.testing.assert_array_equal(traj[0, 0], [0.1, 0.2])
+    assert np.isnan(traj[1, 0]).all() and np.isnan(traj[0, 1]).all()
+    np.testing.assert_array_equal(traj[2, 2], [0.4, 0.5])
+
+
+def test_agent_figures_summarise_whatever_stats_agents_send() -> None:
+    stats = {
+        2: {"rate_hz": 9.0, "step_us_p99": 4000.0},
+        1: {"rate_hz": 10.0, "step_us_p99": 2000.0, "extra": 1},
+    }
+    figures = agent_figures(stats)
+    assert figures["team"]["rate_hz"] == {"mean": 9.5, "min": 9.0, "max": 10.0}
+    assert figures["team"]["extra"] == {"mean": 1.0, "min": 1.0, "max": 1.0}
+    # Per agent: only the headline figures, those it reports.
+    assert figures["per_agent"] == {
+        "1": {"rate_hz": 10.0, "step_us_p99": 2000.0},
+        "2": {"rate_hz": 9.0, "step_us_p99": 4000.0},
+    }
+    assert agent_figures({}) == {"team": {}, "per_agent": {}}
+
+
+def test_summary_has_the_sim_keys_and_process_figures() -> None:
+    from coordinator.process import Observed, Settings, build_summary
+    from coordinator.scenarios import load_scenario
+
+    scenario = load_scenario("passage")
+    settings = Settings(
+        scenario=scenario, swarm="s", agents=2, duration=4.0, kappa=2.0, rate=20.0,
+        sample_rate=10.0, feedforward=False,
+    )  # fmt: skip
+    observed = Observed()
+    polygon = scenario.domain(0.0)[0]
+    for k, error in enumerate([0.4, 0.3, 0.2, 0.1, 0.1]):
+        observed.record.add(k, error, {0: (-2.0, 0.0), 1: (-1.5, 0.1)}, polygon)
+    observed.liveness.update("agent", 1, True, wall=0.0, t=None)
+    observed.liveness.update("agent", 1, False, wall=3.0, t=2.0)
+    observed.agent_stats = {0: {"rate_hz": 10.0}}
+    summary = build_summary(settings, observed)
+    sim_keys = {
+        "scenario", "agents", "law", "feedforward", "kappa", "steady_state_error_mean",
+        "final_error", "neighbor_histogram",
+    }  # fmt: skip
+    assert sim_keys <= summary.keys()
+    assert summary["law"] == "d1" and summary["feedforward"] is False
+    assert summary["steady_state_error_mean"] == pytest.approx((0.2 + 0.1 + 0.1) / 3)
+    assert summary["initial_error"] == 0.4 and summary["final_error"] == 0.1
+    assert summary["neighbor_histogram"] == {1: 2}
+    assert summary["lost_processes"] == [{"role": "agent", "id": 1, "t": 2.0, "wall": 3.0}]
+    assert summary["agent_stats"]["per_agent"] == {"0": {"rate_hz": 10.0}}

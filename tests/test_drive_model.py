@@ -1,0 +1,118 @@
+"""Differential-drive mapping (agent/drive.py) and arc integration (sim_robot/model.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agent.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV, DiffDrive, wheel_speeds
+from sim_robot.model import integrate
+
+L = DEFAULT_PROJECTION_DISTANCE
+HALF_TRACK = KHEPERA_IV.wheel_separation / 2
+
+
+def euler(poses: np.ndarray, wheels: np.ndarray, dt: float, substeps: int) -> np.ndarray:
+    """Reference: many tiny forward-Euler unicycle steps (wheels assumed within limits)."""
+    poses = poses.copy()
+    v = wheels.mean(axis=1)
+    w = (wheels[:, 1] - wheels[:, 0]) / KHEPERA_IV.wheel_separation
+    h = dt / substeps
+    for _ in range(substeps):
+        poses[:, 0] += h * v * np.cos(poses[:, 2])
+        poses[:, 1] += h * v * np.sin(poses[:, 2])
+        poses[:, 2] += h * w
+    return poses
+
+
+def test_khepera_constants() -> None:
+    assert KHEPERA_IV == DiffDrive(0.021, 0.1054, 0.14, 0.8)
+
+
+def test_forward_velocity_drives_both_wheels_equally() -> None:
+    wheels = wheel_speeds(np.array([0.0, np.pi / 2]), np.array([[0.1, 0.0], [0.0, -0.2]]))
+    np.testing.assert_allclose(wheels, [[0.1, 0.1], [-0.2, -0.2]], atol=1e-15)
+
+
+def test_sideways_velocity_turns_in_place() -> None:
+    wheels = wheel_speeds(np.array([0.0]), np.array([[0.0, 0.01]]))
+    w = 0.01 / L
+    np.testing.assert_allclose(wheels, [[-w * HALF_TRACK, w * HALF_TRACK]])
+
+
+def test_saturation_scales_both_wheels_and_keeps_curvature() -> None:
+    headings = np.array([0.3, -2.0])
+    velocities = np.array([[3.0, 1.0], [0.0, 5.0]])
+    raw = wheel_speeds(headings, velocities, robot=DiffDrive(max_wheel_speed=1e9))
+    wheels = wheel_speeds(headings, velocities)
+    np.testing.assert_allclose(np.abs(wheels).max(axis=1), KHEPERA_IV.max_wheel_speed)
+    np.testing.assert_allclose(wheels[:, 0] * raw[:, 1], wheels[:, 1] * raw[:, 0])
+
+
+def test_non_finite_input_gives_stopped_robot() -> None:
+    headings = np.array([np.nan, 0.0, 0.0, 0.0])
+    velocities = np.array([[0.1, 0.0], [np.inf, 0.0], [0.0, np.nan], [0.1, 0.1]])
+    wheels = wheel_speeds(headings, velocities)
+    assert np.all(np.isfinite(wheels))
+    np.testing.assert_array_equal(wheels[:3], 0.0)
+    assert np.all(wheels[3] != 0.0)
+
+
+def test_empty_team_and_bad_arguments() -> None:
+    assert wheel_speeds(np.zeros(0), np.zeros((0, 2))).shape == (0, 2)
+    with pytest.raises(ValueError):
+        wheel_speeds(np.zeros(2), np.zeros((3, 2)))
+    with pytest.raises(ValueError):
+        wheel_speeds(np.zeros(1), np.zeros((1, 2)), projection_distance=0.0)
+
+
+def test_projected_point_follows_the_command() -> None:
+    """The point projection_distance ahead of the axle moves with the commanded velocity."""
+    rng = np.random.default_rng(3)
+    headings = rng.uniform(-np.pi, np.pi, 20)
+    velocities = rng.uniform(-0.05, 0.05, (20, 2))  # small: no saturation
+    poses = np.column_stack([rng.uniform(-1, 1, (20, 2)), headings])
+    dt = 1e-4
+    after = integrate(poses, wheel_speeds(headings, velocities), dt)
+
+    def front(p: np.ndarray) -> np.ndarray:
+        return p[:, :2] + L * np.column_stack([np.cos(p[:, 2]), np.sin(p[:, 2])])
+
+    np.testing.assert_allclose((front(after) - front(poses)) / dt, velocities, atol=1e-4)
+
+
+def test_straight_line_and_turn_in_place() -> None:
+    poses = np.array([[0.0, 0.0, np.pi / 4], [1.0, 2.0, 0.0]])
+    wheels = np.array([[0.2, 0.2], [-0.1, 0.1]])
+    out = integrate(poses, wheels, 0.5)
+    np.testing.assert_allclose(out[0], [0.1 / np.sqrt(2), 0.1 / np.sqrt(2), np.pi / 4])
+    np.testing.assert_allclose(out[1], [1.0, 2.0, 0.5 * 0.1 / HALF_TRACK])
+
+
+def test_arc_matches_fine_euler() -> None:
+    rng = np.random.default_rng(0)
+    poses = np.column_stack([rng.uniform(-1, 1, (30, 2)), rng.uniform(-np.pi, np.pi, 30)])
+    wheels = rng.uniform(-0.5, 0.5, (30, 2))
+    exact = integrate(poses, wheels, 0.3)
+    reference = euler(poses, wheels, 0.3, 20000)
+    np.testing.assert_allclose(exact[:, :2], reference[:, :2], atol=2e-5)
+    wrapped = np.angle(np.exp(1j * (exact[:, 2] - reference[:, 2])))
+    np.testing.assert_allclose(wrapped, 0.0, atol=1e-9)
+
+
+def test_full_circle_returns_home_and_heading_wraps() -> None:
+    wheels = np.array([[0.1, 0.3]])
+    w = 0.2 / KHEPERA_IV.wheel_separation
+    start = np.array([[0.5, -0.5, 3.0]])
+    out = integrate(start, wheels, 2 * np.pi / w)
+    np.testing.assert_allclose(out, start, atol=1e-12)
+    half = integrate(start, wheels, np.pi / w)
+    assert -np.pi <= half[0, 2] < np.pi
+
+
+def test_wheels_clamped_each_and_nan_stops() -> None:
+    poses = np.zeros((2, 3))
+    out = integrate(poses, np.array([[5.0, 5.0], [np.nan, np.nan]]), 1.0)
+    np.testing.assert_allclose(out, [[KHEPERA_IV.max_wheel_speed, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    with pytest.raises(ValueError):
+        integrate(np.zeros((2, 3)), np.zeros((1, 2)), 0.1)

@@ -1,0 +1,158 @@
+"""End to end: ``covswarm run`` as a real subprocess over loopback Zenoh, no mocks.
+
+Each run gets its own swarm name; its processes are found by that name in /proc (every
+child has ``--swarm NAME`` on its command line), which is how these tests check that no
+child outlives the launcher. Small teams and short missions keep the whole file to about a
+minute and a half on two cores.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+
+from deploy.launcher import covswarm_argv
+
+pytestmark = pytest.mark.e2e
+
+
+def swarm_pids(swarm: str, *words: str) -> set[int]:
+    """Live (non-zombie) processes whose command line names ``swarm`` and ``words``."""
+    wanted = {swarm.encode(), *(w.encode() for w in words)}
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue  # exited while we looked
+        if wanted <= set(cmdline) and state != "Z":
+            pids.add(int(entry.name))
+    return pids
+
+
+def wait_until(predicate, timeout: float, period: float = 0.2) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(period)
+    return predicate()
+
+
+@contextmanager
+def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subprocess.Popen]:
+    """``covswarm run`` in the background; killed (with whatever it left) if the test fails."""
+    swarm_args = ["--swarm", swarm] if swarm else []
+    log = (out.parent / f"{out.name}.launcher.log").open("wb")
+    process = subprocess.Popen(
+        [*covswarm_argv(), "run", "--out", str(out), *swarm_args, *args],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        log.close()
+        for pid in swarm_pids(swarm) if swarm else ():
+            os.kill(pid, signal.SIGKILL)
+
+
+def new_swarm() -> str:
+    return f"e2e-{secrets.token_hex(4)}"
+
+
+def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> None:
+    swarm, out = new_swarm(), tmp_path / "run"
+    with launch(out, "--agents", "4", "--scenario", "passage", "--duration", "15",
+                swarm=swarm) as launcher:  # fmt: skip
+        assert wait_until(lambda: len(swarm_pids(swarm)) >= 1 + 1 + 4 + 4, timeout=60)
+        assert launcher.wait(timeout=150) == 0, (out.parent / "run.launcher.log").read_text()
+    for name in ("summary.json", "error.csv", "error.png", "trajectories.png"):
+        assert (out / name).stat().st_size > 0, name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["agents"] == 4 and summary["law"] == "d1" and summary["feedforward"] is True
+    assert summary["lost_processes"] == []
+    assert summary["alive_at_end"] == {"agents": 4, "robots": 4}
+    # Robots left still (a broken controller) stay near the random start's ~0.3-0.4 m and
+    # fall behind once the domain moves (t > 5 s); the controller gets to ~0.01 m.
+    assert summary["final_error"] < 0.05
+    assert summary["final_error"] < 0.25 * summary["initial_error"]
+    assert summary["steady_state_error_mean"] < 0.05
+    assert summary["agent_stats"]["team"]["rate_hz"]["min"] > 8.0
+    rows = (out / "error.csv").read_text().splitlines()
+    assert rows[0] == "t,e_a" and len(rows) > 100
+    assert swarm_pids(swarm) == set()
+
+
+def test_two_runs_at_once_do_not_collide(tmp_path: Path) -> None:
+    outs = [tmp_path / "a", tmp_path / "b"]
+    with (
+        launch(outs[0], "--agents", "2", "--duration", "5") as first,
+        launch(outs[1], "--agents", "2", "--duration", "5") as second,
+    ):
+        assert first.wait(timeout=120) == 0
+        assert second.wait(timeout=120) == 0
+    launches = [json.loads((out / "launch.json").read_text()) for out in outs]
+    assert launches[0]["swarm"] != launches[1]["swarm"]
+    assert launches[0]["endpoint"] != launches[1]["endpoint"]
+    for out in outs:
+        summary = json.loads((out / "summary.json").read_text())
+        # Each coordinator saw exactly its own team, none of the other run's processes.
+        assert summary["alive_at_end"] == {"agents": 2, "robots": 2}
+        assert sorted(summary["agent_stats"]["per_agent"]) == ["0", "1"]
+
+
+def test_a_dead_agent_is_reported_and_the_run_goes_on(tmp_path: Path) -> None:
+    swarm, out = new_swarm(), tmp_path / "death"
+    with launch(out, "--agents", "3", "--duration", "8", swarm=swarm) as launcher:
+        log = out / "logs" / "coordinator-0.log"
+        assert wait_until(lambda: log.exists() and "mission started" in log.read_text(), 60)
+        (victim,) = swarm_pids(swarm, "agent", "--id", "1")
+        os.kill(victim, signal.SIGKILL)
+        assert launcher.wait(timeout=60) == 0
+    lost = json.loads((out / "summary.json").read_text())["lost_processes"]
+    assert [(e["role"], e["id"]) for e in lost] == [("agent", 1)]
+    assert 0.0 <= lost[0]["t"] < 8.0
+    assert "agent-1" in (tmp_path / "death.launcher.log").read_text()
+    assert swarm_pids(swarm) == set()
+
+
+def test_children_die_when_the_launcher_is_sigkilled(tmp_path: Path) -> None:
+    swarm = new_swarm()
+    with launch(tmp_path / "killed", "--agents", "2", "--duration", "60",
+                swarm=swarm) as launcher:  # fmt: skip
+        # Launcher + coordinator + 2 robots + 2 agents, all started.
+        assert wait_until(lambda: len(swarm_pids(swarm)) == 6, timeout=60)
+        children = swarm_pids(swarm) - {launcher.pid}
+        launcher.kill()
+        launcher.wait()
+        assert wait_until(lambda: not (swarm_pids(swarm) & children), timeout=10)
+
+
+def test_sigterm_stops_the_run_cleanly_with_outputs(tmp_path: Path) -> None:
+    swarm, out = new_swarm(), tmp_path / "stopped"
+    with launch(out, "--agents", "2", "--duration", "60", swarm=swarm) as launcher:
+        log = out / "logs" / "coordinator-0.log"
+        assert wait_until(lambda: log.exists() and "mission started" in log.read_text(), 60)
+        time.sleep(3.0)  # some mission time, so there is something to write
+        launcher.send_signal(signal.SIGTERM)
+        assert launcher.wait(timeout=60) == 128 + signal.SIGTERM
+    summary = json.loads((out / "summary.json").read_text())
+    assert 2.0 < summary["mission_time"] < 30.0
+    assert swarm_pids(swarm) == set()

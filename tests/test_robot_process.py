@@ -1,0 +1,132 @@
+"""Pure logic of the simulated robot process (no Zenoh)."""
+
+from __future__ import annotations
+
+import math
+import subprocess
+import sys
+
+import msgpack
+import numpy as np
+import pytest
+
+import protocol
+from agent.drive import DiffDrive
+from sim_robot.process import RobotSim
+
+STAMP = 1.7e9
+
+
+def command(left: float, right: float, robot_id: int = 1) -> bytes:
+    return protocol.WheelCommand(
+        id=robot_id, left=left, right=right, stamp=STAMP, seq=1, pose_stamp=STAMP
+    ).encode()
+
+
+def raw_command(**overrides: object) -> bytes:
+    d = {"v": 1, "id": 1, "left": 0.1, "right": 0.1, "stamp": STAMP, "seq": 1, "pose_stamp": 0.0}
+    return msgpack.packb({**d, **overrides})
+
+
+def test_drives_straight_from_last_command() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5)
+    assert sim.on_command(command(0.2, 0.2), now=0.0)
+    for k in range(1, 11):
+        sim.step(k * 0.02)
+    assert sim.pose == pytest.approx([0.04, 0.0, 0.0], abs=1e-12)
+
+
+def test_command_timeout_stops_the_wheels() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5)
+    sim.on_command(command(0.2, 0.2), now=0.0)
+    t = 0.0
+    while t < 2.0:
+        t += 0.02
+        sim.step(t)
+    # moved for 0.5 s only, then stopped
+    assert sim.pose[0] == pytest.approx(0.1, abs=0.2 * 0.02 + 1e-9)
+    assert not sim.wheels.any()
+    assert sim.counters.timeouts == 1
+    x = sim.pose[0]
+    sim.step(t + 1.0)
+    assert sim.pose[0] == x
+
+
+def test_no_command_no_motion() -> None:
+    sim = RobotSim(1, (1.0, 2.0, 0.5))
+    for k in range(10):
+        sim.step(0.1 * k)
+    assert sim.pose == pytest.approx([1.0, 2.0, 0.5])
+
+
+@pytest.mark.parametrize(
+    "payload",
+    [
+        raw_command(left=math.nan),
+        raw_command(right=math.inf),
+        raw_command(left=100.0),
+        raw_command(left="fast"),
+        raw_command(extra=1),
+        b"\x93garbage",
+        b"",
+    ],
+)
+def test_bad_commands_are_dropped_and_never_integrated(payload: bytes) -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0))
+    sim.on_command(command(0.1, 0.1), now=0.0)
+    assert not sim.on_command(payload, now=0.01)
+    assert sim.counters.rejected == 1
+    assert sim.wheels == pytest.approx([0.1, 0.1])  # the last valid command holds
+    sim.step(0.02)
+    assert np.all(np.isfinite(sim.pose))
+
+
+def test_command_for_another_robot_is_ignored() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0))
+    assert not sim.on_command(command(0.3, 0.3, robot_id=2), now=0.0)
+    assert sim.counters.wrong_id == 1
+    assert not sim.wheels.any()
+
+
+def test_wheels_clamped_to_robot_limit() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0), robot=DiffDrive(max_wheel_speed=0.5))
+    sim.on_command(command(2.0, 2.0), now=0.0)
+    sim.step(0.1)
+    assert sim.pose[0] == pytest.approx(0.05)
+
+
+def test_stall_does_not_teleport() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5)
+    sim.on_command(command(0.2, 0.2), now=0.0)
+    sim.step(0.0)
+    sim.on_command(command(0.2, 0.2), now=10.0)  # a command arrives after a 10 s freeze
+    sim.step(10.0)
+    assert sim.pose[0] <= 0.2 * 0.5 + 1e-12
+
+
+def test_turning_in_place_wraps_heading() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 3.0))
+    sim.on_command(command(-0.1, 0.1), now=0.0)
+    sim.step(0.2)
+    message = sim.pose_message(STAMP, 0)
+    assert -math.pi <= message.theta < math.pi
+    assert (message.x, message.y) == pytest.approx((0.0, 0.0), abs=1e-12)
+    assert protocol.Pose.decode(message.encode()) == message
+
+
+def test_bad_construction_rejected() -> None:
+    with pytest.raises(ValueError):
+        RobotSim(1, (math.nan, 0.0, 0.0))
+    with pytest.raises(ValueError):
+        RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.0)
+    with pytest.raises(ValueError):
+        RobotSim(-1, (0.0, 0.0, 0.0))
+
+
+def test_robot_process_does_not_import_scipy() -> None:
+    code = (
+        "import sys, sim_robot.process; "
+        "bad = [m for m in ('scipy', 'matplotlib') if m in sys.modules]; "
+        "assert not bad, bad"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
