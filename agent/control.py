@@ -194,7 +194,11 @@ def local_step(
 
     positions: {id: (2,)} including ``me``. Builds only the cells of ``me`` and of its
     neighbours (a local partial Voronoi diagram); equals row ``me`` of ``tvd_d1`` on the full
-    team whenever ``positions`` contains the true two-hop neighbourhood.
+    team whenever ``positions`` contains the true two-hop neighbourhood. A robot whose cell
+    is empty (outside S, every point of S closer to someone else) has no neighbours inside
+    S; it is exact when ``positions`` holds the robots whose Voronoi regions in the plane
+    border its own, and a robot that sees nobody takes all of S as its cell and heads for
+    its centroid, which also brings it into S.
     """
     _require_uniform(density)
     _check_kappa(kappa)
@@ -204,32 +208,29 @@ def local_step(
     points = validate_positions(np.array([positions[key] for key in ids], dtype=np.float64))
     domain = make_domain(polygon, polygon_velocity)
     everyone = np.arange(len(ids))
-    # One vectorised pass builds every known robot's cell (cheaper than two passes); only
-    # the cells of ``me`` and its neighbours are exact, and only those are used.
-    local = build_cells(points, everyone, np.broadcast_to(everyone, (len(ids), len(ids))), domain)
-    references = _references(local, points, domain, kappa, feedforward)
     index = ids.index(me)
-    mine = _select(local, index)
+    mine = build_cells(points, np.array([index]), everyone[None], domain)
+    own = _references(mine, points, domain, kappa, feedforward)
     neighbor_indices = np.unique(mine.labels[0][mine.shared[0]])
-    velocity = _d1_rows(
-        mine,
-        points,
-        references[index : index + 1],
-        references[np.maximum(mine.labels, 0)],
-        max_amplification,
-    )[0]
+    by_robot = np.zeros((len(ids), 2))
+    if len(neighbor_indices):
+        # Only the neighbours' cells are built beside one's own: the cost grows with the
+        # neighbour count times the square of the robots known, not with their cube.
+        theirs = build_cells(
+            points,
+            neighbor_indices,
+            np.broadcast_to(everyone, (len(neighbor_indices), len(ids))),
+            domain,
+        )
+        by_robot[neighbor_indices] = _references(theirs, points, domain, kappa, feedforward)
+    velocity = _d1_rows(mine, points, own, by_robot[np.maximum(mine.labels, 0)], max_amplification)[
+        0
+    ]
     return LocalStep(
         velocity=velocity,
         neighbors=frozenset(ids[j] for j in neighbor_indices),
         centroid=mine.centroid[0].copy(),
         mass=float(mine.mass[0]),
-    )
-
-
-def _select(batch: CellBatch, row: int) -> CellBatch:
-    """The one-cell batch holding row ``row`` of ``batch``."""
-    return CellBatch(
-        **{name: getattr(batch, name)[row : row + 1] for name in CellBatch.__dataclass_fields__}
     )
 
 

@@ -324,12 +324,15 @@ def build_cells(
     position = np.arange(present.shape[1])
     following = np.where(position + 1 < count[:, None], position + 1, 0)
     end = np.where(present[..., None], np.take_along_axis(start, following[..., None], axis=1), 0.0)
-    twice_area = cross(start, end)
+    # Moments about a vertex of the cell, not the owner: a sliver cell far from its robot
+    # would otherwise lose its digits to cancellation.
+    origin = start[:, :1, :]
+    twice_area = np.where(present, cross(start - origin, end - origin), 0.0)
     mass = 0.5 * np.sum(twice_area, axis=1)
     empty = mass <= tol * tol
     mass = np.where(empty, 0.0, mass)
-    moment = np.sum((start + end) * twice_area[..., None], axis=1)
-    centroid = me + moment / (6.0 * np.where(empty, 1.0, mass))[:, None]
+    moment = np.sum((start + end - 2.0 * origin) * twice_area[..., None], axis=1)
+    centroid = me + origin[:, 0, :] + moment / (6.0 * np.where(empty, 1.0, mass))[:, None]
     for i in np.flatnonzero(empty):
         centroid[i] = nearest_point(domain, me[i])[0]
     present &= ~empty[:, None]

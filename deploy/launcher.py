@@ -88,7 +88,12 @@ def plan_children(
     out_dir: Path,
     base: Sequence[str],
 ) -> list[ChildSpec]:
-    """Coordinator first (it must see everyone arrive), then all robots, then all agents."""
+    """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
+
+    Pairs rather than all robots first: a waiting robot already runs its loop, so starting
+    every robot before the (slower to import) agents would load the machine while the
+    agents start. The coordinator holds the mission until everyone is up either way.
+    """
     common = ("--connect", endpoint, "--swarm", swarm)
     ff = () if feedforward else ("--no-feedforward",)
     coordinator = (
@@ -98,17 +103,15 @@ def plan_children(
     )  # fmt: skip
     specs = [ChildSpec("coordinator", 0, coordinator)]
     for i, (x, y, theta) in enumerate(initial_poses(scenario, agents, seed)):
-        argv = (
+        robot = (
             *base, "robot", "--id", str(i), *common,
             "--x", repr(float(x)), "--y", repr(float(y)), "--theta", repr(float(theta)),
         )  # fmt: skip
-        specs.append(ChildSpec("robot", i, argv))
-    for i in range(agents):
-        argv = (
+        agent = (
             *base, "agent", "--id", str(i), *common, "--rate", repr(rate), "--kappa", repr(kappa),
             *ff,
         )  # fmt: skip
-        specs.append(ChildSpec("agent", i, argv))
+        specs += [ChildSpec("robot", i, robot), ChildSpec("agent", i, agent)]
     return specs
 
 

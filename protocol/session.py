@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import json
 import signal
-import threading
 import time
 from collections.abc import Callable
 
@@ -64,25 +63,29 @@ class StopFlag:
 
     Zenoh callbacks run on background threads that keep a process alive until the session
     is closed, so processes must leave their ``with zenoh.open(...)`` block, not just die.
+    The handler only sets a bool: Python runs handlers between bytecodes of the main
+    thread, which may be holding any lock at that moment (setting a threading.Event from
+    the handler deadlocked a robot that was inside Event.wait). Loops notice the flag at
+    their next tick, at most one period late.
     """
 
     def __init__(self) -> None:
-        self._event = threading.Event()
+        self._stop = False
         for signum in (signal.SIGINT, signal.SIGTERM):
             signal.signal(signum, self._handle)
 
     def _handle(self, signum: int, frame: object) -> None:
-        self._event.set()
+        self._stop = True
 
     def set(self) -> None:
-        self._event.set()
+        self._stop = True
 
     def is_set(self) -> bool:
-        return self._event.is_set()
+        return self._stop
 
     def sleep(self, seconds: float) -> None:
-        """Sleep, waking early if a stop was requested."""
-        self._event.wait(max(0.0, seconds))
+        """Sleep (a signal handler runs in between, and the caller then sees the flag)."""
+        time.sleep(max(0.0, seconds))
 
 
 class Ticker:

@@ -2,8 +2,8 @@
 
 Nothing here imports agent.*: cells are built with shapely by clipping the domain with one
 half-plane polygon per other robot, masses and centroids come from shapely, derivatives from
-central finite differences. The conventions are the paper's definition of the cells plus docs/CONTRACTS.md for
-degenerate cases:
+central finite differences. The conventions are the paper's definition of the cells plus
+docs/CONTRACTS.md for degenerate cases:
 
 - a robot exactly coincident with a lower-index robot does not take part in the
   tessellation and has an empty cell;

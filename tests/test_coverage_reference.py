@@ -94,7 +94,7 @@ def test_cw_input_gives_ccw_cells(n: int) -> None:
     cw = as_cw(polygon, shift=1)
     assert signed_area(cw) < 0
     check_against_reference(positions, cw)
-    for a, b in zip(coverage.cells(positions, polygon), coverage.cells(positions, cw)):
+    for a, b in zip(coverage.cells(positions, polygon), coverage.cells(positions, cw), strict=True):
         if len(a) == 0:
             assert len(b) == 0
         else:
@@ -229,3 +229,44 @@ def test_collinear_robots_reference() -> None:
         positions = np.asarray(c) + ts[:, None] * d
         check_against_reference(positions, polygon)
         check_neighbors(positions, polygon)
+
+
+def test_sliver_cell_centroid_precision() -> None:
+    """Found by COVSWARM_STRESS on test_degenerate.test_collinear_robots (low severity).
+
+    Robot 4 is outside S, next to the vertex (-2.824, 2.367); its cell is a triangle of
+    area 1.9e-11 about 1e-5 across, 0.09 away from the robot. The centroid comes back
+    1.3e-9 from the exact centroid of the code's own triangle (1e-4 of the cell's size,
+    1.2e-9 diam(S)): the moments are accumulated about the robot, far from the tiny cell,
+    and cancel. Accumulating about a vertex of the cell (or the mean of its vertices)
+    restores full precision. Criterion: centroid within 1e-6 of the cell's own size.
+    """
+    X = np.array(
+        [
+            [-2.944626973701276, 2.5085392599803704],
+            [-2.312389756072093, 2.5085392599803704],
+            [-2.7326859288962204, 2.5085392599803704],
+            [-2.6161448837954007, 2.5085392599803704],
+            [-2.9154269511312467, 2.5085392599803704],
+        ]
+    )
+    P = np.array(
+        [
+            [-1.7418997050237617, 2.5462689002853427],
+            [-2.5318391067256063, 3.048331700485555],
+            [-2.5965512748944466, 3.013712375001448],
+            [-2.824059534346402, 2.36678164333567],
+            [-2.6024275067854097, 2.1389568443076326],
+            [-2.261325486575862, 2.0797631985288785],
+            [-2.1260627580035587, 2.1112178938768067],
+            [-2.065219541253147, 2.1362166201419663],
+        ]
+    )
+    mass, cen = coverage.mass_centroid(X, P)
+    ref = reference_cells(X, P)
+    for i, cell in enumerate(ref):
+        if cell is None:
+            continue
+        size = scale_of(np.asarray(cell.exterior.coords))
+        err = np.linalg.norm(cen[i] - np.asarray(cell.centroid.coords[0]))
+        assert err <= 1e-6 * size, f"robot {i}: centroid off by {err / size:.2g} of its cell"

@@ -8,6 +8,8 @@ shapely oracle where the answer is well defined.
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -28,7 +30,10 @@ from test_coverage_reference import check_against_reference
 
 from agent import control, coverage
 
-SETTINGS = settings(deadline=None, max_examples=25, derandomize=True)
+# CI: 25 derandomized examples per property. For a deeper local run:
+# COVSWARM_STRESS=500 pytest tests/test_degenerate.py (random, not derandomized)
+_STRESS = int(os.environ.get("COVSWARM_STRESS", "0"))
+SETTINGS = settings(deadline=None, max_examples=_STRESS or 25, derandomize=not _STRESS)
 seeds = st.integers(0, 2**32 - 1)
 
 
@@ -114,9 +119,7 @@ def test_coincident_robots(seed, n, copies):
 def test_collinear_robots(seed, n, direction):
     rng, polygon, _, V = case(seed, 1)
     c = np.array(Polygon(polygon).centroid.coords[0])
-    d = {"random": rng.normal(size=2), "horizontal": [1.0, 0.0], "vertical": [0.0, 1.0]}[
-        direction
-    ]
+    d = {"random": rng.normal(size=2), "horizontal": [1.0, 0.0], "vertical": [0.0, 1.0]}[direction]
     d = np.asarray(d) / np.linalg.norm(d)
     ts = rng.uniform(-0.7, 0.7, n) * scale_of(polygon)
     if rng.random() < 0.3:
@@ -144,9 +147,7 @@ def test_robots_outside_head_for_s(seed, n, distance):
             continue
         target = nearest_point(polygon, positions[i])
         for key in ("c", "d1"):
-            np.testing.assert_allclose(
-                out[key][i], 1.7 * (target - positions[i]), atol=1e-9 * diam
-            )
+            np.testing.assert_allclose(out[key][i], 1.7 * (target - positions[i]), atol=1e-9 * diam)
 
 
 @SETTINGS
@@ -184,9 +185,7 @@ def test_nearly_coincident_robots(seed, n, log_gap):
     # coincidence tolerance, the later robot is treated as a duplicate
     m_ref, c_ref = reference_mass_centroid(positions, polygon)
     m_dup, c_dup = reference_mass_centroid(positions[:-1], polygon)
-    exact = np.allclose(mass, m_ref, atol=1e-9 * area) and np.allclose(
-        cen, c_ref, atol=1e-9 * diam
-    )
+    exact = np.allclose(mass, m_ref, atol=1e-9 * area) and np.allclose(cen, c_ref, atol=1e-9 * diam)
     dup = (
         mass[-1] == 0
         and np.allclose(mass[:-1], m_dup, atol=1e-9 * area)
@@ -213,7 +212,7 @@ def test_cw_equals_ccw(seed, n, shift):
     assert a["nb"] == b["nb"]
     for key in ("c", "d1"):
         np.testing.assert_allclose(b[key], a[key], atol=1e-9 * (diam + vs))
-    for ca, cb in zip(a["cells"], b["cells"]):
+    for ca, cb in zip(a["cells"], b["cells"], strict=True):
         assert len(ca) == len(cb) == 0 or (
             Polygon(ca).symmetric_difference(Polygon(cb)).area <= 1e-12 * diam**2
         )
@@ -234,7 +233,10 @@ INVALID_POLYGONS = {
         np.array([[np.cos(a), np.sin(a)] for a in np.arange(5) * 4 * np.pi / 5]),
         r"self-intersect|convex|simple|wind",
     ),
-    "zero-area": (np.array([[1.0, 1.0]] * 4), r"area|degenerate|distinct|duplicate|repeat|zero-length|collinear"),
+    "zero-area": (
+        np.array([[1.0, 1.0]] * 4),
+        r"area|degenerate|distinct|duplicate|repeat|zero-length|collinear",
+    ),
     "collinear": (np.array([[0, 0], [1, 1], [2, 2], [3, 3]], float), r"area|collinear|degen"),
     "nan": (np.array([[0, 0], [1, 0], [np.nan, 1], [0, 1]], float), r"nan|finite"),
     "inf": (np.array([[0, 0], [1, 0], [np.inf, 1], [0, 1]], float), r"inf|finite"),

@@ -234,13 +234,13 @@ def test_empty_cell_rows_follow_nearest_point() -> None:
 def test_rotation_about_a_far_point() -> None:
     """Edges rotate, so the normal boundary speed varies along each edge (the exactness
     claim of the linear-interpolation boundary velocity)."""
-    rng = np.random.default_rng(12)
     confs, _ = configurations(12, 6, 10, outside=0.0)
     for positions, polygon, _ in confs:
         o = polygon.mean(axis=0) + np.array([3.0, -2.0]) * scale_of(polygon)
         w = 0.7
         V = w * (polygon - o) @ SKEW.T
         rate = coverage.centroid_rate(positions, polygon, V)
-        fd = fd_rate(centroids_at(positions), lambda t, o=o: o + (polygon - o) @ rot(w * t).T, H)
+        fd = fd_rate(
+            centroids_at(positions), lambda t, o=o, P=polygon, w=w: o + (P - o) @ rot(w * t).T, H
+        )
         assert rel_err(rate, fd, float(np.max(np.linalg.norm(V, axis=1)))) <= TOL
-    del rng

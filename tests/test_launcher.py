@@ -33,10 +33,10 @@ def _option(argv: tuple[str, ...], name: str) -> str:
     return argv[argv.index(name) + 1]
 
 
-def test_plan_starts_coordinator_then_robots_then_agents() -> None:
+def test_plan_starts_coordinator_then_robot_agent_pairs() -> None:
     specs = _plan()
     assert [s.name for s in specs] == [
-        "coordinator-0", "robot-0", "robot-1", "robot-2", "agent-0", "agent-1", "agent-2",
+        "coordinator-0", "robot-0", "agent-0", "robot-1", "agent-1", "robot-2", "agent-2",
     ]  # fmt: skip
     for spec in specs:
         assert spec.argv[:2] == ("covswarm", spec.role)
@@ -47,7 +47,7 @@ def test_plan_starts_coordinator_then_robots_then_agents() -> None:
     assert float(_option(coordinator, "--duration")) == 12.0
     assert _option(coordinator, "--out") == "out"
     assert "--feedforward" in coordinator
-    assert _option(specs[4].argv, "--id") == "0" and float(_option(specs[4].argv, "--rate")) == 10
+    assert _option(specs[2].argv, "--id") == "0" and float(_option(specs[2].argv, "--rate")) == 10
 
 
 def test_plan_passes_no_feedforward_to_agents_and_coordinator() -> None:

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import math
+import signal
 import subprocess
 import sys
+import time
 
 import msgpack
 import pytest
@@ -331,3 +333,32 @@ def test_fuzz_structured(base: protocol.Message, overrides: dict) -> None:
         return
     # Whatever is accepted re-encodes to an equal message.
     assert type(base).decode(decoded.encode()) == decoded
+
+
+# --- process plumbing -------------------------------------------------------------------
+
+LOOP = """
+from protocol.session import StopFlag, Ticker
+stop = StopFlag()
+ticker = Ticker(200.0)
+print("ready", flush=True)
+while not stop.is_set():
+    ticker.wait(stop)
+print("stopped", ticker.ticks > 0, flush=True)
+"""
+
+
+@pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
+def test_stop_flag_ends_a_ticking_loop(signum: int) -> None:
+    child = subprocess.Popen([sys.executable, "-c", LOOP], stdout=subprocess.PIPE, text=True)
+    try:
+        assert child.stdout.readline() == "ready\n"
+        time.sleep(0.05)
+        child.send_signal(signum)
+        out, _ = child.communicate(timeout=5)
+    finally:
+        if child.poll() is None:
+            child.kill()
+            child.wait()
+    assert child.returncode == 0
+    assert out == "stopped True\n"
