@@ -15,6 +15,9 @@ near singular:
 - TVD-C falls back to the guarded TVD-D1 velocities when the solve fails, gives a non-finite
   result, or amplifies any robot's speed beyond ``max_amplification`` times max |r|.
 
+With a density (a snapshot at the current time, agent.density.Density) c, dc/dp and dc/dt
+are those of phi, dc/dt with both terms of Proposition 1.
+
 A robot with an empty cell (outside S and dominated, or a coincident duplicate) gets
 pdot = kappa (q - p) + dq/dt, q the nearest point of S: it heads for S, tracking the
 point of S it aims at, and a duplicate inside S holds still until it owns a cell.
@@ -31,11 +34,12 @@ import scipy.sparse.linalg
 
 from agent.coverage import (
     CellBatch,
+    DensityModel,
     Domain,
-    _require_uniform,
-    boundary_rates,
     build_cells,
-    jacobian_blocks,
+    cell_jacobian_blocks,
+    cell_rates,
+    check_density,
     make_domain,
     tessellate,
     validate_positions,
@@ -59,12 +63,17 @@ class LocalStep:
 
 
 def _references(
-    batch: CellBatch, points: np.ndarray, domain: Domain, kappa: float, feedforward: bool
+    batch: CellBatch,
+    points: np.ndarray,
+    domain: Domain,
+    kappa: float,
+    feedforward: bool,
+    density: DensityModel | None,
 ) -> np.ndarray:
     """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K, 2): what both laws act on."""
     reference = kappa * (batch.centroid - points[batch.owners])
     if feedforward:
-        reference = reference + boundary_rates(batch, points, domain)
+        reference = reference + cell_rates(batch, points, domain, density)
     return reference
 
 
@@ -74,13 +83,14 @@ def _d1_rows(
     own: np.ndarray,
     neighbor_references: np.ndarray,
     max_amplification: float,
+    density: DensityModel | None,
 ) -> np.ndarray:
     """Rows of (I + dc/dp) r for the batch's robots, with the amplification guard.
 
     own: (K, 2) r_i; neighbor_references: (K, L, 2) r_j of the robot each line comes from
     (ignored where the line is not a shared edge). Empty cells keep r_i.
     """
-    off, diagonal = jacobian_blocks(batch, points)
+    off, diagonal = cell_jacobian_blocks(batch, points, density)
     shared = batch.shared[..., None]
     others = np.where(shared, neighbor_references, 0.0)
     velocity = own + np.einsum("kab,kb->ka", diagonal, own) + np.einsum("klab,klb->ka", off, others)
@@ -103,10 +113,11 @@ def _team(
     polygon_velocity: np.ndarray,
     kappa: float,
     feedforward: bool,
+    density: DensityModel | None,
 ) -> tuple[np.ndarray, CellBatch, np.ndarray]:
     _check_kappa(kappa)
-    points, domain, batch = tessellate(positions, polygon, polygon_velocity)
-    return points, batch, _references(batch, points, domain, kappa, feedforward)
+    points, domain, batch = tessellate(positions, polygon, polygon_velocity, density)
+    return points, batch, _references(batch, points, domain, kappa, feedforward, density)
 
 
 def tvd_d1(
@@ -115,23 +126,31 @@ def tvd_d1(
     polygon_velocity: np.ndarray,
     kappa: float,
     feedforward: bool = True,
-    density: object = None,
+    density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
 ) -> np.ndarray:
     """TVD-D1 velocities pdot = (I + dc/dp)(kappa (c - p) + dc/dt) for the whole team.
 
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).
     """
-    _require_uniform(density)
-    points, batch, references = _team(positions, polygon, polygon_velocity, kappa, feedforward)
+    points, batch, references = _team(
+        positions, polygon, polygon_velocity, kappa, feedforward, density
+    )
     return _d1_rows(
-        batch, points, references, references[np.maximum(batch.labels, 0)], max_amplification
+        batch,
+        points,
+        references,
+        references[np.maximum(batch.labels, 0)],
+        max_amplification,
+        density,
     )
 
 
-def _control_jacobian(batch: CellBatch, points: np.ndarray) -> scipy.sparse.csr_array:
+def _control_jacobian(
+    batch: CellBatch, points: np.ndarray, density: DensityModel | None
+) -> scipy.sparse.csr_array:
     """Sparse dc/dp with the rows of empty cells zero (those robots do not use it)."""
-    off, diagonal = jacobian_blocks(batch, points)
+    off, diagonal = cell_jacobian_blocks(batch, points, density)
     shared = batch.shared
     block_rows = np.concatenate(
         [batch.owners, np.broadcast_to(batch.owners[:, None], shared.shape)[shared]]
@@ -151,7 +170,7 @@ def tvd_c(
     polygon_velocity: np.ndarray,
     kappa: float,
     feedforward: bool = True,
-    density: object = None,
+    density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
 ) -> np.ndarray:
     """TVD-C velocities: solve (I - dc/dp) pdot = kappa (c - p) + dc/dt for the whole team.
@@ -160,9 +179,10 @@ def tvd_c(
     guarded TVD-D1 velocities when I - dc/dp is numerically singular or the solution
     amplifies a robot's speed beyond ``max_amplification`` times max |r| (module notes).
     """
-    _require_uniform(density)
-    points, batch, references = _team(positions, polygon, polygon_velocity, kappa, feedforward)
-    jacobian = _control_jacobian(batch, points)
+    points, batch, references = _team(
+        positions, polygon, polygon_velocity, kappa, feedforward, density
+    )
+    jacobian = _control_jacobian(batch, points, density)
     system = scipy.sparse.eye_array(jacobian.shape[0], format="csc") - jacobian.tocsc()
     rhs = references.ravel()
     try:
@@ -176,7 +196,12 @@ def tvd_c(
         if np.all(np.isfinite(speeds)) and np.all(speeds <= bound):
             return velocities
     return _d1_rows(
-        batch, points, references, references[np.maximum(batch.labels, 0)], max_amplification
+        batch,
+        points,
+        references,
+        references[np.maximum(batch.labels, 0)],
+        max_amplification,
+        density,
     )
 
 
@@ -187,7 +212,7 @@ def local_step(
     polygon_velocity: np.ndarray,
     kappa: float,
     feedforward: bool = True,
-    density: object = None,
+    density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
 ) -> LocalStep:
     """One robot's TVD-D1 step from the robots it knows: itself, its neighbours, theirs.
@@ -200,7 +225,7 @@ def local_step(
     border its own, and a robot that sees nobody takes all of S as its cell and heads for
     its centroid, which also brings it into S.
     """
-    _require_uniform(density)
+    check_density(density)
     _check_kappa(kappa)
     if me not in positions:
         raise ValueError(f"positions must include the robot itself ({me!r})")
@@ -209,8 +234,8 @@ def local_step(
     domain = make_domain(polygon, polygon_velocity)
     everyone = np.arange(len(ids))
     index = ids.index(me)
-    mine = build_cells(points, np.array([index]), everyone[None], domain)
-    own = _references(mine, points, domain, kappa, feedforward)
+    mine = _weigh(build_cells(points, np.array([index]), everyone[None], domain), density)
+    own = _references(mine, points, domain, kappa, feedforward, density)
     neighbor_indices = np.unique(mine.labels[0][mine.shared[0]])
     by_robot = np.zeros((len(ids), 2))
     if len(neighbor_indices):
@@ -222,10 +247,12 @@ def local_step(
             np.broadcast_to(everyone, (len(neighbor_indices), len(ids))),
             domain,
         )
-        by_robot[neighbor_indices] = _references(theirs, points, domain, kappa, feedforward)
-    velocity = _d1_rows(mine, points, own, by_robot[np.maximum(mine.labels, 0)], max_amplification)[
-        0
-    ]
+        by_robot[neighbor_indices] = _references(
+            _weigh(theirs, density), points, domain, kappa, feedforward, density
+        )
+    velocity = _d1_rows(
+        mine, points, own, by_robot[np.maximum(mine.labels, 0)], max_amplification, density
+    )[0]
     return LocalStep(
         velocity=velocity,
         neighbors=frozenset(ids[j] for j in neighbor_indices),
@@ -241,13 +268,18 @@ def local_velocity(
     polygon_velocity: np.ndarray,
     kappa: float,
     feedforward: bool = True,
-    density: object = None,
+    density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
 ) -> np.ndarray:
     """Robot ``me``'s TVD-D1 velocity (2,) from its two-hop neighbourhood; see ``local_step``."""
     return local_step(
         me, positions, polygon, polygon_velocity, kappa, feedforward, density, max_amplification
     ).velocity
+
+
+def _weigh(batch: CellBatch, density: DensityModel | None) -> CellBatch:
+    """The batch with the masses and centroids of phi (unchanged for uniform density)."""
+    return batch if density is None else density.weigh(batch)
 
 
 def _ordered_ids(positions: Mapping[Hashable, np.ndarray]) -> list:

@@ -39,13 +39,16 @@ Degenerate layouts have defined behaviour:
   nearest point;
 - a robot on the boundary of S, or outside S with a non-empty cell, is an ordinary robot.
 
-Every public function accepts ``density=None`` (uniform); non-uniform densities are not
-implemented yet and raise NotImplementedError rather than silently using phi = 1.
+Every public function accepts ``density``: None is uniform (phi = 1, the closed forms
+above); otherwise a DensityModel snapshot at the current time (agent.density.Density),
+whose own quadrature replaces the mass, centroid, dc/dp and dc/dt integrals. Cells do not
+depend on phi.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -124,11 +127,49 @@ class CellBatch:
         return self.start[k][self.present[k]]
 
 
-def _require_uniform(density: object) -> None:
-    if density is not None:
-        raise NotImplementedError(
-            "non-uniform densities are not implemented yet: pass density=None (uniform)"
+@runtime_checkable
+class DensityModel(Protocol):
+    """A non-uniform phi at the current time and its integrals over a batch of cells.
+
+    weigh: the batch with m_i, c_i of phi; jacobian_blocks / boundary_rates: as the
+    functions of that name here (boundary_rates with the dphi/dt term of Proposition 1).
+    """
+
+    def weigh(self, batch: CellBatch) -> CellBatch: ...
+
+    def jacobian_blocks(
+        self, batch: CellBatch, points: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray]: ...
+
+    def boundary_rates(
+        self, batch: CellBatch, points: np.ndarray, domain: Domain
+    ) -> np.ndarray: ...
+
+
+def check_density(density: object) -> None:
+    """Raise TypeError unless ``density`` is None (uniform) or a DensityModel."""
+    if density is not None and not isinstance(density, DensityModel):
+        raise TypeError(
+            f"density must be None (uniform) or an agent.density.Density, not {type(density)}"
         )
+
+
+def cell_jacobian_blocks(
+    batch: CellBatch, points: np.ndarray, density: DensityModel | None
+) -> tuple[np.ndarray, np.ndarray]:
+    """``jacobian_blocks`` for phi = 1 (closed form) or the density's quadrature."""
+    if density is None:
+        return jacobian_blocks(batch, points)
+    return density.jacobian_blocks(batch, points)
+
+
+def cell_rates(
+    batch: CellBatch, points: np.ndarray, domain: Domain, density: DensityModel | None
+) -> np.ndarray:
+    """dc/dt of Proposition 1: ``boundary_rates`` for phi = 1, else both of its terms."""
+    if density is None:
+        return boundary_rates(batch, points, domain)
+    return density.boundary_rates(batch, points, domain)
 
 
 def validate_polygon(polygon: np.ndarray) -> np.ndarray:
@@ -287,9 +328,9 @@ def build_cells(
 
     finite_offset = np.where(active, offset, 0.0)
     nx, ny = normal[..., 0], normal[..., 1]
-    foot = normal * finite_offset[:, :, None]  # closest point of each line to the owner
-    direction = np.stack([-ny, nx], axis=-1)  # interior on the left: counter-clockwise edges
-    # Line l, foot_l + t direction_l, must satisfy normal_m . q <= offset_m for every m:
+    # Line l is foot_l + t direction_l with foot_l = offset_l normal_l (its point closest to
+    # the owner) and direction_l = (-ny, nx), which keeps the interior on the left so edges
+    # run counter-clockwise. It must satisfy normal_m . q <= offset_m for every m:
     # t rate_lm <= slack_lm. Indices [cell, line l, constraint m].
     cosine = nx[:, :, None] * nx[:, None, :] + ny[:, :, None] * ny[:, None, :]
     rate = nx[:, :, None] * ny[:, None, :] - ny[:, :, None] * nx[:, None, :]
@@ -309,8 +350,9 @@ def build_cells(
         excluded = parallel & ((slack < -tol) | ((cosine > 0.0) & (np.abs(slack) <= tol) & earlier))
         present &= ~excluded.any(axis=2)
 
-    start = foot + np.where(present, lower, 0.0)[..., None] * direction
-    start = np.where(present[..., None], start, 0.0)
+    along = np.where(present, lower, 0.0)
+    start = np.stack([finite_offset * nx - along * ny, finite_offset * ny + along * nx], axis=-1)
+    start[~present] = 0.0
     # Each vertex is computed once, as the start of its edge, and reused as the end of the
     # previous edge: nearly parallel bisectors (nearly coincident robots) make a vertex
     # ill-conditioned, and two independent copies of it would leave the boundary open.
@@ -318,12 +360,12 @@ def build_cells(
     centre = start.sum(axis=1) / np.maximum(count, 1)[:, None]
     angle = np.arctan2(start[..., 1] - centre[:, 1:], start[..., 0] - centre[:, :1])
     order = np.argsort(np.where(present, angle, np.inf), axis=1)
-    start = np.take_along_axis(start, order[..., None], axis=1)
-    labels = np.take_along_axis(labels, order, axis=1)
-    present = np.take_along_axis(present, order, axis=1)
+    rows = np.arange(len(owners))[:, None]
+    start, labels, present = start[rows, order], labels[rows, order], present[rows, order]
     position = np.arange(present.shape[1])
     following = np.where(position + 1 < count[:, None], position + 1, 0)
-    end = np.where(present[..., None], np.take_along_axis(start, following[..., None], axis=1), 0.0)
+    end = start[rows, following]
+    end[~present] = 0.0
     # Moments about a vertex of the cell, not the owner: a sliver cell far from its robot
     # would otherwise lose its digits to cancellation.
     origin = start[:, :1, :]
@@ -498,12 +540,16 @@ def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, n
         1.0 / (np.where(shared, separation, 1.0) * np.maximum(batch.mass, 1e-300)[:, None]),
         0.0,
     )
+    start, end = batch.start, batch.end
     centroid = batch.centroid[:, None, :]
-    off = -scale[..., None, None] * _edge_moments(batch.start, batch.end, centroid, others)
-    diagonal = np.sum(
-        scale[..., None, None] * _edge_moments(batch.start, batch.end, centroid, me[:, None, :]),
-        axis=1,
-    )
+    # Both brackets from one: with anchor p_j the bracket is the one with anchor p_i plus
+    # (integral of (q - c) ds) (p_i - p_j)^T, and that integral is |d| (v1 - c + d / 2).
+    about_me = _edge_moments(start, end, centroid, me[:, None, :])
+    d = end - start
+    first = np.linalg.norm(d, axis=-1)[..., None] * (start - centroid + 0.5 * d)
+    gap = me[:, None, :] - others
+    off = -scale[..., None, None] * (about_me + first[..., :, None] * gap[..., None, :])
+    diagonal = np.sum(scale[..., None, None] * about_me, axis=1)
     return off, diagonal
 
 
@@ -534,61 +580,71 @@ def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.n
 
 
 def tessellate(
-    positions: np.ndarray, polygon: np.ndarray, polygon_velocity: np.ndarray | None = None
+    positions: np.ndarray,
+    polygon: np.ndarray,
+    polygon_velocity: np.ndarray | None = None,
+    density: DensityModel | None = None,
 ) -> tuple[np.ndarray, Domain, CellBatch]:
-    """Validate the inputs and build every robot's cell: (points, domain, cells)."""
+    """Validate the inputs and build every robot's cell: (points, domain, cells).
+
+    With a density the cells' masses and centroids are those of phi.
+    """
+    check_density(density)
     points = validate_positions(positions)
     domain = make_domain(polygon, polygon_velocity)
-    return points, domain, team_cells(points, domain)
+    batch = team_cells(points, domain)
+    return points, domain, batch if density is None else density.weigh(batch)
 
 
-def cells(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> list[np.ndarray]:
+def cells(
+    positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
+) -> list[np.ndarray]:
     """Each robot's Voronoi cell clipped to S.
 
     positions: (n, 2); polygon: (k, 2). Returns n arrays of counter-clockwise vertices
     (m_i, 2), an empty (0, 2) array for an empty cell.
     """
-    _require_uniform(density)
+    check_density(density)
     points, _, batch = tessellate(positions, polygon)
     return [batch.vertices(i) for i in range(len(points))]
 
 
 def mass_centroid(
-    positions: np.ndarray, polygon: np.ndarray, density: object = None
+    positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Mass m_i and centroid c_i of every cell for uniform density (Section 4.2).
+    """Mass m_i and centroid c_i of every cell (Section 4.2; quadrature with a density).
 
     positions: (n, 2); polygon: (k, 2). Returns mass (n,) and centroid (n, 2); an empty
     cell has mass 0 and the nearest point of S as its centroid.
     """
-    _require_uniform(density)
-    _, _, batch = tessellate(positions, polygon)
+    _, _, batch = tessellate(positions, polygon, density=density)
     return batch.mass.copy(), batch.centroid.copy()
 
 
-def neighbors(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> list[set[int]]:
+def neighbors(
+    positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
+) -> list[set[int]]:
     """Delaunay neighbours of each robot whose shared cell edge inside S has positive length.
 
     positions: (n, 2); polygon: (k, 2). Returns n sets of robot indices.
     """
-    _require_uniform(density)
+    check_density(density)
     points, _, batch = tessellate(positions, polygon)
     return [set(batch.labels[i][batch.shared[i]].tolist()) for i in range(len(points))]
 
 
 def centroid_jacobian(
-    positions: np.ndarray, polygon: np.ndarray, density: object = None
+    positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> np.ndarray:
-    """dc/dp for uniform density, eqs. (dcidpj)/(dcidpi) in closed form.
+    """dc/dp, eqs. (dcidpj)/(dcidpi): closed form for uniform density, else quadrature.
 
     positions: (n, 2); polygon: (k, 2). Returns a dense (2n, 2n) array ordered
     [x0, y0, x1, y1, ...]. The row of an empty cell is the derivative of the nearest point
     of S.
     """
-    _require_uniform(density)
-    points, domain, batch = tessellate(positions, polygon)
+    points, domain, batch = tessellate(positions, polygon, density=density)
     n = len(points)
-    off, diagonal = jacobian_blocks(batch, points)
+    off, diagonal = cell_jacobian_blocks(batch, points, density)
     jacobian = np.zeros((n, n, 2, 2))
     rows = np.broadcast_to(batch.owners[:, None], batch.labels.shape)
     shared = batch.shared
@@ -603,20 +659,20 @@ def centroid_rate(
     positions: np.ndarray,
     polygon: np.ndarray,
     polygon_velocity: np.ndarray,
-    density: object = None,
+    density: DensityModel | None = None,
 ) -> np.ndarray:
-    """dc/dt of Proposition 1 (eq. dcidt2) for uniform density: the boundary term.
+    """dc/dt of Proposition 1 (eq. dcidt2): the boundary term, plus the dphi/dt term.
 
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2). For an empty cell
     it is the velocity of the nearest point of S.
     """
-    _require_uniform(density)
-    points, domain, batch = tessellate(positions, polygon, polygon_velocity)
-    return boundary_rates(batch, points, domain)
+    points, domain, batch = tessellate(positions, polygon, polygon_velocity, density)
+    return cell_rates(batch, points, domain, density)
 
 
-def aggregate_error(positions: np.ndarray, polygon: np.ndarray, density: object = None) -> float:
+def aggregate_error(
+    positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
+) -> float:
     """Aggregated CVT error e_a = ||p - c(p, t)|| over the whole team (Section 5), metres."""
-    _require_uniform(density)
-    points, _, batch = tessellate(positions, polygon)
+    points, _, batch = tessellate(positions, polygon, density=density)
     return float(np.linalg.norm(points - batch.centroid))

@@ -26,6 +26,13 @@ Neighbour discovery
   ``--stale-timeout`` (receipt time, so clock skew between machines does not matter), else
   from its beacon while younger than ``--beacon-timeout``; older robots are dropped.
 
+Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
+logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError
+reasons), a key and message that disagree about the id, a domain that is not a convex
+polygon or is older than the one held, and stamps outside the clock policy of
+protocol.inbound (more than ``--max-clock-skew`` ahead of this clock, or older than the
+message's timeout plus that skew).
+
 Each step the agent calls agent.control.local_step on itself plus the candidates that can
 matter (its two-hop set and robots within 1.25x its cell's reach, see
 :meth:`AgentBrain.relevant`): the local partial Voronoi diagram of its two-hop
@@ -54,6 +61,7 @@ import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
+from pathlib import Path
 
 import click
 import numpy as np
@@ -62,14 +70,24 @@ import zenoh
 import protocol
 from agent.control import local_step
 from agent.coverage import validate_polygon
+from agent.density import Density
 from agent.drive import KHEPERA_IV, DiffDrive, wheel_speeds
-from protocol.session import StopFlag, Ticker, session_config, token_exists
+from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from protocol.security import SECURE_OPTION
+from protocol.session import StopFlag, Ticker, claim, session_config
 
 log = logging.getLogger("covswarm.agent")
 
 STATS_WINDOW = 5.0  # s over which rates are measured
 TIMING_SAMPLES = 256  # step durations kept for the p50/p99
 LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see relevant())
+DROP_REASONS = (
+    *protocol.REASONS,
+    *STAMP_REASONS,
+    "wrong_id",  # key and message disagree about the robot id, or a malformed key
+    "bad_domain",  # valid message, invalid polygon (non-convex, self-intersecting, ...)
+    "old_domain",  # older than the domain already held
+)
 
 
 @dataclass(frozen=True)
@@ -85,6 +103,7 @@ class AgentConfig:
     max_tile_radius: int = 3
     max_extrapolation: float = 1.0
     linger: float = 1.0
+    max_clock_skew: float = MAX_CLOCK_SKEW
     robot: DiffDrive = KHEPERA_IV
 
 
@@ -122,6 +141,23 @@ def extrapolate_domain(
     if elapsed > max_extrapolation:
         return vertices + velocities * max_extrapolation, np.zeros_like(velocities)
     return vertices + velocities * max(elapsed, 0.0), velocities
+
+
+def extrapolate_density(
+    density: Density | None, elapsed: float, max_extrapolation: float
+) -> Density | None:
+    """The broadcast density ``elapsed`` s after its stamp, as ``extrapolate_domain``.
+
+    Advanced linearly for at most ``max_extrapolation`` s, then held still (zero rates); a
+    density that the linear advance would make invalid is held as received.
+    """
+    if density is None:
+        return None
+    try:
+        advanced = density.at(density.time + min(max(elapsed, 0.0), max_extrapolation))
+    except ValueError:
+        return density.frozen()
+    return advanced.frozen() if elapsed > max_extrapolation else advanced
 
 
 def cell_reach(distance_to_centroid: float, mass: float) -> float:
@@ -179,14 +215,10 @@ class _Rate:
 
 @dataclass
 class Counters:
-    """Dropped and processed input, reported in AgentState.stats."""
+    """Processed input and control steps, reported in AgentState.stats (drops: DropLog)."""
 
     received: int = 0  # payloads that reached the main loop
     coalesced: int = 0  # overwritten by a newer payload on the same key before processing
-    invalid: int = 0  # failed protocol validation
-    wrong_id: int = 0  # key and message disagree about the robot id
-    bad_domain: int = 0  # valid message, invalid polygon (non-convex, ...)
-    old_domain: int = 0  # older than the domain already held
     stale: int = 0  # robots dropped from the local set because their data aged out
     step_errors: int = 0  # control steps that failed (robot commanded to stop)
     steps: int = 0
@@ -205,6 +237,7 @@ class AgentBrain:
         self.pose: protocol.Pose | None = None
         self.pose_received = -math.inf
         self.domain: protocol.Domain | None = None
+        self.density: Density | None = None  # the domain's density, validated (None: uniform)
         self.poses: dict[int, Track] = {}
         self.state_tracks: dict[int, Track] = {}
         self.beacons: dict[int, Track] = {}
@@ -213,6 +246,8 @@ class AgentBrain:
         self.radius = 1
         self.reach: float | None = None  # cell_reach of our last non-empty cell
         self.counters = Counters()
+        self.drops = DropLog(log, f"agent {self.id}", DROP_REASONS)
+        self._failure_log = RateLimit()
         self._wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
         self._fresh: set[int] = set()  # ids usable as candidates at the last step
         self._local = 0  # robots in the last local diagram besides ourselves
@@ -225,19 +260,21 @@ class AgentBrain:
 
     # --- input -------------------------------------------------------------------------
 
-    def receive(self, kind: str, payload: bytes, now: float, key_id: int | None = None) -> bool:
-        """Decode and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
+    def receive(
+        self, kind: str, payload: bytes, now: float, now_wall: float, key_id: int | None = None
+    ) -> bool:
+        """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
         "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
         self.counters.received += 1
-        cls = _MESSAGE_TYPES[kind]
         try:
-            message = cls.decode(payload)
+            message = _MESSAGE_TYPES[kind].decode(payload)
+            max_age = self.config.beacon_timeout if kind == "beacon" else self.config.stale_timeout
+            check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
-            self.counters.invalid += 1
-            log.debug("agent %d: dropped %s: %s", self.id, kind, exc)
+            self.drops.drop(exc.reason, f"{kind}: {exc}")
             return False
         if key_id is not None and message.id != key_id:
-            self.counters.wrong_id += 1
+            self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
             return False
         return _HANDLERS[kind](self, message, now)
 
@@ -263,15 +300,16 @@ class AgentBrain:
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
         if self.domain is not None and domain.stamp < self.domain.stamp:
-            self.counters.old_domain += 1
+            self.drops.drop("old_domain", f"domain stamped {domain.stamp} < {self.domain.stamp}")
             return False
         try:
             validate_polygon(np.array(domain.vertices))
+            density = None if domain.density is None else Density.from_dict(domain.density)
         except ValueError as exc:
-            self.counters.bad_domain += 1
-            log.debug("agent %d: dropped domain: %s", self.id, exc)
+            self.drops.drop("bad_domain", f"domain: {exc}")
             return False
         self.domain = domain
+        self.density = density
         return True
 
     # --- neighbourhood -----------------------------------------------------------------
@@ -381,7 +419,13 @@ class AgentBrain:
         # stop this robot, not kill the process and leave the robot on its last command.
         except Exception as exc:
             self.counters.step_errors += 1
-            log.warning("agent %d: control step failed: %r", self.id, exc)
+            if self._failure_log.ready():  # at most one line per LOG_INTERVAL, not per tick
+                log.warning(
+                    "agent %d: control step failed (%d so far), robot stopped: %r",
+                    self.id,
+                    self.counters.step_errors,
+                    exc,
+                )
             return Decision(0.0, 0.0, "error")
         self._step_us.add((time.perf_counter() - started) * 1e6)
         return decision
@@ -400,6 +444,9 @@ class AgentBrain:
             velocities,
             kappa,
             feedforward=self.config.feedforward,
+            density=extrapolate_density(
+                self.density, now_wall - self.domain.stamp, self.config.max_extrapolation
+            ),
         )
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         self.one_hop = frozenset(int(rid) for rid in result.neighbors)
@@ -450,10 +497,7 @@ class AgentBrain:
             "rx_per_s": round(self._rates[1], 1),
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
-            "drop_invalid": c.invalid,
-            "drop_wrong_id": c.wrong_id,
-            "drop_bad_domain": c.bad_domain,
-            "drop_old_domain": c.old_domain,
+            **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
             "stale_dropped": c.stale,
             "step_errors": c.step_errors,
             "candidates": len(self._fresh),
@@ -573,17 +617,17 @@ class AgentLink:
         self.tiles = Subscriptions(session, self.inbox, "beacon")
         self.poses.update({self.own_pose})
 
-    def receive(self, now: float) -> None:
+    def receive(self, now: float, wall: float) -> None:
         """Hand everything that arrived since the last tick to the brain."""
         items, coalesced = self.inbox.drain()
         self.brain.counters.coalesced += coalesced
         for kind, key, payload in items:
             try:
                 key_id = _key_id(kind, key, self.swarm)
-            except ValueError:
-                self.brain.counters.wrong_id += 1
+            except ValueError as exc:
+                self.brain.drops.drop("wrong_id", str(exc))
                 continue
-            self.brain.receive(kind, payload, now, key_id)
+            self.brain.receive(kind, payload, now, wall, key_id)
 
     def send_command(self, decision: Decision, wall: float) -> None:
         self.cmd_pub.put(self.brain.command(decision, wall).encode())
@@ -611,16 +655,18 @@ class AgentLink:
         )
 
 
-def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) -> Counters:
+def run_agent(brain: AgentBrain, swarm: str, config: zenoh.Config, rate: float) -> Counters:
     """Zenoh shell around ``brain``: runs until SIGINT/SIGTERM, returns the counters.
 
-    The liveliness token (what launcher and coordinator wait for) is declared once the
-    agent hears its own robot, so "every agent alive" means "every agent can steer".
+    The id is claimed (protocol.session.claim) before anything is published: a second
+    agent for the same id refuses to start. The liveliness token (what launcher and
+    coordinator wait for) is declared once the agent hears its own robot, so "every agent
+    alive" means "every agent can steer".
     """
     stop = StopFlag()
     alive = protocol.alive_key(swarm, "agent", brain.id)
-    with zenoh.open(session_config(connect, None, "client")) as session:
-        if token_exists(session, alive):
+    with zenoh.open(config) as session:
+        if claim(session, swarm, "agent", brain.id) is None:
             raise click.ClickException(f"agent {brain.id} is already running in swarm {swarm!r}")
         link = AgentLink(session, swarm, brain)
         token: zenoh.LivelinessToken | None = None
@@ -628,8 +674,8 @@ def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) ->
         try:
             while not stop.is_set():
                 now = ticker.wait(stop)
-                link.receive(now)
                 wall = time.time()
+                link.receive(now, wall)
                 link.send_command(brain.step(now, wall), wall)
                 link.publish(now, wall)
                 link.resubscribe(now)
@@ -642,9 +688,10 @@ def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) ->
             if token is not None:
                 token.undeclare()
         log.info(
-            "agent %d stopping: %s, stats %s, %d ticks, %d overruns",
+            "agent %d stopping: %s, dropped %s, stats %s, %d ticks, %d overruns",
             brain.id,
             brain.counters,
+            brain.drops.summary(),
             brain.stats(),
             ticker.ticks,
             ticker.overruns,
@@ -676,12 +723,20 @@ def run_agent(brain: AgentBrain, swarm: str, connect: list[str], rate: float) ->
 @click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
 @click.option("--linger", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
 @click.option(
+    "--max-clock-skew",
+    type=click.FloatRange(min=0.0),
+    default=MAX_CLOCK_SKEW,
+    show_default=True,
+    help="Drop messages stamped more than this (s) ahead of this clock.",
+)
+@click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
     default=0.8,
     show_default=True,
     help="Rim speed limit (m/s) the commands are saturated to.",
 )
+@SECURE_OPTION
 @click.option("--verbose", is_flag=True, help="Log at INFO level.")
 def agent_command(
     robot_id: int,
@@ -697,7 +752,9 @@ def agent_command(
     max_tile_radius: int,
     max_extrapolation: float,
     linger: float,
+    max_clock_skew: float,
     max_wheel_speed: float,
+    secure: Path | None,
     verbose: bool,
 ) -> None:
     """Run the coverage-control brain of one robot (local two-hop Voronoi, TVD-D1)."""
@@ -716,6 +773,11 @@ def agent_command(
         max_tile_radius=max_tile_radius,
         max_extrapolation=max_extrapolation,
         linger=linger,
+        max_clock_skew=max_clock_skew,
         robot=DiffDrive(max_wheel_speed=max_wheel_speed),
     )
-    run_agent(AgentBrain(robot_id, config), swarm, list(connect), rate)
+    try:
+        zenoh_config = session_config(list(connect), None, "client", secure=secure)
+    except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
+        raise click.UsageError(str(exc)) from exc
+    run_agent(AgentBrain(robot_id, config), swarm, zenoh_config, rate)

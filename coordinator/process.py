@@ -157,8 +157,10 @@ class Coordinator:
         from protocol import Domain
 
         vertices, velocities = self.settings.scenario.domain(t)
+        density = self.settings.scenario.density(t)
         if state != RUNNING:
             velocities = np.zeros_like(velocities)  # held still while waiting / done
+            density = None if density is None else density.frozen()
         self._domain.put(
             Domain(
                 seq=self._seq,
@@ -168,6 +170,7 @@ class Coordinator:
                 vertices=vertices,
                 velocities=velocities,
                 kappa=self.settings.kappa,
+                density=None if density is None else density.to_dict(),
             ).encode()
         )
         self._seq += 1
@@ -180,7 +183,9 @@ class Coordinator:
         if not positions:
             return
         ids = sorted(positions)
-        error = aggregate_error(np.array([positions[i] for i in ids]), polygon)
+        error = aggregate_error(
+            np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(t)
+        )
         self.observed.record.add(t, error, positions, polygon)
 
     def _publish_status(self, state: str, t: float) -> None:
@@ -204,8 +209,8 @@ class Coordinator:
         """Broadcast until the mission is done (or ``stop`` is set), sampling on the way."""
         ticker = Ticker(self.settings.rate)
         next_status = time.monotonic()
-        # e_a every ``sample_every`` ticks, fewer if computing it costs too much.
-        sample_every = max(1, round(self.settings.rate / self.settings.sample_rate))
+        every = max(1, round(self.settings.rate / self.settings.sample_rate))
+        ticks_to_sample = 0
         done_since: float | None = None
         log.info("waiting for %d agents and %d robots", self.settings.agents, self.settings.agents)
         while True:
@@ -223,12 +228,14 @@ class Coordinator:
                 log.info("team ready: mission started")
             t = self.clock.mission_time(now)
             polygon = self._publish_domain(state, t)
-            if state == RUNNING and ticker.ticks % sample_every == 0:
+            ticks_to_sample -= 1
+            if state == RUNNING and ticks_to_sample <= 0:
                 began = time.monotonic()
                 self._sample(t, polygon)
                 cost = time.monotonic() - began
-                budget_ticks = math.ceil(SAMPLE_BUDGET * cost * self.settings.rate)
-                sample_every = max(sample_every, budget_ticks)
+                # Sample less often while e_a is expensive (big team, overloaded machine),
+                # so the Domain broadcasts keep their rate; back to normal once it is cheap.
+                ticks_to_sample = max(every, math.ceil(SAMPLE_BUDGET * cost * self.settings.rate))
             if state == DONE and done_since is None:
                 done_since = now
                 self._sample(t, polygon)  # the final error, at the end of the mission
@@ -289,6 +296,7 @@ def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> 
         polygons=record.polygons,
         obstacles=list(settings.scenario.obstacles),
         workspace=settings.scenario.workspace,
+        density=settings.scenario.density(record.t[-1]) if record.t else None,
     )
 
 

@@ -45,11 +45,13 @@ def write_outputs(
     error_compare: np.ndarray | None = None,
     obstacles: list[Box] | tuple[Box, ...] = (),
     workspace: Box | None = None,
+    density: Any = None,
 ) -> Path:
     """Write the four output files and return the folder.
 
     t, error, error_compare: (T,); trajectories: (T, n, 2), NaN where a robot's position is
-    unknown; polygons: T arrays (k, 2), the domain at each sample.
+    unknown; polygons: T arrays (k, 2), the domain at each sample; density: phi at the last
+    sample (agent.density.Density, shaded under the final domain), None when uniform.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -70,7 +72,7 @@ def write_outputs(
     fig.savefig(out / "error.png", dpi=120)
     plt.close(fig)
     fig = _trajectory_figure(
-        plt, summary, np.asarray(trajectories, float), polygons, obstacles, workspace
+        plt, summary, np.asarray(trajectories, float), polygons, obstacles, workspace, density
     )
     fig.savefig(out / "trajectories.png", dpi=120)
     plt.close(fig)
@@ -138,6 +140,7 @@ def _trajectory_figure(
     polygons: list[np.ndarray],
     obstacles: list[Box] | tuple[Box, ...],
     workspace: Box | None,
+    density: Any,
 ) -> Any:
     from matplotlib.patches import Polygon, Rectangle
 
@@ -159,6 +162,9 @@ def _trajectory_figure(
     for rank, index in enumerate(shown):
         shade = 0.75 - 0.6 * rank / max(len(shown) - 1, 1)
         ax.add_patch(Polygon(polygons[index], closed=True, fill=False, ec=str(shade), lw=1.0))
+
+    if density is not None:
+        _shade_density(ax, density, np.asarray(polygons[-1], float))
 
     n = trajectories.shape[1]
     alpha = 0.8 if n <= 20 else 0.35
@@ -203,6 +209,20 @@ def _trajectory_figure(
     ax.set_ylabel("y [m]")
     ax.legend(loc="lower left", fontsize=8, framealpha=0.9)
     return fig
+
+
+def _shade_density(ax: Any, density: Any, polygon: np.ndarray) -> None:
+    """phi over the final domain as a light-to-dark green image clipped to the domain."""
+    from matplotlib.patches import Polygon
+
+    (xmin, ymin), (xmax, ymax) = polygon.min(axis=0), polygon.max(axis=0)
+    x, y = np.meshgrid(np.linspace(xmin, xmax, 200), np.linspace(ymin, ymax, 200))
+    phi = density.phi(np.stack([x, y], axis=-1))
+    image = ax.imshow(
+        phi, extent=(xmin, xmax, ymin, ymax), origin="lower", cmap="Greens", alpha=0.6, zorder=0
+    )
+    image.set_clip_path(Polygon(polygon, closed=True, transform=ax.transData))
+    ax.figure.colorbar(image, ax=ax, shrink=0.6, label="final density $\\phi(q, t)$")
 
 
 def _last_known(trajectories: np.ndarray) -> np.ndarray:

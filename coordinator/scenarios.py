@@ -43,6 +43,20 @@ A rigid motion (plus uniform scaling) of a base polygon instead::
 
 Vertex i of a rigid domain is ``o(t) + s(t) R(a(t)) q_i`` with o the origin's path, s the
 scale and a = rotation_rate t.
+
+An optional density phi(q, t) = floor + sum_b w_b exp(-1/2 (q - mu_b)^T Sigma_b^-1 (q - mu_b))
+(agent/density.py; absent: uniform)::
+
+    [density]
+    floor = 1.0                # > 0, plus the negative weights
+    [[density.bumps]]          # up to 16; every *_rate and turn_rate defaults to 0
+    mean = [0.0, 0.5]          # m, at t = 0
+    cov = [[0.09, 0.0], [0.0, 0.01]]                  # m^2, symmetric positive definite
+    weight = 8.0               # peak height above the floor
+    mean_rate = [0.05, 0.0]    # m/s
+    cov_rate = [[0.0, 0.0], [0.0, 0.0]]               # m^2/s
+    weight_rate = 0.0          # 1/s
+    turn_rate = 0.1            # rad/s: the covariance turns, R(turn_rate t) cov R^T
 """
 
 from __future__ import annotations
@@ -50,9 +64,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from agent.density import Density, DensityPath
 
 try:
     import tomllib
@@ -224,6 +241,7 @@ class Scenario:
     workspace: Box | None = None
     obstacles: tuple[Box, ...] = ()
     initial_box: Box | None = None  # None: uniform inside S(0)
+    density_path: DensityPath | None = None  # None: uniform density
 
     def __post_init__(self) -> None:
         if not self.name or not isinstance(self.name, str):
@@ -242,6 +260,16 @@ class Scenario:
             if box is not None:
                 _check_box(box)
         _check_motion(self.motion, self.duration)
+        if self.density_path is not None:
+            for t in self.motion.sample_times(self.duration):
+                try:
+                    self.density_path(float(t))
+                except ValueError as exc:
+                    raise ValueError(f"density at t = {t:g} s: {exc}") from None
+
+    def density(self, t: float) -> Density | None:
+        """phi at time t with its exact rates (agent.density.Density), None when uniform."""
+        return None if self.density_path is None else self.density_path(float(t))
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities d/dt (k, 2)."""
@@ -270,7 +298,8 @@ class Scenario:
         lines.append(f"obstacles = [{', '.join(_toml_list(o) for o in self.obstacles)}]")
         if self.initial_box is not None:
             lines.append(f"\n[initial]\nbox = {_toml_list(self.initial_box)}")
-        return "\n".join(lines) + "\n\n" + self.motion.to_toml()
+        text = "\n".join(lines) + "\n\n" + self.motion.to_toml()
+        return text if self.density_path is None else text + _density_toml(self.density_path)
 
 
 def _check_box(box: Box) -> None:
@@ -323,6 +352,19 @@ def _toml_list(values: Any) -> str:
 
 def _toml_points(points: np.ndarray) -> str:
     return "[" + ", ".join(_toml_list(p) for p in points) + "]"
+
+
+def _density_toml(path: DensityPath) -> str:
+    table = path.to_table()
+    lines = [f"\n[density]\nfloor = {_toml_float(table['floor'])}"]
+    for bump in table["bumps"]:
+        lines.append("\n[[density.bumps]]")
+        for key, value in bump.items():
+            text = _toml_points(value) if key in ("cov", "cov_rate") else (
+                _toml_list(value) if isinstance(value, list) else _toml_float(value)
+            )  # fmt: skip
+            lines.append(f"{key} = {text}")
+    return "\n".join(lines) + "\n"
 
 
 def _toml_str(value: str) -> str:
@@ -388,14 +430,47 @@ def passage() -> Scenario:
     )
 
 
-BUILTINS = {"circle": circle, "passage": passage}
+def formation() -> Scenario:
+    """A square that drifts right and shrinks while a turning bump herds the team to one side.
+
+    The bump (peak 8x the floor, 0.5 m x 0.18 m) starts in the upper half of S, drifts with
+    S and slides to its lower half while its long axis turns a quarter turn every 20 s.
+    """
+    from agent.density import Density, DensityPath
+
+    bump = Density(
+        floor=1.0,
+        means=[[-1.0, 0.5]],
+        covariances=[[[0.25, 0.0], [0.0, 0.0324]]],
+        weights=[8.0],
+        mean_rates=[[0.05, -0.025]],
+    )
+    return Scenario(
+        name="formation",
+        motion=Rigid(
+            polygon=_rectangle(-1.0, 1.0, -1.0, 1.0),
+            center=(-1.0, 0.0),
+            velocity=(0.05, 0.0),
+            scale_rate=-0.01,
+        ),  # fmt: skip
+        agents=20,
+        kappa=2.0,
+        duration=40.0,
+        dt=0.02,
+        dynamics="single",
+        workspace=(-2.5, 2.5, -1.5, 1.5),
+        density_path=DensityPath(bump, np.array([math.pi / 40.0])),
+    )
+
+
+BUILTINS = {"circle": circle, "passage": passage, "formation": formation}
 
 
 # ---------------------------------------------------------------------------- loading
 
 _TOP_KEYS = {
     "name", "agents", "kappa", "duration", "dt", "dynamics", "workspace", "obstacles",
-    "initial", "domain",
+    "initial", "domain", "density",
 }  # fmt: skip
 
 
@@ -440,6 +515,10 @@ def scenario_from_dict(data: dict[str, Any]) -> Scenario:
     for key in ("kappa", "duration", "dt"):
         if key in options and isinstance(options[key], int):
             options[key] = float(options[key])
+    if "density" in data:
+        from agent.density import DensityPath
+
+        options["density_path"] = DensityPath.from_table(data["density"])
     return Scenario(
         name=data["name"],
         motion=_motion_from_dict(data["domain"]),

@@ -5,7 +5,8 @@ only its two-hop neighbourhood. This benchmark measures it in this implementatio
 
 1. per-agent compute vs N: every robot's complete ``agent.control.local_step`` (building
    its local partial Voronoi diagram included) from exactly its two-hop neighbourhood, on
-   random and near-CVT layouts, several seeds;
+   random and near-CVT layouts, several seeds; uniform, and again with a moving Gaussian
+   density (``bench_density``: quadrature instead of closed forms);
 2. the centralised baseline: full-team ``tvd_c`` and ``tvd_d1`` per step vs N;
 3. the neighbour-count histogram vs N (the paper's Table 1 at N = 100).
 
@@ -27,6 +28,7 @@ import numpy as np
 
 from agent.control import local_step, tvd_c, tvd_d1
 from agent.coverage import mass_centroid, neighbors
+from agent.density import Density
 
 FULL_SIZES = (10, 30, 100, 300, 1000, 3000)
 QUICK_SIZES = (10, 30, 100, 300)
@@ -60,6 +62,21 @@ def make_layout(n: int, kind: str, seed: int, lloyd_iterations: int = 40) -> Lay
     return Layout(kind, seed, positions, polygon)
 
 
+def bench_density(side: float) -> Density:
+    """A bump of standard deviation ~side / 4 on the centre of [0, side]^2, drifting and
+    growing: each cell then needs a few quadrature pieces, as in a real mission."""
+    spread = (side / 4.0) ** 2
+    return Density(
+        floor=1.0,
+        means=[[0.5 * side, 0.5 * side]],
+        covariances=[[[spread, 0.3 * spread], [0.3 * spread, 0.6 * spread]]],
+        weights=[4.0],
+        mean_rates=[[0.05, 0.02]],
+        covariance_rates=[[[0.01, 0.0], [0.0, 0.01]]],
+        weight_rates=[0.1],
+    )
+
+
 def two_hop(adjacency: list[set[int]], me: int) -> set[int]:
     """Robot ``me``, its neighbours and their neighbours."""
     known = {me} | adjacency[me]
@@ -69,7 +86,7 @@ def two_hop(adjacency: list[set[int]], me: int) -> set[int]:
 
 
 def time_local_steps(
-    layout: Layout, sample: int | None, kappa: float = 1.0
+    layout: Layout, sample: int | None, kappa: float = 1.0, density: Density | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Microseconds of each sampled robot's local step, and its two-hop neighbourhood size."""
     adjacency = neighbors(layout.positions, layout.polygon)
@@ -83,7 +100,7 @@ def time_local_steps(
         known = two_hop(adjacency, int(me))
         view = {j: layout.positions[j] for j in known}
         start = time.perf_counter()
-        local_step(int(me), view, layout.polygon, velocity, kappa)
+        local_step(int(me), view, layout.polygon, velocity, kappa, density=density)
         times.append((time.perf_counter() - start) * 1e6)
         sizes.append(len(known))
     return np.array(times), np.array(sizes)
@@ -110,12 +127,14 @@ def run_bench(
     rows = []
     for n in sizes:
         for kind in ("random", "cvt"):
-            times, hood, histogram, central = [], [], Counter(), []
+            times, hood, histogram, central, weighted = [], [], Counter(), [], []
             for seed in range(seeds):
                 layout = make_layout(n, kind, seed)
                 t, s = time_local_steps(layout, sample)
                 times.append(t)
                 hood.append(s)
+                side = float(layout.polygon[:, 0].max())
+                weighted.append(time_local_steps(layout, sample, density=bench_density(side))[0])
                 histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
                 central.append(time_centralized(layout, repeats))
                 if progress is not None:
@@ -130,6 +149,7 @@ def run_bench(
                     "local_step_p50_us": float(np.percentile(t, 50)),
                     "local_step_p99_us": float(np.percentile(t, 99)),
                     "local_step_mean_us": float(np.mean(t)),
+                    "local_step_density_p50_us": float(np.percentile(np.concatenate(weighted), 50)),
                     "two_hop_mean": float(np.mean(np.concatenate(hood))),
                     "tvd_c_ms": float(np.median([c["tvd_c_ms"] for c in central])),
                     "tvd_d1_ms": float(np.median([c["tvd_d1_ms"] for c in central])),
@@ -240,7 +260,10 @@ def bench_command(
         )
     write_bench(out, rows)
     table = Table(title="covswarm bench: one robot's control step vs team size")
-    for name in ("N", "layout", "p50 us", "p99 us", "mean us", "two-hop", "TVD-C ms", "TVD-D1 ms"):
+    for name in (
+        "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "two-hop", "TVD-C ms",
+        "TVD-D1 ms",
+    ):  # fmt: skip
         table.add_column(name, justify="right")
     for row in rows:
         table.add_row(
@@ -249,6 +272,7 @@ def bench_command(
             f"{row['local_step_p50_us']:.0f}",
             f"{row['local_step_p99_us']:.0f}",
             f"{row['local_step_mean_us']:.0f}",
+            f"{row['local_step_density_p50_us']:.0f}",
             f"{row['two_hop_mean']:.1f}",
             f"{row['tvd_c_ms']:.1f}",
             f"{row['tvd_d1_ms']:.1f}",

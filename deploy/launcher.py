@@ -35,6 +35,9 @@ ROUTER_HOST = "127.0.0.1"
 TICK = 0.1  # s between launcher loop iterations (display, liveness, child polling)
 TERMINATE_GRACE = 5.0  # s between SIGTERM and SIGKILL when stopping children
 COORDINATOR_GRACE = 60.0  # s for an interrupted coordinator to write its outputs
+# A child not ready after this long stops holding a start-up slot. Generous: on an
+# overloaded machine starting more processes at once only makes every start slower.
+STALL = 120.0
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 
@@ -174,6 +177,8 @@ def _die_with(parent: int) -> Callable[[], None]:
 
 @dataclass
 class Child:
+    """A started child; ``exit_code`` is set once the launcher has noticed it exited."""
+
     spec: ChildSpec
     process: subprocess.Popen
     log_path: Path
@@ -281,13 +286,12 @@ class Progress:
 
     agents: int
     duration: float
-    phase: str = "starting"
     ready: set[tuple[str, int]] = field(default_factory=set)  # (role, id) seen alive
     status: Any = None  # latest protocol.Status
-    events: list[str] = field(default_factory=list)
 
 
 def render(progress: Progress) -> Any:
+    """Start-up: processes ready per role. Mission: time, e_a, processes alive."""
     from rich.progress_bar import ProgressBar
     from rich.table import Table
 
@@ -332,7 +336,7 @@ class Supervisor:
         from protocol import alive_selector, status_key
 
         self.swarm, self.progress, self.log_dir, self.console = swarm, progress, log_dir, console
-        self.startup = Startup(list(specs), max_starting=2 * (os.cpu_count() or 2), stall=30.0)
+        self.startup = Startup(list(specs), max_starting=2 * (os.cpu_count() or 2), stall=STALL)
         self.children: dict[str, Child] = {}
         self.coordinator: Child | None = None
         self.rss: dict[str, list[float]] = {}

@@ -89,14 +89,15 @@ def simulate(
     polygons: list[np.ndarray] = []
     for k in range(steps + 1):
         polygon, polygon_velocity = scenario.domain(t[k])
+        density = scenario.density(t[k])
         polygons.append(polygon)
         trajectories[k] = positions
         heading_log[k] = headings
-        error[k] = aggregate_error(positions, polygon)
+        error[k] = aggregate_error(positions, polygon, density)
         if k == steps:
             break
         velocity = velocity_law(
-            positions, polygon, polygon_velocity, kappa, feedforward=feedforward
+            positions, polygon, polygon_velocity, kappa, feedforward=feedforward, density=density
         )
         if not np.all(np.isfinite(velocity)):
             raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {t[k]:.4g} s")
@@ -158,7 +159,7 @@ def build_summary(
     "scenario_name",
     default="circle",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help="Built-in scenario (circle, passage, formation) or a .toml file.",
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option(
@@ -268,6 +269,7 @@ def sim_command(
         error_compare=results[1].error if compare else None,
         obstacles=list(scenario.obstacles),
         workspace=scenario.workspace,
+        density=scenario.density(results[0].t[-1]),
     )
     console.print(f"steady-state mean e_a: {summary['steady_state_error_mean']:.4g} m", end="")
     if compare:

@@ -102,6 +102,24 @@ def alive_key(swarm: str, role: str, robot_id: int) -> str:
     return f"{_base(swarm)}/alive/{role}/{check_id(robot_id)}"
 
 
+def claim_key(swarm: str, role: str, robot_id: int, nonce: str) -> str:
+    """Liveliness token by which one process claims (role, id) from its start.
+
+    ``nonce`` is random per process, so two claimants of the same id hold distinct tokens
+    and each can see the other (see protocol.session.claim).
+    """
+    if not (nonce.isascii() and nonce.isalnum()):
+        raise ValueError(f"claim nonce must be ASCII letters and digits, got {nonce!r}")
+    return f"{claim_selector(swarm, role, robot_id)[:-2]}/{nonce}"
+
+
+def claim_selector(swarm: str, role: str, robot_id: int) -> str:
+    """Every claim on (role, id)."""
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {ROLES}, got {role!r}")
+    return f"{_base(swarm)}/claim/{role}/{check_id(robot_id)}/*"
+
+
 def alive_selector(swarm: str, role: str | None = None) -> str:
     """Liveliness tokens of one role, or of every role when ``role`` is None."""
     if role is None:

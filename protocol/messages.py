@@ -6,10 +6,14 @@ invalid message can neither be decoded nor encoded: ``decode`` and the construct
 
 Validation is strict: payload size, schema version ``"v"``, every field present, **unknown
 fields rejected** (a new field means a new SCHEMA_VERSION; silently ignoring one would hide
-a version mismatch between processes), exact types (bool is not a number), finite numbers,
-ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES and magnitudes within sane bounds. Ints
-are accepted where floats are expected (other languages' encoders drop ``.0``). Geometry
-(convexity) is not checked here: that is agent.coverage.validate_polygon's job.
+a version mismatch between processes; the one exception is an optional field, listed in
+``_OPTIONAL``, which is left out of the payload when None and reads back as None when absent:
+Domain's ``density`` joined version 1 that way, so uniform missions send the same bytes as
+before and a peer that does not know densities refuses a Domain carrying one), exact types
+(bool is not a number), finite numbers, ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES
+and magnitudes within sane bounds. Ints are accepted where floats are expected (other
+languages' encoders drop ``.0``). Geometry (convexity) is not checked here: that is
+agent.coverage.validate_polygon's job.
 """
 
 from __future__ import annotations
@@ -41,10 +45,23 @@ MAX_TIME = 1.0e9  # s of mission time
 MAX_SEQ = 2**63 - 1
 MAX_STAT = 1.0e15
 STATES = ("waiting", "running", "done")
+MAX_BUMPS = 16  # density bumps in a Domain (agent.density.MAX_BUMPS)
+MAX_DENSITY = 1.0e6  # bound on every number of a density (floor, weights, moments, rates)
+
+
+# Short codes of ProtocolError.reason, so receivers can count drops per reason.
+REASONS = ("oversize", "undecodable", "version", "schema", "nonfinite", "value")
 
 
 class ProtocolError(ValueError):
-    """A payload or message that violates the wire protocol; the message says why."""
+    """A payload or message that violates the wire protocol; the message says why.
+
+    ``reason`` is one of REASONS: "value" covers wrong types, shapes and out-of-range values.
+    """
+
+    def __init__(self, message: str, reason: str = "value") -> None:
+        super().__init__(message)
+        self.reason = reason
 
 
 Checker = Callable[[Any, str], Any]
@@ -58,7 +75,7 @@ def _real(lo: float, hi: float) -> Checker:
             raise ProtocolError(f"{name}: expected a number, got {type(value).__name__}")
         out = float(value)
         if not math.isfinite(out):
-            raise ProtocolError(f"{name}: not finite ({out})")
+            raise ProtocolError(f"{name}: not finite ({out})", "nonfinite")
         if not lo <= out <= hi:
             raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
         return out
@@ -189,15 +206,17 @@ def _unpack(payload: Any) -> Any:
     elif hasattr(payload, "to_bytes"):  # zenoh.ZBytes
         data = payload.to_bytes()
     else:
-        raise ProtocolError(f"payload: expected bytes, got {type(payload).__name__}")
+        raise ProtocolError(f"payload: expected bytes, got {type(payload).__name__}", "undecodable")
     if len(data) > MAX_PAYLOAD:
-        raise ProtocolError(f"payload: {len(data)} bytes, limit {MAX_PAYLOAD}")
+        raise ProtocolError(f"payload: {len(data)} bytes, limit {MAX_PAYLOAD}", "oversize")
     try:
         return msgpack.unpackb(data, raw=False, strict_map_key=True)
     # msgpack signals malformed input with many exception types (ExtraData, FormatError,
     # StackError, UnicodeDecodeError, ValueError, ...): all of them mean "bad payload".
     except Exception as exc:
-        raise ProtocolError(f"payload: not valid msgpack ({type(exc).__name__}: {exc})") from exc
+        raise ProtocolError(
+            f"payload: not valid msgpack ({type(exc).__name__}: {exc})", "undecodable"
+        ) from exc
 
 
 class Message:
@@ -209,6 +228,7 @@ class Message:
 
     __slots__ = ()
     _SPEC: ClassVar[dict[str, Checker]]
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
 
     def __post_init__(self) -> None:
         # Canonicalise every field (float/int/tuple) so equal messages compare equal.
@@ -218,7 +238,13 @@ class Message:
     def encode(self) -> bytes:
         """msgpack bytes of this message, with the schema version."""
         wire = {"v": SCHEMA_VERSION}
-        wire.update({f.name: getattr(self, f.name) for f in fields(self)})  # type: ignore[arg-type]
+        wire.update(
+            {
+                f.name: getattr(self, f.name)
+                for f in fields(self)  # type: ignore[arg-type]
+                if f.name not in self._OPTIONAL or getattr(self, f.name) is not None
+            }
+        )
         return msgpack.packb(wire, use_bin_type=True)
 
     @classmethod
@@ -226,18 +252,21 @@ class Message:
         """Parse and validate a payload; raise ProtocolError with the reason."""
         raw = _unpack(payload)
         if not isinstance(raw, dict):
-            raise ProtocolError(f"{cls.__name__}: expected a map, got {type(raw).__name__}")
+            raise ProtocolError(
+                f"{cls.__name__}: expected a map, got {type(raw).__name__}", "schema"
+            )
         version = raw.pop("v", None)
         if version != SCHEMA_VERSION or isinstance(version, bool):
             raise ProtocolError(
-                f"{cls.__name__}: schema version {version!r}, expected {SCHEMA_VERSION}"
+                f"{cls.__name__}: schema version {version!r}, expected {SCHEMA_VERSION}",
+                "version",
             )
-        missing = [name for name in cls._SPEC if name not in raw]
+        missing = [name for name in cls._SPEC if name not in raw and name not in cls._OPTIONAL]
         if missing:
-            raise ProtocolError(f"{cls.__name__}: missing fields {missing}")
+            raise ProtocolError(f"{cls.__name__}: missing fields {missing}", "schema")
         unknown = sorted(repr(name) for name in raw if name not in cls._SPEC)
         if unknown:
-            raise ProtocolError(f"{cls.__name__}: unknown fields {', '.join(unknown)}")
+            raise ProtocolError(f"{cls.__name__}: unknown fields {', '.join(unknown)}", "schema")
         return cls(**raw)
 
 
@@ -283,9 +312,48 @@ class WheelCommand(Message):
     }
 
 
+def _density(value: Any, name: str) -> dict[str, Any]:
+    """agent.density.Density.to_dict's shape: {t, floor, bumps: [{mean, cov, weight, rates}]}.
+
+    Structure and finiteness only; positivity and positive definite covariances are
+    agent.density's job (as convexity is agent.coverage's).
+    """
+    number = _real(-MAX_DENSITY, MAX_DENSITY)
+    pair = _points(1, 1, MAX_DENSITY)
+    matrix = _points(2, 2, MAX_DENSITY)
+    bump_spec: dict[str, Checker] = {
+        "mean": lambda v, n: pair([v], n)[0],
+        "cov": matrix,
+        "weight": number,
+        "mean_rate": lambda v, n: pair([v], n)[0],
+        "cov_rate": matrix,
+        "weight_rate": number,
+    }
+    if not isinstance(value, dict) or set(value) != {"t", "floor", "bumps"}:
+        raise ProtocolError(f"{name}: expected a map with keys t, floor, bumps")
+    bumps = _sequence(value["bumps"], f"{name}.bumps")
+    if len(bumps) > MAX_BUMPS:
+        raise ProtocolError(f"{name}.bumps: {len(bumps)} bumps, at most {MAX_BUMPS}")
+    out = []
+    for i, bump in enumerate(bumps):
+        where = f"{name}.bumps[{i}]"
+        if not isinstance(bump, dict) or set(bump) != set(bump_spec):
+            raise ProtocolError(f"{where}: expected a map with keys {sorted(bump_spec)}")
+        out.append({key: check(bump[key], f"{where}.{key}") for key, check in bump_spec.items()})
+    return {
+        "t": _TIME(value["t"], f"{name}.t"),
+        "floor": number(value["floor"], f"{name}.floor"),
+        "bumps": tuple(out),
+    }
+
+
 @dataclass(frozen=True, slots=True)
 class Domain(Message):
-    """Coordinator -> all: subdomain S(t) at mission time ``t`` and its vertex velocities."""
+    """Coordinator -> all: subdomain S(t) at mission time ``t`` and its vertex velocities.
+
+    density: None (uniform) or phi at time ``t`` with its rates, agent.density's
+    ``Density.to_dict()`` form; optional on the wire (module notes).
+    """
 
     seq: int
     stamp: float
@@ -294,6 +362,7 @@ class Domain(Message):
     vertices: tuple[tuple[float, float], ...]
     velocities: tuple[tuple[float, float], ...]
     kappa: float
+    density: dict[str, Any] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "seq": _SEQ,
@@ -303,7 +372,9 @@ class Domain(Message):
         "vertices": _points(3, MAX_VERTICES, MAX_COORD),
         "velocities": _points(3, MAX_VERTICES, MAX_VERTEX_SPEED),
         "kappa": _positive(MAX_KAPPA),
+        "density": _optional(_density),
     }
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"density"})
 
     def __post_init__(self) -> None:
         Message.__post_init__(self)

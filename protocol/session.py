@@ -2,18 +2,27 @@
 
 Explicit endpoints only: multicast scouting and gossip are off, so a process talks to the
 router it was told about and nothing else (runs on one machine never cross by discovery).
+Secured mode (TLS + user/password, ``secure=DIR``) is described in :mod:`protocol.security`.
 """
 
 from __future__ import annotations
 
 import json
+import secrets
 import signal
 import time
 from collections.abc import Callable
+from pathlib import Path
 
 import zenoh
 
+from protocol.keys import claim_key, claim_selector
+from protocol.security import apply_security
+
 MODES = ("client", "peer", "router")
+# Zenoh reassembles messages up to 1 GiB by default; no valid covswarm message exceeds a few
+# kB, so anything beyond this is dropped by the transport before it reaches Python.
+MAX_MESSAGE_SIZE = 65536
 
 
 def session_config(
@@ -22,12 +31,15 @@ def session_config(
     mode: str = "client",
     *,
     max_sessions: int | None = None,
+    secure: Path | None = None,
 ) -> zenoh.Config:
     """A zenoh.Config with explicit endpoints and no scouting.
 
     ``connect``/``listen`` are endpoint lists such as ``["tcp/127.0.0.1:7447"]``. A client
     must connect somewhere; a router must be told where to listen (zenoh's default would be
     every interface). ``max_sessions`` raises the router's client limit (default 1000).
+    ``secure`` is a secure folder (protocol.security): TLS and user/password, and then every
+    endpoint must be ``tls/...`` so that nothing of the swarm travels in clear.
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -35,6 +47,10 @@ def session_config(
         raise ValueError("a client session needs at least one --connect endpoint")
     if mode == "router" and not listen:
         raise ValueError("a router session needs at least one listen endpoint")
+    if secure is not None:
+        clear = [e for e in [*(connect or []), *(listen or [])] if not e.startswith("tls/")]
+        if clear:
+            raise ValueError(f"secured mode needs tls/ endpoints, got {clear}")
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")
@@ -45,6 +61,9 @@ def session_config(
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if max_sessions is not None:
         config.insert_json5("transport/unicast/max_sessions", json.dumps(int(max_sessions)))
+    config.insert_json5("transport/link/rx/max_message_size", json.dumps(MAX_MESSAGE_SIZE))
+    if secure is not None:
+        apply_security(config, secure, mode)
     return config
 
 
@@ -56,6 +75,28 @@ def token_exists(session: zenoh.Session, key: str, timeout: float = 1.0) -> bool
     """
     replies = session.liveliness().get(key, timeout=timeout)
     return any(reply.ok is not None for reply in replies)
+
+
+def claim(
+    session: zenoh.Session, swarm: str, role: str, robot_id: int, timeout: float = 1.0
+) -> zenoh.LivelinessToken | None:
+    """Claim (role, id) for this process: its token, or None if another process holds it.
+
+    Declare first, then look: every claimant declares a token under its own random nonce
+    and then lists the claims on (role, id). Of two processes, the one whose listing the
+    router answers after the other's declaration sees it and backs off; two that start
+    within one round trip of each other may both back off, but never both run (given the
+    router handles each session's messages in order). The caller keeps the token for its
+    lifetime; it vanishes when the process dies.
+    """
+    own = claim_key(swarm, role, robot_id, secrets.token_hex(8))
+    token = session.liveliness().declare_token(own)
+    replies = session.liveliness().get(claim_selector(swarm, role, robot_id), timeout=timeout)
+    others = {str(r.ok.key_expr) for r in replies if r.ok is not None} - {own}
+    if others:
+        token.undeclare()
+        return None
+    return token
 
 
 class StopFlag:

@@ -6,13 +6,15 @@ honour, and agents see nothing else of a robot:
 - subscribe to ``covswarm/<swarm>/robot/<id>/cmd`` (WheelCommand, rim speeds in m/s);
 - publish ``covswarm/<swarm>/robot/<id>/pose`` (Pose) at ``--pose-rate``;
 - declare the liveliness token ``covswarm/<swarm>/alive/robot/<id>`` once ready, and refuse
-  to start if a token for the same id is already alive.
+  to start if another process already claims the same id (protocol.session.claim).
 
 The robot integrates its kinematics (sim_robot.model.integrate, exact arcs) at ``--rate``
 from the last valid command and stops its wheels when no valid command arrived for
 ``--cmd-timeout`` seconds (an agent that dies or stalls must not leave its robot driving).
-Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds) are dropped and
-counted; they never reach the wheels.
+Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
+than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` plus that
+skew) are dropped, counted per reason and logged rate-limited (protocol.inbound); they
+never reach the wheels.
 
 Import-light on purpose (numpy, msgpack, zenoh; no scipy, no matplotlib): a 2-core machine
 starts hundreds of these.
@@ -23,6 +25,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
+from pathlib import Path
 
 import click
 import numpy as np
@@ -30,19 +33,22 @@ import zenoh
 
 import protocol
 from agent.drive import KHEPERA_IV, DiffDrive
-from protocol.session import StopFlag, Ticker, session_config, token_exists
+from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from protocol.security import SECURE_OPTION
+from protocol.session import StopFlag, Ticker, claim, session_config
 from sim_robot.model import integrate
 
 log = logging.getLogger("covswarm.robot")
 
+# Why a command was dropped: protocol reasons, the clock policy, or addressed to another id.
+DROP_REASONS = (*protocol.REASONS, *STAMP_REASONS, "wrong_id")
+
 
 @dataclass
 class RobotCounters:
-    """What happened to the commands a robot received."""
+    """What happened to the commands a robot received (drops: RobotSim.drops)."""
 
     commands: int = 0  # valid commands applied
-    rejected: int = 0  # failed protocol validation
-    wrong_id: int = 0  # valid, but addressed to another robot
     timeouts: int = 0  # times the wheels were stopped for lack of commands
 
 
@@ -59,6 +65,7 @@ class RobotSim:
         *,
         robot: DiffDrive = KHEPERA_IV,
         cmd_timeout: float = 0.5,
+        max_clock_skew: float = MAX_CLOCK_SKEW,
         now: float = 0.0,
     ) -> None:
         if not (cmd_timeout > 0 and np.isfinite(cmd_timeout)):
@@ -68,22 +75,25 @@ class RobotSim:
         self.id = protocol.check_id(robot_id)
         self.robot = robot
         self.cmd_timeout = cmd_timeout
+        self.max_clock_skew = max_clock_skew
         self.pose = np.array(pose, dtype=float)
         self.wheels = np.zeros(2)
         self.counters = RobotCounters()
+        self.drops = DropLog(log, f"robot {self.id}", DROP_REASONS)
         self._last_command: float | None = None
         self._last_step = now
 
-    def on_command(self, payload: object, now: float) -> bool:
-        """Apply a raw WheelCommand payload received at ``now``; False if it was dropped."""
+    def on_command(self, payload: object, now: float, now_wall: float) -> bool:
+        """Apply a raw WheelCommand payload received at ``now`` (monotonic) and ``now_wall``
+        (s since the epoch); False if it was dropped."""
         try:
             command = protocol.WheelCommand.decode(payload)
+            check_stamp(command.stamp, now_wall, self.cmd_timeout, self.max_clock_skew)
         except protocol.ProtocolError as exc:
-            self.counters.rejected += 1
-            log.debug("robot %d: dropped command: %s", self.id, exc)
+            self.drops.drop(exc.reason, f"command: {exc}")
             return False
         if command.id != self.id:
-            self.counters.wrong_id += 1
+            self.drops.drop("wrong_id", f"command for robot {command.id}")
             return False
         # Decoding guarantees finite speeds; the model clamps them to this robot's limit.
         self.wheels = np.array([command.left, command.right])
@@ -116,16 +126,18 @@ class RobotSim:
 def run_robot(
     sim: RobotSim,
     swarm: str,
-    connect: list[str],
+    config: zenoh.Config,
     rate: float,
     pose_rate: float,
 ) -> RobotCounters:
-    """Zenoh shell around ``sim``: runs until SIGINT/SIGTERM, returns the counters."""
+    """Zenoh shell around ``sim``: runs until SIGINT/SIGTERM, returns the counters.
+
+    Refuses to start (ClickException) if another process claims the same robot id.
+    """
     stop = StopFlag()
-    config = session_config(connect, None, "client")
     alive = protocol.alive_key(swarm, "robot", sim.id)
     with zenoh.open(config) as session:
-        if token_exists(session, alive):
+        if claim(session, swarm, "robot", sim.id) is None:
             raise click.ClickException(f"robot {sim.id} is already running in swarm {swarm!r}")
         publisher = session.declare_publisher(
             protocol.pose_key(swarm, sim.id), congestion_control=zenoh.CongestionControl.DROP
@@ -140,25 +152,29 @@ def run_robot(
         pose_period = 1.0 / pose_rate
         next_pose = time.monotonic()
         seq = 0
+        unpublishable = RateLimit()
         try:
             while not stop.is_set():
                 now = ticker.wait(stop)
+                wall = time.time()
                 while (sample := commands.try_recv()) is not None:
-                    sim.on_command(sample.payload.to_bytes(), now)
+                    sim.on_command(sample.payload.to_bytes(), now, wall)
                 sim.step(now)
                 if now >= next_pose:
                     next_pose = max(next_pose + pose_period, now)
                     try:
-                        publisher.put(sim.pose_message(time.time(), seq).encode())
+                        publisher.put(sim.pose_message(wall, seq).encode())
                         seq += 1
                     except protocol.ProtocolError as exc:
-                        log.error("robot %d: pose not publishable: %s", sim.id, exc)
+                        if unpublishable.ready():  # once per LOG_INTERVAL, not per tick
+                            log.error("robot %d: pose not publishable: %s", sim.id, exc)
         finally:
             token.undeclare()
         log.info(
-            "robot %d stopping: %s, %d ticks, %d overruns",
+            "robot %d stopping: %s, dropped %s, %d ticks, %d overruns",
             sim.id,
             sim.counters,
+            sim.drops.summary(),
             ticker.ticks,
             ticker.overruns,
         )
@@ -178,12 +194,20 @@ def run_robot(
 @click.option("--pose-rate", type=click.FloatRange(min=0.1), default=20.0, show_default=True)
 @click.option("--cmd-timeout", type=click.FloatRange(min=0.01), default=0.5, show_default=True)
 @click.option(
+    "--max-clock-skew",
+    type=click.FloatRange(min=0.0),
+    default=MAX_CLOCK_SKEW,
+    show_default=True,
+    help="Drop commands stamped more than this (s) ahead of this clock.",
+)
+@click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
     default=0.8,
     show_default=True,
     help="Rim speed limit (m/s).",
 )
+@SECURE_OPTION
 @click.option("--verbose", is_flag=True, help="Log at INFO level.")
 def robot_command(
     robot_id: int,
@@ -195,7 +219,9 @@ def robot_command(
     rate: float,
     pose_rate: float,
     cmd_timeout: float,
+    max_clock_skew: float,
     max_wheel_speed: float,
+    secure: Path | None,
     verbose: bool,
 ) -> None:
     """Run one simulated Khepera IV (pose publisher, wheel-command subscriber)."""
@@ -208,8 +234,10 @@ def robot_command(
             (x, y, theta),
             robot=robot,
             cmd_timeout=cmd_timeout,
+            max_clock_skew=max_clock_skew,
             now=time.monotonic(),
         )
+        config = session_config(list(connect), None, "client", secure=secure)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    run_robot(sim, swarm, list(connect), rate, pose_rate)
+    run_robot(sim, swarm, config, rate, pose_rate)

@@ -226,21 +226,22 @@ def test_domain_order_and_validation() -> None:
     brain = brain_at(0.5, 0.5)
     assert brain.on_domain(domain(stamp=WALL + 1), now=0.0)
     assert not brain.on_domain(domain(stamp=WALL), now=0.0)
-    assert brain.counters.old_domain == 1
+    assert brain.drops.counts["old_domain"] == 1
     bowtie = [[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]]
     assert not brain.on_domain(domain(stamp=WALL + 2, vertices=bowtie), now=0.0)
-    assert brain.counters.bad_domain == 1
+    assert brain.drops.counts["bad_domain"] == 1
     assert brain.domain.stamp == WALL + 1
 
 
 def test_bad_payloads_are_counted_not_raised() -> None:
     brain = brain_at(0.5, 0.5)
-    assert not brain.receive("pose", b"\xff\x00", now=0.0)
-    assert not brain.receive("domain", b"", now=0.0)
-    assert brain.counters.invalid == 2
-    assert not brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, key_id=6)
-    assert brain.counters.wrong_id == 1
-    assert brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, key_id=5)
+    assert not brain.receive("pose", b"\xff\x00", now=0.0, now_wall=WALL)
+    assert not brain.receive("domain", b"", now=0.0, now_wall=WALL)
+    assert brain.drops.counts["undecodable"] == 2
+    assert not brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, now_wall=WALL, key_id=6)
+    assert brain.drops.counts["wrong_id"] == 1
+    assert brain.stats()["drop_wrong_id"] == 1
+    assert brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, now_wall=WALL, key_id=5)
     assert 5 in brain.poses
 
 
@@ -396,7 +397,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
         assert final < 0.5 * initial, (initial, final)
         for state in states.snapshot().values():
             assert state.stats["rate_hz"] > 5.0
-            assert state.stats["drop_invalid"] == 0
+            assert all(state.stats[f"drop_{r}"] == 0 for r in protocol.REASONS)
             assert set(state.neighbors) <= {0, 1, 2} - {state.id}
     finally:
         for child in children:

@@ -13,6 +13,7 @@ import os
 import secrets
 import signal
 import subprocess
+import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -20,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.launcher import covswarm_argv
+from deploy.launcher import covswarm_argv, free_port
 
 pytestmark = pytest.mark.e2e
 
@@ -131,6 +132,32 @@ def test_a_dead_agent_is_reported_and_the_run_goes_on(tmp_path: Path) -> None:
     assert 0.0 <= lost[0]["t"] < 8.0
     assert "agent-1" in (tmp_path / "death.launcher.log").read_text()
     assert swarm_pids(swarm) == set()
+
+
+ROUTER = """
+import signal, sys, zenoh
+from protocol import session_config
+with zenoh.open(session_config(None, [sys.argv[1]], mode="router")):
+    print("ready", flush=True)
+    signal.pause()  # until SIGTERM (default action: exit)
+"""
+
+
+def test_run_joins_an_existing_router(tmp_path: Path) -> None:
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    router = subprocess.Popen(
+        [sys.executable, "-c", ROUTER, endpoint], stdout=subprocess.PIPE, text=True
+    )
+    try:
+        assert router.stdout.readline().strip() == "ready"
+        out = tmp_path / "joined"
+        with launch(out, "--agents", "2", "--duration", "4", "--connect", endpoint) as launcher:
+            assert launcher.wait(timeout=120) == 0
+        assert json.loads((out / "launch.json").read_text())["endpoint"] == endpoint
+        assert json.loads((out / "summary.json").read_text())["alive_at_end"]["robots"] == 2
+    finally:
+        router.terminate()
+        router.wait(timeout=10)
 
 
 def test_children_die_when_the_launcher_is_sigkilled(tmp_path: Path) -> None:

@@ -30,7 +30,7 @@ def raw_command(**overrides: object) -> bytes:
 
 def test_drives_straight_from_last_command() -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5)
-    assert sim.on_command(command(0.2, 0.2), now=0.0)
+    assert sim.on_command(command(0.2, 0.2), now=0.0, now_wall=STAMP)
     for k in range(1, 11):
         sim.step(k * 0.02)
     assert sim.pose == pytest.approx([0.04, 0.0, 0.0], abs=1e-12)
@@ -38,7 +38,7 @@ def test_drives_straight_from_last_command() -> None:
 
 def test_command_timeout_stops_the_wheels() -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5)
-    sim.on_command(command(0.2, 0.2), now=0.0)
+    sim.on_command(command(0.2, 0.2), now=0.0, now_wall=STAMP)
     t = 0.0
     while t < 2.0:
         t += 0.02
@@ -73,9 +73,9 @@ def test_no_command_no_motion() -> None:
 )
 def test_bad_commands_are_dropped_and_never_integrated(payload: bytes) -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0))
-    sim.on_command(command(0.1, 0.1), now=0.0)
-    assert not sim.on_command(payload, now=0.01)
-    assert sim.counters.rejected == 1
+    sim.on_command(command(0.1, 0.1), now=0.0, now_wall=STAMP)
+    assert not sim.on_command(payload, now=0.01, now_wall=STAMP)
+    assert sim.drops.total == 1
     assert sim.wheels == pytest.approx([0.1, 0.1])  # the last valid command holds
     sim.step(0.02)
     assert np.all(np.isfinite(sim.pose))
@@ -83,30 +83,32 @@ def test_bad_commands_are_dropped_and_never_integrated(payload: bytes) -> None:
 
 def test_command_for_another_robot_is_ignored() -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0))
-    assert not sim.on_command(command(0.3, 0.3, robot_id=2), now=0.0)
-    assert sim.counters.wrong_id == 1
+    assert not sim.on_command(command(0.3, 0.3, robot_id=2), now=0.0, now_wall=STAMP)
+    assert sim.drops.counts["wrong_id"] == 1
     assert not sim.wheels.any()
 
 
 def test_wheels_clamped_to_robot_limit() -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0), robot=DiffDrive(max_wheel_speed=0.5))
-    sim.on_command(command(2.0, 2.0), now=0.0)
+    sim.on_command(command(2.0, 2.0), now=0.0, now_wall=STAMP)
     sim.step(0.1)
     assert sim.pose[0] == pytest.approx(0.05)
 
 
 def test_stall_does_not_teleport() -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5)
-    sim.on_command(command(0.2, 0.2), now=0.0)
+    sim.on_command(command(0.2, 0.2), now=0.0, now_wall=STAMP)
     sim.step(0.0)
-    sim.on_command(command(0.2, 0.2), now=10.0)  # a command arrives after a 10 s freeze
+    sim.on_command(
+        command(0.2, 0.2), now=10.0, now_wall=STAMP
+    )  # a command arrives after a 10 s freeze
     sim.step(10.0)
     assert sim.pose[0] <= 0.2 * 0.5 + 1e-12
 
 
 def test_turning_in_place_wraps_heading() -> None:
     sim = RobotSim(1, (0.0, 0.0, 3.0))
-    sim.on_command(command(-0.1, 0.1), now=0.0)
+    sim.on_command(command(-0.1, 0.1), now=0.0, now_wall=STAMP)
     sim.step(0.2)
     message = sim.pose_message(STAMP, 0)
     assert -math.pi <= message.theta < math.pi

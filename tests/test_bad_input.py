@@ -1,0 +1,246 @@
+"""Bad input policy: stamps, drop counting and logging, message size, duplicate robot ids."""
+
+from __future__ import annotations
+
+import logging
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import protocol
+from agent import runtime
+from agent.runtime import AgentBrain, AgentConfig
+from protocol.inbound import DropLog, check_stamp
+from sim_robot.process import RobotSim
+
+WALL = 1.7e9
+SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
+REPO = Path(__file__).resolve().parent.parent
+COVSWARM = str(Path(sys.executable).with_name("covswarm"))
+
+
+def pose(rid: int, stamp: float) -> bytes:
+    return protocol.Pose(id=rid, x=0.5, y=0.5, theta=0.0, stamp=stamp, seq=0).encode()
+
+
+def domain(stamp: float) -> bytes:
+    return protocol.Domain(
+        seq=0,
+        stamp=stamp,
+        t=0.0,
+        state="running",
+        vertices=SQUARE,
+        velocities=[[0.0, 0.0]] * 4,
+        kappa=1.0,
+    ).encode()
+
+
+def command(stamp: float) -> bytes:
+    return protocol.WheelCommand(
+        id=1, left=0.2, right=0.2, stamp=stamp, seq=0, pose_stamp=stamp
+    ).encode()
+
+
+# --- clock policy -----------------------------------------------------------------------
+
+
+def test_stamp_policy_edges() -> None:
+    check_stamp(WALL + 0.5, WALL, max_age=1.0, max_skew=0.5)
+    check_stamp(WALL - 1.5, WALL, max_age=1.0, max_skew=0.5)
+    with pytest.raises(protocol.ProtocolError, match="ahead") as future:
+        check_stamp(WALL + 0.51, WALL, max_age=1.0, max_skew=0.5)
+    assert future.value.reason == "stamp_future"
+    with pytest.raises(protocol.ProtocolError, match="old") as old:
+        check_stamp(WALL - 1.51, WALL, max_age=1.0, max_skew=0.5)
+    assert old.value.reason == "stamp_old"
+
+
+def test_a_domain_from_the_future_cannot_pin_the_agent() -> None:
+    brain = AgentBrain(0)
+    assert not brain.receive("domain", domain(WALL + 3600.0), 0.0, WALL)
+    assert brain.receive("domain", domain(WALL), 0.0, WALL)  # accepted: not "older than held"
+    assert brain.receive("domain", domain(WALL + 0.3), 0.0, WALL)  # within the skew
+    assert brain.drops.counts["stamp_future"] == 1
+    assert brain.stats()["drop_stamp_future"] == 1
+
+
+def test_old_or_future_own_pose_is_not_driven_on() -> None:
+    brain = AgentBrain(0)
+    assert brain.receive("domain", domain(WALL), 0.0, WALL)
+    assert not brain.receive("pose", pose(0, WALL - 10.0), 0.0, WALL, key_id=0)
+    assert not brain.receive("pose", pose(0, WALL + 10.0), 0.0, WALL, key_id=0)
+    assert brain.step(0.0, WALL).reason == "no-pose"
+    assert (brain.drops.counts["stamp_old"], brain.drops.counts["stamp_future"]) == (1, 1)
+    assert brain.receive("pose", pose(0, WALL - 0.05), 0.0, WALL, key_id=0)
+    assert brain.step(0.0, WALL).reason == "running"
+
+
+def test_beacons_age_out_on_their_own_timeout() -> None:
+    brain = AgentBrain(0, AgentConfig(beacon_timeout=3.0, max_clock_skew=0.5))
+    beacon = protocol.Beacon(id=4, x=1.0, y=1.0, stamp=WALL - 3.2).encode()
+    assert brain.receive("beacon", beacon, 0.0, WALL, key_id=4)
+    beacon = protocol.Beacon(id=4, x=1.0, y=1.0, stamp=WALL - 3.6).encode()
+    assert not brain.receive("beacon", beacon, 0.0, WALL, key_id=4)
+
+
+def test_robot_drops_delayed_and_future_commands() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0), cmd_timeout=0.5, max_clock_skew=0.5)
+    assert not sim.on_command(command(WALL - 1.2), now=0.0, now_wall=WALL)
+    assert not sim.on_command(command(WALL + 1.0), now=0.0, now_wall=WALL)
+    assert not sim.wheels.any()
+    assert sim.drops.counts["stamp_old"] == sim.drops.counts["stamp_future"] == 1
+    assert sim.on_command(command(WALL - 0.9), now=0.0, now_wall=WALL)
+
+
+# --- counting and logging ---------------------------------------------------------------
+
+
+def test_drops_are_counted_per_reason_and_logged_rate_limited(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    clock = [0.0]
+    drops = DropLog(
+        logging.getLogger("test.drops"), "agent 7", ["nonfinite"], 10.0, lambda: clock[0]
+    )
+    with caplog.at_level(logging.WARNING, logger="test.drops"):
+        for _ in range(1000):
+            drops.drop("nonfinite", "pose: x: not finite (nan)")
+        clock[0] = 10.5
+        drops.drop("version", "pose: schema version 7, expected 1")
+    assert drops.counts == {"nonfinite": 1000, "version": 1}
+    assert [r.getMessage() for r in caplog.records] == [
+        "agent 7 dropped input (1 nonfinite); latest: pose: x: not finite (nan)",
+        "agent 7 dropped input (999 nonfinite, 1 version); latest: pose: schema version 7, "
+        "expected 1",
+    ]
+    assert drops.summary() == "1000 nonfinite, 1 version"
+
+
+def test_every_drop_reason_is_reported_in_a_sendable_agent_state() -> None:
+    brain = AgentBrain(0)
+    brain.receive("pose", pose(0, WALL), 0.0, WALL, key_id=0)
+    stats = brain.agent_state(WALL).stats
+    assert {f"drop_{r}" for r in runtime.DROP_REASONS} <= stats.keys()
+    assert len(stats) <= protocol.messages.MAX_STATS
+
+
+def test_failing_control_step_logs_once_per_interval(
+    monkeypatch: pytest.MonkeyPatch, caplog: pytest.LogCaptureFixture
+) -> None:
+    def boom(*args: object, **kwargs: object) -> None:
+        raise ValueError("polygon is self-intersecting: edge 0 crosses edge 2")
+
+    monkeypatch.setattr(runtime, "local_step", boom)
+    brain = AgentBrain(0)
+    brain.receive("pose", pose(0, WALL), 0.0, WALL, key_id=0)
+    brain.receive("domain", domain(WALL), 0.0, WALL)
+    with caplog.at_level(logging.WARNING, logger="covswarm.agent"):
+        reasons = {brain.step(0.01 * k, WALL).reason for k in range(50)}
+    assert reasons == {"error"} and brain.counters.step_errors == 50
+    assert len(caplog.records) == 1
+
+
+# --- over Zenoh ---------------------------------------------------------------------------
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def router() -> Iterator[tuple[object, str]]:
+    """A router-mode session on a free loopback port: (session, endpoint)."""
+    zenoh = pytest.importorskip("zenoh")
+    for attempt in range(5):  # the port can be taken between probing and binding
+        endpoint = f"tcp/127.0.0.1:{free_port()}"
+        try:
+            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
+            break
+        except zenoh.ZError:
+            if attempt == 4:
+                raise
+    yield session, endpoint
+    session.close()
+
+
+@pytest.mark.timeout(60)
+def test_oversized_messages_stop_at_the_transport(router: tuple) -> None:
+    import zenoh
+
+    _, endpoint = router
+    with (
+        zenoh.open(protocol.session_config([endpoint])) as sender,
+        zenoh.open(protocol.session_config([endpoint])) as receiver,
+    ):
+        sizes: list[int] = []
+        key = f"covswarm/{protocol.new_swarm_name()}/big"
+        receiver.declare_subscriber(key, lambda sample: sizes.append(len(sample.payload)))
+        time.sleep(0.3)
+        for size in (100_000, 1_000, 10_000_000, 2_000):
+            sender.put(key, bytes(size))
+        deadline = time.monotonic() + 10.0
+        while len(sizes) < 2 and time.monotonic() < deadline:
+            time.sleep(0.05)
+        time.sleep(0.3)
+    assert sizes == [1_000, 2_000]
+
+
+@pytest.mark.timeout(60)
+def test_a_second_claim_on_an_id_is_refused(router: tuple) -> None:
+    import zenoh
+
+    from protocol.session import claim
+
+    _, endpoint = router
+    swarm = protocol.new_swarm_name()
+    with (
+        zenoh.open(protocol.session_config([endpoint])) as first,
+        zenoh.open(protocol.session_config([endpoint])) as second,
+    ):
+        token = claim(first, swarm, "agent", 3)
+        assert token is not None
+        assert claim(second, swarm, "agent", 3) is None
+        assert claim(second, swarm, "robot", 3) is not None  # another role: no conflict
+        assert claim(second, swarm, "agent", 4) is not None  # another id: no conflict
+        token.undeclare()
+        time.sleep(0.2)
+        assert claim(second, swarm, "agent", 3) is not None  # free again
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(180)
+def test_second_robot_or_agent_process_with_the_same_id_is_refused(router: tuple) -> None:
+    session, endpoint = router
+    swarm = protocol.new_swarm_name()
+    common = ["--id", "3", "--connect", endpoint, "--swarm", swarm]
+    first = [
+        subprocess.Popen([COVSWARM, role, *common], cwd=REPO, stderr=subprocess.DEVNULL)
+        for role in ("robot", "agent")
+    ]
+    try:
+        deadline = time.monotonic() + 120.0
+        for role in ("robot", "agent"):
+            selector = protocol.claim_selector(swarm, role, 3)
+            while not list(session.liveliness().get(selector, timeout=1.0)):
+                assert time.monotonic() < deadline, f"first {role} did not come up"
+                assert all(p.poll() is None for p in first), "a first process exited"
+                time.sleep(0.2)
+        for role in ("robot", "agent"):
+            second = subprocess.run(
+                [COVSWARM, role, *common], cwd=REPO, capture_output=True, text=True, timeout=120
+            )
+            assert second.returncode == 1
+            assert f"{role} 3 is already running in swarm '{swarm}'" in second.stderr
+        assert all(p.poll() is None for p in first)  # the first ones keep running
+    finally:
+        for p in first:
+            p.terminate()
+        for p in first:
+            p.wait(timeout=30)
