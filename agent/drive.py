@@ -7,11 +7,13 @@ exactly; the axle centre then lags by at most that distance, so the distance tra
 aggressiveness (small distance -> large turn rates -> wheel saturation) against tracking
 error (large distance).
 
-``DEFAULT_PROJECTION_DISTANCE`` was picked by measuring the aggregate CVT error of the
-``passage`` and ``circle`` scenarios in ``covswarm sim --dynamics unicycle`` for distances
-between 0.01 m and 0.1 m (see ``docs`` / the simulate report); 0.03 m is within a few percent
-of the best value in both and keeps turn-in-place manoeuvres well inside the 0.8 m/s wheel
-limit.
+``DEFAULT_PROJECTION_DISTANCE`` was picked in ``covswarm sim --scenario passage --dynamics
+unicycle`` (10 robots, random headings, seed 0), mean e_a over the whole run against the
+single-integrator run's 0.0506 m: 0.01 m -> 0.0514 (0.15% of commands saturated), 0.02 m ->
+0.0521, 0.03 m -> 0.0530 (0.07%), 0.05 m -> 0.0552, 0.08 m -> 0.0592; the steady-state means
+differ by under 5% across the range. 0.03 m (a fifth of the body diameter) tracks within ~5%
+of an ideal integrator, while smaller distances buy little and turn harder, which a real
+robot with command latency pays for.
 
 Pure numpy, no I/O: imported by agent processes.
 """

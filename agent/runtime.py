@@ -666,7 +666,9 @@ def run_agent(brain: AgentBrain, swarm: str, config: zenoh.Config, rate: float) 
     stop = StopFlag()
     alive = protocol.alive_key(swarm, "agent", brain.id)
     with zenoh.open(config) as session:
-        if claim(session, swarm, "agent", brain.id) is None:
+        # The token must stay referenced: zenoh undeclares a token when it is collected.
+        claimed = claim(session, swarm, "agent", brain.id)
+        if claimed is None:
             raise click.ClickException(f"agent {brain.id} is already running in swarm {swarm!r}")
         link = AgentLink(session, swarm, brain)
         token: zenoh.LivelinessToken | None = None
@@ -687,6 +689,7 @@ def run_agent(brain: AgentBrain, swarm: str, config: zenoh.Config, rate: float) 
             link.send_command(Decision(0.0, 0.0, "stopped"), time.time())
             if token is not None:
                 token.undeclare()
+            claimed.undeclare()
         log.info(
             "agent %d stopping: %s, dropped %s, stats %s, %d ticks, %d overruns",
             brain.id,

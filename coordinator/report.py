@@ -115,10 +115,11 @@ def _error_figure(plt: Any, t: np.ndarray, error: np.ndarray, compare: np.ndarra
         ax.annotate(
             f"steady-state mean {mean:.4g} m",
             (t_half, mean),
-            xytext=(4, 4 if color == "tab:blue" else -12),
+            xytext=(4, 4 if color == "tab:blue" else -13),
             textcoords="offset points",
             color=color,
             fontsize=9,
+            bbox={"boxstyle": "round,pad=0.2", "fc": "white", "ec": "none", "alpha": 0.8},
         )
     ax.axvspan(t_half, t[-1], color="0.93", zorder=0)
     positive = np.concatenate([c[1][np.isfinite(c[1]) & (c[1] > 0)] for c in curves])

@@ -19,6 +19,7 @@ SUBCOMMANDS: dict[str, str] = {
     "robot": "sim_robot.process:robot_command",
     "coordinator": "coordinator.process:coordinator_command",
     "bench": "deploy.bench:bench_command",
+    "credentials": "protocol.security:credentials_command",
 }
 
 

@@ -226,6 +226,17 @@ def rss_mb(pid: int) -> float | None:
     return None
 
 
+def cpu_seconds(pid: int) -> float | None:
+    """User + system CPU time of a live process in s (Linux /proc), None if it is gone."""
+    try:
+        with open(f"/proc/{pid}/stat", encoding="ascii") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
+    except OSError:
+        return None
+    # Fields 14 and 15 of proc(5) (utime, stime); fields[0] is field 3 (state).
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
 def free_port(host: str = ROUTER_HOST) -> int:
     """A TCP port nobody listens on right now (bind to port 0 and ask the OS)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
@@ -295,23 +306,29 @@ def render(progress: Progress) -> Any:
     from rich.progress_bar import ProgressBar
     from rich.table import Table
 
+    def bar(completed: float, total: float, text: str) -> Table:
+        row = Table.grid(padding=(0, 1))
+        row.add_row(ProgressBar(total=total, completed=completed, width=30), text)
+        return row
+
     table = Table.grid(padding=(0, 2))
     table.add_column(style="bold")
     table.add_column()
     n = progress.agents
-    if progress.status is None or progress.status.state == "waiting":
-        table.add_row("phase", "start-up (waiting for liveliness tokens)")
-        for role, total in (("coordinator", 1), ("robot", n), ("agent", n)):
-            count = sum(1 for r, _ in progress.ready if r == role)
-            row = Table.grid(padding=(0, 1))
-            row.add_row(ProgressBar(total=total, completed=count, width=30), f"{count}/{total}")
-            table.add_row(f"{role}s ready", row)
-        return table
     status = progress.status
+    if status is None or status.state == "waiting":
+        table.add_row("phase", "start-up (waiting for liveliness tokens)")
+        for label, role, total in (
+            ("coordinator", "coordinator", 1), ("robots", "robot", n), ("agents", "agent", n)
+        ):  # fmt: skip
+            count = sum(1 for r, _ in progress.ready if r == role)
+            table.add_row(f"{label} ready", bar(count, total, f"{count}/{total}"))
+        return table
     table.add_row("phase", status.state)
-    bar = ProgressBar(total=progress.duration, completed=status.t, width=30)
-    table.add_row("mission time", bar)
-    table.add_row("", f"{status.t:6.1f} / {progress.duration:.1f} s")
+    table.add_row(
+        "mission time",
+        bar(status.t, progress.duration, f"{status.t:.1f} / {progress.duration:.1f} s"),
+    )
     table.add_row("e_a", "-" if status.error is None else f"{status.error:.4f} m")
     table.add_row("robots alive", f"{status.alive_robots}/{n}")
     table.add_row("agents alive", f"{status.alive_agents}/{n}")
@@ -321,7 +338,8 @@ def render(progress: Progress) -> Any:
 @dataclass
 class RunResult:
     exit_code: int
-    rss: dict[str, list[float]]  # role -> RSS (MB) of each child sampled at the end
+    rss: dict[str, list[float]]  # role -> RSS (MB) of each child at the end of the mission
+    cpu: dict[str, list[float]]  # role -> CPU use of each child during the mission, % of a core
 
 
 class Supervisor:
@@ -340,6 +358,8 @@ class Supervisor:
         self.children: dict[str, Child] = {}
         self.coordinator: Child | None = None
         self.rss: dict[str, list[float]] = {}
+        self.cpu: dict[str, list[float]] = {}
+        self._cpu_at_start: tuple[float, dict[str, float | None]] | None = None
         self.began = time.monotonic()
         self._put = zenoh.SampleKind.PUT
         self._alive = session.liveliness().declare_subscriber(
@@ -381,11 +401,25 @@ class Supervisor:
                         f"at {now - self.began:.1f} s; see {child.log_path}"
                     )
         status = self.progress.status
+        if status is not None and status.state == "running" and self._cpu_at_start is None:
+            self._cpu_at_start = (now, self._cpu_times())
         if status is not None and status.state == "done" and not self.rss:
-            # Memory at the end of the mission, while every process is still up.
-            for child in self.children.values():
-                if (mb := rss_mb(child.process.pid)) is not None:
-                    self.rss.setdefault(child.spec.role, []).append(mb)
+            self._measure_resources(now)
+
+    def _cpu_times(self) -> dict[str, float | None]:
+        return {name: cpu_seconds(c.process.pid) for name, c in self.children.items()}
+
+    def _measure_resources(self, now: float) -> None:
+        """RSS of every child at the end of the mission (all still up) and its CPU use
+        since the mission started."""
+        started, before = self._cpu_at_start or (now, {})
+        after = self._cpu_times()
+        for name, child in self.children.items():
+            if (mb := rss_mb(child.process.pid)) is not None:
+                self.rss.setdefault(child.spec.role, []).append(mb)
+            if now > started and before.get(name) is not None and after[name] is not None:
+                share = 100.0 * (after[name] - before[name]) / (now - started)
+                self.cpu.setdefault(child.spec.role, []).append(share)
 
     def stop_coordinator(self, received: list[int]) -> None:
         """SIGTERM makes a running coordinator end the mission early and write its outputs;
@@ -454,7 +488,7 @@ def run_processes(
                     time.sleep(TICK)
         finally:
             supervisor.close()
-    return RunResult(exit_code, supervisor.rss)
+    return RunResult(exit_code, supervisor.rss, supervisor.cpu)
 
 
 def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> Any:
@@ -484,6 +518,12 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
             )
     for role, values in sorted(result.rss.items()):
         table.add_row(f"RSS per {role}", f"mean {np.mean(values):.0f} MB  max {max(values):.0f} MB")
+    for role, values in sorted(result.cpu.items()):
+        table.add_row(
+            f"CPU per {role}",
+            f"mean {np.mean(values):.1f}%  max {max(values):.1f}% of a core (total "
+            f"{sum(values):.0f}%)",
+        )
     lost = summary.get("lost_processes", [])
     table.add_row("liveliness lost", ", ".join(f"{e['role']} {e['id']}" for e in lost) or "none")
     table.add_row("outputs", str(out_dir))
@@ -515,7 +555,7 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
 )
 @click.option(
     "--rate",
-    type=click.FloatRange(min=0, min_open=True),
+    type=click.FloatRange(min=0.5),
     default=10.0,
     show_default=True,
     help="Control rate of every agent, Hz.",
@@ -575,10 +615,14 @@ def run_command(
             specs, session=session, swarm=swarm, agents=n, duration=duration, log_dir=log_dir,
             startup_timeout=startup_timeout, console=console,
         )  # fmt: skip
+    (out_dir / "resources.json").write_text(
+        json.dumps({"rss_mb": result.rss, "cpu_percent_of_core": result.cpu}, indent=1) + "\n",
+        encoding="utf-8",
+    )
+    console.print()  # the live display's last frame ends without a newline off a terminal
     summary_path = out_dir / "summary.json"
     if summary_path.exists():
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
-        console.print()
         console.print(summary_table(summary, result, out_dir))
     else:
         console.log(f"[red]no summary written (see {log_dir / 'coordinator-0.log'})")

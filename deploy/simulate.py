@@ -233,7 +233,7 @@ def sim_command(
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
     results: list[SimResult] = []
-    started = time.perf_counter()
+    started, cpu_started = time.perf_counter(), time.process_time()
     with Progress(
         TextColumn("{task.description}"),
         BarColumn(),
@@ -251,7 +251,7 @@ def sim_command(
                 progress=lambda step, _total, task=task: bar.update(task, completed=step),
                 **options,
             ))  # fmt: skip
-    elapsed = time.perf_counter() - started
+    elapsed, cpu = time.perf_counter() - started, time.process_time() - cpu_started
 
     summary = build_summary(
         scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
@@ -278,5 +278,7 @@ def sim_command(
             f" ({100 * summary['improvement']:.1f}% better with it)",
             end="",
         )
-    console.print(f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s")
+    console.print(
+        f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s (CPU {cpu:.1f} s)"
+    )
     console.print(f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png)")

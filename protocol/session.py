@@ -20,9 +20,6 @@ from protocol.keys import claim_key, claim_selector
 from protocol.security import apply_security
 
 MODES = ("client", "peer", "router")
-# Zenoh reassembles messages up to 1 GiB by default; no valid covswarm message exceeds a few
-# kB, so anything beyond this is dropped by the transport before it reaches Python.
-MAX_MESSAGE_SIZE = 65536
 
 
 def session_config(
@@ -61,7 +58,6 @@ def session_config(
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if max_sessions is not None:
         config.insert_json5("transport/unicast/max_sessions", json.dumps(int(max_sessions)))
-    config.insert_json5("transport/link/rx/max_message_size", json.dumps(MAX_MESSAGE_SIZE))
     if secure is not None:
         apply_security(config, secure, mode)
     return config

@@ -137,7 +137,9 @@ def run_robot(
     stop = StopFlag()
     alive = protocol.alive_key(swarm, "robot", sim.id)
     with zenoh.open(config) as session:
-        if claim(session, swarm, "robot", sim.id) is None:
+        # The token must stay referenced: zenoh undeclares a token when it is collected.
+        claimed = claim(session, swarm, "robot", sim.id)
+        if claimed is None:
             raise click.ClickException(f"robot {sim.id} is already running in swarm {swarm!r}")
         publisher = session.declare_publisher(
             protocol.pose_key(swarm, sim.id), congestion_control=zenoh.CongestionControl.DROP
@@ -170,6 +172,7 @@ def run_robot(
                             log.error("robot %d: pose not publishable: %s", sim.id, exc)
         finally:
             token.undeclare()
+            claimed.undeclare()
         log.info(
             "robot %d stopping: %s, dropped %s, %d ticks, %d overruns",
             sim.id,

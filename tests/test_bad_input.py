@@ -148,6 +148,12 @@ def test_failing_control_step_logs_once_per_interval(
 # --- over Zenoh ---------------------------------------------------------------------------
 
 
+def alive_tokens(session: object, selector: str) -> list[str]:
+    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
+    replies = session.liveliness().get(selector, timeout=1.0)
+    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
+
+
 def free_port() -> int:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
@@ -168,28 +174,6 @@ def router() -> Iterator[tuple[object, str]]:
                 raise
     yield session, endpoint
     session.close()
-
-
-@pytest.mark.timeout(60)
-def test_oversized_messages_stop_at_the_transport(router: tuple) -> None:
-    import zenoh
-
-    _, endpoint = router
-    with (
-        zenoh.open(protocol.session_config([endpoint])) as sender,
-        zenoh.open(protocol.session_config([endpoint])) as receiver,
-    ):
-        sizes: list[int] = []
-        key = f"covswarm/{protocol.new_swarm_name()}/big"
-        receiver.declare_subscriber(key, lambda sample: sizes.append(len(sample.payload)))
-        time.sleep(0.3)
-        for size in (100_000, 1_000, 10_000_000, 2_000):
-            sender.put(key, bytes(size))
-        deadline = time.monotonic() + 10.0
-        while len(sizes) < 2 and time.monotonic() < deadline:
-            time.sleep(0.05)
-        time.sleep(0.3)
-    assert sizes == [1_000, 2_000]
 
 
 @pytest.mark.timeout(60)
@@ -220,15 +204,12 @@ def test_second_robot_or_agent_process_with_the_same_id_is_refused(router: tuple
     session, endpoint = router
     swarm = protocol.new_swarm_name()
     common = ["--id", "3", "--connect", endpoint, "--swarm", swarm]
-    first = [
-        subprocess.Popen([COVSWARM, role, *common], cwd=REPO, stderr=subprocess.DEVNULL)
-        for role in ("robot", "agent")
-    ]
+    first = [subprocess.Popen([COVSWARM, role, *common], cwd=REPO) for role in ("robot", "agent")]
     try:
         deadline = time.monotonic() + 120.0
         for role in ("robot", "agent"):
             selector = protocol.claim_selector(swarm, role, 3)
-            while not list(session.liveliness().get(selector, timeout=1.0)):
+            while not alive_tokens(session, selector):
                 assert time.monotonic() < deadline, f"first {role} did not come up"
                 assert all(p.poll() is None for p in first), "a first process exited"
                 time.sleep(0.2)

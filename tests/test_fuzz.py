@@ -72,6 +72,27 @@ polygons = st.one_of(convex_polygons(), nonconvex)
 
 
 @st.composite
+def densities(draw: st.DrawFn) -> dict:
+    """Density maps of the Domain's shape, often invalid (negative weights, covariances that
+    are not positive definite, huge values), for agent.density to refuse."""
+    number = st.one_of(st.floats(-1.0, 10.0), st.sampled_from([0.0, 1e6, -1e6]))
+
+    def bump() -> dict:
+        a, b, c = draw(st.floats(-0.1, 1.0)), draw(st.floats(-0.5, 0.5)), draw(st.floats(-0.1, 1))
+        return {
+            "mean": [draw(finite), draw(finite)],
+            "cov": [[a, b], [b, c]],
+            "weight": draw(number),
+            "mean_rate": [draw(st.floats(-1.0, 1.0)), 0.0],
+            "cov_rate": [[draw(st.floats(-0.1, 0.1)), 0.0], [0.0, 0.0]],
+            "weight_rate": draw(st.floats(-1.0, 1.0)),
+        }
+
+    n = draw(st.integers(0, 3))
+    return {"t": draw(finite), "floor": draw(number), "bumps": [bump() for _ in range(n)]}
+
+
+@st.composite
 def velocities_for(draw: st.DrawFn, vertices: list) -> list[list[float]]:
     """Vertex velocities from still to 1 km/s (which turns most domains inside out)."""
     scale = draw(st.sampled_from([0.0, 0.1, 1.0, 1e3]))
@@ -98,6 +119,8 @@ def wire_maps(draw: st.DrawFn, kind: str) -> dict:
         d = {"seq": draw(st.integers(0, 100)), "t": draw(finite), "vertices": vertices}
         d |= {"state": draw(st.sampled_from(protocol.STATES)), "kappa": draw(st.floats(1e-3, 1e3))}
         d |= {"velocities": draw(velocities_for(vertices))}
+        if draw(st.booleans()):
+            d["density"] = draw(densities())
     d = {"v": protocol.SCHEMA_VERSION, **d, "stamp": draw(stamps)}
     for _ in range(draw(st.integers(0, 2))):  # corruptions
         field = draw(st.sampled_from(sorted(d)))
@@ -227,6 +250,7 @@ def test_agent_decoded_extremes(others: list, vertices: list, data: st.DataObjec
         vertices=vertices,
         velocities=data.draw(velocities_for(vertices)),
         kappa=data.draw(st.floats(1e-3, 1e3)),
+        density=data.draw(st.one_of(st.none(), densities())),
     )
     brain.on_domain(domain, 0.0)
     for k in range(3):

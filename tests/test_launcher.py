@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import io
 import os
 import socket
 import sys
@@ -12,11 +13,14 @@ import numpy as np
 from coordinator.scenarios import load_scenario
 from deploy.launcher import (
     ChildSpec,
+    Progress,
     Startup,
     covswarm_argv,
+    cpu_seconds,
     free_port,
     initial_poses,
     plan_children,
+    render,
     rss_mb,
 )
 
@@ -108,6 +112,33 @@ def test_covswarm_argv_runs_this_interpreter() -> None:
     assert argv[0] == sys.executable
 
 
-def test_rss_of_this_process_and_of_a_missing_one() -> None:
+def test_rss_and_cpu_of_this_process_and_of_a_missing_one() -> None:
+    before = cpu_seconds(os.getpid())
+    sum(i * i for i in range(1_000_000))  # burn a little CPU
+    assert cpu_seconds(os.getpid()) > before >= 0.0
     assert rss_mb(os.getpid()) > 1.0
-    assert rss_mb(2**22 + 12345) is None
+    missing = 2**22 + 12345  # above the default pid_max
+    assert rss_mb(missing) is None and cpu_seconds(missing) is None
+
+
+def _text(renderable) -> str:
+    from rich.console import Console
+
+    console = Console(file=io.StringIO(), width=100, color_system=None)
+    console.print(renderable)
+    return console.file.getvalue()
+
+
+def test_display_shows_start_up_then_the_mission() -> None:
+    from protocol import Status
+
+    progress = Progress(agents=3, duration=20.0)
+    progress.ready |= {("coordinator", 0), ("robot", 0), ("robot", 1), ("agent", 2)}
+    text = _text(render(progress))
+    assert "start-up" in text and "2/3" in text and "1/3" in text and "1/1" in text
+    progress.status = Status(
+        stamp=1.0, t=5.0, state="running", error=0.0123, alive_agents=3, alive_robots=2
+    )
+    text = _text(render(progress))
+    assert "running" in text and "5.0 / 20.0 s" in text and "0.0123 m" in text
+    assert "robots alive  2/3" in text

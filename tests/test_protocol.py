@@ -178,6 +178,40 @@ def test_largest_domain_fits() -> None:
     assert len(domain.encode()) <= protocol.MAX_PAYLOAD
 
 
+def test_domain_density_round_trip() -> None:
+    """The optional density: absent when uniform (same bytes as before), else round-trips."""
+    np = pytest.importorskip("numpy")
+    from agent.density import MAX_BUMPS, Density
+
+    uniform = SAMPLES[2]
+    assert "density" not in wire(uniform) and uniform.density is None
+    bumps = [
+        {"mean": [0.1 * b, 1.0], "cov": [[0.2, 0.05], [0.05, 0.1]], "weight": 3.0,
+         "mean_rate": [0.1, 0.0], "cov_rate": [[0.01, 0.0], [0.0, -0.01]], "weight_rate": 0.5}
+        for b in range(MAX_BUMPS)
+    ]  # fmt: skip
+    density = Density.from_dict({"t": 2.5, "floor": 1.0, "bumps": bumps})
+    vertices = [[1000.0 * math.cos(a / 10), 1000.0 * math.sin(a / 10)] for a in range(64)]
+    fields = {**wire(uniform), "vertices": vertices, "velocities": vertices}
+    del fields["v"]
+    domain = Domain(**fields, density=density.to_dict())
+    payload = domain.encode()
+    assert len(payload) <= protocol.MAX_PAYLOAD  # the largest Domain still fits
+    again = Domain.decode(payload)
+    assert again == domain
+    back = Density.from_dict(again.density)
+    assert back.to_dict() == density.to_dict()
+    assert np.array_equal(back.covariance_rates, density.covariance_rates)
+    for bad, reason in (
+        ({**density.to_dict(), "extra": 1}, "keys"),
+        ({**density.to_dict(), "bumps": bumps * 2}, "at most"),
+        ({**density.to_dict(), "floor": math.nan}, "not finite"),
+        ({**density.to_dict(), "bumps": [{**bumps[0], "cov": [[1.0, 0.0]]}]}, "points"),
+    ):
+        with pytest.raises(ProtocolError, match=reason):
+            Domain.decode(packed({**wire(uniform), "density": bad}))
+
+
 # --- rejection --------------------------------------------------------------------------
 
 POSE = wire(SAMPLES[0])

@@ -1,0 +1,140 @@
+"""Secured mode on loopback: TLS router with user/password; who may join and who may not."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import socket
+import subprocess
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+import pytest
+
+import protocol
+from protocol.security import make_test_credentials, read_credentials
+from protocol.session import session_config
+
+zenoh = pytest.importorskip("zenoh")
+pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")
+
+REPO = Path(__file__).resolve().parent.parent
+COVSWARM = str(Path(sys.executable).with_name("covswarm"))
+
+
+@pytest.fixture(scope="module")
+def secure(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """A fresh CA, router certificate and password (one per test module and run)."""
+    return make_test_credentials(tmp_path_factory.mktemp("secure"))
+
+
+def alive_tokens(session: object, selector: str) -> list[str]:
+    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
+    replies = session.liveliness().get(selector, timeout=1.0)
+    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.fixture
+def router(secure: Path) -> Iterator[tuple[zenoh.Session, str]]:
+    """A secured router-mode session on a free loopback port: (session, tls endpoint)."""
+    for attempt in range(5):  # the port can be taken between probing and binding
+        endpoint = f"tls/127.0.0.1:{free_port()}"
+        try:
+            session = zenoh.open(session_config(None, [endpoint], "router", secure=secure))
+            break
+        except zenoh.ZError:
+            if attempt == 4:
+                raise
+    yield session, endpoint
+    session.close()
+
+
+def test_secure_folder_is_complete_and_private(secure: Path) -> None:
+    assert {p.name for p in secure.iterdir()} == {"ca.pem", "cert.pem", "key.pem", "credentials"}
+    assert (secure / "key.pem").stat().st_mode & 0o077 == 0
+    assert (secure / "credentials").stat().st_mode & 0o077 == 0
+    [(user, password)] = read_credentials(secure)
+    assert user == "covswarm" and len(password) >= 20
+
+
+def test_secured_mode_refuses_clear_endpoints_and_incomplete_folders(
+    secure: Path, tmp_path: Path
+) -> None:
+    with pytest.raises(ValueError, match="needs tls/ endpoints"):
+        session_config(["tcp/127.0.0.1:7447"], secure=secure)
+    (tmp_path / "ca.pem").write_text("")
+    with pytest.raises(ValueError, match="lacks credentials"):
+        session_config(["tls/127.0.0.1:7447"], secure=tmp_path)
+    with pytest.raises(ValueError, match="lacks cert.pem, key.pem, credentials"):
+        session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
+    (tmp_path / "credentials").write_text("no-colon-here\n")
+    with pytest.raises(ValueError, match="expected 'user:password'"):
+        session_config(["tls/127.0.0.1:7447"], secure=tmp_path)
+
+
+@pytest.mark.timeout(120)
+def test_only_clients_with_credentials_join(router: tuple, secure: Path, tmp_path: Path) -> None:
+    session, endpoint = router
+    key = f"covswarm/{protocol.new_swarm_name()}/status"
+    received: list[bytes] = []
+    session.declare_subscriber(key, lambda sample: received.append(sample.payload.to_bytes()))
+
+    with zenoh.open(session_config([endpoint], secure=secure)) as member:
+        member.put(key, b"from a member")
+        deadline = time.monotonic() + 10.0
+        while not received and time.monotonic() < deadline:
+            time.sleep(0.05)
+    assert received == [b"from a member"]
+
+    user, _ = read_credentials(secure)[0]
+    wrong = tmp_path / "wrong"
+    wrong.mkdir()
+    shutil.copy(secure / "ca.pem", wrong / "ca.pem")
+    (wrong / "credentials").write_text(f"{user}:not-the-password\n")
+    no_credentials = session_config([endpoint])  # TLS with the right CA, but no login
+    no_credentials.insert_json5(
+        "transport/link/tls/root_ca_certificate", json.dumps(str(secure / "ca.pem"))
+    )
+    plain_tcp = session_config([endpoint.replace("tls/", "tcp/")])  # no TLS at all
+    outsiders = {
+        "wrong password": session_config([endpoint], secure=wrong),
+        "no credentials": no_credentials,
+        "plain tcp": plain_tcp,
+    }
+    for name, config in outsiders.items():
+        with pytest.raises(zenoh.ZError, match="Unable to connect"):
+            zenoh.open(config).close()
+            pytest.fail(f"{name}: connected")
+    assert received == [b"from a member"]  # nothing else got through
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(180)
+def test_robot_process_joins_a_secured_swarm_with_one_flag(router: tuple, secure: Path) -> None:
+    session, endpoint = router
+    swarm = protocol.new_swarm_name()
+    common = ["--id", "2", "--connect", endpoint, "--swarm", swarm, "--secure", str(secure)]
+    child = subprocess.Popen([COVSWARM, "robot", *common], cwd=REPO)
+    try:
+        alive = protocol.alive_key(swarm, "robot", 2)
+        deadline = time.monotonic() + 120.0
+        while not alive_tokens(session, alive):
+            assert child.poll() is None, "the secured robot exited"
+            assert time.monotonic() < deadline, "the secured robot did not come up"
+            time.sleep(0.2)
+        refused = subprocess.run(
+            [COVSWARM, "robot", *common[:-2]], cwd=REPO, capture_output=True, text=True, timeout=120
+        )
+        assert refused.returncode != 0  # without --secure: no session at all
+        assert "Unable to connect" in refused.stderr
+    finally:
+        child.terminate()
+        child.wait(timeout=30)
