@@ -19,8 +19,11 @@ With a density (a snapshot at the current time, agent.density.Density) c, dc/dp 
 are those of phi, dc/dt with both terms of Proposition 1.
 
 A robot with an empty cell (outside S and dominated, or a coincident duplicate) gets
-pdot = kappa (q - p) + dq/dt, q the nearest point of S: it heads for S, tracking the
-point of S it aims at, and a duplicate inside S holds still until it owns a cell.
+pdot = kappa (c_S - p) + dc_S/dt, c_S the centroid of the whole of S: it heads into S and
+owns a cell as soon as it is in (or a duplicate is apart). Aiming at the nearest point of S
+instead, as ``mass_centroid`` reports for such a cell, lets a robot left behind by a moving
+domain ride just outside its edge, and several at one corner merge into one point; that
+happened in the ``circle`` scenario.
 """
 
 from __future__ import annotations
@@ -70,11 +73,26 @@ def _references(
     feedforward: bool,
     density: DensityModel | None,
 ) -> np.ndarray:
-    """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K, 2): what both laws act on."""
-    reference = kappa * (batch.centroid - points[batch.owners])
-    if feedforward:
-        reference = reference + cell_rates(batch, points, domain, density)
-    return reference
+    """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K, 2): what both laws act on.
+
+    A robot with an empty cell aims at the centroid of the whole of S instead (module notes).
+    """
+    target = batch.centroid
+    rate = cell_rates(batch, points, domain, density) if feedforward else None
+    if batch.empty.any():
+        whole_centroid, whole_rate = _whole_domain(domain, density)
+        target = np.where(batch.empty[:, None], whole_centroid, target)
+        if rate is not None:
+            rate = np.where(batch.empty[:, None], whole_rate, rate)
+    reference = kappa * (target - points[batch.owners])
+    return reference if rate is None else reference + rate
+
+
+def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[np.ndarray, np.ndarray]:
+    """Centroid of all of S and its rate (2,), (2,): the cell of a robot alone in S."""
+    alone = domain.vertices.mean(axis=0, keepdims=True)
+    cell = _weigh(build_cells(alone, np.array([0]), np.full((1, 1), -1), domain), density)
+    return cell.centroid[0], cell_rates(cell, alone, domain, density)[0]
 
 
 def _d1_rows(

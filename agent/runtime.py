@@ -47,6 +47,10 @@ Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k two-hop robots
 in the beacon tiles): receives 20 (own pose) + domain rate + 20 k (poses) + 10 |one-hop|
 (states) + b (beacons) per second; sends 10 commands + 10 states + 1 beacon per second.
 
+``covswarm agent --ids 0-9`` runs several brains in one process (:func:`run_agents`: one
+Zenoh session, each brain with its own keys, subscriptions, claim and token);
+``--time-scale`` runs on mission time slower than real time (protocol.session.scaled).
+
 Zenoh callbacks only store the newest payload per key under a lock (:class:`Inbox`); all
 decoding and math happen in the main loop. The decision logic (:class:`AgentBrain`) is
 pure and unit-tested without Zenoh.
@@ -74,7 +78,15 @@ from agent.density import Density
 from agent.drive import KHEPERA_IV, DiffDrive, wheel_speeds
 from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from protocol.security import SECURE_OPTION
-from protocol.session import StopFlag, Ticker, claim, session_config
+from protocol.session import (
+    TIME_SCALE_OPTION,
+    StopFlag,
+    Ticker,
+    claim,
+    id_selection,
+    scaled,
+    session_config,
+)
 
 log = logging.getLogger("covswarm.agent")
 
@@ -105,6 +117,45 @@ class AgentConfig:
     linger: float = 1.0
     max_clock_skew: float = MAX_CLOCK_SKEW
     robot: DiffDrive = KHEPERA_IV
+    # Fault injection (docs/faults.md): drop this fraction of received poses, deliver the
+    # rest this many s late; random draws seeded by (pose_seed, id).
+    pose_loss: float = 0.0
+    pose_delay: float = 0.0
+    pose_seed: int = 0
+
+
+InboxItem = tuple[str, str, bytes]  # (kind, key, payload)
+
+
+class PoseImpairment:
+    """Seeded loss and delay of received poses, between the inbox and the brain (pure).
+
+    Applied to what the agent would consume each tick (after the inbox kept the newest pose
+    per key), so ``loss`` is the fraction of pose updates the controller never sees.
+    Delayed poses are handed over in arrival order once ``delay`` s have passed; their
+    receipt time is then, so staleness counts from when the agent got them.
+    """
+
+    def __init__(self, loss: float, delay: float, rng: np.random.Generator) -> None:
+        if not (0.0 <= loss < 1.0 and 0.0 <= delay and math.isfinite(delay)):
+            raise ValueError(f"pose loss must be in [0, 1) and delay >= 0, got {loss}, {delay}")
+        self.loss, self.delay, self._rng = loss, delay, rng
+        self._queue: deque[tuple[float, InboxItem]] = deque()
+        self.dropped = 0
+
+    def filter(self, items: list[InboxItem], now: float) -> list[InboxItem]:
+        """The items to process at ``now``: non-poses at once, poses that survived and are due."""
+        out = [item for item in items if item[0] != "pose"]
+        for item in items:
+            if item[0] != "pose":
+                continue
+            if self._rng.random() < self.loss:
+                self.dropped += 1
+            else:
+                self._queue.append((now + self.delay, item))
+        while self._queue and self._queue[0][0] <= now:
+            out.append(self._queue.popleft()[1])
+        return out
 
 
 @dataclass
@@ -222,6 +273,7 @@ class Counters:
     stale: int = 0  # robots dropped from the local set because their data aged out
     step_errors: int = 0  # control steps that failed (robot commanded to stop)
     steps: int = 0
+    overruns: int = 0  # control periods whose deadline passed before the loop was ready
 
 
 class AgentBrain:
@@ -242,6 +294,9 @@ class AgentBrain:
         self.state_tracks: dict[int, Track] = {}
         self.beacons: dict[int, Track] = {}
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
+        # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
+        # no team member (a stopped robot without brain, or a brain without robot).
+        self.dead: dict[int, set[str]] = {}
         self.one_hop: frozenset[int] = frozenset()
         self.radius = 1
         self.reach: float | None = None  # cell_reach of our last non-empty cell
@@ -254,6 +309,7 @@ class AgentBrain:
         self._last_beacon = -math.inf
         self._seq = 0
         self._step_us = _Percentiles()
+        self._pose_age_ms = _Percentiles()
         self._step_rate = _Rate()
         self._rx_rate = _Rate()
         self._rates = (0.0, 0.0)
@@ -283,12 +339,14 @@ class AgentBrain:
             self.pose, self.pose_received = pose, now
         else:
             self.poses[pose.id] = Track(pose.x, pose.y, now)
+            self._revive(pose.id, "robot")
         return True
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
         if state.id == self.id:
             return False
         self.state_tracks[state.id] = Track(state.x, state.y, now)
+        self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
         return True
 
@@ -296,7 +354,34 @@ class AgentBrain:
         if beacon.id == self.id:
             return False  # our own beacon, heard through our own tile subscription
         self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
+        self._revive(beacon.id, "agent")
         return True
+
+    def on_liveliness(self, role: str, rid: int, alive: bool) -> None:
+        """A liveliness token of another robot's agent or robot appeared or vanished.
+
+        A vanished one takes that robot out of the local diagram at once (SIGKILL deletes the
+        token immediately; a frozen process after the Zenoh lease). Fresh data from the same
+        role revives it too (a process that came back after a router restart may re-declare
+        its token before this agent's subscriber is back), so a missed PUT costs nothing.
+        """
+        if rid == self.id or role not in ("agent", "robot"):
+            return
+        if alive:
+            self._revive(rid, role)
+        else:
+            self.dead.setdefault(rid, set()).add(role)
+
+    def _revive(self, rid: int, role: str) -> None:
+        roles = self.dead.get(rid)
+        if roles is not None:
+            roles.discard(role)
+            if not roles:
+                del self.dead[rid]
+
+    def pose_fresh(self, now: float) -> bool:
+        """Whether our own robot's pose is known and younger than ``stale_timeout``."""
+        return self.pose is not None and now - self.pose_received <= self.config.stale_timeout
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
         if self.domain is not None and domain.stamp < self.domain.stamp:
@@ -319,6 +404,8 @@ class AgentBrain:
         stale, beacon_timeout = self.config.stale_timeout, self.config.beacon_timeout
         out: dict[int, np.ndarray] = {}
         for rid in self.poses.keys() | self.state_tracks.keys() | self.beacons.keys():
+            if rid in self.dead:
+                continue
             fresh = [
                 t
                 for t in (self.poses.get(rid), self.state_tracks.get(rid))
@@ -408,7 +495,7 @@ class AgentBrain:
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
         )
         others = self.candidates(now)
-        if self.pose is None or now - self.pose_received > self.config.stale_timeout:
+        if not self.pose_fresh(now):
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
             return Decision(0.0, 0.0, "no-domain")
@@ -478,6 +565,10 @@ class AgentBrain:
         if not (math.isfinite(left) and math.isfinite(right)):
             left = right = 0.0
         self._seq += 1
+        if self.pose is not None:
+            # Pose-to-command latency: the robot's pose stamp to this command's stamp (one
+            # clock on one machine; across machines it includes their clock offset).
+            self._pose_age_ms.add((stamp - self.pose.stamp) * 1e3)
         return protocol.WheelCommand(
             id=self.id,
             left=left,
@@ -495,6 +586,9 @@ class AgentBrain:
             "step_us_p50": round(self._step_us.get(0.50), 1),
             "step_us_p99": round(self._step_us.get(0.99), 1),
             "rx_per_s": round(self._rates[1], 1),
+            "pose_age_ms_p50": round(self._pose_age_ms.get(0.50), 2),
+            "pose_age_ms_p99": round(self._pose_age_ms.get(0.99), 2),
+            "missed_deadline": round(c.overruns / c.steps, 4) if c.steps else 0.0,
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
@@ -521,8 +615,12 @@ class AgentBrain:
         )
 
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
-        """(tile, Beacon) if one is due at ``now`` (every ``beacon_period``), else None."""
-        if self.pose is None or now - self._last_beacon < self.config.beacon_period:
+        """(tile, Beacon) if one is due at ``now`` (every ``beacon_period``), else None.
+
+        None while our own pose is stale: a robot that stopped reporting (dead) must not be
+        kept alive in the others' diagrams by its brain.
+        """
+        if not self.pose_fresh(now) or now - self._last_beacon < self.config.beacon_period:
             return None
         self._last_beacon = now
         tile = protocol.tile_of(self.pose.x, self.pose.y, self.config.tile_size)
@@ -616,11 +714,32 @@ class AgentLink:
         self.states = Subscriptions(session, self.inbox, "state")
         self.tiles = Subscriptions(session, self.inbox, "beacon")
         self.poses.update({self.own_pose})
+        # Token changes of every agent and robot: rare events (one sample per process that
+        # starts or dies), and they let a dead teammate leave the diagram at once instead of
+        # after the staleness timeouts. No history: only changes from now on matter.
+        self.liveliness: deque[tuple[str, bool]] = deque()  # appended on Zenoh's thread
+        delete = zenoh.SampleKind.DELETE
+        self._liveliness_sub = session.liveliness().declare_subscriber(
+            protocol.alive_selector(swarm),
+            lambda sample: self.liveliness.append((str(sample.key_expr), sample.kind != delete)),
+        )
+        config = brain.config
+        self.impairment = (
+            PoseImpairment(
+                config.pose_loss,
+                config.pose_delay,
+                np.random.default_rng([config.pose_seed, brain.id]),
+            )
+            if config.pose_loss > 0.0 or config.pose_delay > 0.0
+            else None
+        )
 
     def receive(self, now: float, wall: float) -> None:
         """Hand everything that arrived since the last tick to the brain."""
         items, coalesced = self.inbox.drain()
         self.brain.counters.coalesced += coalesced
+        if self.impairment is not None:
+            items = self.impairment.filter(items, now)
         for kind, key, payload in items:
             try:
                 key_id = _key_id(kind, key, self.swarm)
@@ -628,14 +747,22 @@ class AgentLink:
                 self.brain.drops.drop("wrong_id", str(exc))
                 continue
             self.brain.receive(kind, payload, now, wall, key_id)
+        # After the data: a last message from a process that has just died must not revive it.
+        while self.liveliness:
+            key, alive = self.liveliness.popleft()
+            try:
+                role, rid = protocol.parse_alive_key(key, self.swarm)
+            except ValueError:
+                continue  # not a key of ours; nothing to count it against
+            self.brain.on_liveliness(role, rid, alive)
 
     def send_command(self, decision: Decision, wall: float) -> None:
         self.cmd_pub.put(self.brain.command(decision, wall).encode())
 
     def publish(self, now: float, wall: float) -> None:
-        """AgentState every tick, a beacon when due."""
+        """AgentState every tick while our own pose is fresh, a beacon when due."""
         state = self.brain.agent_state(wall)
-        if state is not None:
+        if state is not None and self.brain.pose_fresh(now):
             self.state_pub.put(state.encode())
         beacon = self.brain.beacon(now, wall)
         if beacon is not None:
@@ -655,60 +782,84 @@ class AgentLink:
         )
 
 
-def run_agent(brain: AgentBrain, swarm: str, config: zenoh.Config, rate: float) -> Counters:
-    """Zenoh shell around ``brain``: runs until SIGINT/SIGTERM, returns the counters.
+def run_agents(
+    brains: list[AgentBrain],
+    swarm: str,
+    config: zenoh.Config,
+    rate: float,
+    time_scale: float = 1.0,
+) -> list[Counters]:
+    """Zenoh shell around ``brains``: runs until SIGINT/SIGTERM, returns their counters.
 
-    The id is claimed (protocol.session.claim) before anything is published: a second
-    agent for the same id refuses to start. The liveliness token (what launcher and
-    coordinator wait for) is declared once the agent hears its own robot, so "every agent
-    alive" means "every agent can steer".
+    Several brains may share this process and its one Zenoh session (``covswarm agent
+    --ids``): one process costs ~80 MB and its own imports, one more brain almost nothing.
+    Each brain still has its own AgentLink (publishers, subscriptions), claim and
+    liveliness token and talks to the others only through Zenoh, exactly as if it ran
+    alone; the brains step one after the other in one loop at ``rate`` Hz of mission time.
+
+    Every id is claimed (protocol.session.claim) before anything is published: an agent for
+    an id that is already running refuses to start. A brain's liveliness token (what
+    launcher and coordinator wait for) is declared once it hears its own robot, so "every
+    agent alive" means "every agent can steer". ``time_scale``: see protocol.session.scaled.
     """
     stop = StopFlag()
-    alive = protocol.alive_key(swarm, "agent", brain.id)
+    wall_clock = scaled(time.time, time_scale)
     with zenoh.open(config) as session:
-        # The token must stay referenced: zenoh undeclares a token when it is collected.
-        claimed = claim(session, swarm, "agent", brain.id)
-        if claimed is None:
-            raise click.ClickException(f"agent {brain.id} is already running in swarm {swarm!r}")
-        link = AgentLink(session, swarm, brain)
-        token: zenoh.LivelinessToken | None = None
-        ticker = Ticker(rate)
+        # Tokens must stay referenced: zenoh undeclares a token when it is collected.
+        claims: list[zenoh.LivelinessToken] = []
+        tokens: dict[int, zenoh.LivelinessToken] = {}
+        links: list[AgentLink] = []
+        ticker = Ticker(rate, time_scale=time_scale)
         try:
+            for brain in brains:
+                claimed = claim(session, swarm, "agent", brain.id)
+                if claimed is None:
+                    raise click.ClickException(
+                        f"agent {brain.id} is already running in swarm {swarm!r}"
+                    )
+                claims.append(claimed)
+                links.append(AgentLink(session, swarm, brain))
             while not stop.is_set():
+                overruns = ticker.overruns
                 now = ticker.wait(stop)
-                wall = time.time()
-                link.receive(now, wall)
-                link.send_command(brain.step(now, wall), wall)
-                link.publish(now, wall)
-                link.resubscribe(now)
-                if token is None and brain.pose is not None:
-                    token = session.liveliness().declare_token(alive)
-                    log.info("agent %d ready in swarm %s", brain.id, swarm)
+                for link in links:
+                    brain = link.brain
+                    brain.counters.overruns += ticker.overruns - overruns
+                    wall = wall_clock()
+                    link.receive(now, wall)
+                    link.send_command(brain.step(now, wall), wall)
+                    link.publish(now, wall)
+                    link.resubscribe(now)
+                    if brain.id not in tokens and brain.pose is not None:
+                        alive = protocol.alive_key(swarm, "agent", brain.id)
+                        tokens[brain.id] = session.liveliness().declare_token(alive)
+                        log.info("agent %d ready in swarm %s", brain.id, swarm)
         finally:
-            # Stop the robot at once rather than after its command timeout.
-            link.send_command(Decision(0.0, 0.0, "stopped"), time.time())
-            if token is not None:
+            for link in links:  # stop the robots at once rather than after their timeout
+                link.send_command(Decision(0.0, 0.0, "stopped"), wall_clock())
+            for token in [*tokens.values(), *claims]:
                 token.undeclare()
-            claimed.undeclare()
-        log.info(
-            "agent %d stopping: %s, dropped %s, stats %s, %d ticks, %d overruns",
-            brain.id,
-            brain.counters,
-            brain.drops.summary(),
-            brain.stats(),
-            ticker.ticks,
-            ticker.overruns,
-        )
-    return brain.counters
+        for link in links:
+            log.info(
+                "agent %d stopping: %s, dropped %s, stats %s",
+                link.brain.id,
+                link.brain.counters,
+                link.brain.drops.summary(),
+                link.brain.stats(),
+            )
+        log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
+    return [brain.counters for brain in brains]
 
 
 @click.command("agent")
-@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), required=True)
+@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
+@click.option("--ids", help="Several brains in this process instead, e.g. 0-9 (one session).")
 @click.option(
     "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
 )
 @click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
 @click.option("--rate", type=click.FloatRange(min=0.5), default=10.0, show_default=True)
+@TIME_SCALE_OPTION
 @click.option(
     "--kappa",
     type=click.FloatRange(min=0.0, min_open=True),
@@ -739,13 +890,30 @@ def run_agent(brain: AgentBrain, swarm: str, config: zenoh.Config, rate: float) 
     show_default=True,
     help="Rim speed limit (m/s) the commands are saturated to.",
 )
+@click.option(
+    "--drop-poses",
+    type=click.FloatRange(0.0, 1.0, max_open=True),
+    default=0.0,
+    show_default=True,
+    help="Fault injection: drop this fraction of received poses.",
+)
+@click.option(
+    "--delay-poses",
+    type=click.FloatRange(min=0.0),
+    default=0.0,
+    show_default=True,
+    help="Fault injection: deliver received poses this many s late.",
+)
+@click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
 @SECURE_OPTION
 @click.option("--verbose", is_flag=True, help="Log at INFO level.")
 def agent_command(
-    robot_id: int,
+    robot_id: int | None,
+    ids: str | None,
     connect: tuple[str, ...],
     swarm: str,
     rate: float,
+    time_scale: float,
     kappa: float | None,
     no_feedforward: bool,
     stale_timeout: float,
@@ -757,15 +925,20 @@ def agent_command(
     linger: float,
     max_clock_skew: float,
     max_wheel_speed: float,
+    drop_poses: float,
+    delay_poses: float,
+    pose_seed: int,
     secure: Path | None,
     verbose: bool,
 ) -> None:
-    """Run the coverage-control brain of one robot (local two-hop Voronoi, TVD-D1)."""
+    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi,
+    TVD-D1)."""
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
     try:
         protocol.check_swarm(swarm)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--swarm") from exc
+    robot_ids = id_selection(robot_id, ids)
     config = AgentConfig(
         kappa=kappa,
         feedforward=not no_feedforward,
@@ -778,9 +951,13 @@ def agent_command(
         linger=linger,
         max_clock_skew=max_clock_skew,
         robot=DiffDrive(max_wheel_speed=max_wheel_speed),
+        pose_loss=drop_poses,
+        pose_delay=delay_poses,
+        pose_seed=pose_seed,
     )
     try:
         zenoh_config = session_config(list(connect), None, "client", secure=secure)
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
-    run_agent(AgentBrain(robot_id, config), swarm, zenoh_config, rate)
+    brains = [AgentBrain(i, config) for i in robot_ids]
+    run_agents(brains, swarm, zenoh_config, rate, time_scale)

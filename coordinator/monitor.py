@@ -149,3 +149,70 @@ def agent_figures(stats: Mapping[int, Mapping[str, float]]) -> dict:
 def losses_summary(events: Iterable[LivenessEvent]) -> list[dict]:
     """Tokens that disappeared (processes that died or hung), for summary.json."""
     return [{"role": e.role, "id": e.id, "t": e.t, "wall": e.wall} for e in events if not e.alive]
+
+
+# Re-convergence after a team change (see docs/faults.md): e_a must come back below
+# max(RECOVERY_FLOOR, RECOVERY_FACTOR x its mean over the RECOVERY_WINDOW before the change)
+# and stay there for RECOVERY_HOLD. The floor keeps an already tiny pre-change level (a team
+# at rest on a CVT) from demanding more precision than a healthy run reaches.
+RECOVERY_WINDOW = 2.0  # s
+RECOVERY_FACTOR = 1.5
+RECOVERY_FLOOR = 0.03  # m
+RECOVERY_HOLD = 1.0  # s
+
+
+@dataclass(frozen=True)
+class TeamChange:
+    """The team (robots whose robot and agent both hold a token) changed during the mission."""
+
+    t: float  # mission time
+    wall: float
+    lost: tuple[int, ...]
+    joined: tuple[int, ...]
+
+
+def team_of(alive: Mapping[str, set[int]]) -> frozenset[int]:
+    """Robot ids that count in e_a: the robot and its agent both alive.
+
+    A robot whose agent died is stopped (command timeout) and no longer covers anything; a
+    brain whose robot died has nothing to steer.
+    """
+    return frozenset(alive.get("robot", set()) & alive.get("agent", set()))
+
+
+def reconvergence(t: list[float], error: list[float], change_t: float) -> dict:
+    """How e_a recovered after a team change at mission time ``change_t``.
+
+    ``level_before``: mean e_a over the RECOVERY_WINDOW before the change (None without
+    samples there, and the bound is then the floor); ``bound``; ``reconverged_after``: s from
+    the change to the first sample from which e_a stays <= bound for RECOVERY_HOLD (None if
+    that never happened before the end of the record).
+    """
+    times, values = np.asarray(t, dtype=float), np.asarray(error, dtype=float)
+    before = values[(times >= change_t - RECOVERY_WINDOW) & (times < change_t)]
+    level = float(before.mean()) if before.size else None
+    bound = max(RECOVERY_FLOOR, RECOVERY_FACTOR * level) if level is not None else RECOVERY_FLOOR
+    after = np.flatnonzero(times >= change_t)
+    reconverged = None
+    for start in after:
+        held = (times >= times[start]) & (times <= times[start] + RECOVERY_HOLD)
+        if times[-1] < times[start] + RECOVERY_HOLD:
+            break  # not enough record left to show it holds
+        if np.all(values[held] <= bound):
+            reconverged = float(times[start] - change_t)
+            break
+    return {"level_before": level, "bound": bound, "reconverged_after": reconverged}
+
+
+def team_changes_summary(changes: Iterable[TeamChange], record: ErrorRecord) -> list[dict]:
+    """Who left or joined the team when, and how long e_a took to re-converge."""
+    return [
+        {
+            "t": c.t,
+            "wall": c.wall,
+            "lost": list(c.lost),
+            "joined": list(c.joined),
+            **reconvergence(record.t, record.error, c.t),
+        }
+        for c in changes
+    ]

@@ -13,6 +13,7 @@ The bookkeeping is in coordinator.monitor; this module is the network shell arou
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 import time
@@ -31,16 +32,21 @@ from coordinator.monitor import (
     ErrorRecord,
     Liveness,
     MissionClock,
+    TeamChange,
     agent_figures,
     losses_summary,
+    team_changes_summary,
+    team_of,
 )
 from coordinator.scenarios import Scenario, load_scenario
-from protocol.session import StopFlag, Ticker
+from protocol.security import SECURE_OPTION
+from protocol.session import TIME_SCALE_OPTION, StopFlag, Ticker, scaled
 
 log = logging.getLogger("covswarm.coordinator")
 
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
 STATUS_PERIOD = 0.5  # s
+MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
 # e_a costs ~30 ms for 100 robots: never spend more than about a third of the time on it.
 SAMPLE_BUDGET = 3.0
 
@@ -57,6 +63,7 @@ class Settings:
     rate: float  # Hz of Domain broadcasts
     sample_rate: float  # Hz of e_a samples (at most)
     feedforward: bool  # what the agents were started with, recorded in the summary
+    time_scale: float = 1.0  # mission s per wall s (protocol.session.scaled)
 
 
 @dataclass
@@ -69,12 +76,23 @@ class Observed:
     agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
     rejected: int = 0  # messages dropped as malformed (ProtocolError)
     started_wall: float | None = None
+    team_changes: list[TeamChange] = field(default_factory=list)
 
 
 class Coordinator:
     """The coordinator's subscriptions, publishers and loop on one open zenoh session."""
 
-    def __init__(self, session: Any, settings: Settings) -> None:
+    def __init__(
+        self,
+        session: Any,
+        settings: Settings,
+        *,
+        mission_file: Path | None = None,
+        resume_wall: float | None = None,
+    ) -> None:
+        """``mission_file``: where to record the mission's start wall time once it starts;
+        ``resume_wall``: a start wall time read back from it, to continue that mission (a
+        restarted coordinator) instead of waiting for the team."""
         import zenoh
 
         from protocol import (
@@ -89,6 +107,17 @@ class Coordinator:
         self.settings = settings
         self.observed = Observed()
         self.clock = MissionClock(settings.duration)
+        # Mission-time clocks: the clock ticks and the stamps agents extrapolate from.
+        self._mono = scaled(time.monotonic, settings.time_scale)
+        self._wall = scaled(time.time, settings.time_scale)
+        self.mission_file = mission_file
+        if resume_wall is not None:
+            # Mission time is wall time since the original start, so agents extrapolating
+            # the last domain and the restarted broadcasts agree.
+            self.clock.started_at = self._mono() - (
+                self._wall() - resume_wall * settings.time_scale
+            )
+            self.observed.started_wall = resume_wall
         swarm, n = settings.swarm, settings.agents
         self._delete = zenoh.SampleKind.DELETE
         # Liveliness changes must never be dropped (FIFO); poses and agent states are
@@ -115,6 +144,7 @@ class Coordinator:
 
         obs, swarm = self.observed, self.settings.swarm
         t = self.clock.mission_time(now) if self.clock.state != WAITING else None
+        team = team_of(obs.liveness.alive)
         while (sample := self._alive.try_recv()) is not None:
             try:
                 role, ident = parse_alive_key(str(sample.key_expr), swarm)
@@ -129,6 +159,14 @@ class Coordinator:
             if event is not None and not alive:
                 when = "before the start" if t is None else f"at t = {t:.1f} s"
                 log.warning("%s %d lost its liveliness token %s", role, ident, when)
+        if self.clock.state == RUNNING and (now_team := team_of(obs.liveness.alive)) != team:
+            change = TeamChange(
+                t, time.time(), tuple(sorted(team - now_team)), tuple(sorted(now_team - team))
+            )
+            obs.team_changes.append(change)
+            log.warning(
+                "team changed at t = %.1f s: lost %s, joined %s", t, change.lost, change.joined
+            )
         for subscriber, kind in ((self._poses, Pose), (self._states, AgentState)):
             while (sample := subscriber.try_recv()) is not None:
                 try:
@@ -147,9 +185,9 @@ class Coordinator:
         return live.count("agent") >= n and live.count("robot") >= n
 
     def alive_positions(self) -> dict[int, tuple[float, float]]:
-        """Latest pose of every robot that still holds its liveliness token."""
-        alive = self.observed.liveness.alive.get("robot", set())
-        return {i: xy for i, xy in self.observed.poses.items() if i in alive}
+        """Latest pose of every team member (robot and agent both hold their token)."""
+        team = team_of(self.observed.liveness.alive)
+        return {i: xy for i, xy in self.observed.poses.items() if i in team}
 
     # -- outputs --------------------------------------------------------------------------
 
@@ -164,7 +202,7 @@ class Coordinator:
         self._domain.put(
             Domain(
                 seq=self._seq,
-                stamp=time.time(),
+                stamp=self._wall(),
                 t=t,
                 state=state,
                 vertices=vertices,
@@ -194,7 +232,7 @@ class Coordinator:
         live, record = self.observed.liveness, self.observed.record
         self._status.put(
             Status(
-                stamp=time.time(),
+                stamp=self._wall(),
                 t=t,
                 state=state,
                 error=record.error[-1] if record.error else None,
@@ -207,8 +245,8 @@ class Coordinator:
 
     def run(self, stop: StopFlag) -> None:
         """Broadcast until the mission is done (or ``stop`` is set), sampling on the way."""
-        ticker = Ticker(self.settings.rate)
-        next_status = time.monotonic()
+        ticker = Ticker(self.settings.rate, time_scale=self.settings.time_scale)
+        next_status = ticker.now()
         every = max(1, round(self.settings.rate / self.settings.sample_rate))
         ticks_to_sample = 0
         done_since: float | None = None
@@ -226,6 +264,13 @@ class Coordinator:
             if before == WAITING and state == RUNNING:
                 self.observed.started_wall = time.time()
                 log.info("team ready: mission started")
+                if self.mission_file is not None:
+                    mission = {
+                        "swarm": self.settings.swarm,
+                        "started_wall": self.observed.started_wall,
+                    }
+                    self.mission_file.parent.mkdir(parents=True, exist_ok=True)
+                    self.mission_file.write_text(json.dumps(mission) + "\n", encoding="utf-8")
             t = self.clock.mission_time(now)
             polygon = self._publish_domain(state, t)
             ticks_to_sample -= 1
@@ -235,7 +280,10 @@ class Coordinator:
                 cost = time.monotonic() - began
                 # Sample less often while e_a is expensive (big team, overloaded machine),
                 # so the Domain broadcasts keep their rate; back to normal once it is cheap.
-                ticks_to_sample = max(every, math.ceil(SAMPLE_BUDGET * cost * self.settings.rate))
+                ticks_to_sample = max(
+                    every,
+                    math.ceil(SAMPLE_BUDGET * cost * self.settings.rate * self.settings.time_scale),
+                )
             if state == DONE and done_since is None:
                 done_since = now
                 self._sample(t, polygon)  # the final error, at the end of the mission
@@ -276,10 +324,23 @@ def build_summary(settings: Settings, observed: Observed) -> dict[str, Any]:
             "robots": observed.liveness.count("robot"),
         },
         "lost_processes": losses_summary(observed.liveness.events),
+        "team_changes": team_changes_summary(observed.team_changes, record),
         "agent_stats": agent_figures(observed.agent_stats),
         "rejected_messages": observed.rejected,
         "started_wall": observed.started_wall,
     }
+
+
+def read_mission_start(path: Path, swarm: str) -> float:
+    """The start wall time recorded in ``path`` for ``swarm`` (UsageError if there is none)."""
+    try:
+        mission = json.loads(path.read_text(encoding="utf-8"))
+        started = float(mission["started_wall"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise click.UsageError(f"--resume: no mission start in {path}: {exc}") from None
+    if mission.get("swarm") != swarm or not math.isfinite(started):
+        raise click.UsageError(f"--resume: {path} is not a mission of swarm {swarm!r}")
+    return started
 
 
 def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> None:
@@ -346,6 +407,13 @@ def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> 
     required=True,
     help="Output folder.",
 )
+@click.option(
+    "--resume",
+    is_flag=True,
+    help=f"Continue the mission recorded in OUT/{MISSION_FILE} (a restarted coordinator).",
+)
+@TIME_SCALE_OPTION
+@SECURE_OPTION
 def coordinator_command(
     scenario_name: str,
     connect: Sequence[str],
@@ -357,6 +425,9 @@ def coordinator_command(
     kappa: float | None,
     feedforward: bool,
     out_dir: Path,
+    resume: bool,
+    time_scale: float,
+    secure: Path | None,
 ) -> None:
     """Broadcast the moving domain, monitor the team, write the run's outputs."""
     import zenoh
@@ -379,12 +450,16 @@ def coordinator_command(
         rate=rate,
         sample_rate=sample_rate,
         feedforward=feedforward,
+        time_scale=time_scale,
     )
+    resume_wall = read_mission_start(out_dir / MISSION_FILE, swarm) if resume else None
     stop = StopFlag()
-    with zenoh.open(session_config(list(connect))) as session:
+    with zenoh.open(session_config(list(connect), secure=secure)) as session:
         if token_exists(session, alive_key(swarm, "coordinator", 0)):
             raise click.ClickException(f"swarm {swarm!r} already has a coordinator")
-        coordinator = Coordinator(session, settings)
+        coordinator = Coordinator(
+            session, settings, mission_file=out_dir / MISSION_FILE, resume_wall=resume_wall
+        )
         coordinator.run(stop)
     if not coordinator.observed.record.t:
         log.info("no samples recorded: no outputs written")

@@ -6,6 +6,13 @@ robot, staggered: on a 2-core machine start-up (imports) dominates, so only a fe
 start at a time and the next ones wait until those hold their liveliness token. Shows live
 progress, reports children that die, and shuts everything down on completion, Ctrl-C or
 SIGTERM. Children die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSIG).
+
+Scaling (docs/scaling.md): ``--agents-per-process K`` packs K brains into one agent
+process and K robots into one robot process; ``--time-scale`` runs mission time slower
+than wall time. A team spread over several hosts runs one ``covswarm run`` per host with
+the same ``--swarm``, ``--agents`` and ``--seed``: ``--ids`` picks the host's slice,
+``--router-listen``/``--router-connect`` link the hosts' embedded routers, and every host
+but one says ``--no-coordinator``.
 """
 
 from __future__ import annotations
@@ -30,6 +37,9 @@ import numpy as np
 
 from coordinator.monitor import HEADLINE_STATS
 from coordinator.scenarios import Scenario, load_scenario
+from protocol.keys import format_ids, parse_ids
+from protocol.security import SECURE_OPTION
+from protocol.session import TIME_SCALE_OPTION
 
 ROUTER_HOST = "127.0.0.1"
 TICK = 0.1  # s between launcher loop iterations (display, liveness, child polling)
@@ -46,15 +56,25 @@ PR_SET_PDEATHSIG = 1  # linux/prctl.h
 
 @dataclass(frozen=True)
 class ChildSpec:
-    """One process to start: its role, id and command line."""
+    """One process to start: its role, id(s) and command line.
+
+    A robot or agent process may host several robots or brains (``--agents-per-process``):
+    ``idents`` lists them (empty: just ``ident``); the process is ready once every one of
+    them holds its liveliness token.
+    """
 
     role: str  # "coordinator" | "robot" | "agent"
     ident: int
     argv: tuple[str, ...]
+    idents: tuple[int, ...] = ()
+
+    @property
+    def members(self) -> tuple[int, ...]:
+        return self.idents or (self.ident,)
 
     @property
     def name(self) -> str:
-        return f"{self.role}-{self.ident}"
+        return f"{self.role}-{format_ids(list(self.members))}"
 
 
 def covswarm_argv() -> list[str]:
@@ -90,32 +110,71 @@ def plan_children(
     duration: float,
     out_dir: Path,
     base: Sequence[str],
+    ids: Sequence[int] | None = None,
+    per_process: int = 1,
+    coordinator: bool = True,
+    time_scale: float = 1.0,
+    agent_args: Sequence[str] = (),
+    secure: Path | None = None,
 ) -> list[ChildSpec]:
     """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
 
     Pairs rather than all robots first: a waiting robot already runs its loop, so starting
     every robot before the (slower to import) agents would load the machine while the
     agents start. The coordinator holds the mission until everyone is up either way.
+
+    ``ids``: the slice of the team of ``agents`` this host runs (default: all of it); a
+    robot starts where it would in the full team, so hosts that split a team with the same
+    seed reproduce the one-host run. ``per_process`` robots (brains) share a robot (agent)
+    process; ``coordinator=False`` leaves the coordinator to another host. ``agent_args``
+    are appended to every agent's command line (fault injection). ``secure``: every child
+    gets ``--secure`` (protocol.security).
     """
-    common = ("--connect", endpoint, "--swarm", swarm)
+    secured = () if secure is None else ("--secure", str(secure))
+    common = ("--connect", endpoint, "--swarm", swarm, *secured)
     ff = () if feedforward else ("--no-feedforward",)
-    coordinator = (
-        *base, "coordinator", "--scenario", scenario_arg, *common, "--agents", str(agents),
-        "--duration", repr(duration), "--kappa", repr(kappa), "--out", str(out_dir),
-        "--feedforward" if feedforward else "--no-feedforward",
-    )  # fmt: skip
-    specs = [ChildSpec("coordinator", 0, coordinator)]
-    for i, (x, y, theta) in enumerate(initial_poses(scenario, agents, seed)):
-        robot = (
-            *base, "robot", "--id", str(i), *common,
-            "--x", repr(float(x)), "--y", repr(float(y)), "--theta", repr(float(theta)),
+    scale = () if time_scale == 1.0 else ("--time-scale", repr(time_scale))
+    specs = []
+    if coordinator:
+        argv = (
+            *base, "coordinator", "--scenario", scenario_arg, *common, "--agents", str(agents),
+            "--duration", repr(duration), "--kappa", repr(kappa), "--out", str(out_dir),
+            "--feedforward" if feedforward else "--no-feedforward", *scale,
         )  # fmt: skip
+        specs.append(ChildSpec("coordinator", 0, argv))
+    poses = initial_poses(scenario, agents, seed)
+    chosen = list(range(agents)) if ids is None else sorted(ids)
+    for start in range(0, len(chosen), per_process):
+        group = chosen[start : start + per_process]
+        if per_process == 1:
+            (i,) = group
+            x, y, theta = (repr(float(v)) for v in poses[i])
+            robot_ids: tuple[str, ...] = ("--id", str(i), "--x", x, "--y", y, "--theta", theta)
+            agent_ids: tuple[str, ...] = ("--id", str(i))
+        else:
+            listed = format_ids(group)
+            agent_ids = ("--ids", listed)
+            robot_ids = agent_ids + tuple(
+                arg for i in group for arg in ("--pose", ",".join(repr(float(v)) for v in poses[i]))
+            )
+        robot = (*base, "robot", *robot_ids, *common, *scale)
         agent = (
-            *base, "agent", "--id", str(i), *common, "--rate", repr(rate), "--kappa", repr(kappa),
-            *ff,
+            *base, "agent", *agent_ids, *common, "--rate", repr(rate), "--kappa", repr(kappa),
+            *ff, *scale, *agent_args,
         )  # fmt: skip
-        specs += [ChildSpec("robot", i, robot), ChildSpec("agent", i, agent)]
+        members = tuple(group) if per_process > 1 else ()
+        specs += [
+            ChildSpec("robot", group[0], robot, members),
+            ChildSpec("agent", group[0], agent, members),
+        ]
     return specs
+
+
+def impairment_args(loss: float, delay: float, seed: int) -> tuple[str, ...]:
+    """Agent options that inject pose loss and delay (none when both are zero)."""
+    if loss == 0.0 and delay == 0.0:
+        return ()
+    return ("--drop-poses", repr(loss), "--delay-poses", repr(delay), "--pose-seed", str(seed))
 
 
 # ---------------------------------------------------------------------------- start-up
@@ -244,24 +303,54 @@ def free_port(host: str = ROUTER_HOST) -> int:
         return probe.getsockname()[1]
 
 
+def local_endpoint(listen: str) -> str:
+    """The endpoint this host's children use to reach a router listening on ``listen``:
+    the same, except that a wildcard address (every interface) is reached on loopback."""
+    proto, _, address = listen.partition("/")
+    host, _, port = address.rpartition(":")
+    if host in ("0.0.0.0", "[::]"):
+        return f"{proto}/{ROUTER_HOST}:{port}"
+    return listen
+
+
 @contextmanager
-def zenoh_session(connect: str | None, max_sessions: int) -> Iterator[tuple[Any, str]]:
+def zenoh_session(
+    connect: str | None,
+    max_sessions: int,
+    listen: Sequence[str] = (),
+    peers: Sequence[str] = (),
+    secure: Path | None = None,
+) -> Iterator[tuple[Any, str]]:
     """(session, endpoint children connect to): an embedded router, or a client of ``connect``.
 
-    The free port can be taken by someone else between probing and listening, so a failed
-    listen is retried on a fresh port.
+    The embedded router listens on ``listen`` (reachable from other hosts) or else on a free
+    loopback port; the free port can be taken by someone else between probing and
+    listening, so a failed listen is retried on a fresh port. It connects to the routers
+    of ``peers`` (other hosts of the swarm; zenoh keeps retrying until they are up), which
+    then route between the hosts' processes. ``secure``: TLS and user/password
+    (protocol.security); the free loopback port is then a ``tls/`` endpoint.
     """
     import zenoh
 
     from protocol import session_config
 
     if connect is not None:
-        with zenoh.open(session_config([connect])) as session:
+        with zenoh.open(session_config([connect], secure=secure)) as session:
             yield session, connect
         return
+    if listen:
+        config = session_config(
+            list(peers), list(listen), mode="router", max_sessions=max_sessions, secure=secure
+        )
+        with zenoh.open(config) as session:
+            yield session, local_endpoint(listen[0])
+        return
     for attempt in range(5):
-        endpoint = f"tcp/{ROUTER_HOST}:{free_port()}"
-        config = session_config(None, [endpoint], mode="router", max_sessions=max_sessions)
+        scheme = "tcp" if secure is None else "tls"
+        endpoint = f"{scheme}/{ROUTER_HOST}:{free_port()}"
+        config = session_config(
+            list(peers), [endpoint], mode="router", max_sessions=max_sessions, secure=secure
+        )
         try:
             session = zenoh.open(config)
         except zenoh.ZError:
@@ -340,6 +429,7 @@ class RunResult:
     exit_code: int
     rss: dict[str, list[float]]  # role -> RSS (MB) of each child at the end of the mission
     cpu: dict[str, list[float]]  # role -> CPU use of each child during the mission, % of a core
+    members: dict[str, list[int]] = field(default_factory=dict)  # role -> robots per child
 
 
 class Supervisor:
@@ -359,6 +449,10 @@ class Supervisor:
         self.coordinator: Child | None = None
         self.rss: dict[str, list[float]] = {}
         self.cpu: dict[str, list[float]] = {}
+        self.members: dict[str, list[int]] = {}
+        # (role, id) -> the child that runs it: a child is ready once all its ids are up.
+        self._owner = {(s.role, i): s for s in specs for i in s.members}
+        self._up: set[tuple[str, int]] = set()
         self._cpu_at_start: tuple[float, dict[str, float | None]] | None = None
         self.began = time.monotonic()
         self._put = zenoh.SampleKind.PUT
@@ -384,8 +478,11 @@ class Supervisor:
             except ValueError:
                 continue
             if sample.kind == self._put:
-                self.startup.ready.add(f"{role}-{ident}")
+                self._up.add((role, ident))
                 self.progress.ready.add((role, ident))
+                spec = self._owner.get((role, ident))
+                if spec is not None and all((spec.role, i) in self._up for i in spec.members):
+                    self.startup.ready.add(spec.name)
         while (sample := self._status.try_recv()) is not None:
             try:
                 self.progress.status = Status.decode(sample.payload)
@@ -417,6 +514,7 @@ class Supervisor:
         for name, child in self.children.items():
             if (mb := rss_mb(child.process.pid)) is not None:
                 self.rss.setdefault(child.spec.role, []).append(mb)
+                self.members.setdefault(child.spec.role, []).append(len(child.spec.members))
             if now > started and before.get(name) is not None and after[name] is not None:
                 share = 100.0 * (after[name] - before[name]) / (now - started)
                 self.cpu.setdefault(child.spec.role, []).append(share)
@@ -452,10 +550,15 @@ def run_processes(
     startup_timeout: float,
     console: Any,
 ) -> RunResult:
-    """Start the children, follow the run until the coordinator exits, stop everyone."""
+    """Start the children, follow the run until the coordinator exits, stop everyone.
+
+    Without a coordinator among ``specs`` (it runs on another host) the run ends when the
+    coordinator's Status says "done".
+    """
     from rich.live import Live
 
     progress = Progress(agents, duration)
+    has_coordinator = any(spec.role == "coordinator" for spec in specs)
     exit_code = 0
     with interrupts() as received:
         supervisor = Supervisor(
@@ -475,6 +578,10 @@ def run_processes(
                             console.log(f"[red]coordinator exited with {coordinator.exit_code}")
                             exit_code = 1
                         break
+                    status = progress.status
+                    if not has_coordinator and status is not None and status.state == "done":
+                        console.log("the coordinator (on another host) says the mission is done")
+                        break
                     if received:
                         console.log("interrupted: stopping the coordinator (it writes outputs)")
                         exit_code = 128 + received[0]
@@ -488,7 +595,7 @@ def run_processes(
                     time.sleep(TICK)
         finally:
             supervisor.close()
-    return RunResult(exit_code, supervisor.rss, supervisor.cpu)
+    return RunResult(exit_code, supervisor.rss, supervisor.cpu, supervisor.members)
 
 
 def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> Any:
@@ -517,10 +624,14 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
                 f"agent {name}", f"mean {f['mean']:.4g}  min {f['min']:.4g}  max {f['max']:.4g}"
             )
     for role, values in sorted(result.rss.items()):
-        table.add_row(f"RSS per {role}", f"mean {np.mean(values):.0f} MB  max {max(values):.0f} MB")
+        table.add_row(
+            f"RSS per {role} process", f"mean {np.mean(values):.0f} MB  max {max(values):.0f} MB"
+        )
+        if (hosted := sum(result.members.get(role, ()))) > len(values):
+            table.add_row(f"RSS per {role}", f"{sum(values) / hosted:.1f} MB")
     for role, values in sorted(result.cpu.items()):
         table.add_row(
-            f"CPU per {role}",
+            f"CPU per {role} process",
             f"mean {np.mean(values):.1f}%  max {max(values):.1f}% of a core (total "
             f"{sum(values):.0f}%)",
         )
@@ -563,12 +674,56 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
 @click.option("--swarm", help="Swarm name (key prefix) [random, unique per run].")
 @click.option("--connect", help="Join this Zenoh endpoint instead of an embedded router.")
 @click.option(
+    "--ids",
+    "ids_arg",
+    help="Only these robot ids (and their agents) on this host, e.g. 0-49 [all]; needs --swarm.",
+)
+@click.option(
+    "--no-coordinator",
+    is_flag=True,
+    help="The coordinator runs on another host: end when it says done; needs --swarm.",
+)
+@click.option(
+    "--router-listen",
+    multiple=True,
+    help="Endpoint the embedded router listens on, e.g. tcp/10.0.0.1:7447 [a free loopback port].",
+)
+@click.option(
+    "--router-connect",
+    multiple=True,
+    help="Another host's router for the embedded router to connect to (repeatable).",
+)
+@click.option(
+    "--agents-per-process",
+    "per_process",
+    type=click.IntRange(min=1),
+    default=1,
+    show_default=True,
+    help="Agent brains per agent process and robots per robot process.",
+)
+@TIME_SCALE_OPTION
+@click.option(
+    "--pose-loss",
+    type=click.FloatRange(0.0, 1.0, max_open=True),
+    default=0.0,
+    show_default=True,
+    help="Fault injection: every agent drops this fraction of received poses (seeded).",
+)
+@click.option(
+    "--pose-delay",
+    type=click.FloatRange(min=0.0),
+    default=0.0,
+    show_default=True,
+    help="Fault injection: every agent receives poses this many s late.",
+)
+@click.option(
     "--startup-timeout",
     type=click.FloatRange(min=0, min_open=True),
     default=300.0,
     show_default=True,
     help="Give up if the team is not up after this many s.",
 )
+@SECURE_OPTION
 def run_command(
     scenario_name: str,
     agents: int | None,
@@ -580,19 +735,38 @@ def run_command(
     rate: float,
     swarm: str | None,
     connect: str | None,
+    ids_arg: str | None,
+    no_coordinator: bool,
+    router_listen: tuple[str, ...],
+    router_connect: tuple[str, ...],
+    per_process: int,
+    time_scale: float,
+    pose_loss: float,
+    pose_delay: float,
     startup_timeout: float,
+    secure: Path | None,
 ) -> None:
-    """Run the swarm as real processes over Zenoh on this machine."""
+    """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
     from rich.console import Console
 
     from protocol import check_swarm, new_swarm_name
 
+    if (ids_arg is not None or no_coordinator) and not swarm:
+        raise click.UsageError("--ids and --no-coordinator need --swarm (the same on every host)")
+    if connect is not None and (router_listen or router_connect):
+        raise click.UsageError("--connect joins a router: no --router-listen/--router-connect")
     try:
         scenario = load_scenario(scenario_name)
         swarm = check_swarm(swarm) if swarm else new_swarm_name()
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     n = scenario.agents if agents is None else agents
+    try:
+        ids = None if ids_arg is None else parse_ids(ids_arg)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--ids") from None
+    if ids is not None and ids[-1] >= n:
+        raise click.BadParameter(f"ids go up to {ids[-1]} in a team of {n}", param_hint="--ids")
     duration = scenario.duration if duration is None else duration
     kappa = scenario.kappa if kappa is None else kappa
     if out_dir is None:
@@ -600,12 +774,20 @@ def run_command(
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     console = Console()
-    with zenoh_session(connect, max_sessions=max(1000, 4 * n)) as (session, endpoint):
-        console.log(f"swarm {swarm} on {endpoint}; {n} robots + {n} agents; logs in {log_dir}")
+    here = n if ids is None else len(ids)
+    with zenoh_session(
+        connect, max(1000, 4 * n), router_listen, router_connect, secure=secure
+    ) as (session, endpoint):  # fmt: skip
+        console.log(
+            f"swarm {swarm} on {endpoint}; {here} robots + {here} agents here (team of {n}); "
+            f"logs in {log_dir}"
+        )
         specs = plan_children(
             scenario, scenario_arg=scenario_name, agents=n, seed=seed, endpoint=endpoint,
             swarm=swarm, rate=rate, kappa=kappa, feedforward=not no_feedforward,
-            duration=duration, out_dir=out_dir, base=covswarm_argv(),
+            duration=duration, out_dir=out_dir, base=covswarm_argv(), ids=ids,
+            per_process=per_process, coordinator=not no_coordinator, time_scale=time_scale,
+            agent_args=impairment_args(pose_loss, pose_delay, seed), secure=secure,
         )  # fmt: skip
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "argv": [s.argv for s in specs]},
@@ -616,7 +798,15 @@ def run_command(
             startup_timeout=startup_timeout, console=console,
         )  # fmt: skip
     (out_dir / "resources.json").write_text(
-        json.dumps({"rss_mb": result.rss, "cpu_percent_of_core": result.cpu}, indent=1) + "\n",
+        json.dumps(
+            {
+                "rss_mb": result.rss,
+                "cpu_percent_of_core": result.cpu,
+                "robots_per_process": result.members,
+            },
+            indent=1,
+        )
+        + "\n",
         encoding="utf-8",
     )
     console.print()  # the live display's last frame ends without a newline off a terminal
@@ -624,6 +814,8 @@ def run_command(
     if summary_path.exists():
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
         console.print(summary_table(summary, result, out_dir))
+    elif no_coordinator:
+        console.log(f"the coordinator's host writes the summary; resources in {out_dir}")
     else:
         console.log(f"[red]no summary written (see {log_dir / 'coordinator-0.log'})")
         result.exit_code = result.exit_code or 1

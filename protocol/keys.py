@@ -41,6 +41,39 @@ def check_id(robot_id: int) -> int:
     return robot_id
 
 
+def parse_ids(spec: str) -> list[int]:
+    """Robot ids from a range list such as ``"0-49"`` or ``"0-4,10,12-13"``: sorted, unique.
+
+    How an operator names the slice of the team one host or one process runs; ValueError on
+    anything else (empty, reversed range, id outside 0..MAX_ID).
+    """
+    ids: set[int] = set()
+    for part in str(spec).split(","):
+        first, dash, last = part.strip().partition("-")
+        try:
+            lo = _parse_int_chunk(first.strip())
+            hi = _parse_int_chunk(last.strip()) if dash else lo
+        except ValueError:
+            raise ValueError(f"invalid id list {spec!r}: use e.g. 0-49 or 0-4,10") from None
+        if hi < lo:
+            raise ValueError(f"invalid id range {part.strip()!r} in {spec!r}")
+        ids.update(range(lo, hi + 1))
+    return sorted(ids)
+
+
+def format_ids(ids: list[int]) -> str:
+    """The shortest range list for ``ids`` (inverse of :func:`parse_ids`), e.g. "0-4,10"."""
+    parts: list[str] = []
+    ordered = sorted(set(ids))
+    start = 0
+    for k in range(1, len(ordered) + 1):
+        if k == len(ordered) or ordered[k] != ordered[k - 1] + 1:
+            lo, hi = ordered[start], ordered[k - 1]
+            parts.append(str(lo) if lo == hi else f"{lo}-{hi}")
+            start = k
+    return ",".join(parts)
+
+
 def _base(swarm: str) -> str:
     return f"{PREFIX}/{check_swarm(swarm)}"
 

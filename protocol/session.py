@@ -8,18 +8,21 @@ Secured mode (TLS + user/password, ``secure=DIR``) is described in :mod:`protoco
 from __future__ import annotations
 
 import json
+import math
 import secrets
 import signal
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+import click
 import zenoh
 
-from protocol.keys import claim_key, claim_selector
+from protocol.keys import claim_key, claim_selector, parse_ids
 from protocol.security import apply_security
 
 MODES = ("client", "peer", "router")
+RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router
 
 
 def session_config(
@@ -54,6 +57,12 @@ def session_config(
     config.insert_json5("scouting/gossip/enabled", "false")
     if connect:
         config.insert_json5("connect/endpoints", json.dumps(list(connect)))
+        # A lost router is retried every RECONNECT_PERIOD_MS at most (zenoh's default backs
+        # off to 4 s), so every process is back within about a second of a router restart.
+        config.insert_json5(
+            "connect/retry",
+            json.dumps({"period_init_ms": 250, "period_max_ms": RECONNECT_PERIOD_MS}),
+        )
     if listen:
         config.insert_json5("listen/endpoints", json.dumps(list(listen)))
     if max_sessions is not None:
@@ -95,6 +104,42 @@ def claim(
     return token
 
 
+def scaled(clock: Callable[[], float], time_scale: float) -> Callable[[], float]:
+    """``clock`` in mission seconds: mission time runs at ``time_scale`` x wall time.
+
+    A simulated swarm too big for the CPU runs slower than real time: every process of a
+    run multiplies its monotonic and wall clocks (message stamps included) by the same
+    scale, so periods, timeouts, velocities and the robots' integration all stay in
+    mission seconds while the wall-clock load drops by the scale. Processes with different
+    scales disagree about stamps and drop each other's messages (stamp_future/stamp_old).
+    """
+    if time_scale == 1.0:
+        return clock
+    return lambda: clock() * time_scale
+
+
+TIME_SCALE_OPTION = click.option(
+    "--time-scale",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Mission seconds per wall second (< 1: slower than real time, for big simulations); "
+    "the same for every process of a run.",
+)
+
+
+def id_selection(robot_id: int | None, ids: str | None) -> list[int]:
+    """The ids a robot or agent process runs: ``--id N`` or ``--ids 0-9`` (exactly one)."""
+    if (robot_id is None) == (ids is None):
+        raise click.UsageError("give exactly one of --id and --ids")
+    if robot_id is not None:
+        return [robot_id]
+    try:
+        return parse_ids(ids)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--ids") from None
+
+
 class StopFlag:
     """Set by SIGINT/SIGTERM so the main loop can exit and close its session cleanly.
 
@@ -130,16 +175,27 @@ class Ticker:
 
     Deadlines advance by whole periods so the average rate holds; after an overrun of more
     than one period the schedule restarts from now instead of bursting to catch up.
+    ``time_scale`` s makes the ticker run on mission time (``clock() * s``, see
+    :func:`scaled`): ``rate_hz`` ticks per mission second are ``rate_hz * s`` per wall second.
     """
 
-    def __init__(self, rate_hz: float, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(
+        self, rate_hz: float, clock: Callable[[], float] = time.monotonic, time_scale: float = 1.0
+    ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate must be positive, got {rate_hz!r}")
+        if not (time_scale > 0 and math.isfinite(time_scale)):
+            raise ValueError(f"time scale must be positive, got {time_scale!r}")
         self.period = 1.0 / rate_hz
-        self._clock = clock
+        self._scale = time_scale
+        self._clock = scaled(clock, time_scale)
         self._next = clock() + self.period
         self.ticks = 0
         self.overruns = 0
+
+    def now(self) -> float:
+        """The ticker's clock (mission seconds when scaled)."""
+        return self._clock()
 
     def wait(self, stop: StopFlag) -> float:
         """Sleep until the next deadline (or a stop); returns the monotonic time of the tick."""
@@ -149,7 +205,7 @@ class Ticker:
         if now > self._next + self.period:
             self._next = now
         else:
-            stop.sleep(self._next - now)
+            stop.sleep((self._next - now) / self._scale)  # mission seconds -> wall seconds
         self._next += self.period
         self.ticks += 1
         return self._clock()

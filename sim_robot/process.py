@@ -16,6 +16,11 @@ than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` pl
 skew) are dropped, counted per reason and logged rate-limited (protocol.inbound); they
 never reach the wheels.
 
+``covswarm robot --ids 0-9 --pose x,y,theta ...`` simulates several robots in one process
+(one Zenoh session; each robot keeps its own keys, claim and token), which is how one
+machine hosts hundreds of them. ``--time-scale`` runs the simulation slower than real time
+(protocol.session.scaled).
+
 Import-light on purpose (numpy, msgpack, zenoh; no scipy, no matplotlib): a 2-core machine
 starts hundreds of these.
 """
@@ -35,7 +40,15 @@ import protocol
 from agent.drive import KHEPERA_IV, DiffDrive
 from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from protocol.security import SECURE_OPTION
-from protocol.session import StopFlag, Ticker, claim, session_config
+from protocol.session import (
+    TIME_SCALE_OPTION,
+    StopFlag,
+    Ticker,
+    claim,
+    id_selection,
+    scaled,
+    session_config,
+)
 from sim_robot.model import integrate
 
 log = logging.getLogger("covswarm.robot")
@@ -123,69 +136,98 @@ class RobotSim:
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
 
 
-def run_robot(
-    sim: RobotSim,
+def run_robots(
+    sims: list[RobotSim],
     swarm: str,
     config: zenoh.Config,
     rate: float,
     pose_rate: float,
-) -> RobotCounters:
-    """Zenoh shell around ``sim``: runs until SIGINT/SIGTERM, returns the counters.
+    time_scale: float = 1.0,
+) -> list[RobotCounters]:
+    """Zenoh shell around ``sims``: runs until SIGINT/SIGTERM, returns their counters.
 
-    Refuses to start (ClickException) if another process claims the same robot id.
+    Several simulated robots may share this process and its one Zenoh session (``covswarm
+    robot --ids``), each with its own pose publisher, command subscriber, claim and
+    liveliness token, stepped one after the other at ``rate`` Hz of mission time.
+    Refuses to start (ClickException) if another process claims one of the ids.
+    ``time_scale``: see protocol.session.scaled (the robots' sims must be started on the
+    same scaled monotonic clock).
     """
     stop = StopFlag()
-    alive = protocol.alive_key(swarm, "robot", sim.id)
+    wall_clock = scaled(time.time, time_scale)
     with zenoh.open(config) as session:
-        # The token must stay referenced: zenoh undeclares a token when it is collected.
-        claimed = claim(session, swarm, "robot", sim.id)
-        if claimed is None:
-            raise click.ClickException(f"robot {sim.id} is already running in swarm {swarm!r}")
-        publisher = session.declare_publisher(
-            protocol.pose_key(swarm, sim.id), congestion_control=zenoh.CongestionControl.DROP
-        )
-        # A ring keeps the newest commands without a Python callback thread; drained per tick.
-        commands = session.declare_subscriber(
-            protocol.cmd_key(swarm, sim.id), zenoh.handlers.RingChannel(16)
-        )
-        token = session.liveliness().declare_token(alive)
-        log.info("robot %d ready in swarm %s", sim.id, swarm)
-        ticker = Ticker(rate)
-        pose_period = 1.0 / pose_rate
-        next_pose = time.monotonic()
-        seq = 0
-        unpublishable = RateLimit()
+        # Tokens must stay referenced: zenoh undeclares a token when it is collected.
+        tokens: list[zenoh.LivelinessToken] = []
+        links: list[tuple[RobotSim, zenoh.Publisher, zenoh.Subscriber]] = []
+        ticker = Ticker(rate, time_scale=time_scale)
         try:
+            for sim in sims:
+                claimed = claim(session, swarm, "robot", sim.id)
+                if claimed is None:
+                    raise click.ClickException(
+                        f"robot {sim.id} is already running in swarm {swarm!r}"
+                    )
+                tokens.append(claimed)
+                publisher = session.declare_publisher(
+                    protocol.pose_key(swarm, sim.id),
+                    congestion_control=zenoh.CongestionControl.DROP,
+                )
+                # A ring keeps the newest commands without a Python callback thread.
+                commands = session.declare_subscriber(
+                    protocol.cmd_key(swarm, sim.id), zenoh.handlers.RingChannel(16)
+                )
+                links.append((sim, publisher, commands))
+            for sim in sims:
+                tokens.append(
+                    session.liveliness().declare_token(protocol.alive_key(swarm, "robot", sim.id))
+                )
+                log.info("robot %d ready in swarm %s", sim.id, swarm)
+            pose_period = 1.0 / pose_rate
+            next_pose = ticker.now()
+            seq = 0
+            unpublishable = RateLimit()
             while not stop.is_set():
                 now = ticker.wait(stop)
-                wall = time.time()
-                while (sample := commands.try_recv()) is not None:
-                    sim.on_command(sample.payload.to_bytes(), now, wall)
-                sim.step(now)
-                if now >= next_pose:
+                wall = wall_clock()
+                publish = now >= next_pose
+                if publish:
                     next_pose = max(next_pose + pose_period, now)
+                for sim, publisher, commands in links:
+                    while (sample := commands.try_recv()) is not None:
+                        sim.on_command(sample.payload.to_bytes(), now, wall)
+                    sim.step(now)
+                    if not publish:
+                        continue
                     try:
                         publisher.put(sim.pose_message(wall, seq).encode())
-                        seq += 1
                     except protocol.ProtocolError as exc:
                         if unpublishable.ready():  # once per LOG_INTERVAL, not per tick
                             log.error("robot %d: pose not publishable: %s", sim.id, exc)
+                seq += publish
         finally:
-            token.undeclare()
-            claimed.undeclare()
-        log.info(
-            "robot %d stopping: %s, dropped %s, %d ticks, %d overruns",
-            sim.id,
-            sim.counters,
-            sim.drops.summary(),
-            ticker.ticks,
-            ticker.overruns,
-        )
-    return sim.counters
+            for token in tokens:
+                token.undeclare()
+        for sim in sims:
+            log.info("robot %d stopping: %s, dropped %s", sim.id, sim.counters, sim.drops.summary())
+        log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
+    return [sim.counters for sim in sims]
+
+
+def parse_pose(text: str) -> tuple[float, float, float]:
+    """``"x,y,theta"`` -> (x, y, theta); ValueError unless three finite numbers."""
+    parts = text.split(",")
+    try:
+        pose = tuple(float(p) for p in parts)
+    except ValueError:
+        pose = ()
+    if len(pose) != 3 or not all(np.isfinite(pose)):
+        raise ValueError(f"pose must be three finite numbers x,y,theta, got {text!r}")
+    return pose  # type: ignore[return-value]
 
 
 @click.command("robot")
-@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), required=True)
+@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
+@click.option("--ids", help="Several robots in this process instead, e.g. 0-9 (one session).")
 @click.option(
     "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
 )
@@ -193,9 +235,19 @@ def run_robot(
 @click.option("--x", type=float, default=0.0, show_default=True, help="Initial x (m).")
 @click.option("--y", type=float, default=0.0, show_default=True, help="Initial y (m).")
 @click.option("--theta", type=float, default=0.0, show_default=True, help="Initial heading.")
-@click.option("--rate", type=click.FloatRange(min=1.0), default=50.0, show_default=True)
+@click.option(
+    "--pose",
+    "poses",
+    multiple=True,
+    help="With --ids: initial x,y,theta of each robot, in the order of the ids [0,0,0].",
+)
+# Integration is exact over a step (constant wheels drive an arc), so stepping at the pose
+# rate loses nothing but up to one period of command latency, and on a machine hosting
+# hundreds of robots every saved tick is CPU the agents need.
+@click.option("--rate", type=click.FloatRange(min=1.0), default=20.0, show_default=True)
 @click.option("--pose-rate", type=click.FloatRange(min=0.1), default=20.0, show_default=True)
 @click.option("--cmd-timeout", type=click.FloatRange(min=0.01), default=0.5, show_default=True)
+@TIME_SCALE_OPTION
 @click.option(
     "--max-clock-skew",
     type=click.FloatRange(min=0.0),
@@ -213,34 +265,47 @@ def run_robot(
 @SECURE_OPTION
 @click.option("--verbose", is_flag=True, help="Log at INFO level.")
 def robot_command(
-    robot_id: int,
+    robot_id: int | None,
+    ids: str | None,
     connect: tuple[str, ...],
     swarm: str,
     x: float,
     y: float,
     theta: float,
+    poses: tuple[str, ...],
     rate: float,
     pose_rate: float,
     cmd_timeout: float,
+    time_scale: float,
     max_clock_skew: float,
     max_wheel_speed: float,
     secure: Path | None,
     verbose: bool,
 ) -> None:
-    """Run one simulated Khepera IV (pose publisher, wheel-command subscriber)."""
+    """Run one simulated Khepera IV, or several (pose publisher, wheel-command subscriber)."""
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
+    robot_ids = id_selection(robot_id, ids)
+    if robot_id is not None and poses:
+        raise click.UsageError("--pose goes with --ids; one robot takes --x/--y/--theta")
+    if poses and len(poses) != len(robot_ids):
+        raise click.UsageError(f"{len(robot_ids)} ids but {len(poses)} --pose values")
     try:
         protocol.check_swarm(swarm)
+        initial = [parse_pose(p) for p in poses] or [(x, y, theta)] * len(robot_ids)
         robot = DiffDrive(max_wheel_speed=max_wheel_speed)
-        sim = RobotSim(
-            robot_id,
-            (x, y, theta),
-            robot=robot,
-            cmd_timeout=cmd_timeout,
-            max_clock_skew=max_clock_skew,
-            now=time.monotonic(),
-        )
+        now = scaled(time.monotonic, time_scale)()
+        sims = [
+            RobotSim(
+                i,
+                pose,
+                robot=robot,
+                cmd_timeout=cmd_timeout,
+                max_clock_skew=max_clock_skew,
+                now=now,
+            )
+            for i, pose in zip(robot_ids, initial, strict=True)
+        ]
         config = session_config(list(connect), None, "client", secure=secure)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    run_robot(sim, swarm, config, rate, pose_rate)
+    run_robots(sims, swarm, config, rate, pose_rate, time_scale)

@@ -2,9 +2,10 @@
 
 r = kappa (c - p) + dc/dt (no dc/dt when feedforward=False), with c, dc/dp, dc/dt from
 agent.coverage (verified independently in test_coverage_reference / test_derivatives).
-A robot with an empty cell (mass 0) follows its nearest point of S: its row of the control
-matrix is dropped (pdot_i = r_i), as documented in agent/control.py and implied by
-CONTRACTS.md ("kappa (c - p) drives it into S").
+A robot with an empty cell (mass 0) heads for the centroid c_S of the whole of S, with
+dc_S/dt as feedforward: its row of the control matrix is dropped (pdot_i = r_i), as
+documented in agent/control.py. c_S comes from shapely here; dc_S/dt is the rate of a lone
+robot's cell (which is S), verified in test_derivatives.
 
 Documented guards (agent/control.py) are part of what is checked, not hidden:
 - TVD-D1 row i whose speed exceeds A * max(|r_j|, j in {i} u N(i)) is rescaled to that
@@ -17,6 +18,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import shapely
 from reference import (
     SKEW,
     as_cw,
@@ -32,13 +34,23 @@ from agent import control, coverage
 A = getattr(control, "MAX_AMPLIFICATION", np.inf)
 
 
+def whole_domain(polygon, V):
+    """Centroid of S (shapely) and its rate (a lone robot's cell is S)."""
+    centroid = np.array(shapely.Polygon(polygon).centroid.coords[0])
+    return centroid, coverage.centroid_rate(centroid[None], polygon, V)[0]
+
+
 def pieces(positions, polygon, V, kappa, feedforward=True):
     mass, c = coverage.mass_centroid(positions, polygon)
+    rate = coverage.centroid_rate(positions, polygon, V)
+    empty = mass == 0
+    if empty.any():
+        c_s, rate_s = whole_domain(polygon, V)
+        c[empty], rate[empty] = c_s, rate_s
     r = kappa * (c - positions)
     if feedforward:
-        r = r + coverage.centroid_rate(positions, polygon, V)
+        r = r + rate
     J = coverage.centroid_jacobian(positions, polygon).copy()
-    empty = mass == 0
     J[np.repeat(empty, 2), :] = 0.0
     return r, J, coverage.neighbors(positions, polygon)
 
@@ -227,12 +239,12 @@ def test_nearly_coincident_robots_bounded(gap: float) -> None:
 
 def test_local_velocity_dominated_robot_outside_s() -> None:
     """A robot outside S whose cell is empty has no Voronoi neighbours inside S, so its
-    two-hop neighbourhood is itself alone. The contract (local_step's docstring): seeing
-    nobody it takes S as its cell and heads for its centroid; knowing the robots whose
-    planar Voronoi regions border its own, it matches the full team's row exactly.
+    two-hop neighbourhood is itself alone. An empty cell aims at the centroid of S, and a
+    robot that sees nobody takes S as its cell and heads for its centroid too, so both
+    views agree; knowing its planar Voronoi neighbours it matches the team row as well.
 
     S = unit square, robot 0 at the centre, robot 1 at (0.5, -5): cell 1 is empty,
-    c_1 = (0.5, 0), pdot_1 = kappa ((0.5, 0) - p_1) = (0, 5).
+    pdot_1 = kappa (c_S - p_1) = (0, 5.5).
     """
     p = np.array([[0.5, 0.5], [0.5, -5.0]])
     V = np.zeros((4, 2))
@@ -240,9 +252,9 @@ def test_local_velocity_dominated_robot_outside_s() -> None:
     assert mass[1] == 0
     assert coverage.neighbors(p, SQUARE)[1] == set()
     team = control.tvd_d1(p, SQUARE, V, 1.0)
-    np.testing.assert_allclose(team[1], [0.0, 5.0], atol=1e-12)
+    np.testing.assert_allclose(team[1], [0.0, 5.5], atol=1e-12)
     alone = control.local_velocity(1, {1: p[1]}, SQUARE, V, 1.0)
-    np.testing.assert_allclose(alone, [0.5, 0.5] - p[1], atol=1e-12)  # towards S's centroid
+    np.testing.assert_allclose(alone, team[1], atol=1e-12)
     planar_neighbours = {0}  # the only other robot borders robot 1's region in the plane
     view = {j: p[j] for j in planar_neighbours | {1}}
     np.testing.assert_allclose(control.local_velocity(1, view, SQUARE, V, 1.0), team[1], atol=1e-9)

@@ -138,3 +138,18 @@ def test_robot_process_joins_a_secured_swarm_with_one_flag(router: tuple, secure
     finally:
         child.terminate()
         child.wait(timeout=30)
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(300)
+def test_covswarm_run_is_secured_with_one_flag(secure: Path, tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    argv = [COVSWARM, "run", "--secure", str(secure), "--scenario", "circle", "--agents", "2"]
+    argv += ["--duration", "2", "--out", str(out)]
+    run = subprocess.run(argv, cwd=REPO, capture_output=True, text=True, timeout=280)
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    launch = json.loads((out / "launch.json").read_text())
+    assert launch["endpoint"].startswith("tls/127.0.0.1:")
+    assert all(child[-2:] == ["--secure", str(secure)] for child in launch["argv"])
+    team = json.loads((out / "summary.json").read_text())["agent_stats"]["team"]
+    assert team["drop_undecodable"]["max"] == 0  # drops reach summary.json, per reason
