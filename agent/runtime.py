@@ -25,6 +25,10 @@ Neighbour discovery
 - Positions are taken from the freshest of a robot's pose and AgentState while younger than
   ``--stale-timeout`` (receipt time, so clock skew between machines does not matter), else
   from its beacon while younger than ``--beacon-timeout``; older robots are dropped.
+- **Faults** (docs/faults.md): a robot whose agent's or robot's liveliness token is deleted
+  (``alive/*/*``, changes only) leaves the local diagram at once; an agent whose own pose is
+  stale commands (0, 0) and publishes no AgentState or beacon. ``--drop-poses`` /
+  ``--delay-poses`` inject seeded pose loss and delay (:class:`PoseImpairment`).
 
 Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
 logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError

@@ -8,10 +8,18 @@ only its two-hop neighbourhood. This benchmark measures it in this implementatio
    random and near-CVT layouts, several seeds; uniform, and again with a moving Gaussian
    density (``bench_density``: quadrature instead of closed forms);
 2. the centralised baseline: full-team ``tvd_c`` and ``tvd_d1`` per step vs N;
-3. the neighbour-count histogram vs N (the paper's Table 1 at N = 100).
+3. the neighbour-count histogram vs N (the paper's Table 1 at N = 100);
+4. with ``--live``: real distributed runs (``covswarm run``, one process per robot and per
+   agent over Zenoh) for N in LIVE_SIZES, reporting what the agents measure on the wire
+   (compute per step, messages received, pose-to-command latency, control rate held,
+   missed deadlines) and the memory per process (rows with layout "live").
 
 The domain is a square whose side grows as sqrt(N) (constant density), so N changes and the
 local geometry does not. Timings are wall-clock on this machine, reported, never asserted.
+
+Pose-to-command latency is measured by each agent: its robot's pose stamp to the stamp of
+the command computed from it (network delivery, waiting for the next control tick, and the
+step itself; one clock, since the live runs are on one machine).
 """
 
 from __future__ import annotations
@@ -22,6 +30,7 @@ import time
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -33,6 +42,8 @@ from agent.density import Density
 FULL_SIZES = (10, 30, 100, 300, 1000, 3000)
 QUICK_SIZES = (10, 30, 100, 300)
 SPACING = 0.5  # metres between robots on average: side = SPACING * sqrt(N)
+LIVE_SIZES = (10, 25, 50, 100)
+LIVE_RATE = 10.0  # Hz asked of every agent in the live runs
 
 
 @dataclass(frozen=True)
@@ -161,6 +172,80 @@ def run_bench(
     return rows
 
 
+def live_row(run_dir: Path, n: int, rate: float, wall_s: float) -> dict:
+    """One "live" bench row from a ``covswarm run`` output folder (summary + resources).
+
+    Agent figures are over the team's latest AgentState stats: compute and latency p50 are
+    team means of each agent's p50, p99 team means and maxima of each agent's p99. Memory is
+    per robot and per agent (a process's RSS split over the robots or brains it hosts).
+    """
+    summary = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
+    resources = json.loads((run_dir / "resources.json").read_text(encoding="utf-8"))
+    team = summary["agent_stats"]["team"]
+
+    def stat(name: str, of: str = "mean") -> float | None:
+        return team[name][of] if name in team else None
+
+    def per_member(role: str, table: str) -> float | None:
+        values = resources[table].get(role, [])
+        members = resources.get("robots_per_process", {}).get(role, [1] * len(values))
+        return sum(values) / sum(members) if values else None
+
+    return {
+        "agents": n,
+        "layout": "live",
+        "mission_s": summary["mission_time"],
+        "wall_s": round(wall_s, 1),
+        "initial_error": summary["initial_error"],
+        "final_error": summary["final_error"],
+        "live_step_p50_us": stat("step_us_p50"),
+        "live_step_p99_us": stat("step_us_p99"),
+        "live_step_p99_max_us": stat("step_us_p99", "max"),
+        "rx_per_agent_per_s": stat("rx_per_s"),
+        "pose_to_cmd_p50_ms": stat("pose_age_ms_p50"),
+        "pose_to_cmd_p99_ms": stat("pose_age_ms_p99"),
+        "pose_to_cmd_p99_max_ms": stat("pose_age_ms_p99", "max"),
+        "rate_asked_hz": rate,
+        "rate_held_mean_hz": stat("rate_hz"),
+        "rate_held_min_hz": stat("rate_hz", "min"),
+        "missed_deadline_mean": stat("missed_deadline"),
+        "missed_deadline_max": stat("missed_deadline", "max"),
+        "rss_per_agent_mb": per_member("agent", "rss_mb"),
+        "rss_per_robot_mb": per_member("robot", "rss_mb"),
+        "cpu_per_agent_pct": per_member("agent", "cpu_percent_of_core"),
+        "cpu_per_robot_pct": per_member("robot", "cpu_percent_of_core"),
+        "lost_processes": len(summary["lost_processes"]),
+    }
+
+
+def run_live(
+    sizes: tuple[int, ...], duration: float, out: Path, extra: tuple[str, ...] = (), progress=None
+) -> list[dict]:
+    """One short ``covswarm run`` (circle scenario) per N, in turn; a "live" row for each.
+
+    A run that fails is reported (its folder keeps the logs) and left out of the rows.
+    """
+    import subprocess
+
+    from deploy.launcher import covswarm_argv
+
+    rows = []
+    for n in sizes:
+        run_dir = out / f"live-{n}"
+        argv = [
+            *covswarm_argv(), "run", "--scenario", "circle", "--agents", str(n), "--duration",
+            repr(duration), "--rate", repr(LIVE_RATE), "--out", str(run_dir), *extra,
+        ]  # fmt: skip
+        began = time.monotonic()
+        with open(out / f"live-{n}.log", "wb") as log:
+            code = subprocess.run(argv, stdout=log, stderr=subprocess.STDOUT).returncode
+        if code == 0 and (run_dir / "summary.json").exists():
+            rows.append(live_row(run_dir, n, LIVE_RATE, time.monotonic() - began))
+        if progress is not None:
+            progress(n, code)
+    return rows
+
+
 def write_bench(out: Path, rows: list[dict]) -> None:
     """bench.json, bench.csv and the log-log plots into ``out``."""
     import matplotlib
@@ -170,12 +255,13 @@ def write_bench(out: Path, rows: list[dict]) -> None:
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "bench.json").write_text(json.dumps(rows, indent=2, sort_keys=True) + "\n")
-    columns = [key for key in rows[0] if key != "neighbor_histogram"]
+    # Compute and live rows have different columns: the union, blank where a row has none.
+    columns = list(dict.fromkeys(key for row in rows for key in row if key != "neighbor_histogram"))
     with open(out / "bench.csv", "w", newline="") as handle:
-        writer = csv.DictWriter(handle, fieldnames=columns)
+        writer = csv.DictWriter(handle, fieldnames=columns, restval="", extrasaction="ignore")
         writer.writeheader()
         for row in rows:
-            writer.writerow({key: row[key] for key in columns})
+            writer.writerow(row)
 
     fig, (left, right) = plt.subplots(1, 2, figsize=(11, 4.2))
     for kind, marker in (("random", "o"), ("cvt", "s")):
@@ -228,6 +314,29 @@ def write_bench(out: Path, rows: list[dict]) -> None:
     plt.close(fig)
 
 
+def live_table(rows: list[dict]) -> Any:
+    """The live runs as a rich table."""
+    from rich.table import Table
+
+    table = Table(title=f"covswarm bench --live: real runs, agents asked {LIVE_RATE:g} Hz")
+    columns = (
+        ("N", "agents", "{:d}"), ("step p50 us", "live_step_p50_us", "{:.0f}"),
+        ("step p99 us", "live_step_p99_us", "{:.0f}"), ("rx/s", "rx_per_agent_per_s", "{:.0f}"),
+        ("pose->cmd p50 ms", "pose_to_cmd_p50_ms", "{:.1f}"),
+        ("pose->cmd p99 ms", "pose_to_cmd_p99_ms", "{:.1f}"),
+        ("rate Hz (min)", "rate_held_min_hz", "{:.1f}"),
+        ("missed", "missed_deadline_mean", "{:.1%}"), ("MB/agent", "rss_per_agent_mb", "{:.0f}"),
+        ("MB/robot", "rss_per_robot_mb", "{:.0f}"), ("e_a final", "final_error", "{:.3f}"),
+    )  # fmt: skip
+    for name, _, _ in columns:
+        table.add_column(name, justify="right")
+    for row in rows:
+        table.add_row(
+            *("-" if row[key] is None else fmt.format(row[key]) for _, key, fmt in columns)
+        )
+    return table
+
+
 @click.command("bench")
 @click.option("--quick", is_flag=True, help="N up to 300, 1 seed, sampled robots (< 2 min).")
 @click.option("--sizes", default=None, help="Comma-separated team sizes (default 10..3000).")
@@ -235,10 +344,35 @@ def write_bench(out: Path, rows: list[dict]) -> None:
 @click.option("--sample", default=300, show_default=True, help="Robots timed per layout.")
 @click.option("--repeats", default=3, show_default=True, help="Full-team steps timed per layout.")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Output folder.")
+@click.option(
+    "--live", is_flag=True, help="Also run the swarm for real (covswarm run) at --live-sizes."
+)
+@click.option(
+    "--live-sizes",
+    default=",".join(map(str, LIVE_SIZES)),
+    show_default=True,
+    help="Team sizes of the live runs.",
+)
+@click.option(
+    "--live-duration",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=20.0,
+    show_default=True,
+    help="Mission length of each live run, s.",
+)
 def bench_command(
-    quick: bool, sizes: str | None, seeds: int, sample: int, repeats: int, out: Path | None
+    quick: bool,
+    sizes: str | None,
+    seeds: int,
+    sample: int,
+    repeats: int,
+    out: Path | None,
+    live: bool,
+    live_sizes: str,
+    live_duration: float,
 ) -> None:
-    """Measure per-agent compute vs team size against the centralised baseline."""
+    """Measure per-agent compute vs team size against the centralised baseline (and, with
+    --live, what real distributed runs achieve)."""
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
@@ -258,7 +392,18 @@ def bench_command(
             repeats,
             progress=lambda n, kind, seed: bar.update(task, advance=1, description=f"N={n} {kind}"),
         )
-    write_bench(out, rows)
+    live_rows: list[dict] = []
+    if live:
+        out.mkdir(parents=True, exist_ok=True)
+        live_rows = run_live(
+            tuple(int(s) for s in live_sizes.split(",")),
+            live_duration,
+            out,
+            progress=lambda n, code: Console().log(
+                f"live run N={n}: " + ("done" if code == 0 else f"[red]failed ({code})")
+            ),
+        )
+    write_bench(out, rows + live_rows)
     table = Table(title="covswarm bench: one robot's control step vs team size")
     for name in (
         "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "two-hop", "TVD-C ms",
@@ -278,6 +423,8 @@ def bench_command(
             f"{row['tvd_d1_ms']:.1f}",
         )
     Console().print(table)
+    if live_rows:
+        Console().print(live_table(live_rows))
     Console().print(
         f"wrote {out}/bench.json, bench.csv, per_agent_compute.png, neighbor_histogram.png"
     )

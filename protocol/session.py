@@ -189,7 +189,7 @@ class Ticker:
         self.period = 1.0 / rate_hz
         self._scale = time_scale
         self._clock = scaled(clock, time_scale)
-        self._next = clock() + self.period
+        self._next = self._clock() + self.period
         self.ticks = 0
         self.overruns = 0
 

@@ -353,7 +353,7 @@ def test_router_restart_every_session_reconnects_and_the_run_goes_on(tmp_path: P
 def test_lossy_late_poses_keep_e_a_bounded(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "lossy"
     with launch(out, "--agents", "4", "--duration", "15", "--pose-loss", "0.3",
-                "--pose-delay", "0.1", swarm=swarm) as launcher:  # fmt: skip
+                swarm=swarm) as launcher:  # fmt: skip
         assert launcher.wait(timeout=120) == 0, (tmp_path / "lossy.launcher.log").read_text()
     summary = json.loads((out / "summary.json").read_text())
     assert "--drop-poses" in json.loads((out / "launch.json").read_text())["argv"][2]

@@ -1,0 +1,161 @@
+"""Scaling paths of the runtime: id slices, several robots/brains per process, slow clocks.
+
+Pure logic first (id lists, the launcher's plan for a slice of the team, the scaled
+ticker), then one real ``covswarm run`` with 6 robots in 2 robot processes and 6 brains in
+2 agent processes over loopback, on a clock at half speed.
+"""
+
+from __future__ import annotations
+
+import json
+import subprocess
+from pathlib import Path
+
+import click
+import numpy as np
+import pytest
+from test_e2e import launch, new_swarm, swarm_pids
+
+from coordinator.scenarios import load_scenario
+from deploy.launcher import covswarm_argv, initial_poses, local_endpoint, plan_children
+from protocol.keys import format_ids, parse_ids
+from protocol.session import StopFlag, Ticker, id_selection, scaled
+from sim_robot.process import parse_pose
+
+
+@pytest.mark.parametrize(
+    ("spec", "ids"),
+    [("0-4", [0, 1, 2, 3, 4]), ("7", [7]), ("0-2,10, 12-13", [0, 1, 2, 10, 12, 13]),
+     ("3,1-2,2", [1, 2, 3])],
+)  # fmt: skip
+def test_id_lists_round_trip(spec: str, ids: list[int]) -> None:
+    assert parse_ids(spec) == ids
+    assert parse_ids(format_ids(ids)) == ids
+
+
+@pytest.mark.parametrize("spec", ["", "a", "3-1", "-1", "0-70000", "1,,2", "1-2-3"])
+def test_bad_id_lists_are_refused(spec: str) -> None:
+    with pytest.raises(ValueError, match="id"):
+        parse_ids(spec)
+
+
+def test_a_process_takes_one_id_or_a_list() -> None:
+    assert id_selection(4, None) == [4]
+    assert id_selection(None, "2-3") == [2, 3]
+    for args in ((None, None), (1, "1-2")):
+        with pytest.raises(click.UsageError):
+            id_selection(*args)
+
+
+def test_poses_parse_or_are_refused() -> None:
+    assert parse_pose("1,-2.5,0.25") == (1.0, -2.5, 0.25)
+    for bad in ("1,2", "1,2,nan", "a,b,c", "1,2,3,4"):
+        with pytest.raises(ValueError, match="pose"):
+            parse_pose(bad)
+
+
+def _plan(**kwargs) -> list:
+    return plan_children(
+        load_scenario("passage"), scenario_arg="passage", agents=6, seed=3,
+        endpoint="tcp/10.0.0.1:7447", swarm="s", rate=10.0, kappa=2.0, feedforward=True,
+        duration=10.0, out_dir=Path("out"), base=["covswarm"], **kwargs,
+    )  # fmt: skip
+
+
+def _options(argv: tuple[str, ...], name: str) -> list[str]:
+    return [argv[k + 1] for k, arg in enumerate(argv) if arg == name]
+
+
+def test_a_slice_starts_where_the_full_team_would() -> None:
+    full = initial_poses(load_scenario("passage"), 6, 3)
+    specs = _plan(ids=[3, 4, 5], coordinator=False, per_process=2)
+    assert [s.name for s in specs] == ["robot-3-4", "agent-3-4", "robot-5", "agent-5"]
+    robots = [s for s in specs if s.role == "robot"]
+    assert [s.members for s in robots] == [(3, 4), (5,)]
+    for spec in robots:
+        assert _options(spec.argv, "--ids") == [format_ids(list(spec.members))]
+        poses = [parse_pose(p) for p in _options(spec.argv, "--pose")]
+        np.testing.assert_array_equal(poses, full[list(spec.members)])  # repr is exact
+
+
+def test_one_robot_per_process_keeps_the_single_id_form() -> None:
+    specs = _plan(ids=[1], time_scale=0.25)
+    assert [s.name for s in specs] == ["coordinator-0", "robot-1", "agent-1"]
+    assert all(_options(s.argv, "--time-scale") == ["0.25"] for s in specs)
+    assert _options(specs[1].argv, "--id") == ["1"] and "--pose" not in specs[1].argv
+    assert "--time-scale" not in _plan()[0].argv
+
+
+def test_children_reach_a_wildcard_router_on_loopback() -> None:
+    assert local_endpoint("tcp/0.0.0.0:7447") == "tcp/127.0.0.1:7447"
+    assert local_endpoint("tcp/[::]:7447") == "tcp/127.0.0.1:7447"
+    assert local_endpoint("tcp/10.1.2.3:7447") == "tcp/10.1.2.3:7447"
+
+
+class FakeClock:
+    def __init__(self) -> None:
+        self.t = 100.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+class RecordingStop(StopFlag):
+    def __init__(self, clock: FakeClock) -> None:
+        self.slept: list[float] = []
+        self.clock = clock
+
+    def sleep(self, seconds: float) -> None:
+        self.slept.append(seconds)
+        self.clock.t += seconds
+
+
+def test_a_scaled_ticker_keeps_its_rate_in_mission_time() -> None:
+    clock = FakeClock()
+    ticker = Ticker(10.0, clock=clock, time_scale=0.25)
+    stop = RecordingStop(clock)
+    ticks = [ticker.wait(stop) for _ in range(4)]
+    np.testing.assert_allclose(np.diff(ticks), 0.1)  # 10 Hz of mission time ...
+    np.testing.assert_allclose(stop.slept, 0.4)  # ... is 2.5 Hz of wall time
+    assert ticker.now() == pytest.approx(clock.t * 0.25)
+    assert scaled(clock, 1.0) is clock
+
+
+def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> None:
+    swarm, out = new_swarm(), tmp_path / "packed"
+    with launch(out, "--agents", "6", "--agents-per-process", "3", "--time-scale", "0.5",
+                "--scenario", "passage", "--duration", "8", swarm=swarm) as launcher:  # fmt: skip
+        assert launcher.wait(timeout=120) == 0, (out.parent / "packed.launcher.log").read_text()
+    logs = sorted(p.name for p in (out / "logs").iterdir())
+    assert logs == ["agent-0-2.log", "agent-3-5.log", "coordinator-0.log", "robot-0-2.log",
+                    "robot-3-5.log"]  # fmt: skip
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["alive_at_end"] == {"agents": 6, "robots": 6}
+    assert summary["mission_time"] == pytest.approx(8.0)
+    assert summary["final_error"] < 0.25 * summary["initial_error"]
+    team = summary["agent_stats"]["team"]
+    assert team["rate_hz"]["min"] > 8.0  # 10 Hz of mission time, i.e. 5 Hz of wall time
+    assert 0.0 <= team["missed_deadline"]["max"] <= 1.0
+    assert team["pose_age_ms_p50"]["min"] > 0.0
+    resources = json.loads((out / "resources.json").read_text())
+    assert resources["robots_per_process"] == {"coordinator": [1], "robot": [3, 3],
+                                               "agent": [3, 3]}  # fmt: skip
+    assert swarm_pids(swarm) == set()
+
+
+def test_bench_live_writes_a_live_row(tmp_path: Path) -> None:
+    out = tmp_path / "bench"
+    argv = [*covswarm_argv(), "bench", "--sizes", "10", "--seeds", "1", "--sample", "3",
+            "--repeats", "1", "--live", "--live-sizes", "3", "--live-duration", "3",
+            "--out", str(out)]  # fmt: skip
+    done = subprocess.run(argv, capture_output=True, text=True, timeout=150)
+    assert done.returncode == 0, done.stdout + done.stderr
+    rows = json.loads((out / "bench.json").read_text())
+    (live,) = [row for row in rows if row["layout"] == "live"]
+    assert live["agents"] == 3 and live["rate_asked_hz"] == 10.0
+    for key in ("live_step_p50_us", "live_step_p99_us", "rx_per_agent_per_s",
+                "pose_to_cmd_p50_ms", "pose_to_cmd_p99_ms", "rate_held_mean_hz",
+                "missed_deadline_mean", "rss_per_agent_mb", "rss_per_robot_mb"):  # fmt: skip
+        assert live[key] is not None and live[key] >= 0.0, key
+    header = (out / "bench.csv").read_text().splitlines()[0].split(",")
+    assert "pose_to_cmd_p99_ms" in header and "local_step_p50_us" in header
