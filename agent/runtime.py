@@ -658,7 +658,7 @@ class Inbox:
         self._latest: dict[str, tuple[str, bytes]] = {}
         self._coalesced = 0
 
-    def callback(self, kind: str) -> Callable[[zenoh.Sample], None]:
+    def callback(self, kind: str) -> zenoh.handlers.Callback:
         def store(sample: zenoh.Sample) -> None:
             payload = sample.payload.to_bytes()
             with self._lock:
@@ -666,7 +666,9 @@ class Inbox:
                     self._coalesced += 1
                 self._latest[key] = (kind, payload)
 
-        return store
+        # indirect=False: run on zenoh's own threads. A plain callable gets a Python thread
+        # per subscriber: ~30 per agent, and 50 brains in one process ran out of threads.
+        return zenoh.handlers.Callback(store, indirect=False)
 
     def drain(self) -> tuple[list[tuple[str, str, bytes]], int]:
         """([(kind, key, payload)], payloads coalesced since the last drain)."""
