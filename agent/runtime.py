@@ -658,7 +658,7 @@ class Inbox:
         self._latest: dict[str, tuple[str, bytes]] = {}
         self._coalesced = 0
 
-    def callback(self, kind: str) -> zenoh.handlers.Callback:
+    def callback(self, kind: str) -> Callable[[zenoh.Sample], None]:
         def store(sample: zenoh.Sample) -> None:
             payload = sample.payload.to_bytes()
             with self._lock:
@@ -666,9 +666,7 @@ class Inbox:
                     self._coalesced += 1
                 self._latest[key] = (kind, payload)
 
-        # indirect=False: run on zenoh's own threads. A plain callable gets a Python thread
-        # per subscriber: ~30 per agent, and 50 brains in one process ran out of threads.
-        return zenoh.handlers.Callback(store, indirect=False)
+        return store
 
     def drain(self) -> tuple[list[tuple[str, str, bytes]], int]:
         """([(kind, key, payload)], payloads coalesced since the last drain)."""

@@ -142,8 +142,12 @@ def test_one_swarm_over_two_hosts(tmp_path: Path) -> None:
             # B first: its router keeps retrying A's until A is up.
             started(host_b, tmp_path / "b.log") as launcher_b,
             started(host_a, tmp_path / "a.log") as launcher_a,
-            started([*in_b, *probe, "pong", router_b, swarm], tmp_path / "pong.log",
-                    stdout=subprocess.PIPE, text=True) as pong,  # fmt: skip
+            started(
+                [*in_b, *probe, "pong", router_b, swarm],
+                tmp_path / "pong.log",
+                stdout=subprocess.PIPE,
+                text=True,
+            ) as pong,  # fmt: skip
         ):
             assert pong.stdout.readline().strip() == "ready", (tmp_path / "pong.log").read_text()
             measured = subprocess.run(
