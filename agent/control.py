@@ -154,14 +154,19 @@ def tvd_d1(
     points, batch, references = _team(
         positions, polygon, polygon_velocity, kappa, feedforward, density
     )
-    return _d1_rows(
-        batch,
-        points,
-        references,
-        references[np.maximum(batch.labels, 0)],
-        max_amplification,
-        density,
-    )
+    return _team_d1(batch, points, references, max_amplification, density)
+
+
+def _team_d1(
+    batch: CellBatch,
+    points: np.ndarray,
+    references: np.ndarray,
+    max_amplification: float,
+    density: DensityModel | None,
+) -> np.ndarray:
+    """TVD-D1 rows of the whole team from its cells and its r, (n, 2)."""
+    neighbor_references = references[np.maximum(batch.labels, 0)]
+    return _d1_rows(batch, points, references, neighbor_references, max_amplification, density)
 
 
 def _control_jacobian(
@@ -213,14 +218,7 @@ def tvd_c(
         speeds = np.linalg.norm(velocities, axis=1)
         if np.all(np.isfinite(speeds)) and np.all(speeds <= bound):
             return velocities
-    return _d1_rows(
-        batch,
-        points,
-        references,
-        references[np.maximum(batch.labels, 0)],
-        max_amplification,
-        density,
-    )
+    return _team_d1(batch, points, references, max_amplification, density)
 
 
 def local_step(

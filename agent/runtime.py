@@ -55,21 +55,21 @@ in the beacon tiles): receives 20 (own pose) + domain rate + 20 k (poses) + 10 |
 Zenoh session, each brain with its own keys, subscriptions, claim and token);
 ``--time-scale`` runs on mission time slower than real time (protocol.session.scaled).
 
-Zenoh callbacks only store the newest payload per key under a lock (:class:`Inbox`); all
-decoding and math happen in the main loop. The decision logic (:class:`AgentBrain`) is
-pure and unit-tested without Zenoh.
+Subscribers use ring channels that the main loop polls once per tick (:class:`Inbox`), so
+no Python callback thread exists per subscriber; all decoding and math happen in the main
+loop. The decision logic (:class:`AgentBrain`) is pure and unit-tested without Zenoh.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Protocol
 
 import click
 import numpy as np
@@ -129,6 +129,14 @@ class AgentConfig:
 
 
 InboxItem = tuple[str, str, bytes]  # (kind, key, payload)
+# Samples kept per subscriber between two ticks: only the newest per key is used, but a
+# beacon tile carries one key per robot in it.
+RING_PER_KEY = 4
+RING_PER_TILE = 256
+
+
+class RingSource(Protocol):
+    def try_recv(self) -> zenoh.Sample | None: ...
 
 
 class PoseImpairment:
@@ -646,49 +654,66 @@ _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
 
 
 class Inbox:
-    """Newest payload per key, filled by Zenoh callbacks, drained by the main loop.
+    """Newest payload per key from polled Zenoh ring channels, drained by the main loop.
 
-    Callbacks run on Zenoh's threads: they only copy bytes under a lock (cheap, no decoding),
-    and a newer payload on the same key replaces an unprocessed older one (latest-value
-    semantics; the replaced ones are counted as coalesced).
+    Every subscriber gets a ring-channel handler that the main loop empties once per tick:
+    no Python thread per subscriber (a Python callback gets one, and 1000 agents of ~30
+    subscribers each exhaust the kernel's threads) and no GIL taken on Zenoh's threads. A
+    newer payload on a key replaces an unprocessed older one (latest-value semantics; the
+    replaced ones are counted as coalesced).
     """
 
     def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._latest: dict[str, tuple[str, bytes]] = {}
-        self._coalesced = 0
+        self._sources: dict[int, tuple[str, RingSource]] = {}
 
-    def callback(self, kind: str) -> Callable[[zenoh.Sample], None]:
-        def store(sample: zenoh.Sample) -> None:
-            payload = sample.payload.to_bytes()
-            with self._lock:
-                if self._latest.get(key := str(sample.key_expr)) is not None:
-                    self._coalesced += 1
-                self._latest[key] = (kind, payload)
+    def add(self, kind: str, source: RingSource) -> None:
+        """Poll ``source`` (anything with ``try_recv() -> Sample | None``) as ``kind``."""
+        self._sources[id(source)] = (kind, source)
 
-        return store
+    def remove(self, source: RingSource) -> None:
+        self._sources.pop(id(source), None)
+
+    def subscribe(self, session: zenoh.Session, key: str, kind: str, capacity: int):
+        """Declare a ring-channel subscriber on ``key`` and poll it as ``kind``."""
+        subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
+        self.add(kind, subscriber)
+        return subscriber
 
     def drain(self) -> tuple[list[tuple[str, str, bytes]], int]:
         """([(kind, key, payload)], payloads coalesced since the last drain)."""
-        with self._lock:
-            items, self._latest = self._latest, {}
-            coalesced, self._coalesced = self._coalesced, 0
-        return [(kind, key, payload) for key, (kind, payload) in items.items()], coalesced
+        latest: dict[str, tuple[str, bytes]] = {}
+        coalesced = 0
+        for kind, source in self._sources.values():
+            while (sample := source.try_recv()) is not None:
+                key = str(sample.key_expr)
+                coalesced += key in latest
+                latest[key] = (kind, sample.payload.to_bytes())
+        return [(kind, key, payload) for key, (kind, payload) in latest.items()], coalesced
 
 
 class Subscriptions:
-    """A set of per-key subscribers of one kind, reconciled with a wanted set of keys."""
+    """A set of per-key subscribers of one kind, reconciled with a wanted set of keys.
 
-    def __init__(self, session: zenoh.Session, inbox: Inbox, kind: str) -> None:
+    capacity: samples each ring keeps between ticks (newest first): a pose key gets two
+    per 10 Hz tick, a beacon tile one per robot in it per second.
+    """
+
+    def __init__(self, session: zenoh.Session, inbox: Inbox, kind: str, capacity: int) -> None:
         self._session = session
-        self._callback = inbox.callback(kind)
+        self._inbox = inbox
+        self._kind = kind
+        self._capacity = capacity
         self._subscribers: dict[str, zenoh.Subscriber] = {}
 
     def update(self, keys: set[str]) -> None:
         for key in self._subscribers.keys() - keys:
-            self._subscribers.pop(key).undeclare()
+            subscriber = self._subscribers.pop(key)
+            self._inbox.remove(subscriber)
+            subscriber.undeclare()
         for key in keys - self._subscribers.keys():
-            self._subscribers[key] = self._session.declare_subscriber(key, self._callback)
+            self._subscribers[key] = self._inbox.subscribe(
+                self._session, key, self._kind, self._capacity
+            )
 
     def __len__(self) -> int:
         return len(self._subscribers)
@@ -712,11 +737,11 @@ class AgentLink:
         self.state_pub = session.declare_publisher(
             protocol.agent_state_key(swarm, brain.id), congestion_control=drop
         )
-        session.declare_subscriber(protocol.domain_key(swarm), self.inbox.callback("domain"))
+        self.inbox.subscribe(session, protocol.domain_key(swarm), "domain", RING_PER_KEY)
         self.own_pose = protocol.pose_key(swarm, brain.id)
-        self.poses = Subscriptions(session, self.inbox, "pose")
-        self.states = Subscriptions(session, self.inbox, "state")
-        self.tiles = Subscriptions(session, self.inbox, "beacon")
+        self.poses = Subscriptions(session, self.inbox, "pose", RING_PER_KEY)
+        self.states = Subscriptions(session, self.inbox, "state", RING_PER_KEY)
+        self.tiles = Subscriptions(session, self.inbox, "beacon", RING_PER_TILE)
         self.poses.update({self.own_pose})
         # Token changes of every agent and robot: rare events (one sample per process that
         # starts or dies), and they let a dead teammate leave the diagram at once instead of

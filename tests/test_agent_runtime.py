@@ -288,12 +288,22 @@ class _Sample:
         return self._payload
 
 
+class _Ring:
+    """Stands in for a ring-channel subscriber: try_recv pops the oldest sample."""
+
+    def __init__(self, *samples: _Sample) -> None:
+        self.samples = list(samples)
+
+    def try_recv(self) -> _Sample | None:
+        return self.samples.pop(0) if self.samples else None
+
+
 def test_inbox_keeps_newest_per_key() -> None:
     inbox = runtime.Inbox()
-    store = inbox.callback("pose")
-    store(_Sample("a", b"1"))
-    store(_Sample("a", b"2"))
-    store(_Sample("b", b"3"))
+    inbox.add("pose", _Ring(_Sample("a", b"1"), _Sample("a", b"2"), _Sample("b", b"3")))
+    removed = _Ring(_Sample("c", b"4"))
+    inbox.add("state", removed)
+    inbox.remove(removed)
     items, coalesced = inbox.drain()
     assert sorted(items) == [("pose", "a", b"2"), ("pose", "b", b"3")]
     assert coalesced == 1
