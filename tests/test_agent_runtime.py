@@ -422,3 +422,12 @@ def test_three_robots_and_agents_over_zenoh() -> None:
                 codes.append(child.wait())
         session.close()
     assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"
+
+
+def test_sampled_gain_never_overshoots() -> None:
+    """Held for one period, the gain closes the continuous law's fraction of the gap."""
+    assert runtime.sampled_gain(2.0, 1e-6) == pytest.approx(2.0, rel=1e-5)
+    for kappa, period in [(8.0, 0.26), (2.0, 0.1), (20.0, 1.0)]:
+        gain = runtime.sampled_gain(kappa, period)
+        assert gain * period == pytest.approx(1.0 - math.exp(-kappa * period))
+        assert 0.0 < gain * period < 1.0
