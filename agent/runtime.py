@@ -132,6 +132,8 @@ InboxItem = tuple[str, str, bytes]  # (kind, key, payload)
 # Samples kept per subscriber between two ticks: only the newest per key is used, but a
 # beacon tile carries one key per robot in it.
 RING_PER_KEY = 4
+# Largest fraction of the gap to the centroid one control period may close (sampled_gain).
+MAX_STEP_FRACTION = 0.8
 # Seconds between control steps while the mission is not running (neighbour bookkeeping).
 IDLE_STEP_PERIOD = 1.0
 RING_PER_TILE = 256
@@ -668,15 +670,15 @@ _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
 def sampled_gain(kappa: float, period: float) -> float:
     """The gain to hold over one control period of ``period`` s in place of ``kappa``.
 
-    The continuous law closes the gap to the centroid by the fraction 1 - exp(-kappa T) in
-    a time T; holding kappa (c - p) for a period T instead moves kappa T of the gap, which
-    overshoots once kappa T > 1 and diverges past 2 (seen: kappa 8 at a starved 4 Hz).
-    (1 - exp(-kappa T)) / T moves exactly the continuous law's fraction: kappa itself at high
-    rates, never an overshoot at low ones.
+    Holding kappa (c - p) for a period T moves the robot kappa T of its gap to the
+    centroid: past 1 it overshoots, past 2 it diverges (seen: kappa 8 on a starved agent
+    at 4 Hz). The gain is capped so that one period never covers more than
+    MAX_STEP_FRACTION of the gap; at the rates the agents are meant to run (kappa T well
+    below it) kappa is used unchanged.
     """
     if period <= 0.0:
         return kappa
-    return -math.expm1(-kappa * period) / period
+    return min(kappa, MAX_STEP_FRACTION / period)
 
 
 class Inbox:

@@ -143,7 +143,6 @@ def plan_children(
         )  # fmt: skip
         specs.append(ChildSpec("coordinator", 0, argv))
     poses = initial_poses(scenario, agents, seed)
-    tile = beacon_tile_size(scenario, agents)
     chosen = list(range(agents)) if ids is None else sorted(ids)
     for start in range(0, len(chosen), per_process):
         group = chosen[start : start + per_process]
@@ -161,7 +160,7 @@ def plan_children(
         robot = (*base, "robot", *robot_ids, *common, *scale)
         agent = (
             *base, "agent", *agent_ids, *common, "--rate", repr(rate), "--kappa", repr(kappa),
-            "--tile-size", repr(tile), *ff, *scale, *agent_args,
+            *ff, *scale, *agent_args,
         )  # fmt: skip
         members = tuple(group) if per_process > 1 else ()
         specs += [
@@ -169,19 +168,6 @@ def plan_children(
             ChildSpec("agent", group[0], agent, members),
         ]
     return specs
-
-
-def beacon_tile_size(scenario: Scenario, agents: int) -> float:
-    """Beacon tile side: twice the mean robot spacing in S(0), sqrt(area / n).
-
-    A tile of a few robots keeps what an agent hears from beacons (its 3x3 tiles) at a few
-    dozen robots whatever the density; a fixed 1 m tile holds 25 robots of the 100-robot
-    circle.
-    """
-    vertices = scenario.domain(0.0)[0]
-    x, y = vertices[:, 0], vertices[:, 1]
-    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y)))
-    return 2.0 * float(np.sqrt(area / agents))
 
 
 def impairment_args(loss: float, delay: float, seed: int) -> tuple[str, ...]:
