@@ -83,6 +83,7 @@ from agent.drive import KHEPERA_IV, DiffDrive, wheel_speeds
 from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from protocol.security import SECURE_OPTION
 from protocol.session import (
+    MAX_CLOCK_SKEW_OPTION,
     TIME_SCALE_OPTION,
     StopFlag,
     Ticker,
@@ -933,13 +934,7 @@ def run_agents(
 @click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
 @click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
 @click.option("--linger", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
-@click.option(
-    "--max-clock-skew",
-    type=click.FloatRange(min=0.0),
-    default=MAX_CLOCK_SKEW,
-    show_default=True,
-    help="Drop messages stamped more than this (s) ahead of this clock.",
-)
+@MAX_CLOCK_SKEW_OPTION
 @click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),

@@ -18,6 +18,7 @@ from pathlib import Path
 import click
 import zenoh
 
+from protocol.inbound import MAX_CLOCK_SKEW
 from protocol.keys import claim_key, claim_selector, parse_ids
 from protocol.security import apply_security
 
@@ -116,6 +117,15 @@ def scaled(clock: Callable[[], float], time_scale: float) -> Callable[[], float]
     if time_scale == 1.0:
         return clock
     return lambda: clock() * time_scale
+
+
+MAX_CLOCK_SKEW_OPTION = click.option(
+    "--max-clock-skew",
+    type=click.FloatRange(min=0.0),
+    default=MAX_CLOCK_SKEW,
+    show_default=True,
+    help="Drop messages stamped more than this (s) ahead of this process's clock.",
+)
 
 
 TIME_SCALE_OPTION = click.option(

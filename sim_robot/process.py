@@ -41,6 +41,7 @@ from agent.drive import KHEPERA_IV, DiffDrive
 from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from protocol.security import SECURE_OPTION
 from protocol.session import (
+    MAX_CLOCK_SKEW_OPTION,
     TIME_SCALE_OPTION,
     StopFlag,
     Ticker,
@@ -248,13 +249,7 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 @click.option("--pose-rate", type=click.FloatRange(min=0.1), default=20.0, show_default=True)
 @click.option("--cmd-timeout", type=click.FloatRange(min=0.01), default=0.5, show_default=True)
 @TIME_SCALE_OPTION
-@click.option(
-    "--max-clock-skew",
-    type=click.FloatRange(min=0.0),
-    default=MAX_CLOCK_SKEW,
-    show_default=True,
-    help="Drop commands stamped more than this (s) ahead of this clock.",
-)
+@MAX_CLOCK_SKEW_OPTION
 @click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
