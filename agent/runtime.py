@@ -87,7 +87,7 @@ from protocol.session import (
     TIME_SCALE_OPTION,
     StopFlag,
     Ticker,
-    claim,
+    claim_or_refuse,
     id_selection,
     scaled,
     session_config,
@@ -870,12 +870,7 @@ def run_agents(
         ticker = Ticker(rate, time_scale=time_scale)
         try:
             for brain in brains:
-                claimed = claim(session, swarm, "agent", brain.id)
-                if claimed is None:
-                    raise click.ClickException(
-                        f"agent {brain.id} is already running in swarm {swarm!r}"
-                    )
-                claims.append(claimed)
+                claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
                 links.append(AgentLink(session, swarm, brain))
             while not stop.is_set():
                 overruns = ticker.overruns

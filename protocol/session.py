@@ -105,6 +105,16 @@ def claim(
     return token
 
 
+def claim_or_refuse(
+    session: zenoh.Session, swarm: str, role: str, robot_id: int
+) -> zenoh.LivelinessToken:
+    """``claim`` for a process that must not start without the id: ClickException if taken."""
+    token = claim(session, swarm, role, robot_id)
+    if token is None:
+        raise click.ClickException(f"{role} {robot_id} is already running in swarm {swarm!r}")
+    return token
+
+
 def scaled(clock: Callable[[], float], time_scale: float) -> Callable[[], float]:
     """``clock`` in mission seconds: mission time runs at ``time_scale`` x wall time.
 

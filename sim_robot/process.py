@@ -45,7 +45,7 @@ from protocol.session import (
     TIME_SCALE_OPTION,
     StopFlag,
     Ticker,
-    claim,
+    claim_or_refuse,
     id_selection,
     scaled,
     session_config,
@@ -163,12 +163,7 @@ def run_robots(
         ticker = Ticker(rate, time_scale=time_scale)
         try:
             for sim in sims:
-                claimed = claim(session, swarm, "robot", sim.id)
-                if claimed is None:
-                    raise click.ClickException(
-                        f"robot {sim.id} is already running in swarm {swarm!r}"
-                    )
-                tokens.append(claimed)
+                tokens.append(claim_or_refuse(session, swarm, "robot", sim.id))
                 publisher = session.declare_publisher(
                     protocol.pose_key(swarm, sim.id),
                     congestion_control=zenoh.CongestionControl.DROP,
