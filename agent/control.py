@@ -41,6 +41,7 @@ from agent.coverage import (
     Domain,
     build_cells,
     cell_jacobian_blocks,
+    cell_neighbors,
     cell_rates,
     check_density,
     make_domain,
@@ -109,15 +110,18 @@ def _d1_rows(
     (ignored where the line is not a shared edge). Empty cells keep r_i.
     """
     off, diagonal = cell_jacobian_blocks(batch, points, density)
-    shared = batch.shared[..., None]
-    others = np.where(shared, neighbor_references, 0.0)
+    others = np.where(batch.shared[..., None], neighbor_references, 0.0)
     velocity = own + np.einsum("kab,kb->ka", diagonal, own) + np.einsum("klab,klb->ka", off, others)
-    scale = np.maximum(np.linalg.norm(own, axis=1), np.linalg.norm(others, axis=2).max(axis=1))
+    scale = np.maximum(_norms(own), _norms(others).max(axis=1))
     bound = max_amplification * scale
-    speed = np.linalg.norm(velocity, axis=1)
+    speed = _norms(velocity)
     factor = np.where(speed > bound, bound / np.where(speed > 0.0, speed, 1.0), 1.0)
-    velocity = velocity * factor[:, None]
-    return np.where(batch.empty[:, None], own, velocity)
+    return np.where(batch.empty[:, None], own, velocity * factor[:, None])
+
+
+def _norms(vectors: np.ndarray) -> np.ndarray:
+    """Euclidean norms of stacked 2-vectors (..., 2) -> (...)."""
+    return np.hypot(vectors[..., 0], vectors[..., 1])
 
 
 def _check_kappa(kappa: float) -> None:
@@ -248,31 +252,30 @@ def local_step(
     ids = _ordered_ids(positions)
     points = validate_positions(np.array([positions[key] for key in ids], dtype=np.float64))
     domain = make_domain(polygon, polygon_velocity)
-    everyone = np.arange(len(ids))
     index = ids.index(me)
-    mine = _weigh(build_cells(points, np.array([index]), everyone[None], domain), density)
-    own = _references(mine, points, domain, kappa, feedforward, density)
-    neighbor_indices = np.unique(mine.labels[0][mine.shared[0]])
+    everyone = np.arange(len(ids))[None]
+    # Our neighbours first (the half-plane intersection alone), then our cell and theirs in
+    # one vectorised pass: one robot's step is a few dozen numpy calls on small arrays, so
+    # calls count as much as cells, and the outer ring's cells are not needed.
+    owners = np.concatenate(([index], cell_neighbors(points, index, everyone, domain)))
+    batch = _weigh(build_cells(points, owners, everyone, domain), density)
+    references = _references(batch, points, domain, kappa, feedforward, density)
     by_robot = np.zeros((len(ids), 2))
-    if len(neighbor_indices):
-        # Only the neighbours' cells are built beside one's own: the cost grows with the
-        # neighbour count times the square of the robots known, not with their cube.
-        theirs = build_cells(
-            points,
-            neighbor_indices,
-            np.broadcast_to(everyone, (len(neighbor_indices), len(ids))),
-            domain,
-        )
-        by_robot[neighbor_indices] = _references(
-            _weigh(theirs, density), points, domain, kappa, feedforward, density
-        )
+    by_robot[owners] = references
+    mine = _rows(batch, slice(0, 1))
     velocity = _d1_rows(
-        mine, points, own, by_robot[np.maximum(mine.labels, 0)], max_amplification, density
+        mine,
+        points,
+        references[:1],
+        by_robot[np.maximum(mine.labels, 0)],
+        max_amplification,
+        density,
     )[0]
+    neighbor_indices = mine.labels[0][mine.shared[0]]
     return LocalStep(
         velocity=velocity,
-        neighbors=frozenset(ids[j] for j in neighbor_indices),
-        centroid=mine.centroid[0].copy(),
+        neighbors=frozenset(ids[j] for j in neighbor_indices.tolist()),
+        centroid=mine.centroid[0],
         mass=float(mine.mass[0]),
     )
 
@@ -296,6 +299,13 @@ def local_velocity(
 def _weigh(batch: CellBatch, density: DensityModel | None) -> CellBatch:
     """The batch with the masses and centroids of phi (unchanged for uniform density)."""
     return batch if density is None else density.weigh(batch)
+
+
+def _rows(batch: CellBatch, rows: np.ndarray | slice) -> CellBatch:
+    """The cells at positions ``rows`` (indices (R,) or a slice) of ``batch``."""
+    return CellBatch(
+        **{name: getattr(batch, name)[rows] for name in CellBatch.__dataclass_fields__}
+    )
 
 
 def _ordered_ids(positions: Mapping[Hashable, np.ndarray]) -> list:

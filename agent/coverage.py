@@ -48,7 +48,8 @@ depend on phi.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from functools import cache
+from typing import NamedTuple, Protocol, runtime_checkable
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -67,12 +68,13 @@ MAX_POLYGON_VERTICES = 1024
 class Domain:
     """A validated subdomain S: counter-clockwise vertices and matching vertex velocities.
 
-    vertices: (k, 2) counter-clockwise; velocities: (k, 2); size: the diameter of S.
-    Derived once for the hot path: normals (k, 2) unit outward normal of edge l (from vertex
-    l to l + 1) and offsets (k,) with S = {q : normals q <= offsets}; edge_param (k, 2) the
-    edge vector over its squared length (q . edge_param gives the edge parameter);
-    normal_speed (k,) the outward speed at vertex l and normal_speed_change (k,) its change
-    to vertex l + 1, both along edge l.
+    vertices: (k, 2) counter-clockwise; velocities: (k, 2); size: half the perimeter of S,
+    between its diameter and 1.6 times it. Derived once for the hot path: normals (k, 2)
+    unit outward normal of edge l (from vertex l to l + 1) and offsets (k,) with
+    S = {q : normals q <= offsets}; the
+    outward normal speed of a point q of edge l, linear along the edge because the vertex
+    velocities interpolate linearly, is speed_offset[l] + speed_gradient[l] . q with
+    speed_offset (k,) and speed_gradient (k, 2).
     """
 
     vertices: np.ndarray
@@ -80,9 +82,8 @@ class Domain:
     size: float
     normals: np.ndarray
     offsets: np.ndarray
-    edge_param: np.ndarray
-    normal_speed: np.ndarray
-    normal_speed_change: np.ndarray
+    speed_offset: np.ndarray
+    speed_gradient: np.ndarray
 
     @property
     def tol(self) -> float:
@@ -199,7 +200,7 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
     ``polygon_velocity: (k, 2)`` defaults to a still domain. Raises ValueError (see
     ``validate_polygon``).
     """
-    vertices = np.asarray(polygon, dtype=np.float64)
+    vertices = np.array(polygon, dtype=np.float64)  # a copy: the Domain is immutable
     if vertices.ndim != 2 or vertices.shape[1] != 2:
         raise ValueError(f"polygon must have shape (k, 2), got {vertices.shape}")
     k = vertices.shape[0]
@@ -207,67 +208,79 @@ def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None)
         raise ValueError(f"polygon needs at least 3 vertices, got {k}")
     if k > MAX_POLYGON_VERTICES:
         raise ValueError(f"polygon has {k} vertices, more than the {MAX_POLYGON_VERTICES} allowed")
-    if not np.all(np.isfinite(vertices)):
+    if not np.isfinite(vertices).all():
         raise ValueError("polygon vertices contain NaN or inf")
     if polygon_velocity is None:
         velocities = np.zeros_like(vertices)
     else:
-        velocities = np.asarray(polygon_velocity, dtype=np.float64)
+        velocities = np.array(polygon_velocity, dtype=np.float64)
         if velocities.shape != vertices.shape:
             raise ValueError(
                 f"polygon_velocity must have the polygon's shape {vertices.shape}, "
                 f"got {velocities.shape}"
             )
-        if not np.all(np.isfinite(velocities)):
+        if not np.isfinite(velocities).all():
             raise ValueError("polygon_velocity contains NaN or inf")
-    size = 2.0 * float(np.max(np.linalg.norm(vertices - vertices.mean(axis=0), axis=1)))
-    edges = np.roll(vertices, -1, axis=0) - vertices
-    short = np.linalg.norm(edges, axis=1) <= GEOMETRY_TOL * size
-    if size == 0.0 or short.any():
-        first = int(np.argmax(short))
+    edges = _following(vertices) - vertices
+    length2 = np.einsum("ij,ij->i", edges, edges)
+    lengths = np.sqrt(length2)
+    size = 0.5 * float(lengths.sum())
+    if not size > 0.0 or lengths.min() <= GEOMETRY_TOL * size:
+        first = int(np.argmin(lengths))
         raise ValueError(
             f"polygon vertex {first} repeats vertex {(first + 1) % k}: zero-length edge"
         )
-    area2 = float(np.sum(cross(vertices, np.roll(vertices, -1, axis=0))))
-    if area2 < 0.0:
-        vertices = vertices[::-1].copy()
-        velocities = velocities[::-1].copy()
-        edges = np.roll(vertices, -1, axis=0) - vertices
-    turn = cross(np.roll(edges, 1, axis=0), edges)
-    turning = np.arctan2(turn, np.sum(np.roll(edges, 1, axis=0) * edges, axis=1))
+    previous = np.concatenate((edges[-1:], edges[:-1]))
+    turn = cross(previous, edges)
+    area2 = float(cross(vertices, edges).sum())
+    flat = 1e-9 * size * size
     # Only left turns adding up to one full turn: a simple convex polygon. Anything else is
     # examined further, to say what is wrong.
-    if abs(area2) > 1e-9 * size * size and np.all(turn >= -1e-9 * size * size):
-        if abs(float(np.sum(turning)) - 2.0 * np.pi) <= 1e-6:
-            return _derive(vertices, velocities, size)
+    if area2 > flat and turn.min() >= -flat:
+        turning = np.arctan2(turn, np.einsum("ij,ij->i", previous, edges)).sum()
+        if abs(turning - 2.0 * np.pi) <= 1e-6:
+            return _derive(vertices, velocities, size, edges, lengths)
+    elif area2 < -flat and turn.max() <= flat:
+        return make_domain(vertices[::-1], velocities[::-1])
     crossing = _crossing_edges(vertices)
     if crossing is not None:
         raise ValueError(
             f"polygon is self-intersecting: edge {crossing[0]} crosses edge {crossing[1]}"
         )
-    if abs(area2) <= 1e-9 * size * size:
+    if abs(area2) <= flat:
         raise ValueError("polygon has zero area (its vertices are collinear)")
-    if np.any(turn < -1e-9 * size * size):
-        raise ValueError(f"polygon is not convex: reflex angle at vertex {int(np.argmin(turn))}")
+    reflex = turn < -flat if area2 > 0.0 else turn > flat
+    if reflex.any():
+        raise ValueError(f"polygon is not convex: reflex angle at vertex {int(np.argmax(reflex))}")
     raise ValueError("polygon is self-intersecting: its boundary winds around more than once")
 
 
-def _derive(vertices: np.ndarray, velocities: np.ndarray, size: float) -> Domain:
+def _following(array: np.ndarray) -> np.ndarray:
+    """``array`` shifted by one along its first axis: row l holds row l + 1 (wrapping)."""
+    return np.concatenate((array[1:], array[:1]))
+
+
+def _derive(
+    vertices: np.ndarray,
+    velocities: np.ndarray,
+    size: float,
+    edges: np.ndarray,
+    lengths: np.ndarray,
+) -> Domain:
     """The Domain of valid CCW ``vertices`` and ``velocities``, with its derived arrays."""
-    edges = np.roll(vertices, -1, axis=0) - vertices
-    length2 = np.sum(edges * edges, axis=1)
-    normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1) / np.sqrt(length2)[:, None]
-    start_speed = np.sum(velocities * normals, axis=1)
-    end_speed = np.sum(np.roll(velocities, -1, axis=0) * normals, axis=1)
+    normals = edges[:, ::-1] * (np.array([1.0, -1.0]) / lengths[:, None])
+    start_speed = np.einsum("ij,ij->i", velocities, normals)
+    end_speed = np.einsum("ij,ij->i", _following(velocities), normals)
+    # nu(q) = nu_start + (nu_end - nu_start) (q - vertex) . edge / |edge|^2 along edge l.
+    gradient = ((end_speed - start_speed) / (lengths * lengths))[:, None] * edges
     return Domain(
         vertices=vertices,
         velocities=velocities,
         size=size,
         normals=normals,
-        offsets=np.sum(normals * vertices, axis=1),
-        edge_param=edges / length2[:, None],
-        normal_speed=start_speed,
-        normal_speed_change=end_speed - start_speed,
+        offsets=np.einsum("ij,ij->i", normals, vertices),
+        speed_offset=start_speed - np.einsum("ij,ij->i", gradient, vertices),
+        speed_gradient=gradient,
     )
 
 
@@ -297,87 +310,43 @@ def build_cells(
 ) -> CellBatch:
     """The clipped Voronoi cells of ``owners: (K,)`` among ``points: (n, 2)``.
 
-    candidates: (K, D) robot indices whose bisectors may cut each cell, -1 for padding (the
-    owner itself is ignored). A robot coincident with the owner and of lower index owns the
-    cell, leaving the owner's cell empty; one of higher index is ignored.
+    candidates: (K, D), or (1, D) shared by every cell, robot indices whose bisectors may
+    cut each cell, -1 for padding (the owner itself is ignored). A robot coincident with the
+    owner and of lower index owns the cell, leaving the owner's cell empty; one of higher
+    index is ignored. The batch keeps as many lines per cell as the largest cell has edges.
     """
-    tol = domain.tol
-    me = points[owners]  # work relative to the owner: cells far from the origin keep digits
-    valid = (candidates >= 0) & (candidates != owners[:, None])
-    offsets_to = points[np.maximum(candidates, 0)] - me[:, None, :]
-    distance = np.linalg.norm(offsets_to, axis=2)
-    coincident = valid & (distance <= tol)
-    dominated = np.any(coincident & (candidates < owners[:, None]), axis=1)
-    valid &= ~coincident
-    safe = np.where(valid, distance, 1.0)
-    bisector_normal = offsets_to / safe[:, :, None]
-    bisector_offset = np.where(valid, 0.5 * distance, np.inf)
-
-    k = len(domain.vertices)
-    polygon_normal = domain.normals
-    polygon_offset = domain.offsets - me @ polygon_normal.T
-
-    # Polygon edges first: where a bisector lies on an edge of S, the lower line index wins.
+    lines = _clip(points, owners, candidates, domain)
+    tol, me, present, lower = domain.tol, lines.me, lines.present, lines.lower
     count = len(owners)
-    normal = np.concatenate(
-        [np.broadcast_to(polygon_normal, (count, k, 2)), bisector_normal], axis=1
-    )
-    offset = np.concatenate([polygon_offset, bisector_offset], axis=1)
-    active = np.concatenate([np.ones((count, k), dtype=bool), valid], axis=1)
-    labels = np.concatenate([np.broadcast_to(-(np.arange(k) + 1), (count, k)), candidates], axis=1)
-
-    finite_offset = np.where(active, offset, 0.0)
-    nx, ny = normal[..., 0], normal[..., 1]
-    # Line l is foot_l + t direction_l with foot_l = offset_l normal_l (its point closest to
-    # the owner) and direction_l = (-ny, nx), which keeps the interior on the left so edges
-    # run counter-clockwise. It must satisfy normal_m . q <= offset_m for every m:
-    # t rate_lm <= slack_lm. Indices [cell, line l, constraint m].
-    cosine = nx[:, :, None] * nx[:, None, :] + ny[:, :, None] * ny[:, None, :]
-    rate = nx[:, :, None] * ny[:, None, :] - ny[:, :, None] * nx[:, None, :]
-    slack = finite_offset[:, None, :] - finite_offset[:, :, None] * cosine
-    parallel = np.abs(rate) <= 1e-12
-    bound = slack / np.where(parallel, 1.0, rate)
-    constraining = active[:, None, :] & ~np.eye(normal.shape[1], dtype=bool)
-    upper = np.where(constraining & (rate > 1e-12), bound, np.inf).min(axis=2)
-    lower = np.where(constraining & (rate < -1e-12), bound, -np.inf).max(axis=2)
-    length = upper - lower
-    present = active & (length > tol) & ~dominated[:, None]
-    # A parallel constraint either excludes the whole line or none of it; of two identical
-    # lines (same side, same offset) only the first is kept, so no edge counts twice.
-    parallel &= constraining
-    if parallel.any():
-        earlier = np.tri(normal.shape[1], k=-1, dtype=bool)  # [l, m]: m < l
-        excluded = parallel & ((slack < -tol) | ((cosine > 0.0) & (np.abs(slack) <= tol) & earlier))
-        present &= ~excluded.any(axis=2)
-
     along = np.where(present, lower, 0.0)
-    start = np.stack([finite_offset * nx - along * ny, finite_offset * ny + along * nx], axis=-1)
-    start[~present] = 0.0
+    start = lines.offset[..., None] * lines.normal - along[..., None] * lines.clockwise
+    # Counter-clockwise order of a convex cell's edges is the order of their normals' angles,
+    # from -pi exclusive (+ 0.0 turns a normal's -0.0 into +0.0, whose angle is +pi).
+    angle = np.where(present, np.arctan2(lines.normal[..., 1] + 0.0, lines.normal[..., 0]), np.inf)
+    edges = present.sum(axis=1)
+    width = max(int(edges.max()), 1)
+    order = np.argsort(angle, axis=1)[:, :width]
+    rows = np.arange(count)[:, None]
+    start, labels, present = start[rows, order], lines.labels[rows, order], present[rows, order]
     # Each vertex is computed once, as the start of its edge, and reused as the end of the
     # previous edge: nearly parallel bisectors (nearly coincident robots) make a vertex
     # ill-conditioned, and two independent copies of it would leave the boundary open.
-    count = present.sum(axis=1)
-    centre = start.sum(axis=1) / np.maximum(count, 1)[:, None]
-    angle = np.arctan2(start[..., 1] - centre[:, 1:], start[..., 0] - centre[:, :1])
-    order = np.argsort(np.where(present, angle, np.inf), axis=1)
-    rows = np.arange(len(owners))[:, None]
-    start, labels, present = start[rows, order], labels[rows, order], present[rows, order]
-    position = np.arange(present.shape[1])
-    following = np.where(position + 1 < count[:, None], position + 1, 0)
-    end = start[rows, following]
-    end[~present] = 0.0
+    position = np.arange(1, width + 1)
+    end = start[rows, np.where(position < edges[:, None], position, 0)]
     # Moments about a vertex of the cell, not the owner: a sliver cell far from its robot
     # would otherwise lose its digits to cancellation.
     origin = start[:, :1, :]
-    twice_area = np.where(present, cross(start - origin, end - origin), 0.0)
-    mass = 0.5 * np.sum(twice_area, axis=1)
+    a, b = start - origin, end - origin
+    twice_area = np.where(present, a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], 0.0)
+    mass = 0.5 * twice_area.sum(axis=1)
     empty = mass <= tol * tol
-    mass = np.where(empty, 0.0, mass)
-    moment = np.sum((start + end - 2.0 * origin) * twice_area[..., None], axis=1)
+    moment = np.einsum("kl,klc->kc", twice_area, a + b)
     centroid = me + origin[:, 0, :] + moment / (6.0 * np.where(empty, 1.0, mass))[:, None]
-    for i in np.flatnonzero(empty):
-        centroid[i] = nearest_point(domain, me[i])[0]
-    present &= ~empty[:, None]
+    if empty.any():
+        mass = np.where(empty, 0.0, mass)
+        for i in np.flatnonzero(empty):
+            centroid[i] = nearest_point(domain, me[i])[0]
+        present &= ~empty[:, None]
     return CellBatch(
         owners=owners,
         start=start + me[:, None, :],
@@ -387,6 +356,115 @@ def build_cells(
         mass=mass,
         centroid=centroid,
     )
+
+
+def cell_neighbors(
+    points: np.ndarray, owner: int, candidates: np.ndarray, domain: Domain
+) -> np.ndarray:
+    """Robots whose bisector bounds the cell of ``owner`` among ``points: (n, 2)``, (m,).
+
+    candidates: (1, D) as for ``build_cells``. Only the half-plane intersection, none of
+    the cell's integrals: what a robot needs to know whose cells to build next.
+    """
+    lines = _clip(points, np.array([owner]), candidates, domain)
+    return lines.labels[0][lines.present[0] & (lines.labels[0] >= 0)]
+
+
+class _Lines(NamedTuple):
+    """The lines of a batch of cells (relative to each owner) and their pieces in the cell.
+
+    me: (K, 2) owners; normal, clockwise: (K, L, 2) unit normal and direction (y, -x);
+    offset, lower: (K, L) normal . q <= offset, the piece starts at offset normal - lower
+    clockwise; labels, present: (K, L) as in CellBatch, before the cell's mass is known.
+    """
+
+    me: np.ndarray
+    normal: np.ndarray
+    clockwise: np.ndarray
+    offset: np.ndarray
+    lower: np.ndarray
+    labels: np.ndarray
+    present: np.ndarray
+
+
+def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: Domain) -> _Lines:
+    """Each candidate line's piece inside all the other half-planes: see ``build_cells``."""
+    tol = domain.tol
+    count = len(owners)
+    k = len(domain.offsets)
+    lines = k + candidates.shape[1]
+    me = points[owners]  # work relative to the owner: cells far from the origin keep digits
+    offsets_to = points[candidates] - me[:, None, :]  # padding reads points[-1], unused
+    distance = np.hypot(offsets_to[..., 0], offsets_to[..., 1])
+    # The owner itself (distance 0) and robots coincident with it cast no bisector.
+    close = distance <= tol
+    valid = ~close & (candidates >= 0)
+    rival = close & (candidates < owners[:, None])
+    dominated = np.any(rival & (candidates >= 0), axis=1) if rival.any() else None
+
+    # Line l: normal_l . q <= offset_l, q relative to the owner. Polygon edges come first:
+    # where a bisector lies on an edge of S, the lower line index wins. An unused candidate
+    # gets a zero normal and a positive offset: a constraint that never binds.
+    normal = np.empty((count, lines, 2))
+    normal[:, :k] = domain.normals
+    normal[:, k:] = offsets_to * (valid / np.maximum(distance, tol))[..., None]
+    offset = np.empty((count, lines))
+    offset[:, :k] = domain.offsets - me @ domain.normals.T
+    offset[:, k:] = np.where(valid, 0.5 * distance, domain.size)
+    labels = np.empty((count, lines), dtype=np.int64)
+    labels[:, :k] = _polygon_labels(k)
+    labels[:, k:] = candidates
+    active = np.ones((count, lines), dtype=bool)
+    active[:, k:] = valid
+
+    # Line l is foot_l + t direction_l with foot_l = offset_l normal_l (its point closest to
+    # the owner) and direction_l = (-ny, nx), which keeps the interior on the left so edges
+    # run counter-clockwise. It must satisfy normal_m . q <= offset_m for every m:
+    # t rate_lm <= slack_lm, an upper bound on t where rate_lm > 0, a lower one where < 0.
+    # Indices [cell, line l, constraint m].
+    # Computed with the opposite direction (y, -x), so that copysign can tell the kinds
+    # apart without a negation: clockwise_rate = -rate, excess = -slack.
+    clockwise = normal[..., ::-1] * np.array([1.0, -1.0])
+    transposed = normal.transpose(0, 2, 1)
+    cosine = normal @ transposed
+    clockwise_rate = clockwise @ transposed
+    # Slack of (near) parallel pairs shifted by tol: of two identical lines (same side, same
+    # offset) the first excludes the second, never the reverse, so no edge counts twice, and
+    # a line never excludes itself. Polygon edges come first: a bisector on an edge of S
+    # yields. The weight is 1 for rate 0 and 0 from |rate| = 1e-12 on, so that vertices of
+    # lines that do cross are exact.
+    parallel = np.maximum(1.0 - 1e24 * (clockwise_rate * clockwise_rate), 0.0)
+    excess = (
+        offset[:, :, None] * cosine - offset[:, None, :] + tol * _earlier_sign(lines) * parallel
+    )
+    # slack / rate is the bound and the sign of rate its kind. A (near) parallel constraint
+    # gives +-inf or a huge bound: harmless when satisfied (slack > 0), and when violated
+    # an upper bound of -inf or a lower one of +inf, which excludes the whole line.
+    with np.errstate(divide="ignore", invalid="ignore"):
+        bound = excess / clockwise_rate
+    side = np.copysign(np.inf, clockwise_rate)  # -inf where bounds are upper ones
+    upper = np.maximum(bound, side).min(axis=2)
+    lower = np.minimum(bound, side).max(axis=2)
+    present = active & (upper > lower + tol)
+    if dominated is not None:
+        present &= ~dominated[:, None]
+    return _Lines(me, normal, clockwise, offset, lower, labels, present)
+
+
+@cache
+def _polygon_labels(k: int) -> np.ndarray:
+    """Labels -(l + 1) of the k edges of S, (k,)."""
+    labels = -np.arange(1, k + 1)
+    labels.flags.writeable = False
+    return labels
+
+
+@cache
+def _earlier_sign(lines: int) -> np.ndarray:
+    """(lines, lines) [l, m] = +1 where m < l, else -1: which of two identical lines wins."""
+    sign = np.where(np.tri(lines, k=-1, dtype=bool), 1.0, -1.0)
+    sign.flags.writeable = False
+    return sign
 
 
 def cell_radius(batch: CellBatch, points: np.ndarray) -> np.ndarray:
@@ -430,33 +508,39 @@ def team_cells(points: np.ndarray, domain: Domain) -> CellBatch:
     return batch
 
 
+# CellBatch fields with one entry per line, (K, L, ...); the others are per cell.
+_LINE_FIELDS = ("start", "end", "labels", "present")
+
+
 def _concatenate(parts: list[CellBatch]) -> CellBatch:
+    """The cells of ``parts`` in order, padded to the widest part's lines."""
     if len(parts) == 1:
         return parts[0]
+    width = max(part.labels.shape[1] for part in parts)
     return CellBatch(
         **{
-            name: np.concatenate([getattr(part, name) for part in parts])
+            name: np.concatenate([_widen(part, name, width) for part in parts])
             for name in CellBatch.__dataclass_fields__
         }
     )
 
 
+def _widen(batch: CellBatch, name: str, width: int) -> np.ndarray:
+    """Field ``name`` of ``batch``, a per-line field padded with absent lines to ``width``."""
+    array = getattr(batch, name)
+    if name not in _LINE_FIELDS or array.shape[1] == width:
+        return array
+    pad = [(0, 0), (0, width - array.shape[1])] + [(0, 0)] * (array.ndim - 2)
+    return np.pad(array, pad, constant_values=False if array.dtype == bool else 0)
+
+
 def _replace(batch: CellBatch, rows: np.ndarray, rebuilt: CellBatch) -> CellBatch:
-    """``batch`` with ``rows`` replaced by ``rebuilt`` (which may have more lines per cell)."""
+    """``batch`` with ``rows`` replaced by ``rebuilt`` (either may have more lines per cell)."""
     width = max(batch.labels.shape[1], rebuilt.labels.shape[1])
-
-    def widen(array: np.ndarray, fill: float | int | bool) -> np.ndarray:
-        pad = [(0, 0), (0, width - array.shape[1])] + [(0, 0)] * (array.ndim - 2)
-        return np.pad(array, pad, constant_values=fill)
-
     fields = {}
     for name in CellBatch.__dataclass_fields__:
-        old, new = getattr(batch, name), getattr(rebuilt, name)
-        if old.ndim >= 2 and name not in ("centroid",):
-            fill = False if old.dtype == bool else 0
-            old, new = widen(old, fill), widen(new, fill)
-        merged = old.copy()
-        merged[rows] = new
+        merged = _widen(batch, name, width).copy()
+        merged[rows] = _widen(rebuilt, name, width)
         fields[name] = merged
     return CellBatch(**fields)
 
@@ -505,52 +589,40 @@ def nearest_point_derivatives(
     return q, np.outer(e, e) / h, ua + dsigma * e + sigma * de
 
 
-def _edge_moments(
-    start: np.ndarray, end: np.ndarray, centroid: np.ndarray, anchor: np.ndarray
-) -> np.ndarray:
-    """Line integrals of (q - c)(q - a)^T along segments: the Lemma's bracket times |d|.
-
-    start, end, centroid, anchor: (..., 2), broadcast. Returns (..., 2, 2):
-    |d| [ (v1 - c)(v1 - a)^T + ((v1 - c) d^T + d (v1 - a)^T) / 2 + d d^T / 3 ], d = v2 - v1.
-    """
-    d = end - start
-    u = start - centroid
-    w = start - anchor
-    bracket = (
-        u[..., :, None] * w[..., None, :]
-        + 0.5 * (u[..., :, None] * d[..., None, :] + d[..., :, None] * w[..., None, :])
-        + d[..., :, None] * d[..., None, :] / 3.0
-    )
-    return np.linalg.norm(d, axis=-1)[..., None, None] * bracket
-
-
 def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form blocks of dc/dp for the batch's rows (non-empty cells).
 
     Returns off: (K, L, 2, 2), dc_i/dp_j by eq. (dcidpj) for the edge shared with robot
     labels[k, l] (zero where there is none), and diagonal: (K, 2, 2), dc_i/dp_i by eq.
     (dcidpi). Empty cells get zero blocks.
+
+    Along a shared edge from v1 to v2 (d = v2 - v1) the Lemma's integral of
+    (q - c)(q - a)^T ds is |d| [u w^T + (u d^T + d w^T) / 2 + d d^T / 3] with u = v1 - c,
+    w = v1 - a: with a = p_i it gives dc_i/dp_i, and with a = p_j it is the same plus
+    |d| (u + d / 2)(p_i - p_j)^T, so one bracket serves both blocks.
     """
-    me = points[batch.owners]
-    others = points[np.maximum(batch.labels, 0)]
-    separation = np.linalg.norm(others - me[:, None, :], axis=2)
-    shared = batch.shared
-    scale = np.where(
-        shared,
-        1.0 / (np.where(shared, separation, 1.0) * np.maximum(batch.mass, 1e-300)[:, None]),
-        0.0,
-    )
-    start, end = batch.start, batch.end
-    centroid = batch.centroid[:, None, :]
-    # Both brackets from one: with anchor p_j the bracket is the one with anchor p_i plus
-    # (integral of (q - c) ds) (p_i - p_j)^T, and that integral is |d| (v1 - c + d / 2).
-    about_me = _edge_moments(start, end, centroid, me[:, None, :])
-    d = end - start
-    first = np.linalg.norm(d, axis=-1)[..., None] * (start - centroid + 0.5 * d)
-    gap = me[:, None, :] - others
-    off = -scale[..., None, None] * (about_me + first[..., :, None] * gap[..., None, :])
-    diagonal = np.sum(scale[..., None, None] * about_me, axis=1)
+    me = points[batch.owners][:, None, :]
+    # Polygon labels read wrapped rows, masked below.
+    gap = me - np.take(points, batch.labels, axis=0, mode="wrap")
+    separation = np.hypot(gap[..., 0], gap[..., 1])
+    start = batch.start
+    d = batch.end - start
+    length = np.hypot(d[..., 0], d[..., 1])
+    # |d| / (m_i |p_i - p_j|) on shared edges, 0 elsewhere (and for empty cells).
+    shared = batch.present & (batch.labels >= 0)
+    weight = np.where(shared, length / np.where(shared, separation * batch.mass[:, None], 1.0), 0.0)
+    u = start - batch.centroid[:, None, :]
+    w = start - me
+    half = 0.5 * d
+    about_me = _outer(u, w + half) + _outer(d, 0.5 * w + d / 3.0)
+    diagonal = np.einsum("kl,klab->kab", weight, about_me)
+    off = -weight[..., None, None] * (about_me + _outer(u + half, gap))
     return off, diagonal
+
+
+def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Stacked outer products (..., 2) x (..., 2) -> (..., 2, 2)."""
+    return a[..., :, None] * b[..., None, :]
 
 
 def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.ndarray:
@@ -561,19 +633,23 @@ def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.n
     integral (q - c) nu ds = |d| [ (v1 - c)(nu1 + nu2) / 2 + d (nu1 / 6 + nu2 / 3) ].
     An empty cell gets the velocity of its nearest point of S.
     """
-    edge = np.where(batch.boundary, -batch.labels - 1, 0)
-    a = domain.vertices[edge]
-    param = domain.edge_param[edge]
-    speed, change = domain.normal_speed[edge], domain.normal_speed_change[edge]
-    nu1 = speed + change * np.sum((batch.start - a) * param, axis=-1)
-    nu2 = speed + change * np.sum((batch.end - a) * param, axis=-1)
-    d = batch.end - batch.start
-    integral = np.linalg.norm(d, axis=-1)[..., None] * (
-        (batch.start - batch.centroid[:, None, :]) * (0.5 * (nu1 + nu2))[..., None]
-        + d * (nu1 / 6.0 + nu2 / 3.0)[..., None]
+    start, end = batch.start, batch.end
+    # Label -(l + 1) is edge l, i.e. ~label; robot labels read wrapped entries, masked below.
+    edge = ~batch.labels
+    offset = np.take(domain.speed_offset, edge, mode="wrap")
+    gradient = np.take(domain.speed_gradient, edge, axis=0, mode="wrap")
+    nu1 = offset + np.einsum("klc,klc->kl", gradient, start)
+    nu2 = offset + np.einsum("klc,klc->kl", gradient, end)
+    d = end - start
+    length = (batch.present & (batch.labels < 0)) * np.hypot(d[..., 0], d[..., 1])
+    across = length * (0.5 * (nu1 + nu2))
+    along = length * (nu1 / 6.0 + nu2 / 3.0)
+    integral = (
+        np.einsum("kl,klc->kc", across, start)
+        - across.sum(axis=1)[:, None] * batch.centroid
+        + np.einsum("kl,klc->kc", along, d)
     )
-    integral = np.where(batch.boundary[..., None], integral, 0.0)
-    rates = np.sum(integral, axis=1) / np.where(batch.empty, 1.0, batch.mass)[:, None]
+    rates = integral / np.where(batch.empty, 1.0, batch.mass)[:, None]
     for i in np.flatnonzero(batch.empty):
         rates[i] = nearest_point_derivatives(domain, points[batch.owners[i]])[2]
     return rates

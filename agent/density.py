@@ -449,9 +449,8 @@ def centroid_rates(
 
     q, ds, lines = _edges(batch, pieces)
     boundary = batch.boundary[:, :lines]
-    edge = np.where(boundary, -batch.labels[:, :lines] - 1, 0)[..., None]
-    along = np.sum((q - domain.vertices[edge]) * domain.edge_param[edge], axis=-1)
-    nu = domain.normal_speed[edge] + domain.normal_speed_change[edge] * along
+    edge = np.where(boundary, ~batch.labels[:, :lines], 0)[..., None]
+    nu = domain.speed_offset[edge] + np.sum(domain.speed_gradient[edge] * q, axis=-1)
     f = np.where(boundary[..., None], ds * density.phi(q) * nu, 0.0)
     moving = np.einsum("klg,klgc->kc", f, q - centroid)
 

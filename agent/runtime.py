@@ -10,25 +10,30 @@ Neighbour discovery
   (vertices + velocities * time since its stamp, for at most ``--max-extrapolation`` s; after
   that the domain holds still and its velocities count as zero).
 - **Beacons (bootstrap)**: every ``--beacon-period`` (1 s) the agent publishes a Beacon on
-  ``beacon/<tx>/<ty>/<me>``, (tx, ty) = floor(position / tile_size), and subscribes to the
+  ``beacon/<tx>/<ty>/<me>``, (tx, ty) = floor(position / tile_size) with the swarm's tile
+  size from the Domain broadcast (none before the first Domain), and subscribes to the
   (2r+1)^2 tiles around its own with ``beacon/<tx>/<ty>/*`` selectors, re-declared when it
   changes tile. r starts at 1 (3x3 tiles) and grows, up to ``--max-tile-radius``, while its
   cell is too large for the tiles to hold every robot that could cut it (a robot farther
   than twice the cell radius cannot; see :func:`cell_reach`). Beacon-only robots are
   candidates at their beacon position.
-- **Two-hop set**: the agent publishes AgentState (position and current Voronoi neighbour
-  ids) at the control rate; it subscribes to the AgentState of its one-hop neighbours, and
-  to the poses of its two-hop set (one-hop neighbours and their neighbours), declaring and
-  undeclaring per-id subscribers as the set changes (a subscriber lingers ``--linger`` s
-  after its id leaves the set, so a neighbour flickering across a Voronoi vertex does not
-  churn subscriptions).
-- Positions are taken from the freshest of a robot's pose and AgentState while younger than
-  ``--stale-timeout`` (receipt time, so clock skew between machines does not matter), else
-  from its beacon while younger than ``--beacon-timeout``; older robots are dropped.
+- **Two-hop set**: the agent publishes AgentState (its robot's position and its current
+  Voronoi neighbour ids) at the control rate, with its stats about once a second; it
+  subscribes to the AgentState of its two-hop set (one-hop neighbours and their
+  neighbours), declaring and undeclaring per-id subscribers as the set changes (a
+  subscriber lingers ``--linger`` s after its id leaves the set, so a neighbour flickering
+  across a Voronoi vertex does not churn subscriptions). Other robots' positions come from
+  their AgentStates, not from their 20 Hz poses: one subscription and 10 messages per
+  second per neighbour instead of two and 30, for positions one control period older.
+- Positions are taken from a robot's AgentState (or pose, for a bridge that sends them)
+  while younger than ``--stale-timeout`` (receipt time, so clock skew between machines does
+  not matter), else from its beacon while younger than ``--beacon-timeout``; older robots
+  are dropped.
 - **Faults** (docs/faults.md): a robot whose agent's or robot's liveliness token is deleted
   (``alive/*/*``, changes only) leaves the local diagram at once; an agent whose own pose is
   stale commands (0, 0) and publishes no AgentState or beacon. ``--drop-poses`` /
-  ``--delay-poses`` inject seeded pose loss and delay (:class:`PoseImpairment`).
+  ``--delay-poses`` inject seeded loss and delay of poses and AgentStates
+  (:class:`PoseImpairment`).
 
 Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
 logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError
@@ -48,16 +53,18 @@ NaN). Neighbours are computed while waiting too, so the sets are warm at the sta
 liveliness token ``alive/agent/<id>`` is declared once the agent hears its own robot.
 
 Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k two-hop robots, b robots
-in the beacon tiles): receives 20 (own pose) + domain rate + 20 k (poses) + 10 |one-hop|
-(states) + b (beacons) per second; sends 10 commands + 10 states + 1 beacon per second.
+in the beacon tiles): receives 20 (own pose) + domain rate + 10 k (states) + b (beacons)
+per second; sends 10 commands + 10 states + 1 beacon per second.
 
 ``covswarm agent --ids 0-9`` runs several brains in one process (:func:`run_agents`: one
 Zenoh session, each brain with its own keys, subscriptions, claim and token);
 ``--time-scale`` runs on mission time slower than real time (protocol.session.scaled).
 
-Subscribers use ring channels that the main loop polls once per tick (:class:`Inbox`), so
-no Python callback thread exists per subscriber; all decoding and math happen in the main
-loop. The decision logic (:class:`AgentBrain`) is pure and unit-tested without Zenoh.
+Subscribers (liveliness included) use ring channels that the main loop polls once per
+tick (:class:`Inbox`), so no Python callback thread exists; all decoding and math happen in
+the main loop, and the brains of one process share the decoding of identical payloads
+(:func:`decode`). The decision logic (:class:`AgentBrain`) is pure and unit-tested without
+Zenoh.
 """
 
 from __future__ import annotations
@@ -66,10 +73,11 @@ import logging
 import math
 import time
 from collections import deque
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from functools import lru_cache
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol
 
 import click
 import numpy as np
@@ -116,7 +124,6 @@ class AgentConfig:
     stale_timeout: float = 1.0
     beacon_period: float = 1.0
     beacon_timeout: float = 3.0
-    tile_size: float = 1.0
     max_tile_radius: int = 3
     max_extrapolation: float = 1.0
     linger: float = 1.0
@@ -129,7 +136,7 @@ class AgentConfig:
     pose_seed: int = 0
 
 
-InboxItem = tuple[str, str, bytes]  # (kind, key, payload)
+InboxItem = tuple[str, int | None, bytes]  # (kind, id in the key (None: domain), payload)
 # Samples kept per subscriber between two ticks: only the newest per key is used, but a
 # beacon tile carries one key per robot in it.
 RING_PER_KEY = 4
@@ -137,20 +144,32 @@ RING_PER_KEY = 4
 MAX_STEP_FRACTION = 0.8
 # Seconds between control steps while the mission is not running (neighbour bookkeeping).
 IDLE_STEP_PERIOD = 1.0
+# s: at most this far ahead are positions dead-reckoned from a reported velocity.
+DEAD_RECKONING_LIMIT = 0.25
 RING_PER_TILE = 256
+# Token changes kept between two ticks: a ring never blocks Zenoh's threads, and only a
+# whole team starting at once (two tokens per robot) comes near it.
+LIVELINESS_RING = 8192
+STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
+FORGET_PERIOD = 1.0  # s between two sweeps of records older than every timeout
 
 
 class RingSource(Protocol):
     def try_recv(self) -> zenoh.Sample | None: ...
 
 
-class PoseImpairment:
-    """Seeded loss and delay of received poses, between the inbox and the brain (pure).
+IMPAIRED = ("pose", "state")  # the kinds of message that carry a robot's position
 
-    Applied to what the agent would consume each tick (after the inbox kept the newest pose
-    per key), so ``loss`` is the fraction of pose updates the controller never sees.
-    Delayed poses are handed over in arrival order once ``delay`` s have passed; their
-    receipt time is then, so staleness counts from when the agent got them.
+
+class PoseImpairment:
+    """Seeded loss and delay of received positions, between the inbox and the brain (pure).
+
+    Impairs every message that carries a robot's position: its own robot's poses and the
+    AgentStates its neighbours' positions come from. Applied to what the agent would
+    consume each tick (after the inbox kept the newest message per key), so ``loss`` is the
+    fraction of position updates the controller never sees. Delayed ones are handed over
+    in arrival order once ``delay`` s have passed; their receipt time is then, so staleness
+    counts from when the agent got them.
     """
 
     def __init__(self, loss: float, delay: float, rng: np.random.Generator) -> None:
@@ -161,10 +180,11 @@ class PoseImpairment:
         self.dropped = 0
 
     def filter(self, items: list[InboxItem], now: float) -> list[InboxItem]:
-        """The items to process at ``now``: non-poses at once, poses that survived and are due."""
-        out = [item for item in items if item[0] != "pose"]
+        """The items to process at ``now``: the others at once, positions that survived and
+        are due."""
+        out = [item for item in items if item[0] not in IMPAIRED]
         for item in items:
-            if item[0] != "pose":
+            if item[0] not in IMPAIRED:
                 continue
             if self._rng.random() < self.loss:
                 self.dropped += 1
@@ -177,11 +197,14 @@ class PoseImpairment:
 
 @dataclass
 class Track:
-    """Last known position of another robot and when (monotonic) it was received."""
+    """Last known position of another robot, when (monotonic) it was received, and the
+    velocity its agent reported with it (0 for poses and beacons)."""
 
     x: float
     y: float
     received: float
+    vx: float = 0.0
+    vy: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -324,8 +347,10 @@ class AgentBrain:
         self._fresh: set[int] = set()  # ids usable as candidates at the last step
         self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
+        self._last_forget = -math.inf
         self._last_control: float | None = None  # wall time of the last control step
         self._last_idle_step = -math.inf
+        self.velocity: tuple[float, float] = (0.0, 0.0)  # last commanded, m/s
         self._seq = 0
         self._step_us = _Percentiles()
         self._pose_age_ms = _Percentiles()
@@ -342,7 +367,7 @@ class AgentBrain:
         "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
         self.counters.received += 1
         try:
-            message = _MESSAGE_TYPES[kind].decode(payload)
+            message = decode(kind, payload)
             max_age = self.config.beacon_timeout if kind == "beacon" else self.config.stale_timeout
             check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
@@ -364,7 +389,7 @@ class AgentBrain:
     def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
         if state.id == self.id:
             return False
-        self.state_tracks[state.id] = Track(state.x, state.y, now)
+        self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
         return True
@@ -407,8 +432,7 @@ class AgentBrain:
             self.drops.drop("old_domain", f"domain stamped {domain.stamp} < {self.domain.stamp}")
             return False
         try:
-            validate_polygon(np.array(domain.vertices))
-            density = None if domain.density is None else Density.from_dict(domain.density)
+            density = _domain_geometry(domain)
         except ValueError as exc:
             self.drops.drop("bad_domain", f"domain: {exc}")
             return False
@@ -420,27 +444,34 @@ class AgentBrain:
 
     def candidates(self, now: float) -> dict[int, np.ndarray]:
         """Positions of the other robots known well enough to enter the local diagram."""
-        stale, beacon_timeout = self.config.stale_timeout, self.config.beacon_timeout
-        out: dict[int, np.ndarray] = {}
-        for rid in self.poses.keys() | self.state_tracks.keys() | self.beacons.keys():
-            if rid in self.dead:
-                continue
-            fresh = [
-                t
-                for t in (self.poses.get(rid), self.state_tracks.get(rid))
-                if t is not None and now - t.received <= stale
-            ]
-            beacon = self.beacons.get(rid)
-            if fresh:
-                track = max(fresh, key=lambda t: t.received)
-            elif beacon is not None and now - beacon.received <= beacon_timeout:
-                track = beacon
-            else:
-                continue
-            out[rid] = np.array([track.x, track.y])
+        # The freshest of pose and state while younger than stale_timeout (a pose wins a
+        # tie), else the beacon while younger than beacon_timeout.
+        chosen: dict[int, Track] = {}
+        oldest = now - self.config.stale_timeout
+        for table in (self.poses, self.state_tracks):
+            for rid, track in table.items():
+                if track.received >= oldest:
+                    known = chosen.get(rid)
+                    if known is None or track.received > known.received:
+                        chosen[rid] = track
+        oldest = now - self.config.beacon_timeout
+        for rid, track in self.beacons.items():
+            if track.received >= oldest and rid not in chosen:
+                chosen[rid] = track
+        dead = self.dead
+        # Dead reckoning: a state is up to a control period old when the next step reads it,
+        # and at 0.2 m/s that lag alone is a centimetre of error in every neighbour.
+        out = {
+            rid: np.array([track.x, track.y])
+            + min(now - track.received, DEAD_RECKONING_LIMIT) * np.array([track.vx, track.vy])
+            for rid, track in chosen.items()
+            if rid not in dead
+        }
         self.counters.stale += len(self._fresh - out.keys())
         self._fresh = set(out)
-        self._forget(now)
+        if now - self._last_forget >= FORGET_PERIOD:
+            self._last_forget = now
+            self._forget(now)
         return out
 
     def _forget(self, now: float) -> None:
@@ -484,23 +515,26 @@ class AgentBrain:
         ids.discard(self.id)
         return frozenset(ids)
 
-    def wanted_pose_ids(self, now: float) -> set[int]:
-        """Ids whose pose to subscribe to: the two-hop set, lingering ``linger`` s."""
-        for rid in self.two_hop(now):
-            self._wanted[rid] = now
-        for rid in [r for r, t in self._wanted.items() if now - t > self.config.linger]:
-            del self._wanted[rid]
-        return set(self._wanted)
+    def wanted_state_ids(self, now: float) -> set[int]:
+        """Ids whose AgentState to subscribe to: the two-hop set, lingering ``linger`` s (a
+        robot across a near-degenerate Voronoi vertex comes and goes every few ticks, and
+        every declaration is a round of routing updates for the whole swarm)."""
+        return _linger(self._wanted, self.two_hop(now), now, self.config.linger)
 
-    def wanted_state_ids(self) -> set[int]:
-        """Ids whose AgentState to subscribe to: the one-hop neighbours."""
-        return set(self.one_hop)
+    @property
+    def tile_size(self) -> float | None:
+        """The swarm's beacon tile size, from the domain broadcast (None before one)."""
+        if self.domain is None:
+            return None
+        return self.domain.tile_size or protocol.DEFAULT_TILE_SIZE
 
     def wanted_tiles(self) -> set[tuple[int, int]]:
-        """Beacon tiles to subscribe to: (2r+1)^2 around our own tile (none without a pose)."""
-        if self.pose is None:
+        """Beacon tiles to subscribe to: (2r+1)^2 around our own tile (none without a pose
+        or before the domain says the swarm's tile size)."""
+        tile_size = self.tile_size
+        if self.pose is None or tile_size is None:
             return set()
-        tx, ty = protocol.tile_of(self.pose.x, self.pose.y, self.config.tile_size)
+        tx, ty = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
         r = self.radius
         return {(tx + i, ty + j) for i in range(-r, r + 1) for j in range(-r, r + 1)}
 
@@ -508,6 +542,11 @@ class AgentBrain:
 
     def step(self, now: float, now_wall: float) -> Decision:
         """One control step: the wheel speeds to send now, (0, 0) whenever unsure."""
+        decision = self._decide(now, now_wall)
+        self.velocity = decision.velocity
+        return decision
+
+    def _decide(self, now: float, now_wall: float) -> Decision:
         self.counters.steps += 1
         self._rates = (
             self._step_rate.add(now, self.counters.steps),
@@ -568,7 +607,7 @@ class AgentBrain:
         if result.mass > 0.0:
             self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.mass)
             self.radius = tile_radius(
-                self.reach, self.config.tile_size, self.radius, self.config.max_tile_radius
+                self.reach, self.tile_size, self.radius, self.config.max_tile_radius
             )
         else:
             self.reach = None
@@ -624,33 +663,46 @@ class AgentBrain:
             "candidates": len(self._fresh),
             "local_set": self._local,
             "neighbors": len(self.one_hop),
-            "pose_subs": len(self._wanted),
+            "state_subs": len(self._wanted),
             "tile_radius": self.radius,
         }
 
-    def agent_state(self, stamp: float) -> protocol.AgentState | None:
-        """Our AgentState, or None before our own pose is known."""
+    def agent_state(self, stamp: float, stats: bool = True) -> protocol.AgentState | None:
+        """Our AgentState (with our stats if ``stats``), or None before our own pose is known."""
         if self.pose is None:
             return None
+        # The position dead-reckoned from the pose's stamp to the state's (same robot-side
+        # clock on one machine; bounded, in case of skew across machines).
+        # The control velocity is unbounded (a fast domain) and the wire's is not: clamped.
+        vx, vy = (min(max(v, -protocol.MAX_SPEED), protocol.MAX_SPEED) for v in self.velocity)
+        lead = min(max(stamp - self.pose.stamp, 0.0), DEAD_RECKONING_LIMIT)
         return protocol.AgentState(
             id=self.id,
-            x=self.pose.x,
-            y=self.pose.y,
+            x=min(max(self.pose.x + lead * vx, -protocol.MAX_COORD), protocol.MAX_COORD),
+            y=min(max(self.pose.y + lead * vy, -protocol.MAX_COORD), protocol.MAX_COORD),
             stamp=stamp,
             neighbors=sorted(self.one_hop),
-            stats=self.stats(),
+            stats=self.stats() if stats else None,
+            vx=vx,
+            vy=vy,
         )
 
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
         """(tile, Beacon) if one is due at ``now`` (every ``beacon_period``), else None.
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
-        kept alive in the others' diagrams by its brain.
+        kept alive in the others' diagrams by its brain; and before the domain gives the
+        swarm's tile size.
         """
-        if not self.pose_fresh(now) or now - self._last_beacon < self.config.beacon_period:
+        tile_size = self.tile_size
+        if (
+            tile_size is None
+            or not self.pose_fresh(now)
+            or now - self._last_beacon < self.config.beacon_period
+        ):
             return None
         self._last_beacon = now
-        tile = protocol.tile_of(self.pose.x, self.pose.y, self.config.tile_size)
+        tile = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
         return tile, protocol.Beacon(id=self.id, x=self.pose.x, y=self.pose.y, stamp=stamp)
 
 
@@ -660,12 +712,59 @@ _MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
     "beacon": protocol.Beacon,
     "domain": protocol.Domain,
 }
+# Decoded messages are immutable and a function of their bytes alone, so the brains of one
+# process (covswarm agent --ids) share the decoding: each still receives every sample
+# through its own subscriptions, but a pose that five of them follow, or the domain that
+# all of them follow, is parsed and validated once. Sized for a tick's worth of distinct
+# payloads of a 100-brain process.
+DECODE_CACHE = 4096
+
+
+def decode(kind: str, payload: object) -> protocol.Message:
+    """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
+    if type(payload) is bytes:
+        return _decode_bytes(kind, payload)
+    return _MESSAGE_TYPES[kind].decode(payload)
+
+
+@lru_cache(maxsize=DECODE_CACHE)
+def _decode_bytes(kind: str, payload: bytes) -> protocol.Message:
+    return _MESSAGE_TYPES[kind].decode(payload)
+
+
+_geometry_of: tuple[protocol.Domain, Density | None] | None = None
+
+
+def _domain_geometry(domain: protocol.Domain) -> Density | None:
+    """Check the domain's polygon and parse its density; ValueError if either is invalid.
+
+    The last valid domain is remembered: the brains of a process receive the same decoded
+    Domain object (see decode), and the polygon check costs more than the decoding.
+    """
+    global _geometry_of
+    if _geometry_of is not None and _geometry_of[0] is domain:
+        return _geometry_of[1]
+    validate_polygon(np.array(domain.vertices))
+    density = None if domain.density is None else Density.from_dict(domain.density)
+    _geometry_of = (domain, density)
+    return density
+
+
 _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
     "pose": AgentBrain.on_pose,
     "state": AgentBrain.on_agent_state,
     "beacon": AgentBrain.on_beacon,
     "domain": AgentBrain.on_domain,
 }
+
+
+def _linger(since: dict[int, float], current: Iterable[int], now: float, linger: float) -> set[int]:
+    """``current`` plus the ids that were in it (``since``: id -> last seen) within ``linger``."""
+    for rid in current:
+        since[rid] = now
+    for rid in [r for r, t in since.items() if now - t > linger]:
+        del since[rid]
+    return set(since)
 
 
 def sampled_gain(kappa: float, period: float) -> float:
@@ -690,67 +789,121 @@ class Inbox:
     subscribers each exhaust the kernel's threads) and no GIL taken on Zenoh's threads. A
     newer payload on a key replaces an unprocessed older one (latest-value semantics; the
     replaced ones are counted as coalesced).
+
+    A source subscribed to one key (``wildcard=False``) needs no key handling at all: its
+    newest sample is the key's, and the id in its key is known when subscribing. A
+    wildcard source (a beacon tile) holds many keys, each parsed once with ``parse``.
     """
 
-    def __init__(self) -> None:
-        self._sources: dict[int, tuple[str, RingSource]] = {}
+    def __init__(self, parse: Callable[[str, str], int] | None = None) -> None:
+        self._sources: dict[int, tuple[str, RingSource, int | None, bool]] = {}
+        self._parse = parse
+        self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
 
-    def add(self, kind: str, source: RingSource) -> None:
-        """Poll ``source`` (anything with ``try_recv() -> Sample | None``) as ``kind``."""
-        self._sources[id(source)] = (kind, source)
+    def add(
+        self, kind: str, source: RingSource, key_id: int | None = None, wildcard: bool = False
+    ) -> None:
+        """Poll ``source`` (anything with ``try_recv() -> Sample | None``) as ``kind``;
+        ``key_id``: the id in its one key (None for the domain)."""
+        self._sources[id(source)] = (kind, source, key_id, wildcard)
 
     def remove(self, source: RingSource) -> None:
         self._sources.pop(id(source), None)
 
-    def subscribe(self, session: zenoh.Session, key: str, kind: str, capacity: int):
+    def subscribe(
+        self,
+        session: zenoh.Session,
+        key: str,
+        kind: str,
+        capacity: int,
+        key_id: int | None = None,
+        wildcard: bool = False,
+    ) -> zenoh.Subscriber:
         """Declare a ring-channel subscriber on ``key`` and poll it as ``kind``."""
         subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
-        self.add(kind, subscriber)
+        self.add(kind, subscriber, key_id, wildcard)
         return subscriber
 
-    def drain(self) -> tuple[list[tuple[str, str, bytes]], int]:
-        """([(kind, key, payload)], payloads coalesced since the last drain)."""
-        latest: dict[str, tuple[str, bytes]] = {}
-        coalesced = 0
-        for kind, source in self._sources.values():
+    def drain(self) -> tuple[list[InboxItem], int, int]:
+        """([(kind, key id, payload)], payloads coalesced, samples on malformed keys)."""
+        out: list[InboxItem] = []
+        coalesced = malformed = 0
+        for kind, source, key_id, wildcard in self._sources.values():
+            if not wildcard:
+                last = None
+                while (sample := source.try_recv()) is not None:
+                    coalesced += last is not None
+                    last = sample
+                if last is not None:
+                    out.append((kind, key_id, last.payload.to_bytes()))
+                continue
+            latest: dict[str, bytes] = {}
             while (sample := source.try_recv()) is not None:
                 key = str(sample.key_expr)
                 coalesced += key in latest
-                latest[key] = (kind, sample.payload.to_bytes())
-        return [(kind, key, payload) for key, (kind, payload) in latest.items()], coalesced
+                latest[key] = sample.payload.to_bytes()
+            for key, payload in latest.items():
+                if (rid := self._key_id(kind, key)) is None:
+                    malformed += 1
+                else:
+                    out.append((kind, rid, payload))
+        return out, coalesced, malformed
+
+    def _key_id(self, kind: str, key: str) -> int | None:
+        if key not in self._ids:
+            if len(self._ids) >= DECODE_CACHE:  # bounded: tiles see robots come and go
+                self._ids.clear()
+            try:
+                self._ids[key] = None if self._parse is None else self._parse(key, kind)
+            except ValueError:
+                self._ids[key] = None
+        return self._ids[key]
 
 
 class Subscriptions:
-    """A set of per-key subscribers of one kind, reconciled with a wanted set of keys.
+    """Per-key subscribers of one kind, reconciled with a wanted set of ids (or tiles).
 
     capacity: samples each ring keeps between ticks (newest first): a pose key gets two
-    per 10 Hz tick, a beacon tile one per robot in it per second.
+    per 10 Hz tick, a beacon tile one per robot in it per second. ``key_of`` builds the key
+    of an id; keys are only built, and subscribers only declared, for what changed.
     """
 
-    def __init__(self, session: zenoh.Session, inbox: Inbox, kind: str, capacity: int) -> None:
+    def __init__(
+        self,
+        session: zenoh.Session,
+        inbox: Inbox,
+        kind: str,
+        capacity: int,
+        key_of: Callable[[Any], str],
+        wildcard: bool = False,
+    ) -> None:
         self._session = session
         self._inbox = inbox
         self._kind = kind
         self._capacity = capacity
-        self._subscribers: dict[str, zenoh.Subscriber] = {}
+        self._key_of = key_of
+        self._wildcard = wildcard
+        self._subscribers: dict[Any, zenoh.Subscriber] = {}
 
-    def update(self, keys: set[str]) -> None:
-        for key in self._subscribers.keys() - keys:
-            subscriber = self._subscribers.pop(key)
+    def update(self, wanted: set[Any]) -> None:
+        if wanted == self._subscribers.keys():
+            return  # the usual tick: nothing changed
+        for item in self._subscribers.keys() - wanted:
+            subscriber = self._subscribers.pop(item)
             self._inbox.remove(subscriber)
             subscriber.undeclare()
-        for key in keys - self._subscribers.keys():
-            self._subscribers[key] = self._inbox.subscribe(
-                self._session, key, self._kind, self._capacity
+        for item in wanted - self._subscribers.keys():
+            self._subscribers[item] = self._inbox.subscribe(
+                self._session,
+                self._key_of(item),
+                self._kind,
+                self._capacity,
+                None if self._wildcard else item,
+                self._wildcard,
             )
 
     def __len__(self) -> int:
         return len(self._subscribers)
-
-
-def _key_id(kind: str, key: str, swarm: str) -> int | None:
-    """The robot id encoded in the key a payload arrived on (None for the domain)."""
-    return None if kind == "domain" else protocol.parse_id(key, swarm, kind)
 
 
 class AgentLink:
@@ -758,7 +911,7 @@ class AgentLink:
 
     def __init__(self, session: zenoh.Session, swarm: str, brain: AgentBrain) -> None:
         self.session, self.swarm, self.brain = session, swarm, brain
-        self.inbox = Inbox()
+        self.inbox = Inbox(lambda key, kind: protocol.parse_id(key, swarm, kind))
         drop = zenoh.CongestionControl.DROP
         self.cmd_pub = session.declare_publisher(
             protocol.cmd_key(swarm, brain.id), congestion_control=drop
@@ -767,19 +920,30 @@ class AgentLink:
             protocol.agent_state_key(swarm, brain.id), congestion_control=drop
         )
         self.inbox.subscribe(session, protocol.domain_key(swarm), "domain", RING_PER_KEY)
-        self.own_pose = protocol.pose_key(swarm, brain.id)
-        self.poses = Subscriptions(session, self.inbox, "pose", RING_PER_KEY)
-        self.states = Subscriptions(session, self.inbox, "state", RING_PER_KEY)
-        self.tiles = Subscriptions(session, self.inbox, "beacon", RING_PER_TILE)
-        self.poses.update({self.own_pose})
+        self.inbox.subscribe(
+            session, protocol.pose_key(swarm, brain.id), "pose", RING_PER_KEY, brain.id
+        )
+        self.states = Subscriptions(
+            session, self.inbox, "state", RING_PER_KEY, lambda r: protocol.agent_state_key(swarm, r)
+        )
+        self.tiles = Subscriptions(
+            session,
+            self.inbox,
+            "beacon",
+            RING_PER_TILE,
+            lambda tile: protocol.beacon_tile_selector(swarm, *tile),
+            wildcard=True,
+        )
+        self._next_stats = -math.inf
         # Token changes of every agent and robot: rare events (one sample per process that
         # starts or dies), and they let a dead teammate leave the diagram at once instead of
-        # after the staleness timeouts. No history: only changes from now on matter.
-        self.liveliness: deque[tuple[str, bool]] = deque()  # appended on Zenoh's thread
-        delete = zenoh.SampleKind.DELETE
-        self._liveliness_sub = session.liveliness().declare_subscriber(
-            protocol.alive_selector(swarm),
-            lambda sample: self.liveliness.append((str(sample.key_expr), sample.kind != delete)),
+        # after the staleness timeouts. No history: only changes from now on matter. Polled
+        # like the data: a Python callback would get a thread of its own, and those threads
+        # (one per brain) take the GIL from the main loop whenever a put releases it: puts
+        # then took 0.4 ms on average, 5 to 15 ms at p99 (the GIL switch interval).
+        self._delete = zenoh.SampleKind.DELETE
+        self._liveliness = session.liveliness().declare_subscriber(
+            protocol.alive_selector(swarm), zenoh.handlers.RingChannel(LIVELINESS_RING)
         )
         config = brain.config
         self.impairment = (
@@ -794,34 +958,35 @@ class AgentLink:
 
     def receive(self, now: float, wall: float) -> None:
         """Hand everything that arrived since the last tick to the brain."""
-        items, coalesced = self.inbox.drain()
+        items, coalesced, malformed = self.inbox.drain()
         self.brain.counters.coalesced += coalesced
+        for _ in range(malformed):
+            self.brain.drops.drop("wrong_id", "a beacon on a malformed key")
         if self.impairment is not None:
             items = self.impairment.filter(items, now)
-        for kind, key, payload in items:
-            try:
-                key_id = _key_id(kind, key, self.swarm)
-            except ValueError as exc:
-                self.brain.drops.drop("wrong_id", str(exc))
-                continue
+        for kind, key_id, payload in items:
             self.brain.receive(kind, payload, now, wall, key_id)
         # After the data: a last message from a process that has just died must not revive it.
-        while self.liveliness:
-            key, alive = self.liveliness.popleft()
+        while (sample := self._liveliness.try_recv()) is not None:
             try:
-                role, rid = protocol.parse_alive_key(key, self.swarm)
+                role, rid = protocol.parse_alive_key(str(sample.key_expr), self.swarm)
             except ValueError:
                 continue  # not a key of ours; nothing to count it against
-            self.brain.on_liveliness(role, rid, alive)
+            self.brain.on_liveliness(role, rid, sample.kind != self._delete)
 
     def send_command(self, decision: Decision, wall: float) -> None:
         self.cmd_pub.put(self.brain.command(decision, wall).encode())
 
     def publish(self, now: float, wall: float) -> None:
-        """AgentState every tick while our own pose is fresh, a beacon when due."""
-        state = self.brain.agent_state(wall)
-        if state is not None and self.brain.pose_fresh(now):
-            self.state_pub.put(state.encode())
+        """AgentState every tick while our own pose is fresh (with the stats every
+        STATS_PERIOD), a beacon when due."""
+        if self.brain.pose_fresh(now):
+            with_stats = now >= self._next_stats
+            state = self.brain.agent_state(wall, stats=with_stats)
+            if state is not None:
+                self.state_pub.put(state.encode())
+                if with_stats:
+                    self._next_stats = now + STATS_PERIOD
         beacon = self.brain.beacon(now, wall)
         if beacon is not None:
             (tx, ty), message = beacon
@@ -830,14 +995,9 @@ class AgentLink:
 
     def resubscribe(self, now: float) -> None:
         """Follow the brain's two-hop set and beacon tiles (only differences are declared)."""
-        swarm, brain = self.swarm, self.brain
-        self.poses.update(
-            {protocol.pose_key(swarm, r) for r in brain.wanted_pose_ids(now)} | {self.own_pose}
-        )
-        self.states.update({protocol.agent_state_key(swarm, r) for r in brain.wanted_state_ids()})
-        self.tiles.update(
-            {protocol.beacon_tile_selector(swarm, tx, ty) for tx, ty in brain.wanted_tiles()}
-        )
+        brain = self.brain
+        self.states.update(brain.wanted_state_ids(now))
+        self.tiles.update(brain.wanted_tiles())
 
 
 def run_agents(
@@ -923,9 +1083,6 @@ def run_agents(
 @click.option("--stale-timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
 @click.option("--beacon-period", type=click.FloatRange(min=0.05), default=1.0, show_default=True)
 @click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=3.0, show_default=True)
-@click.option(
-    "--tile-size", type=click.FloatRange(min=0.0, min_open=True), default=1.0, show_default=True
-)
 @click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
 @click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
 @click.option("--linger", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
@@ -966,7 +1123,6 @@ def agent_command(
     stale_timeout: float,
     beacon_period: float,
     beacon_timeout: float,
-    tile_size: float,
     max_tile_radius: int,
     max_extrapolation: float,
     linger: float,
@@ -992,7 +1148,6 @@ def agent_command(
         stale_timeout=stale_timeout,
         beacon_period=beacon_period,
         beacon_timeout=beacon_timeout,
-        tile_size=tile_size,
         max_tile_radius=max_tile_radius,
         max_extrapolation=max_extrapolation,
         linger=linger,

@@ -47,8 +47,25 @@ log = logging.getLogger("covswarm.coordinator")
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
 STATUS_PERIOD = 0.5  # s
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
-# e_a costs ~30 ms for 100 robots: never spend more than about a third of the time on it.
-SAMPLE_BUDGET = 3.0
+# Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
+# ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
+SAMPLE_SHARE = 0.05
+# Beacon tile side, in units of the mean spacing of the team in S(0): a converged cell's
+# reach (agent.runtime.cell_reach) is about twice the spacing, so an agent's 3 x 3 tiles
+# hold the ~36 robots around it whatever the team's size and density.
+TILE_SPACINGS = 3.0
+
+
+def swarm_tile_size(scenario: Scenario, agents: int) -> float:
+    """The beacon tile size of a run: TILE_SPACINGS x the team's mean spacing in S(0).
+
+    Chosen once per run by the coordinator and broadcast in every Domain: every agent of a
+    swarm must use the same tiles (protocol.Domain.tile_size).
+    """
+    vertices, _ = scenario.domain(0.0)
+    x, y = np.asarray(vertices, dtype=float).T
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    return round(TILE_SPACINGS * math.sqrt(area / agents), 3)
 
 
 @dataclass(frozen=True)
@@ -64,6 +81,7 @@ class Settings:
     sample_rate: float  # Hz of e_a samples (at most)
     feedforward: bool  # what the agents were started with, recorded in the summary
     time_scale: float = 1.0  # mission s per wall s (protocol.session.scaled)
+    tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
 
 
 @dataclass
@@ -136,11 +154,14 @@ class Coordinator:
         self._domain = session.declare_publisher(domain_key(swarm))
         self._status = session.declare_publisher(status_key(swarm))
         self._seq = 0
+        # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
+        # only the ones present when e_a is sampled are ever read.
+        self._pose_payloads: dict[str, bytes] = {}
 
     # -- inputs ---------------------------------------------------------------------------
 
     def _drain(self, now: float) -> None:
-        from protocol import AgentState, Pose, ProtocolError, parse_alive_key
+        from protocol import AgentState, ProtocolError, parse_alive_key
 
         obs, swarm = self.observed, self.settings.swarm
         t = self.clock.mission_time(now) if self.clock.state != WAITING else None
@@ -167,17 +188,30 @@ class Coordinator:
             log.warning(
                 "team changed at t = %.1f s: lost %s, joined %s", t, change.lost, change.joined
             )
-        for subscriber, kind in ((self._poses, Pose), (self._states, AgentState)):
-            while (sample := subscriber.try_recv()) is not None:
-                try:
-                    message = kind.decode(sample.payload)
-                except ProtocolError:
-                    obs.rejected += 1
-                    continue
-                if kind is Pose:
-                    obs.poses[message.id] = (message.x, message.y)
-                else:
-                    obs.agent_stats[message.id] = dict(message.stats)
+        while (sample := self._poses.try_recv()) is not None:
+            self._pose_payloads[str(sample.key_expr)] = sample.payload.to_bytes()
+        while (sample := self._states.try_recv()) is not None:
+            try:
+                state = AgentState.decode(sample.payload.to_bytes())
+            except ProtocolError:
+                obs.rejected += 1
+                continue
+            if state.stats is not None:  # agents attach them about once a second
+                obs.agent_stats[state.id] = dict(state.stats)
+
+    def _decode_poses(self) -> None:
+        """Decode the newest pose of every robot heard from since the last call."""
+        from protocol import Pose, ProtocolError
+
+        obs = self.observed
+        for payload in self._pose_payloads.values():
+            try:
+                pose = Pose.decode(payload)
+            except ProtocolError:
+                obs.rejected += 1
+                continue
+            obs.poses[pose.id] = (pose.x, pose.y)
+        self._pose_payloads.clear()
 
     def team_ready(self) -> bool:
         live = self.observed.liveness
@@ -186,6 +220,7 @@ class Coordinator:
 
     def alive_positions(self) -> dict[int, tuple[float, float]]:
         """Latest pose of every team member (robot and agent both hold their token)."""
+        self._decode_poses()
         team = team_of(self.observed.liveness.alive)
         return {i: xy for i, xy in self.observed.poses.items() if i in team}
 
@@ -209,6 +244,7 @@ class Coordinator:
                 velocities=velocities,
                 kappa=self.settings.kappa,
                 density=None if density is None else density.to_dict(),
+                tile_size=self.settings.tile_size,
             ).encode()
         )
         self._seq += 1
@@ -279,10 +315,10 @@ class Coordinator:
                 self._sample(t, polygon)
                 cost = time.monotonic() - began
                 # Sample less often while e_a is expensive (big team, overloaded machine),
-                # so the Domain broadcasts keep their rate; back to normal once it is cheap.
+                # so that it takes at most SAMPLE_SHARE of a core; back to normal once cheap.
                 ticks_to_sample = max(
                     every,
-                    math.ceil(SAMPLE_BUDGET * cost * self.settings.rate * self.settings.time_scale),
+                    math.ceil(cost / SAMPLE_SHARE * self.settings.rate * self.settings.time_scale),
                 )
             if state == DONE and done_since is None:
                 done_since = now
@@ -327,6 +363,7 @@ def build_summary(settings: Settings, observed: Observed) -> dict[str, Any]:
         "team_changes": team_changes_summary(observed.team_changes, record),
         "agent_stats": agent_figures(observed.agent_stats),
         "rejected_messages": observed.rejected,
+        "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
     }
 
@@ -396,6 +433,12 @@ def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> 
 )
 @click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
 @click.option(
+    "--tile-size",
+    type=click.FloatRange(min=0, min_open=True),
+    help=f"Beacon tile side broadcast to every agent, m [{TILE_SPACINGS:g} x the team's mean "
+    "spacing in S(0)].",
+)
+@click.option(
     "--feedforward/--no-feedforward",
     default=True,
     help="How the agents run (recorded in summary.json).",
@@ -423,6 +466,7 @@ def coordinator_command(
     rate: float,
     sample_rate: float,
     kappa: float | None,
+    tile_size: float | None,
     feedforward: bool,
     out_dir: Path,
     resume: bool,
@@ -441,16 +485,18 @@ def coordinator_command(
         check_swarm(swarm)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
+    team = scenario.agents if agents is None else agents
     settings = Settings(
         scenario=scenario,
         swarm=swarm,
-        agents=scenario.agents if agents is None else agents,
+        agents=team,
         duration=scenario.duration if duration is None else duration,
         kappa=scenario.kappa if kappa is None else kappa,
         rate=rate,
         sample_rate=sample_rate,
         feedforward=feedforward,
         time_scale=time_scale,
+        tile_size=swarm_tile_size(scenario, team) if tile_size is None else tile_size,
     )
     resume_wall = read_mission_start(out_dir / MISSION_FILE, swarm) if resume else None
     stop = StopFlag()

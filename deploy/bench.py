@@ -9,10 +9,11 @@ only its two-hop neighbourhood. This benchmark measures it in this implementatio
    density (``bench_density``: quadrature instead of closed forms);
 2. the centralised baseline: full-team ``tvd_c`` and ``tvd_d1`` per step vs N;
 3. the neighbour-count histogram vs N (the paper's Table 1 at N = 100);
-4. with ``--live``: real distributed runs (``covswarm run``, one process per robot and per
-   agent over Zenoh) for N in LIVE_SIZES, reporting what the agents measure on the wire
-   (compute per step, messages received, pose-to-command latency, control rate held,
-   missed deadlines) and the memory per process (rows with layout "live").
+4. with ``--live``: real distributed runs (``covswarm run`` over Zenoh, LIVE_PER_PROCESS
+   brains per agent process and robots per robot process by default) for N in LIVE_SIZES,
+   reporting what the agents measure on the wire (compute per step, messages received,
+   pose-to-command latency, control rate held, missed deadlines) and the memory per
+   process (rows with layout "live", which record the launch settings).
 
 The domain is a square whose side grows as sqrt(N) (constant density), so N changes and the
 local geometry does not. Timings are wall-clock on this machine, reported, never asserted.
@@ -28,6 +29,7 @@ import csv
 import json
 import time
 from collections import Counter
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -44,6 +46,11 @@ QUICK_SIZES = (10, 30, 100, 300)
 SPACING = 0.5  # metres between robots on average: side = SPACING * sqrt(N)
 LIVE_SIZES = (10, 25, 50, 100)
 LIVE_RATE = 10.0  # Hz asked of every agent in the live runs
+# Brains (robots) per agent (robot) process in the live runs: on a 2-core machine the
+# per-process cost (interpreter, imports, a Zenoh session and its threads, one more
+# client for the router to serve) is what a team of 100 cannot afford 100 times
+# (docs/scaling.md); a team smaller than this runs in one agent and one robot process.
+LIVE_PER_PROCESS = 20
 
 
 @dataclass(frozen=True)
@@ -172,12 +179,20 @@ def run_bench(
     return rows
 
 
-def live_row(run_dir: Path, n: int, rate: float, wall_s: float) -> dict:
+def live_row(
+    run_dir: Path,
+    n: int,
+    rate: float,
+    wall_s: float,
+    per_process: int = 1,
+    time_scale: float = 1.0,
+) -> dict:
     """One "live" bench row from a ``covswarm run`` output folder (summary + resources).
 
     Agent figures are over the team's latest AgentState stats: compute and latency p50 are
     team means of each agent's p50, p99 team means and maxima of each agent's p99. Memory is
     per robot and per agent (a process's RSS split over the robots or brains it hosts).
+    ``per_process`` and ``time_scale`` are the launch settings, recorded in the row.
     """
     summary = json.loads((run_dir / "summary.json").read_text(encoding="utf-8"))
     resources = json.loads((run_dir / "resources.json").read_text(encoding="utf-8"))
@@ -196,6 +211,9 @@ def live_row(run_dir: Path, n: int, rate: float, wall_s: float) -> dict:
         "layout": "live",
         "mission_s": summary["mission_time"],
         "wall_s": round(wall_s, 1),
+        "agents_per_process": per_process,
+        "time_scale": time_scale,
+        "tile_size": summary.get("tile_size"),
         "initial_error": summary["initial_error"],
         "final_error": summary["final_error"],
         "live_step_p50_us": stat("step_us_p50"),
@@ -219,10 +237,17 @@ def live_row(run_dir: Path, n: int, rate: float, wall_s: float) -> dict:
 
 
 def run_live(
-    sizes: tuple[int, ...], duration: float, out: Path, extra: tuple[str, ...] = (), progress=None
+    sizes: tuple[int, ...],
+    duration: float,
+    out: Path,
+    per_process: int = LIVE_PER_PROCESS,
+    time_scale: float = 1.0,
+    progress: Callable[[int, int], None] | None = None,
 ) -> list[dict]:
     """One short ``covswarm run`` (circle scenario) per N, in turn; a "live" row for each.
 
+    ``per_process`` brains per agent process and robots per robot process, ``time_scale``
+    mission seconds per wall second (covswarm run's --agents-per-process, --time-scale).
     A run that fails is reported (its folder keeps the logs) and left out of the rows.
     """
     import subprocess
@@ -234,13 +259,16 @@ def run_live(
         run_dir = out / f"live-{n}"
         argv = [
             *covswarm_argv(), "run", "--scenario", "circle", "--agents", str(n), "--duration",
-            repr(duration), "--rate", repr(LIVE_RATE), "--out", str(run_dir), *extra,
+            repr(duration), "--rate", repr(LIVE_RATE), "--out", str(run_dir),
+            "--agents-per-process", str(per_process), "--time-scale", repr(time_scale),
         ]  # fmt: skip
         began = time.monotonic()
         with open(out / f"live-{n}.log", "wb") as log:
             code = subprocess.run(argv, stdout=log, stderr=subprocess.STDOUT).returncode
         if code == 0 and (run_dir / "summary.json").exists():
-            rows.append(live_row(run_dir, n, LIVE_RATE, time.monotonic() - began))
+            rows.append(
+                live_row(run_dir, n, LIVE_RATE, time.monotonic() - began, per_process, time_scale)
+            )
         if progress is not None:
             progress(n, code)
     return rows
@@ -320,7 +348,8 @@ def live_table(rows: list[dict]) -> Any:
 
     table = Table(title=f"covswarm bench --live: real runs, agents asked {LIVE_RATE:g} Hz")
     columns = (
-        ("N", "agents", "{:d}"), ("step p50 us", "live_step_p50_us", "{:.0f}"),
+        ("N", "agents", "{:d}"), ("K", "agents_per_process", "{:d}"),
+        ("scale", "time_scale", "{:g}"), ("step p50 us", "live_step_p50_us", "{:.0f}"),
         ("step p99 us", "live_step_p99_us", "{:.0f}"), ("rx/s", "rx_per_agent_per_s", "{:.0f}"),
         ("pose->cmd p50 ms", "pose_to_cmd_p50_ms", "{:.1f}"),
         ("pose->cmd p99 ms", "pose_to_cmd_p99_ms", "{:.1f}"),
@@ -360,6 +389,20 @@ def live_table(rows: list[dict]) -> Any:
     show_default=True,
     help="Mission length of each live run, s.",
 )
+@click.option(
+    "--live-per-process",
+    type=click.IntRange(min=1),
+    default=LIVE_PER_PROCESS,
+    show_default=True,
+    help="Brains per agent process and robots per robot process in the live runs.",
+)
+@click.option(
+    "--live-time-scale",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Mission seconds per wall second in the live runs (covswarm run --time-scale).",
+)
 def bench_command(
     quick: bool,
     sizes: str | None,
@@ -370,6 +413,8 @@ def bench_command(
     live: bool,
     live_sizes: str,
     live_duration: float,
+    live_per_process: int,
+    live_time_scale: float,
 ) -> None:
     """Measure per-agent compute vs team size against the centralised baseline (and, with
     --live, what real distributed runs achieve)."""
@@ -399,6 +444,8 @@ def bench_command(
             tuple(int(s) for s in live_sizes.split(",")),
             live_duration,
             out,
+            live_per_process,
+            live_time_scale,
             progress=lambda n, code: Console().log(
                 f"live run N={n}: " + ("done" if code == 0 else f"[red]failed ({code})")
             ),

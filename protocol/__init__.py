@@ -36,7 +36,10 @@ from protocol.keys import (
     tile_of,
 )
 from protocol.messages import (
+    DEFAULT_TILE_SIZE,
+    MAX_COORD,
     MAX_PAYLOAD,
+    MAX_SPEED,
     MAX_VERTICES,
     REASONS,
     SCHEMA_VERSION,
@@ -52,8 +55,11 @@ from protocol.messages import (
 )
 
 __all__ = [
+    "DEFAULT_TILE_SIZE",
+    "MAX_COORD",
     "MAX_ID",
     "MAX_PAYLOAD",
+    "MAX_SPEED",
     "MAX_VERTICES",
     "PREFIX",
     "REASONS",

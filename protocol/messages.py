@@ -9,7 +9,8 @@ fields rejected** (a new field means a new SCHEMA_VERSION; silently ignoring one
 a version mismatch between processes; the one exception is an optional field, listed in
 ``_OPTIONAL``, which is left out of the payload when None and reads back as None when absent:
 Domain's ``density`` joined version 1 that way, so uniform missions send the same bytes as
-before and a peer that does not know densities refuses a Domain carrying one), exact types
+before and a peer that does not know densities refuses a Domain carrying one; Domain's
+``tile_size`` and AgentState's ``stats``, sent once a second, work the same way), exact types
 (bool is not a number), finite numbers, ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES
 and magnitudes within sane bounds. Ints are accepted where floats are expected (other
 languages' encoders drop ``.0``). Geometry (convexity) is not checked here: that is
@@ -21,7 +22,7 @@ from __future__ import annotations
 import math
 import numbers
 from collections.abc import Callable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
 
 import msgpack
@@ -36,6 +37,7 @@ MAX_NEIGHBORS = 256
 MAX_STATS = 32
 MAX_STAT_NAME = 32
 MAX_COORD = 1.0e4  # m: positions and vertices
+MAX_SPEED = 1.0e2  # m/s: velocities an agent reports
 MAX_ANGLE = 1.0e4  # rad: headings need not be wrapped, but must be bounded
 MAX_WHEEL_SPEED = 10.0  # m/s on the wire; the robot clamps to its own, lower limit
 MAX_VERTEX_SPEED = 1.0e3  # m/s
@@ -47,6 +49,8 @@ MAX_STAT = 1.0e15
 STATES = ("waiting", "running", "done")
 MAX_BUMPS = 16  # density bumps in a Domain (agent.density.MAX_BUMPS)
 MAX_DENSITY = 1.0e6  # bound on every number of a density (floor, weights, moments, rates)
+MAX_TILE_SIZE = 1.0e3  # m
+DEFAULT_TILE_SIZE = 1.0  # m: beacon tiles of a swarm whose Domain does not say
 
 
 # Short codes of ProtocolError.reason, so receivers can count drops per reason.
@@ -71,7 +75,15 @@ def _real(lo: float, hi: float) -> Checker:
     """A finite number in [lo, hi], returned as float."""
 
     def check(value: Any, name: str) -> float:
-        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        # Every field of every message goes through here: plain floats and ints take one
+        # type test and one chained comparison (NaN and inf fail it and are sorted out
+        # below); the ABC test (numpy scalars on the sending side) only runs for others.
+        kind = type(value)
+        if kind is float or kind is int:
+            out = float(value)
+            if lo <= out <= hi:
+                return out
+        elif isinstance(value, bool) or not isinstance(value, numbers.Real):
             raise ProtocolError(f"{name}: expected a number, got {type(value).__name__}")
         out = float(value)
         if not math.isfinite(out):
@@ -100,9 +112,12 @@ def _int(lo: int, hi: int) -> Checker:
     """An int in [lo, hi] (numpy integers accepted on the sending side)."""
 
     def check(value: Any, name: str) -> int:
-        if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        if type(value) is int:  # the common case, without the ABC test (see _real)
+            out = value
+        elif isinstance(value, bool) or not isinstance(value, numbers.Integral):
             raise ProtocolError(f"{name}: expected an int, got {type(value).__name__}")
-        out = int(value)
+        else:
+            out = int(value)
         if not lo <= out <= hi:
             raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
         return out
@@ -234,17 +249,18 @@ class Message:
         # Canonicalise every field (float/int/tuple) so equal messages compare equal.
         for name, check in self._SPEC.items():
             object.__setattr__(self, name, check(getattr(self, name), name))
+        self._check_fields()
+
+    def _check_fields(self) -> None:
+        """Checks across fields, after each field passed its own (override to add some)."""
 
     def encode(self) -> bytes:
         """msgpack bytes of this message, with the schema version."""
-        wire = {"v": SCHEMA_VERSION}
-        wire.update(
-            {
-                f.name: getattr(self, f.name)
-                for f in fields(self)  # type: ignore[arg-type]
-                if f.name not in self._OPTIONAL or getattr(self, f.name) is not None
-            }
-        )
+        wire: dict[str, Any] = {"v": SCHEMA_VERSION}
+        for name in self._SPEC:
+            value = getattr(self, name)
+            if value is not None or name not in self._OPTIONAL:
+                wire[name] = value
         return msgpack.packb(wire, use_bin_type=True)
 
     @classmethod
@@ -261,13 +277,23 @@ class Message:
                 f"{cls.__name__}: schema version {version!r}, expected {SCHEMA_VERSION}",
                 "version",
             )
-        missing = [name for name in cls._SPEC if name not in raw and name not in cls._OPTIONAL]
-        if missing:
-            raise ProtocolError(f"{cls.__name__}: missing fields {missing}", "schema")
-        unknown = sorted(repr(name) for name in raw if name not in cls._SPEC)
-        if unknown:
-            raise ProtocolError(f"{cls.__name__}: unknown fields {', '.join(unknown)}", "schema")
-        return cls(**raw)
+        spec = cls._SPEC
+        if raw.keys() != spec.keys():  # the common case is one comparison
+            missing = [name for name in spec if name not in raw and name not in cls._OPTIONAL]
+            if missing:
+                raise ProtocolError(f"{cls.__name__}: missing fields {missing}", "schema")
+            unknown = sorted(repr(name) for name in raw if name not in spec)
+            if unknown:
+                raise ProtocolError(
+                    f"{cls.__name__}: unknown fields {', '.join(unknown)}", "schema"
+                )
+        # Built field by field rather than through __init__, which would check every field
+        # a second time in __post_init__: decoding is what every receiver does per message.
+        message = object.__new__(cls)
+        for name, check in spec.items():
+            object.__setattr__(message, name, check(raw.get(name), name))
+        message._check_fields()
+        return message
 
 
 @dataclass(frozen=True, slots=True)
@@ -353,6 +379,11 @@ class Domain(Message):
 
     density: None (uniform) or phi at time ``t`` with its rates, agent.density's
     ``Density.to_dict()`` form; optional on the wire (module notes).
+
+    tile_size: side (m) of the beacon tiles of this swarm (protocol.keys.beacon_key). Every
+    agent must use the same one, or agents on different grids miss each other's beacons,
+    so the coordinator chooses it for the whole swarm and broadcasts it here; optional on
+    the wire, absent means DEFAULT_TILE_SIZE.
     """
 
     seq: int
@@ -363,6 +394,7 @@ class Domain(Message):
     velocities: tuple[tuple[float, float], ...]
     kappa: float
     density: dict[str, Any] | None = None
+    tile_size: float | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "seq": _SEQ,
@@ -373,11 +405,11 @@ class Domain(Message):
         "velocities": _points(3, MAX_VERTICES, MAX_VERTEX_SPEED),
         "kappa": _positive(MAX_KAPPA),
         "density": _optional(_density),
+        "tile_size": _optional(_positive(MAX_TILE_SIZE)),
     }
-    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"density"})
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"density", "tile_size"})
 
-    def __post_init__(self) -> None:
-        Message.__post_init__(self)
+    def _check_fields(self) -> None:
         if len(self.velocities) != len(self.vertices):
             raise ProtocolError(
                 f"Domain: {len(self.velocities)} velocities for {len(self.vertices)} vertices"
@@ -386,14 +418,23 @@ class Domain(Message):
 
 @dataclass(frozen=True, slots=True)
 class AgentState(Message):
-    """Agent -> one-hop neighbours and monitors: position, Voronoi neighbour ids, stats."""
+    """Agent -> neighbours and monitors: position, Voronoi neighbour ids, stats.
+
+    stats: measurements and counters for monitors, optional on the wire: agents send them
+    about once a second rather than in every state, which neighbours decode at the
+    control rate and never read the stats of. vx, vy: the velocity the agent last
+    commanded (m/s, optional, 0 when absent), so that neighbours can dead-reckon the
+    position between states.
+    """
 
     id: int
     x: float
     y: float
     stamp: float
     neighbors: tuple[int, ...]
-    stats: dict[str, float | int]
+    stats: dict[str, float | int] | None = None
+    vx: float | None = None
+    vy: float | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "id": _ID,
@@ -401,8 +442,11 @@ class AgentState(Message):
         "y": _COORD,
         "stamp": _STAMP,
         "neighbors": _ids(MAX_NEIGHBORS),
-        "stats": _stats,
+        "stats": _optional(_stats),
+        "vx": _optional(_real(-MAX_SPEED, MAX_SPEED)),
+        "vy": _optional(_real(-MAX_SPEED, MAX_SPEED)),
     }
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"stats", "vx", "vy"})
 
 
 @dataclass(frozen=True, slots=True)

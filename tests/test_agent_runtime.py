@@ -35,7 +35,11 @@ def pose(rid: int, x: float, y: float, theta: float = 0.0) -> protocol.Pose:
 
 
 def domain(
-    state: str = "running", stamp: float = WALL, vertices: list | None = None, velocity=(0.0, 0.0)
+    state: str = "running",
+    stamp: float = WALL,
+    vertices: list | None = None,
+    velocity=(0.0, 0.0),
+    tile_size: float | None = None,
 ) -> protocol.Domain:
     vertices = SQUARE if vertices is None else vertices
     return protocol.Domain(
@@ -46,6 +50,7 @@ def domain(
         vertices=vertices,
         velocities=[list(velocity)] * len(vertices),
         kappa=1.0,
+        tile_size=tile_size,
     )
 
 
@@ -121,21 +126,47 @@ def test_two_hop_bookkeeping() -> None:
     )
     brain.step(0.1, WALL)
     assert brain.one_hop == {1}
-    assert brain.wanted_state_ids() == {1}
     assert brain.two_hop(0.1) == {1, 7, 9}
-    assert brain.wanted_pose_ids(0.1) == {1, 7, 9}
+    assert brain.wanted_state_ids(0.1) == {1, 7, 9}
     # Robot 1 reports new neighbours: 7 and 9 linger for ``linger`` s, then go.
     brain.on_agent_state(
         protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0], stats={}), now=0.5
     )
-    assert brain.wanted_pose_ids(0.5) == {1, 7, 9}
-    assert brain.wanted_pose_ids(1.2) == {1}
+    assert brain.wanted_state_ids(0.5) == {1, 7, 9}
+    assert brain.wanted_state_ids(1.2) == {1}
     # A stale neighbour list no longer extends the set.
     brain.on_agent_state(
         protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0, 4], stats={}), now=1.3
     )
     assert brain.two_hop(1.4) == {1, 4}
     assert brain.two_hop(3.0) == {1}
+
+
+def test_neighbour_states_are_dead_reckoned() -> None:
+    """A state's position moves on with its reported velocity, for at most the limit."""
+    brain = brain_at(0.5, 1.0)
+    brain.on_agent_state(
+        protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0], vx=0.2, vy=-0.1),
+        now=0.0,
+    )
+    assert brain.candidates(0.1)[1] == pytest.approx([1.52, 0.99])
+    limit = runtime.DEAD_RECKONING_LIMIT
+    assert brain.candidates(0.9)[1] == pytest.approx([1.5 + 0.2 * limit, 1.0 - 0.1 * limit])
+    # A state without a velocity (an older agent) holds its position.
+    brain.on_agent_state(
+        protocol.AgentState(id=2, x=0.5, y=0.5, stamp=WALL, neighbors=[0]), now=0.0
+    )
+    assert brain.candidates(0.1)[2] == pytest.approx([0.5, 0.5])
+
+
+def test_own_state_reports_the_commanded_velocity() -> None:
+    brain = brain_at(0.5, 1.0)
+    brain.on_domain(domain(velocity=(0.1, 0.0)), now=0.0)
+    brain.velocity = (0.3, 500.0)  # beyond what the wire carries: clamped, not refused
+    state = brain.agent_state(WALL + 0.1, stats=False)
+    decoded = protocol.AgentState.decode(state.encode())
+    assert (decoded.vx, decoded.vy) == (0.3, protocol.MAX_SPEED)
+    assert decoded.x == pytest.approx(0.5 + 0.3 * 0.1)  # the pose is 0.1 s older
 
 
 def test_stale_poses_are_dropped() -> None:
@@ -177,7 +208,7 @@ def test_local_view_matches_the_full_team_law() -> None:
     grid = [((i + 0.5) * spacing, (j + 0.5) * spacing) for i in range(side) for j in range(side)]
     points = np.array(grid) + rng.uniform(-0.1, 0.1, (side * side, 2))
     me = 5 * side + 4
-    brain = AgentBrain(me, AgentConfig(tile_size=1.0))
+    brain = AgentBrain(me, AgentConfig())
     brain.on_domain(domain(vertices=square, velocity=(0.05, -0.02)), now=0.0)
     truth = neighbors(points, np.array(square))
     for k in range(5):  # subscriptions converge within a few steps
@@ -187,13 +218,11 @@ def test_local_view_matches_the_full_team_law() -> None:
         for i, (x, y) in enumerate(points):
             if protocol.tile_of(x, y, 1.0) in tiles:
                 brain.on_beacon(protocol.Beacon(id=i, x=x, y=y, stamp=WALL), now)
-        for i in brain.wanted_state_ids():
+        for i in brain.wanted_state_ids(now):
             state = protocol.AgentState(
                 id=i, x=points[i][0], y=points[i][1], stamp=WALL, neighbors=truth[i], stats={}
             )
             brain.on_agent_state(state, now)
-        for i in brain.wanted_pose_ids(now):
-            brain.on_pose(pose(i, *points[i]), now)
         decision = brain.step(now, WALL)
     expected = tvd_d1(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
     assert brain.one_hop == truth[me]
@@ -214,12 +243,24 @@ def test_beacon_candidates_until_pose_arrives() -> None:
 
 
 def test_wanted_tiles_follow_own_position() -> None:
-    brain = AgentBrain(0, AgentConfig(tile_size=1.0))
+    brain = AgentBrain(0, AgentConfig())
     assert brain.wanted_tiles() == set()
     brain.on_pose(pose(0, 0.5, -0.5), now=0.0)
+    assert brain.wanted_tiles() == set()  # the swarm's tile size comes with the domain
+    brain.on_domain(domain(), now=0.0)  # a domain that does not say: the default
     assert brain.wanted_tiles() == {(i, j) for i in (-1, 0, 1) for j in (-2, -1, 0)}
     brain.on_pose(pose(0, 1.5, -0.5), now=0.1)
     assert (2, 0) in brain.wanted_tiles() and (-1, 0) not in brain.wanted_tiles()
+
+
+def test_the_tile_size_is_the_one_the_domain_broadcasts() -> None:
+    brain = brain_at(0.5, -0.5)
+    brain.on_domain(domain(tile_size=0.25), now=0.0)
+    assert brain.wanted_tiles() == {(i, j) for i in (1, 2, 3) for j in (-3, -2, -1)}
+    tile, _ = brain.beacon(0.0, WALL)
+    assert tile == (2, -2)
+    brain.on_domain(domain(stamp=WALL + 1, tile_size=2.0), now=0.1)
+    assert brain.wanted_tiles() == {(i, j) for i in (-1, 0, 1) for j in (-2, -1, 0)}
 
 
 def test_domain_order_and_validation() -> None:
@@ -267,15 +308,19 @@ def test_beacon_period_and_agent_state() -> None:
     brain = AgentBrain(0)
     assert brain.beacon(0.0, WALL) is None and brain.agent_state(WALL) is None
     brain.on_pose(pose(0, 2.5, -0.5), now=0.0)
+    assert brain.beacon(0.0, WALL) is None  # no beacon before the domain gives the tiles
+    brain.on_domain(domain(), now=0.0)
     tile, beacon = brain.beacon(0.0, WALL)
     assert tile == (2, -1) and beacon.id == 0
     assert brain.beacon(0.5, WALL) is None
     assert brain.beacon(1.0, WALL) is not None
-    brain.on_domain(domain(), now=0.0)
     brain.step(0.1, WALL)
     state = brain.agent_state(WALL)
     assert protocol.AgentState.decode(state.encode()) == state
     assert state.stats["step_us_p50"] > 0.0
+    slim = brain.agent_state(WALL, stats=False)
+    assert slim.stats is None and len(slim.encode()) < len(state.encode()) / 4
+    assert protocol.AgentState.decode(slim.encode()) == slim
 
 
 class _Sample:
@@ -299,15 +344,37 @@ class _Ring:
 
 
 def test_inbox_keeps_newest_per_key() -> None:
-    inbox = runtime.Inbox()
-    inbox.add("pose", _Ring(_Sample("a", b"1"), _Sample("a", b"2"), _Sample("b", b"3")))
+    ids = {"t/7": 7, "t/8": 8}
+
+    def parse(key: str, kind: str) -> int:
+        if key not in ids:
+            raise ValueError(key)
+        return ids[key]
+
+    inbox = runtime.Inbox(parse)
+    inbox.add("pose", _Ring(_Sample("p/3", b"1"), _Sample("p/3", b"2")), key_id=3)
+    tile = _Ring(_Sample("t/7", b"3"), _Sample("t/8", b"4"), _Sample("t/7", b"5"))
+    inbox.add("beacon", tile, wildcard=True)
+    tile.samples.append(_Sample("t/bad", b"6"))
     removed = _Ring(_Sample("c", b"4"))
-    inbox.add("state", removed)
+    inbox.add("state", removed, key_id=4)
     inbox.remove(removed)
-    items, coalesced = inbox.drain()
-    assert sorted(items) == [("pose", "a", b"2"), ("pose", "b", b"3")]
-    assert coalesced == 1
-    assert inbox.drain() == ([], 0)
+    items, coalesced, malformed = inbox.drain()
+    assert sorted(items) == [("beacon", 7, b"5"), ("beacon", 8, b"4"), ("pose", 3, b"2")]
+    assert (coalesced, malformed) == (2, 1)
+    assert inbox.drain() == ([], 0, 0)
+
+
+def test_brains_of_a_process_share_decoding() -> None:
+    payload = pose(3, 1.0, 1.0).encode()
+    first, second = brain_at(0.5, 0.5), brain_at(0.5, 0.5)
+    assert first.receive("pose", payload, 0.0, WALL, key_id=3)
+    assert second.receive("pose", payload, 0.0, WALL, key_id=3)
+    assert runtime.decode("pose", payload) is runtime.decode("pose", bytes(payload))
+    bad = pose(3, 1.0, 1.0).encode()[:-1]
+    for brain in (first, second):  # a failure is never cached: each brain counts its own
+        assert not brain.receive("pose", bad, 0.0, WALL, key_id=3)
+        assert brain.drops.counts["undecodable"] == 1
 
 
 # --- real processes ---------------------------------------------------------------------
@@ -332,6 +399,8 @@ class Latest:
 
     def __call__(self, sample: object) -> None:
         message = self.cls.decode(sample.payload.to_bytes())
+        if getattr(message, "stats", True) is None:
+            return  # agents send their stats about once a second: keep the last that had them
         with self.lock:
             self.values[message.id] = message
 

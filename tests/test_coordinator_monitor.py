@@ -133,3 +133,16 @@ def test_summary_has_the_sim_keys_and_process_figures() -> None:
     assert summary["neighbor_histogram"] == {1: 2}
     assert summary["lost_processes"] == [{"role": "agent", "id": 1, "t": 2.0, "wall": 3.0}]
     assert summary["agent_stats"]["per_agent"] == {"0": {"rate_hz": 10.0}}
+
+
+def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
+    from coordinator.process import TILE_SPACINGS, swarm_tile_size
+    from coordinator.scenarios import load_scenario
+
+    circle = load_scenario("circle")  # a 2 m square
+    assert swarm_tile_size(circle, 100) == pytest.approx(TILE_SPACINGS * 0.2)
+    assert swarm_tile_size(circle, 400) == pytest.approx(TILE_SPACINGS * 0.1)
+    passage = load_scenario("passage")  # starts in a 1.2 m x 1.6 m box
+    assert swarm_tile_size(passage, 10) == pytest.approx(
+        TILE_SPACINGS * (1.2 * 1.6 / 10) ** 0.5, abs=1e-3
+    )

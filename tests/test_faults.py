@@ -81,6 +81,12 @@ def test_impairment_args_only_when_asked() -> None:
 
 def _brain_with_team() -> AgentBrain:
     brain = AgentBrain(0)
+    square = [[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]
+    brain.on_domain(
+        protocol.Domain(seq=0, stamp=WALL, t=0.0, state="waiting", vertices=square,
+                        velocities=[[0.0, 0.0]] * 4, kappa=1.0),
+        0.0,
+    )  # fmt: skip
     brain.on_pose(protocol.Pose(id=0, x=0.0, y=0.0, theta=0.0, stamp=WALL, seq=0), 0.0)
     for rid in (1, 2):
         brain.on_pose(protocol.Pose(id=rid, x=rid, y=0.0, theta=0.0, stamp=WALL, seq=0), 0.0)

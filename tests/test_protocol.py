@@ -212,6 +212,24 @@ def test_domain_density_round_trip() -> None:
             Domain.decode(packed({**wire(uniform), "density": bad}))
 
 
+def test_domain_tile_size_and_state_stats_are_optional() -> None:
+    """The swarm's beacon tile size rides on the Domain, an agent's stats on some of its
+    AgentStates: absent on the wire when None, round-trips otherwise, checked when present."""
+    uniform = SAMPLES[2]
+    assert "tile_size" not in wire(uniform) and uniform.tile_size is None
+    fields = {**wire(uniform), "tile_size": 0.6}
+    del fields["v"]
+    tiled = Domain(**fields)
+    assert wire(tiled)["tile_size"] == 0.6 and Domain.decode(tiled.encode()) == tiled
+    for bad, reason in ((0.0, "> 0"), (-1.0, "outside"), (math.inf, "not finite"), ("1", "number")):
+        with pytest.raises(ProtocolError, match=reason):
+            Domain.decode(packed({**wire(uniform), "tile_size": bad}))
+    slim = AgentState(id=4, x=0.5, y=0.5, stamp=STAMP, neighbors=[1, 2])
+    assert "stats" not in wire(slim) and AgentState.decode(slim.encode()) == slim
+    with pytest.raises(ProtocolError, match="expected a map"):
+        AgentState.decode(packed({**wire(slim), "stats": [1]}))
+
+
 # --- rejection --------------------------------------------------------------------------
 
 POSE = wire(SAMPLES[0])

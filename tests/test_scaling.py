@@ -153,6 +153,7 @@ def test_bench_live_writes_a_live_row(tmp_path: Path) -> None:
     rows = json.loads((out / "bench.json").read_text())
     (live,) = [row for row in rows if row["layout"] == "live"]
     assert live["agents"] == 3 and live["rate_asked_hz"] == 10.0
+    assert live["agents_per_process"] == 20 and live["time_scale"] == 1.0  # recorded
     for key in ("live_step_p50_us", "live_step_p99_us", "rx_per_agent_per_s",
                 "pose_to_cmd_p50_ms", "pose_to_cmd_p99_ms", "rate_held_mean_hz",
                 "missed_deadline_mean", "rss_per_agent_mb", "rss_per_robot_mb"):  # fmt: skip
