@@ -44,6 +44,7 @@ from agent.coverage import (
     cell_neighbors,
     cell_rates,
     check_density,
+    jacobian_times,
     make_domain,
     tessellate,
     validate_positions,
@@ -109,13 +110,16 @@ def _d1_rows(
     own: (K, 2) r_i; neighbor_references: (K, L, 2) r_j of the robot each line comes from
     (ignored where the line is not a shared edge). Empty cells keep r_i.
     """
-    off, diagonal = cell_jacobian_blocks(batch, points, density)
     others = np.where(batch.shared[..., None], neighbor_references, 0.0)
-    velocity = own + np.einsum("kab,kb->ka", diagonal, own) + np.einsum("klab,klb->ka", off, others)
+    if density is None:
+        velocity = own + jacobian_times(batch, points, own, others)
+    else:
+        off, diagonal = density.jacobian_blocks(batch, points)
+        velocity = (
+            own + np.einsum("kab,kb->ka", diagonal, own) + np.einsum("klab,klb->ka", off, others)
+        )
     scale = np.maximum(_norms(own), _norms(others).max(axis=1))
-    bound = max_amplification * scale
-    speed = _norms(velocity)
-    factor = np.where(speed > bound, bound / np.where(speed > 0.0, speed, 1.0), 1.0)
+    factor = np.minimum(1.0, max_amplification * scale / np.maximum(_norms(velocity), 1e-300))
     return np.where(batch.empty[:, None], own, velocity * factor[:, None])
 
 
@@ -257,7 +261,7 @@ def local_step(
     # Our neighbours first (the half-plane intersection alone), then our cell and theirs in
     # one vectorised pass: one robot's step is a few dozen numpy calls on small arrays, so
     # calls count as much as cells, and the outer ring's cells are not needed.
-    owners = np.concatenate(([index], cell_neighbors(points, index, everyone, domain)))
+    owners = np.concatenate(([index], cell_neighbors(points, index, domain)))
     batch = _weigh(build_cells(points, owners, everyone, domain), density)
     references = _references(batch, points, domain, kappa, feedforward, density)
     by_robot = np.zeros((len(ids), 2))
