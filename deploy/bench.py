@@ -117,6 +117,9 @@ def time_local_steps(
     for me in robots:
         known = two_hop(adjacency, int(me))
         view = {j: layout.positions[j] for j in known}
+        # Warm, as in a running agent: the first call of a process pays for lazy imports
+        # and numpy's first-use caches, which would otherwise land on the smallest N.
+        local_step(int(me), view, layout.polygon, velocity, kappa, density=density)
         start = time.perf_counter()
         local_step(int(me), view, layout.polygon, velocity, kappa, density=density)
         times.append((time.perf_counter() - start) * 1e6)
