@@ -28,6 +28,7 @@ happened in the ``circle`` scenario.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass
 
@@ -39,6 +40,7 @@ from agent.coverage import (
     CellBatch,
     DensityModel,
     Domain,
+    as_complex,
     build_cells,
     cell_jacobian_blocks,
     cell_neighbors,
@@ -125,11 +127,11 @@ def _d1_rows(
 
 def _norms(vectors: np.ndarray) -> np.ndarray:
     """Euclidean norms of stacked 2-vectors (..., 2) -> (...)."""
-    return np.hypot(vectors[..., 0], vectors[..., 1])
+    return np.abs(as_complex(vectors))
 
 
 def _check_kappa(kappa: float) -> None:
-    if not (np.isfinite(kappa) and kappa > 0.0):
+    if not (math.isfinite(kappa) and kappa > 0.0):
         raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
 
 

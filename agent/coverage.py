@@ -655,19 +655,19 @@ def jacobian_times(
     this product, at a fraction of the cost of the 2 x 2 blocks.
     """
     # Plane vectors as complex numbers: a . b = Re(conj(a) b).
-    where = _as_complex(points)
+    where = as_complex(points)
     me = where[batch.owners][:, None]
-    start = _as_complex(batch.start)
-    d = _as_complex(batch.end) - start
+    start = as_complex(batch.start)
+    d = as_complex(batch.end) - start
     gap = me - np.take(where, batch.labels, mode="wrap")  # polygon labels: masked below
     shared = batch.present & (batch.labels >= 0)
     weight = np.where(
         shared, np.abs(d) / np.where(shared, np.abs(gap) * batch.mass[:, None], 1.0), 0.0
     )
-    u = start - _as_complex(batch.centroid)[:, None]
+    u = start - as_complex(batch.centroid)[:, None]
     w = start - me
-    theirs = _as_complex(others)
-    delta = _as_complex(own)[:, None] - theirs
+    theirs = as_complex(others)
+    delta = as_complex(own)[:, None] - theirs
     half = 0.5 * d
     terms = (
         u * ((w + half).conj() * delta).real
@@ -678,9 +678,12 @@ def jacobian_times(
     return product.view(np.float64).reshape(-1, 2)
 
 
-def _as_complex(vectors: np.ndarray) -> np.ndarray:
+def as_complex(vectors: np.ndarray) -> np.ndarray:
     """Stacked 2-vectors (..., 2) as complex numbers (...), a view when contiguous."""
-    return np.ascontiguousarray(vectors).view(np.complex128)[..., 0]
+    if not vectors.flags.c_contiguous:
+        vectors = np.ascontiguousarray(vectors)
+    numbers = vectors.view(np.complex128)
+    return numbers.reshape(numbers.shape[:-1])
 
 
 def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -697,17 +700,17 @@ def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.n
     An empty cell gets the velocity of its nearest point of S.
     """
     # Plane vectors as complex numbers: a . b = Re(conj(a) b).
-    start, end = _as_complex(batch.start), _as_complex(batch.end)
+    start, end = as_complex(batch.start), as_complex(batch.end)
     # Label -(l + 1) is edge l, i.e. ~label; robot labels read wrapped entries, masked below.
     edge = ~batch.labels
     offset = np.take(domain.speed_offset, edge, mode="wrap")
-    gradient = np.take(_as_complex(domain.speed_gradient), edge, mode="wrap").conj()
+    gradient = np.take(as_complex(domain.speed_gradient), edge, mode="wrap").conj()
     nu1 = offset + (gradient * start).real
     nu2 = offset + (gradient * end).real
     d = end - start
     length = (batch.present & (batch.labels < 0)) * np.abs(d)
     integral = (
-        length * (0.5 * (nu1 + nu2)) * (start - _as_complex(batch.centroid)[:, None])
+        length * (0.5 * (nu1 + nu2)) * (start - as_complex(batch.centroid)[:, None])
         + length * (nu1 / 6.0 + nu2 / 3.0) * d
     ).sum(axis=1)
     empty = batch.empty
