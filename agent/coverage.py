@@ -321,11 +321,13 @@ def build_cells(
     lines = _clip(points, owners, candidates, domain)
     tol, me, present, lower = domain.tol, lines.me, lines.present, lines.lower
     count = len(owners)
-    along = np.where(present, lower, 0.0)
-    start = lines.offset[..., None] * lines.normal - along[..., None] * lines.clockwise
+    # Plane vectors as complex numbers; the clockwise direction is -i normal, so the start
+    # offset normal - lower clockwise is normal (offset + i lower).
+    normal = as_complex(lines.normal)
+    start = normal * (lines.offset + 1j * np.where(present, lower, 0.0))
     # Counter-clockwise order of a convex cell's edges is the order of their normals' angles,
     # from -pi exclusive (+ 0.0 turns a normal's -0.0 into +0.0, whose angle is +pi).
-    angle = np.where(present, np.arctan2(lines.normal[..., 1] + 0.0, lines.normal[..., 0]), np.inf)
+    angle = np.where(present, np.arctan2(normal.imag + 0.0, normal.real), np.inf)
     edges = present.sum(axis=1)
     width = max(int(edges.max()), 1)
     order = np.argsort(angle, axis=1)[:, :width]
@@ -338,27 +340,35 @@ def build_cells(
     end = start[rows, np.where(position < edges[:, None], position, 0)]
     # Moments about a vertex of the cell, not the owner: a sliver cell far from its robot
     # would otherwise lose its digits to cancellation.
-    origin = start[:, :1, :]
+    origin = start[:, :1]
     a, b = start - origin, end - origin
-    twice_area = np.where(present, a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0], 0.0)
+    twice_area = np.where(present, (a.conj() * b).imag, 0.0)
     mass = 0.5 * twice_area.sum(axis=1)
     empty = mass <= tol * tol
-    moment = np.einsum("kl,klc->kc", twice_area, a + b)
-    centroid = me + origin[:, 0, :] + moment / (6.0 * np.where(empty, 1.0, mass))[:, None]
+    moment = (twice_area * (a + b)).sum(axis=1)
+    me_c = as_complex(me)
+    centroid = _as_vectors(me_c + origin[:, 0] + moment / (6.0 * np.where(empty, 1.0, mass)))
     if empty.any():
         mass = np.where(empty, 0.0, mass)
         for i in np.flatnonzero(empty):
             centroid[i] = nearest_point(domain, me[i])[0]
         present &= ~empty[:, None]
+    me_c = me_c[:, None]
     return CellBatch(
         owners=owners,
-        start=start + me[:, None, :],
-        end=end + me[:, None, :],
+        start=_as_vectors(start + me_c),
+        end=_as_vectors(end + me_c),
         labels=labels,
         present=present,
         mass=mass,
         centroid=centroid,
     )
+
+
+def _as_vectors(numbers: np.ndarray) -> np.ndarray:
+    """Complex numbers (...) as stacked 2-vectors (..., 2), a view (the inverse of
+    ``as_complex``)."""
+    return numbers.view(np.float64).reshape(*numbers.shape, 2)
 
 
 def cell_neighbors(points: np.ndarray, owner: int, domain: Domain) -> np.ndarray:
@@ -674,8 +684,7 @@ def jacobian_times(
         + d * ((0.5 * w + d / 3.0).conj() * delta).real
         - (u + half) * (gap.conj() * theirs).real
     )
-    product = (weight * terms).sum(axis=1)
-    return product.view(np.float64).reshape(-1, 2)
+    return _as_vectors((weight * terms).sum(axis=1))
 
 
 def as_complex(vectors: np.ndarray) -> np.ndarray:
@@ -714,7 +723,7 @@ def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.n
         + length * (nu1 / 6.0 + nu2 / 3.0) * d
     ).sum(axis=1)
     empty = batch.empty
-    rates = (integral / np.where(empty, 1.0, batch.mass)).view(np.float64).reshape(-1, 2)
+    rates = _as_vectors(integral / np.where(empty, 1.0, batch.mass))
     for i in np.flatnonzero(empty):
         rates[i] = nearest_point_derivatives(domain, points[batch.owners[i]])[2]
     return rates
