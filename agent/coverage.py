@@ -392,29 +392,20 @@ def cell_neighbors(points: np.ndarray, owner: int, domain: Domain) -> np.ndarray
             np.where(valid, 0.5 * distance, domain.size),
         )
     )
-    clockwise = normal[:, ::-1] * np.array([1.0, -1.0])
-    transposed = normal.T
-    excess = offset[:, None] * (normal @ transposed) - offset - tol
-    clockwise_rate = clockwise @ transposed
-    with np.errstate(divide="ignore", invalid="ignore"):
-        bound = excess / clockwise_rate
-    side = np.copysign(np.inf, clockwise_rate)
-    upper = np.maximum(bound, side).min(axis=1)
-    lower = np.minimum(bound, side).max(axis=1)
+    upper, lower = _piece_bounds(normal, offset, tol, loosen=True)
     return np.flatnonzero(valid & (upper[k:] > lower[k:] - tol))
 
 
 class _Lines(NamedTuple):
     """The lines of a batch of cells (relative to each owner) and their pieces in the cell.
 
-    me: (K, 2) owners; normal, clockwise: (K, L, 2) unit normal and direction (y, -x);
-    offset, lower: (K, L) normal . q <= offset, the piece starts at offset normal - lower
-    clockwise; labels, present: (K, L) as in CellBatch, before the cell's mass is known.
+    me: (K, 2) owners; normal: (K, L, 2) unit normals; offset, lower: (K, L)
+    normal . q <= offset, the piece starts at offset normal + lower (-ny, nx); labels,
+    present: (K, L) as in CellBatch, before the cell's mass is known.
     """
 
     me: np.ndarray
     normal: np.ndarray
-    clockwise: np.ndarray
     offset: np.ndarray
     lower: np.ndarray
     labels: np.ndarray
@@ -451,36 +442,49 @@ def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain
     active = np.ones((count, lines), dtype=bool)
     active[:, k:] = valid
 
-    # Line l is foot_l + t direction_l with foot_l = offset_l normal_l (its point closest to
-    # the owner) and direction_l = (-ny, nx), which keeps the interior on the left so edges
-    # run counter-clockwise. It must satisfy normal_m . q <= offset_m for every m:
-    # t rate_lm <= slack_lm, an upper bound on t where rate_lm > 0, a lower one where < 0.
-    # Indices [cell, line l, constraint m].
+    upper, lower = _piece_bounds(normal, offset, tol, loosen=False)
+    present = active & (upper > lower + tol)
+    if dominated is not None:
+        present &= ~dominated[:, None]
+    return _Lines(me, normal, offset, lower, labels, present)
+
+
+def _piece_bounds(
+    normal: np.ndarray, offset: np.ndarray, tol: float, loosen: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """Where each line's piece inside all the other half-planes starts and ends, (..., L).
+
+    normal: (..., L, 2) unit normals (zero for a line that is no constraint), offset:
+    (..., L), half-planes normal . q <= offset. Line l is foot_l + t direction_l with
+    foot_l = offset_l normal_l and direction_l = (-ny, nx), which keeps the interior on the
+    left so edges run counter-clockwise; it must satisfy normal_m . q <= offset_m for every
+    m: t rate_lm <= slack_lm, an upper bound on t where rate_lm > 0, a lower one where < 0.
+    Returns (upper, lower) over m; the piece is empty unless upper > lower.
+
+    loosen: every slack grows by tol (a superset of the pieces, no tie-breaking). Otherwise
+    the slack of (near) parallel pairs is shifted by tol: of two identical lines (same side,
+    same offset) the first excludes the second, never the reverse, so no edge counts twice,
+    and a line never excludes itself; the shift is tol for rate 0 and 0 from |rate| = 1e-12
+    on, so that vertices of lines that do cross are exact.
+    """
     # Computed with the opposite direction (y, -x), so that copysign can tell the kinds
     # apart without a negation: clockwise_rate = -rate, excess = -slack.
     clockwise = normal[..., ::-1] * np.array([1.0, -1.0])
-    transposed = normal.transpose(0, 2, 1)
-    cosine = normal @ transposed
+    transposed = np.swapaxes(normal, -1, -2)
     clockwise_rate = clockwise @ transposed
-    # Slack of (near) parallel pairs shifted by tol: of two identical lines (same side, same
-    # offset) the first excludes the second, never the reverse, so no edge counts twice, and
-    # a line never excludes itself. Polygon edges come first: a bisector on an edge of S
-    # yields. The shift is tol for rate 0 and 0 from |rate| = 1e-12 on, so that vertices of
-    # lines that do cross are exact.
-    shift = np.maximum(tol - (1e24 * tol) * (clockwise_rate * clockwise_rate), 0.0)
-    excess = offset[:, :, None] * cosine - offset[:, None, :] + _earlier_sign(lines) * shift
+    excess = offset[..., :, None] * (normal @ transposed) - offset[..., None, :]
+    if loosen:
+        excess -= tol
+    else:
+        shift = np.maximum(tol - (1e24 * tol) * (clockwise_rate * clockwise_rate), 0.0)
+        excess += _earlier_sign(offset.shape[-1]) * shift
     # slack / rate is the bound and the sign of rate its kind. A (near) parallel constraint
     # gives +-inf or a huge bound: harmless when satisfied (slack > 0), and when violated
     # an upper bound of -inf or a lower one of +inf, which excludes the whole line.
     with np.errstate(divide="ignore", invalid="ignore"):
         bound = excess / clockwise_rate
     side = np.copysign(np.inf, clockwise_rate)  # -inf where bounds are upper ones
-    upper = np.maximum(bound, side).min(axis=2)
-    lower = np.minimum(bound, side).max(axis=2)
-    present = active & (upper > lower + tol)
-    if dominated is not None:
-        present &= ~dominated[:, None]
-    return _Lines(me, normal, clockwise, offset, lower, labels, present)
+    return np.maximum(bound, side).min(axis=-1), np.minimum(bound, side).max(axis=-1)
 
 
 @cache
