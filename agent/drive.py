@@ -73,3 +73,24 @@ def wheel_speeds(
         peak > robot.max_wheel_speed, robot.max_wheel_speed / np.maximum(peak, 1e-300), 1.0
     )
     return wheels * scale[:, None]
+
+
+def achieved_velocity(
+    headings: np.ndarray,
+    wheels: np.ndarray,
+    robot: DiffDrive = KHEPERA_IV,
+    projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
+) -> np.ndarray:
+    """Planar velocity (n, 2) of the tracked point that rim speeds ``wheels`` (n, 2) give.
+
+    The inverse of ``wheel_speeds``: the commanded velocity where no wheel saturated, that
+    velocity scaled down to what the wheels can do where one did. What neighbours should
+    dead-reckon with, rather than a command the robot cannot follow.
+    """
+    headings = np.asarray(headings, dtype=float).reshape(-1)
+    wheels = np.asarray(wheels, dtype=float).reshape(-1, 2)
+    v = 0.5 * (wheels[:, 0] + wheels[:, 1])
+    w = (wheels[:, 1] - wheels[:, 0]) / robot.wheel_separation
+    cos, sin = np.cos(headings), np.sin(headings)
+    turn = w * projection_distance
+    return np.stack([v * cos - turn * sin, v * sin + turn * cos], axis=1)

@@ -9,26 +9,33 @@ Neighbour discovery
 - **Domain**: subscribes to the broadcast ``domain`` and extrapolates it between messages
   (vertices + velocities * time since its stamp, for at most ``--max-extrapolation`` s; after
   that the domain holds still and its velocities count as zero).
-- **Beacons (bootstrap)**: every ``--beacon-period`` (1 s) the agent publishes a Beacon on
-  ``beacon/<tx>/<ty>/<me>``, (tx, ty) = floor(position / tile_size) with the swarm's tile
-  size from the Domain broadcast (none before the first Domain), and subscribes to the
-  (2r+1)^2 tiles around its own with ``beacon/<tx>/<ty>/*`` selectors, re-declared when it
-  changes tile. r starts at 1 (3x3 tiles) and grows, up to ``--max-tile-radius``, while its
-  cell is too large for the tiles to hold every robot that could cut it (a robot farther
-  than twice the cell radius cannot; see :func:`cell_reach`). Beacon-only robots are
-  candidates at their beacon position.
-- **Two-hop set**: the agent publishes AgentState (its robot's position and its current
-  Voronoi neighbour ids) at the control rate, with its stats about once a second; it
-  subscribes to the AgentState of its two-hop set (one-hop neighbours and their
-  neighbours), declaring and undeclaring per-id subscribers as the set changes (a
-  subscriber lingers ``--linger`` s after its id leaves the set, so a neighbour flickering
-  across a Voronoi vertex does not churn subscriptions). Other robots' positions come from
-  their AgentStates, not from their 20 Hz poses: one subscription and 10 messages per
-  second per neighbour instead of two and 30, for positions one control period older.
-- Positions are taken from a robot's AgentState (or pose, for a bridge that sends them)
-  while younger than ``--stale-timeout`` (receipt time, so clock skew between machines does
-  not matter), else from its beacon while younger than ``--beacon-timeout``; older robots
-  are dropped.
+- **Beacons (bootstrap)**: every ``--beacon-period`` (10 s), and at most 1 s after the
+  last one whenever another agent's liveliness token appears (a newcomer, or a team
+  starting), the agent publishes a Beacon on ``beacon/<tx>/<ty>/<me>``, (tx, ty) =
+  floor(position / tile_size) with the swarm's tile size from the Domain broadcast (none
+  before the first Domain), and subscribes to the (2r+1)^2 tiles around its own with
+  ``beacon/<tx>/<ty>/*`` selectors, re-declared when it changes tile. r starts at 1 (3x3
+  tiles) and grows, up to ``--max-tile-radius``, while its cell is too large for the tiles
+  to hold every robot that could cut it (a robot farther than twice the cell radius
+  cannot; see :func:`cell_reach`). A robot known only from its beacon is a candidate at
+  the beacon's position while that beacon is the newest news of it.
+- **Two-hop set**: the agent publishes AgentState at the control rate: its robot's
+  position and velocity, its current Voronoi neighbour ids, and the positions and
+  velocities of those neighbours as it used them (``relay``; first-hand ones only), with
+  its stats about once a second. It subscribes to the AgentStates of its one-hop
+  neighbours, whose relays give it the positions of the rest of its two-hop set, plus
+  those of any two-hop robot that no fresh relay carries yet; per-id subscribers are
+  declared and undeclared as the set changes and linger ``--linger`` s after an id leaves
+  it, so a neighbour flickering across a Voronoi vertex does not churn subscriptions.
+  Other robots' positions never come from their 20 Hz poses: one subscription and 10
+  messages per second per one-hop neighbour, none per outer-ring robot, for positions
+  one control period older (two when relayed).
+- Positions are taken from a robot's own AgentState (or pose, for a bridge that sends
+  them) while younger than ``--stale-timeout`` (receipt time, so clock skew between
+  machines does not matter), else from the freshest neighbour's relay of it younger than
+  that, else from its beacon while younger than ``--beacon-timeout``; older robots are
+  dropped. All are dead-reckoned with the velocity they carry (what the robot's wheels
+  achieve, not the unsaturated command), for at most DEAD_RECKONING_LIMIT s per hop.
 - **Faults** (docs/faults.md): a robot whose agent's or robot's liveliness token is deleted
   (``alive/*/*``, changes only) leaves the local diagram at once; an agent whose own pose is
   stale commands (0, 0) and publishes no AgentState or beacon. ``--drop-poses`` /
@@ -52,9 +59,9 @@ command; so does any failure of the math (the robot stops rather than crash or r
 NaN). Neighbours are computed while waiting too, so the sets are warm at the start. The
 liveliness token ``alive/agent/<id>`` is declared once the agent hears its own robot.
 
-Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k two-hop robots, b robots
-in the beacon tiles): receives 20 (own pose) + domain rate + 10 k (states) + b (beacons)
-per second; sends 10 commands + 10 states + 1 beacon per second.
+Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k one-hop neighbours, b
+robots in the beacon tiles): receives 20 (own pose) + domain rate + 10 k (states) + b / 10
+(beacons) per second; sends 10 commands + 10 states + 0.1 beacon per second.
 
 ``covswarm agent --ids 0-9`` runs several brains in one process (:func:`run_agents`: one
 Zenoh session, each brain with its own keys, subscriptions, claim and token);
@@ -87,7 +94,7 @@ import protocol
 from agent.control import local_step
 from agent.coverage import validate_polygon
 from agent.density import Density
-from agent.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from agent.drive import KHEPERA_IV, DiffDrive, achieved_velocity, wheel_speeds
 from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from protocol.security import SECURE_OPTION
 from protocol.session import (
@@ -122,11 +129,13 @@ class AgentConfig:
     kappa: float | None = None  # None: use the kappa broadcast with the domain
     feedforward: bool = True
     stale_timeout: float = 1.0
-    beacon_period: float = 1.0
-    beacon_timeout: float = 3.0
+    # Beacons only bootstrap: neighbours' relays keep the two-hop set current, and a
+    # teammate's new token triggers an early beacon (see AgentBrain.beacon).
+    beacon_period: float = 10.0
+    beacon_timeout: float = 25.0
     max_tile_radius: int = 3
     max_extrapolation: float = 1.0
-    linger: float = 1.0
+    linger: float = 0.5
     max_clock_skew: float = MAX_CLOCK_SKEW
     robot: DiffDrive = KHEPERA_IV
     # Fault injection (docs/faults.md): drop this fraction of received poses, deliver the
@@ -136,6 +145,7 @@ class AgentConfig:
     pose_seed: int = 0
 
 
+RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 InboxItem = tuple[str, int | None, bytes]  # (kind, id in the key (None: domain), payload)
 # Samples kept per subscriber between two ticks: only the newest per key is used, but a
 # beacon tile carries one key per robot in it.
@@ -147,6 +157,9 @@ IDLE_STEP_PERIOD = 1.0
 # s: at most this far ahead are positions dead-reckoned from a reported velocity.
 DEAD_RECKONING_LIMIT = 0.25
 RING_PER_TILE = 256
+# s: an early beacon (a teammate appeared) follows the last one after at least this long, so
+# a whole team starting at once costs each agent one beacon per second, not per tick.
+BEACON_MIN_PERIOD = 1.0
 # Token changes kept between two ticks: a ring never blocks Zenoh's threads, and only a
 # whole team starting at once (two tokens per robot) comes near it.
 LIVELINESS_RING = 8192
@@ -214,7 +227,8 @@ class Decision:
     left: float
     right: float
     reason: str  # "running" or why the robot holds still
-    velocity: tuple[float, float] = (0.0, 0.0)
+    velocity: tuple[float, float] = (0.0, 0.0)  # m/s, the control law's
+    achieved: tuple[float, float] = (0.0, 0.0)  # m/s, what the (saturated) wheels give
 
 
 def extrapolate_domain(
@@ -313,7 +327,9 @@ class Counters:
     stale: int = 0  # robots dropped from the local set because their data aged out
     step_errors: int = 0  # control steps that failed (robot commanded to stop)
     steps: int = 0
-    overruns: int = 0  # control periods whose deadline passed before the loop was ready
+    mission_steps: int = 0  # steps while the mission runs
+    # control periods of the mission whose deadline passed before the loop was ready
+    overruns: int = 0
 
 
 class AgentBrain:
@@ -334,6 +350,13 @@ class AgentBrain:
         self.state_tracks: dict[int, Track] = {}
         self.beacons: dict[int, Track] = {}
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
+        # relayer id -> (its AgentState.relay entries, when received)
+        self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
+        # id -> (x, y, vx, vy) of every candidate of the last step, reckoned to that step,
+        # and the ids among them known first-hand (own pose or AgentState): what our
+        # AgentState relays about our neighbours.
+        self._reckoned: dict[int, tuple[float, float, float, float]] = {}
+        self._first_hand: set[int] = set()
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
         # no team member (a stopped robot without brain, or a brain without robot).
         self.dead: dict[int, set[str]] = {}
@@ -347,10 +370,11 @@ class AgentBrain:
         self._fresh: set[int] = set()  # ids usable as candidates at the last step
         self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
+        self._beacon_due = False  # an early beacon is owed to a teammate that just appeared
         self._last_forget = -math.inf
         self._last_control: float | None = None  # wall time of the last control step
         self._last_idle_step = -math.inf
-        self.velocity: tuple[float, float] = (0.0, 0.0)  # last commanded, m/s
+        self.velocity: tuple[float, float] = (0.0, 0.0)  # last achieved (saturated) command, m/s
         self._seq = 0
         self._step_us = _Percentiles()
         self._pose_age_ms = _Percentiles()
@@ -392,6 +416,10 @@ class AgentBrain:
         self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
+        if state.relay is None:
+            self.relays.pop(state.id, None)
+        else:
+            self.relays[state.id] = (state.relay, now)
         return True
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> bool:
@@ -412,6 +440,8 @@ class AgentBrain:
         if rid == self.id or role not in ("agent", "robot"):
             return
         if alive:
+            if role == "agent" and rid not in self._fresh:
+                self._beacon_due = True  # a newcomer: let it find us without waiting
             self._revive(rid, role)
         else:
             self.dead.setdefault(rid, set()).add(role)
@@ -422,6 +452,11 @@ class AgentBrain:
             roles.discard(role)
             if not roles:
                 del self.dead[rid]
+
+    @property
+    def running(self) -> bool:
+        """Whether the mission runs (by the last domain received)."""
+        return self.domain is not None and self.domain.state == "running"
 
     def pose_fresh(self, now: float) -> bool:
         """Whether our own robot's pose is known and younger than ``stale_timeout``."""
@@ -442,37 +477,63 @@ class AgentBrain:
 
     # --- neighbourhood -----------------------------------------------------------------
 
-    def candidates(self, now: float) -> dict[int, np.ndarray]:
-        """Positions of the other robots known well enough to enter the local diagram."""
-        # The freshest of pose and state while younger than stale_timeout (a pose wins a
-        # tie), else the beacon while younger than beacon_timeout.
+    def candidates(self, now: float) -> dict[int, tuple[float, float]]:
+        """Positions of the other robots known well enough to enter the local diagram.
+
+        In order of trust: the freshest of a robot's own pose and AgentState while younger
+        than ``stale_timeout`` (a pose wins a tie); else the freshest relay of it in a
+        neighbour's AgentState younger than that; else its beacon while younger than
+        ``beacon_timeout``. Positions are dead-reckoned to ``now`` with the reported
+        velocity (at most DEAD_RECKONING_LIMIT s): a state is up to a control period old
+        when the next step reads it, and at 0.2 m/s that lag alone is a centimetre of
+        error in every neighbour.
+        """
+        fresh = now - self.config.stale_timeout
+        dead = self.dead
         chosen: dict[int, Track] = {}
-        oldest = now - self.config.stale_timeout
         for table in (self.poses, self.state_tracks):
             for rid, track in table.items():
-                if track.received >= oldest:
+                if track.received >= fresh:
                     known = chosen.get(rid)
                     if known is None or track.received > known.received:
                         chosen[rid] = track
+        reckoned: dict[int, tuple[float, float, float, float]] = {}
+        for rid, track in chosen.items():
+            if rid not in dead:
+                lead = min(now - track.received, DEAD_RECKONING_LIMIT)
+                reckoned[rid] = (
+                    track.x + lead * track.vx,
+                    track.y + lead * track.vy,
+                    track.vx,
+                    track.vy,
+                )
+        first_hand = set(reckoned)
+        relayed: dict[int, float] = {}  # id -> receipt time of the relay used
+        for relayer, (entries, received) in self.relays.items():
+            if received < fresh or relayer in dead:
+                continue
+            lead = min(now - received, DEAD_RECKONING_LIMIT)
+            for rid, x, y, vx, vy in entries:
+                if rid in first_hand or rid in dead or rid == self.id:
+                    continue
+                if relayed.get(rid, -math.inf) < received:
+                    relayed[rid] = received
+                    reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
+        # A beacon only while it is the newest news of its robot: one that went stale after
+        # we heard its state must not bring back where it was seconds ago.
         oldest = now - self.config.beacon_timeout
         for rid, track in self.beacons.items():
-            if track.received >= oldest and rid not in chosen:
-                chosen[rid] = track
-        dead = self.dead
-        # Dead reckoning: a state is up to a control period old when the next step reads it,
-        # and at 0.2 m/s that lag alone is a centimetre of error in every neighbour.
-        out = {
-            rid: np.array([track.x, track.y])
-            + min(now - track.received, DEAD_RECKONING_LIMIT) * np.array([track.vx, track.vy])
-            for rid, track in chosen.items()
-            if rid not in dead
-        }
-        self.counters.stale += len(self._fresh - out.keys())
-        self._fresh = set(out)
+            if track.received >= oldest and rid not in reckoned and rid not in dead:
+                heard = self.state_tracks.get(rid) or self.poses.get(rid)
+                if heard is None or heard.received < track.received:
+                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+        self._reckoned, self._first_hand = reckoned, first_hand
+        self.counters.stale += len(self._fresh - reckoned.keys())
+        self._fresh = set(reckoned)
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
-        return out
+        return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
 
     def _forget(self, now: float) -> None:
         """Drop records far older than any timeout, so memory stays bounded."""
@@ -482,10 +543,13 @@ class AgentBrain:
         for table in (self.poses, self.state_tracks, self.beacons):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
-        for rid in [rid for rid, (_, t) in self.neighbor_sets.items() if now - t > horizon]:
-            del self.neighbor_sets[rid]
+        for sets in (self.neighbor_sets, self.relays):
+            for rid in [rid for rid, (_, t) in sets.items() if now - t > horizon]:
+                del sets[rid]
 
-    def relevant(self, others: dict[int, np.ndarray], now: float) -> dict[int, np.ndarray]:
+    def relevant(
+        self, others: dict[int, tuple[float, float]], now: float
+    ) -> dict[int, tuple[float, float]]:
         """The candidates that can matter to our control, to keep the local diagram small.
 
         The two-hop set (neighbours' reported neighbours) plus every robot within
@@ -516,10 +580,19 @@ class AgentBrain:
         return frozenset(ids)
 
     def wanted_state_ids(self, now: float) -> set[int]:
-        """Ids whose AgentState to subscribe to: the two-hop set, lingering ``linger`` s (a
-        robot across a near-degenerate Voronoi vertex comes and goes every few ticks, and
-        every declaration is a round of routing updates for the whole swarm)."""
-        return _linger(self._wanted, self.two_hop(now), now, self.config.linger)
+        """Ids whose AgentState to subscribe to: our one-hop neighbours, and the rest of the
+        two-hop set whose positions no fresh relay of a neighbour carries; lingering
+        ``linger`` s (a robot across a near-degenerate Voronoi vertex comes and goes every
+        few ticks, and every declaration is a round of routing updates for the whole
+        swarm)."""
+        fresh = now - self.config.stale_timeout
+        covered: set[int] = set()
+        for rid in self.one_hop:
+            relay = self.relays.get(rid)
+            if relay is not None and relay[1] >= fresh:
+                covered.update(entry[0] for entry in relay[0])
+        wanted = self.one_hop | (self.two_hop(now) - covered)
+        return _linger(self._wanted, wanted, now, self.config.linger)
 
     @property
     def tile_size(self) -> float | None:
@@ -543,11 +616,12 @@ class AgentBrain:
     def step(self, now: float, now_wall: float) -> Decision:
         """One control step: the wheel speeds to send now, (0, 0) whenever unsure."""
         decision = self._decide(now, now_wall)
-        self.velocity = decision.velocity
+        self.velocity = decision.achieved
         return decision
 
     def _decide(self, now: float, now_wall: float) -> Decision:
         self.counters.steps += 1
+        self.counters.mission_steps += self.running
         self._rates = (
             self._step_rate.add(now, self.counters.steps),
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
@@ -580,7 +654,7 @@ class AgentBrain:
         self._step_us.add((time.perf_counter() - started) * 1e6)
         return decision
 
-    def _control(self, others: dict[int, np.ndarray], now_wall: float) -> Decision:
+    def _control(self, others: dict[int, tuple[float, float]], now_wall: float) -> Decision:
         assert self.pose is not None and self.domain is not None
         vertices, velocities = extrapolate_domain(
             self.domain, now_wall, self.config.max_extrapolation
@@ -616,12 +690,13 @@ class AgentBrain:
         velocity = np.asarray(result.velocity, dtype=float)
         if not np.all(np.isfinite(velocity)):
             raise ValueError(f"non-finite velocity {velocity}")
-        left, right = wheel_speeds(np.array([self.pose.theta]), velocity[None], self.config.robot)[
-            0
-        ]
-        return Decision(
-            float(left), float(right), "running", (float(velocity[0]), float(velocity[1]))
-        )
+        heading = np.array([self.pose.theta])
+        wheels = wheel_speeds(heading, velocity[None], self.config.robot)
+        # What the robot will do, not what was asked: what our AgentState reports for
+        # neighbours to dead-reckon with (a saturated command overstates the speed).
+        achieved = achieved_velocity(heading, wheels, self.config.robot)[0].tolist()
+        left, right = wheels[0].tolist()
+        return Decision(left, right, "running", tuple(velocity.tolist()), tuple(achieved))
 
     # --- output --------------------------------------------------------------------------
 
@@ -654,7 +729,7 @@ class AgentBrain:
             "rx_per_s": round(self._rates[1], 1),
             "pose_age_ms_p50": round(self._pose_age_ms.get(0.50), 2),
             "pose_age_ms_p99": round(self._pose_age_ms.get(0.99), 2),
-            "missed_deadline": round(c.overruns / c.steps, 4) if c.steps else 0.0,
+            "missed_deadline": round(c.overruns / c.mission_steps, 4) if c.mission_steps else 0.0,
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
@@ -676,19 +751,32 @@ class AgentBrain:
         # The control velocity is unbounded (a fast domain) and the wire's is not: clamped.
         vx, vy = (min(max(v, -protocol.MAX_SPEED), protocol.MAX_SPEED) for v in self.velocity)
         lead = min(max(stamp - self.pose.stamp, 0.0), DEAD_RECKONING_LIMIT)
+        x, y = _clamp_position(self.pose.x + lead * vx, self.pose.y + lead * vy)
+        # Only first-hand positions are relayed: a relayed one passed on again would be
+        # dead-reckoned once more at every hop, and around a cycle of relays forever.
+        reckoned = self._reckoned
+        relay = [
+            (rid, *_clamp_position(*reckoned[rid][:2]), *reckoned[rid][2:])
+            for rid in sorted(self.one_hop & self._first_hand)
+        ][: protocol.MAX_RELAY]
         return protocol.AgentState(
             id=self.id,
-            x=min(max(self.pose.x + lead * vx, -protocol.MAX_COORD), protocol.MAX_COORD),
-            y=min(max(self.pose.y + lead * vy, -protocol.MAX_COORD), protocol.MAX_COORD),
+            x=x,
+            y=y,
             stamp=stamp,
             neighbors=sorted(self.one_hop),
             stats=self.stats() if stats else None,
             vx=vx,
             vy=vy,
+            relay=relay,
         )
 
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
-        """(tile, Beacon) if one is due at ``now`` (every ``beacon_period``), else None.
+        """(tile, Beacon) if one is due at ``now``, else None.
+
+        Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
+        agent's liveliness token appeared: a newcomer (or a whole team starting) must find
+        its neighbours, and they it, without waiting for the next routine beacon.
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the
@@ -698,12 +786,20 @@ class AgentBrain:
         if (
             tile_size is None
             or not self.pose_fresh(now)
-            or now - self._last_beacon < self.config.beacon_period
+            or now - self._last_beacon
+            < (BEACON_MIN_PERIOD if self._beacon_due else self.config.beacon_period)
         ):
             return None
         self._last_beacon = now
+        self._beacon_due = False
         tile = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
         return tile, protocol.Beacon(id=self.id, x=self.pose.x, y=self.pose.y, stamp=stamp)
+
+
+def _clamp_position(x: float, y: float) -> tuple[float, float]:
+    """(x, y) clamped to the wire's coordinate bounds (dead reckoning may overshoot them)."""
+    bound = protocol.MAX_COORD
+    return min(max(x, -bound), bound), min(max(y, -bound), bound)
 
 
 _MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
@@ -1037,7 +1133,8 @@ def run_agents(
                 now = ticker.wait(stop)
                 for link in links:
                     brain = link.brain
-                    brain.counters.overruns += ticker.overruns - overruns
+                    if brain.running:  # start-up (processes still launching) aside
+                        brain.counters.overruns += ticker.overruns - overruns
                     wall = wall_clock()
                     link.receive(now, wall)
                     link.send_command(brain.step(now, wall), wall)
@@ -1081,11 +1178,11 @@ def run_agents(
 )
 @click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt term (ablation).")
 @click.option("--stale-timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
-@click.option("--beacon-period", type=click.FloatRange(min=0.05), default=1.0, show_default=True)
-@click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=3.0, show_default=True)
+@click.option("--beacon-period", type=click.FloatRange(min=0.05), default=10.0, show_default=True)
+@click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=25.0, show_default=True)
 @click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
 @click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
-@click.option("--linger", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
+@click.option("--linger", type=click.FloatRange(min=0.0), default=0.5, show_default=True)
 @MAX_CLOCK_SKEW_OPTION
 @click.option(
     "--max-wheel-speed",

@@ -124,8 +124,9 @@ class ErrorRecord:
 
 
 # What the launcher shows and summary.json lists per agent (agent.runtime's stat names):
-# control rate achieved, compute time per step, messages received per second.
-HEADLINE_STATS = ("rate_hz", "step_us_p50", "step_us_p99", "rx_per_s")
+# control rate achieved, share of control periods that overran their deadline, compute time
+# per step, messages received per second.
+HEADLINE_STATS = ("rate_hz", "missed_deadline", "step_us_p50", "step_us_p99", "rx_per_s")
 
 
 def agent_figures(stats: Mapping[int, Mapping[str, float]]) -> dict:

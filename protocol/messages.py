@@ -10,7 +10,8 @@ a version mismatch between processes; the one exception is an optional field, li
 ``_OPTIONAL``, which is left out of the payload when None and reads back as None when absent:
 Domain's ``density`` joined version 1 that way, so uniform missions send the same bytes as
 before and a peer that does not know densities refuses a Domain carrying one; Domain's
-``tile_size`` and AgentState's ``stats``, sent once a second, work the same way), exact types
+``tile_size`` and AgentState's ``stats`` (sent once a second), ``vx``/``vy`` and ``relay``
+work the same way), exact types
 (bool is not a number), finite numbers, ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES
 and magnitudes within sane bounds. Ints are accepted where floats are expected (other
 languages' encoders drop ``.0``). Geometry (convexity) is not checked here: that is
@@ -34,6 +35,7 @@ SCHEMA_VERSION = 1
 MAX_PAYLOAD = 8192  # bytes; the largest valid message (64-vertex Domain) is ~2.4 kB
 MAX_VERTICES = 64
 MAX_NEIGHBORS = 256
+MAX_RELAY = 64  # relayed neighbour positions per AgentState (~2.6 kB at most)
 MAX_STATS = 32
 MAX_STAT_NAME = 32
 MAX_COORD = 1.0e4  # m: positions and vertices
@@ -184,6 +186,41 @@ def _ids(max_n: int) -> Checker:
         if len(set(ids)) != len(ids):
             raise ProtocolError(f"{name}: duplicate ids")
         return tuple(sorted(ids))
+
+    return check
+
+
+def _relay(max_n: int) -> Checker:
+    """A list of [id, x, y, vx, vy] of distinct robots, returned as a tuple of tuples."""
+    one = _int(0, MAX_ID)
+    coord = _real(-MAX_COORD, MAX_COORD)
+    speed = _real(-MAX_SPEED, MAX_SPEED)
+
+    def check(value: Any, name: str) -> tuple[tuple[int, float, float, float, float], ...]:
+        items = _sequence(value, name)
+        if len(items) > max_n:
+            raise ProtocolError(f"{name}: {len(items)} entries, at most {max_n}")
+        out = []
+        for i, item in enumerate(items):
+            entry = _sequence(item, f"{name}[{i}]")
+            if len(entry) != 5:
+                raise ProtocolError(
+                    f"{name}[{i}]: expected [id, x, y, vx, vy], got {len(entry)} values"
+                )
+            rid, x, y, vx, vy = entry
+            where = f"{name}[{i}]"
+            out.append(
+                (
+                    one(rid, f"{where}.id"),
+                    coord(x, f"{where}.x"),
+                    coord(y, f"{where}.y"),
+                    speed(vx, f"{where}.vx"),
+                    speed(vy, f"{where}.vy"),
+                )
+            )
+        if len({entry[0] for entry in out}) != len(out):
+            raise ProtocolError(f"{name}: duplicate ids")
+        return tuple(out)
 
     return check
 
@@ -425,6 +462,11 @@ class AgentState(Message):
     control rate and never read the stats of. vx, vy: the velocity the agent last
     commanded (m/s, optional, 0 when absent), so that neighbours can dead-reckon the
     position between states.
+
+    relay: [id, x, y, vx, vy] of (up to MAX_RELAY of) its neighbours as the sender used
+    them in its last step (position reckoned to that step, velocity as reported), optional.
+    A receiver needs the positions of its two-hop set; relayed, they cost it one
+    subscription per one-hop neighbour instead of one per two-hop robot.
     """
 
     id: int
@@ -435,6 +477,7 @@ class AgentState(Message):
     stats: dict[str, float | int] | None = None
     vx: float | None = None
     vy: float | None = None
+    relay: tuple[tuple[int, float, float, float, float], ...] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "id": _ID,
@@ -445,13 +488,15 @@ class AgentState(Message):
         "stats": _optional(_stats),
         "vx": _optional(_real(-MAX_SPEED, MAX_SPEED)),
         "vy": _optional(_real(-MAX_SPEED, MAX_SPEED)),
+        "relay": _optional(_relay(MAX_RELAY)),
     }
-    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"stats", "vx", "vy"})
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"stats", "vx", "vy", "relay"})
 
 
 @dataclass(frozen=True, slots=True)
 class Beacon(Message):
-    """Agent -> agents in nearby tiles: "I am here" for neighbour discovery (~1 Hz)."""
+    """Agent -> agents in nearby tiles: "I am here" for neighbour discovery (every 10 s,
+    and early when a teammate appears)."""
 
     id: int
     x: float

@@ -230,15 +230,90 @@ def test_local_view_matches_the_full_team_law() -> None:
     assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
 
 
+def test_local_view_from_relayed_positions_matches_the_full_team_law() -> None:
+    """Subscribed to its one-hop neighbours only, whose AgentStates relay their own
+    neighbours' positions, an interior agent still gets row ``me`` of TVD-D1."""
+    from agent.control import tvd_d1
+    from agent.coverage import neighbors
+
+    rng = np.random.default_rng(4)
+    side, spacing = 10, 0.5
+    size = side * spacing
+    square = [[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]]
+    grid = [((i + 0.5) * spacing, (j + 0.5) * spacing) for i in range(side) for j in range(side)]
+    points = np.array(grid) + rng.uniform(-0.1, 0.1, (side * side, 2))
+    me = 4 * side + 5
+    brain = AgentBrain(me, AgentConfig())
+    brain.on_domain(domain(vertices=square, velocity=(0.05, -0.02)), now=0.0)
+    truth = neighbors(points, np.array(square))
+    for k in range(5):
+        now = 0.1 * k
+        brain.on_pose(pose(me, *points[me]), now)
+        tiles = brain.wanted_tiles()
+        for i, (x, y) in enumerate(points):
+            if protocol.tile_of(x, y, 1.0) in tiles:
+                brain.on_beacon(protocol.Beacon(id=i, x=x, y=y, stamp=WALL), now)
+        for i in brain.wanted_state_ids(now):
+            relay = [(j, *points[j], 0.0, 0.0) for j in sorted(truth[i])]
+            state = protocol.AgentState(
+                id=i, x=points[i][0], y=points[i][1], stamp=WALL, neighbors=truth[i], relay=relay
+            )
+            brain.on_agent_state(state, now)
+        decision = brain.step(now, WALL)
+    expected = tvd_d1(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
+    assert brain.one_hop == truth[me]
+    # The relays cover the outer ring: only the one-hop neighbours are subscribed (past
+    # the linger of the first steps' larger sets).
+    assert brain.wanted_state_ids(10.0) == set(truth[me])
+    assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
+    # Our own state relays our neighbours as we used them.
+    relay = brain.agent_state(WALL).relay
+    assert [entry[0] for entry in relay] == sorted(truth[me])
+    for rid, x, y, _, _ in relay:
+        assert (x, y) == pytest.approx(tuple(points[rid]))
+
+
+def test_two_hop_robots_without_a_relay_get_a_subscription() -> None:
+    brain = brain_at(0.0, 0.0, linger=0.0)
+    brain.one_hop = frozenset({1})
+    relay = ((0, 0.0, 0.0, 0.0, 0.0), (2, 1.0, 1.0, 0.0, 0.0))
+    state = protocol.AgentState(id=1, x=0.5, y=0.0, stamp=WALL, neighbors=(0, 2, 3), relay=relay)
+    brain.on_agent_state(state, now=0.0)
+    assert brain.wanted_state_ids(0.1) == {1, 3}  # 2 is relayed, 3 is not (yet)
+    bare = protocol.AgentState(id=1, x=0.5, y=0.0, stamp=WALL, neighbors=(0, 2, 3))
+    brain.on_agent_state(bare, now=0.2)  # a sender without relays: all of its neighbours
+    assert brain.wanted_state_ids(0.3) == {1, 2, 3}
+
+
+def test_relayed_positions_rank_below_direct_ones() -> None:
+    brain = brain_at(0.0, 0.0, stale_timeout=1.0)
+    relay = ((2, 1.0, 1.0, 0.1, 0.0), (0, 9.0, 9.0, 0.0, 0.0), (3, 2.0, 2.0, 0.0, 0.0))
+    brain.on_agent_state(
+        protocol.AgentState(id=1, x=0.5, y=0.0, stamp=WALL, neighbors=(0, 2, 3), relay=relay),
+        now=0.0,
+    )
+    seen = brain.candidates(0.1)
+    assert 0 not in seen  # our own position relayed back to us is ignored
+    assert seen[2] == pytest.approx((1.0 + 0.1 * 0.1, 1.0))  # dead-reckoned
+    brain.on_agent_state(protocol.AgentState(id=2, x=1.5, y=1.0, stamp=WALL, neighbors=()), 0.0)
+    assert brain.candidates(0.1)[2] == pytest.approx((1.5, 1.0))  # its own state wins
+    brain.on_liveliness("agent", 3, alive=False)
+    assert 3 not in brain.candidates(0.1)
+    assert 2 not in brain.candidates(1.5)  # the relay went stale with the state
+
+
 def test_beacon_candidates_until_pose_arrives() -> None:
-    brain = brain_at(0.5, 1.0)
+    brain = brain_at(0.5, 1.0, stale_timeout=1.0, beacon_timeout=3.0)
     brain.on_beacon(protocol.Beacon(id=3, x=1.2, y=1.0, stamp=WALL), now=0.0)
     assert brain.candidates(0.1)[3] == pytest.approx([1.2, 1.0])
     brain.on_pose(pose(3, 1.4, 1.0), now=0.2)
     assert brain.candidates(0.3)[3] == pytest.approx([1.4, 1.0])
-    # Pose stale (> 1 s) but beacon not yet (< 3 s): back to the beacon position.
-    assert brain.candidates(2.0)[3] == pytest.approx([1.2, 1.0])
-    assert 3 not in brain.candidates(3.5)
+    # Pose stale (> 1 s): the beacon is older than the pose, so it no longer counts...
+    assert 3 not in brain.candidates(2.0)
+    # ... until a newer one arrives, which counts until beacon_timeout (3 s).
+    brain.on_beacon(protocol.Beacon(id=3, x=1.3, y=1.0, stamp=WALL), now=2.1)
+    assert brain.candidates(2.2)[3] == pytest.approx([1.3, 1.0])
+    assert 3 not in brain.candidates(5.2)
     assert not brain.on_beacon(protocol.Beacon(id=0, x=0.0, y=0.0, stamp=WALL), now=0.0)
 
 
@@ -305,7 +380,7 @@ def test_nan_never_reaches_a_wheel_command() -> None:
 
 
 def test_beacon_period_and_agent_state() -> None:
-    brain = AgentBrain(0)
+    brain = AgentBrain(0, AgentConfig(beacon_period=5.0, stale_timeout=10.0))
     assert brain.beacon(0.0, WALL) is None and brain.agent_state(WALL) is None
     brain.on_pose(pose(0, 2.5, -0.5), now=0.0)
     assert brain.beacon(0.0, WALL) is None  # no beacon before the domain gives the tiles
@@ -313,8 +388,16 @@ def test_beacon_period_and_agent_state() -> None:
     tile, beacon = brain.beacon(0.0, WALL)
     assert tile == (2, -1) and beacon.id == 0
     assert brain.beacon(0.5, WALL) is None
-    assert brain.beacon(1.0, WALL) is not None
-    brain.step(0.1, WALL)
+    assert brain.beacon(4.9, WALL) is None
+    assert brain.beacon(5.0, WALL) is not None
+    # A new teammate's agent token: an early beacon, BEACON_MIN_PERIOD after the last one.
+    brain.on_liveliness("agent", 7, True)
+    assert brain.beacon(5.0 + 0.5 * runtime.BEACON_MIN_PERIOD, WALL) is None
+    assert brain.beacon(5.0 + runtime.BEACON_MIN_PERIOD, WALL) is not None
+    assert brain.beacon(5.0 + 2.0 * runtime.BEACON_MIN_PERIOD, WALL) is None  # routine again
+    brain.on_liveliness("robot", 8, True)  # robots do not beacon: nothing owed
+    assert brain.beacon(5.0 + 3.0 * runtime.BEACON_MIN_PERIOD, WALL) is None
+    brain.step(8.1, WALL)
     state = brain.agent_state(WALL)
     assert protocol.AgentState.decode(state.encode()) == state
     assert state.stats["step_us_p50"] > 0.0
