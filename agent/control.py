@@ -41,6 +41,7 @@ from agent.coverage import (
     DensityModel,
     Domain,
     as_complex,
+    as_vectors,
     build_cells,
     cell_jacobian_blocks,
     cell_neighbors,
@@ -77,23 +78,25 @@ def _references(
     feedforward: bool,
     density: DensityModel | None,
 ) -> np.ndarray:
-    """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K, 2): what both laws act on.
+    """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K,) complex: what both laws
+    act on.
 
     A robot with an empty cell aims at the centroid of the whole of S instead (module notes).
     """
     target = batch.centroid
     rate = cell_rates(batch, points, domain, density) if feedforward else None
-    if batch.empty.any():
+    empty = batch.empty
+    if empty.any():
         whole_centroid, whole_rate = _whole_domain(domain, density)
-        target = np.where(batch.empty[:, None], whole_centroid, target)
+        target = np.where(empty, whole_centroid, target)
         if rate is not None:
-            rate = np.where(batch.empty[:, None], whole_rate, rate)
-    reference = kappa * (target - points[batch.owners])
+            rate = np.where(empty, whole_rate, rate)
+    reference = kappa * (target - as_complex(points)[batch.owners])
     return reference if rate is None else reference + rate
 
 
-def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[np.ndarray, np.ndarray]:
-    """Centroid of all of S and its rate (2,), (2,): the cell of a robot alone in S."""
+def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[complex, complex]:
+    """Centroid of all of S and its rate: the cell of a robot alone in S."""
     alone = domain.vertices.mean(axis=0, keepdims=True)
     cell = _weigh(build_cells(alone, np.array([0]), np.full((1, 1), -1), domain), density)
     return cell.centroid[0], cell_rates(cell, alone, domain, density)[0]
@@ -107,27 +110,24 @@ def _d1_rows(
     max_amplification: float,
     density: DensityModel | None,
 ) -> np.ndarray:
-    """Rows of (I + dc/dp) r for the batch's robots, with the amplification guard.
+    """Rows of (I + dc/dp) r for the batch's robots, with the amplification guard, (K,).
 
-    own: (K, 2) r_i; neighbor_references: (K, L, 2) r_j of the robot each line comes from
-    (ignored where the line is not a shared edge). Empty cells keep r_i.
+    own: (K,) r_i; neighbor_references: (K, L) r_j of the robot each line comes from
+    (ignored where the line is not a shared edge); vectors as complex numbers. Empty cells
+    keep r_i.
     """
-    others = np.where(batch.shared[..., None], neighbor_references, 0.0)
+    others = np.where(batch.shared, neighbor_references, 0.0)
     if density is None:
         velocity = own + jacobian_times(batch, points, own, others)
     else:
         off, diagonal = density.jacobian_blocks(batch, points)
-        velocity = (
-            own + np.einsum("kab,kb->ka", diagonal, own) + np.einsum("klab,klb->ka", off, others)
+        velocity = own + as_complex(
+            np.einsum("kab,kb->ka", diagonal, as_vectors(own))
+            + np.einsum("klab,klb->ka", off, as_vectors(others))
         )
-    scale = np.maximum(_norms(own), _norms(others).max(axis=1))
-    factor = np.minimum(1.0, max_amplification * scale / np.maximum(_norms(velocity), 1e-300))
-    return np.where(batch.empty[:, None], own, velocity * factor[:, None])
-
-
-def _norms(vectors: np.ndarray) -> np.ndarray:
-    """Euclidean norms of stacked 2-vectors (..., 2) -> (...)."""
-    return np.abs(as_complex(vectors))
+    scale = np.maximum(np.abs(own), np.abs(others).max(axis=1))
+    factor = np.minimum(1.0, max_amplification * scale / np.maximum(np.abs(velocity), 1e-300))
+    return np.where(batch.empty, own, velocity * factor)
 
 
 def _check_kappa(kappa: float) -> None:
@@ -164,7 +164,7 @@ def tvd_d1(
     points, batch, references = _team(
         positions, polygon, polygon_velocity, kappa, feedforward, density
     )
-    return _team_d1(batch, points, references, max_amplification, density)
+    return as_vectors(_team_d1(batch, points, references, max_amplification, density))
 
 
 def _team_d1(
@@ -174,7 +174,7 @@ def _team_d1(
     max_amplification: float,
     density: DensityModel | None,
 ) -> np.ndarray:
-    """TVD-D1 rows of the whole team from its cells and its r, (n, 2)."""
+    """TVD-D1 rows of the whole team from its cells and its r, (n,) complex."""
     neighbor_references = references[np.maximum(batch.labels, 0)]
     return _d1_rows(batch, points, references, neighbor_references, max_amplification, density)
 
@@ -217,18 +217,18 @@ def tvd_c(
     )
     jacobian = _control_jacobian(batch, points, density)
     system = scipy.sparse.eye_array(jacobian.shape[0], format="csc") - jacobian.tocsc()
-    rhs = references.ravel()
+    rhs = as_vectors(references).ravel()
     try:
         solution = scipy.sparse.linalg.splu(system).solve(rhs)
     except (np.linalg.LinAlgError, RuntimeError, ValueError):
         solution = None
     if solution is not None:
         velocities = solution.reshape(-1, 2)
-        bound = max_amplification * float(np.max(np.linalg.norm(references, axis=1)))
+        bound = max_amplification * float(np.max(np.abs(references)))
         speeds = np.linalg.norm(velocities, axis=1)
         if np.all(np.isfinite(speeds)) and np.all(speeds <= bound):
             return velocities
-    return _team_d1(batch, points, references, max_amplification, density)
+    return as_vectors(_team_d1(batch, points, references, max_amplification, density))
 
 
 def local_step(
@@ -266,7 +266,7 @@ def local_step(
     owners = np.concatenate(([index], cell_neighbors(points, index, domain)))
     batch = _weigh(build_cells(points, owners, everyone, domain), density)
     references = _references(batch, points, domain, kappa, feedforward, density)
-    by_robot = np.zeros((len(ids), 2))
+    by_robot = np.zeros(len(ids), dtype=np.complex128)
     by_robot[owners] = references
     mine = _rows(batch, slice(0, 1))
     velocity = _d1_rows(
@@ -276,12 +276,12 @@ def local_step(
         by_robot[np.maximum(mine.labels, 0)],
         max_amplification,
         density,
-    )[0]
+    )
     neighbor_indices = mine.labels[0][mine.shared[0]]
     return LocalStep(
-        velocity=velocity,
+        velocity=as_vectors(velocity)[0],
         neighbors=frozenset(ids[j] for j in neighbor_indices.tolist()),
-        centroid=mine.centroid[0],
+        centroid=as_vectors(mine.centroid)[0],
         mass=float(mine.mass[0]),
     )
 

@@ -69,12 +69,12 @@ class Domain:
     """A validated subdomain S: counter-clockwise vertices and matching vertex velocities.
 
     vertices: (k, 2) counter-clockwise; velocities: (k, 2); size: half the perimeter of S,
-    between its diameter and 1.6 times it. Derived once for the hot path: normals (k, 2)
-    unit outward normal of edge l (from vertex l to l + 1) and offsets (k,) with
-    S = {q : normals q <= offsets}; the
-    outward normal speed of a point q of edge l, linear along the edge because the vertex
-    velocities interpolate linearly, is speed_offset[l] + speed_gradient[l] . q with
-    speed_offset (k,) and speed_gradient (k, 2).
+    between its diameter and 1.6 times it. Derived once for the hot path, plane vectors as
+    complex numbers x + iy: normals (k,) unit outward normal of edge l (from vertex l to
+    l + 1) and offsets (k,) with S = {q : normals . q <= offsets}; the outward normal speed
+    of a point q of edge l, linear along the edge because the vertex velocities interpolate
+    linearly, is speed_offset[l] + speed_gradient[l] . q with speed_offset (k,) and
+    speed_gradient (k,).
     """
 
     vertices: np.ndarray
@@ -94,11 +94,12 @@ class Domain:
 class CellBatch:
     """The cells of robots ``owners`` as labelled edges, K cells of L candidate lines each.
 
-    owners: (K,) robot indices; start, end: (K, L, 2) edge ends, the present edges first and
-    in counter-clockwise order, each edge's end the next one's start; labels:
-    (K, L) the robot (>= 0) or polygon edge (-(l + 1)) each line comes from; present: (K, L)
-    the line is an edge of positive length; mass: (K,) m_i, 0 for an empty cell; centroid:
-    (K, 2) c_i, the nearest point of S for an empty cell (Section 4.2).
+    Points of the plane are complex numbers x + iy. owners: (K,) robot indices; start, end:
+    (K, L) edge ends, the present edges first and in counter-clockwise order, each edge's
+    end the next one's start; labels: (K, L) the robot (>= 0) or polygon edge (-(l + 1))
+    each line comes from; present: (K, L) the line is an edge of positive length; mass: (K,)
+    m_i, 0 for an empty cell; centroid: (K,) c_i, the nearest point of S for an empty cell
+    (Section 4.2).
     """
 
     owners: np.ndarray
@@ -125,7 +126,7 @@ class CellBatch:
 
     def vertices(self, k: int) -> np.ndarray:
         """Counter-clockwise vertices (m, 2) of cell k, (0, 2) when empty."""
-        return self.start[k][self.present[k]]
+        return as_vectors(self.start[k][self.present[k]])
 
 
 @runtime_checkable
@@ -167,7 +168,8 @@ def cell_jacobian_blocks(
 def cell_rates(
     batch: CellBatch, points: np.ndarray, domain: Domain, density: DensityModel | None
 ) -> np.ndarray:
-    """dc/dt of Proposition 1: ``boundary_rates`` for phi = 1, else both of its terms."""
+    """dc/dt of Proposition 1, (K,) complex: ``boundary_rates`` for phi = 1, else both of its
+    terms."""
     if density is None:
         return boundary_rates(batch, points, domain)
     return density.boundary_rates(batch, points, domain)
@@ -280,10 +282,10 @@ def _derive(
         vertices=vertices,
         velocities=velocities,
         size=size,
-        normals=normal.view(np.float64).reshape(-1, 2),
+        normals=normal,
         offsets=(normal.conj() * z).real,
         speed_offset=start_speed - (gradient.conj() * z).real,
-        speed_gradient=gradient.view(np.float64).reshape(-1, 2),
+        speed_gradient=gradient,
     )
 
 
@@ -319,55 +321,67 @@ def build_cells(
     index is ignored. The batch keeps as many lines per cell as the largest cell has edges.
     """
     lines = _clip(points, owners, candidates, domain)
-    tol, me, present, lower = domain.tol, lines.me, lines.present, lines.lower
+    tol, present, normal = domain.tol, lines.present, lines.normal
     count = len(owners)
-    # Plane vectors as complex numbers; the clockwise direction is -i normal, so the start
-    # offset normal - lower clockwise is normal (offset + i lower).
-    normal = as_complex(lines.normal)
-    start = normal * (lines.offset + 1j * np.where(present, lower, 0.0))
+    # Relative to the owner; the clockwise direction is -i normal, so the start offset
+    # normal - lower clockwise is normal (offset + i lower).
+    start = normal * (lines.offset + 1j * np.where(present, lines.lower, 0.0))
     # Counter-clockwise order of a convex cell's edges is the order of their normals' angles,
     # from -pi exclusive (+ 0.0 turns a normal's -0.0 into +0.0, whose angle is +pi).
     angle = np.where(present, np.arctan2(normal.imag + 0.0, normal.real), np.inf)
     edges = present.sum(axis=1)
     width = max(int(edges.max()), 1)
-    order = np.argsort(angle, axis=1)[:, :width]
-    rows = np.arange(count)[:, None]
-    start, labels, present = start[rows, order], lines.labels[rows, order], present[rows, order]
     # Each vertex is computed once, as the start of its edge, and reused as the end of the
     # previous edge: nearly parallel bisectors (nearly coincident robots) make a vertex
-    # ill-conditioned, and two independent copies of it would leave the boundary open.
-    position = np.arange(1, width + 1)
-    end = start[rows, np.where(position < edges[:, None], position, 0)]
+    # ill-conditioned, and two independent copies of it would leave the boundary open. So
+    # the edges' starts are gathered in order, the first edge's again after the last one
+    # and in place of the padding, and each edge ends where the next column starts.
+    present = np.arange(width) < edges[:, None]
+    order = np.argsort(angle, axis=1)[:, :width]
+    order = np.where(present, order, order[:, :1]).take(_ring(width), axis=1)
+    rows = np.arange(count)[:, None]
+    vertex = start[rows, order]  # (K, W + 1)
     # Moments about a vertex of the cell, not the owner: a sliver cell far from its robot
-    # would otherwise lose its digits to cancellation.
-    origin = start[:, :1]
-    a, b = start - origin, end - origin
-    twice_area = np.where(present, (a.conj() * b).imag, 0.0)
+    # would otherwise lose its digits to cancellation. Padding adds nothing (a = b = 0).
+    origin = vertex[:, 0]
+    about = vertex - origin[:, None]
+    a, b = about[:, :-1], about[:, 1:]
+    twice_area = (a.conj() * b).imag
     mass = 0.5 * twice_area.sum(axis=1)
     empty = mass <= tol * tol
     moment = (twice_area * (a + b)).sum(axis=1)
-    me_c = as_complex(me)
-    centroid = _as_vectors(me_c + origin[:, 0] + moment / (6.0 * np.where(empty, 1.0, mass)))
+    me = lines.me
+    centroid = me + origin + moment / (6.0 * np.where(empty, 1.0, mass))
     if empty.any():
         mass = np.where(empty, 0.0, mass)
         for i in np.flatnonzero(empty):
-            centroid[i] = nearest_point(domain, me[i])[0]
+            centroid[i] = complex(*nearest_point(domain, points[owners[i]])[0])
         present &= ~empty[:, None]
-    me_c = me_c[:, None]
+    vertex += me[:, None]
     return CellBatch(
         owners=owners,
-        start=_as_vectors(start + me_c),
-        end=_as_vectors(end + me_c),
-        labels=labels,
+        start=vertex[:, :-1],
+        end=vertex[:, 1:],
+        labels=lines.labels[rows, order[:, :-1]],
         present=present,
         mass=mass,
         centroid=centroid,
     )
 
 
-def _as_vectors(numbers: np.ndarray) -> np.ndarray:
-    """Complex numbers (...) as stacked 2-vectors (..., 2), a view (the inverse of
-    ``as_complex``)."""
+@cache
+def _ring(width: int) -> np.ndarray:
+    """Columns 0, 1, ..., width - 1, 0: a row of ``width`` items closed into a ring."""
+    ring = np.arange(width + 1) % width
+    ring.flags.writeable = False
+    return ring
+
+
+def as_vectors(numbers: np.ndarray) -> np.ndarray:
+    """Complex numbers (...) as stacked 2-vectors (..., 2), a view when the last axis is
+    contiguous (the inverse of ``as_complex``)."""
+    if numbers.ndim and numbers.strides[-1] != numbers.itemsize:
+        numbers = np.ascontiguousarray(numbers)
     return numbers.view(np.float64).reshape(*numbers.shape, 2)
 
 
@@ -381,27 +395,28 @@ def cell_neighbors(points: np.ndarray, owner: int, domain: Domain) -> np.ndarray
     """
     tol = domain.tol
     k = len(domain.offsets)
-    offsets_to = points - points[owner]
-    distance = np.hypot(offsets_to[:, 0], offsets_to[:, 1])
+    where = as_complex(points)
+    offsets_to = where - where[owner]
+    distance = np.abs(offsets_to)
     valid = distance > tol  # not the owner, nor a robot coincident with it
-    normal = np.concatenate((domain.normals, offsets_to / np.maximum(distance, tol)[:, None]))
+    normal = np.concatenate((domain.normals, offsets_to / np.maximum(distance, tol)))
     # An invalid robot's line is moved out to the size of S, where it cannot cut the cell.
     offset = np.concatenate(
         (
-            domain.offsets - domain.normals @ points[owner],
+            domain.offsets - (domain.normals.conj() * where[owner]).real,
             np.where(valid, 0.5 * distance, domain.size),
         )
     )
-    upper, lower = _piece_bounds(normal, offset, tol, loosen=True)
-    return np.flatnonzero(valid & (upper[k:] > lower[k:] - tol))
+    upper, lower = _piece_bounds(normal[None], offset[None], tol, loosen=True)
+    return np.flatnonzero(valid & (upper[0, k:] > lower[0, k:] - tol))
 
 
 class _Lines(NamedTuple):
     """The lines of a batch of cells (relative to each owner) and their pieces in the cell.
 
-    me: (K, 2) owners; normal: (K, L, 2) unit normals; offset, lower: (K, L)
-    normal . q <= offset, the piece starts at offset normal + lower (-ny, nx); labels,
-    present: (K, L) as in CellBatch, before the cell's mass is known.
+    Plane vectors as complex numbers. me: (K,) owners; normal: (K, L) unit normals; offset,
+    lower: (K, L) normal . q <= offset, the piece starts at offset normal + lower (-ny, nx);
+    labels, present: (K, L) as in CellBatch, before the cell's mass is known.
     """
 
     me: np.ndarray
@@ -418,9 +433,10 @@ def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain
     count = len(owners)
     k = len(domain.offsets)
     lines = k + candidates.shape[1]
-    me = points[owners]  # work relative to the owner: cells far from the origin keep digits
-    offsets_to = points[candidates] - me[:, None, :]  # padding reads points[-1], unused
-    distance = np.hypot(offsets_to[..., 0], offsets_to[..., 1])
+    where = as_complex(points)
+    me = where[owners]  # work relative to the owner: cells far from the origin keep digits
+    offsets_to = where[candidates] - me[:, None]  # padding reads points[-1], unused
+    distance = np.abs(offsets_to)
     # The owner itself (distance 0) and robots coincident with it cast no bisector.
     close = distance <= tol
     valid = ~close & (candidates >= 0)
@@ -430,11 +446,11 @@ def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain
     # Line l: normal_l . q <= offset_l, q relative to the owner. Polygon edges come first:
     # where a bisector lies on an edge of S, the lower line index wins. An unused candidate
     # gets a zero normal and a positive offset: a constraint that never binds.
-    normal = np.empty((count, lines, 2))
+    normal = np.empty((count, lines), dtype=np.complex128)
     normal[:, :k] = domain.normals
-    normal[:, k:] = offsets_to * (valid / np.maximum(distance, tol))[..., None]
+    normal[:, k:] = offsets_to * (valid / np.maximum(distance, tol))
     offset = np.empty((count, lines))
-    offset[:, :k] = domain.offsets - me @ domain.normals.T
+    offset[:, :k] = domain.offsets - (me[:, None] * domain.normals.conj()).real
     offset[:, k:] = np.where(valid, 0.5 * distance, domain.size)
     labels = np.empty((count, lines), dtype=np.int64)
     labels[:, :k] = _polygon_labels(k)
@@ -449,13 +465,19 @@ def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain
     return _Lines(me, normal, offset, lower, labels, present)
 
 
+# The LP's columns of a line from its row (nx, ny, o): the foot (o nx, o ny, -1) and the
+# clockwise direction (ny, -nx, 0).
+_COLUMN_ENDS = np.array([-1.0, 0.0])[:, None, None]
+_CLOCKWISE = np.array([1.0, -1.0])[:, None]
+
+
 def _piece_bounds(
     normal: np.ndarray, offset: np.ndarray, tol: float, loosen: bool
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Where each line's piece inside all the other half-planes starts and ends, (..., L).
+    """Where each line's piece inside all the other half-planes starts and ends, (K, L).
 
-    normal: (..., L, 2) unit normals (zero for a line that is no constraint), offset:
-    (..., L), half-planes normal . q <= offset. Line l is foot_l + t direction_l with
+    normal: (K, L) unit normals as complex numbers (zero for a line that is no constraint),
+    offset: (K, L), half-planes normal . q <= offset. Line l is foot_l + t direction_l with
     foot_l = offset_l normal_l and direction_l = (-ny, nx), which keeps the interior on the
     left so edges run counter-clockwise; it must satisfy normal_m . q <= offset_m for every
     m: t rate_lm <= slack_lm, an upper bound on t where rate_lm > 0, a lower one where < 0.
@@ -467,24 +489,43 @@ def _piece_bounds(
     and a line never excludes itself; the shift is tol for rate 0 and 0 from |rate| = 1e-12
     on, so that vertices of lines that do cross are exact.
     """
-    # Computed with the opposite direction (y, -x), so that copysign can tell the kinds
-    # apart without a negation: clockwise_rate = -rate, excess = -slack.
-    clockwise = normal[..., ::-1] * np.array([1.0, -1.0])
-    transposed = np.swapaxes(normal, -1, -2)
-    clockwise_rate = clockwise @ transposed
-    excess = offset[..., :, None] * (normal @ transposed) - offset[..., None, :]
+    count, lines = offset.shape
+    # Computed with the opposite direction (y, -x), so that the sign of clockwise_rate
+    # tells the kinds apart without a negation: clockwise_rate = -rate, excess = -slack.
+    # Every pair comes from one batched matrix product: row (normal_m, offset_m) of
+    # constraint m times the columns (foot_l, -1) and (clockwise_l, 0) of line l, stored
+    # [m, k, l] so that the reductions over m run along the outermost axis, which numpy does
+    # a few times faster than along the innermost one. In-place operations where possible:
+    # at these sizes each numpy call costs more than its arithmetic.
+    rows = np.empty((count, 3, lines))
+    rows[:, 0] = normal.real
+    rows[:, 1] = normal.imag
+    rows[:, 2] = offset
+    columns = np.empty((2, count, 3, lines))
+    np.multiply(rows[:, :2], rows[:, 2:], out=columns[0, :, :2])
+    np.multiply(rows[:, 1::-1], _CLOCKWISE, out=columns[1, :, :2])
+    columns[:, :, 2] = _COLUMN_ENDS
+    pairs = np.empty((2, lines, count, lines))
+    np.matmul(rows.swapaxes(1, 2), columns, out=pairs.swapaxes(1, 2))
+    excess, clockwise_rate = pairs
     if loosen:
         excess -= tol
     else:
-        shift = np.maximum(tol - (1e24 * tol) * (clockwise_rate * clockwise_rate), 0.0)
-        excess += _earlier_sign(offset.shape[-1]) * shift
+        shift = np.square(clockwise_rate)
+        shift *= -1e24 * tol
+        shift += tol
+        np.maximum(shift, 0.0, out=shift)
+        shift *= _earlier_sign(lines)
+        excess += shift
     # slack / rate is the bound and the sign of rate its kind. A (near) parallel constraint
     # gives +-inf or a huge bound: harmless when satisfied (slack > 0), and when violated
     # an upper bound of -inf or a lower one of +inf, which excludes the whole line.
-    with np.errstate(divide="ignore", invalid="ignore"):
+    with np.errstate(divide="ignore", over="ignore", invalid="ignore"):
         bound = excess / clockwise_rate
-    side = np.copysign(np.inf, clockwise_rate)  # -inf where bounds are upper ones
-    return np.maximum(bound, side).min(axis=-1), np.minimum(bound, side).max(axis=-1)
+        # -inf where bounds are upper ones: copysign(inf, clockwise_rate), signed zeros
+        # included, but as a division, which numpy vectorises.
+        side = np.inf / clockwise_rate
+    return np.maximum(bound, side).min(axis=0), np.minimum(bound, side).max(axis=0)
 
 
 @cache
@@ -497,16 +538,16 @@ def _polygon_labels(k: int) -> np.ndarray:
 
 @cache
 def _earlier_sign(lines: int) -> np.ndarray:
-    """(lines, lines) [l, m] = +1 where m < l, else -1: which of two identical lines wins."""
-    sign = np.where(np.tri(lines, k=-1, dtype=bool), 1.0, -1.0)
+    """(lines, 1, lines) [m, 0, l] = +1 where m < l, else -1: which of two identical lines
+    wins."""
+    sign = np.where(np.tri(lines, k=-1, dtype=bool).T, 1.0, -1.0)[:, None, :]
     sign.flags.writeable = False
     return sign
 
 
 def cell_radius(batch: CellBatch, points: np.ndarray) -> np.ndarray:
     """(K,) the largest distance from each owner to its cell's vertices (0 when empty)."""
-    me = points[batch.owners][:, None, :]
-    reach = np.linalg.norm(batch.start - me, axis=2)
+    reach = np.abs(batch.start - as_complex(points)[batch.owners][:, None])
     return np.where(batch.present, reach, 0.0).max(axis=1)
 
 
@@ -637,18 +678,14 @@ def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, n
     w = v1 - a: with a = p_i it gives dc_i/dp_i, and with a = p_j it is the same plus
     |d| (u + d / 2)(p_i - p_j)^T, so one bracket serves both blocks.
     """
-    me = points[batch.owners][:, None, :]
-    # Polygon labels read wrapped rows, masked below.
-    gap = me - np.take(points, batch.labels, axis=0, mode="wrap")
-    separation = np.hypot(gap[..., 0], gap[..., 1])
-    start = batch.start
-    d = batch.end - start
-    length = np.hypot(d[..., 0], d[..., 1])
-    # |d| / (m_i |p_i - p_j|) on shared edges, 0 elsewhere (and for empty cells).
-    shared = batch.present & (batch.labels >= 0)
-    weight = np.where(shared, length / np.where(shared, separation * batch.mass[:, None], 1.0), 0.0)
-    u = start - batch.centroid[:, None, :]
-    w = start - me
+    where = as_complex(points)
+    me = where[batch.owners][:, None]
+    # Polygon labels read wrapped rows, masked by the weight.
+    gap = me - np.take(where, batch.labels, mode="wrap")
+    d = batch.end - batch.start
+    weight = _shared_weight(batch, d, gap)
+    u, w = as_vectors(batch.start - batch.centroid[:, None]), as_vectors(batch.start - me)
+    d, gap = as_vectors(d), as_vectors(gap)
     half = 0.5 * d
     about_me = _outer(u, w + half) + _outer(d, 0.5 * w + d / 3.0)
     diagonal = np.einsum("kl,klab->kab", weight, about_me)
@@ -656,39 +693,49 @@ def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, n
     return off, diagonal
 
 
+def _shared_weight(batch: CellBatch, d: np.ndarray, gap: np.ndarray) -> np.ndarray:
+    """|d| / (m_i |p_i - p_j|) on shared edges, 0 elsewhere (and for empty cells), (K, L).
+
+    d: (K, L) the edges; gap: (K, L) p_i - p_j for the robot j each line comes from.
+    """
+    return np.divide(
+        np.abs(d),
+        np.abs(gap) * batch.mass[:, None],
+        out=np.zeros(d.shape),
+        where=batch.present & (batch.labels >= 0),
+    )
+
+
 def jacobian_times(
     batch: CellBatch, points: np.ndarray, own: np.ndarray, others: np.ndarray
 ) -> np.ndarray:
-    """(dc/dp r)_i = sum_j dc_i/dp_j r_j for the batch's rows, (K, 2), without the blocks.
+    """(dc/dp r)_i = sum_j dc_i/dp_j r_j for the batch's rows, (K,), without the blocks.
 
-    own: (K, 2) r_i; others: (K, L, 2) r_j of the robot each line comes from (read only on
-    shared edges). The closed form of ``jacobian_blocks`` (eqs. dcidpj, dcidpi) applied to
-    vectors: with the bracket's u w^T + ... written as u (A . v) + d (B . v), each shared
-    edge adds |d| / (m_i |p_i - p_j|) [u (A . (r_i - r_j)) + d (B . (r_i - r_j))
-    - (u + d / 2) ((p_i - p_j) . r_j)], A = w + d / 2, B = w / 2 + d / 3. TVD-D1 needs only
-    this product, at a fraction of the cost of the 2 x 2 blocks.
+    own: (K,) r_i; others: (K, L) r_j of the robot each line comes from (read only on shared
+    edges); vectors as complex numbers. The closed form of ``jacobian_blocks`` (eqs. dcidpj,
+    dcidpi) applied to vectors: with the bracket's u w^T + ... written as
+    u (A . v) + d (B . v), each shared edge adds |d| / (m_i |p_i - p_j|)
+    [u (A . (r_i - r_j)) + d (B . (r_i - r_j)) - (u + d / 2) ((p_i - p_j) . r_j)],
+    A = w + d / 2, B = w / 2 + d / 3. TVD-D1 needs only this product, at a fraction of the
+    cost of the 2 x 2 blocks.
     """
-    # Plane vectors as complex numbers: a . b = Re(conj(a) b).
+    # Plane vectors as complex numbers: a . b = Re(a conj(b)).
     where = as_complex(points)
     me = where[batch.owners][:, None]
-    start = as_complex(batch.start)
-    d = as_complex(batch.end) - start
+    start = batch.start
+    d = batch.end - start
     gap = me - np.take(where, batch.labels, mode="wrap")  # polygon labels: masked below
-    shared = batch.present & (batch.labels >= 0)
-    weight = np.where(
-        shared, np.abs(d) / np.where(shared, np.abs(gap) * batch.mass[:, None], 1.0), 0.0
-    )
-    u = start - as_complex(batch.centroid)[:, None]
+    u = start - batch.centroid[:, None]
     w = start - me
-    theirs = as_complex(others)
-    delta = as_complex(own)[:, None] - theirs
+    theirs = others.conj()
+    delta = own.conj()[:, None] - theirs
     half = 0.5 * d
     terms = (
-        u * ((w + half).conj() * delta).real
-        + d * ((0.5 * w + d / 3.0).conj() * delta).real
-        - (u + half) * (gap.conj() * theirs).real
+        u * ((w + half) * delta).real
+        + d * ((0.5 * w + d / 3.0) * delta).real
+        - (u + half) * (gap * theirs).real
     )
-    return _as_vectors((weight * terms).sum(axis=1))
+    return (_shared_weight(batch, d, gap) * terms).sum(axis=1)
 
 
 def as_complex(vectors: np.ndarray) -> np.ndarray:
@@ -705,31 +752,33 @@ def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.ndarray:
-    """dc_i/dt of Proposition 1 for the batch's cells, (K, 2).
+    """dc_i/dt of Proposition 1 for the batch's cells, (K,) complex.
 
     The boundary term: on a cell edge lying on edge l of S the outward normal speed nu is
-    linear in position (vertex velocities interpolate linearly), so with nu1, nu2 at its ends
-    integral (q - c) nu ds = |d| [ (v1 - c)(nu1 + nu2) / 2 + d (nu1 / 6 + nu2 / 3) ].
+    linear in position (vertex velocities interpolate linearly), so with h half the edge,
+    q_m its midpoint and nu(q_m -+ h) = nu_m -+ delta at its ends,
+    integral (q - c) nu ds = 2 |h| [ (q_m - c) nu_m + h delta / 3 ].
     An empty cell gets the velocity of its nearest point of S.
     """
-    # Plane vectors as complex numbers: a . b = Re(conj(a) b).
-    start, end = as_complex(batch.start), as_complex(batch.end)
-    # Label -(l + 1) is edge l, i.e. ~label; robot labels read wrapped entries, masked below.
-    edge = ~batch.labels
-    offset = np.take(domain.speed_offset, edge, mode="wrap")
-    gradient = np.take(as_complex(domain.speed_gradient), edge, mode="wrap").conj()
-    nu1 = offset + (gradient * start).real
-    nu2 = offset + (gradient * end).real
-    d = end - start
-    length = (batch.present & (batch.labels < 0)) * np.abs(d)
-    integral = (
-        length * (0.5 * (nu1 + nu2)) * (start - as_complex(batch.centroid)[:, None])
-        + length * (nu1 / 6.0 + nu2 / 3.0) * d
-    ).sum(axis=1)
+    labels = batch.labels
+    boundary = batch.present & (labels < 0)
+    rates = np.zeros(len(labels), dtype=np.complex128)
+    if boundary.any():  # cells inside S have no boundary term
+        # Plane vectors as complex numbers: a . b = Re(a conj(b)). Label -(l + 1) is edge
+        # l, i.e. ~label; robot labels read wrapped entries, masked by ``length``.
+        edge = ~labels
+        gradient = np.take(domain.speed_gradient, edge, mode="wrap").conj()
+        half = 0.5 * (batch.end - batch.start)
+        middle = batch.start + half
+        nu = np.take(domain.speed_offset, edge, mode="wrap") + (gradient * middle).real
+        delta = (gradient * half).real
+        length = np.abs(half, out=np.zeros(labels.shape), where=boundary)
+        integral = length * (nu * (middle - batch.centroid[:, None]) + delta / 3.0 * half)
+        rates = 2.0 * integral.sum(axis=1)
     empty = batch.empty
-    rates = _as_vectors(integral / np.where(empty, 1.0, batch.mass))
+    rates /= np.where(empty, 1.0, batch.mass)
     for i in np.flatnonzero(empty):
-        rates[i] = nearest_point_derivatives(domain, points[batch.owners[i]])[2]
+        rates[i] = complex(*nearest_point_derivatives(domain, points[batch.owners[i]])[2])
     return rates
 
 
@@ -772,7 +821,7 @@ def mass_centroid(
     cell has mass 0 and the nearest point of S as its centroid.
     """
     _, _, batch = tessellate(positions, polygon, density=density)
-    return batch.mass.copy(), batch.centroid.copy()
+    return batch.mass.copy(), as_vectors(batch.centroid).copy()
 
 
 def neighbors(
@@ -821,7 +870,7 @@ def centroid_rate(
     it is the velocity of the nearest point of S.
     """
     points, domain, batch = tessellate(positions, polygon, polygon_velocity, density)
-    return cell_rates(batch, points, domain, density)
+    return as_vectors(cell_rates(batch, points, domain, density))
 
 
 def aggregate_error(
@@ -829,4 +878,4 @@ def aggregate_error(
 ) -> float:
     """Aggregated CVT error e_a = ||p - c(p, t)|| over the whole team (Section 5), metres."""
     points, _, batch = tessellate(positions, polygon, density=density)
-    return float(np.linalg.norm(points - batch.centroid))
+    return float(np.linalg.norm(points - as_vectors(batch.centroid)))

@@ -49,7 +49,7 @@ from typing import Any
 
 import numpy as np
 
-from agent.coverage import CellBatch, cross, nearest_point_derivatives
+from agent.coverage import CellBatch, as_complex, as_vectors, cross, nearest_point_derivatives
 from agent.coverage import Domain as CoverageDomain
 
 # Gauss-Legendre points per direction of the collapsed triangle rule (exact to degree
@@ -311,10 +311,8 @@ def subdivision(density: Density, batch: CellBatch) -> np.ndarray:
     """
     if not np.isfinite(density.sigma_min):
         return np.ones(len(batch.owners), dtype=int)
-    origin = batch.start[:, :1, :]
-    reach = np.maximum(
-        np.linalg.norm(batch.start - origin, axis=-1), np.linalg.norm(batch.end - origin, axis=-1)
-    )
+    origin = batch.start[:, :1]
+    reach = np.maximum(np.abs(batch.start - origin), np.abs(batch.end - origin))
     extent = np.max(np.where(batch.present, reach, 0.0), axis=1)
     pieces = np.ceil(extent / (RESOLUTION * density.sigma_min))
     return np.clip(pieces, 1, MAX_SUBDIVISION).astype(int)
@@ -356,7 +354,7 @@ def _fan(batch: CellBatch, pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray, 
     triangle's area folded in (zero on padding lines and on the degenerate triangles at v0).
     """
     lines = _trim(batch)
-    start, end = batch.start[:, :lines], batch.end[:, :lines]
+    start, end = as_vectors(batch.start[:, :lines]), as_vectors(batch.end[:, :lines])
     origin = start[:, :1, None, :]
     ab, weights = _cell_rules(_triangle_rule, TRIANGLE_ORDER, pieces)
     a, b = start[:, :, None, :] - origin, end[:, :, None, :] - origin
@@ -371,7 +369,7 @@ def _edges(batch: CellBatch, pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray
     ds includes the edge length; zero on padding lines. Also returns the lines kept.
     """
     lines = _trim(batch)
-    start, end = batch.start[:, :lines], batch.end[:, :lines]
+    start, end = as_vectors(batch.start[:, :lines]), as_vectors(batch.end[:, :lines])
     nodes, weights = _cell_rules(_gauss_legendre, EDGE_ORDER, pieces)
     d = end - start
     q = start[:, :, None, :] + nodes[:, None, :, None] * d[:, :, None, :]
@@ -393,7 +391,7 @@ def weigh(density: Density, batch: CellBatch) -> CellBatch:
     empty = batch.empty
     # Moment about the cell's first vertex: cells far from the origin keep their digits.
     moment = np.einsum("klp,klpc->kc", mass_density, q - origin)
-    centroid = origin[:, 0, 0] + moment / np.where(empty, 1.0, mass)[:, None]
+    centroid = as_complex(origin[:, 0, 0] + moment / np.where(empty, 1.0, mass)[:, None])
     return CellBatch(
         owners=batch.owners,
         start=batch.start,
@@ -401,7 +399,7 @@ def weigh(density: Density, batch: CellBatch) -> CellBatch:
         labels=batch.labels,
         present=batch.present,
         mass=np.where(empty, 0.0, mass),
-        centroid=np.where(empty[:, None], batch.centroid, centroid),
+        centroid=np.where(empty, batch.centroid, centroid),
     )
 
 
@@ -425,7 +423,7 @@ def jacobian_blocks(
         0.0,
     )  # fmt: skip
     weighted = (scale[..., None] * ds * density.phi(q))[..., None] * (
-        q - batch.centroid[:, None, None, :]
+        q - as_vectors(batch.centroid)[:, None, None, :]
     )
     off = np.zeros((len(batch.owners), batch.labels.shape[1], 2, 2))
     off[:, :lines] = -np.einsum("klgc,klgd->klcd", weighted, q - others[:, :, None, :])
@@ -436,28 +434,28 @@ def jacobian_blocks(
 def centroid_rates(
     density: Density, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
 ) -> np.ndarray:
-    """dc_i/dt of Proposition 1 (eq. dcidt2) for a weighed batch, (K, 2): both terms.
+    """dc_i/dt of Proposition 1 (eq. dcidt2) for a weighed batch, (K,) complex: both terms.
 
     (1/m_i) int_{V_i} (q - c_i) dphi/dt + (1/m_i) int_{dS_i} (q - c_i) phi nu, with nu the
     outward normal speed of S, linear along each edge of S. An empty cell gets the velocity
     of its nearest point of S.
     """
     pieces = subdivision(density, batch)
-    centroid = batch.centroid[:, None, None, :]
+    centroid = as_vectors(batch.centroid)[:, None, None, :]
     _, q, weight = _fan(batch, pieces)
     inner = np.einsum("klp,klpc->kc", weight * density.rate(q), q - centroid)
 
     q, ds, lines = _edges(batch, pieces)
     boundary = batch.boundary[:, :lines]
     edge = np.where(boundary, ~batch.labels[:, :lines], 0)[..., None]
-    nu = domain.speed_offset[edge] + np.sum(domain.speed_gradient[edge] * q, axis=-1)
+    nu = domain.speed_offset[edge] + (domain.speed_gradient[edge].conj() * as_complex(q)).real
     f = np.where(boundary[..., None], ds * density.phi(q) * nu, 0.0)
     moving = np.einsum("klg,klgc->kc", f, q - centroid)
 
     rates = (inner + moving) / np.where(batch.empty, 1.0, batch.mass)[:, None]
     for i in np.flatnonzero(batch.empty):
         rates[i] = nearest_point_derivatives(domain, points[batch.owners[i]])[2]
-    return rates
+    return as_complex(rates)
 
 
 @dataclass(frozen=True, eq=False)

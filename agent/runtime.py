@@ -357,6 +357,7 @@ class AgentBrain:
         # AgentState relays about our neighbours.
         self._reckoned: dict[int, tuple[float, float, float, float]] = {}
         self._first_hand: set[int] = set()
+        self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
         # no team member (a stopped robot without brain, or a brain without robot).
         self.dead: dict[int, set[str]] = {}
@@ -407,6 +408,7 @@ class AgentBrain:
             self.pose, self.pose_received = pose, now
         else:
             self.poses[pose.id] = Track(pose.x, pose.y, now)
+            self._heard[pose.id] = now
             self._revive(pose.id, "robot")
         return True
 
@@ -414,6 +416,7 @@ class AgentBrain:
         if state.id == self.id:
             return False
         self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
+        self._heard[state.id] = now
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
         if state.relay is None:
@@ -524,8 +527,7 @@ class AgentBrain:
         oldest = now - self.config.beacon_timeout
         for rid, track in self.beacons.items():
             if track.received >= oldest and rid not in reckoned and rid not in dead:
-                heard = self.state_tracks.get(rid) or self.poses.get(rid)
-                if heard is None or heard.received < track.received:
+                if self._heard.get(rid, -math.inf) < track.received:
                     reckoned[rid] = (track.x, track.y, 0.0, 0.0)
         self._reckoned, self._first_hand = reckoned, first_hand
         self.counters.stale += len(self._fresh - reckoned.keys())
@@ -536,16 +538,23 @@ class AgentBrain:
         return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
 
     def _forget(self, now: float) -> None:
-        """Drop records far older than any timeout, so memory stays bounded."""
-        horizon = 2.0 * max(
-            self.config.stale_timeout, self.config.beacon_timeout, self.config.linger
-        )
-        for table in (self.poses, self.state_tracks, self.beacons):
+        """Drop records well past their timeout: memory stays bounded, and the tables that
+        every step walks hold only the robots heard from lately."""
+        config = self.config
+        recent = 2.0 * max(config.stale_timeout, config.linger)
+        for table, horizon in (
+            (self.poses, recent),
+            (self.state_tracks, recent),
+            (self.beacons, 2.0 * config.beacon_timeout),
+        ):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
         for sets in (self.neighbor_sets, self.relays):
-            for rid in [rid for rid, (_, t) in sets.items() if now - t > horizon]:
+            for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]
+        old = now - 2.0 * config.beacon_timeout
+        for rid in [rid for rid, t in self._heard.items() if t < old]:
+            del self._heard[rid]
 
     def relevant(
         self, others: dict[int, tuple[float, float]], now: float

@@ -230,6 +230,32 @@ def test_domain_tile_size_and_state_stats_are_optional() -> None:
         AgentState.decode(packed({**wire(slim), "stats": [1]}))
 
 
+def test_agent_state_relay() -> None:
+    """Relayed neighbour positions: optional, round-trip, every entry checked (the fast path
+    for plain msgpack lists and the slow one with the reason agree)."""
+    relay = [[2, 1.0, 2.0, 0.1, -0.1], [7, -3.0, 0.5, 0.0, 0.0]]
+    state = AgentState(id=4, x=0.5, y=0.5, stamp=STAMP, neighbors=[2, 7], relay=relay)
+    assert AgentState.decode(state.encode()) == state
+    assert state.relay == ((2, 1.0, 2.0, 0.1, -0.1), (7, -3.0, 0.5, 0.0, 0.0))
+    base = {**wire(state)}
+    as_ints = AgentState.decode(packed({**base, "relay": [[2, 1, 2, 0, 0]]}))
+    assert as_ints.relay == ((2, 1.0, 2.0, 0.0, 0.0),) and type(as_ints.relay[0][1]) is float
+    too_many = [[i, 0.0, 0.0, 0.0, 0.0] for i in range(protocol.MAX_RELAY + 1)]
+    for bad, reason in (
+        ([[2, 1.0, 2.0, 0.1]], "expected \\[id, x, y, vx, vy\\]"),
+        ([[2, 1.0, math.nan, 0.0, 0.0]], "not finite"),
+        ([[2, 1.0, 2.0, 0.0, 1e3]], "outside"),
+        ([[2, 1e5, 2.0, 0.0, 0.0]], "outside"),
+        ([[-1, 1.0, 2.0, 0.0, 0.0]], "outside"),
+        ([[2, 1.0, 2.0, 0.0, 0.0], [2, 0.0, 0.0, 0.0, 0.0]], "duplicate"),
+        ([[True, 1.0, 2.0, 0.0, 0.0]], "expected an int"),
+        (too_many, "at most"),
+        ({"2": 1.0}, "expected an array"),
+    ):
+        with pytest.raises(ProtocolError, match=reason):
+            AgentState.decode(packed({**base, "relay": bad}))
+
+
 # --- rejection --------------------------------------------------------------------------
 
 POSE = wire(SAMPLES[0])
@@ -362,6 +388,7 @@ def test_fuzz_random_bytes(payload: bytes, cls: type[protocol.Message]) -> None:
                 "kappa",
                 "neighbors",
                 "stats",
+                "relay",
                 "error",
                 "alive_agents",
                 "alive_robots",
