@@ -160,6 +160,9 @@ RING_PER_TILE = 256
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
 # a whole team starting at once costs each agent one beacon per second, not per tick.
 BEACON_MIN_PERIOD = 1.0
+# s: a neighbour whose AgentState has left us out of its neighbours for this long gets an
+# early beacon (no relay told it about us; a common neighbour's usually does in a tick).
+ASYMMETRY_GRACE = 0.3
 # Token changes kept between two ticks: a ring never blocks Zenoh's threads, and only a
 # whole team starting at once (two tokens per robot) comes near it.
 LIVELINESS_RING = 8192
@@ -328,7 +331,7 @@ class Counters:
     step_errors: int = 0  # control steps that failed (robot commanded to stop)
     steps: int = 0
     mission_steps: int = 0  # steps while the mission runs
-    # control periods of the mission whose deadline passed before the loop was ready
+    # control periods of the mission whose command went out after the period had ended
     overruns: int = 0
 
 
@@ -372,6 +375,7 @@ class AgentBrain:
         self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
         self._beacon_due = False  # an early beacon is owed to a teammate that just appeared
+        self._unrequited: dict[int, float] = {}  # neighbour id -> since when it omits us
         self._last_forget = -math.inf
         self._last_control: float | None = None  # wall time of the last control step
         self._last_idle_step = -math.inf
@@ -647,7 +651,7 @@ class AgentBrain:
         self._last_idle_step = now
         started = time.perf_counter()
         try:
-            decision = self._control(self.relevant(others, now), now_wall)
+            decision = self._control(self.relevant(others, now), now, now_wall)
         # Any failure of the geometry (degenerate input the math rejects, or a bug) must
         # stop this robot, not kill the process and leave the robot on its last command.
         except Exception as exc:
@@ -663,7 +667,26 @@ class AgentBrain:
         self._step_us.add((time.perf_counter() - started) * 1e6)
         return decision
 
-    def _control(self, others: dict[int, tuple[float, float]], now_wall: float) -> Decision:
+    def _check_symmetry(self, now: float) -> None:
+        """Owe an early beacon to a neighbour that keeps leaving us out of its own.
+
+        Voronoi neighbourhood is symmetric, so a neighbour whose fresh AgentState omits us
+        for ASYMMETRY_GRACE does not know where we are: no relay reached it and our last
+        routine beacon may be 10 s away. Meanwhile both cells are wrong where they meet.
+        """
+        fresh = now - self.config.stale_timeout
+        unrequited = {}
+        for rid in self.one_hop:
+            entry = self.neighbor_sets.get(rid)
+            if entry is not None and entry[1] >= fresh and self.id not in entry[0]:
+                unrequited[rid] = self._unrequited.get(rid, now)
+        self._unrequited = unrequited
+        if any(now - since >= ASYMMETRY_GRACE for since in unrequited.values()):
+            self._beacon_due = True
+
+    def _control(
+        self, others: dict[int, tuple[float, float]], now: float, now_wall: float
+    ) -> Decision:
         assert self.pose is not None and self.domain is not None
         vertices, velocities = extrapolate_domain(
             self.domain, now_wall, self.config.max_extrapolation
@@ -686,6 +709,7 @@ class AgentBrain:
         )
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         self.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        self._check_symmetry(now)
         self._local = len(others)
         if result.mass > 0.0:
             self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.mass)
@@ -1138,15 +1162,18 @@ def run_agents(
                 claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
                 links.append(AgentLink(session, swarm, brain))
             while not stop.is_set():
-                overruns = ticker.overruns
-                now = ticker.wait(stop)
+                ticker.wait(stop)
                 for link in links:
                     brain = link.brain
-                    if brain.running:  # start-up (processes still launching) aside
-                        brain.counters.overruns += ticker.overruns - overruns
-                    wall = wall_clock()
+                    # Each brain's own time: the last of a large batch steps tens of ms
+                    # after the first, and its neighbours are dead-reckoned to then.
+                    now, wall = ticker.now(), wall_clock()
                     link.receive(now, wall)
                     link.send_command(brain.step(now, wall), wall)
+                    # A missed deadline: this period's command went out after the period
+                    # ended (start-up, while processes are still launching, aside).
+                    if brain.running and ticker.now() > ticker.deadline:
+                        brain.counters.overruns += 1
                     link.publish(now, wall)
                     link.resubscribe(now)
                     if brain.id not in tokens and brain.pose is not None:

@@ -217,6 +217,11 @@ class Ticker:
         """The ticker's clock (mission seconds when scaled)."""
         return self._clock()
 
+    @property
+    def deadline(self) -> float:
+        """End of the current period (the next tick's scheduled time), on the ticker's clock."""
+        return self._next
+
     def wait(self, stop: StopFlag) -> float:
         """Sleep until the next deadline (or a stop); returns the monotonic time of the tick."""
         now = self._clock()

@@ -285,6 +285,23 @@ def test_two_hop_robots_without_a_relay_get_a_subscription() -> None:
     assert brain.wanted_state_ids(0.3) == {1, 2, 3}
 
 
+@pytest.mark.parametrize("listed_back", [False, True])
+def test_a_neighbour_that_leaves_us_out_gets_an_early_beacon(listed_back: bool) -> None:
+    brain = AgentBrain(0, AgentConfig(beacon_period=10.0, stale_timeout=10.0))
+    brain.on_pose(pose(0, 0.5, 1.0), now=0.0)
+    brain.on_domain(domain(), now=0.0)
+    assert brain.beacon(0.0, WALL) is not None  # the first one goes out at once
+    theirs = (0, 2) if listed_back else (2,)
+    state = protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=theirs)
+    brain.on_agent_state(state, now=0.0)
+    brain.step(1.0, WALL)
+    assert brain.one_hop == {1}
+    assert brain.beacon(1.0, WALL) is None  # within the grace: a relay may still tell it
+    brain.step(1.0 + runtime.ASYMMETRY_GRACE, WALL)
+    early = brain.beacon(1.0 + runtime.ASYMMETRY_GRACE, WALL)
+    assert (early is None) == listed_back
+
+
 def test_relayed_positions_rank_below_direct_ones() -> None:
     brain = brain_at(0.0, 0.0, stale_timeout=1.0)
     relay = ((2, 1.0, 1.0, 0.1, 0.0), (0, 9.0, 9.0, 0.0, 0.0), (3, 2.0, 2.0, 0.0, 0.0))

@@ -242,27 +242,32 @@ def processes(*argvs: tuple[str, ...], log_dir: Path) -> Iterator[list[subproces
 
 @pytest.mark.e2e
 def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
-    """5 robots on the passage: agent 3 is SIGKILLed at t = 6 s, robot 1 at t = 11 s, and a
-    sixth robot + agent join at t = 16 s; the run finishes normally and re-converges each
-    time."""
+    """5 robots on the passage: agent 3 is SIGKILLed at t = 4 s, robot 1 at t = 8 s, and a
+    sixth robot + agent join at t = 12 s; the run finishes normally and re-converges each
+    time.
+
+    Every change happens while S is still or narrows slowly (until t = 17 s): from then on
+    S crosses the gap at 0.16 m/s and a 4-robot team tracks it at e_a ~0.04 m, above the
+    0.03 m bound, whatever its history (measured with and without faults), so a join just
+    before then could not show re-convergence at all."""
     swarm, out = new_swarm(), tmp_path / "faults"
     scenario = load_scenario("passage")
     # 18 s after the newcomer starts: its imports alone take seconds on a loaded machine.
-    with launch(out, "--agents", "5", "--duration", "34", swarm=swarm) as launcher:
+    with launch(out, "--agents", "5", "--duration", "30", swarm=swarm) as launcher:
         start = mission_started(out)
         endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
         with watching(endpoint, swarm) as watch:
-            sleep_until(start + 6.0)
+            sleep_until(start + 4.0)
             (brain,) = swarm_pids(swarm, "agent", "--id", "3")
             os.kill(brain, signal.SIGKILL)
             killed_brain = time.time()
-            sleep_until(start + 11.0)
+            sleep_until(start + 8.0)
             (robot,) = swarm_pids(swarm, "robot", "--id", "1")
             os.kill(robot, signal.SIGKILL)
             killed_robot = time.time()
-            sleep_until(start + 16.0)
+            sleep_until(start + 12.0)
             # The newcomer starts near the middle of S(t), like a robot carried in by hand.
-            x, y = (float(v) for v in scenario.domain(16.0)[0].mean(axis=0) + [0.05, 0.02])
+            x, y = (float(v) for v in scenario.domain(12.0)[0].mean(axis=0) + [0.05, 0.02])
             common = ("--id", "5", "--connect", endpoint, "--swarm", swarm)
             newcomer = (
                 (*covswarm_argv(), "robot", *common, "--x", repr(x), "--y", repr(y)),
@@ -285,7 +290,7 @@ def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
     assert changes == [([3], []), ([1], []), ([], [5])], summary["team_changes"]
     for change in summary["team_changes"]:
         assert change["reconverged_after"] is not None, change
-        # A newcomer joins while S narrows for the gap: 3-9 s measured on 2 cores.
+        # A newcomer joins while S narrows for the gap: 2.8-3.5 s measured on 2 cores.
         assert change["reconverged_after"] < 12.0, change
     assert summary["final_error"] < 0.05
     assert sorted(summary["agent_stats"]["per_agent"]) == ["0", "1", "2", "3", "4", "5"]

@@ -118,6 +118,7 @@ def test_a_scaled_ticker_keeps_its_rate_in_mission_time() -> None:
     np.testing.assert_allclose(np.diff(ticks), 0.1)  # 10 Hz of mission time ...
     np.testing.assert_allclose(stop.slept, 0.4)  # ... is 2.5 Hz of wall time
     assert ticker.now() == pytest.approx(clock.t * 0.25)
+    assert ticker.deadline == pytest.approx(ticks[-1] + 0.1)  # the period's end
     assert scaled(clock, 1.0) is clock
 
 
