@@ -11,7 +11,7 @@ Neighbour discovery
   that the domain holds still and its velocities count as zero).
 - **Beacons (bootstrap)**: every ``--beacon-period`` (10 s), and at most 1 s after the
   last one whenever another agent's liveliness token appears (a newcomer, or a team
-  starting), the agent publishes a Beacon on ``beacon/<tx>/<ty>/<me>``, (tx, ty) =
+  starting) or a neighbour's AgentState keeps leaving it out, the agent publishes a Beacon on ``beacon/<tx>/<ty>/<me>``, (tx, ty) =
   floor(position / tile_size) with the swarm's tile size from the Domain broadcast (none
   before the first Domain), and subscribes to the (2r+1)^2 tiles around its own with
   ``beacon/<tx>/<ty>/*`` selectors, re-declared when it changes tile. r starts at 1 (3x3
@@ -374,7 +374,8 @@ class AgentBrain:
         self._fresh: set[int] = set()  # ids usable as candidates at the last step
         self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
-        self._beacon_due = False  # an early beacon is owed to a teammate that just appeared
+        # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
+        self._beacon_due = False
         self._unrequited: dict[int, float] = {}  # neighbour id -> since when it omits us
         self._last_forget = -math.inf
         self._last_control: float | None = None  # wall time of the last control step
@@ -808,8 +809,9 @@ class AgentBrain:
         """(tile, Beacon) if one is due at ``now``, else None.
 
         Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
-        agent's liveliness token appeared: a newcomer (or a whole team starting) must find
-        its neighbours, and they it, without waiting for the next routine beacon.
+        agent's liveliness token appeared (a newcomer, or a whole team starting, must find
+        its neighbours, and they it, without waiting for the next routine beacon) or a
+        neighbour kept leaving us out of its neighbours (:meth:`_check_symmetry`).
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the
