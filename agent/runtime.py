@@ -11,14 +11,15 @@ Neighbour discovery
   that the domain holds still and its velocities count as zero).
 - **Beacons (bootstrap)**: every ``--beacon-period`` (10 s), and at most 1 s after the
   last one whenever another agent's liveliness token appears (a newcomer, or a team
-  starting) or a neighbour's AgentState keeps leaving it out, the agent publishes a Beacon on ``beacon/<tx>/<ty>/<me>``, (tx, ty) =
-  floor(position / tile_size) with the swarm's tile size from the Domain broadcast (none
-  before the first Domain), and subscribes to the (2r+1)^2 tiles around its own with
-  ``beacon/<tx>/<ty>/*`` selectors, re-declared when it changes tile. r starts at 1 (3x3
-  tiles) and grows, up to ``--max-tile-radius``, while its cell is too large for the tiles
-  to hold every robot that could cut it (a robot farther than twice the cell radius
-  cannot; see :func:`cell_reach`). A robot known only from its beacon is a candidate at
-  the beacon's position while that beacon is the newest news of it.
+  starting) or a neighbour's AgentState keeps leaving it out, the agent publishes a Beacon
+  on ``beacon/<tx>/<ty>/<me>``, (tx, ty) = floor(position / tile_size) with the swarm's
+  tile size from the Domain broadcast (none before the first Domain), and subscribes to
+  the (2r+1)^2 tiles around its own with ``beacon/<tx>/<ty>/*`` selectors, re-declared
+  when it changes tile. r starts at 1 (3x3 tiles) and grows, up to ``--max-tile-radius``,
+  while its cell is too large for the tiles to hold every robot that could cut it (a
+  robot farther than twice the cell radius cannot; see :func:`cell_reach`). A robot known
+  only from its beacon is a candidate at the beacon's position while that beacon is the
+  newest news of it.
 - **Two-hop set**: the agent publishes AgentState at the control rate: its robot's
   position and velocity, its current Voronoi neighbour ids, and the positions and
   velocities of those neighbours as it used them (``relay``; first-hand ones only), with
@@ -1165,6 +1166,9 @@ def run_agents(
                 links.append(AgentLink(session, swarm, brain))
             while not stop.is_set():
                 ticker.wait(stop)
+                # The batch starts one brain later every tick: the brains at the end of a
+                # long batch step later in the period, and no robot should always be last.
+                links.append(links.pop(0))
                 for link in links:
                     brain = link.brain
                     # Each brain's own time: the last of a large batch steps tens of ms
