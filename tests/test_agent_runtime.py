@@ -195,19 +195,22 @@ def test_far_candidates_are_left_out_of_the_local_diagram() -> None:
     assert brain.stats()["local_set"] == sum(1 for i, j in grid if math.hypot(i, j) <= 2.5)
 
 
-def test_local_view_matches_the_full_team_law() -> None:
+@pytest.mark.parametrize("relayed", [False, True])
+def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
     """Fed only what its subscriptions would deliver, an interior agent's velocity equals
-    row ``me`` of TVD-D1 computed on the whole team."""
+    row ``me`` of TVD-D1 computed on the whole team: from its two-hop set's AgentStates
+    (senders without relays), or from its one-hop neighbours' alone, whose relays carry
+    their own neighbours' positions."""
     from agent.control import tvd_d1
     from agent.coverage import neighbors
 
-    rng = np.random.default_rng(3)
+    rng = np.random.default_rng(4 if relayed else 3)
     side, spacing = 10, 0.5
     size = side * spacing
     square = [[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]]
     grid = [((i + 0.5) * spacing, (j + 0.5) * spacing) for i in range(side) for j in range(side)]
     points = np.array(grid) + rng.uniform(-0.1, 0.1, (side * side, 2))
-    me = 5 * side + 4
+    me = 4 * side + 5 if relayed else 5 * side + 4
     brain = AgentBrain(me, AgentConfig())
     brain.on_domain(domain(vertices=square, velocity=(0.05, -0.02)), now=0.0)
     truth = neighbors(points, np.array(square))
@@ -219,42 +222,7 @@ def test_local_view_matches_the_full_team_law() -> None:
             if protocol.tile_of(x, y, 1.0) in tiles:
                 brain.on_beacon(protocol.Beacon(id=i, x=x, y=y, stamp=WALL), now)
         for i in brain.wanted_state_ids(now):
-            state = protocol.AgentState(
-                id=i, x=points[i][0], y=points[i][1], stamp=WALL, neighbors=truth[i], stats={}
-            )
-            brain.on_agent_state(state, now)
-        decision = brain.step(now, WALL)
-    expected = tvd_d1(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
-    assert brain.one_hop == truth[me]
-    assert brain.stats()["local_set"] < 30  # not the whole team of 100
-    assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
-
-
-def test_local_view_from_relayed_positions_matches_the_full_team_law() -> None:
-    """Subscribed to its one-hop neighbours only, whose AgentStates relay their own
-    neighbours' positions, an interior agent still gets row ``me`` of TVD-D1."""
-    from agent.control import tvd_d1
-    from agent.coverage import neighbors
-
-    rng = np.random.default_rng(4)
-    side, spacing = 10, 0.5
-    size = side * spacing
-    square = [[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]]
-    grid = [((i + 0.5) * spacing, (j + 0.5) * spacing) for i in range(side) for j in range(side)]
-    points = np.array(grid) + rng.uniform(-0.1, 0.1, (side * side, 2))
-    me = 4 * side + 5
-    brain = AgentBrain(me, AgentConfig())
-    brain.on_domain(domain(vertices=square, velocity=(0.05, -0.02)), now=0.0)
-    truth = neighbors(points, np.array(square))
-    for k in range(5):
-        now = 0.1 * k
-        brain.on_pose(pose(me, *points[me]), now)
-        tiles = brain.wanted_tiles()
-        for i, (x, y) in enumerate(points):
-            if protocol.tile_of(x, y, 1.0) in tiles:
-                brain.on_beacon(protocol.Beacon(id=i, x=x, y=y, stamp=WALL), now)
-        for i in brain.wanted_state_ids(now):
-            relay = [(j, *points[j], 0.0, 0.0) for j in sorted(truth[i])]
+            relay = [(j, *points[j], 0.0, 0.0) for j in sorted(truth[i])] if relayed else None
             state = protocol.AgentState(
                 id=i, x=points[i][0], y=points[i][1], stamp=WALL, neighbors=truth[i], relay=relay
             )
@@ -262,15 +230,17 @@ def test_local_view_from_relayed_positions_matches_the_full_team_law() -> None:
         decision = brain.step(now, WALL)
     expected = tvd_d1(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
     assert brain.one_hop == truth[me]
-    # The relays cover the outer ring: only the one-hop neighbours are subscribed (past
-    # the linger of the first steps' larger sets).
-    assert brain.wanted_state_ids(10.0) == set(truth[me])
+    assert brain.stats()["local_set"] < 30  # not the whole team of 100
     assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
-    # Our own state relays our neighbours as we used them.
-    relay = brain.agent_state(WALL).relay
-    assert [entry[0] for entry in relay] == sorted(truth[me])
-    for rid, x, y, _, _ in relay:
-        assert (x, y) == pytest.approx(tuple(points[rid]))
+    if relayed:
+        # The relays cover the outer ring: only the one-hop neighbours are subscribed
+        # (past the linger of the first steps' larger sets).
+        assert brain.wanted_state_ids(10.0) == set(truth[me])
+        # Our own state relays our neighbours as we used them.
+        relay = brain.agent_state(WALL).relay
+        assert [entry[0] for entry in relay] == sorted(truth[me])
+        for rid, x, y, _, _ in relay:
+            assert (x, y) == pytest.approx(tuple(points[rid]))
 
 
 def test_two_hop_robots_without_a_relay_get_a_subscription() -> None:
