@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import logging
 import os
 import signal
 import socket
@@ -49,6 +50,8 @@ COORDINATOR_GRACE = 60.0  # s for an interrupted coordinator to write its output
 # overloaded machine starting more processes at once only makes every start slower.
 STALL = 120.0
 PR_SET_PDEATHSIG = 1  # linux/prctl.h
+
+log = logging.getLogger("covswarm.launcher")
 
 
 # ---------------------------------------------------------------------------- planning
@@ -335,14 +338,16 @@ def zenoh_session(
     from protocol import session_config
 
     if connect is not None:
-        with zenoh.open(session_config([connect], secure=secure)) as session:
+        session = zenoh.open(session_config([connect], secure=secure))
+        with _closing(session):
             yield session, connect
         return
     if listen:
         config = session_config(
             list(peers), list(listen), mode="router", max_sessions=max_sessions, secure=secure
         )
-        with zenoh.open(config) as session:
+        session = zenoh.open(config)
+        with _closing(session):
             yield session, local_endpoint(listen[0])
         return
     for attempt in range(5):
@@ -357,9 +362,27 @@ def zenoh_session(
             if attempt == 4:
                 raise
             continue
-        with session:
+        with _closing(session):
             yield session, endpoint
         return
+
+
+@contextmanager
+def _closing(session: Any) -> Iterator[None]:
+    """Close ``session`` on the way out; a close that times out is logged, not raised.
+
+    A router whose 2000 clients all leave at once timed out closing (zenoh's "close
+    operation timed out"): the run was over and its outputs not yet written.
+    """
+    import zenoh
+
+    try:
+        yield
+    finally:
+        try:
+            session.close()
+        except zenoh.ZError as exc:
+            log.warning("closing the Zenoh session: %s", exc)
 
 
 @contextmanager
