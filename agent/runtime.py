@@ -358,7 +358,8 @@ class AgentBrain:
         self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
         # id -> (x, y, vx, vy) of every candidate of the last step, reckoned to that step,
         # and the ids among them known first-hand (own pose or AgentState): what our
-        # AgentState relays about our neighbours.
+        # AgentState relays about our neighbours; its keys are the robots usable as
+        # candidates at the last step.
         self._reckoned: dict[int, tuple[float, float, float, float]] = {}
         self._first_hand: set[int] = set()
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
@@ -372,7 +373,6 @@ class AgentBrain:
         self.drops = DropLog(log, f"agent {self.id}", DROP_REASONS)
         self._failure_log = RateLimit()
         self._wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
-        self._fresh: set[int] = set()  # ids usable as candidates at the last step
         self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
         # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
@@ -449,7 +449,7 @@ class AgentBrain:
         if rid == self.id or role not in ("agent", "robot"):
             return
         if alive:
-            if role == "agent" and rid not in self._fresh:
+            if role == "agent" and rid not in self._reckoned:
                 self._beacon_due = True  # a newcomer: let it find us without waiting
             self._revive(rid, role)
         else:
@@ -535,9 +535,8 @@ class AgentBrain:
             if track.received >= oldest and rid not in reckoned and rid not in dead:
                 if self._heard.get(rid, -math.inf) < track.received:
                     reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+        self.counters.stale += len(self._reckoned.keys() - reckoned.keys())
         self._reckoned, self._first_hand = reckoned, first_hand
-        self.counters.stale += len(self._fresh - reckoned.keys())
-        self._fresh = set(reckoned)
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
@@ -770,7 +769,7 @@ class AgentBrain:
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
             "stale_dropped": c.stale,
             "step_errors": c.step_errors,
-            "candidates": len(self._fresh),
+            "candidates": len(self._reckoned),
             "local_set": self._local,
             "neighbors": len(self.one_hop),
             "state_subs": len(self._wanted),
