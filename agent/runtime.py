@@ -50,11 +50,11 @@ polygon or is older than the one held, and stamps outside the clock policy of
 protocol.inbound (more than ``--max-clock-skew`` ahead of this clock, or older than the
 message's timeout plus that skew).
 
-Each step the agent calls agent.control.local_step on itself plus the candidates that can
+Each step the agent calls covswarm.tvd.control.local_step on itself plus the candidates that can
 matter (its two-hop set and robots within 1.25x its cell's reach, see
 :meth:`AgentBrain.relevant`): the local partial Voronoi diagram of its two-hop
 neighbourhood, whose cost grows with the square of its size, so beacon-only robots far
-away are left out. It maps the velocity to wheel speeds with agent.drive.wheel_speeds and
+away are left out. It maps the velocity to wheel speeds with covswarm.tvd.drive.wheel_speeds and
 publishes a WheelCommand. Waiting/done, no domain, or no fresh own pose give a (0, 0)
 command; so does any failure of the math (the robot stops rather than crash or receive
 NaN). Neighbours are computed while waiting too, so the sets are warm at the start. The
@@ -91,14 +91,10 @@ import click
 import numpy as np
 import zenoh
 
-import protocol
-from agent.control import local_step
-from agent.coverage import validate_polygon
-from agent.density import Density
-from agent.drive import KHEPERA_IV, DiffDrive, achieved_velocity, wheel_speeds
-from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
-from protocol.security import SECURE_OPTION
-from protocol.session import (
+from covswarm import protocol
+from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.session import (
     MAX_CLOCK_SKEW_OPTION,
     TIME_SCALE_OPTION,
     StopFlag,
@@ -108,6 +104,10 @@ from protocol.session import (
     scaled,
     session_config,
 )
+from covswarm.tvd.control import local_step
+from covswarm.tvd.coverage import validate_polygon
+from covswarm.tvd.density import Density
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, achieved_velocity, wheel_speeds
 
 log = logging.getLogger("covswarm.agent")
 

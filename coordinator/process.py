@@ -25,7 +25,7 @@ from typing import Any
 import click
 import numpy as np
 
-from coordinator.monitor import (
+from covswarm.coordinator.monitor import (
     DONE,
     RUNNING,
     WAITING,
@@ -38,9 +38,9 @@ from coordinator.monitor import (
     team_changes_summary,
     team_of,
 )
-from coordinator.scenarios import Scenario, load_scenario
-from protocol.security import SECURE_OPTION
-from protocol.session import TIME_SCALE_OPTION, StopFlag, Ticker, scaled
+from covswarm.coordinator.scenarios import Scenario, load_scenario
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.session import TIME_SCALE_OPTION, StopFlag, Ticker, scaled
 
 log = logging.getLogger("covswarm.coordinator")
 
@@ -114,7 +114,7 @@ class Coordinator:
         restarted coordinator) instead of waiting for the team."""
         import zenoh
 
-        from protocol import (
+        from covswarm.protocol import (
             alive_key,
             alive_selector,
             all_agent_states_selector,
@@ -162,7 +162,7 @@ class Coordinator:
     # -- inputs ---------------------------------------------------------------------------
 
     def _drain(self, now: float) -> None:
-        from protocol import AgentState, ProtocolError, parse_alive_key
+        from covswarm.protocol import AgentState, ProtocolError, parse_alive_key
 
         obs, swarm = self.observed, self.settings.swarm
         t = self.clock.mission_time(now) if self.clock.state != WAITING else None
@@ -202,7 +202,7 @@ class Coordinator:
 
     def _decode_poses(self) -> None:
         """Decode the newest pose of every robot heard from since the last call."""
-        from protocol import Pose, ProtocolError
+        from covswarm.protocol import Pose, ProtocolError
 
         obs = self.observed
         for payload in self._pose_payloads.values():
@@ -228,7 +228,7 @@ class Coordinator:
     # -- outputs --------------------------------------------------------------------------
 
     def _publish_domain(self, state: str, t: float) -> np.ndarray:
-        from protocol import Domain
+        from covswarm.protocol import Domain
 
         vertices, velocities = self.settings.scenario.domain(t)
         density = self.settings.scenario.density(t)
@@ -252,7 +252,7 @@ class Coordinator:
         return vertices
 
     def _sample(self, t: float, polygon: np.ndarray) -> None:
-        from agent.coverage import aggregate_error
+        from covswarm.tvd.coverage import aggregate_error
 
         positions = self.alive_positions()
         if not positions:
@@ -264,7 +264,7 @@ class Coordinator:
         self.observed.record.add(t, error, positions, polygon)
 
     def _publish_status(self, state: str, t: float) -> None:
-        from protocol import Status
+        from covswarm.protocol import Status
 
         live, record = self.observed.liveness, self.observed.record
         self._status.put(
@@ -335,7 +335,7 @@ class Coordinator:
 
 def build_summary(settings: Settings, observed: Observed) -> dict[str, Any]:
     """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
-    from coordinator.report import neighbor_histogram, steady_state_mean
+    from covswarm.coordinator.report import neighbor_histogram, steady_state_mean
 
     record = observed.record
     final = record.positions[-1]
@@ -383,7 +383,7 @@ def read_mission_start(path: Path, swarm: str) -> float:
 
 def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> None:
     """summary.json, error.csv, error.png, trajectories.png through coordinator.report."""
-    from coordinator.report import write_outputs
+    from covswarm.coordinator.report import write_outputs
 
     record = observed.record
     write_outputs(
@@ -477,8 +477,8 @@ def coordinator_command(
     """Broadcast the moving domain, monitor the team, write the run's outputs."""
     import zenoh
 
-    from protocol import alive_key, check_swarm
-    from protocol.session import session_config, token_exists
+    from covswarm.protocol import alive_key, check_swarm
+    from covswarm.protocol.session import session_config, token_exists
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s coordinator %(message)s")
     try:

@@ -28,7 +28,7 @@ def steady_state_mean(t: np.ndarray, error: np.ndarray) -> float:
 
 def neighbor_histogram(positions: np.ndarray, polygon: np.ndarray) -> dict[int, int]:
     """{number of Voronoi neighbours: number of robots}, sorted by neighbour count."""
-    from agent.coverage import neighbors
+    from covswarm.tvd.coverage import neighbors
 
     counts = Counter(len(s) for s in neighbors(positions, polygon))
     return dict(sorted(counts.items()))
@@ -51,7 +51,7 @@ def write_outputs(
 
     t, error, error_compare: (T,); trajectories: (T, n, 2), NaN where a robot's position is
     unknown; polygons: T arrays (k, 2), the domain at each sample; density: phi at the last
-    sample (agent.density.Density, shaded under the final domain), None when uniform.
+    sample (covswarm.tvd.density.Density, shaded under the final domain), None when uniform.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -145,7 +145,7 @@ def _trajectory_figure(
 ) -> Any:
     from matplotlib.patches import Polygon, Rectangle
 
-    from agent.coverage import cells
+    from covswarm.tvd.coverage import cells
 
     fig, ax = plt.subplots(figsize=(8, 7), layout="constrained")
     if workspace is not None:

@@ -69,7 +69,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 import numpy as np
 
 if TYPE_CHECKING:
-    from agent.density import Density, DensityPath
+    from covswarm.tvd.density import Density, DensityPath
 
 try:
     import tomllib
@@ -268,7 +268,7 @@ class Scenario:
                     raise ValueError(f"density at t = {t:g} s: {exc}") from None
 
     def density(self, t: float) -> Density | None:
-        """phi at time t with its exact rates (agent.density.Density), None when uniform."""
+        """phi at time t with its exact rates (covswarm.tvd.density.Density), None when uniform."""
         return None if self.density_path is None else self.density_path(float(t))
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
@@ -311,7 +311,7 @@ def _check_box(box: Box) -> None:
 
 def _check_motion(motion: DomainMotion, duration: float) -> None:
     """Raise ValueError unless S(t) is a valid convex polygon at the sampled times."""
-    from agent.coverage import validate_polygon
+    from covswarm.tvd.coverage import validate_polygon
 
     for t in motion.sample_times(duration):
         vertices, velocities = motion(float(t))
@@ -439,7 +439,7 @@ def formation() -> Scenario:
     The bump (peak 8x the floor, 0.5 m x 0.18 m) starts in the upper half of S, drifts with
     S and slides to its lower half while its long axis turns a quarter turn every 20 s.
     """
-    from agent.density import Density, DensityPath
+    from covswarm.tvd.density import Density, DensityPath
 
     bump = Density(
         floor=1.0,
@@ -519,7 +519,7 @@ def scenario_from_dict(data: dict[str, Any]) -> Scenario:
         if key in options and isinstance(options[key], int):
             options[key] = float(options[key])
     if "density" in data:
-        from agent.density import DensityPath
+        from covswarm.tvd.density import DensityPath
 
         options["density_path"] = DensityPath.from_table(data["density"])
     return Scenario(

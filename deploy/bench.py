@@ -3,7 +3,7 @@
 The paper's Section 5 claims each robot's control step is O(1) on average because it needs
 only its two-hop neighbourhood. This benchmark measures it in this implementation:
 
-1. per-agent compute vs N: every robot's complete ``agent.control.local_step`` (building
+1. per-agent compute vs N: every robot's complete ``covswarm.tvd.control.local_step`` (building
    its local partial Voronoi diagram included) from exactly its two-hop neighbourhood, on
    random and near-CVT layouts, several seeds; uniform, and again with a moving Gaussian
    density (``bench_density``: quadrature instead of closed forms);
@@ -37,9 +37,9 @@ from typing import Any
 import click
 import numpy as np
 
-from agent.control import local_step, tvd_c, tvd_d1
-from agent.coverage import mass_centroid, neighbors
-from agent.density import Density
+from covswarm.tvd.control import local_step, tvd_c, tvd_d1
+from covswarm.tvd.coverage import mass_centroid, neighbors
+from covswarm.tvd.density import Density
 
 FULL_SIZES = (10, 30, 100, 300, 1000, 3000)
 QUICK_SIZES = (10, 30, 100, 300)
@@ -255,7 +255,7 @@ def run_live(
     """
     import subprocess
 
-    from deploy.launcher import covswarm_argv
+    from covswarm.deploy.launcher import covswarm_argv
 
     rows = []
     for n in sizes:

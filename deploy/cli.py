@@ -13,13 +13,13 @@ import click
 
 # name -> "module:attribute" of a click.Command
 SUBCOMMANDS: dict[str, str] = {
-    "sim": "deploy.simulate:sim_command",
-    "run": "deploy.launcher:run_command",
-    "agent": "agent.runtime:agent_command",
-    "robot": "sim_robot.process:robot_command",
-    "coordinator": "coordinator.process:coordinator_command",
-    "bench": "deploy.bench:bench_command",
-    "credentials": "protocol.security:credentials_command",
+    "sim": "covswarm.deploy.simulate:sim_command",
+    "run": "covswarm.deploy.launcher:run_command",
+    "agent": "covswarm.agent.runtime:agent_command",
+    "robot": "covswarm.sim_robot.process:robot_command",
+    "coordinator": "covswarm.coordinator.process:coordinator_command",
+    "bench": "covswarm.deploy.bench:bench_command",
+    "credentials": "covswarm.protocol.security:credentials_command",
 }
 
 

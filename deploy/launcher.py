@@ -36,11 +36,11 @@ from typing import Any
 import click
 import numpy as np
 
-from coordinator.monitor import HEADLINE_STATS
-from coordinator.scenarios import Scenario, load_scenario
-from protocol.keys import format_ids, parse_ids
-from protocol.security import SECURE_OPTION
-from protocol.session import TIME_SCALE_OPTION
+from covswarm.coordinator.monitor import HEADLINE_STATS
+from covswarm.coordinator.scenarios import Scenario, load_scenario
+from covswarm.protocol.keys import format_ids, parse_ids
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.session import TIME_SCALE_OPTION
 
 ROUTER_HOST = "127.0.0.1"
 TICK = 0.1  # s between launcher loop iterations (display, liveness, child polling)
@@ -335,7 +335,7 @@ def zenoh_session(
     """
     import zenoh
 
-    from protocol import session_config
+    from covswarm.protocol import session_config
 
     if connect is not None:
         session = zenoh.open(session_config([connect], secure=secure))
@@ -464,7 +464,7 @@ class Supervisor:
     ) -> None:  # fmt: skip
         import zenoh
 
-        from protocol import alive_selector, status_key
+        from covswarm.protocol import alive_selector, status_key
 
         self.swarm, self.progress, self.log_dir, self.console = swarm, progress, log_dir, console
         self.startup = Startup(list(specs), max_starting=2 * (os.cpu_count() or 2), stall=STALL)
@@ -488,7 +488,7 @@ class Supervisor:
 
     def tick(self) -> None:
         """Spawn what is due, take in liveliness and Status, notice children that exited."""
-        from protocol import ProtocolError, Status, parse_alive_key
+        from covswarm.protocol import ProtocolError, Status, parse_alive_key
 
         now = time.monotonic()
         for spec in self.startup.next_batch(now):
@@ -772,7 +772,7 @@ def run_command(
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
     from rich.console import Console
 
-    from protocol import check_swarm, new_swarm_name
+    from covswarm.protocol import check_swarm, new_swarm_name
 
     if (ids_arg is not None or no_coordinator) and not swarm:
         raise click.UsageError("--ids and --no-coordinator need --swarm (the same on every host)")

@@ -18,7 +18,7 @@ from typing import Any
 import click
 import numpy as np
 
-from coordinator.scenarios import Scenario, load_scenario
+from covswarm.coordinator.scenarios import Scenario, load_scenario
 
 LAWS = ("c", "d1")
 DYNAMICS = ("single", "unicycle")
@@ -57,10 +57,10 @@ def simulate(
 
     progress(step, steps) is called after every step.
     """
-    from agent import control
-    from agent.coverage import aggregate_error
-    from agent.drive import wheel_speeds
-    from sim_robot.model import integrate
+    from covswarm.sim_robot.model import integrate
+    from covswarm.tvd import control
+    from covswarm.tvd.coverage import aggregate_error
+    from covswarm.tvd.drive import wheel_speeds
 
     n = scenario.agents if agents is None else agents
     kappa = scenario.kappa if kappa is None else kappa
@@ -127,7 +127,7 @@ def build_summary(
     without: SimResult | None = None,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
-    from coordinator.report import neighbor_histogram, steady_state_mean
+    from covswarm.coordinator.report import neighbor_histogram, steady_state_mean
 
     summary: dict[str, Any] = {
         "scenario": scenario.name,
@@ -213,7 +213,7 @@ def sim_command(
         TimeRemainingColumn,
     )
 
-    from coordinator.report import write_outputs
+    from covswarm.coordinator.report import write_outputs
 
     if compare and no_feedforward:
         raise click.UsageError("--compare already runs without feedforward; drop --no-feedforward")

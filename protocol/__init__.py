@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from protocol.keys import (
+from covswarm.protocol.keys import (
     MAX_ID,
     PREFIX,
     ROLES,
@@ -35,7 +35,7 @@ from protocol.keys import (
     status_key,
     tile_of,
 )
-from protocol.messages import (
+from covswarm.protocol.messages import (
     DEFAULT_TILE_SIZE,
     MAX_COORD,
     MAX_PAYLOAD,
@@ -104,7 +104,7 @@ __all__ = [
 def __getattr__(name: str) -> Any:
     # Lazy so that importing the protocol does not import zenoh (tests, offline tools).
     if name == "session_config":
-        from protocol.session import session_config
+        from covswarm.protocol.session import session_config
 
         return session_config
     raise AttributeError(f"module 'protocol' has no attribute {name!r}")

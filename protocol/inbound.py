@@ -29,7 +29,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 
-from protocol.messages import ProtocolError
+from covswarm.protocol.messages import ProtocolError
 
 MAX_CLOCK_SKEW = 0.5  # s; NTP keeps machines within milliseconds, one machine shares a clock
 LOG_INTERVAL = 10.0  # s between two drop summaries in the log

@@ -15,7 +15,7 @@ work the same way), exact types
 (bool is not a number), finite numbers, ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES
 and magnitudes within sane bounds. Ints are accepted where floats are expected (other
 languages' encoders drop ``.0``). Geometry (convexity) is not checked here: that is
-agent.coverage.validate_polygon's job.
+covswarm.tvd.coverage.validate_polygon's job.
 """
 
 from __future__ import annotations
@@ -28,7 +28,7 @@ from typing import Any, ClassVar, TypeVar
 
 import msgpack
 
-from protocol.keys import MAX_ID
+from covswarm.protocol.keys import MAX_ID
 
 SCHEMA_VERSION = 1
 
@@ -49,7 +49,7 @@ MAX_TIME = 1.0e9  # s of mission time
 MAX_SEQ = 2**63 - 1
 MAX_STAT = 1.0e15
 STATES = ("waiting", "running", "done")
-MAX_BUMPS = 16  # density bumps in a Domain (agent.density.MAX_BUMPS)
+MAX_BUMPS = 16  # density bumps in a Domain (covswarm.tvd.density.MAX_BUMPS)
 MAX_DENSITY = 1.0e6  # bound on every number of a density (floor, weights, moments, rates)
 MAX_TILE_SIZE = 1.0e3  # m
 DEFAULT_TILE_SIZE = 1.0  # m: beacon tiles of a swarm whose Domain does not say
@@ -408,10 +408,10 @@ class WheelCommand(Message):
 
 
 def _density(value: Any, name: str) -> dict[str, Any]:
-    """agent.density.Density.to_dict's shape: {t, floor, bumps: [{mean, cov, weight, rates}]}.
+    """Density.to_dict's shape: {t, floor, bumps: [{mean, cov, weight, rates}]}.
 
     Structure and finiteness only; positivity and positive definite covariances are
-    agent.density's job (as convexity is agent.coverage's).
+    covswarm.tvd.density's job (as convexity is covswarm.tvd.coverage's).
     """
     number = _real(-MAX_DENSITY, MAX_DENSITY)
     pair = _points(1, 1, MAX_DENSITY)
@@ -446,7 +446,7 @@ def _density(value: Any, name: str) -> dict[str, Any]:
 class Domain(Message):
     """Coordinator -> all: subdomain S(t) at mission time ``t`` and its vertex velocities.
 
-    density: None (uniform) or phi at time ``t`` with its rates, agent.density's
+    density: None (uniform) or phi at time ``t`` with its rates, covswarm.tvd.density's
     ``Density.to_dict()`` form; optional on the wire (module notes).
 
     tile_size: side (m) of the beacon tiles of this swarm (protocol.keys.beacon_key). Every

@@ -18,9 +18,9 @@ from pathlib import Path
 import click
 import zenoh
 
-from protocol.inbound import MAX_CLOCK_SKEW
-from protocol.keys import claim_key, claim_selector, parse_ids
-from protocol.security import apply_security
+from covswarm.protocol.inbound import MAX_CLOCK_SKEW
+from covswarm.protocol.keys import claim_key, claim_selector, parse_ids
+from covswarm.protocol.security import apply_security
 
 MODES = ("client", "peer", "router")
 RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from agent.drive import KHEPERA_IV, DiffDrive
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
 
 
 def integrate(

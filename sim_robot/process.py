@@ -36,11 +36,10 @@ import click
 import numpy as np
 import zenoh
 
-import protocol
-from agent.drive import KHEPERA_IV, DiffDrive
-from protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
-from protocol.security import SECURE_OPTION
-from protocol.session import (
+from covswarm import protocol
+from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.session import (
     MAX_CLOCK_SKEW_OPTION,
     TIME_SCALE_OPTION,
     StopFlag,
@@ -50,7 +49,8 @@ from protocol.session import (
     scaled,
     session_config,
 )
-from sim_robot.model import integrate
+from covswarm.sim_robot.model import integrate
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
 
 log = logging.getLogger("covswarm.robot")
 

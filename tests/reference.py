@@ -1,6 +1,6 @@
-"""Independent reference implementations used to verify agent.coverage / agent.control.
+"""Independent reference implementations used to verify tvd.coverage and tvd.control.
 
-Nothing here imports agent.*: cells are built with shapely by clipping the domain with one
+Nothing here imports covswarm.*: cells are built with shapely by clipping the domain with one
 half-plane polygon per other robot, masses and centroids come from shapely, derivatives from
 central finite differences. The conventions are the paper's definition of the cells plus
 docs/CONTRACTS.md for degenerate cases:

@@ -15,9 +15,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import protocol
-from agent import runtime
-from agent.runtime import (
+from covswarm import protocol
+from covswarm.agent import runtime
+from covswarm.agent.runtime import (
     AgentBrain,
     AgentConfig,
     Decision,
@@ -201,8 +201,8 @@ def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
     row ``me`` of TVD-D1 computed on the whole team: from its two-hop set's AgentStates
     (senders without relays), or from its one-hop neighbours' alone, whose relays carry
     their own neighbours' positions."""
-    from agent.control import tvd_d1
-    from agent.coverage import neighbors
+    from covswarm.tvd.control import tvd_d1
+    from covswarm.tvd.coverage import neighbors
 
     rng = np.random.default_rng(4 if relayed else 3)
     side, spacing = 10, 0.5
@@ -483,7 +483,7 @@ class Latest:
 @pytest.mark.timeout(120)
 def test_three_robots_and_agents_over_zenoh() -> None:
     zenoh = pytest.importorskip("zenoh")
-    from agent.coverage import mass_centroid
+    from covswarm.tvd.coverage import mass_centroid
 
     swarm = protocol.new_swarm_name()
     starts = [(0.3, 0.3), (0.6, 0.4), (0.4, 0.7)]

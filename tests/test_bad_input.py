@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-import protocol
-from agent import runtime
-from agent.runtime import AgentBrain, AgentConfig
-from protocol.inbound import DropLog, check_stamp
-from sim_robot.process import RobotSim
+from covswarm import protocol
+from covswarm.agent import runtime
+from covswarm.agent.runtime import AgentBrain, AgentConfig
+from covswarm.protocol.inbound import DropLog, check_stamp
+from covswarm.sim_robot.process import RobotSim
 
 WALL = 1.7e9
 SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
@@ -180,7 +180,7 @@ def router() -> Iterator[tuple[object, str]]:
 def test_a_second_claim_on_an_id_is_refused(router: tuple) -> None:
     import zenoh
 
-    from protocol.session import claim
+    from covswarm.protocol.session import claim
 
     _, endpoint = router
     swarm = protocol.new_swarm_name()

@@ -1,7 +1,7 @@
-"""TVD-C, TVD-D1 and the local step of agent.control against dense formulas built here.
+"""TVD-C, TVD-D1 and the local step of covswarm.tvd.control against dense formulas built here.
 
 r = kappa (c - p) + dc/dt (no dc/dt when feedforward=False), with c, dc/dp, dc/dt from
-agent.coverage (verified independently in test_coverage_reference / test_derivatives).
+covswarm.tvd.coverage (verified independently in test_coverage_reference / test_derivatives).
 A robot with an empty cell (mass 0) heads for the centroid c_S of the whole of S, with
 dc_S/dt as feedforward: its row of the control matrix is dropped (pdot_i = r_i), as
 documented in agent/control.py. c_S comes from shapely here; dc_S/dt is the rate of a lone
@@ -29,7 +29,7 @@ from reference import (
     two_hop,
 )
 
-from agent import control, coverage
+from covswarm.tvd import control, coverage
 
 A = getattr(control, "MAX_AMPLIFICATION", np.inf)
 

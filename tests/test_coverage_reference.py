@@ -1,4 +1,4 @@
-"""cells / mass_centroid / neighbors of agent.coverage against an independent shapely oracle.
+"""cells / mass_centroid / neighbors of covswarm.tvd.coverage against an independent shapely oracle.
 
 The oracle (tests/reference.py) clips S with one half-plane polygon per other robot. All
 errors are measured relative to the size of S: cell areas and symmetric differences against
@@ -22,7 +22,7 @@ from reference import (
 )
 from shapely.geometry import Polygon
 
-from agent import coverage
+from covswarm.tvd import coverage
 
 REL = 1e-9
 

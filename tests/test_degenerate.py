@@ -1,4 +1,4 @@
-"""Property-based tests (hypothesis) of degenerate inputs to agent.coverage / agent.control.
+"""Property-based tests (hypothesis) of degenerate inputs to tvd.coverage and tvd.control.
 
 Random geometry comes from numpy generators seeded by hypothesis (shrinking is on the
 seed and the structural parameters). Every output must be finite, velocities bounded by
@@ -28,7 +28,7 @@ from shapely.geometry import Point, Polygon
 from test_control import A, pieces
 from test_coverage_reference import check_against_reference
 
-from agent import control, coverage
+from covswarm.tvd import control, coverage
 
 # CI: 25 derandomized examples per property. For a deeper local run:
 # COVSWARM_STRESS=500 pytest tests/test_degenerate.py (random, not derandomized)

@@ -1,4 +1,4 @@
-"""agent.density: phi(q, t) as Gaussian bumps on a floor, and coverage with it.
+"""covswarm.tvd.density: phi(q, t) as Gaussian bumps on a floor, and coverage with it.
 
 Oracles: scipy dblquad over the shapely reference cells (masses, centroids), the closed
 form of a Gaussian over a square (narrow bumps), central finite differences in positions
@@ -24,9 +24,9 @@ from reference import (
 from scipy import integrate
 from scipy.special import erf
 
-from agent import control, coverage
-from agent.density import Density, DensityPath
-from coordinator.scenarios import load_scenario, scenario_from_dict
+from covswarm.coordinator.scenarios import load_scenario, scenario_from_dict
+from covswarm.tvd import control, coverage
+from covswarm.tvd.density import Density, DensityPath
 
 TOL = 1e-5
 
@@ -268,8 +268,8 @@ def test_formation_scenario_density_and_toml_round_trip() -> None:
 
 def test_agent_brain_uses_the_broadcast_density() -> None:
     """A robot alone at the centre of S moves only because of the density's bump."""
-    import protocol
-    from agent.runtime import AgentBrain, extrapolate_density
+    from covswarm import protocol
+    from covswarm.agent.runtime import AgentBrain, extrapolate_density
 
     wall = 1.7e9
     square = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]

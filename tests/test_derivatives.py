@@ -1,4 +1,4 @@
-"""centroid_jacobian and centroid_rate of agent.coverage against central finite differences.
+"""centroid_jacobian and centroid_rate of covswarm.tvd.coverage against central finite differences.
 
 Measure: ||analytic - FD||_F <= 1e-5 * max(||FD||_F, floor), with floor = 1 for dc/dp
 (dimensionless) and the largest vertex speed for dc/dt.
@@ -34,7 +34,7 @@ from reference import (
 )
 from shapely.geometry import Polygon
 
-from agent import coverage
+from covswarm.tvd import coverage
 
 TOL = 1e-5
 DELTA = 1e-3  # criterion distance, in units of diam(S)

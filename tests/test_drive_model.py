@@ -5,14 +5,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from agent.drive import (
+from covswarm.sim_robot.model import integrate
+from covswarm.tvd.drive import (
     DEFAULT_PROJECTION_DISTANCE,
     KHEPERA_IV,
     DiffDrive,
     achieved_velocity,
     wheel_speeds,
 )
-from sim_robot.model import integrate
 
 L = DEFAULT_PROJECTION_DISTANCE
 HALF_TRACK = KHEPERA_IV.wheel_separation / 2

@@ -21,7 +21,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.launcher import covswarm_argv, free_port
+from covswarm.deploy.launcher import covswarm_argv, free_port
 
 pytestmark = pytest.mark.e2e
 
@@ -136,7 +136,7 @@ def test_a_dead_agent_is_reported_and_the_run_goes_on(tmp_path: Path) -> None:
 
 ROUTER = """
 import signal, sys, zenoh
-from protocol import session_config
+from covswarm.protocol import session_config
 with zenoh.open(session_config(None, [sys.argv[1]], mode="router")):
     print("ready", flush=True)
     signal.pause()  # until SIGTERM (default action: exit)

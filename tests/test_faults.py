@@ -23,11 +23,11 @@ import numpy as np
 import pytest
 from test_e2e import ROUTER, launch, new_swarm, swarm_pids, wait_until
 
-import protocol
-from agent.runtime import AgentBrain, PoseImpairment
-from coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
-from coordinator.scenarios import load_scenario
-from deploy.launcher import covswarm_argv, free_port, impairment_args, plan_children
+from covswarm import protocol
+from covswarm.agent.runtime import AgentBrain, PoseImpairment
+from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
+from covswarm.coordinator.scenarios import load_scenario
+from covswarm.deploy.launcher import covswarm_argv, free_port, impairment_args, plan_children
 
 WALL = 1.7e9
 

@@ -18,10 +18,10 @@ import numpy as np
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import protocol
-from agent.drive import DiffDrive
-from agent.runtime import AgentBrain, AgentConfig
-from sim_robot.process import RobotSim
+from covswarm import protocol
+from covswarm.agent.runtime import AgentBrain, AgentConfig
+from covswarm.sim_robot.process import RobotSim
+from covswarm.tvd.drive import DiffDrive
 
 WALL = 1.7e9  # the receiver's wall clock in these tests
 ME = 0
@@ -74,7 +74,7 @@ polygons = st.one_of(convex_polygons(), nonconvex)
 @st.composite
 def densities(draw: st.DrawFn) -> dict:
     """Density maps of the Domain's shape, often invalid (negative weights, covariances that
-    are not positive definite, huge values), for agent.density to refuse."""
+    are not positive definite, huge values), for covswarm.tvd.density to refuse."""
     number = st.one_of(st.floats(-1.0, 10.0), st.sampled_from([0.0, 1e6, -1e6]))
 
     def bump() -> dict:

@@ -11,8 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from coordinator.scenarios import load_scenario
-from deploy.launcher import (
+from covswarm.coordinator.scenarios import load_scenario
+from covswarm.deploy.launcher import (
     ChildSpec,
     Progress,
     Startup,
@@ -131,7 +131,7 @@ def _text(renderable) -> str:
 
 
 def test_display_shows_start_up_then_the_mission() -> None:
-    from protocol import Status
+    from covswarm.protocol import Status
 
     progress = Progress(agents=3, duration=20.0)
     progress.ready |= {("coordinator", 0), ("robot", 0), ("robot", 1), ("agent", 2)}
@@ -152,7 +152,7 @@ def test_a_session_close_that_times_out_does_not_lose_the_run(
     go on to write its outputs."""
     import zenoh
 
-    from deploy.launcher import _closing
+    from covswarm.deploy.launcher import _closing
 
     class SlowSession:
         def close(self) -> None:

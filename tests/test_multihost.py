@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from deploy.launcher import covswarm_argv
+from covswarm.deploy.launcher import covswarm_argv
 
 pytestmark = pytest.mark.e2e
 
@@ -37,7 +37,7 @@ PORT = 7447  # free by construction: nothing else listens inside a fresh namespa
 # neighbour lists until the coordinator says "done"; prints one JSON line.
 PROBE = """
 import json, signal, sys, threading, time, zenoh
-from protocol import AgentState, Status, session_config
+from covswarm.protocol import AgentState, Status, session_config
 mode, endpoint, swarm = sys.argv[1:4]
 base = f"covswarm/{swarm}/probe"
 for attempt in range(300):  # until this namespace's launcher has its router up

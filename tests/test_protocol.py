@@ -13,8 +13,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import protocol
-from protocol import (
+from covswarm import protocol
+from covswarm.protocol import (
     AgentState,
     Beacon,
     Domain,
@@ -113,7 +113,10 @@ def test_new_swarm_names_are_valid_and_distinct() -> None:
 
 
 def test_protocol_import_does_not_import_zenoh() -> None:
-    code = "import sys, protocol; assert 'zenoh' not in sys.modules; protocol.PREFIX"
+    code = (
+        "import sys; from covswarm import protocol; "
+        "assert 'zenoh' not in sys.modules; protocol.PREFIX"
+    )
     subprocess.run([sys.executable, "-c", code], check=True)
 
 
@@ -181,7 +184,7 @@ def test_largest_domain_fits() -> None:
 def test_domain_density_round_trip() -> None:
     """The optional density: absent when uniform (same bytes as before), else round-trips."""
     np = pytest.importorskip("numpy")
-    from agent.density import MAX_BUMPS, Density
+    from covswarm.tvd.density import MAX_BUMPS, Density
 
     uniform = SAMPLES[2]
     assert "density" not in wire(uniform) and uniform.density is None
@@ -417,7 +420,7 @@ def test_fuzz_structured(base: protocol.Message, overrides: dict) -> None:
 # --- process plumbing -------------------------------------------------------------------
 
 LOOP = """
-from protocol.session import StopFlag, Ticker
+from covswarm.protocol.session import StopFlag, Ticker
 stop = StopFlag()
 ticker = Ticker(200.0)
 print("ready", flush=True)

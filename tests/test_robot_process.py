@@ -10,9 +10,9 @@ import msgpack
 import numpy as np
 import pytest
 
-import protocol
-from agent.drive import DiffDrive
-from sim_robot.process import RobotSim
+from covswarm import protocol
+from covswarm.sim_robot.process import RobotSim
+from covswarm.tvd.drive import DiffDrive
 
 STAMP = 1.7e9
 
@@ -127,7 +127,7 @@ def test_bad_construction_rejected() -> None:
 
 def test_robot_process_does_not_import_scipy() -> None:
     code = (
-        "import sys, sim_robot.process; "
+        "import sys, covswarm.sim_robot.process; "
         "bad = [m for m in ('scipy', 'matplotlib') if m in sys.modules]; "
         "assert not bad, bad"
     )

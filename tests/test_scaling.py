@@ -16,11 +16,11 @@ import numpy as np
 import pytest
 from test_e2e import launch, new_swarm, swarm_pids
 
-from coordinator.scenarios import load_scenario
-from deploy.launcher import covswarm_argv, initial_poses, local_endpoint, plan_children
-from protocol.keys import format_ids, parse_ids
-from protocol.session import StopFlag, Ticker, id_selection, scaled
-from sim_robot.process import parse_pose
+from covswarm.coordinator.scenarios import load_scenario
+from covswarm.deploy.launcher import covswarm_argv, initial_poses, local_endpoint, plan_children
+from covswarm.protocol.keys import format_ids, parse_ids
+from covswarm.protocol.session import StopFlag, Ticker, id_selection, scaled
+from covswarm.sim_robot.process import parse_pose
 
 
 @pytest.mark.parametrize(

@@ -8,8 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.coverage import validate_polygon
-from coordinator.scenarios import (
+from covswarm.coordinator.scenarios import (
     BUILTINS,
     Keyframes,
     Rigid,
@@ -17,6 +16,7 @@ from coordinator.scenarios import (
     load_scenario,
     scenario_from_dict,
 )
+from covswarm.tvd.coverage import validate_polygon
 
 RIGID_TOML = """
 name = "spin"

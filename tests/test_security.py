@@ -13,9 +13,9 @@ from pathlib import Path
 
 import pytest
 
-import protocol
-from protocol.security import make_test_credentials, read_credentials
-from protocol.session import session_config
+from covswarm import protocol
+from covswarm.protocol.security import make_test_credentials, read_credentials
+from covswarm.protocol.session import session_config
 
 zenoh = pytest.importorskip("zenoh")
 pytestmark = pytest.mark.skipif(shutil.which("openssl") is None, reason="needs openssl")

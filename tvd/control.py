@@ -15,7 +15,7 @@ near singular:
 - TVD-C falls back to the guarded TVD-D1 velocities when the solve fails, gives a non-finite
   result, or amplifies any robot's speed beyond ``max_amplification`` times max |r|.
 
-With a density (a snapshot at the current time, agent.density.Density) c, dc/dp and dc/dt
+With a density (a snapshot at the current time, covswarm.tvd.density.Density) c, dc/dp and dc/dt
 are those of phi, dc/dt with both terms of Proposition 1.
 
 A robot with an empty cell (outside S and dominated, or a coincident duplicate) gets
@@ -36,7 +36,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from agent.coverage import (
+from covswarm.tvd.coverage import (
     CellBatch,
     DensityModel,
     Domain,

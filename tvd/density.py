@@ -17,7 +17,7 @@ P = Sigma^-1 (so dP/dt = -P Sigma_dot P),
 
     dphi/dt = sum_b g_b [ w_dot_b + w_b (mu_dot_b^T P_b x + 1/2 x^T P_b Sigma_dot_b P_b x) ].
 
-Integrals over a CellBatch (agent.coverage), everything vectorised over (cells, edges,
+Integrals over a CellBatch (covswarm.tvd.coverage), everything vectorised over (cells, edges,
 quadrature points, bumps):
 
 - m_i = int phi, c_i = int q phi / m_i and the density term of Proposition 1,
@@ -25,7 +25,7 @@ quadrature points, bumps):
   collapsed (Duffy) product Gauss-Legendre rule of TRIANGLE_ORDER^2 points per triangle;
 - dc/dp (eqs. dcidpj, dcidpi) and the boundary term of Proposition 1 along each cell edge
   with EDGE_ORDER-point Gauss-Legendre; the outward speed of a boundary point varies
-  linearly along its edge of S, as in agent.coverage.boundary_rates.
+  linearly along its edge of S, as in covswarm.tvd.coverage.boundary_rates.
 
 Narrow bumps. Both rules are applied on a uniform subdivision of every triangle and edge
 into ``s`` pieces per side (s^2 triangles), s chosen per batch so that a piece is at most
@@ -49,8 +49,14 @@ from typing import Any
 
 import numpy as np
 
-from agent.coverage import CellBatch, as_complex, as_vectors, cross, nearest_point_derivatives
-from agent.coverage import Domain as CoverageDomain
+from covswarm.tvd.coverage import (
+    CellBatch,
+    as_complex,
+    as_vectors,
+    cross,
+    nearest_point_derivatives,
+)
+from covswarm.tvd.coverage import Domain as CoverageDomain
 
 # Gauss-Legendre points per direction of the collapsed triangle rule (exact to degree
 # 2 TRIANGLE_ORDER - 2) and per edge (exact to degree 2 EDGE_ORDER - 1).
@@ -202,7 +208,7 @@ class Density:
             time=_number(data.get("t", 0.0), "t"),
         )
 
-    # ------------------------------------------- agent.coverage's DensityModel protocol
+    # ------------------------------------------- covswarm.tvd.coverage's DensityModel protocol
 
     def weigh(self, batch: CellBatch) -> CellBatch:
         return weigh(self, batch)
@@ -411,7 +417,7 @@ def jacobian_blocks(
     off (K, L, 2, 2): -int_{dV_ij} (q - c_i)(q - p_j)^T phi / (m_i |p_i - p_j|) for the
     edge on line l shared with robot j = labels[k, l], zero elsewhere; diagonal (K, 2, 2):
     the sum over j of the same integrals with p_i in place of p_j, plus sign. Empty cells
-    get zero blocks (as agent.coverage.jacobian_blocks).
+    get zero blocks (as covswarm.tvd.coverage.jacobian_blocks).
     """
     q, ds, lines = _edges(batch, subdivision(density, batch))
     labels, shared = batch.labels[:, :lines], batch.shared[:, :lines]

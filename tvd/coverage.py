@@ -26,7 +26,7 @@ need. No Delaunay triangulation is involved, so collinear and coincident layouts
 Qhull refuses, are ordinary inputs here. A constraint that does not touch the cell changes
 nothing, so any superset of a robot's true neighbours gives the same cell: that is what lets
 one robot compute its control from its two-hop neighbourhood alone
-(``agent.control.local_step``). For the whole team, candidates are the nearest robots from a
+(``covswarm.tvd.control.local_step``). For the whole team, candidates are the nearest robots from a
 k-d tree; a cell not closed within half the distance to its farthest candidate is rebuilt
 with every robot as a candidate.
 
@@ -40,7 +40,7 @@ Degenerate layouts have defined behaviour:
 - a robot on the boundary of S, or outside S with a non-empty cell, is an ordinary robot.
 
 Every public function accepts ``density``: None is uniform (phi = 1, the closed forms
-above); otherwise a DensityModel snapshot at the current time (agent.density.Density),
+above); otherwise a DensityModel snapshot at the current time (covswarm.tvd.density.Density),
 whose own quadrature replaces the mass, centroid, dc/dp and dc/dt integrals. Cells do not
 depend on phi.
 """
@@ -152,7 +152,7 @@ def check_density(density: object) -> None:
     """Raise TypeError unless ``density`` is None (uniform) or a DensityModel."""
     if density is not None and not isinstance(density, DensityModel):
         raise TypeError(
-            f"density must be None (uniform) or an agent.density.Density, not {type(density)}"
+            f"density must be None (uniform) or a tvd.density.Density, not {type(density)}"
         )
 
 
