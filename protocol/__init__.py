@@ -33,6 +33,7 @@ from covswarm.protocol.keys import (
     parse_id,
     pose_key,
     status_key,
+    steer_key,
     tile_of,
 )
 from covswarm.protocol.messages import (
@@ -97,6 +98,7 @@ __all__ = [
     "pose_key",
     "session_config",
     "status_key",
+    "steer_key",
     "tile_of",
 ]
 

@@ -98,6 +98,11 @@ def status_key(swarm: str) -> str:
     return f"{_base(swarm)}/status"
 
 
+def steer_key(swarm: str) -> str:
+    """Client -> coordinator: SteerRequest queries, answered with a SteerReply."""
+    return f"{_base(swarm)}/steer"
+
+
 def agent_state_key(swarm: str, robot_id: int) -> str:
     """Agent -> AgentState (position, neighbour ids, stats)."""
     return f"{_base(swarm)}/agent/{check_id(robot_id)}/state"
