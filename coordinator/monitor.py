@@ -123,7 +123,7 @@ class ErrorRecord:
         return out
 
 
-# What the launcher shows and summary.json lists per agent (agent.runtime's stat names):
+# What the launcher shows and summary.json lists per agent (AgentBrain.stats' names):
 # control rate achieved, share of control periods that overran their deadline, compute time
 # per step, messages received per second.
 HEADLINE_STATS = ("rate_hz", "missed_deadline", "step_us_p50", "step_us_p99", "rx_per_s")

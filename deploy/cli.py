@@ -15,7 +15,7 @@ import click
 SUBCOMMANDS: dict[str, str] = {
     "sim": "covswarm.deploy.simulate:sim_command",
     "run": "covswarm.deploy.launcher:run_command",
-    "agent": "covswarm.agent.runtime:agent_command",
+    "agent": "covswarm.agent.main:agent_command",
     "robot": "covswarm.sim_robot.process:robot_command",
     "coordinator": "covswarm.coordinator.process:coordinator_command",
     "bench": "covswarm.deploy.bench:bench_command",

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from covswarm import protocol
-from covswarm.agent import runtime
-from covswarm.agent.runtime import AgentBrain, AgentConfig
+from covswarm.agent import brain as brain_module
+from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.protocol.inbound import DropLog, check_stamp
 from covswarm.sim_robot.process import RobotSim
 
@@ -125,7 +125,7 @@ def test_every_drop_reason_is_reported_in_a_sendable_agent_state() -> None:
     brain = AgentBrain(0)
     brain.receive("pose", pose(0, WALL), 0.0, WALL, key_id=0)
     stats = brain.agent_state(WALL).stats
-    assert {f"drop_{r}" for r in runtime.DROP_REASONS} <= stats.keys()
+    assert {f"drop_{r}" for r in brain_module.DROP_REASONS} <= stats.keys()
     assert len(stats) <= protocol.messages.MAX_STATS
 
 
@@ -135,7 +135,7 @@ def test_failing_control_step_logs_once_per_interval(
     def boom(*args: object, **kwargs: object) -> None:
         raise ValueError("polygon is self-intersecting: edge 0 crosses edge 2")
 
-    monkeypatch.setattr(runtime, "local_step", boom)
+    monkeypatch.setattr(brain_module, "local_step", boom)
     brain = AgentBrain(0)
     brain.receive("pose", pose(0, WALL), 0.0, WALL, key_id=0)
     brain.receive("domain", domain(WALL), 0.0, WALL)

@@ -269,7 +269,8 @@ def test_formation_scenario_density_and_toml_round_trip() -> None:
 def test_agent_brain_uses_the_broadcast_density() -> None:
     """A robot alone at the centre of S moves only because of the density's bump."""
     from covswarm import protocol
-    from covswarm.agent.runtime import AgentBrain, extrapolate_density
+    from covswarm.agent.brain import AgentBrain
+    from covswarm.agent.extrapolation import extrapolate_density
 
     wall = 1.7e9
     square = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]

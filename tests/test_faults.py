@@ -24,7 +24,8 @@ import pytest
 from test_e2e import ROUTER, launch, new_swarm, swarm_pids, wait_until
 
 from covswarm import protocol
-from covswarm.agent.runtime import AgentBrain, PoseImpairment
+from covswarm.agent.brain import AgentBrain
+from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
 from covswarm.coordinator.scenarios import load_scenario
 from covswarm.deploy.launcher import covswarm_argv, free_port, impairment_args, plan_children
@@ -95,20 +96,21 @@ def _brain_with_team() -> AgentBrain:
 
 def test_a_teammate_whose_token_vanishes_leaves_the_diagram_at_once() -> None:
     brain = _brain_with_team()
-    assert set(brain.candidates(0.1)) == {1, 2}
+    assert set(brain.neighbourhood.candidates(0.1)) == {1, 2}
     brain.on_liveliness("agent", 1, alive=False)  # robot 1 keeps publishing its pose
     brain.on_pose(protocol.Pose(id=1, x=1.0, y=0.0, theta=0.0, stamp=WALL, seq=1), 0.2)
-    assert set(brain.candidates(0.2)) == {2}
+    assert set(brain.neighbourhood.candidates(0.2)) == {2}
     # A brain for 1 again (its token, or its first AgentState) brings robot 1 back.
     brain.on_liveliness("agent", 1, alive=True)
-    assert set(brain.candidates(0.3)) == {1, 2}
+    assert set(brain.neighbourhood.candidates(0.3)) == {1, 2}
     brain.on_liveliness("robot", 2, alive=False)
     brain.on_agent_state(
         protocol.AgentState(id=2, x=2.0, y=0.0, stamp=WALL, neighbors=[], stats={}), 0.4
     )
-    assert set(brain.candidates(0.4)) == {1}  # a brain's state does not revive its robot
+    # a brain's state does not revive its robot
+    assert set(brain.neighbourhood.candidates(0.4)) == {1}
     brain.on_liveliness("agent", 0, alive=False)  # our own token: ignored
-    assert 0 not in brain.dead
+    assert 0 not in brain.neighbourhood.dead
 
 
 def test_an_agent_without_a_fresh_own_pose_goes_quiet() -> None:

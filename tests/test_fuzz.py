@@ -19,7 +19,7 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from covswarm import protocol
-from covswarm.agent.runtime import AgentBrain, AgentConfig
+from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.sim_robot.process import RobotSim
 from covswarm.tvd.drive import DiffDrive
 

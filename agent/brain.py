@@ -1,0 +1,493 @@
+"""The brain of one agent as a sans-IO state machine: messages and clocks in, actions out.
+
+Feed it raw payloads with :meth:`AgentBrain.receive` and liveliness changes with
+:meth:`AgentBrain.on_liveliness`; once per control period :meth:`AgentBrain.tick` returns
+everything to do, in order: the wheel command, the AgentState, a beacon when one is due,
+the AgentStates and beacon tiles to follow, and the liveliness token to declare once the
+agent hears its own robot. No Zenoh, no wall clock of its own: ``now`` arguments are
+monotonic seconds (receipt and staleness), ``now_wall`` seconds since the epoch (domain
+extrapolation and message stamps), and the step timer is passed in (``clock``). The shell
+(:mod:`covswarm.agent.link`) only carries the actions out.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from covswarm import protocol
+from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
+from covswarm.agent.metrics import Counters, Percentiles, Rate
+from covswarm.agent.neighbourhood import (
+    DEAD_RECKONING_LIMIT,
+    Neighbourhood,
+    cell_reach,
+    clamp_position,
+    tile_radius,
+)
+from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from covswarm.tvd.control import local_step
+from covswarm.tvd.density import Density
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, achieved_velocity, wheel_speeds
+
+DROP_REASONS = (
+    *protocol.REASONS,
+    *STAMP_REASONS,
+    "wrong_id",  # key and message disagree about the robot id, or a malformed key
+    "bad_domain",  # valid message, invalid polygon (non-convex, self-intersecting, ...)
+    "old_domain",  # older than the domain already held
+)
+# Largest fraction of the gap to the centroid one control period may close (sampled_gain).
+MAX_STEP_FRACTION = 0.8
+# Seconds between control steps while the mission is not running (neighbour bookkeeping).
+IDLE_STEP_PERIOD = 1.0
+# s: an early beacon (a teammate appeared) follows the last one after at least this long, so
+# a whole team starting at once costs each agent one beacon per second, not per tick.
+BEACON_MIN_PERIOD = 1.0
+STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
+
+
+@dataclass(frozen=True)
+class AgentConfig:
+    """Tunables of one agent; times in seconds, distances in metres."""
+
+    kappa: float | None = None  # None: use the kappa broadcast with the domain
+    feedforward: bool = True
+    stale_timeout: float = 1.0
+    # Beacons only bootstrap: neighbours' relays keep the two-hop set current, and a
+    # teammate's new token triggers an early beacon (see AgentBrain.beacon).
+    beacon_period: float = 10.0
+    beacon_timeout: float = 25.0
+    max_tile_radius: int = 3
+    max_extrapolation: float = 1.0
+    linger: float = 0.5
+    max_clock_skew: float = MAX_CLOCK_SKEW
+    robot: DiffDrive = KHEPERA_IV
+    # Fault injection (docs/faults.md): drop this fraction of received poses, deliver the
+    # rest this many s late; random draws seeded by (pose_seed, id).
+    pose_loss: float = 0.0
+    pose_delay: float = 0.0
+    pose_seed: int = 0
+
+
+@dataclass(frozen=True)
+class Decision:
+    """Outcome of one control step: wheel speeds and why."""
+
+    left: float
+    right: float
+    reason: str  # "running" or why the robot holds still
+    velocity: tuple[float, float] = (0.0, 0.0)  # m/s, the control law's
+    achieved: tuple[float, float] = (0.0, 0.0)  # m/s, what the (saturated) wheels give
+
+
+# --- actions: what a tick asks the shell to do ---------------------------------------
+
+
+@dataclass(frozen=True)
+class SendCommand:
+    command: protocol.WheelCommand
+
+
+@dataclass(frozen=True)
+class PublishState:
+    state: protocol.AgentState
+
+
+@dataclass(frozen=True)
+class PublishBeacon:
+    tile: tuple[int, int]
+    beacon: protocol.Beacon
+
+
+@dataclass(frozen=True)
+class FollowStates:
+    """Be subscribed to exactly these robots' AgentStates."""
+
+    ids: frozenset[int]
+
+
+@dataclass(frozen=True)
+class FollowTiles:
+    """Be subscribed to exactly these beacon tiles."""
+
+    tiles: frozenset[tuple[int, int]]
+
+
+@dataclass(frozen=True)
+class DeclareAlive:
+    """Declare this agent's liveliness token: it hears its robot and can steer it."""
+
+
+Action = SendCommand | PublishState | PublishBeacon | FollowStates | FollowTiles | DeclareAlive
+
+
+def sampled_gain(kappa: float, period: float) -> float:
+    """The gain to hold over one control period of ``period`` s in place of ``kappa`` (1/s).
+
+    Holding kappa (c - p) for a period T moves the robot kappa T of its gap to the
+    centroid: past 1 it overshoots, past 2 it diverges (seen: kappa 8 on a starved agent
+    at 4 Hz). The gain is capped so that one period never covers more than
+    MAX_STEP_FRACTION of the gap; at the rates the agents are meant to run (kappa T well
+    below it) kappa is used unchanged.
+    """
+    if period <= 0.0:
+        return kappa
+    return min(kappa, MAX_STEP_FRACTION / period)
+
+
+class AgentBrain:
+    """Decision logic of one agent: feed it messages, ask it for actions. No I/O."""
+
+    def __init__(
+        self,
+        robot_id: int,
+        config: AgentConfig | None = None,
+        decoder: MessageDecoder | None = None,
+        clock: Callable[[], float] = time.perf_counter,
+        log: logging.Logger | None = None,
+    ) -> None:
+        self.id = protocol.check_id(robot_id)
+        self.config = config = config or AgentConfig()
+        self.decoder = decoder or MessageDecoder()
+        self._clock = clock  # only times the control step (stats)
+        self.log = log or logging.getLogger("covswarm.agent")
+        self.pose: protocol.Pose | None = None
+        self.pose_received = -math.inf
+        self.domain: protocol.Domain | None = None
+        self.density: Density | None = None  # the domain's density, validated (None: uniform)
+        self.neighbourhood = Neighbourhood(
+            self.id, config.stale_timeout, config.beacon_timeout, config.linger
+        )
+        self.radius = 1
+        self.reach: float | None = None  # cell_reach of our last non-empty cell
+        self.counters = Counters()
+        self.drops = DropLog(self.log, f"agent {self.id}", DROP_REASONS)
+        self._failure_log = RateLimit()
+        self._local = 0  # robots in the last local diagram besides ourselves
+        self._last_beacon = -math.inf
+        # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
+        self._beacon_due = False
+        self._last_control: float | None = None  # wall time of the last control step
+        self._last_idle_step = -math.inf
+        self._next_stats = -math.inf
+        self._alive = False
+        self.velocity: tuple[float, float] = (0.0, 0.0)  # last achieved (saturated) command, m/s
+        self._seq = 0
+        self._step_us = Percentiles()
+        self._pose_age_ms = Percentiles()
+        self._step_rate = Rate()
+        self._rx_rate = Rate()
+        self._rates = (0.0, 0.0)
+
+    # --- input -------------------------------------------------------------------------
+
+    def receive(
+        self, kind: str, payload: bytes, now: float, now_wall: float, key_id: int | None = None
+    ) -> bool:
+        """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
+        "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
+        self.counters.received += 1
+        try:
+            message = self.decoder.decode(kind, payload)
+            max_age = self.config.beacon_timeout if kind == "beacon" else self.config.stale_timeout
+            check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
+        except protocol.ProtocolError as exc:
+            self.drops.drop(exc.reason, f"{kind}: {exc}")
+            return False
+        if key_id is not None and message.id != key_id:
+            self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
+            return False
+        return _HANDLERS[kind](self, message, now)
+
+    def on_pose(self, pose: protocol.Pose, now: float) -> bool:
+        if pose.id == self.id:
+            self.pose, self.pose_received = pose, now
+        else:
+            self.neighbourhood.on_pose(pose, now)
+        return True
+
+    def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
+        if state.id == self.id:
+            return False
+        self.neighbourhood.on_agent_state(state, now)
+        return True
+
+    def on_beacon(self, beacon: protocol.Beacon, now: float) -> bool:
+        if beacon.id == self.id:
+            return False  # our own beacon, heard through our own tile subscription
+        self.neighbourhood.on_beacon(beacon, now)
+        return True
+
+    def on_liveliness(self, role: str, rid: int, alive: bool) -> None:
+        """Another robot's agent or robot token appeared or vanished (see
+        Neighbourhood.on_liveliness); a newcomer is owed an early beacon."""
+        if self.neighbourhood.on_liveliness(role, rid, alive):
+            self._beacon_due = True  # a newcomer: let it find us without waiting
+
+    def on_domain(self, domain: protocol.Domain, now: float) -> bool:
+        if self.domain is not None and domain.stamp < self.domain.stamp:
+            self.drops.drop("old_domain", f"domain stamped {domain.stamp} < {self.domain.stamp}")
+            return False
+        try:
+            density = self.decoder.domain_geometry(domain)
+        except ValueError as exc:
+            self.drops.drop("bad_domain", f"domain: {exc}")
+            return False
+        self.domain = domain
+        self.density = density
+        return True
+
+    @property
+    def running(self) -> bool:
+        """Whether the mission runs (by the last domain received)."""
+        return self.domain is not None and self.domain.state == "running"
+
+    def pose_fresh(self, now: float) -> bool:
+        """Whether our own robot's pose is known and younger than ``stale_timeout``."""
+        return self.pose is not None and now - self.pose_received <= self.config.stale_timeout
+
+    @property
+    def tile_size(self) -> float | None:
+        """The swarm's beacon tile size, from the domain broadcast (None before one)."""
+        if self.domain is None:
+            return None
+        return self.domain.tile_size or protocol.DEFAULT_TILE_SIZE
+
+    def wanted_tiles(self) -> set[tuple[int, int]]:
+        """Beacon tiles to subscribe to: (2r+1)^2 around our own tile (none without a pose
+        or before the domain says the swarm's tile size)."""
+        tile_size = self.tile_size
+        if self.pose is None or tile_size is None:
+            return set()
+        tx, ty = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
+        r = self.radius
+        return {(tx + i, ty + j) for i in range(-r, r + 1) for j in range(-r, r + 1)}
+
+    # --- the tick ------------------------------------------------------------------------
+
+    def tick(self, now: float, now_wall: float) -> list[Action]:
+        """Everything to do this control period, in the order to do it."""
+        actions: list[Action] = [SendCommand(self.command(self.step(now, now_wall), now_wall))]
+        if self.pose_fresh(now):
+            with_stats = now >= self._next_stats
+            state = self.agent_state(now_wall, stats=with_stats)
+            if state is not None:
+                actions.append(PublishState(state))
+                if with_stats:
+                    self._next_stats = now + STATS_PERIOD
+        beacon = self.beacon(now, now_wall)
+        if beacon is not None:
+            actions.append(PublishBeacon(*beacon))
+        actions.append(FollowStates(frozenset(self.neighbourhood.wanted_state_ids(now))))
+        actions.append(FollowTiles(frozenset(self.wanted_tiles())))
+        if not self._alive and self.pose is not None:
+            self._alive = True
+            actions.append(DeclareAlive())
+        return actions
+
+    def stop(self, now_wall: float) -> SendCommand:
+        """The last command, when the process stops: the robot stops at once rather than
+        after its command timeout."""
+        return SendCommand(self.command(Decision(0.0, 0.0, "stopped"), now_wall))
+
+    # --- control -------------------------------------------------------------------------
+
+    def step(self, now: float, now_wall: float) -> Decision:
+        """One control step: the wheel speeds to send now, (0, 0) whenever unsure."""
+        decision = self._decide(now, now_wall)
+        self.velocity = decision.achieved
+        return decision
+
+    def _decide(self, now: float, now_wall: float) -> Decision:
+        self.counters.steps += 1
+        self.counters.mission_steps += self.running
+        self._rates = (
+            self._step_rate.add(now, self.counters.steps),
+            self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
+        )
+        others = self.neighbourhood.candidates(now)
+        if not self.pose_fresh(now):
+            return Decision(0.0, 0.0, "no-pose")
+        if self.domain is None:
+            return Decision(0.0, 0.0, "no-domain")
+        if self.domain.state != "running" and now - self._last_idle_step < IDLE_STEP_PERIOD:
+            # Before the mission the step only keeps the neighbour sets warm: at 10 Hz,
+            # agents already up would starve the ones still starting on a loaded machine.
+            return Decision(0.0, 0.0, self.domain.state)
+        self._last_idle_step = now
+        started = self._clock()
+        assert self.pose is not None
+        try:
+            relevant = self.neighbourhood.relevant(
+                others, now, (self.pose.x, self.pose.y), self.reach
+            )
+            decision = self._control(relevant, now, now_wall)
+        # Any failure of the geometry (degenerate input the math rejects, or a bug) must
+        # stop this robot, not kill the process and leave the robot on its last command.
+        except Exception as exc:
+            self.counters.step_errors += 1
+            if self._failure_log.ready():  # at most one line per LOG_INTERVAL, not per tick
+                self.log.warning(
+                    "agent %d: control step failed (%d so far), robot stopped: %r",
+                    self.id,
+                    self.counters.step_errors,
+                    exc,
+                )
+            return Decision(0.0, 0.0, "error")
+        self._step_us.add((self._clock() - started) * 1e6)
+        return decision
+
+    def _control(
+        self, others: dict[int, tuple[float, float]], now: float, now_wall: float
+    ) -> Decision:
+        assert self.pose is not None and self.domain is not None
+        vertices, velocities = extrapolate_domain(
+            self.domain, now_wall, self.config.max_extrapolation
+        )
+        me = np.array([self.pose.x, self.pose.y])
+        kappa = self.config.kappa if self.config.kappa is not None else self.domain.kappa
+        if self._last_control is not None:
+            kappa = sampled_gain(kappa, min(now_wall - self._last_control, 1.0))
+        self._last_control = now_wall
+        result = local_step(
+            self.id,
+            {**others, self.id: me},
+            vertices,
+            velocities,
+            kappa,
+            feedforward=self.config.feedforward,
+            density=extrapolate_density(
+                self.density, now_wall - self.domain.stamp, self.config.max_extrapolation
+            ),
+        )
+        # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
+        self.neighbourhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        if self.neighbourhood.unrequited(now):
+            self._beacon_due = True
+        self._local = len(others)
+        if result.mass > 0.0:
+            self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.mass)
+            self.radius = tile_radius(
+                self.reach, self.tile_size, self.radius, self.config.max_tile_radius
+            )
+        else:
+            self.reach = None
+        if self.domain.state != "running":
+            return Decision(0.0, 0.0, self.domain.state)
+        velocity = np.asarray(result.velocity, dtype=float)
+        if not np.all(np.isfinite(velocity)):
+            raise ValueError(f"non-finite velocity {velocity}")
+        heading = np.array([self.pose.theta])
+        wheels = wheel_speeds(heading, velocity[None], self.config.robot)
+        # What the robot will do, not what was asked: what our AgentState reports for
+        # neighbours to dead-reckon with (a saturated command overstates the speed).
+        achieved = achieved_velocity(heading, wheels, self.config.robot)[0].tolist()
+        left, right = wheels[0].tolist()
+        return Decision(left, right, "running", tuple(velocity.tolist()), tuple(achieved))
+
+    # --- output --------------------------------------------------------------------------
+
+    def command(self, decision: Decision, stamp: float) -> protocol.WheelCommand:
+        """The wheel command for ``decision``; non-finite speeds become (0, 0)."""
+        left, right = decision.left, decision.right
+        if not (math.isfinite(left) and math.isfinite(right)):
+            left = right = 0.0
+        self._seq += 1
+        if self.pose is not None:
+            # Pose-to-command latency: the robot's pose stamp to this command's stamp (one
+            # clock on one machine; across machines it includes their clock offset).
+            self._pose_age_ms.add((stamp - self.pose.stamp) * 1e3)
+        return protocol.WheelCommand(
+            id=self.id,
+            left=left,
+            right=right,
+            stamp=stamp,
+            seq=self._seq,
+            pose_stamp=self.pose.stamp if self.pose is not None else 0.0,
+        )
+
+    def stats(self) -> dict[str, float | int]:
+        """Measurements and counters for AgentState.stats (names <= 32 chars)."""
+        c = self.counters
+        return {
+            "rate_hz": round(self._rates[0], 3),
+            "step_us_p50": round(self._step_us.get(0.50), 1),
+            "step_us_p99": round(self._step_us.get(0.99), 1),
+            "rx_per_s": round(self._rates[1], 1),
+            "pose_age_ms_p50": round(self._pose_age_ms.get(0.50), 2),
+            "pose_age_ms_p99": round(self._pose_age_ms.get(0.99), 2),
+            "missed_deadline": round(c.overruns / c.mission_steps, 4) if c.mission_steps else 0.0,
+            "rx_total": c.received + c.coalesced,
+            "coalesced": c.coalesced,
+            **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
+            "stale_dropped": self.neighbourhood.stale_dropped,
+            "step_errors": c.step_errors,
+            "candidates": len(self.neighbourhood.reckoned),
+            "local_set": self._local,
+            "neighbors": len(self.neighbourhood.one_hop),
+            "state_subs": len(self.neighbourhood.wanted),
+            "tile_radius": self.radius,
+        }
+
+    def agent_state(self, stamp: float, stats: bool = True) -> protocol.AgentState | None:
+        """Our AgentState (with our stats if ``stats``), or None before our own pose is known."""
+        if self.pose is None:
+            return None
+        # The position dead-reckoned from the pose's stamp to the state's (same robot-side
+        # clock on one machine; bounded, in case of skew across machines).
+        # The control velocity is unbounded (a fast domain) and the wire's is not: clamped.
+        vx, vy = (min(max(v, -protocol.MAX_SPEED), protocol.MAX_SPEED) for v in self.velocity)
+        lead = min(max(stamp - self.pose.stamp, 0.0), DEAD_RECKONING_LIMIT)
+        x, y = clamp_position(self.pose.x + lead * vx, self.pose.y + lead * vy)
+        return protocol.AgentState(
+            id=self.id,
+            x=x,
+            y=y,
+            stamp=stamp,
+            neighbors=sorted(self.neighbourhood.one_hop),
+            stats=self.stats() if stats else None,
+            vx=vx,
+            vy=vy,
+            relay=self.neighbourhood.relay(),
+        )
+
+    def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
+        """(tile, Beacon) if one is due at ``now``, else None.
+
+        Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
+        agent's liveliness token appeared (a newcomer, or a whole team starting, must find
+        its neighbours, and they it, without waiting for the next routine beacon) or a
+        neighbour kept leaving us out of its neighbours (Neighbourhood.unrequited).
+
+        None while our own pose is stale: a robot that stopped reporting (dead) must not be
+        kept alive in the others' diagrams by its brain; and before the domain gives the
+        swarm's tile size.
+        """
+        tile_size = self.tile_size
+        if (
+            tile_size is None
+            or not self.pose_fresh(now)
+            or now - self._last_beacon
+            < (BEACON_MIN_PERIOD if self._beacon_due else self.config.beacon_period)
+        ):
+            return None
+        assert self.pose is not None
+        self._last_beacon = now
+        self._beacon_due = False
+        tile = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
+        return tile, protocol.Beacon(id=self.id, x=self.pose.x, y=self.pose.y, stamp=stamp)
+
+
+_HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
+    "pose": AgentBrain.on_pose,
+    "state": AgentBrain.on_agent_state,
+    "beacon": AgentBrain.on_beacon,
+    "domain": AgentBrain.on_domain,
+}

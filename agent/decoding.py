@@ -1,0 +1,57 @@
+"""Decoding of what an agent receives, shared by the brains of one process.
+
+Decoded messages are immutable and a function of their bytes alone, so the brains of one
+process (``covswarm agent --ids``) share one :class:`MessageDecoder`: each still receives
+every sample through its own subscriptions, but a pose that five of them follow, or the
+domain that all of them follow, is parsed and validated once.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+import numpy as np
+
+from covswarm import protocol
+from covswarm.tvd.coverage import validate_polygon
+from covswarm.tvd.density import Density
+
+MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
+    "pose": protocol.Pose,
+    "state": protocol.AgentState,
+    "beacon": protocol.Beacon,
+    "domain": protocol.Domain,
+}
+# Sized for a tick's worth of distinct payloads of a 100-brain process.
+DECODE_CACHE = 4096
+
+
+class MessageDecoder:
+    """Bytes -> validated messages, with a bounded cache owned by this instance."""
+
+    def __init__(self, cache_size: int = DECODE_CACHE) -> None:
+        self._decode_bytes = lru_cache(maxsize=cache_size)(self._decode_uncached)
+        self._geometry_of: tuple[protocol.Domain, Density | None] | None = None
+
+    def decode(self, kind: str, payload: object) -> protocol.Message:
+        """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
+        if type(payload) is bytes:
+            return self._decode_bytes(kind, payload)
+        return MESSAGE_TYPES[kind].decode(payload)
+
+    @staticmethod
+    def _decode_uncached(kind: str, payload: bytes) -> protocol.Message:
+        return MESSAGE_TYPES[kind].decode(payload)
+
+    def domain_geometry(self, domain: protocol.Domain) -> Density | None:
+        """Check the domain's polygon and parse its density; ValueError if either is invalid.
+
+        The last valid domain is remembered: the brains of a process receive the same
+        decoded Domain object, and the polygon check costs more than the decoding.
+        """
+        if self._geometry_of is not None and self._geometry_of[0] is domain:
+            return self._geometry_of[1]
+        validate_polygon(np.array(domain.vertices))
+        density = None if domain.density is None else Density.from_dict(domain.density)
+        self._geometry_of = (domain, density)
+        return density

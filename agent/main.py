@@ -1,0 +1,276 @@
+"""``covswarm agent``: the brain of one robot (or several), as its own process.
+
+Each agent knows only its neighbourhood: what it receives per second depends on how many
+robots are near it, never on the team size.
+
+Neighbour discovery
+-------------------
+- **Own robot**: subscribes to ``robot/<me>/pose``; publishes ``robot/<me>/cmd``.
+- **Domain**: subscribes to the broadcast ``domain`` and extrapolates it between messages
+  (vertices + velocities * time since its stamp, for at most ``--max-extrapolation`` s; after
+  that the domain holds still and its velocities count as zero).
+- **Beacons (bootstrap)**: every ``--beacon-period`` (10 s), and at most 1 s after the
+  last one whenever another agent's liveliness token appears (a newcomer, or a team
+  starting) or a neighbour's AgentState keeps leaving it out, the agent publishes a Beacon
+  on ``beacon/<tx>/<ty>/<me>``, (tx, ty) = floor(position / tile_size) with the swarm's
+  tile size from the Domain broadcast (none before the first Domain), and subscribes to
+  the (2r+1)^2 tiles around its own with ``beacon/<tx>/<ty>/*`` selectors, re-declared
+  when it changes tile. r starts at 1 (3x3 tiles) and grows, up to ``--max-tile-radius``,
+  while its cell is too large for the tiles to hold every robot that could cut it (a
+  robot farther than twice the cell radius cannot; see :func:`cell_reach`). A robot known
+  only from its beacon is a candidate at the beacon's position while that beacon is the
+  newest news of it.
+- **Two-hop set**: the agent publishes AgentState at the control rate: its robot's
+  position and velocity, its current Voronoi neighbour ids, and the positions and
+  velocities of those neighbours as it used them (``relay``; first-hand ones only), with
+  its stats about once a second. It subscribes to the AgentStates of its one-hop
+  neighbours, whose relays give it the positions of the rest of its two-hop set, plus
+  those of any two-hop robot that no fresh relay carries yet; per-id subscribers are
+  declared and undeclared as the set changes and linger ``--linger`` s after an id leaves
+  it, so a neighbour flickering across a Voronoi vertex does not churn subscriptions.
+  Other robots' positions never come from their 20 Hz poses: one subscription and 10
+  messages per second per one-hop neighbour, none per outer-ring robot, for positions
+  one control period older (two when relayed).
+- Positions are taken from a robot's own AgentState (or pose, for a bridge that sends
+  them) while younger than ``--stale-timeout`` (receipt time, so clock skew between
+  machines does not matter), else from the freshest neighbour's relay of it younger than
+  that, else from its beacon while younger than ``--beacon-timeout``; older robots are
+  dropped. All are dead-reckoned with the velocity they carry (what the robot's wheels
+  achieve, not the unsaturated command), for at most DEAD_RECKONING_LIMIT s per hop.
+- **Faults** (docs/faults.md): a robot whose agent's or robot's liveliness token is deleted
+  (``alive/*/*``, changes only) leaves the local diagram at once; an agent whose own pose is
+  stale commands (0, 0) and publishes no AgentState or beacon. ``--drop-poses`` /
+  ``--delay-poses`` inject seeded loss and delay of poses and AgentStates
+  (:class:`PoseImpairment`).
+
+Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
+logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError
+reasons), a key and message that disagree about the id, a domain that is not a convex
+polygon or is older than the one held, and stamps outside the clock policy of
+protocol.inbound (more than ``--max-clock-skew`` ahead of this clock, or older than the
+message's timeout plus that skew).
+
+Each step the agent calls covswarm.tvd.control.local_step on itself plus the candidates that can
+matter (its two-hop set and robots within 1.25x its cell's reach, see
+:meth:`AgentBrain.relevant`): the local partial Voronoi diagram of its two-hop
+neighbourhood, whose cost grows with the square of its size, so beacon-only robots far
+away are left out. It maps the velocity to wheel speeds with covswarm.tvd.drive.wheel_speeds and
+publishes a WheelCommand. Waiting/done, no domain, or no fresh own pose give a (0, 0)
+command; so does any failure of the math (the robot stops rather than crash or receive
+NaN). Neighbours are computed while waiting too, so the sets are warm at the start. The
+liveliness token ``alive/agent/<id>`` is declared once the agent hears its own robot.
+
+Message rates per agent (robot poses at 20 Hz, agents at 10 Hz, k one-hop neighbours, b
+robots in the beacon tiles): receives 20 (own pose) + domain rate + 10 k (states) + b / 10
+(beacons) per second; sends 10 commands + 10 states + 0.1 beacon per second.
+
+``covswarm agent --ids 0-9`` runs several brains in one process (:func:`run_agents`: one
+Zenoh session, each brain with its own keys, subscriptions, claim and token);
+``--time-scale`` runs on mission time slower than real time (protocol.session.scaled).
+
+Subscribers (liveliness included) use ring channels that the main loop polls once per
+tick (:class:`Inbox`), so no Python callback thread exists; all decoding and math happen in
+the main loop, and the brains of one process share the decoding of identical payloads
+(:class:`~covswarm.agent.decoding.MessageDecoder`). The decision logic
+(:class:`~covswarm.agent.brain.AgentBrain`) is a sans-IO state machine, unit-tested without
+Zenoh; :class:`~covswarm.agent.link.AgentLink` carries out its actions.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+
+import click
+import zenoh
+
+from covswarm import protocol
+from covswarm.agent.brain import AgentBrain, AgentConfig, DeclareAlive, SendCommand
+from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.link import AgentLink
+from covswarm.agent.metrics import Counters
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.session import (
+    MAX_CLOCK_SKEW_OPTION,
+    TIME_SCALE_OPTION,
+    StopFlag,
+    Ticker,
+    claim_or_refuse,
+    id_selection,
+    scaled,
+    session_config,
+)
+from covswarm.tvd.drive import DiffDrive
+
+log = logging.getLogger("covswarm.agent")
+
+
+def run_agents(
+    brains: list[AgentBrain],
+    swarm: str,
+    config: zenoh.Config,
+    rate: float,
+    time_scale: float = 1.0,
+) -> list[Counters]:
+    """Zenoh shell around ``brains``: runs until SIGINT/SIGTERM, returns their counters.
+
+    Several brains may share this process and its one Zenoh session (``covswarm agent
+    --ids``): one process costs ~80 MB and its own imports, one more brain almost nothing.
+    Each brain still has its own AgentLink (publishers, subscriptions), claim and
+    liveliness token and talks to the others only through Zenoh, exactly as if it ran
+    alone; the brains step one after the other in one loop at ``rate`` Hz of mission time.
+
+    Every id is claimed (protocol.session.claim) before anything is published: an agent for
+    an id that is already running refuses to start. A brain's liveliness token (what
+    launcher and coordinator wait for) is declared once it hears its own robot, so "every
+    agent alive" means "every agent can steer". ``time_scale``: see protocol.session.scaled.
+    """
+    stop = StopFlag()
+    wall_clock = scaled(time.time, time_scale)
+    with zenoh.open(config) as session:
+        claims: list[zenoh.LivelinessToken] = []
+        links: list[AgentLink] = []
+        ticker = Ticker(rate, time_scale=time_scale)
+        try:
+            for brain in brains:
+                claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
+                links.append(AgentLink(session, swarm, brain))
+            while not stop.is_set():
+                ticker.wait(stop)
+                # The batch starts one brain later every tick: the brains at the end of a
+                # long batch step later in the period, and no robot should always be last.
+                links.append(links.pop(0))
+                for link in links:
+                    brain = link.brain
+                    # Each brain's own time: the last of a large batch steps tens of ms
+                    # after the first, and its neighbours are dead-reckoned to then.
+                    now, wall = ticker.now(), wall_clock()
+                    link.receive(now, wall)
+                    for action in brain.tick(now, wall):
+                        link.carry_out(action)
+                        # A missed deadline: this period's command went out after the
+                        # period ended (start-up, while processes are still launching,
+                        # aside).
+                        if isinstance(action, SendCommand):
+                            if brain.running and ticker.now() > ticker.deadline:
+                                brain.counters.overruns += 1
+                        elif isinstance(action, DeclareAlive):
+                            log.info("agent %d ready in swarm %s", brain.id, swarm)
+        finally:
+            for link in links:  # stop the robots at once rather than after their timeout
+                link.carry_out(link.brain.stop(wall_clock()))
+            for token in [*(link.token for link in links if link.token), *claims]:
+                token.undeclare()
+        for link in links:
+            log.info(
+                "agent %d stopping: %s, dropped %s, stats %s",
+                link.brain.id,
+                link.brain.counters,
+                link.brain.drops.summary(),
+                link.brain.stats(),
+            )
+        log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
+    return [brain.counters for brain in brains]
+
+
+@click.command("agent")
+@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
+@click.option("--ids", help="Several brains in this process instead, e.g. 0-9 (one session).")
+@click.option(
+    "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
+)
+@click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
+@click.option("--rate", type=click.FloatRange(min=0.5), default=10.0, show_default=True)
+@TIME_SCALE_OPTION
+@click.option(
+    "--kappa",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=None,
+    help="Gain; default: the kappa broadcast with the domain.",
+)
+@click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt term (ablation).")
+@click.option("--stale-timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
+@click.option("--beacon-period", type=click.FloatRange(min=0.05), default=10.0, show_default=True)
+@click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=25.0, show_default=True)
+@click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
+@click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
+@click.option("--linger", type=click.FloatRange(min=0.0), default=0.5, show_default=True)
+@MAX_CLOCK_SKEW_OPTION
+@click.option(
+    "--max-wheel-speed",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=0.8,
+    show_default=True,
+    help="Rim speed limit (m/s) the commands are saturated to.",
+)
+@click.option(
+    "--drop-poses",
+    type=click.FloatRange(0.0, 1.0, max_open=True),
+    default=0.0,
+    show_default=True,
+    help="Fault injection: drop this fraction of received poses.",
+)
+@click.option(
+    "--delay-poses",
+    type=click.FloatRange(min=0.0),
+    default=0.0,
+    show_default=True,
+    help="Fault injection: deliver received poses this many s late.",
+)
+@click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
+@SECURE_OPTION
+@click.option("--verbose", is_flag=True, help="Log at INFO level.")
+def agent_command(
+    robot_id: int | None,
+    ids: str | None,
+    connect: tuple[str, ...],
+    swarm: str,
+    rate: float,
+    time_scale: float,
+    kappa: float | None,
+    no_feedforward: bool,
+    stale_timeout: float,
+    beacon_period: float,
+    beacon_timeout: float,
+    max_tile_radius: int,
+    max_extrapolation: float,
+    linger: float,
+    max_clock_skew: float,
+    max_wheel_speed: float,
+    drop_poses: float,
+    delay_poses: float,
+    pose_seed: int,
+    secure: Path | None,
+    verbose: bool,
+) -> None:
+    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi,
+    TVD-D1)."""
+    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
+    try:
+        protocol.check_swarm(swarm)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--swarm") from exc
+    robot_ids = id_selection(robot_id, ids)
+    config = AgentConfig(
+        kappa=kappa,
+        feedforward=not no_feedforward,
+        stale_timeout=stale_timeout,
+        beacon_period=beacon_period,
+        beacon_timeout=beacon_timeout,
+        max_tile_radius=max_tile_radius,
+        max_extrapolation=max_extrapolation,
+        linger=linger,
+        max_clock_skew=max_clock_skew,
+        robot=DiffDrive(max_wheel_speed=max_wheel_speed),
+        pose_loss=drop_poses,
+        pose_delay=delay_poses,
+        pose_seed=pose_seed,
+    )
+    try:
+        zenoh_config = session_config(list(connect), None, "client", secure=secure)
+    except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
+        raise click.UsageError(str(exc)) from exc
+    decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
+    brains = [AgentBrain(i, config, decoder) for i in robot_ids]
+    run_agents(brains, swarm, zenoh_config, rate, time_scale)

@@ -1,0 +1,54 @@
+"""Measurements one agent reports about itself in AgentState.stats (pure)."""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+
+STATS_WINDOW = 5.0  # s over which rates are measured
+TIMING_SAMPLES = 256  # step durations kept for the p50/p99
+
+
+class Percentiles:
+    """Rolling percentiles of the last ``TIMING_SAMPLES`` values."""
+
+    def __init__(self) -> None:
+        self._values: deque[float] = deque(maxlen=TIMING_SAMPLES)
+
+    def add(self, value: float) -> None:
+        self._values.append(value)
+
+    def get(self, q: float) -> float:
+        """The ``q`` quantile (0..1) of the values kept; 0 before any."""
+        if not self._values:
+            return 0.0
+        ordered = sorted(self._values)
+        return ordered[min(len(ordered) - 1, int(q * len(ordered)))]
+
+
+class Rate:
+    """Events per second over the last ``STATS_WINDOW`` seconds from a cumulative count."""
+
+    def __init__(self) -> None:
+        self._samples: deque[tuple[float, int]] = deque()
+
+    def add(self, now: float, total: int) -> float:
+        """Record ``total`` events at ``now`` (s); the rate over the window (1/s)."""
+        self._samples.append((now, total))
+        while self._samples[0][0] < now - STATS_WINDOW:
+            self._samples.popleft()
+        (t0, n0), (t1, n1) = self._samples[0], self._samples[-1]
+        return (n1 - n0) / (t1 - t0) if t1 > t0 else 0.0
+
+
+@dataclass
+class Counters:
+    """Processed input and control steps, reported in AgentState.stats (drops: DropLog)."""
+
+    received: int = 0  # payloads that reached the main loop
+    coalesced: int = 0  # overwritten by a newer payload on the same key before processing
+    step_errors: int = 0  # control steps that failed (robot commanded to stop)
+    steps: int = 0
+    mission_steps: int = 0  # steps while the mission runs
+    # control periods of the mission whose command went out after the period had ended
+    overruns: int = 0

@@ -1,0 +1,316 @@
+"""What one agent knows of the robots around it, and which of them it must listen to.
+
+Pure bookkeeping, no I/O: positions arrive as Tracks (from a robot's own pose or
+AgentState, a neighbour's relay, or a beacon), age out on receipt time (monotonic seconds,
+so clock skew between machines does not matter) and are dead-reckoned with the velocity
+they carry. From the Voronoi neighbours of the last control step (``one_hop``) and their
+reported neighbours it derives the two-hop set whose AgentStates the agent subscribes to.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+from covswarm import protocol
+
+# s: at most this far ahead are positions dead-reckoned from a reported velocity.
+DEAD_RECKONING_LIMIT = 0.25
+LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see relevant())
+# s: a neighbour whose AgentState has left us out of its neighbours for this long gets an
+# early beacon (no relay told it about us; a common neighbour's usually does in a tick).
+ASYMMETRY_GRACE = 0.3
+FORGET_PERIOD = 1.0  # s between two sweeps of records older than every timeout
+
+RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
+Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
+
+
+@dataclass
+class Track:
+    """Last known position of another robot, when (monotonic) it was received, and the
+    velocity its agent reported with it (0 for poses and beacons)."""
+
+    x: float
+    y: float
+    received: float
+    vx: float = 0.0
+    vy: float = 0.0
+
+
+def cell_reach(distance_to_centroid: float, mass: float) -> float:
+    """Distance within which a robot can cut this cell: twice the cell radius R.
+
+    R is estimated from the cell's centroid c and mass m as |p - c| + sqrt(m): 1.4x the
+    true R of a square cell centred on p, about R for a 4:1 rectangle; the two-hop set
+    covers what the estimate misses.
+    """
+    return 2.0 * (distance_to_centroid + math.sqrt(max(mass, 0.0)))
+
+
+def tile_radius(reach: float, tile_size: float, current: int, max_radius: int) -> int:
+    """Beacon tile radius r ((2r+1)^2 tiles) that holds every robot within ``reach``.
+
+    Grows at once, shrinks only with a 25 % margin so a cell hovering at a tile boundary
+    does not flap the subscriptions.
+    """
+    needed = min(max(1, math.ceil(reach / tile_size)), max_radius)
+    if needed >= current:
+        return needed
+    relaxed = min(max(1, math.ceil(1.25 * reach / tile_size)), max_radius)
+    return relaxed if relaxed < current else current
+
+
+def clamp_position(x: float, y: float) -> tuple[float, float]:
+    """(x, y) clamped to the wire's coordinate bounds (dead reckoning may overshoot them)."""
+    bound = protocol.MAX_COORD
+    return min(max(x, -bound), bound), min(max(y, -bound), bound)
+
+
+def linger(since: dict[int, float], current: Iterable[int], now: float, period: float) -> set[int]:
+    """``current`` plus the ids that were in it (``since``: id -> last seen) within ``period``
+    s; updates ``since``."""
+    for rid in current:
+        since[rid] = now
+    for rid in [r for r, t in since.items() if now - t > period]:
+        del since[rid]
+    return set(since)
+
+
+class Neighbourhood:
+    """The other robots one agent knows of, by how it heard of them.
+
+    Times are monotonic seconds of receipt. ``stale_timeout`` bounds a robot's own pose or
+    AgentState and a relay; ``beacon_timeout`` a beacon; ``linger_period`` how long an id
+    stays subscribed after it left the two-hop set.
+    """
+
+    def __init__(
+        self, me: int, stale_timeout: float, beacon_timeout: float, linger_period: float
+    ) -> None:
+        self.me = me
+        self.stale_timeout = stale_timeout
+        self.beacon_timeout = beacon_timeout
+        self.linger_period = linger_period
+        self.poses: dict[int, Track] = {}
+        self.state_tracks: dict[int, Track] = {}
+        self.beacons: dict[int, Track] = {}
+        self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
+        # relayer id -> (its AgentState.relay entries, when received)
+        self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
+        # id -> (x, y, vx, vy) of every candidate of the last step, reckoned to that step,
+        # and the ids among them known first-hand (own pose or AgentState): what our
+        # AgentState relays about our neighbours; its keys are the robots usable as
+        # candidates at the last step.
+        self.reckoned: dict[int, Reckoned] = {}
+        self.first_hand: set[int] = set()
+        self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
+        # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
+        # no team member (a stopped robot without brain, or a brain without robot).
+        self.dead: dict[int, set[str]] = {}
+        self.one_hop: frozenset[int] = frozenset()
+        self.wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
+        self._unrequited: dict[int, float] = {}  # neighbour id -> since when it omits us
+        self._last_forget = -math.inf
+        self.stale_dropped = 0  # robots dropped from the candidates because their data aged
+
+    # --- input -------------------------------------------------------------------------
+
+    def on_pose(self, pose: protocol.Pose, now: float) -> None:
+        self.poses[pose.id] = Track(pose.x, pose.y, now)
+        self._heard[pose.id] = now
+        self._revive(pose.id, "robot")
+
+    def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
+        self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
+        self._heard[state.id] = now
+        self._revive(state.id, "agent")
+        self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
+        if state.relay is None:
+            self.relays.pop(state.id, None)
+        else:
+            self.relays[state.id] = (state.relay, now)
+
+    def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
+        self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
+        self._revive(beacon.id, "agent")
+
+    def on_liveliness(self, role: str, rid: int, alive: bool) -> bool:
+        """A liveliness token of another robot's agent or robot appeared or vanished; True
+        when it announces a newcomer (an agent we do not know yet).
+
+        A vanished one takes that robot out of the local diagram at once (SIGKILL deletes the
+        token immediately; a frozen process after the Zenoh lease). Fresh data from the same
+        role revives it too (a process that came back after a router restart may re-declare
+        its token before this agent's subscriber is back), so a missed PUT costs nothing.
+        """
+        if rid == self.me or role not in ("agent", "robot"):
+            return False
+        if not alive:
+            self.dead.setdefault(rid, set()).add(role)
+            return False
+        self._revive(rid, role)
+        return role == "agent" and rid not in self.reckoned
+
+    def _revive(self, rid: int, role: str) -> None:
+        roles = self.dead.get(rid)
+        if roles is not None:
+            roles.discard(role)
+            if not roles:
+                del self.dead[rid]
+
+    # --- what the control step uses ----------------------------------------------------
+
+    def candidates(self, now: float) -> dict[int, tuple[float, float]]:
+        """Positions of the other robots known well enough to enter the local diagram.
+
+        In order of trust: the freshest of a robot's own pose and AgentState while younger
+        than ``stale_timeout`` (a pose wins a tie); else the freshest relay of it in a
+        neighbour's AgentState younger than that; else its beacon while younger than
+        ``beacon_timeout``. Positions are dead-reckoned to ``now`` with the reported
+        velocity (at most DEAD_RECKONING_LIMIT s): a state is up to a control period old
+        when the next step reads it, and at 0.2 m/s that lag alone is a centimetre of
+        error in every neighbour.
+        """
+        fresh = now - self.stale_timeout
+        dead = self.dead
+        chosen: dict[int, Track] = {}
+        for table in (self.poses, self.state_tracks):
+            for rid, track in table.items():
+                if track.received >= fresh:
+                    known = chosen.get(rid)
+                    if known is None or track.received > known.received:
+                        chosen[rid] = track
+        reckoned: dict[int, Reckoned] = {}
+        for rid, track in chosen.items():
+            if rid not in dead:
+                lead = min(now - track.received, DEAD_RECKONING_LIMIT)
+                reckoned[rid] = (
+                    track.x + lead * track.vx,
+                    track.y + lead * track.vy,
+                    track.vx,
+                    track.vy,
+                )
+        first_hand = set(reckoned)
+        relayed: dict[int, float] = {}  # id -> receipt time of the relay used
+        for relayer, (entries, received) in self.relays.items():
+            if received < fresh or relayer in dead:
+                continue
+            lead = min(now - received, DEAD_RECKONING_LIMIT)
+            for rid, x, y, vx, vy in entries:
+                if rid in first_hand or rid in dead or rid == self.me:
+                    continue
+                if relayed.get(rid, -math.inf) < received:
+                    relayed[rid] = received
+                    reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
+        # A beacon only while it is the newest news of its robot: one that went stale after
+        # we heard its state must not bring back where it was seconds ago.
+        oldest = now - self.beacon_timeout
+        for rid, track in self.beacons.items():
+            if track.received >= oldest and rid not in reckoned and rid not in dead:
+                if self._heard.get(rid, -math.inf) < track.received:
+                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+        self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
+        self.reckoned, self.first_hand = reckoned, first_hand
+        if now - self._last_forget >= FORGET_PERIOD:
+            self._last_forget = now
+            self._forget(now)
+        return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
+
+    def _forget(self, now: float) -> None:
+        """Drop records well past their timeout: memory stays bounded, and the tables that
+        every step walks hold only the robots heard from lately."""
+        recent = 2.0 * max(self.stale_timeout, self.linger_period)
+        for table, horizon in (
+            (self.poses, recent),
+            (self.state_tracks, recent),
+            (self.beacons, 2.0 * self.beacon_timeout),
+        ):
+            for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
+                del table[rid]
+        for sets in (self.neighbor_sets, self.relays):
+            for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
+                del sets[rid]
+        old = now - 2.0 * self.beacon_timeout
+        for rid in [rid for rid, t in self._heard.items() if t < old]:
+            del self._heard[rid]
+
+    def relevant(
+        self,
+        others: dict[int, tuple[float, float]],
+        now: float,
+        me: tuple[float, float],
+        reach: float | None,
+    ) -> dict[int, tuple[float, float]]:
+        """The candidates that can matter to our control, to keep the local diagram small.
+
+        The two-hop set (neighbours' reported neighbours) plus every robot within
+        LOCAL_MARGIN x our cell's reach (m) around ``me``: our cell is cut only within
+        ``reach``, and since the reach overestimates (1.4x for a square cell) this also
+        holds the second ring around us, i.e. our neighbours' neighbours, before their
+        AgentStates arrive. Every known robot is used until a first non-empty cell gives a
+        reach (``reach`` None).
+        """
+        if reach is None:
+            return others
+        limit = LOCAL_MARGIN * reach
+        keep = self.two_hop(now)
+        x, y = me
+        return {
+            rid: p
+            for rid, p in others.items()
+            if rid in keep or math.hypot(p[0] - x, p[1] - y) <= limit
+        }
+
+    def two_hop(self, now: float) -> frozenset[int]:
+        """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
+        ids = set(self.one_hop)
+        for rid in self.one_hop:
+            entry = self.neighbor_sets.get(rid)
+            if entry is not None and now - entry[1] <= self.stale_timeout:
+                ids |= entry[0]
+        ids.discard(self.me)
+        return frozenset(ids)
+
+    def wanted_state_ids(self, now: float) -> set[int]:
+        """Ids whose AgentState to subscribe to: our one-hop neighbours, and the rest of the
+        two-hop set whose positions no fresh relay of a neighbour carries; lingering
+        ``linger_period`` s (a robot across a near-degenerate Voronoi vertex comes and goes
+        every few ticks, and every declaration is a round of routing updates for the whole
+        swarm)."""
+        fresh = now - self.stale_timeout
+        covered: set[int] = set()
+        for rid in self.one_hop:
+            relay = self.relays.get(rid)
+            if relay is not None and relay[1] >= fresh:
+                covered.update(entry[0] for entry in relay[0])
+        wanted = self.one_hop | (self.two_hop(now) - covered)
+        return linger(self.wanted, wanted, now, self.linger_period)
+
+    def unrequited(self, now: float) -> bool:
+        """Whether a neighbour has left us out of its own neighbours for ASYMMETRY_GRACE.
+
+        Voronoi neighbourhood is symmetric, so such a neighbour does not know where we are:
+        no relay reached it and our last routine beacon may be 10 s away. Meanwhile both
+        cells are wrong where they meet.
+        """
+        fresh = now - self.stale_timeout
+        unrequited = {}
+        for rid in self.one_hop:
+            entry = self.neighbor_sets.get(rid)
+            if entry is not None and entry[1] >= fresh and self.me not in entry[0]:
+                unrequited[rid] = self._unrequited.get(rid, now)
+        self._unrequited = unrequited
+        return any(now - since >= ASYMMETRY_GRACE for since in unrequited.values())
+
+    def relay(self) -> list[RelayEntry]:
+        """Our one-hop neighbours known first-hand, as reckoned at the last step (at most
+        protocol.MAX_RELAY): only first-hand positions are relayed, since a relayed one
+        passed on again would be dead-reckoned once more at every hop, and around a cycle
+        of relays forever."""
+        reckoned = self.reckoned
+        return [
+            (rid, *clamp_position(*reckoned[rid][:2]), *reckoned[rid][2:])
+            for rid in sorted(self.one_hop & self.first_hand)
+        ][: protocol.MAX_RELAY]
