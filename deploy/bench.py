@@ -141,6 +141,44 @@ def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[s
     return result
 
 
+def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -> dict:
+    """The barrier-certificate filter (covswarm.tvd.safety) against the local step it follows.
+
+    For each sampled robot, interleaved: its local step, then the filter of that step's
+    velocity against its two-hop neighbours (what an agent does every tick). Returns p50 and
+    p99 microseconds of the filter and the median of the per-robot ratio filter / step.
+    """
+    from covswarm.tvd.safety import safe_velocity
+
+    adjacency = neighbors(layout.positions, layout.polygon)
+    n = len(layout.positions)
+    robots = np.arange(n)
+    if sample is not None and sample < n:
+        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    # Robots 0.5 m apart on average: a safe distance of 0.3 m makes some rows active.
+    safe = 0.6 * SPACING
+    filters, ratios = [], []
+    for me in robots:
+        known = two_hop(adjacency, int(me)) - {int(me)}
+        view = {j: layout.positions[j] for j in known | {int(me)}}
+        others = layout.positions[sorted(known)]
+        local_step(int(me), view, layout.polygon, velocity, kappa)  # warm
+        start = time.perf_counter()
+        step = local_step(int(me), view, layout.polygon, velocity, kappa)
+        step_us = (time.perf_counter() - start) * 1e6
+        start = time.perf_counter()
+        safe_velocity(layout.positions[me], step.velocity, others, safe)
+        filter_us = (time.perf_counter() - start) * 1e6
+        filters.append(filter_us)
+        ratios.append(filter_us / step_us)
+    return {
+        "safety_filter_p50_us": float(np.percentile(filters, 50)),
+        "safety_filter_p99_us": float(np.percentile(filters, 99)),
+        "safety_over_step": float(np.median(ratios)),
+    }
+
+
 def run_bench(
     sizes: tuple[int, ...], seeds: int, sample: int | None, repeats: int, progress=None
 ) -> list[dict]:
@@ -149,6 +187,7 @@ def run_bench(
     for n in sizes:
         for kind in ("random", "cvt"):
             times, hood, histogram, central, weighted = [], [], Counter(), [], []
+            safety: list[dict] = []
             for seed in range(seeds):
                 layout = make_layout(n, kind, seed)
                 t, s = time_local_steps(layout, sample)
@@ -158,6 +197,7 @@ def run_bench(
                 weighted.append(time_local_steps(layout, sample, density=bench_density(side))[0])
                 histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
                 central.append(time_centralized(layout, repeats))
+                safety.append(time_safety_filter(layout, sample))
                 if progress is not None:
                     progress(n, kind, seed)
             t = np.concatenate(times)
@@ -174,6 +214,9 @@ def run_bench(
                     "two_hop_mean": float(np.mean(np.concatenate(hood))),
                     "tvd_c_ms": float(np.median([c["tvd_c_ms"] for c in central])),
                     "tvd_d1_ms": float(np.median([c["tvd_d1_ms"] for c in central])),
+                    **{
+                        key: float(np.median([entry[key] for entry in safety])) for key in safety[0]
+                    },
                     "neighbor_histogram": {
                         str(k): round(v / seeds, 2) for k, v in sorted(histogram.items())
                     },
@@ -457,7 +500,7 @@ def bench_command(
     table = Table(title="covswarm bench: one robot's control step vs team size")
     for name in (
         "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "two-hop", "TVD-C ms",
-        "TVD-D1 ms",
+        "TVD-D1 ms", "safety p50 us", "safety/step",
     ):  # fmt: skip
         table.add_column(name, justify="right")
     for row in rows:
@@ -471,6 +514,8 @@ def bench_command(
             f"{row['two_hop_mean']:.1f}",
             f"{row['tvd_c_ms']:.1f}",
             f"{row['tvd_d1_ms']:.1f}",
+            f"{row['safety_filter_p50_us']:.0f}",
+            f"{row['safety_over_step']:.2f}",
         )
     Console().print(table)
     if live_rows:
