@@ -1,29 +1,49 @@
-"""Coverage control laws over a time-varying domain: TVD-C, TVD-D1 and one robot's local step.
+"""Coverage control laws over a time-varying domain: TVD-C, TVD-D1, TVD-DA and one robot's step.
 
-With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1; dropped when ``feedforward=False``):
+With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
 
-- TVD-C (eq. TVD-C): pdot = (I - dc/dp)^-1 r, solved, never inverted;
-- TVD-D1 (eq. TVD-D1): pdot = (I + dc/dp) r, the one-term Neumann truncation, whose row i
-  needs only robot i's cell and its neighbours' cells.
+- TVD-D1 (eq. TVD-D1): pdot = (I + J) r, the one-term Neumann truncation, whose row i needs
+  only robot i's cell and its neighbours' cells.
+- TVD-DA (domain-motion feedforward, docs/tracking.md): with v(q) = A q + b the affine field
+  fitted (least squares) to S's vertex velocities,
 
-Guards, because far from a CVT the spectral radius of dc/dp is 2 to 5 and I - dc/dp can be
-near singular:
+      pdot = kappa (c - p) + v(p) + (I + J) rho,   rho = dc/dt - (I - J) v(p).
 
-- a TVD-D1 row whose speed exceeds ``max_amplification`` times the largest |r_j| among the
-  robot and its neighbours is rescaled to that speed, keeping its direction (near-coincident
-  robots make dc/dp blow up as 1 / |p_i - p_j|);
-- TVD-C falls back to the guarded TVD-D1 velocities when the solve fails, gives a non-finite
-  result, or amplifies any robot's speed beyond ``max_amplification`` times max |r|.
+  At a CVT of a domain moving by a similarity (translation, rotation, uniform scaling) with
+  uniform density, v(p) solves (I - J) x = dc/dt exactly, so rho = 0 and the feedforward is
+  TVD-C's; the last term is TVD-D1's one-hop correction of whatever the affine guess misses
+  (non-affine vertex motion, a moving density, shear). Same information as a TVD-D1 step.
+- TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=None``; by
+  default the feedback stays outside the inverse and only the feedforward is solved, damped
+  (Tikhonov / Levenberg-Marquardt): pdot = kappa (c - p) + x with
+  x = argmin |(I - J) x - dc/dt|^2 + damping^2 |x|^2. I - J is near singular close to a CVT
+  of a large team (the slow "sliding" modes of Lloyd's algorithm), which made the exact law
+  fall back to TVD-D1 almost always; the damped solve is bounded, |x| <= |dc/dt| / (2 damping).
 
-With a density (a snapshot at the current time, covswarm.tvd.density.Density) c, dc/dp and dc/dt
-are those of phi, dc/dt with both terms of Proposition 1.
+Without feedforward (``feedforward=False``) dc/dt is dropped: TVD-D1 is (I + J) kappa (c - p),
+TVD-DA and the damped TVD-C are Lloyd's kappa (c - p), the exact TVD-C (I - J)^-1 kappa (c - p).
+
+Guards, counted (``TeamStep.guarded``, ``TeamStep.fallback``, ``LocalStep.guarded``), because
+far from a CVT the spectral radius of J is 2 to 5 and near-coincident robots make J grow as
+1 / |p_i - p_j|:
+
+- a row of (I + J) r (TVD-D1) or of (I + J) rho (TVD-DA) whose speed exceeds
+  ``max_amplification`` times the largest |r_j| (|rho_j|) among the robot and its
+  neighbours is rescaled to that speed, keeping its direction;
+- damped TVD-C: a row of x faster than ``max_amplification`` times max |dc/dt| is rescaled
+  likewise; if the solve fails the feedforward is dropped for that step (a fallback);
+- exact TVD-C: falls back to the guarded TVD-D1 velocities when the solve fails, gives a
+  non-finite result, or amplifies any robot's speed beyond ``max_amplification`` max |r|.
+
+With a density (a snapshot at the current time, covswarm.tvd.density.Density) c, dc/dp and
+dc/dt are those of phi, dc/dt with both terms of Proposition 1.
 
 A robot with an empty cell (outside S and dominated, or a coincident duplicate) gets
-pdot = kappa (c_S - p) + dc_S/dt, c_S the centroid of the whole of S: it heads into S and
-owns a cell as soon as it is in (or a duplicate is apart). Aiming at the nearest point of S
-instead, as ``mass_centroid`` reports for such a cell, lets a robot left behind by a moving
-domain ride just outside its edge, and several at one corner merge into one point; that
-happened in the ``circle`` scenario.
+pdot = kappa (c_S - p) + dc_S/dt, c_S the centroid of the whole of S, under every law: it
+heads into S and owns a cell as soon as it is in (or a duplicate is apart). Aiming at the
+nearest point of S instead, as ``mass_centroid`` reports for such a cell, lets a robot left
+behind by a moving domain ride just outside its edge, and several at one corner merge into
+one point; that happened in the ``circle`` scenario.
 """
 
 from __future__ import annotations
@@ -54,34 +74,99 @@ from covswarm.tvd.coverage import (
 )
 
 MAX_AMPLIFICATION = 10.0
+# Tikhonov damping of TVD-C's feedforward solve (dimensionless, like I - J): singular
+# directions of I - J below it are attenuated, so |x| <= |dc/dt| / (2 DAMPING).
+# Measured on circle/100 (docs/tracking.md).
+DAMPING = 0.05
+LAWS = ("c", "d1", "da")
 
 
 @dataclass(frozen=True)
 class LocalStep:
     """One robot's control step from its local view.
 
-    velocity: (2,) TVD-D1 velocity; neighbors: ids of its Voronoi neighbours (positive-length
-    shared edge); centroid: (2,) c_i; mass: m_i (0 for an empty cell).
+    velocity: (2,) the law's velocity; neighbors: ids of its Voronoi neighbours
+    (positive-length shared edge); centroid: (2,) c_i; mass: m_i (0 for an empty cell);
+    guarded: the amplification guard rescaled this robot's row (module notes).
     """
 
     velocity: np.ndarray
     neighbors: frozenset
     centroid: np.ndarray
     mass: float
+    guarded: bool = False
 
 
-def _references(
+@dataclass(frozen=True)
+class TeamStep:
+    """One full-team step of a law.
+
+    velocity: (n, 2) m/s; guarded: (n,) rows rescaled by the amplification guard;
+    fallback: the team-wide fallback was taken (exact TVD-C: guarded TVD-D1 instead; damped
+    TVD-C: feedforward dropped because the solve failed).
+    """
+
+    velocity: np.ndarray
+    guarded: np.ndarray
+    fallback: bool = False
+
+
+@dataclass(frozen=True)
+class AffineField:
+    """v(q) = matrix (q - origin) + velocity: an affine velocity field of the plane.
+
+    matrix: (2, 2) 1/s (A of docs/tracking.md); origin: (2,) m; velocity: (2,) m/s, the
+    field at ``origin`` (b = velocity - matrix origin).
+    """
+
+    matrix: np.ndarray
+    origin: np.ndarray
+    velocity: np.ndarray
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        """v at ``points`` (..., 2) -> (..., 2) m/s."""
+        return (points - self.origin) @ self.matrix.T + self.velocity
+
+
+def affine_field(polygon: np.ndarray, polygon_velocity: np.ndarray) -> AffineField:
+    """The affine field v(q) = A q + b fitted by least squares to S's vertex velocities.
+
+    polygon, polygon_velocity: (k, 2), k >= 3 (validated: not collinear, so the fit is
+    unique). Exact for translation, rotation, uniform scaling and any affine motion of S;
+    for other vertex motions it is the best affine guess, and TVD-DA's residual term
+    carries the rest.
+    """
+    return _fit(make_domain(polygon, polygon_velocity))
+
+
+def _fit(domain: Domain) -> AffineField:
+    origin = domain.vertices.mean(axis=0)
+    design = np.column_stack((domain.vertices - origin, np.ones(len(domain.vertices))))
+    solution = np.linalg.lstsq(design, domain.velocities, rcond=None)[0]  # (3, 2)
+    return AffineField(matrix=solution[:2].T.copy(), origin=origin, velocity=solution[2].copy())
+
+
+def _check_kappa(kappa: float) -> None:
+    if not (math.isfinite(kappa) and kappa > 0.0):
+        raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
+
+
+def _check_law(law: str) -> None:
+    if law not in LAWS:
+        raise ValueError(f"law must be one of {LAWS}, got {law!r}")
+
+
+def _targets(
     batch: CellBatch,
     points: np.ndarray,
     domain: Domain,
-    kappa: float,
     feedforward: bool,
     density: DensityModel | None,
-) -> np.ndarray:
-    """r_i = kappa (c_i - p_i) + dc_i/dt for the batch's cells, (K,) complex: what both laws
-    act on.
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """(K,) complex centroids c_i and (K,) dc_i/dt (None without feedforward).
 
-    A robot with an empty cell aims at the centroid of the whole of S instead (module notes).
+    A robot with an empty cell aims at the centroid of the whole of S and takes its rate
+    (module notes).
     """
     target = batch.centroid
     rate = cell_rates(batch, points, domain, density) if feedforward else None
@@ -91,8 +176,7 @@ def _references(
         target = np.where(empty, whole_centroid, target)
         if rate is not None:
             rate = np.where(empty, whole_rate, rate)
-    reference = kappa * (target - as_complex(points)[batch.owners])
-    return reference if rate is None else reference + rate
+    return target, rate
 
 
 def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[complex, complex]:
@@ -102,53 +186,70 @@ def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[complex
     return cell.centroid[0], cell_rates(cell, alone, domain, density)[0]
 
 
-def _d1_rows(
+Blocks = tuple[np.ndarray, np.ndarray]
+
+
+def _jacobian_product(
     batch: CellBatch,
     points: np.ndarray,
     own: np.ndarray,
-    neighbor_references: np.ndarray,
+    others: np.ndarray,
+    density: DensityModel | None,
+    blocks: Blocks | None,
+) -> np.ndarray:
+    """(J w)_i = sum_j dc_i/dp_j w_j for the batch's rows, (K,) complex.
+
+    own: (K,) w_i; others: (K, L) w_j of the robot each line comes from (read on shared
+    edges only). Uniform density: closed form without blocks; else the density's blocks
+    (``blocks``: (off, diagonal) of these rows, computed here when None).
+    """
+    if density is None:
+        return jacobian_times(batch, points, own, np.where(batch.shared, others, 0.0))
+    off, diagonal = density.jacobian_blocks(batch, points) if blocks is None else blocks
+    return as_complex(
+        np.einsum("kab,kb->ka", diagonal, as_vectors(own))
+        + np.einsum("klab,klb->ka", off, as_vectors(np.where(batch.shared, others, 0.0)))
+    )
+
+
+def _neumann_rows(
+    batch: CellBatch,
+    points: np.ndarray,
+    own: np.ndarray,
+    neighbor_values: np.ndarray,
     max_amplification: float,
     density: DensityModel | None,
-) -> np.ndarray:
-    """Rows of (I + dc/dp) r for the batch's robots, with the amplification guard, (K,).
+    blocks: Blocks | None = None,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rows of (I + J) w for the batch's robots, with the amplification guard.
 
-    own: (K,) r_i; neighbor_references: (K, L) r_j of the robot each line comes from
-    (ignored where the line is not a shared edge); vectors as complex numbers. Empty cells
-    keep r_i.
+    own: (K,) w_i; neighbor_values: (K, L) w_j of the robot each line comes from (ignored
+    where the line is not a shared edge); vectors as complex numbers. Returns the rows (K,)
+    and which were rescaled (K,) bool. Empty cells keep w_i.
     """
-    others = np.where(batch.shared, neighbor_references, 0.0)
-    if density is None:
-        velocity = own + jacobian_times(batch, points, own, others)
-    else:
-        off, diagonal = density.jacobian_blocks(batch, points)
-        velocity = own + as_complex(
-            np.einsum("kab,kb->ka", diagonal, as_vectors(own))
-            + np.einsum("klab,klb->ka", off, as_vectors(others))
-        )
-    scale = np.maximum(np.abs(own), np.abs(others).max(axis=1))
-    factor = np.minimum(1.0, max_amplification * scale / np.maximum(np.abs(velocity), 1e-300))
-    return np.where(batch.empty, own, velocity * factor)
+    others = np.where(batch.shared, neighbor_values, 0.0)
+    velocity = own + _jacobian_product(batch, points, own, others, density, blocks)
+    scale = np.maximum(np.abs(own), np.abs(others).max(axis=1, initial=0.0))
+    speed = np.abs(velocity)
+    limit = max_amplification * scale
+    guarded = (speed > limit) & ~batch.empty
+    factor = np.where(guarded, limit / np.maximum(speed, 1e-300), 1.0)
+    return np.where(batch.empty, own, velocity * factor), guarded
 
 
-def _check_kappa(kappa: float) -> None:
-    if not (math.isfinite(kappa) and kappa > 0.0):
-        raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
-
-
-def _team(
+def _team_cells(
     positions: np.ndarray,
     polygon: np.ndarray,
     polygon_velocity: np.ndarray,
     kappa: float,
-    feedforward: bool,
     density: DensityModel | None,
-) -> tuple[np.ndarray, CellBatch, np.ndarray]:
+) -> tuple[np.ndarray, Domain, CellBatch]:
     _check_kappa(kappa)
-    points, domain, batch = tessellate(positions, polygon, polygon_velocity, density)
-    return points, batch, _references(batch, points, domain, kappa, feedforward, density)
+    return tessellate(positions, polygon, polygon_velocity, density)
 
 
-def tvd_d1(
+def team_step(
+    law: str,
     positions: np.ndarray,
     polygon: np.ndarray,
     polygon_velocity: np.ndarray,
@@ -156,15 +257,27 @@ def tvd_d1(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
-) -> np.ndarray:
-    """TVD-D1 velocities pdot = (I + dc/dp)(kappa (c - p) + dc/dt) for the whole team.
+    damping: float | None = DAMPING,
+) -> TeamStep:
+    """One full-team step of ``law`` ("c", "d1" or "da"), with its guard counts.
 
-    positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).
+    positions: (n, 2) m; polygon, polygon_velocity: (k, 2) m and m/s; kappa 1/s.
+    ``damping`` applies to "c" only (None: the exact TVD-C with its fallback).
     """
-    points, batch, references = _team(
-        positions, polygon, polygon_velocity, kappa, feedforward, density
-    )
-    return as_vectors(_team_d1(batch, points, references, max_amplification, density))
+    _check_law(law)
+    if damping is not None and not (math.isfinite(damping) and damping > 0.0):
+        raise ValueError(f"damping must be a positive finite number or None, got {damping!r}")
+    points, domain, batch = _team_cells(positions, polygon, polygon_velocity, kappa, density)
+    target, rate = _targets(batch, points, domain, feedforward, density)
+    feedback = kappa * (target - as_complex(points))
+    if law == "d1":
+        references = feedback if rate is None else feedback + rate
+        return _team_d1(batch, points, references, max_amplification, density)
+    if law == "da":
+        return _team_da(batch, points, domain, feedback, rate, max_amplification, density)
+    if damping is None:
+        return _team_c_exact(batch, points, feedback, rate, max_amplification, density)
+    return _team_c_damped(batch, points, feedback, rate, max_amplification, density, damping)
 
 
 def _team_d1(
@@ -173,10 +286,41 @@ def _team_d1(
     references: np.ndarray,
     max_amplification: float,
     density: DensityModel | None,
-) -> np.ndarray:
-    """TVD-D1 rows of the whole team from its cells and its r, (n,) complex."""
-    neighbor_references = references[np.maximum(batch.labels, 0)]
-    return _d1_rows(batch, points, references, neighbor_references, max_amplification, density)
+) -> TeamStep:
+    """TVD-D1 of the whole team from its cells and its r."""
+    rows, guarded = _neumann_rows(
+        batch,
+        points,
+        references,
+        references[np.maximum(batch.labels, 0)],
+        max_amplification,
+        density,
+    )
+    return TeamStep(as_vectors(rows), guarded)
+
+
+def _team_da(
+    batch: CellBatch,
+    points: np.ndarray,
+    domain: Domain,
+    feedback: np.ndarray,
+    rate: np.ndarray | None,
+    max_amplification: float,
+    density: DensityModel | None,
+) -> TeamStep:
+    """TVD-DA of the whole team: kappa (c - p) + v(p) + (I + J) rho."""
+    if rate is None:
+        return TeamStep(as_vectors(feedback), np.zeros(len(points), dtype=bool))
+    blocks = None if density is None else density.jacobian_blocks(batch, points)
+    field = as_complex(_fit(domain)(points))
+    labels = np.maximum(batch.labels, 0)
+    residual = (
+        rate - field + _jacobian_product(batch, points, field, field[labels], density, blocks)
+    )
+    correction, guarded = _neumann_rows(
+        batch, points, residual, residual[labels], max_amplification, density, blocks
+    )
+    return TeamStep(as_vectors(feedback + field + correction), guarded)
 
 
 def _control_jacobian(
@@ -197,7 +341,70 @@ def _control_jacobian(
     return scipy.sparse.csr_array((blocks.ravel(), (rows, cols)), shape=(n2, n2))
 
 
-def tvd_c(
+def _control_matrix(
+    batch: CellBatch, points: np.ndarray, density: DensityModel | None
+) -> scipy.sparse.csc_array:
+    """I - dc/dp, sparse (2n, 2n)."""
+    jacobian = _control_jacobian(batch, points, density)
+    return scipy.sparse.eye_array(jacobian.shape[0], format="csc") - jacobian.tocsc()
+
+
+def _solve(system: scipy.sparse.csc_array, rhs: np.ndarray) -> np.ndarray | None:
+    """Sparse LU solve, None when it fails or is not finite."""
+    try:
+        solution = scipy.sparse.linalg.splu(system).solve(rhs)
+    except (np.linalg.LinAlgError, RuntimeError, ValueError):
+        return None
+    return solution if np.all(np.isfinite(solution)) else None
+
+
+def _team_c_exact(
+    batch: CellBatch,
+    points: np.ndarray,
+    feedback: np.ndarray,
+    rate: np.ndarray | None,
+    max_amplification: float,
+    density: DensityModel | None,
+) -> TeamStep:
+    """The paper's TVD-C, (I - J)^-1 r, or guarded TVD-D1 when that is unusable."""
+    references = feedback if rate is None else feedback + rate
+    solution = _solve(_control_matrix(batch, points, density), as_vectors(references).ravel())
+    if solution is not None:
+        velocities = solution.reshape(-1, 2)
+        bound = max_amplification * float(np.max(np.abs(references)))
+        if np.all(np.linalg.norm(velocities, axis=1) <= bound):
+            return TeamStep(velocities, np.zeros(len(points), dtype=bool))
+    d1 = _team_d1(batch, points, references, max_amplification, density)
+    return TeamStep(d1.velocity, d1.guarded, fallback=True)
+
+
+def _team_c_damped(
+    batch: CellBatch,
+    points: np.ndarray,
+    feedback: np.ndarray,
+    rate: np.ndarray | None,
+    max_amplification: float,
+    density: DensityModel | None,
+    damping: float,
+) -> TeamStep:
+    """kappa (c - p) + x, x the Tikhonov-damped solution of (I - J) x = dc/dt."""
+    n = len(points)
+    if rate is None:
+        return TeamStep(as_vectors(feedback), np.zeros(n, dtype=bool))
+    matrix = _control_matrix(batch, points, density)
+    normal = (matrix.T @ matrix + damping**2 * scipy.sparse.eye_array(2 * n)).tocsc()
+    solution = _solve(normal, matrix.T @ as_vectors(rate).ravel())
+    if solution is None:
+        return TeamStep(as_vectors(feedback), np.zeros(n, dtype=bool), fallback=True)
+    feedforward = as_complex(solution.reshape(-1, 2))
+    limit = max_amplification * float(np.max(np.abs(rate)))
+    speed = np.abs(feedforward)
+    guarded = speed > limit
+    feedforward = np.where(guarded, feedforward * limit / np.maximum(speed, 1e-300), feedforward)
+    return TeamStep(as_vectors(feedback + feedforward), guarded)
+
+
+def tvd_d1(
     positions: np.ndarray,
     polygon: np.ndarray,
     polygon_velocity: np.ndarray,
@@ -206,29 +413,64 @@ def tvd_c(
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
 ) -> np.ndarray:
-    """TVD-C velocities: solve (I - dc/dp) pdot = kappa (c - p) + dc/dt for the whole team.
+    """TVD-D1 velocities pdot = (I + dc/dp)(kappa (c - p) + dc/dt) for the whole team.
 
-    positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2). Falls back to the
-    guarded TVD-D1 velocities when I - dc/dp is numerically singular or the solution
-    amplifies a robot's speed beyond ``max_amplification`` times max |r| (module notes).
+    positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).
     """
-    points, batch, references = _team(
-        positions, polygon, polygon_velocity, kappa, feedforward, density
-    )
-    jacobian = _control_jacobian(batch, points, density)
-    system = scipy.sparse.eye_array(jacobian.shape[0], format="csc") - jacobian.tocsc()
-    rhs = as_vectors(references).ravel()
-    try:
-        solution = scipy.sparse.linalg.splu(system).solve(rhs)
-    except (np.linalg.LinAlgError, RuntimeError, ValueError):
-        solution = None
-    if solution is not None:
-        velocities = solution.reshape(-1, 2)
-        bound = max_amplification * float(np.max(np.abs(references)))
-        speeds = np.linalg.norm(velocities, axis=1)
-        if np.all(np.isfinite(speeds)) and np.all(speeds <= bound):
-            return velocities
-    return as_vectors(_team_d1(batch, points, references, max_amplification, density))
+    return team_step(
+        "d1", positions, polygon, polygon_velocity, kappa, feedforward, density, max_amplification
+    ).velocity
+
+
+def tvd_da(
+    positions: np.ndarray,
+    polygon: np.ndarray,
+    polygon_velocity: np.ndarray,
+    kappa: float,
+    feedforward: bool = True,
+    density: DensityModel | None = None,
+    max_amplification: float = MAX_AMPLIFICATION,
+) -> np.ndarray:
+    """TVD-DA velocities kappa (c - p) + v(p) + (I + dc/dp) rho for the whole team.
+
+    v: the affine field fitted to S's vertex velocities (``affine_field``); rho = dc/dt -
+    (I - dc/dp) v(p), the residual of the affine guess. positions: (n, 2) m; polygon,
+    polygon_velocity: (k, 2). Returns (n, 2) m/s.
+    """
+    return team_step(
+        "da", positions, polygon, polygon_velocity, kappa, feedforward, density, max_amplification
+    ).velocity
+
+
+def tvd_c(
+    positions: np.ndarray,
+    polygon: np.ndarray,
+    polygon_velocity: np.ndarray,
+    kappa: float,
+    feedforward: bool = True,
+    density: DensityModel | None = None,
+    max_amplification: float = MAX_AMPLIFICATION,
+    damping: float | None = DAMPING,
+) -> np.ndarray:
+    """TVD-C velocities for the whole team (module notes).
+
+    Default: kappa (c - p) + x, x = argmin |(I - dc/dp) x - dc/dt|^2 + damping^2 |x|^2.
+    ``damping=None``: the paper's exact (I - dc/dp)^-1 (kappa (c - p) + dc/dt), falling back
+    to the guarded TVD-D1 velocities when I - dc/dp is numerically singular or the solution
+    amplifies a robot's speed beyond ``max_amplification`` times max |r|.
+    positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).
+    """
+    return team_step(
+        "c",
+        positions,
+        polygon,
+        polygon_velocity,
+        kappa,
+        feedforward,
+        density,
+        max_amplification,
+        damping,
+    ).velocity
 
 
 def local_step(
@@ -240,19 +482,25 @@ def local_step(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
+    law: str = "d1",
 ) -> LocalStep:
-    """One robot's TVD-D1 step from the robots it knows: itself, its neighbours, theirs.
+    """One robot's step of ``law`` ("d1" or "da") from the robots it knows: itself, its
+    neighbours, theirs.
 
     positions: {id: (2,)} including ``me``. Builds only the cells of ``me`` and of its
-    neighbours (a local partial Voronoi diagram); equals row ``me`` of ``tvd_d1`` on the full
-    team whenever ``positions`` contains the true two-hop neighbourhood. A robot whose cell
-    is empty (outside S, every point of S closer to someone else) has no neighbours inside
-    S; it is exact when ``positions`` holds the robots whose Voronoi regions in the plane
-    border its own, and a robot that sees nobody takes all of S as its cell and heads for
-    its centroid, which also brings it into S.
+    neighbours (a local partial Voronoi diagram); equals row ``me`` of ``tvd_d1`` (``tvd_da``)
+    on the full team whenever ``positions`` contains the true two-hop neighbourhood. A robot
+    whose cell is empty (outside S, every point of S closer to someone else) has no
+    neighbours inside S; it is exact when ``positions`` holds the robots whose Voronoi
+    regions in the plane border its own, and a robot that sees nobody takes all of S as its
+    cell and heads for its centroid, which also brings it into S.
     """
     check_density(density)
     _check_kappa(kappa)
+    if law not in ("d1", "da"):
+        raise ValueError(
+            f"a local step's law must be 'd1' or 'da' (TVD-C is centralised), got {law!r}"
+        )
     if me not in positions:
         raise ValueError(f"positions must include the robot itself ({me!r})")
     ids = _ordered_ids(positions)
@@ -265,24 +513,56 @@ def local_step(
     # calls count as much as cells, and the outer ring's cells are not needed.
     owners = np.concatenate(([index], cell_neighbors(points, index, domain)))
     batch = _weigh(build_cells(points, owners, everyone, domain), density)
-    references = _references(batch, points, domain, kappa, feedforward, density)
-    by_robot = np.zeros(len(ids), dtype=np.complex128)
-    by_robot[owners] = references
+    target, rate = _targets(batch, points, domain, feedforward, density)
+    here = as_complex(points)
+    feedback = kappa * (target - here[owners])
     mine = _rows(batch, slice(0, 1))
-    velocity = _d1_rows(
-        mine,
-        points,
-        references[:1],
-        by_robot[np.maximum(mine.labels, 0)],
-        max_amplification,
-        density,
-    )
+    if law == "d1":
+        references = feedback if rate is None else feedback + rate
+        by_robot = np.zeros(len(ids), dtype=np.complex128)
+        by_robot[owners] = references
+        row, guarded = _neumann_rows(
+            mine,
+            points,
+            references[:1],
+            by_robot[np.maximum(mine.labels, 0)],
+            max_amplification,
+            density,
+        )
+        velocity = row[0]
+    elif rate is None:
+        velocity, guarded = feedback[0], np.zeros(1, dtype=bool)
+    else:
+        # TVD-DA: rho of our cell and our neighbours' (their J rows need their neighbours'
+        # v, which the two-hop view holds), then our row of (I + J) rho.
+        blocks = None if density is None else density.jacobian_blocks(batch, points)
+        field = as_complex(_fit(domain)(points))
+        residual = (
+            rate
+            - field[owners]
+            + _jacobian_product(
+                batch, points, field[owners], field[np.maximum(batch.labels, 0)], density, blocks
+            )
+        )
+        by_robot = np.zeros(len(ids), dtype=np.complex128)
+        by_robot[owners] = residual
+        row, guarded = _neumann_rows(
+            mine,
+            points,
+            residual[:1],
+            by_robot[np.maximum(mine.labels, 0)],
+            max_amplification,
+            density,
+            None if blocks is None else (blocks[0][:1], blocks[1][:1]),
+        )
+        velocity = feedback[0] + field[index] + row[0]
     neighbor_indices = mine.labels[0][mine.shared[0]]
     return LocalStep(
-        velocity=as_vectors(velocity)[0],
+        velocity=as_vectors(np.array([velocity]))[0],
         neighbors=frozenset(ids[j] for j in neighbor_indices.tolist()),
         centroid=as_vectors(mine.centroid)[0],
         mass=float(mine.mass[0]),
+        guarded=bool(guarded[0]),
     )
 
 
@@ -295,10 +575,19 @@ def local_velocity(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
+    law: str = "d1",
 ) -> np.ndarray:
-    """Robot ``me``'s TVD-D1 velocity (2,) from its two-hop neighbourhood; see ``local_step``."""
+    """Robot ``me``'s velocity (2,) from its two-hop neighbourhood; see ``local_step``."""
     return local_step(
-        me, positions, polygon, polygon_velocity, kappa, feedforward, density, max_amplification
+        me,
+        positions,
+        polygon,
+        polygon_velocity,
+        kappa,
+        feedforward,
+        density,
+        max_amplification,
+        law,
     ).velocity
 
 
