@@ -192,6 +192,12 @@ def _trajectory_figure(
     ax.add_patch(Polygon(polygon, closed=True, fill=False, ec="tab:blue", lw=1.8))
     first = trajectories[0][np.isfinite(trajectories[0]).all(axis=1)]
     ax.scatter(*first.T, marker="x", s=10, c="0.4", lw=0.8, label="start")
+    close = [entry["at"] for entry in summary.get("close_approach_list", ())]
+    if close:
+        ax.scatter(
+            *np.array(close).T, marker="o", s=60, facecolors="none", edgecolors="red", lw=1.2,
+            zorder=4, label=f"close approach (< {summary['robot_diameter']:g} m)",
+        )  # fmt: skip
 
     ax.set_aspect("equal")
     if workspace is not None:

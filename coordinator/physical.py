@@ -1,0 +1,135 @@
+"""Physical figures of a run: how close robots came, and how hard their wheels worked.
+
+Pure numpy/scipy over recorded samples, shared by ``covswarm sim`` and the coordinator, so
+both write the same keys into summary.json (:func:`physical_summary`). Robots are disks of
+``diameter`` (m): a *close approach* is an episode during which a pair's centres are nearer
+than one diameter (their bodies touch or overlap), counted once per episode from the first
+sample below to the first sample back at or above it.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.spatial import cKDTree
+
+# Close approaches listed one by one in summary.json and marked on the trajectory plot (all
+# are counted).
+LISTED_APPROACHES = 200
+
+
+@dataclass(frozen=True)
+class CloseApproach:
+    """One episode of a pair nearer than a diameter. Times in s, distances in m."""
+
+    pair: tuple[int, int]  # robot ids, smaller first
+    start: float
+    duration: float
+    closest: float  # smallest centre distance during the episode
+    at: tuple[float, float]  # midpoint of the pair at its closest (for the plot)
+
+
+def proximity(
+    t: np.ndarray, trajectories: np.ndarray, diameter: float, ids: list[int] | None = None
+) -> tuple[float | None, float | None, list[CloseApproach]]:
+    """(smallest centre distance over the run, when, close-approach episodes).
+
+    t: (T,) s; trajectories: (T, n, 2) m, NaN where a robot is unknown at a sample; ids: the
+    robot id of each column (default 0..n-1). An episode's duration sums the sample
+    intervals that begin below one diameter; the last sample counts for nothing. A kd-tree
+    per sample keeps this O(T n log n), so a 1000-robot record costs seconds, not minutes.
+    """
+    t = np.asarray(t, dtype=float)
+    trajectories = np.asarray(trajectories, dtype=float)
+    n = trajectories.shape[1]
+    ids = list(range(n)) if ids is None else list(ids)
+    steps = np.diff(t, append=t[-1]) if t.size else t
+    smallest, when = np.inf, None
+    open_: dict[tuple[int, int], list] = {}  # pair -> [start, duration, closest, at]
+    done: list[CloseApproach] = []
+    for k in range(t.size):
+        known = np.flatnonzero(np.isfinite(trajectories[k]).all(axis=1))
+        if known.size < 2:
+            pairs: set[tuple[int, int]] = set()
+        else:
+            points = trajectories[k, known]
+            tree = cKDTree(points)
+            d, _ = tree.query(points, k=2)
+            if d[:, 1].min() < smallest:
+                smallest, when = float(d[:, 1].min()), float(t[k])
+            pairs = set()
+            for a, b in tree.query_pairs(diameter, output_type="ndarray"):
+                i, j = sorted((int(known[a]), int(known[b])))
+                dist = float(np.linalg.norm(points[a] - points[b]))
+                if dist >= diameter:
+                    continue  # query_pairs is inclusive
+                pairs.add((i, j))
+                mid = tuple(0.5 * (points[a] + points[b]))
+                entry = open_.setdefault((i, j), [float(t[k]), 0.0, dist, mid])
+                entry[1] += float(steps[k])
+                if dist < entry[2]:
+                    entry[2], entry[3] = dist, mid
+        for pair in [p for p in open_ if p not in pairs]:
+            done.append(_approach(pair, open_.pop(pair), ids))
+    done.extend(_approach(pair, entry, ids) for pair, entry in open_.items())
+    done.sort(key=lambda a: (a.start, a.pair))
+    return (None if when is None else smallest), when, done
+
+
+def _approach(pair: tuple[int, int], entry: list, ids: list[int]) -> CloseApproach:
+    start, duration, closest, at = entry
+    a, b = sorted((ids[pair[0]], ids[pair[1]]))
+    return CloseApproach((a, b), start, duration, closest, (float(at[0]), float(at[1])))
+
+
+def wheel_figures(t: np.ndarray, wheels: np.ndarray, max_wheel_speed: float) -> dict:
+    """Largest rim speed commanded and time spent saturated, from commands held per sample.
+
+    t: (T,) s, the time each command was issued; wheels: (T, n, 2) m/s (NaN: no command).
+    A command is saturated when a wheel is at the limit (the mapping scales both wheels to
+    it). ``saturated_time``: robot-seconds under a saturated command (each command held until
+    the next sample); ``saturated_fraction``: the share of robot-commands saturated.
+    """
+    t = np.asarray(t, dtype=float)
+    wheels = np.asarray(wheels, dtype=float)
+    peak = np.nanmax(np.abs(wheels), axis=2, initial=0.0)  # (T, n)
+    issued = np.isfinite(wheels).all(axis=2)
+    saturated = issued & (peak >= max_wheel_speed * (1.0 - 1e-9))
+    held = np.diff(t, append=t[-1] + (t[-1] - t[-2] if t.size > 1 else 0.0))
+    return {
+        "max_wheel_speed_used": float(peak[issued].max(initial=0.0)),
+        "saturated_time": float((saturated * held[:, None]).sum()),
+        "saturated_fraction": float(saturated.sum() / max(issued.sum(), 1)),
+    }
+
+
+def physical_summary(
+    t: np.ndarray, trajectories: np.ndarray, diameter: float, ids: list[int] | None = None
+) -> tuple[dict, list[CloseApproach]]:
+    """The summary.json keys of :func:`proximity`, and the episodes (for the plot).
+
+    ``min_pairwise_distance`` (m, null with fewer than two robots), ``min_distance_t`` (s),
+    ``close_approaches`` (episodes), ``close_approach_time`` (pair-seconds below a
+    diameter), ``robot_diameter``, and the first LISTED_APPROACHES episodes
+    (``close_approach_list``: pair, start, duration, closest, ``at`` = the pair's midpoint
+    at its closest, which the trajectory plot marks).
+    """
+    smallest, when, approaches = proximity(t, trajectories, diameter, ids)
+    return {
+        "robot_diameter": float(diameter),
+        "min_pairwise_distance": smallest,
+        "min_distance_t": when,
+        "close_approaches": len(approaches),
+        "close_approach_time": float(sum(a.duration for a in approaches)),
+        "close_approach_list": [
+            {
+                "pair": list(a.pair),
+                "start": a.start,
+                "duration": a.duration,
+                "closest": a.closest,
+                "at": list(a.at),
+            }
+            for a in approaches[:LISTED_APPROACHES]
+        ],
+    }, approaches
