@@ -39,6 +39,7 @@ from covswarm.coordinator.monitor import (
     team_of,
 )
 from covswarm.coordinator.scenarios import Scenario, load_scenario
+from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import TIME_SCALE_OPTION, StopFlag, Ticker, scaled
 
@@ -69,6 +70,18 @@ def swarm_tile_size(scenario: Scenario, agents: int) -> float:
     return round(TILE_SPACINGS * math.sqrt(area / agents), 3)
 
 
+def steering_limits(settings: Settings) -> Limits:
+    """What a steering request may ask of this run's team (coordinator.steering.Limits)."""
+    from covswarm.tvd.drive import KHEPERA_IV
+
+    speed = settings.max_domain_speed
+    if speed is None:
+        speed = default_max_domain_speed(KHEPERA_IV.max_wheel_speed, settings.kappa)
+    return Limits.for_team(
+        settings.agents, speed, settings.scenario.workspace, 0.5 * KHEPERA_IV.body_diameter
+    )
+
+
 @dataclass(frozen=True)
 class Settings:
     """What one coordinator run does (CLI options, scenario defaults filled in)."""
@@ -83,6 +96,7 @@ class Settings:
     feedforward: bool  # what the agents were started with, recorded in the summary
     time_scale: float = 1.0  # mission s per wall s (protocol.session.scaled)
     tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
+    max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
 
 
 @dataclass
@@ -121,6 +135,7 @@ class Coordinator:
             all_poses_selector,
             domain_key,
             status_key,
+            steer_key,
         )
 
         self.settings = settings
@@ -153,6 +168,10 @@ class Coordinator:
             all_agent_states_selector(swarm), zenoh.handlers.RingChannel(ring)
         )
         self._domain = session.declare_publisher(domain_key(swarm))
+        # Steering requests (coordinator.steering): a queryable drained every tick, so a
+        # request is answered and acted on within one broadcast period.
+        self._steer = session.declare_queryable(steer_key(swarm), zenoh.handlers.FifoChannel(64))
+        self.steering = Steering(settings.scenario.domain, steering_limits(settings))
         self._status = session.declare_publisher(status_key(swarm))
         self._seq = 0
         # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
@@ -225,12 +244,26 @@ class Coordinator:
         team = team_of(self.observed.liveness.alive)
         return {i: xy for i, xy in self.observed.poses.items() if i in team}
 
+    def _serve_steering(self, now: float) -> None:
+        """Answer every pending steering request; accepted ones take over S from ``now``."""
+        running = self.clock.state == RUNNING
+        t = self.clock.mission_time(now)
+        while (query := self._steer.try_recv()) is not None:
+            payload = b"" if query.payload is None else query.payload.to_bytes()
+            reply = self.steering.handle(payload, t, time.time(), running)
+            if reply.accepted:
+                log.info("steering at t = %.2f s: %s", t, self.steering.records[-1].request)
+            else:
+                log.warning("steering request refused at t = %.2f s: %s", t, reply.reason)
+            query.reply(query.key_expr, reply.encode())
+            query.drop()  # the final answer: the client stops waiting
+
     # -- outputs --------------------------------------------------------------------------
 
     def _publish_domain(self, state: str, t: float) -> np.ndarray:
         from covswarm.protocol import Domain
 
-        vertices, velocities = self.settings.scenario.domain(t)
+        vertices, velocities = self.steering.domain(t)
         density = self.settings.scenario.density(t)
         if state != RUNNING:
             velocities = np.zeros_like(velocities)  # held still while waiting / done
@@ -291,6 +324,7 @@ class Coordinator:
         while True:
             now = ticker.wait(stop)
             self._drain(now)
+            self._serve_steering(now)
             if stop.is_set():
                 self.clock.stop(now)
             before = self.clock.state
@@ -333,7 +367,9 @@ class Coordinator:
                 return
 
 
-def build_summary(settings: Settings, observed: Observed) -> dict[str, Any]:
+def build_summary(
+    settings: Settings, observed: Observed, steering: Steering | None = None
+) -> dict[str, Any]:
     """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
     from covswarm.coordinator.report import neighbor_histogram, steady_state_mean
 
@@ -366,6 +402,17 @@ def build_summary(settings: Settings, observed: Observed) -> dict[str, Any]:
         "rejected_messages": observed.rejected,
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
+        **({} if steering is None else steering_summary(steering)),
+    }
+
+
+def steering_summary(steering: Steering) -> dict[str, Any]:
+    """summary.json's record of steering: every request, refusals per reason, the limit."""
+    return {
+        "steering": [record.to_dict() for record in steering.records],
+        "steering_refused": dict(sorted(steering.refused.items())),
+        "steering_largest_jump": steering.largest_jump,
+        "max_domain_speed": steering.limits.max_speed,
     }
 
 
@@ -381,14 +428,16 @@ def read_mission_start(path: Path, swarm: str) -> float:
     return started
 
 
-def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> None:
+def write_run_outputs(
+    out_dir: Path, settings: Settings, observed: Observed, steering: Steering | None = None
+) -> None:
     """summary.json, error.csv, error.png, trajectories.png through coordinator.report."""
     from covswarm.coordinator.report import write_outputs
 
     record = observed.record
     write_outputs(
         out_dir,
-        summary=build_summary(settings, observed),
+        summary=build_summary(settings, observed, steering),
         t=np.array(record.t),
         error=np.array(record.error),
         trajectories=record.trajectories(),
@@ -456,6 +505,12 @@ def write_run_outputs(out_dir: Path, settings: Settings, observed: Observed) -> 
     is_flag=True,
     help=f"Continue the mission recorded in OUT/{MISSION_FILE} (a restarted coordinator).",
 )
+@click.option(
+    "--max-domain-speed",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Fastest a steered vertex of S may move, m/s [robots' top speed less kappa x "
+    "one body diameter, at least a quarter of it].",
+)
 @TIME_SCALE_OPTION
 @SECURE_OPTION
 def coordinator_command(
@@ -471,6 +526,7 @@ def coordinator_command(
     feedforward: bool,
     out_dir: Path,
     resume: bool,
+    max_domain_speed: float | None,
     time_scale: float,
     secure: Path | None,
 ) -> None:
@@ -498,6 +554,7 @@ def coordinator_command(
         feedforward=feedforward,
         time_scale=time_scale,
         tile_size=swarm_tile_size(scenario, team) if tile_size is None else tile_size,
+        max_domain_speed=max_domain_speed,
     )
     resume_wall = read_mission_start(out_dir / MISSION_FILE, swarm) if resume else None
     stop = StopFlag()
@@ -511,5 +568,5 @@ def coordinator_command(
     if not coordinator.observed.record.t:
         log.info("no samples recorded: no outputs written")
         return
-    write_run_outputs(out_dir, settings, coordinator.observed)
+    write_run_outputs(out_dir, settings, coordinator.observed, coordinator.steering)
     log.info("wrote %s", out_dir)

@@ -1,0 +1,456 @@
+"""Steering S live: from an accepted SteerRequest to a smooth, always-convex S(t).
+
+Pure (numpy, no I/O): :class:`Steering` is the coordinator's sans-IO state machine. It owns
+the domain once a request is accepted (the scenario's script is abandoned from that instant,
+S then holds wherever the last motion left it), refuses with a reason anything infeasible
+without moving S, and records every request for summary.json.
+
+Motions. Every motion runs a smooth progress s(t) = 10u^3 - 15u^4 + 6u^5, u = (t - t0)/T
+(quintic smoothstep: s' = s'' = 0 at both ends, so S starts and stops without a jerk in the
+feedforward), and the vertex velocities are the exact time derivatives, which the agents'
+feedforward term (paper Eq. 9's boundary integral) needs:
+
+- translate / rotate / scale (:class:`Similarity`): V(s) = c + sigma(s) R(s a)(A - c) + s d,
+  sigma(s) = 1 + s (f - 1): a similarity of the convex start polygon A, convex at every
+  instant with A's vertex count;
+- polygon (:class:`Morph`): the Minkowski interpolation (1 - s) A + s B of two convex
+  polygons, convex for every s in [0, 1] with any vertex counts. Its vertices are pairs of
+  support points: for each direction strictly between consecutive edge normals of A and B
+  (merged), V = (1 - s) a_i + s b_j with a_i, b_j the points of A and B furthest along it,
+  so dV/dt = s'(t) (b_j - a_i) exactly; the pairing is the same for every s in (0, 1).
+
+A new request pre-empts the motion in progress: the next one starts from S where it is (its
+position is continuous; its velocity restarts from zero, as s'(0) = 0).
+
+Speed. The fastest vertex of a motion moves at max_u s'(u) max_s |dV/ds| =
+(15/8 T) max_s |dV/ds|, so T is chosen (or a requested duration stretched) to keep it at or
+under the limit: ``max_domain_speed`` (default :func:`default_max_domain_speed`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import Counter
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from covswarm.protocol.messages import MAX_VERTICES, ProtocolError
+from covswarm.protocol.steering import MAX_DURATION, MAX_REASON, SteerReply, SteerRequest
+
+Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
+DomainAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
+
+PEAK_RATE = 15.0 / 8.0  # max over u of d/du of the quintic smoothstep
+# Refusal codes (the first word of a refused SteerReply's reason), counted per code.
+REFUSALS = (
+    "undecodable",  # the payload is not a valid SteerRequest (oversize, schema, types, ...)
+    "nonfinite",  # NaN or inf in it
+    "non-convex",
+    "self-intersecting",
+    "degenerate",  # zero area, repeated vertices
+    "outside-workspace",
+    "too-small",  # less area per robot than MIN_FOOTPRINTS robot footprints
+    "too-slow",  # the motion would take longer than protocol.steering.MAX_DURATION
+    "not-running",  # before the mission starts or after it ended
+)
+MIN_FOOTPRINTS = 3.0  # least area per robot, in robot footprints (pi r^2)
+FOLLOW_GAP = 0.14  # m (a Khepera IV's diameter): the gap the robots must still close
+WORKSPACE_SLACK = 1e-9  # m: vertices on the workspace's edge are inside
+_ROTATION_SAMPLES = 65  # instants at which a rotating motion is checked against the walls
+_MERGE_TOL = 1e-9  # coincident output vertices: distance below this x half the perimeter
+
+
+def default_max_domain_speed(robot_speed: float, kappa: float) -> float:
+    """Fastest S vertex (m/s) the team can follow: what is left of the robots' top speed
+    ``robot_speed`` (m/s) after closing a FOLLOW_GAP lag at gain ``kappa`` (1/s), and at least
+    a quarter of the top speed (the circle scenario's 0.19 m/s at kappa = 8, 0.8 m/s robots).
+    """
+    return max(robot_speed - kappa * FOLLOW_GAP, 0.25 * robot_speed)
+
+
+def smoothstep(u: float) -> tuple[float, float]:
+    """Quintic progress s(u) and ds/du for u in [0, 1] (clamped outside)."""
+    u = min(max(u, 0.0), 1.0)
+    return u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 30.0 * u * u * (1.0 - u) ** 2
+
+
+def signed_area(polygon: np.ndarray) -> float:
+    """Shoelace area of (k, 2) vertices, positive when counter-clockwise (m^2)."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
+def centroid(polygon: np.ndarray) -> np.ndarray:
+    """Area centroid (2,) of a simple polygon (k, 2)."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    xn, yn = np.roll(x, -1), np.roll(y, -1)
+    cross = x * yn - xn * y
+    area = 0.5 * cross.sum()
+    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
+
+
+@dataclass(frozen=True, eq=False)
+class Hold:
+    """S standing still at ``polygon`` (k, 2)."""
+
+    polygon: np.ndarray
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        return self.polygon.copy(), np.zeros_like(self.polygon)
+
+
+@dataclass(frozen=True, eq=False)
+class Similarity:
+    """V(t) = c + sigma R(theta)(A - c) + s d with s = smoothstep((t - t0)/T),
+    theta = s angle, sigma = 1 + s (factor - 1). start: (k, 2) CCW; about, shift: (2,) m."""
+
+    start: np.ndarray
+    t0: float
+    span: float  # T, s (> 0)
+    about: np.ndarray
+    shift: np.ndarray
+    angle: float  # rad
+    factor: float
+
+    def at_progress(self, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Vertices at progress s and their derivative dV/ds."""
+        theta, sigma = s * self.angle, 1.0 + s * (self.factor - 1.0)
+        cos, sin = math.cos(theta), math.sin(theta)
+        arm = (self.start - self.about) @ np.array([[cos, sin], [-sin, cos]])  # R (A - c)
+        turned = np.stack([-arm[:, 1], arm[:, 0]], axis=1)  # J R (A - c)
+        vertices = self.about + sigma * arm + s * self.shift
+        rate = (self.factor - 1.0) * arm + sigma * self.angle * turned + self.shift
+        return vertices, rate
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        s, ds_du = smoothstep((t - self.t0) / self.span)
+        vertices, rate = self.at_progress(s)
+        return vertices, rate * (ds_du / self.span)
+
+    def peak_rate(self) -> float:
+        """A bound on max_s max_i |dV_i/ds| (m per unit progress)."""
+        radius = float(np.linalg.norm(self.start - self.about, axis=1).max())
+        sigma = max(1.0, self.factor)
+        return (
+            abs(self.factor - 1.0) * radius
+            + sigma * abs(self.angle) * radius
+            + float(np.linalg.norm(self.shift))
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Morph:
+    """(1 - s) A + s B for convex CCW polygons A (n, 2) and B (m, 2), s = smoothstep.
+
+    ``pairs`` (p, 2) int: the support-point pairs (module docstring); at u >= 1 S is B
+    itself (the same set as the last combination, without its zero-length edges).
+    """
+
+    start: np.ndarray
+    target: np.ndarray
+    t0: float
+    span: float
+    pairs: np.ndarray
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        u = (t - self.t0) / self.span
+        if u >= 1.0:
+            return self.target.copy(), np.zeros_like(self.target)
+        s, ds_du = smoothstep(u)
+        a, b = self.start[self.pairs[:, 0]], self.target[self.pairs[:, 1]]
+        vertices = (1.0 - s) * a + s * b
+        velocities = (b - a) * (ds_du / self.span)
+        return merge_coincident(vertices, velocities)
+
+    def peak_rate(self) -> float:
+        """max_i |dV_i/ds| = max |b_j - a_i| over the pairs (m per unit progress)."""
+        a, b = self.start[self.pairs[:, 0]], self.target[self.pairs[:, 1]]
+        return float(np.linalg.norm(b - a, axis=1).max())
+
+
+def support_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Vertex pairs (i, j) of the Minkowski combinations (1 - s) A + s B, 0 < s < 1.
+
+    a: (n, 2), b: (m, 2) convex CCW polygons. For each direction strictly between
+    consecutive (merged) outward edge normals of A and B, in CCW order, the indices of
+    the vertices of A and of B furthest along it: (p, 2) int, p <= n + m.
+    """
+    angles = np.concatenate([_normal_angles(a), _normal_angles(b)])
+    angles = np.sort(np.mod(angles, 2.0 * math.pi))
+    keep = np.concatenate([[True], np.diff(angles) > 1e-12])
+    if angles[-1] - angles[0] > 2.0 * math.pi - 1e-12:  # the last wraps onto the first
+        keep[-1] = False
+    angles = angles[keep]
+    following = np.concatenate([angles[1:], angles[:1] + 2.0 * math.pi])
+    middle = 0.5 * (angles + following)
+    directions = np.stack([np.cos(middle), np.sin(middle)], axis=1)  # (p, 2)
+    pairs = np.stack([np.argmax(directions @ a.T, axis=1), np.argmax(directions @ b.T, axis=1)], 1)
+    repeated = np.all(pairs == np.roll(pairs, 1, axis=0), axis=1)
+    return pairs[~repeated] if not repeated.all() else pairs[:1]
+
+
+def _normal_angles(polygon: np.ndarray) -> np.ndarray:
+    """Angles (k,) of the outward normals of a CCW polygon's edges (edge turned -90 deg)."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    return np.arctan2(-edges[:, 0], edges[:, 1])
+
+
+def merge_coincident(vertices: np.ndarray, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop vertices that coincide with the previous one (a Minkowski combination at s near
+    0 or 1 has edges of length s |e|): a polygon validator refuses zero-length edges. The
+    dropped vertex's velocity differs from the kept one's by at most s'(t) |e|, which is
+    vanishing where the edge is (s' = 30 u^2 at s = 10 u^3)."""
+    size = 0.5 * float(np.linalg.norm(np.roll(vertices, -1, axis=0) - vertices, axis=1).sum())
+    step = np.linalg.norm(vertices - np.roll(vertices, 1, axis=0), axis=1)
+    keep = step > _MERGE_TOL * size
+    if keep.all():
+        return vertices, velocities
+    if not keep.any():
+        keep[0] = True
+    return vertices[keep], velocities[keep]
+
+
+def simplify(polygon: np.ndarray, count: int) -> tuple[np.ndarray, float]:
+    """Remove vertices of a convex CCW polygon (k, 2) until at most ``count`` are left.
+
+    Each step drops the vertex whose triangle with its neighbours is the smallest
+    (Visvalingam); returns the polygon and how far S jumped: the largest distance from a
+    dropped vertex to the edge that replaced it (m). Used only when a pre-empted Morph's
+    S plus the new target would exceed the wire's MAX_VERTICES.
+    """
+    points = [np.asarray(p, dtype=float) for p in polygon]
+    jump = 0.0
+    while len(points) > count:
+        areas, heights = [], []
+        for i, p in enumerate(points):
+            prev, nxt = points[i - 1], points[(i + 1) % len(points)]
+            (ux, uy), (vx, vy) = p - prev, nxt - prev
+            cross = abs(float(ux * vy - uy * vx))
+            areas.append(cross)
+            heights.append(cross / max(float(np.linalg.norm(nxt - prev)), 1e-300))
+        drop = int(np.argmin(areas))
+        jump = max(jump, heights[drop])
+        del points[drop]
+    return np.array(points), jump
+
+
+@dataclass(frozen=True)
+class Limits:
+    """Feasibility of steering requests.
+
+    max_speed: fastest vertex, m/s; workspace: box S must stay in (None: anywhere);
+    min_area: least area of S, m^2 (team size x MIN_FOOTPRINTS footprints).
+    """
+
+    max_speed: float
+    workspace: Box | None
+    min_area: float
+
+    @classmethod
+    def for_team(
+        cls,
+        agents: int,
+        max_speed: float,
+        workspace: Box | None,
+        robot_radius: float = 0.07,
+    ) -> Limits:
+        footprint = math.pi * robot_radius**2
+        return cls(max_speed, workspace, agents * MIN_FOOTPRINTS * footprint)
+
+
+class Refusal(ValueError):
+    """A request that must not move S: ``code`` (one of REFUSALS) and why."""
+
+    def __init__(self, code: str, why: str) -> None:
+        super().__init__(f"{code}: {why}")
+        self.code = code
+
+
+def check_target(
+    polygon: np.ndarray, limits: Limits, current_area: float = math.inf, what: str = "target"
+) -> np.ndarray:
+    """The convex polygon ``polygon`` (k, 2) made CCW, or Refusal with the reason.
+
+    Too small means under ``limits.min_area`` and smaller than S is now (``current_area``,
+    m^2): a request never has to make a crowded S bigger to be accepted.
+    """
+    from covswarm.tvd.coverage import validate_polygon
+
+    try:
+        vertices = validate_polygon(np.asarray(polygon, dtype=float))
+    except ValueError as exc:
+        text = str(exc)
+        if "NaN" in text:
+            code = "nonfinite"
+        elif "not convex" in text:
+            code = "non-convex"
+        elif "self-intersecting" in text:
+            code = "self-intersecting"
+        else:
+            code = "degenerate"
+        raise Refusal(code, text) from None
+    _check_inside(vertices, limits, what)
+    area = signed_area(vertices)
+    if area < min(limits.min_area, current_area):
+        raise Refusal(
+            "too-small",
+            f"{what} has {area:.3g} m^2, the team needs at least {limits.min_area:.3g} m^2",
+        )
+    return vertices
+
+
+def _check_inside(vertices: np.ndarray, limits: Limits, what: str) -> None:
+    if limits.workspace is None:
+        return
+    xmin, xmax, ymin, ymax = limits.workspace
+    low = vertices.min(axis=0) + WORKSPACE_SLACK
+    high = vertices.max(axis=0) - WORKSPACE_SLACK
+    if low[0] < xmin or high[0] > xmax or low[1] < ymin or high[1] > ymax:
+        raise Refusal(
+            "outside-workspace",
+            f"{what} reaches [{low[0]:.3g}, {high[0]:.3g}] x [{low[1]:.3g}, {high[1]:.3g}] m, "
+            f"outside the workspace [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}] m",
+        )
+
+
+def plan(
+    request: SteerRequest, t: float, current: np.ndarray, limits: Limits
+) -> tuple[Hold | Similarity | Morph, str, float]:
+    """The motion that carries out ``request`` from S = ``current`` (k, 2, CCW) at mission
+    time ``t``: (motion, note, jump). Raises Refusal when it is infeasible.
+
+    note: "" or why the duration differs from the one asked for; jump: how far S had to
+    jump to fit the wire's vertex limit (simplify), 0 almost always.
+    """
+    jump = 0.0
+    if request.kind == "polygon":
+        target = check_target(np.array(request.polygon), limits, signed_area(current))
+        start = current
+        if len(start) + len(target) > MAX_VERTICES:
+            start, jump = simplify(start, MAX_VERTICES - len(target))
+        motion: Any = Morph(start, target, t, 1.0, support_pairs(start, target))
+    else:
+        about = centroid(current) if request.about is None else np.array(request.about, dtype=float)
+        motion = Similarity(
+            start=current,
+            t0=t,
+            span=1.0,
+            about=about,
+            shift=np.array([request.dx, request.dy]),
+            angle=request.angle,
+            factor=request.factor,
+        )
+        final, _ = motion.at_progress(1.0)
+        check_target(final, limits, signed_area(current))
+        if request.angle != 0.0:  # vertices sweep arcs that may leave the walls midway
+            for s in np.linspace(0.0, 1.0, _ROTATION_SAMPLES)[1:-1]:
+                _check_inside(motion.at_progress(float(s))[0], limits, f"S at {s:.0%} of the way")
+    rate = motion.peak_rate()
+    if rate <= 0.0:  # nothing to move: stop where S is
+        return Hold(current.copy()), "", jump
+    fastest = PEAK_RATE * rate / limits.max_speed
+    note = ""
+    if request.duration is not None:
+        span = max(request.duration, fastest)
+        if span > request.duration:
+            note = (
+                f"duration stretched to {span:.3g} s (max domain speed {limits.max_speed:.3g} m/s)"
+            )
+    else:
+        speed = limits.max_speed if request.speed is None else request.speed
+        if speed > limits.max_speed:
+            note = f"speed clipped to {limits.max_speed:.3g} m/s"
+            speed = limits.max_speed
+        span = PEAK_RATE * rate / speed
+    if span > MAX_DURATION:
+        raise Refusal("too-slow", f"the motion would take {span:.3g} s (> {MAX_DURATION:g} s)")
+    return _with_span(motion, span), note, jump
+
+
+def _with_span(motion: Similarity | Morph, span: float) -> Similarity | Morph:
+    if isinstance(motion, Similarity):
+        return Similarity(
+            motion.start, motion.t0, span, motion.about, motion.shift, motion.angle, motion.factor
+        )
+    return Morph(motion.start, motion.target, motion.t0, span, motion.pairs)
+
+
+@dataclass
+class SteeringRecord:
+    """One request as summary.json lists it."""
+
+    t: float  # mission time of arrival, s
+    wall: float  # s since the epoch
+    request: dict[str, Any] | None  # SteerRequest.to_dict(), None when undecodable
+    accepted: bool
+    reason: str
+    duration: float  # s the motion takes (0 if refused)
+
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "t": self.t,
+            "wall": self.wall,
+            "request": self.request,
+            "accepted": self.accepted,
+            "reason": self.reason,
+            "duration": self.duration,
+        }
+
+
+@dataclass
+class Steering:
+    """Who moves S: the scenario's script until the first accepted request, then steering.
+
+    ``script``: the scenario's S(t) (coordinator.scenarios.Scenario.domain).
+    """
+
+    script: DomainAt
+    limits: Limits
+    motion: Hold | Similarity | Morph | None = None
+    records: list[SteeringRecord] = field(default_factory=list)
+    refused: Counter = field(default_factory=Counter)  # refusals per code
+    largest_jump: float = 0.0  # m, see simplify
+
+    def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
+        return self.script(t) if self.motion is None else self.motion(t)
+
+    def handle(self, payload: Any, t: float, wall: float, running: bool) -> SteerReply:
+        """Decode, check and (if feasible) start one request at mission time ``t``.
+
+        A refused request changes nothing but the records and the refusal counts.
+        """
+        try:
+            request = SteerRequest.decode(payload)
+        except ProtocolError as exc:
+            code = "nonfinite" if exc.reason == "nonfinite" else "undecodable"
+            return self._refuse(Refusal(code, str(exc)), None, t, wall)
+        if not running:
+            return self._refuse(
+                Refusal("not-running", "the mission is not running"), request, t, wall
+            )
+        current, _ = self.domain(t)
+        try:
+            motion, note, jump = plan(request, t, np.asarray(current, dtype=float), self.limits)
+        except Refusal as refusal:
+            return self._refuse(refusal, request, t, wall)
+        self.motion = motion
+        self.largest_jump = max(self.largest_jump, jump)
+        span = getattr(motion, "span", 0.0)
+        reply = SteerReply(True, note[:MAX_REASON], span)
+        self.records.append(SteeringRecord(t, wall, request.to_dict(), True, note, span))
+        return reply
+
+    def _refuse(
+        self, refusal: Refusal, request: SteerRequest | None, t: float, wall: float
+    ) -> SteerReply:
+        self.refused[refusal.code] += 1
+        reason = str(refusal)[:MAX_REASON]
+        record = SteeringRecord(
+            t, wall, None if request is None else request.to_dict(), False, reason, 0.0
+        )
+        self.records.append(record)
+        return SteerReply(False, reason, 0.0)

@@ -1,0 +1,288 @@
+"""Steering S (coordinator.steering): convex at every instant, exact vertex velocities,
+pre-emption from wherever S is, speed limit, and every refusal reason."""
+
+from __future__ import annotations
+
+import math
+
+import msgpack
+import numpy as np
+import pytest
+from scipy.spatial import ConvexHull
+from shapely.geometry import MultiPoint, Polygon
+
+from covswarm.coordinator.steering import (
+    PEAK_RATE,
+    REFUSALS,
+    Limits,
+    Morph,
+    Steering,
+    centroid,
+    default_max_domain_speed,
+    signed_area,
+    simplify,
+    smoothstep,
+    support_pairs,
+)
+from covswarm.protocol.steering import SteerRequest
+from covswarm.tvd.coverage import validate_polygon
+
+SQUARE = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+WORKSPACE = (-3.0, 3.0, -2.0, 2.0)
+LIMITS = Limits(max_speed=0.5, workspace=WORKSPACE, min_area=0.3)
+
+
+def random_convex(rng: np.random.Generator, n_points: int, center, radius: float) -> np.ndarray:
+    points = rng.uniform(-radius, radius, size=(n_points, 2)) + np.asarray(center)
+    return points[ConvexHull(points).vertices]  # CCW
+
+
+def still(polygon: np.ndarray):
+    return lambda t: (polygon.copy(), np.zeros_like(polygon))
+
+
+def steering(polygon: np.ndarray = SQUARE, limits: Limits = LIMITS) -> Steering:
+    return Steering(still(polygon), limits)
+
+
+def send(steer: Steering, request: SteerRequest, t: float, running: bool = True):
+    return steer.handle(request.encode(), t, 1.7e9 + t, running)
+
+
+def same_set(a: np.ndarray, b: np.ndarray, tol: float = 1e-9) -> bool:
+    return Polygon(a).symmetric_difference(Polygon(b)).area <= tol
+
+
+def finite_difference(motion, t: float, h: float = 1e-6) -> np.ndarray:
+    (after, _), (before, _) = motion(t + h), motion(t - h)
+    return (after - before) / (2.0 * h)
+
+
+# --- the Minkowski morph ----------------------------------------------------------------
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_morph_is_the_convex_minkowski_combination_at_every_instant(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    a = random_convex(rng, int(rng.integers(3, 12)), (0.0, 0.0), 1.0)
+    b = random_convex(rng, int(rng.integers(3, 12)), rng.uniform(-1, 1, 2), 1.5)
+    morph = Morph(a, b, 2.0, 3.0, support_pairs(a, b))
+    for t in np.linspace(2.0, 5.5, 36):
+        vertices, velocities = morph(float(t))
+        validate_polygon(vertices)  # convex, simple, no repeated vertex
+        assert signed_area(vertices) > 0.0
+        s, _ = smoothstep((t - 2.0) / 3.0)
+        # Independent reference: the hull of all pairwise combinations (shapely).
+        reference = MultiPoint([(1 - s) * p + s * q for p in a for q in b]).convex_hull
+        assert Polygon(vertices).symmetric_difference(reference).area <= 1e-9
+        assert velocities.shape == vertices.shape
+    assert same_set(morph(5.0)[0], b) and np.allclose(morph(5.0)[1], 0.0)
+
+
+@pytest.mark.parametrize("seed", range(8))
+def test_morph_vertex_velocities_match_central_differences(seed: int) -> None:
+    rng = np.random.default_rng(100 + seed)
+    a = random_convex(rng, 9, (0.0, 0.0), 1.0)
+    b = random_convex(rng, 7, (0.4, -0.2), 0.8)
+    morph = Morph(a, b, 0.0, 2.0, support_pairs(a, b))
+    for t in rng.uniform(0.05, 1.95, 10):
+        vertices, velocities = morph(float(t))
+        assert len(vertices) == len(support_pairs(a, b))
+        np.testing.assert_allclose(velocities, finite_difference(morph, float(t)), atol=1e-6)
+
+
+def test_morph_starts_and_ends_without_zero_length_edges() -> None:
+    a = SQUARE
+    b = np.array([[0.0, -1.0], [1.0, 0.0], [0.0, 1.0], [-1.0, 0.0]])  # a diamond: 8 pairs
+    morph = Morph(a, b, 0.0, 1.0, support_pairs(a, b))
+    assert len(support_pairs(a, b)) == 8
+    for t in (0.0, 1e-9, 1.0 - 1e-12, 1.0):
+        vertices, velocities = morph(t)
+        validate_polygon(vertices)
+        assert np.abs(velocities).max() < 1e-6  # s' vanishes at both ends
+
+
+# --- similarity motions (translate, rotate, scale) ---------------------------------------
+
+
+@pytest.mark.parametrize(
+    "request_",
+    [
+        SteerRequest("translate", dx=1.0, dy=-0.3, duration=4.0),
+        SteerRequest("rotate", angle=math.radians(70.0), duration=5.0),
+        SteerRequest("rotate", angle=-1.0, about=(0.5, 0.5), duration=5.0),
+        SteerRequest("scale", factor=1.8, duration=3.0),
+        SteerRequest("scale", factor=0.7, about=(-0.5, -0.5), duration=3.0),
+    ],
+    ids=lambda r: r.describe(),
+)
+def test_similarities_are_convex_exact_and_end_where_asked(request_: SteerRequest) -> None:
+    steer = steering(limits=Limits(2.0, WORKSPACE, 0.3))  # fast enough for every duration
+    reply = send(steer, request_, 1.0)
+    assert reply.accepted and reply.duration == pytest.approx(request_.duration)
+    for t in np.linspace(1.01, 1.0 + request_.duration - 0.01, 25):
+        vertices, velocities = steer.domain(float(t))
+        validate_polygon(vertices)
+        np.testing.assert_allclose(velocities, finite_difference(steer.domain, float(t)), atol=1e-6)
+    end, velocity = steer.domain(1.0 + request_.duration + 0.5)
+    about = centroid(SQUARE) if request_.about is None else np.array(request_.about)
+    c, s = math.cos(request_.angle), math.sin(request_.angle)
+    expected = about + request_.factor * (SQUARE - about) @ np.array([[c, s], [-s, c]])
+    np.testing.assert_allclose(end, expected + [request_.dx, request_.dy], atol=1e-12)
+    assert np.abs(velocity).max() < 1e-12
+
+
+# --- speed limit -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "request_",
+    [
+        SteerRequest("translate", dx=2.0, dy=1.0),
+        SteerRequest("rotate", angle=2.0),
+        SteerRequest("scale", factor=2.5),
+        SteerRequest("polygon", polygon=[[1, -1], [2.5, 0], [1, 1.5]]),
+        SteerRequest("translate", dx=2.0, dy=1.0, duration=0.5),  # too fast: stretched
+        SteerRequest("translate", dx=2.0, dy=1.0, speed=9.0),  # too fast: clipped
+    ],
+    ids=lambda r: r.describe(),
+)
+def test_no_vertex_moves_faster_than_the_limit(request_: SteerRequest) -> None:
+    steer = steering()
+    reply = send(steer, request_, 0.0)
+    assert reply.accepted
+    speeds = [
+        np.linalg.norm(steer.domain(float(t))[1], axis=1).max()
+        for t in np.linspace(0.0, reply.duration, 401)
+    ]
+    assert max(speeds) <= LIMITS.max_speed * (1 + 1e-9)
+    assert max(speeds) >= 0.5 * LIMITS.max_speed  # and it is not needlessly slow
+    if request_.duration is not None or request_.speed is not None:
+        assert "stretched" in reply.reason or "clipped" in reply.reason
+
+
+def test_a_requested_speed_below_the_limit_is_kept() -> None:
+    steer = steering()
+    reply = send(steer, SteerRequest("translate", dx=1.0, dy=0.0, speed=0.1), 0.0)
+    assert reply.accepted and reply.reason == ""
+    assert reply.duration == pytest.approx(PEAK_RATE * 1.0 / 0.1)
+
+
+def test_default_domain_speed_leaves_room_to_close_a_gap() -> None:
+    assert default_max_domain_speed(0.8, 2.0) == pytest.approx(0.8 - 2.0 * 0.14)
+    assert default_max_domain_speed(0.8, 8.0) == pytest.approx(0.2)  # never below a quarter
+
+
+# --- pre-emption -------------------------------------------------------------------------
+
+
+def test_a_new_request_takes_over_from_wherever_s_is() -> None:
+    steer = steering()
+    assert send(steer, SteerRequest("translate", dx=2.0, dy=0.0, duration=4.0), 1.0).accepted
+    t = 2.7
+    before, _ = steer.domain(t)
+    assert 0.1 < before[0, 0] + 0.5 < 1.9  # mid-way
+    target = [[-1.0, -1.0], [0.0, -1.2], [0.5, 0.0], [-0.5, 1.0]]
+    reply = send(steer, SteerRequest("polygon", polygon=target), t)
+    assert reply.accepted
+    after, velocity = steer.domain(t)
+    assert same_set(after, before)  # no jump
+    assert np.abs(velocity).max() == 0.0
+    for dt in np.linspace(1e-3, reply.duration, 20):  # continuous, convex on the way
+        validate_polygon(steer.domain(t + dt)[0])
+    assert same_set(steer.domain(t + reply.duration)[0], np.array(target))
+    # A rotation pre-empting the morph starts from the morph's S, with its vertex count.
+    mid, _ = steer.domain(t + 1.0)
+    assert send(steer, SteerRequest("rotate", angle=0.3), t + 1.0).accepted
+    np.testing.assert_allclose(steer.domain(t + 1.0)[0], mid, atol=1e-12)
+
+
+def test_the_script_runs_until_a_request_takes_over() -> None:
+    def script(t: float):
+        return SQUARE + [0.1 * t, 0.0], np.tile([0.1, 0.0], (4, 1))
+
+    steer = Steering(script, LIMITS)
+    np.testing.assert_allclose(steer.domain(3.0)[0], script(3.0)[0])
+    assert send(steer, SteerRequest("translate", dx=0.0, dy=0.0), 3.0).accepted  # "stop"
+    np.testing.assert_allclose(steer.domain(9.0)[0], script(3.0)[0])
+    assert np.all(steer.domain(9.0)[1] == 0.0)
+
+
+def test_chained_morphs_stay_within_the_wire_vertex_limit() -> None:
+    rng = np.random.default_rng(7)
+    steer = steering(limits=Limits(0.5, None, 0.0))
+    for k in range(40):  # an operator dragging vertices: a new polygon every 0.1 s
+        target = random_convex(rng, 12, (0.0, 0.0), 1.0)
+        assert send(steer, SteerRequest("polygon", polygon=target), 0.1 * k).accepted
+        vertices, _ = steer.domain(0.1 * k + 0.05)
+        assert len(vertices) <= 64
+        validate_polygon(vertices)
+    assert steer.largest_jump < 0.05
+
+
+def test_simplify_drops_the_least_important_vertices() -> None:
+    circle = np.array([[math.cos(a), math.sin(a)] for a in np.linspace(0, 2 * math.pi, 80)[:-1]])
+    fewer, jump = simplify(circle, 20)
+    assert len(fewer) == 20
+    validate_polygon(fewer)
+    assert 0.0 < jump < 0.05
+    assert Polygon(circle).contains(Polygon(fewer).buffer(-1e-9))
+
+
+# --- refusals ----------------------------------------------------------------------------
+
+
+NAN_POLYGON = msgpack.packb(
+    {
+        "v": 1, "kind": "polygon", "dx": 0.0, "dy": 0.0, "angle": 0.0, "factor": 1.0,
+        "polygon": [[0.0, 0.0], [1.0, 0.0], [float("nan"), 1.0]],
+    }
+)  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("payload", "code"),
+    [
+        (SteerRequest("polygon", polygon=[[0, 0], [1, 0], [0.2, 0.2], [0, 1]]), "non-convex"),
+        (SteerRequest("polygon", polygon=[[0, 0], [1, 1], [1, 0], [0, 1]]), "self-intersecting"),
+        (SteerRequest("polygon", polygon=[[0, 0], [1, 1], [2, 2]]), "degenerate"),
+        (SteerRequest("polygon", polygon=[[0, 0], [0, 0], [1, 0], [0, 1]]), "degenerate"),
+        (SteerRequest("polygon", polygon=[[2, 0], [4, 0], [3, 1]]), "outside-workspace"),
+        (SteerRequest("translate", dx=2.7, dy=0.0), "outside-workspace"),
+        # Back where it started, but half-way round it would cross the wall at y = -2:
+        (SteerRequest("rotate", angle=2 * math.pi, about=(0.0, -1.2)), "outside-workspace"),
+        (SteerRequest("polygon", polygon=[[0, 0], [0.3, 0], [0, 0.3]]), "too-small"),
+        (SteerRequest("scale", factor=0.4), "too-small"),
+        (SteerRequest("translate", dx=1.0, dy=0.0, speed=1e-4), "too-slow"),
+        (NAN_POLYGON, "nonfinite"),
+        (b"\xc1\x00", "undecodable"),
+        (b"\x80" * 9000, "undecodable"),  # oversize
+        (msgpack.packb({"v": 1, "kind": "translate"}), "undecodable"),  # missing fields
+    ],
+)
+def test_infeasible_requests_are_refused_and_s_does_not_move(payload, code: str) -> None:
+    steer = steering()
+    assert send(steer, SteerRequest("translate", dx=0.5, dy=0.0, duration=2.0), 0.0).accepted
+    motion = steer.motion
+    before = steer.domain(1.0)
+    raw = payload.encode() if isinstance(payload, SteerRequest) else payload
+    reply = steer.handle(raw, 1.0, 1.7e9, True)
+    assert not reply.accepted and reply.reason.startswith(f"{code}: ") and reply.duration == 0
+    assert code in REFUSALS and steer.refused[code] == 1
+    assert steer.motion is motion
+    np.testing.assert_array_equal(steer.domain(1.0)[0], before[0])
+    record = steer.records[-1]
+    assert (record.accepted, record.reason, record.t) == (False, reply.reason, 1.0)
+
+
+def test_requests_before_the_start_are_refused() -> None:
+    steer = steering()
+    reply = send(steer, SteerRequest("translate", dx=0.5, dy=0.0), 0.0, running=False)
+    assert not reply.accepted and reply.reason.startswith("not-running")
+    assert steer.motion is None
+
+
+def test_translating_a_crowded_domain_is_not_too_small() -> None:
+    steer = steering(limits=Limits(0.5, WORKSPACE, min_area=5.0))  # S is 1 m^2 already
+    assert send(steer, SteerRequest("translate", dx=0.5, dy=0.0), 0.0).accepted
+    assert not send(steer, SteerRequest("scale", factor=0.9), 1.0).accepted
