@@ -298,7 +298,7 @@ def run_live(
     """
     import subprocess
 
-    from covswarm.deploy.launcher import covswarm_argv
+    from covswarm.deploy.plan import covswarm_argv
 
     rows = []
     for n in sizes:

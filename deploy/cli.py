@@ -11,6 +11,8 @@ import importlib
 
 import click
 
+from covswarm.deploy import lifeline
+
 # name -> "module:attribute" of a click.Command
 SUBCOMMANDS: dict[str, str] = {
     "sim": "covswarm.deploy.simulate:sim_command",
@@ -20,6 +22,8 @@ SUBCOMMANDS: dict[str, str] = {
     "coordinator": "covswarm.coordinator.process:coordinator_command",
     "bench": "covswarm.deploy.bench:bench_command",
     "credentials": "covswarm.protocol.security:credentials_command",
+    "console": "covswarm.console.server:console_command",
+    "bridge": "covswarm.bridge.process:bridge_group",
 }
 
 
@@ -41,3 +45,4 @@ class LazyGroup(click.Group):
 @click.version_option(package_name="covswarm")
 def main() -> None:
     """Steer a robot swarm by moving the region it covers (TVD-C / TVD-D1 coverage control)."""
+    lifeline.hold()

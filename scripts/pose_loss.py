@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 import numpy as np
 
-from covswarm.deploy.launcher import covswarm_argv
+from covswarm.deploy.plan import covswarm_argv
 
 SETTLED = 10.0  # s: the random start has converged by then in a healthy run
 

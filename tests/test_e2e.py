@@ -21,7 +21,8 @@ from pathlib import Path
 
 import pytest
 
-from covswarm.deploy.launcher import covswarm_argv, free_port
+from covswarm.deploy.plan import covswarm_argv
+from covswarm.deploy.router import free_port
 
 pytestmark = pytest.mark.e2e
 

@@ -28,7 +28,8 @@ from covswarm.agent.brain import AgentBrain
 from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
 from covswarm.coordinator.scenarios import load_scenario
-from covswarm.deploy.launcher import covswarm_argv, free_port, impairment_args, plan_children
+from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children
+from covswarm.deploy.router import free_port
 
 WALL = 1.7e9
 

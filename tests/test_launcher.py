@@ -12,18 +12,11 @@ import numpy as np
 import pytest
 
 from covswarm.coordinator.scenarios import load_scenario
-from covswarm.deploy.launcher import (
-    ChildSpec,
-    Progress,
-    Startup,
-    covswarm_argv,
-    cpu_seconds,
-    free_port,
-    initial_poses,
-    plan_children,
-    render,
-    rss_mb,
-)
+from covswarm.deploy.display import Progress, render
+from covswarm.deploy.plan import ChildSpec, covswarm_argv, initial_poses, plan_children
+from covswarm.deploy.processes import cpu_seconds, rss_mb
+from covswarm.deploy.router import free_port
+from covswarm.deploy.supervisor import Startup
 
 
 def _plan(feedforward: bool = True) -> list[ChildSpec]:
@@ -152,7 +145,7 @@ def test_a_session_close_that_times_out_does_not_lose_the_run(
     go on to write its outputs."""
     import zenoh
 
-    from covswarm.deploy.launcher import _closing
+    from covswarm.deploy.router import _closing
 
     class SlowSession:
         def close(self) -> None:

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import pytest
 
-from covswarm.deploy.launcher import covswarm_argv
+from covswarm.deploy.plan import covswarm_argv
 
 pytestmark = pytest.mark.e2e
 

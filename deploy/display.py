@@ -1,0 +1,101 @@
+"""What ``covswarm run`` shows: live progress while it runs, a summary table at the end."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from covswarm.coordinator.monitor import HEADLINE_STATS
+
+if TYPE_CHECKING:
+    from covswarm.deploy.supervisor import RunResult
+
+
+@dataclass
+class Progress:
+    """What the display shows; updated by the launcher loop."""
+
+    agents: int
+    duration: float
+    ready: set[tuple[str, int]] = field(default_factory=set)  # (role, id) seen alive
+    status: Any = None  # latest protocol.Status
+
+
+def render(progress: Progress) -> Any:
+    """Start-up: processes ready per role. Mission: time, e_a, processes alive."""
+    from rich.progress_bar import ProgressBar
+    from rich.table import Table
+
+    def bar(completed: float, total: float, text: str) -> Table:
+        row = Table.grid(padding=(0, 1))
+        row.add_row(ProgressBar(total=total, completed=completed, width=30), text)
+        return row
+
+    table = Table.grid(padding=(0, 2))
+    table.add_column(style="bold")
+    table.add_column()
+    n = progress.agents
+    status = progress.status
+    if status is None or status.state == "waiting":
+        table.add_row("phase", "start-up (waiting for liveliness tokens)")
+        for label, role, total in (
+            ("coordinator", "coordinator", 1), ("robots", "robot", n), ("agents", "agent", n)
+        ):  # fmt: skip
+            count = sum(1 for r, _ in progress.ready if r == role)
+            table.add_row(f"{label} ready", bar(count, total, f"{count}/{total}"))
+        return table
+    table.add_row("phase", status.state)
+    table.add_row(
+        "mission time",
+        bar(status.t, progress.duration, f"{status.t:.1f} / {progress.duration:.1f} s"),
+    )
+    table.add_row("e_a", "-" if status.error is None else f"{status.error:.4f} m")
+    table.add_row("robots alive", f"{status.alive_robots}/{n}")
+    table.add_row("agents alive", f"{status.alive_agents}/{n}")
+    return table
+
+
+def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> Any:
+    """The closing table: errors, per-agent figures, memory, processes lost."""
+    from rich.table import Table
+
+    table = Table(title=f"covswarm run: {summary.get('scenario')}", show_header=False)
+    table.add_column(style="bold")
+    table.add_column()
+
+    def fmt(value: Any, unit: str = "") -> str:
+        return "-" if value is None else f"{value:.4g}{unit}"
+
+    table.add_row("agents", str(summary.get("agents")))
+    table.add_row("feedforward", str(summary.get("feedforward")))
+    table.add_row("kappa", fmt(summary.get("kappa")))
+    table.add_row("mission time", fmt(summary.get("mission_time"), " s"))
+    table.add_row("e_a initial", fmt(summary.get("initial_error"), " m"))
+    table.add_row("e_a steady state (2nd half)", fmt(summary.get("steady_state_error_mean"), " m"))
+    table.add_row("e_a final", fmt(summary.get("final_error"), " m"))
+    team = summary.get("agent_stats", {}).get("team", {})
+    for name in HEADLINE_STATS:
+        if name in team:
+            f = team[name]
+            table.add_row(
+                f"agent {name}", f"mean {f['mean']:.4g}  min {f['min']:.4g}  max {f['max']:.4g}"
+            )
+    for role, values in sorted(result.rss.items()):
+        table.add_row(
+            f"RSS per {role} process", f"mean {np.mean(values):.0f} MB  max {max(values):.0f} MB"
+        )
+        if (hosted := sum(result.members.get(role, ()))) > len(values):
+            table.add_row(f"RSS per {role}", f"{sum(values) / hosted:.1f} MB")
+    for role, values in sorted(result.cpu.items()):
+        table.add_row(
+            f"CPU per {role} process",
+            f"mean {np.mean(values):.1f}%  max {max(values):.1f}% of a core (total "
+            f"{sum(values):.0f}%)",
+        )
+    lost = summary.get("lost_processes", [])
+    table.add_row("liveliness lost", ", ".join(f"{e['role']} {e['id']}" for e in lost) or "none")
+    table.add_row("outputs", str(out_dir))
+    return table

@@ -1,0 +1,136 @@
+"""What ``covswarm run`` starts: one ChildSpec (role, ids, command line) per process."""
+
+from __future__ import annotations
+
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from covswarm.coordinator.scenarios import Scenario
+from covswarm.protocol.keys import format_ids
+
+
+@dataclass(frozen=True)
+class ChildSpec:
+    """One process to start: its role, id(s) and command line.
+
+    A robot or agent process may host several robots or brains (``--agents-per-process``):
+    ``idents`` lists them (empty: just ``ident``); the process is ready once every one of
+    them holds its liveliness token.
+    """
+
+    role: str  # "coordinator" | "robot" | "agent"
+    ident: int
+    argv: tuple[str, ...]
+    idents: tuple[int, ...] = ()
+
+    @property
+    def members(self) -> tuple[int, ...]:
+        return self.idents or (self.ident,)
+
+    @property
+    def name(self) -> str:
+        return f"{self.role}-{format_ids(list(self.members))}"
+
+
+def covswarm_argv() -> list[str]:
+    """How to run ``covswarm`` with this interpreter, readable in ``ps``.
+
+    The console script next to sys.executable (the venv's), else ``python -c`` on the entry
+    point, so children always run the same installation as the launcher.
+    """
+    script = Path(sys.executable).with_name("covswarm")
+    if script.exists():
+        return [sys.executable, str(script)]
+    return [sys.executable, "-c", "from covswarm.deploy.cli import main; main()"]
+
+
+def initial_poses(scenario: Scenario, n: int, seed: int) -> np.ndarray:
+    """(n, 3) x, y, heading: positions as ``covswarm sim``, headings from their own stream."""
+    positions = scenario.initial_positions(n, seed)
+    headings = np.random.default_rng([seed, 1]).uniform(-np.pi, np.pi, size=n)
+    return np.column_stack([positions, headings])
+
+
+def plan_children(
+    scenario: Scenario,
+    *,
+    scenario_arg: str,
+    agents: int,
+    seed: int,
+    endpoint: str,
+    swarm: str,
+    rate: float,
+    kappa: float,
+    feedforward: bool,
+    duration: float,
+    out_dir: Path,
+    base: Sequence[str],
+    ids: Sequence[int] | None = None,
+    per_process: int = 1,
+    coordinator: bool = True,
+    time_scale: float = 1.0,
+    agent_args: Sequence[str] = (),
+    secure: Path | None = None,
+) -> list[ChildSpec]:
+    """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
+
+    Pairs rather than all robots first: a waiting robot already runs its loop, so starting
+    every robot before the (slower to import) agents would load the machine while the
+    agents start. The coordinator holds the mission until everyone is up either way.
+
+    ``ids``: the slice of the team of ``agents`` this host runs (default: all of it); a
+    robot starts where it would in the full team, so hosts that split a team with the same
+    seed reproduce the one-host run. ``per_process`` robots (brains) share a robot (agent)
+    process; ``coordinator=False`` leaves the coordinator to another host. ``agent_args``
+    are appended to every agent's command line (fault injection). ``secure``: every child
+    gets ``--secure`` (protocol.security).
+    """
+    secured = () if secure is None else ("--secure", str(secure))
+    common = ("--connect", endpoint, "--swarm", swarm, *secured)
+    ff = () if feedforward else ("--no-feedforward",)
+    scale = () if time_scale == 1.0 else ("--time-scale", repr(time_scale))
+    specs = []
+    if coordinator:
+        argv = (
+            *base, "coordinator", "--scenario", scenario_arg, *common, "--agents", str(agents),
+            "--duration", repr(duration), "--kappa", repr(kappa), "--out", str(out_dir),
+            "--feedforward" if feedforward else "--no-feedforward", *scale,
+        )  # fmt: skip
+        specs.append(ChildSpec("coordinator", 0, argv))
+    poses = initial_poses(scenario, agents, seed)
+    chosen = list(range(agents)) if ids is None else sorted(ids)
+    for start in range(0, len(chosen), per_process):
+        group = chosen[start : start + per_process]
+        if per_process == 1:
+            (i,) = group
+            x, y, theta = (repr(float(v)) for v in poses[i])
+            robot_ids: tuple[str, ...] = ("--id", str(i), "--x", x, "--y", y, "--theta", theta)
+            agent_ids: tuple[str, ...] = ("--id", str(i))
+        else:
+            listed = format_ids(group)
+            agent_ids = ("--ids", listed)
+            robot_ids = agent_ids + tuple(
+                arg for i in group for arg in ("--pose", ",".join(repr(float(v)) for v in poses[i]))
+            )
+        robot = (*base, "robot", *robot_ids, *common, *scale)
+        agent = (
+            *base, "agent", *agent_ids, *common, "--rate", repr(rate), "--kappa", repr(kappa),
+            *ff, *scale, *agent_args,
+        )  # fmt: skip
+        members = tuple(group) if per_process > 1 else ()
+        specs += [
+            ChildSpec("robot", group[0], robot, members),
+            ChildSpec("agent", group[0], agent, members),
+        ]
+    return specs
+
+
+def impairment_args(loss: float, delay: float, seed: int) -> tuple[str, ...]:
+    """Agent options that inject pose loss and delay (none when both are zero)."""
+    if loss == 0.0 and delay == 0.0:
+        return ()
+    return ("--drop-poses", repr(loss), "--delay-poses", repr(delay), "--pose-seed", str(seed))

@@ -1,0 +1,100 @@
+"""The launcher's own Zenoh session: an embedded router, or a client of an existing one."""
+
+from __future__ import annotations
+
+import logging
+import socket
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Any
+
+ROUTER_HOST = "127.0.0.1"
+
+log = logging.getLogger("covswarm.launcher")
+
+
+def free_port(host: str = ROUTER_HOST) -> int:
+    """A TCP port nobody listens on right now (bind to port 0 and ask the OS)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as probe:
+        probe.bind((host, 0))
+        return probe.getsockname()[1]
+
+
+def local_endpoint(listen: str) -> str:
+    """The endpoint this host's children use to reach a router listening on ``listen``:
+    the same, except that a wildcard address (every interface) is reached on loopback."""
+    proto, _, address = listen.partition("/")
+    host, _, port = address.rpartition(":")
+    if host in ("0.0.0.0", "[::]"):
+        return f"{proto}/{ROUTER_HOST}:{port}"
+    return listen
+
+
+@contextmanager
+def zenoh_session(
+    connect: str | None,
+    max_sessions: int,
+    listen: Sequence[str] = (),
+    peers: Sequence[str] = (),
+    secure: Path | None = None,
+) -> Iterator[tuple[Any, str]]:
+    """(session, endpoint children connect to): an embedded router, or a client of ``connect``.
+
+    The embedded router listens on ``listen`` (reachable from other hosts) or else on a free
+    loopback port; the free port can be taken by someone else between probing and
+    listening, so a failed listen is retried on a fresh port. It connects to the routers
+    of ``peers`` (other hosts of the swarm; zenoh keeps retrying until they are up), which
+    then route between the hosts' processes. ``secure``: TLS and user/password
+    (protocol.security); the free loopback port is then a ``tls/`` endpoint.
+    """
+    import zenoh
+
+    from covswarm.protocol import session_config
+
+    if connect is not None:
+        session = zenoh.open(session_config([connect], secure=secure))
+        with _closing(session):
+            yield session, connect
+        return
+    if listen:
+        config = session_config(
+            list(peers), list(listen), mode="router", max_sessions=max_sessions, secure=secure
+        )
+        session = zenoh.open(config)
+        with _closing(session):
+            yield session, local_endpoint(listen[0])
+        return
+    for attempt in range(5):
+        scheme = "tcp" if secure is None else "tls"
+        endpoint = f"{scheme}/{ROUTER_HOST}:{free_port()}"
+        config = session_config(
+            list(peers), [endpoint], mode="router", max_sessions=max_sessions, secure=secure
+        )
+        try:
+            session = zenoh.open(config)
+        except zenoh.ZError:
+            if attempt == 4:
+                raise
+            continue
+        with _closing(session):
+            yield session, endpoint
+        return
+
+
+@contextmanager
+def _closing(session: Any) -> Iterator[None]:
+    """Close ``session`` on the way out; a close that times out is logged, not raised.
+
+    A router whose 2000 clients all leave at once timed out closing (zenoh's "close
+    operation timed out"): the run was over and its outputs not yet written.
+    """
+    import zenoh
+
+    try:
+        yield
+    finally:
+        try:
+            session.close()
+        except zenoh.ZError as exc:
+            log.warning("closing the Zenoh session: %s", exc)

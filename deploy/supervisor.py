@@ -1,0 +1,231 @@
+"""Follows a distributed run: staggered start-up, liveliness, children that die, resources."""
+
+from __future__ import annotations
+
+import os
+import signal
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from covswarm.deploy.display import Progress, render
+from covswarm.deploy.plan import ChildSpec
+from covswarm.deploy.processes import Child, cpu_seconds, interrupts, rss_mb, spawn, stop_children
+
+TICK = 0.1  # s between launcher loop iterations (display, liveness, child polling)
+COORDINATOR_GRACE = 60.0  # s for an interrupted coordinator to write its outputs
+# A child not ready after this long stops holding a start-up slot. Generous: on an
+# overloaded machine starting more processes at once only makes every start slower.
+STALL = 120.0
+
+
+@dataclass
+class Startup:
+    """Staggered start: at most ``max_starting`` children between spawn and ready.
+
+    A child counts as starting from spawn until its liveliness token appears, it exits, or
+    ``stall`` seconds pass (a stuck child must not hold the rest of the team back).
+    """
+
+    pending: list[ChildSpec]
+    max_starting: int
+    stall: float
+    spawned: dict[str, float] = field(default_factory=dict)  # name -> monotonic spawn time
+    ready: set[str] = field(default_factory=set)
+    exited: set[str] = field(default_factory=set)
+
+    def starting(self, now: float) -> int:
+        return sum(
+            1
+            for name, at in self.spawned.items()
+            if name not in self.ready and name not in self.exited and now - at < self.stall
+        )
+
+    def next_batch(self, now: float) -> list[ChildSpec]:
+        """Children to spawn now (and marks them spawned)."""
+        batch: list[ChildSpec] = []
+        while self.pending and self.starting(now) + len(batch) < self.max_starting:
+            batch.append(self.pending.pop(0))
+        for spec in batch:
+            self.spawned[spec.name] = now
+        return batch
+
+    @property
+    def done(self) -> bool:
+        """Every child spawned, and every spawned child ready or gone."""
+        return not self.pending and set(self.spawned) <= self.ready | self.exited
+
+
+@dataclass
+class RunResult:
+    exit_code: int
+    rss: dict[str, list[float]]  # role -> RSS (MB) of each child at the end of the mission
+    cpu: dict[str, list[float]]  # role -> CPU use of each child during the mission, % of a core
+    members: dict[str, list[int]] = field(default_factory=dict)  # role -> robots per child
+
+
+class Supervisor:
+    """Starts the children and follows them on the launcher's session, one tick at a time."""
+
+    def __init__(
+        self, specs: list[ChildSpec], *, session: Any, swarm: str, progress: Progress,
+        log_dir: Path, console: Any,
+    ) -> None:  # fmt: skip
+        import zenoh
+
+        from covswarm.protocol import alive_selector, status_key
+
+        self.swarm, self.progress, self.log_dir, self.console = swarm, progress, log_dir, console
+        self.startup = Startup(list(specs), max_starting=2 * (os.cpu_count() or 2), stall=STALL)
+        self.children: dict[str, Child] = {}
+        self.coordinator: Child | None = None
+        self.rss: dict[str, list[float]] = {}
+        self.cpu: dict[str, list[float]] = {}
+        self.members: dict[str, list[int]] = {}
+        # (role, id) -> the child that runs it: a child is ready once all its ids are up.
+        self._owner = {(s.role, i): s for s in specs for i in s.members}
+        self._up: set[tuple[str, int]] = set()
+        self._cpu_at_start: tuple[float, dict[str, float | None]] | None = None
+        self.began = time.monotonic()
+        self._put = zenoh.SampleKind.PUT
+        self._alive = session.liveliness().declare_subscriber(
+            alive_selector(swarm),
+            zenoh.handlers.FifoChannel(max(1024, 4 * len(specs))),
+            history=True,
+        )
+        self._status = session.declare_subscriber(status_key(swarm), zenoh.handlers.RingChannel(1))
+
+    def tick(self) -> None:
+        """Spawn what is due, take in liveliness and Status, notice children that exited."""
+        from covswarm.protocol import ProtocolError, Status, parse_alive_key
+
+        now = time.monotonic()
+        for spec in self.startup.next_batch(now):
+            self.children[spec.name] = spawn(spec, self.log_dir)
+            if spec.role == "coordinator":
+                self.coordinator = self.children[spec.name]
+        while (sample := self._alive.try_recv()) is not None:
+            try:
+                role, ident = parse_alive_key(str(sample.key_expr), self.swarm)
+            except ValueError:
+                continue
+            if sample.kind == self._put:
+                self._up.add((role, ident))
+                self.progress.ready.add((role, ident))
+                spec = self._owner.get((role, ident))
+                if spec is not None and all((spec.role, i) in self._up for i in spec.members):
+                    self.startup.ready.add(spec.name)
+        while (sample := self._status.try_recv()) is not None:
+            try:
+                self.progress.status = Status.decode(sample.payload)
+            except ProtocolError:
+                continue
+        for child in self.children.values():
+            if child.exit_code is None and (code := child.process.poll()) is not None:
+                child.exit_code = code
+                self.startup.exited.add(child.spec.name)
+                if child is not self.coordinator:
+                    self.console.log(
+                        f"[red]{child.spec.name} (pid {child.process.pid}) exited with {code} "
+                        f"at {now - self.began:.1f} s; see {child.log_path}"
+                    )
+        status = self.progress.status
+        if status is not None and status.state == "running" and self._cpu_at_start is None:
+            self._cpu_at_start = (now, self._cpu_times())
+        if status is not None and status.state == "done" and not self.rss:
+            self._measure_resources(now)
+
+    def _cpu_times(self) -> dict[str, float | None]:
+        return {name: cpu_seconds(c.process.pid) for name, c in self.children.items()}
+
+    def _measure_resources(self, now: float) -> None:
+        """RSS of every child at the end of the mission (all still up) and its CPU use
+        since the mission started."""
+        started, before = self._cpu_at_start or (now, {})
+        after = self._cpu_times()
+        for name, child in self.children.items():
+            if (mb := rss_mb(child.process.pid)) is not None:
+                self.rss.setdefault(child.spec.role, []).append(mb)
+                self.members.setdefault(child.spec.role, []).append(len(child.spec.members))
+            if now > started and before.get(name) is not None and after[name] is not None:
+                share = 100.0 * (after[name] - before[name]) / (now - started)
+                self.cpu.setdefault(child.spec.role, []).append(share)
+
+    def stop_coordinator(self, received: list[int]) -> None:
+        """SIGTERM makes a running coordinator end the mission early and write its outputs;
+        wait for that unless the operator interrupts a second time."""
+        child = self.coordinator
+        if child is None or child.process.poll() is not None:
+            return
+        child.process.send_signal(signal.SIGTERM)
+        deadline, seen = time.monotonic() + COORDINATOR_GRACE, len(received)
+        while child.process.poll() is None and time.monotonic() < deadline:
+            if len(received) != seen:
+                return
+            time.sleep(TICK)
+
+    def close(self) -> None:
+        """Stop every child by pid and drop the subscriptions."""
+        stop_children(list(self.children.values()))
+        self._alive.undeclare()
+        self._status.undeclare()
+
+
+def run_processes(
+    specs: list[ChildSpec],
+    *,
+    session: Any,
+    swarm: str,
+    agents: int,
+    duration: float,
+    log_dir: Path,
+    startup_timeout: float,
+    console: Any,
+) -> RunResult:
+    """Start the children, follow the run until the coordinator exits, stop everyone.
+
+    Without a coordinator among ``specs`` (it runs on another host) the run ends when the
+    coordinator's Status says "done".
+    """
+    from rich.live import Live
+
+    progress = Progress(agents, duration)
+    has_coordinator = any(spec.role == "coordinator" for spec in specs)
+    exit_code = 0
+    with interrupts() as received:
+        supervisor = Supervisor(
+            specs, session=session, swarm=swarm, progress=progress, log_dir=log_dir,
+            console=console,
+        )  # fmt: skip
+        # try/finally: whatever goes wrong here (a bug, a second Ctrl-C) children are
+        # stopped by pid; PR_SET_PDEATHSIG covers the launcher dying outright.
+        try:
+            with Live(render(progress), console=console, transient=False) as live:
+                while True:
+                    supervisor.tick()
+                    live.update(render(progress))
+                    coordinator = supervisor.coordinator
+                    if coordinator is not None and coordinator.exit_code is not None:
+                        if coordinator.exit_code != 0:
+                            console.log(f"[red]coordinator exited with {coordinator.exit_code}")
+                            exit_code = 1
+                        break
+                    status = progress.status
+                    if not has_coordinator and status is not None and status.state == "done":
+                        console.log("the coordinator (on another host) says the mission is done")
+                        break
+                    if received:
+                        console.log("interrupted: stopping the coordinator (it writes outputs)")
+                        exit_code = 128 + received[0]
+                        supervisor.stop_coordinator(received)
+                        break
+                    waited = time.monotonic() - supervisor.began
+                    if not supervisor.startup.done and waited > startup_timeout:
+                        console.log(f"[red]start-up took more than {startup_timeout:.0f} s")
+                        exit_code = 1
+                        break
+                    time.sleep(TICK)
+        finally:
+            supervisor.close()
+    return RunResult(exit_code, supervisor.rss, supervisor.cpu, supervisor.members)
