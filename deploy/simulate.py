@@ -214,6 +214,7 @@ def sim_command(
     )
 
     from covswarm.coordinator.report import write_outputs
+    from covswarm.records.recorder import record_simulation
 
     if compare and no_feedforward:
         raise click.UsageError("--compare already runs without feedforward; drop --no-feedforward")
@@ -271,6 +272,13 @@ def sim_command(
         workspace=scenario.workspace,
         density=scenario.density(results[0].t[-1]),
     )
+    record_simulation(
+        out_dir, t=results[0].t, error=results[0].error, trajectories=results[0].trajectories,
+        headings=results[0].headings, polygons=results[0].polygons, dt=options["dt"],
+        run_metadata={"source": "sim", "scenario": scenario.name, "feedforward": runs[0],
+                      **options},
+        workspace=scenario.workspace, obstacles=scenario.obstacles,
+    )  # fmt: skip
     console.print(f"steady-state mean e_a: {summary['steady_state_error_mean']:.4g} m", end="")
     if compare:
         console.print(
@@ -281,4 +289,7 @@ def sim_command(
     console.print(
         f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s (CPU {cpu:.1f} s)"
     )
-    console.print(f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png)")
+    console.print(
+        f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png, run.mcap, "
+        "trajectories.csv)"
+    )

@@ -1,0 +1,266 @@
+"""``covswarm replay RUN_DIR``: an animation of a recorded run (S, cells, robots, e_a).
+
+Reads RUN_DIR/run.mcap back (the robots, S(t), the cells and e_a channels of
+covswarm.records.recorder) and renders one frame every ``speed / fps`` s of mission time,
+each showing the newest message of every channel at that time. GIF through Pillow; MP4
+through ffmpeg, only when ffmpeg is on the PATH.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import click
+import numpy as np
+
+from covswarm.records.recorder import (
+    CELLS_TOPIC,
+    DOMAIN_TOPIC,
+    ERROR_TOPIC,
+    MCAP_FILE,
+    METADATA_NAME,
+    ROBOTS_TOPIC,
+)
+
+HEADING_LENGTH = 0.12  # m, the heading arrow drawn on each robot
+
+
+@dataclass
+class Recording:
+    """What a run.mcap holds, as arrays. Times are mission times (s)."""
+
+    metadata: dict[str, Any] = field(default_factory=dict)
+    pose_t: list[float] = field(default_factory=list)
+    poses: list[dict[int, tuple[float, float, float]]] = field(default_factory=list)
+    domain_t: list[float] = field(default_factory=list)
+    domains: list[np.ndarray] = field(default_factory=list)  # (k, 2) each
+    cells_t: list[float] = field(default_factory=list)
+    cells: list[list[np.ndarray]] = field(default_factory=list)
+    error_t: list[float] = field(default_factory=list)
+    error: list[float] = field(default_factory=list)
+
+    @property
+    def end(self) -> float:
+        """The last pose time (s), 0 without poses."""
+        return self.pose_t[-1] if self.pose_t else 0.0
+
+
+def _yaw(q: Any) -> float:
+    """Heading (rad) of a planar quaternion (rotation about +z)."""
+    return 2.0 * math.atan2(q.z, q.w)
+
+
+def _loop_points(entity: Any) -> np.ndarray:
+    points = entity.lines[0].points if entity.lines else []
+    return np.array([[p.x, p.y] for p in points], dtype=float).reshape(-1, 2)
+
+
+def read_recording(path: str | Path) -> Recording:
+    """Decode a run.mcap written by RunRecorder (ValueError if it holds no robot poses)."""
+    from mcap.reader import make_reader
+
+    record = Recording()
+    topics = [ROBOTS_TOPIC, DOMAIN_TOPIC, CELLS_TOPIC, ERROR_TOPIC]
+    with open(path, "rb") as stream:
+        reader = make_reader(stream, decoder_factories=decoder_factories())
+        for entry in reader.iter_metadata():
+            if entry.name == METADATA_NAME:
+                record.metadata = {k: _json_or_text(v) for k, v in entry.metadata.items()}
+        messages = reader.iter_decoded_messages(topics=topics, log_time_order=True)
+        for _, channel, message, update in messages:
+            t = message.log_time / 1e9
+            if channel.topic == ERROR_TOPIC:
+                value = update.get("e_a")
+                record.error_t.append(t)
+                record.error.append(math.nan if value is None else float(value))
+            elif channel.topic == ROBOTS_TOPIC:
+                record.pose_t.append(t)
+                record.poses.append(
+                    {
+                        int(e.id): (
+                            e.arrows[0].pose.position.x,
+                            e.arrows[0].pose.position.y,
+                            _yaw(e.arrows[0].pose.orientation),
+                        )
+                        for e in update.entities
+                    }
+                )
+            elif channel.topic == DOMAIN_TOPIC:
+                record.domain_t.append(t)
+                record.domains.append(_loop_points(update.entities[0]))
+            else:
+                record.cells_t.append(t)
+                record.cells.append([_loop_points(e) for e in update.entities])
+    if not record.pose_t:
+        raise ValueError(f"{path}: no messages on {ROBOTS_TOPIC}")
+    return record
+
+
+def decoder_factories() -> list[Any]:
+    """mcap decoders for a run.mcap: protobuf (the Foxglove schemas) and JSON channels."""
+    from mcap.decoder import DecoderFactory
+    from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
+
+    class JsonDecoderFactory(DecoderFactory):
+        def decoder_for(self, message_encoding: str, schema: Any) -> Any:
+            return json.loads if message_encoding == "json" else None
+
+    return [ProtobufDecoderFactory(), JsonDecoderFactory()]
+
+
+def _json_or_text(value: str) -> Any:
+    try:
+        return json.loads(value)
+    except ValueError:
+        return value
+
+
+def frame_times(end: float, fps: float, speed: float) -> np.ndarray:
+    """Mission times of the frames: every speed / fps s from 0 to ``end`` inclusive."""
+    step = speed / fps
+    return np.arange(math.floor(end / step + 1e-9) + 1) * step
+
+
+def _latest(times: list[float], at: float) -> int | None:
+    """Index of the newest entry with time <= at (None if there is none yet)."""
+    k = int(np.searchsorted(times, at, side="right")) - 1
+    return k if k >= 0 else None
+
+
+def render(
+    record: Recording, out: Path, *, fps: float = 10.0, speed: float = 1.0, dpi: int = 80
+) -> int:
+    """Write the animation to ``out`` (.gif or .mp4); returns the number of frames."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib import animation
+    from matplotlib.collections import LineCollection
+    from matplotlib.patches import Rectangle
+
+    suffix = out.suffix.lower()
+    if suffix == ".gif":
+        writer: Any = animation.PillowWriter(fps=fps)
+    elif suffix == ".mp4":
+        if not animation.writers.is_available("ffmpeg"):
+            raise click.ClickException(
+                "MP4 needs ffmpeg on the PATH and it was not found: install it "
+                "(e.g. apt-get install ffmpeg) or write a GIF (--out replay.gif)"
+            )
+        writer = animation.FFMpegWriter(fps=fps)
+    else:
+        raise click.UsageError(f"--out must end in .gif or .mp4, not {out.name!r}")
+
+    times = frame_times(record.end, fps, speed)
+    meta = record.metadata
+    fig = plt.figure(figsize=(6.4, 5.0))
+    grid = fig.add_gridspec(2, 1, height_ratios=(3.2, 1.0), hspace=0.3)
+    ax, ax_err = fig.add_subplot(grid[0]), fig.add_subplot(grid[1])
+    ax.set_aspect("equal")
+    workspace = meta.get("workspace")
+    if workspace:
+        ax.set_xlim(workspace[0], workspace[1])
+        ax.set_ylim(workspace[2], workspace[3])
+    else:
+        every = np.array([xy[:2] for poses in record.poses for xy in poses.values()])
+        every = np.vstack([every, *record.domains]) if record.domains else every
+        low, high = every.min(axis=0) - 0.2, every.max(axis=0) + 0.2
+        ax.set_xlim(low[0], high[0])
+        ax.set_ylim(low[1], high[1])
+    for x0, x1, y0, y1 in meta.get("obstacles") or []:
+        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, color="#8c4d40", alpha=0.5))
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    cell_lines = LineCollection([], colors="0.6", linewidths=0.7)
+    ax.add_collection(cell_lines)
+    (domain_line,) = ax.plot([], [], color="k", linewidth=1.5)
+    robots = ax.quiver(
+        [0.0], [0.0], [0.0], [0.0], color="#e08a1a", angles="xy", scale_units="xy", scale=1.0,
+        width=0.006, zorder=4,
+    )  # fmt: skip
+    dots = ax.scatter([], [], s=18, color="#1f59d9", zorder=3)
+    title = ax.set_title("")
+    ax_err.plot(record.error_t, record.error, color="0.8", linewidth=1.0)
+    (error_line,) = ax_err.plot([], [], color="C3", linewidth=1.5)
+    ax_err.set_xlim(0.0, max(record.end, 1e-3))
+    finite = [e for e in record.error if math.isfinite(e)]
+    ax_err.set_ylim(0.0, 1.05 * max(finite) if finite else 1.0)
+    ax_err.set_xlabel("mission time (s)")
+    ax_err.set_ylabel("e_a (m)")
+    label = f"{meta.get('scenario', '?')}, {meta.get('agents', '?')} robots"
+
+    def draw(frame: int) -> None:
+        at = float(times[frame])
+        k = _latest(record.pose_t, at)
+        poses = np.array(list(record.poses[k].values()) if k is not None else []).reshape(-1, 3)
+        dots.set_offsets(poses[:, :2])
+        robots.set_offsets(poses[:, :2])
+        robots.N = len(poses)
+        robots.set_UVC(HEADING_LENGTH * np.cos(poses[:, 2]), HEADING_LENGTH * np.sin(poses[:, 2]))
+        if (d := _latest(record.domain_t, at)) is not None:
+            closed = np.vstack([record.domains[d], record.domains[d][:1]])
+            domain_line.set_data(closed[:, 0], closed[:, 1])
+        if (c := _latest(record.cells_t, at)) is not None:
+            cell_lines.set_segments([np.vstack([p, p[:1]]) for p in record.cells[c] if len(p)])
+        e = int(np.searchsorted(record.error_t, at, side="right"))
+        error_line.set_data(record.error_t[:e], record.error[:e])
+        title.set_text(f"{label}   t = {at:5.1f} s")
+
+    movie = animation.FuncAnimation(fig, draw, frames=len(times), blit=False)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    from rich.progress import Progress
+
+    with Progress(transient=True) as bar:
+        task = bar.add_task(f"rendering {out.name}", total=len(times))
+        movie.save(
+            out,
+            writer=writer,
+            dpi=dpi,
+            progress_callback=lambda i, _n: bar.update(task, completed=i + 1),
+        )
+    plt.close(fig)
+    return len(times)
+
+
+@click.command("replay")
+@click.argument(
+    "run_dir", type=click.Path(exists=True, file_okay=False, path_type=Path), metavar="RUN_DIR"
+)
+@click.option(
+    "--out",
+    type=click.Path(dir_okay=False, path_type=Path),
+    help="replay.gif or replay.mp4 (MP4 needs ffmpeg) [RUN_DIR/replay.gif].",
+)
+@click.option(
+    "--fps",
+    type=click.FloatRange(min=0, min_open=True, max=60),
+    default=10.0,
+    show_default=True,
+    help="Frames per second of the animation.",
+)
+@click.option(
+    "--speed",
+    type=click.FloatRange(min=0, min_open=True),
+    default=1.0,
+    show_default=True,
+    help="Mission seconds per second of animation.",
+)
+@click.option("--dpi", type=click.IntRange(min=20, max=300), default=80, show_default=True)
+def replay_command(run_dir: Path, out: Path | None, fps: float, speed: float, dpi: int) -> None:
+    """Render an animation of a recorded run (RUN_DIR/run.mcap): S, cells, robots, e_a."""
+    source = run_dir / MCAP_FILE
+    if not source.is_file():
+        raise click.UsageError(f"{run_dir} has no {MCAP_FILE} (record one with covswarm run/sim)")
+    try:
+        record = read_recording(source)
+    except Exception as exc:  # a truncated or foreign file: say so, never a traceback
+        raise click.ClickException(f"cannot read {source}: {exc}") from None
+    out = run_dir / "replay.gif" if out is None else out
+    frames = render(record, out, fps=fps, speed=speed, dpi=dpi)
+    size = out.stat().st_size / 1e6
+    click.echo(f"wrote {out} ({frames} frames, {record.end:.1f} s of mission, {size:.2f} MB)")

@@ -1,0 +1,171 @@
+"""Foxglove scene messages of a run, built from numpy arrays (no I/O).
+
+Everything lives in one fixed frame, ``world`` (metres, the scenario's plane at z = 0).
+Entity ids carry what a viewer (or ``covswarm replay``) needs to tell things apart: robot
+``<id>`` on the robots topic, cell ``<id>`` on the cells topic, ``S`` for the domain.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Sequence
+
+import numpy as np
+from foxglove.messages import (
+    ArrowPrimitive,
+    Color,
+    CubePrimitive,
+    CylinderPrimitive,
+    LinePrimitive,
+    LinePrimitiveLineType,
+    Point3,
+    Pose,
+    Quaternion,
+    SceneEntity,
+    SceneUpdate,
+    Timestamp,
+    Vector3,
+)
+
+FRAME = "world"
+ROBOT_DIAMETER = 0.14  # m, a Khepera IV
+ROBOT_HEIGHT = 0.05  # m
+ROBOT_COLOR = Color(r=0.12, g=0.35, b=0.85, a=0.9)
+HEADING_COLOR = Color(r=0.95, g=0.55, b=0.1, a=1.0)
+DOMAIN_COLOR = Color(r=0.1, g=0.1, b=0.1, a=1.0)
+CELL_COLOR = Color(r=0.45, g=0.45, b=0.45, a=0.8)
+OBSTACLE_COLOR = Color(r=0.55, g=0.3, b=0.25, a=0.6)
+WORKSPACE_COLOR = Color(r=0.6, g=0.6, b=0.6, a=1.0)
+_IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+
+
+def timestamp(t: float) -> Timestamp:
+    """A Foxglove Timestamp of mission time ``t`` (s since the mission's start, >= 0)."""
+    ns = max(0, round(t * 1e9))
+    return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
+
+
+def planar_pose(x: float, y: float, theta: float, z: float = 0.0) -> Pose:
+    """Pose at (x, y, z) m facing ``theta`` rad (counter-clockwise from +x) about +z."""
+    half = 0.5 * theta
+    return Pose(
+        position=Vector3(x=x, y=y, z=z),
+        orientation=Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
+    )
+
+
+def robots_update(t: float, ids: Sequence[int], poses: np.ndarray) -> SceneUpdate:
+    """One entity per robot: a Khepera-sized disc and an arrow along its heading.
+
+    ids: n robot ids; poses: (n, 3) rows x, y (m), theta (rad).
+    """
+    stamp = timestamp(t)
+    entities = []
+    for ident, (x, y, theta) in zip(ids, np.asarray(poses, dtype=float).tolist(), strict=True):
+        pose = planar_pose(x, y, theta, ROBOT_HEIGHT)
+        body = planar_pose(x, y, theta, 0.5 * ROBOT_HEIGHT)
+        entities.append(
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=FRAME,
+                id=str(ident),
+                arrows=[
+                    ArrowPrimitive(
+                        pose=pose,
+                        shaft_length=0.07,
+                        shaft_diameter=0.02,
+                        head_length=0.04,
+                        head_diameter=0.05,
+                        color=HEADING_COLOR,
+                    )
+                ],
+                cylinders=[
+                    CylinderPrimitive(
+                        pose=body,
+                        size=Vector3(x=ROBOT_DIAMETER, y=ROBOT_DIAMETER, z=ROBOT_HEIGHT),
+                        bottom_scale=1.0,
+                        top_scale=1.0,
+                        color=ROBOT_COLOR,
+                    )
+                ],
+            )
+        )
+    return SceneUpdate(entities=entities)
+
+
+def _loop(points: np.ndarray, color: Color, thickness: float) -> LinePrimitive:
+    return LinePrimitive(
+        type=LinePrimitiveLineType.LineLoop,
+        pose=Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_IDENTITY),
+        thickness=thickness,
+        scale_invariant=True,
+        points=[Point3(x=x, y=y, z=0.0) for x, y in np.asarray(points, dtype=float).tolist()],
+        color=color,
+    )
+
+
+def domain_update(t: float, vertices: np.ndarray) -> SceneUpdate:
+    """S(t) as a closed line loop, entity ``S``. vertices: (k, 2) m."""
+    entity = SceneEntity(
+        timestamp=timestamp(t),
+        frame_id=FRAME,
+        id="S",
+        lines=[_loop(vertices, DOMAIN_COLOR, 3.0)],
+    )
+    return SceneUpdate(entities=[entity])
+
+
+def cells_update(t: float, ids: Sequence[int], cells: Sequence[np.ndarray]) -> SceneUpdate:
+    """Each robot's Voronoi cell in S as a line loop, entity ``<id>``; empty cells omitted.
+
+    cells: n arrays (m_i, 2) of counter-clockwise vertices (covswarm.tvd.coverage.cells).
+    """
+    stamp = timestamp(t)
+    entities = [
+        SceneEntity(
+            timestamp=stamp, frame_id=FRAME, id=str(ident), lines=[_loop(cell, CELL_COLOR, 1.0)]
+        )
+        for ident, cell in zip(ids, cells, strict=True)
+        if len(cell) >= 3
+    ]
+    return SceneUpdate(entities=entities)
+
+
+def arena_update(
+    t: float,
+    workspace: tuple[float, float, float, float] | None,
+    obstacles: Sequence[tuple[float, float, float, float]],
+) -> SceneUpdate:
+    """The workspace outline (entity ``workspace``) and obstacle boxes (``obstacle/<k>``).
+
+    Boxes are (xmin, xmax, ymin, ymax) m, as in the scenario.
+    """
+    stamp = timestamp(t)
+    entities = []
+    if workspace is not None:
+        x0, x1, y0, y1 = workspace
+        corners = np.array([[x0, y0], [x1, y0], [x1, y1], [x0, y1]])
+        entities.append(
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=FRAME,
+                id="workspace",
+                lines=[_loop(corners, WORKSPACE_COLOR, 1.0)],
+            )
+        )
+    for k, (x0, x1, y0, y1) in enumerate(obstacles):
+        entities.append(
+            SceneEntity(
+                timestamp=stamp,
+                frame_id=FRAME,
+                id=f"obstacle/{k}",
+                cubes=[
+                    CubePrimitive(
+                        pose=planar_pose(0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0, 0.05),
+                        size=Vector3(x=x1 - x0, y=y1 - y0, z=0.1),
+                        color=OBSTACLE_COLOR,
+                    )
+                ],
+            )
+        )
+    return SceneUpdate(entities=entities)
