@@ -26,8 +26,10 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import click
+
 from covswarm.protocol.keys import check_swarm, steer_key
-from covswarm.protocol.messages import ProtocolError
+from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.steering import SteerReply, SteerRequest
 
 
@@ -93,4 +95,100 @@ class SteeringClient:
         return self.request(SteerRequest("polygon", polygon=points, duration=duration))
 
 
-__all__ = ["ProtocolError", "SteerReply", "SteerRequest", "SteerTimeout", "SteeringClient"]
+def _pair(text: str, option: str) -> tuple[float, float]:
+    try:
+        x, y = (float(part) for part in text.split(","))
+    except ValueError:
+        raise click.BadParameter(
+            f"expected X,Y (two numbers), got {text!r}", param_hint=option
+        ) from None
+    return x, y
+
+
+def _vertices(text: str) -> list[tuple[float, float]]:
+    return [_pair(point, "--polygon") for point in text.split(";") if point.strip()]
+
+
+REFUSED_EXIT = 1  # the coordinator refused the request (the reason is printed)
+NO_ANSWER_EXIT = 3  # no coordinator answered
+
+
+@click.command("steer")
+@click.option(
+    "--connect", multiple=True, required=True, help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447."
+)
+@click.option("--swarm", required=True, help="Swarm name of the running mission.")
+@click.option("--translate", "translate_", metavar="DX,DY", help="Move S by (DX, DY) m.")
+@click.option("--rotate", type=float, metavar="DEG", help="Turn S by DEG degrees (CCW).")
+@click.option("--scale", type=click.FloatRange(min=0, min_open=True), help="Scale S by F.")
+@click.option("--polygon", metavar='"X,Y;X,Y;..."', help="Morph S into this convex polygon.")
+@click.option("--about", metavar="X,Y", help="Fixed point of --rotate/--scale [S's centroid].")
+@click.option(
+    "--duration", type=click.FloatRange(min=0, min_open=True), help="Seconds the motion takes."
+)
+@click.option(
+    "--speed", type=click.FloatRange(min=0, min_open=True), help="m/s of S's fastest vertex."
+)
+@click.option(
+    "--timeout", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True
+)
+@SECURE_OPTION
+def steer_command(
+    connect: Sequence[str],
+    swarm: str,
+    translate_: str | None,
+    rotate: float | None,
+    scale: float | None,
+    polygon: str | None,
+    about: str | None,
+    duration: float | None,
+    speed: float | None,
+    timeout: float,
+    secure: Any,
+) -> None:
+    """Steer a running swarm: move, turn, scale or reshape S. Prints accepted or the refusal.
+
+    Exit status: 0 accepted, 1 refused, 3 no coordinator answered (2: bad options).
+    """
+    import zenoh
+
+    from covswarm.protocol.session import session_config
+
+    chosen = [o for o in (translate_, rotate, scale, polygon) if o is not None]
+    if len(chosen) != 1:
+        raise click.UsageError("give exactly one of --translate, --rotate, --scale, --polygon")
+    try:
+        check_swarm(swarm)
+        centre = None if about is None else _pair(about, "--about")
+        if translate_ is not None:
+            dx, dy = _pair(translate_, "--translate")
+            request = SteerRequest("translate", dx=dx, dy=dy, duration=duration, speed=speed)
+        elif rotate is not None:
+            request = SteerRequest(
+                "rotate", angle=math.radians(rotate), about=centre, duration=duration, speed=speed
+            )
+        elif scale is not None:
+            request = SteerRequest(
+                "scale", factor=scale, about=centre, duration=duration, speed=speed
+            )
+        else:
+            request = SteerRequest(
+                "polygon", polygon=_vertices(polygon or ""), duration=duration, speed=speed
+            )
+    except ValueError as exc:  # ProtocolError included: NaN, too many vertices, ...
+        raise click.UsageError(str(exc)) from None
+    try:
+        config = session_config(list(connect), secure=secure)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    with zenoh.open(config) as session:
+        try:
+            reply = SteeringClient(session, swarm, timeout).request(request)
+        except SteerTimeout as exc:
+            click.echo(f"no answer: {exc}", err=True)
+            raise SystemExit(NO_ANSWER_EXIT) from None
+    if not reply.accepted:
+        click.echo(f"refused: {reply.reason}")
+        raise SystemExit(REFUSED_EXIT)
+    note = f" ({reply.reason})" if reply.reason else ""
+    click.echo(f"accepted: {request.describe()}, {reply.duration:.2f} s{note}")

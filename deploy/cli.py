@@ -22,6 +22,7 @@ SUBCOMMANDS: dict[str, str] = {
     "coordinator": "covswarm.coordinator.process:coordinator_command",
     "bench": "covswarm.deploy.bench:bench_command",
     "credentials": "covswarm.protocol.security:credentials_command",
+    "steer": "covswarm.coordinator.steer_client:steer_command",
     "console": "covswarm.console.server:console_command",
     "bridge": "covswarm.bridge.process:bridge_group",
 }
