@@ -7,7 +7,7 @@ a liveliness token, runs the scenario for its duration, says "done" for a moment
 
 It is the one process that subscribes to every pose: it samples the aggregate error e_a(t)
 over the robots alive, publishes Status, reports processes whose liveliness token
-disappears and at the end writes the same outputs as ``covswarm sim`` (coordinator.report).
+disappears and at the end writes the same outputs as ``covswarm sim`` (mission.report).
 The bookkeeping is in coordinator.monitor; this module is the network shell around it.
 """
 
@@ -38,7 +38,7 @@ from covswarm.coordinator.monitor import (
     team_changes_summary,
     team_of,
 )
-from covswarm.coordinator.scenarios import Scenario, load_scenario
+from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import TIME_SCALE_OPTION, StopFlag, Ticker, scaled
@@ -371,7 +371,7 @@ def build_summary(
     settings: Settings, observed: Observed, steering: Steering | None = None
 ) -> dict[str, Any]:
     """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
-    from covswarm.coordinator.report import neighbor_histogram, steady_state_mean
+    from covswarm.mission.report import neighbor_histogram, steady_state_mean
 
     record = observed.record
     final = record.positions[-1]
@@ -431,8 +431,8 @@ def read_mission_start(path: Path, swarm: str) -> float:
 def write_run_outputs(
     out_dir: Path, settings: Settings, observed: Observed, steering: Steering | None = None
 ) -> None:
-    """summary.json, error.csv, error.png, trajectories.png through coordinator.report."""
-    from covswarm.coordinator.report import write_outputs
+    """summary.json, error.csv, error.png, trajectories.png through mission.report."""
+    from covswarm.mission.report import write_outputs
 
     record = observed.record
     write_outputs(

@@ -404,7 +404,7 @@ class SteeringRecord:
 class Steering:
     """Who moves S: the scenario's script until the first accepted request, then steering.
 
-    ``script``: the scenario's S(t) (coordinator.scenarios.Scenario.domain).
+    ``script``: the scenario's S(t) (mission.scenarios.Scenario.domain).
     """
 
     script: DomainAt

@@ -24,11 +24,11 @@ from pathlib import Path
 
 import click
 
-from covswarm.coordinator.scenarios import load_scenario
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children
 from covswarm.deploy.router import zenoh_session
 from covswarm.deploy.supervisor import run_processes
+from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import TIME_SCALE_OPTION

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import numpy as np
 
-from covswarm.coordinator.scenarios import Scenario
+from covswarm.mission.scenarios import Scenario
 from covswarm.protocol.keys import format_ids
 
 

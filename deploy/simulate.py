@@ -18,7 +18,7 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.coordinator.scenarios import Scenario, load_scenario
+from covswarm.mission.scenarios import Scenario, load_scenario
 
 LAWS = ("c", "d1")
 DYNAMICS = ("single", "unicycle")
@@ -127,7 +127,7 @@ def build_summary(
     without: SimResult | None = None,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
-    from covswarm.coordinator.report import neighbor_histogram, steady_state_mean
+    from covswarm.mission.report import neighbor_histogram, steady_state_mean
 
     summary: dict[str, Any] = {
         "scenario": scenario.name,
@@ -213,7 +213,7 @@ def sim_command(
         TimeRemainingColumn,
     )
 
-    from covswarm.coordinator.report import write_outputs
+    from covswarm.mission.report import write_outputs
     from covswarm.records.recorder import record_simulation
 
     if compare and no_feedforward:

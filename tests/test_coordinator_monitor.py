@@ -107,7 +107,7 @@ def test_agent_figures_summarise_whatever_stats_agents_send() -> None:
 
 def test_summary_has_the_sim_keys_and_process_figures() -> None:
     from covswarm.coordinator.process import Observed, Settings, build_summary
-    from covswarm.coordinator.scenarios import load_scenario
+    from covswarm.mission.scenarios import load_scenario
 
     scenario = load_scenario("passage")
     settings = Settings(
@@ -137,7 +137,7 @@ def test_summary_has_the_sim_keys_and_process_figures() -> None:
 
 def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
     from covswarm.coordinator.process import TILE_SPACINGS, swarm_tile_size
-    from covswarm.coordinator.scenarios import load_scenario
+    from covswarm.mission.scenarios import load_scenario
 
     circle = load_scenario("circle")  # a 2 m square
     assert swarm_tile_size(circle, 100) == pytest.approx(TILE_SPACINGS * 0.2)

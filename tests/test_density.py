@@ -24,7 +24,8 @@ from reference import (
 from scipy import integrate
 from scipy.special import erf
 
-from covswarm.coordinator.scenarios import load_scenario, scenario_from_dict
+from covswarm.mission.scenario_files import scenario_from_dict
+from covswarm.mission.scenarios import load_scenario
 from covswarm.tvd import control, coverage
 from covswarm.tvd.density import Density, DensityPath
 

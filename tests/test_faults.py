@@ -27,9 +27,9 @@ from covswarm import protocol
 from covswarm.agent.brain import AgentBrain
 from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
-from covswarm.coordinator.scenarios import load_scenario
 from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children
 from covswarm.deploy.router import free_port
+from covswarm.mission.scenarios import load_scenario
 
 WALL = 1.7e9
 

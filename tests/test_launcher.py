@@ -11,12 +11,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covswarm.coordinator.scenarios import load_scenario
 from covswarm.deploy.display import Progress, render
 from covswarm.deploy.plan import ChildSpec, covswarm_argv, initial_poses, plan_children
 from covswarm.deploy.processes import cpu_seconds, rss_mb
 from covswarm.deploy.router import free_port
 from covswarm.deploy.supervisor import Startup
+from covswarm.mission.scenarios import load_scenario
 
 
 def _plan(feedforward: bool = True) -> list[ChildSpec]:

@@ -16,9 +16,9 @@ import numpy as np
 import pytest
 from test_e2e import launch, new_swarm, swarm_pids
 
-from covswarm.coordinator.scenarios import load_scenario
 from covswarm.deploy.plan import covswarm_argv, initial_poses, plan_children
 from covswarm.deploy.router import local_endpoint
+from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import format_ids, parse_ids
 from covswarm.protocol.session import StopFlag, Ticker, id_selection, scaled
 from covswarm.sim_robot.process import parse_pose

@@ -8,14 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covswarm.coordinator.scenarios import (
-    BUILTINS,
-    Keyframes,
-    Rigid,
-    Scenario,
-    load_scenario,
-    scenario_from_dict,
-)
+from covswarm.mission.motion import Keyframes, Rigid
+from covswarm.mission.scenario_files import scenario_from_dict
+from covswarm.mission.scenarios import BUILTINS, Scenario, load_scenario
 from covswarm.tvd.coverage import validate_polygon
 
 RIGID_TOML = """

@@ -10,10 +10,10 @@ import numpy as np
 import pytest
 from click.testing import CliRunner
 
-from covswarm.coordinator.report import neighbor_histogram, steady_state_mean, write_outputs
-from covswarm.coordinator.scenarios import load_scenario
 from covswarm.deploy.cli import main
 from covswarm.deploy.simulate import simulate
+from covswarm.mission.report import neighbor_histogram, steady_state_mean, write_outputs
+from covswarm.mission.scenarios import load_scenario
 
 OUTPUTS = ("summary.json", "error.csv", "error.png", "trajectories.png")
 
