@@ -1,0 +1,204 @@
+"""The console's picture of a running swarm: a sans-IO state model fed with decoded messages.
+
+console.server subscribes to the swarm's keys and feeds what arrives here (Domain, Status,
+Pose, liveliness changes, steering replies); :meth:`SwarmView.snapshot` turns it into the
+JSON document the page draws and ``GET /api/state`` returns. No zenoh, no clock of its own:
+every method takes the time it happens at, so the model is unit-tested without a network.
+
+The Voronoi cells and every robot's distance to its cell's centroid are computed here from
+the latest poses and S, with covswarm.tvd.coverage (the same cells the agents compute); the
+aggregate error e_a over the last minute is the coordinator's (Status), the authority.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from covswarm.protocol import Domain, Pose, Status
+
+ERROR_WINDOW = 60.0  # s of mission time of e_a history sent to the page
+POSE_TIMEOUT = 2.0  # s without a pose from a robot before it is no longer drawn
+DIGITS = 4  # decimals of metres and radians in the JSON (0.1 mm): smaller frames
+STEERING_LOG = 20  # steering outcomes kept for the page
+
+
+@dataclass(frozen=True)
+class RobotSeen:
+    """The newest pose of one robot and when it arrived (monotonic s)."""
+
+    x: float
+    y: float
+    theta: float
+    received: float
+
+
+def _round(value: float) -> float:
+    return round(float(value), DIGITS)
+
+
+def _points(array: np.ndarray) -> list[list[float]]:
+    """(m, 2) array -> JSON list of [x, y] rounded to DIGITS."""
+    return np.round(np.asarray(array, dtype=float), DIGITS).tolist()
+
+
+def cells_and_errors(
+    positions: np.ndarray, polygon: np.ndarray, density: Any = None
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Each robot's Voronoi cell clipped to S and its distance to the cell's centroid.
+
+    positions: (n, 2) m; polygon: (k, 2) m, convex; density: None (uniform) or a
+    covswarm.tvd.density.Density. Returns n arrays (m_i, 2) of counter-clockwise vertices
+    ((0, 2) for an empty cell) and ||p_i - c_i|| (n,) in m, whose norm is the aggregate
+    error e_a (Section 5). One tessellation for both (tvd.coverage.cells and mass_centroid
+    would build it twice). Raises ValueError for an invalid polygon or density.
+    """
+    from covswarm.tvd.coverage import as_vectors, tessellate
+
+    points, _, batch = tessellate(positions, polygon, density=density)
+    cells = [batch.vertices(i) for i in range(len(points))]
+    errors = np.linalg.norm(points - as_vectors(batch.centroid), axis=1)
+    return cells, errors
+
+
+class SwarmView:
+    """What the console knows about one swarm, and the JSON state document built from it.
+
+    Times: ``now`` is the console's monotonic clock (s), used for pose freshness; mission
+    time comes from the coordinator's messages.
+    """
+
+    def __init__(
+        self, swarm: str, error_window: float = ERROR_WINDOW, pose_timeout: float = POSE_TIMEOUT
+    ) -> None:
+        self.swarm = swarm
+        self.error_window = error_window
+        self.pose_timeout = pose_timeout
+        self.domain: Domain | None = None
+        self.status: Status | None = None
+        self.robots: dict[int, RobotSeen] = {}
+        self.alive: dict[str, set[int]] = {"agent": set(), "robot": set(), "coordinator": set()}
+        self.errors: deque[tuple[float, float]] = deque()  # (mission t, e_a) from Status
+        self.steering: deque[dict[str, Any]] = deque(maxlen=STEERING_LOG)
+        # Input dropped, per reason (a ProtocolError's reason, or "geometry" for a domain
+        # whose polygon or density the cells could not be built from): counted, never shown
+        # as if it were the swarm's state.
+        self.dropped: dict[str, int] = {}
+        self._density_cache: tuple[Any, Any] | None = None  # (wire dict, Density)
+
+    # -- inputs -----------------------------------------------------------------------------
+
+    def on_domain(self, domain: Domain) -> None:
+        """A Domain broadcast (the coordinator's S(t))."""
+        self.domain = domain
+
+    def on_status(self, status: Status) -> None:
+        """A Status broadcast: e_a joins the history while the mission runs."""
+        self.status = status
+        if self.errors and status.t < self.errors[-1][0]:
+            self.errors.clear()  # mission time went back: a new mission (or coordinator)
+        if status.state == "running" and status.error is not None:
+            self.errors.append((status.t, status.error))
+        while self.errors and self.errors[0][0] < status.t - self.error_window:
+            self.errors.popleft()
+
+    def on_pose(self, pose: Pose, now: float) -> None:
+        """A robot's pose, received at ``now`` (monotonic s)."""
+        self.robots[pose.id] = RobotSeen(pose.x, pose.y, pose.theta, now)
+
+    def on_liveliness(self, role: str, ident: int, alive: bool) -> None:
+        """A liveliness token of (role, id) appeared or vanished."""
+        members = self.alive.setdefault(role, set())
+        if alive:
+            members.add(ident)
+        else:
+            members.discard(ident)
+            if role == "robot":
+                self.robots.pop(ident, None)
+
+    def on_dropped(self, reason: str) -> None:
+        """Count one dropped input (malformed message, unusable geometry)."""
+        self.dropped[reason] = self.dropped.get(reason, 0) + 1
+
+    def on_steering(self, outcome: dict[str, Any]) -> None:
+        """Record one steering request's outcome (console.server's dict) for the page."""
+        self.steering.append(dict(outcome))
+
+    # -- output -----------------------------------------------------------------------------
+
+    def fresh_robots(self, now: float) -> dict[int, RobotSeen]:
+        """Robots whose last pose is at most ``pose_timeout`` old, by id."""
+        stale = [i for i, seen in self.robots.items() if now - seen.received > self.pose_timeout]
+        for ident in stale:
+            del self.robots[ident]
+        return dict(sorted(self.robots.items()))
+
+    def _density(self) -> Any:
+        """The domain's density as a tvd Density (None: uniform), parsed once per change."""
+        wire = None if self.domain is None else self.domain.density
+        if wire is None:
+            return None
+        if self._density_cache is None or self._density_cache[0] is not wire:
+            from covswarm.tvd.density import Density
+
+            self._density_cache = (wire, Density.from_dict(wire))
+        return self._density_cache[1]
+
+    def snapshot(self, now: float, wall: float) -> dict[str, Any]:
+        """The state document (JSON-ready) at monotonic ``now`` and wall-clock ``wall``.
+
+        Keys: swarm, stamp (wall s), t (mission s, None before any Domain), state
+        ("waiting" | "running" | "done" | "unknown"), polygon ([[x, y]] CCW as broadcast,
+        [] before any Domain), velocities, robots ([{id, x, y, theta, error, cell}] with
+        error = ||p_i - c_i|| in m and cell its Voronoi cell, both None without a usable S),
+        error (the coordinator's e_a), error_history ([[t, e_a]] over the last
+        ``error_window`` s), alive ({agents, robots, coordinator}), steering (latest
+        outcomes, newest last), dropped (per reason).
+        """
+        robots = self.fresh_robots(now)
+        domain = self.domain
+        polygon = np.asarray(domain.vertices, dtype=float) if domain else np.zeros((0, 2))
+        cells: list[Any] = [None] * len(robots)
+        errors: list[Any] = [None] * len(robots)
+        if domain is not None and robots:
+            positions = np.array([(r.x, r.y) for r in robots.values()])
+            try:
+                built, distances = cells_and_errors(positions, polygon, self._density())
+            except ValueError:
+                self.on_dropped("geometry")
+            else:
+                cells = [_points(cell) for cell in built]
+                errors = [_round(d) for d in distances]
+        status = self.status
+        return {
+            "swarm": self.swarm,
+            "stamp": wall,
+            "t": None if domain is None else domain.t,
+            "state": "unknown" if domain is None else domain.state,
+            "polygon": _points(polygon),
+            "velocities": [] if domain is None else _points(np.asarray(domain.velocities)),
+            "robots": [
+                {
+                    "id": ident,
+                    "x": _round(seen.x),
+                    "y": _round(seen.y),
+                    "theta": _round(math.remainder(seen.theta, math.tau)),
+                    "error": errors[k],
+                    "cell": cells[k],
+                }
+                for k, (ident, seen) in enumerate(robots.items())
+            ],
+            "error": None if status is None else status.error,
+            "error_history": [[t, e] for t, e in self.errors],
+            "alive": {
+                "agents": len(self.alive.get("agent", ())),
+                "robots": len(self.alive.get("robot", ())),
+                "coordinator": bool(self.alive.get("coordinator")),
+            },
+            "steering": list(self.steering),
+            "dropped": dict(self.dropped),
+        }
