@@ -167,7 +167,12 @@ def test_floor_only_density_is_uniform() -> None:
         )
 
 
-def test_tvd_c_solves_with_density() -> None:
+@pytest.mark.parametrize("branch", ["solve", "fallback"])
+def test_exact_tvd_c_with_density_takes_the_branch_its_rule_names(branch: str) -> None:
+    """The exact TVD-C solves (I - dc/dp) pdot = r unless a speed would exceed
+    max_amplification * max |r|; then it returns the guarded TVD-D1 rows and says so
+    (``TeamStep.fallback``). The limit is set on either side of this layout's measured
+    amplification, so each branch is taken for certain, and the flag must name it."""
     rng = np.random.default_rng(4)
     polygon = random_convex_polygon(rng, scale=1.0)
     positions = random_robots(rng, polygon, 8)
@@ -178,11 +183,22 @@ def test_tvd_c_solves_with_density() -> None:
     reference = 1.5 * (centroid - positions) + coverage.centroid_rate(
         positions, polygon, velocity, density
     )
-    expected = np.linalg.solve(np.eye(len(jacobian)) - jacobian, reference.ravel())
-    got = control.tvd_c(positions, polygon, velocity, 1.5, density=density, damping=None)
-    if np.abs(got - expected.reshape(-1, 2)).max() > 1e-9:  # fell back: guarded D1 rows
-        got_d1 = control.tvd_d1(positions, polygon, velocity, 1.5, density=density)
-        assert np.allclose(got, got_d1)
+    expected = np.linalg.solve(np.eye(len(jacobian)) - jacobian, reference.ravel()).reshape(-1, 2)
+    largest = np.linalg.norm(reference, axis=1).max()
+    amplification = np.linalg.norm(expected, axis=1).max() / largest
+    limit = 2.0 * amplification if branch == "solve" else 0.5 * amplification
+    args = (positions, polygon, velocity, 1.5)
+    step = control.team_step("c", *args, density=density, max_amplification=limit, damping=None)
+    assert step.fallback == (branch == "fallback")
+    if branch == "solve":
+        np.testing.assert_allclose(step.velocity, expected, rtol=0, atol=1e-9 * largest)
+    else:
+        d1 = control.team_step("d1", *args, density=density, max_amplification=limit)
+        np.testing.assert_allclose(step.velocity, d1.velocity, rtol=0, atol=1e-12 * largest)
+    # With the shipped limit the flag follows the same rule (this layout is far from the edge).
+    assert abs(amplification / control.MAX_AMPLIFICATION - 1.0) > 0.05
+    shipped = control.team_step("c", *args, density=density, damping=None)
+    assert shipped.fallback == (amplification > control.MAX_AMPLIFICATION)
 
 
 @pytest.mark.parametrize("feedforward", [True, False])
