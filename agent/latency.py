@@ -1,0 +1,186 @@
+"""Latency compensation of an agent: where its robot is *now*, and what time it is anywhere.
+
+Three pure pieces (no I/O), used by the agent brain:
+
+- :class:`CommandHistory` and :meth:`CommandHistory.predict`: a Smith-predictor-style
+  estimate of the robot's pose at the time a new command will act. The latest pose is
+  stamped when it was taken; the agent knows every wheel command it sent since (and the one
+  the robot was driving then), so it integrates them forward in exact arcs, saturated and
+  timed out exactly as ``sim_robot`` drives them (covswarm.sim_robot.model.integrate, the
+  robot's ``cmd_timeout``). Controlling from the prediction removes the pose-to-command
+  latency from the heading loop, which is what made a late heading over-steer.
+- :class:`ClockBound`: how far another host's stamps can be trusted. ``receipt - stamp`` =
+  clock offset + one-way transit >= clock offset, so its windowed minimum ``b`` bounds our
+  clock minus the sender's from above (tight when the fastest message had ~0 transit).
+  ``b < 0`` proves the sender's clock is ahead of ours by at least ``-b``, and its stamps are
+  corrected by that; a sender behind ours cannot be told apart from a slow link without a
+  round trip, so its lag is compensated as if it were transport delay (bounded by the
+  prediction horizon). So the offset is *bounded from the data*, one-sided, and measured
+  exactly for a sender that runs ahead; ``b`` is reported.
+- :class:`MissionClock`: the coordinator's mission time on *our* monotonic clock, from the
+  Domain broadcasts' mission time ``t`` and when we received them, never by comparing wall
+  clocks across hosts: ``t - receipt`` over a window, its maximum (the broadcast that
+  travelled fastest) is the offset between the two clocks, short by the minimal transit.
+  A sequence number that goes backwards (a restarted coordinator) starts it afresh.
+
+Times: ``wall`` arguments are seconds on this host's (scaled) wall clock, the clock the
+agent stamps its commands with; ``now`` arguments are this host's monotonic seconds.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import numpy as np
+
+from covswarm.sim_robot.model import integrate
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
+
+# s: commands kept for prediction. Poses older than this are not predicted (the agent treats
+# its pose as stale long before: --stale-timeout).
+HISTORY_SPAN = 2.0
+# s: window of the clock estimators: long enough to contain a fast message, short enough to
+# follow clock drift (NTP slews at most 0.5 ms/s).
+CLOCK_WINDOW = 10.0
+
+
+@dataclass(frozen=True)
+class SentCommand:
+    """A wheel command as sent: our wall stamp, rim speeds (m/s, already saturated)."""
+
+    wall: float
+    left: float
+    right: float
+
+
+class CommandHistory:
+    """The wheel commands sent to our robot over the last HISTORY_SPAN seconds."""
+
+    def __init__(self, robot: DiffDrive = KHEPERA_IV, cmd_timeout: float = 0.5) -> None:
+        if not (cmd_timeout > 0.0 and math.isfinite(cmd_timeout)):
+            raise ValueError(f"cmd_timeout must be positive, got {cmd_timeout!r}")
+        self.robot, self.cmd_timeout = robot, cmd_timeout
+        self._sent: deque[SentCommand] = deque()
+
+    def add(self, wall: float, left: float, right: float) -> None:
+        """Record a command sent at ``wall`` (non-finite speeds were sent as 0)."""
+        if not (math.isfinite(left) and math.isfinite(right)):
+            left = right = 0.0
+        if self._sent and wall < self._sent[-1].wall:
+            self._sent.clear()  # our own clock stepped back: the history no longer lines up
+        self._sent.append(SentCommand(wall, left, right))
+        while self._sent and self._sent[0].wall < wall - HISTORY_SPAN:
+            self._sent.popleft()
+
+    def segments(self, start: float, end: float) -> list[tuple[float, float, float]]:
+        """[(duration s, left, right)] the robot drove between walls ``start`` and ``end``.
+
+        Each command drives from its stamp until the next one or until ``cmd_timeout`` after
+        it (the robot stops), whichever is first; before the first known command the wheels
+        count as stopped.
+        """
+        out: list[tuple[float, float, float]] = []
+        if end <= start:
+            return out
+        sent = list(self._sent)
+        cursor = start
+        for k, command in enumerate(sent):
+            until = sent[k + 1].wall if k + 1 < len(sent) else math.inf
+            driving_end = min(until, command.wall + self.cmd_timeout, end)
+            begin = max(command.wall, cursor)
+            if begin > cursor and begin <= end:  # a gap with no command: stopped
+                out.append((min(begin, end) - cursor, 0.0, 0.0))
+                cursor = min(begin, end)
+            if driving_end > cursor:
+                out.append((driving_end - cursor, command.left, command.right))
+                cursor = driving_end
+            if cursor >= end:
+                break
+        if cursor < end:
+            out.append((end - cursor, 0.0, 0.0))
+        return out
+
+    def predict(self, pose: np.ndarray, taken: float, target: float) -> np.ndarray:
+        """Pose (x, y, heading) at wall ``target`` from ``pose`` taken at wall ``taken``.
+
+        Exact arcs of the commands in :meth:`segments` (a ``target`` before ``taken`` returns
+        the pose unchanged: nothing to undo). pose: (3,).
+        """
+        pose = np.asarray(pose, dtype=float).reshape(1, 3)
+        for duration, left, right in self.segments(taken, target):
+            pose = integrate(pose, np.array([[left, right]]), duration, self.robot)
+        return pose[0]
+
+
+class _WindowedExtreme:
+    """Sliding-window minimum (or maximum) of (time, value) samples, O(1) amortised."""
+
+    def __init__(self, window: float, maximum: bool = False) -> None:
+        self.window, self._sign = window, -1.0 if maximum else 1.0
+        self._samples: deque[tuple[float, float]] = deque()  # increasing signed values
+
+    def add(self, now: float, value: float) -> float:
+        signed = self._sign * value
+        while self._samples and self._samples[-1][1] >= signed:
+            self._samples.pop()
+        self._samples.append((now, signed))
+        while self._samples[0][0] < now - self.window:
+            self._samples.popleft()
+        return self.value
+
+    @property
+    def value(self) -> float:
+        return self._sign * self._samples[0][1] if self._samples else math.nan
+
+    def clear(self) -> None:
+        self._samples.clear()
+
+
+class ClockBound:
+    """Bound on our wall clock minus a sender's, from its stamps (module docstring)."""
+
+    def __init__(self, window: float = CLOCK_WINDOW) -> None:
+        self._min = _WindowedExtreme(window)
+
+    def add(self, now: float, received_wall: float, stamp: float) -> None:
+        """A message stamped ``stamp`` (sender's clock) received at our ``received_wall``,
+        ``now`` monotonic (the window's clock)."""
+        self._min.add(now, received_wall - stamp)
+
+    @property
+    def bound(self) -> float:
+        """min(receipt - stamp) over the window, s (NaN before any message)."""
+        return self._min.value
+
+    def to_local(self, stamp: float) -> float:
+        """A sender's stamp on our wall clock: shifted by the bound when it proves the sender
+        runs ahead of us, else as stamped."""
+        bound = self.bound
+        return stamp + bound if bound < 0.0 else stamp
+
+
+class MissionClock:
+    """The coordinator's mission time on our monotonic clock (module docstring)."""
+
+    def __init__(self, window: float = CLOCK_WINDOW) -> None:
+        self._max = _WindowedExtreme(window, maximum=True)
+        self._seq: int | None = None
+
+    def add(self, now: float, mission_t: float, seq: int) -> None:
+        """A Domain broadcast with mission time ``mission_t`` and ``seq`` received at ``now``."""
+        if self._seq is not None and seq < self._seq:
+            self._max.clear()  # a restarted coordinator: its clock is a new one
+        self._seq = seq
+        self._max.add(now, mission_t - now)
+
+    def reset(self) -> None:
+        """Forget the estimate (the mission is not running: mission time stands still)."""
+        self._max.clear()
+        self._seq = None
+
+    def mission_time(self, now: float) -> float | None:
+        """Mission time at monotonic ``now`` (None before any broadcast)."""
+        offset = self._max.value
+        return None if math.isnan(offset) else now + offset
