@@ -66,7 +66,7 @@ robots in the beacon tiles): receives 20 (own pose) + domain rate + 10 k (states
 
 ``covswarm agent --ids 0-9`` runs several brains in one process (:func:`run_agents`: one
 Zenoh session, each brain with its own keys, subscriptions, claim and token);
-``--time-scale`` runs on mission time slower than real time (protocol.session.scaled).
+``--time-scale`` runs on mission time slower than real time (runtime.clock.scaled).
 
 Subscribers (liveliness included) use ring channels that the main loop polls once per
 tick (:class:`Inbox`), so no Python callback thread exists; all decoding and math happen in
@@ -91,16 +91,10 @@ from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.link import AgentLink
 from covswarm.agent.metrics import Counters
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import (
-    MAX_CLOCK_SKEW_OPTION,
-    TIME_SCALE_OPTION,
-    StopFlag,
-    Ticker,
-    claim_or_refuse,
-    id_selection,
-    scaled,
-    session_config,
-)
+from covswarm.protocol.session import session_config
+from covswarm.runtime.claims import claim_or_refuse
+from covswarm.runtime.clock import StopFlag, Ticker, scaled
+from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
 from covswarm.tvd.drive import DiffDrive
 
 log = logging.getLogger("covswarm.agent")
@@ -121,10 +115,10 @@ def run_agents(
     liveliness token and talks to the others only through Zenoh, exactly as if it ran
     alone; the brains step one after the other in one loop at ``rate`` Hz of mission time.
 
-    Every id is claimed (protocol.session.claim) before anything is published: an agent for
+    Every id is claimed (runtime.claims.claim) before anything is published: an agent for
     an id that is already running refuses to start. A brain's liveliness token (what
     launcher and coordinator wait for) is declared once it hears its own robot, so "every
-    agent alive" means "every agent can steer". ``time_scale``: see protocol.session.scaled.
+    agent alive" means "every agent can steer". ``time_scale``: see runtime.clock.scaled.
     """
     stop = StopFlag()
     wall_clock = scaled(time.time, time_scale)

@@ -47,13 +47,10 @@ from covswarm.bridge.rmw_zenoh import (
 )
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import (
-    MAX_CLOCK_SKEW_OPTION,
-    StopFlag,
-    Ticker,
-    claim_or_refuse,
-    session_config,
-)
+from covswarm.protocol.session import session_config
+from covswarm.runtime.claims import claim_or_refuse
+from covswarm.runtime.clock import StopFlag, Ticker
+from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION
 from covswarm.tvd.drive import KHEPERA_IV
 
 log = logging.getLogger("covswarm.bridge")

@@ -38,10 +38,11 @@ from covswarm.coordinator.monitor import (
     team_changes_summary,
     team_of,
 )
-from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
+from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import TIME_SCALE_OPTION, StopFlag, Ticker, scaled
+from covswarm.runtime.clock import StopFlag, Ticker, scaled
+from covswarm.runtime.options import TIME_SCALE_OPTION
 
 log = logging.getLogger("covswarm.coordinator")
 
@@ -94,7 +95,7 @@ class Settings:
     rate: float  # Hz of Domain broadcasts
     sample_rate: float  # Hz of e_a samples (at most)
     feedforward: bool  # what the agents were started with, recorded in the summary
-    time_scale: float = 1.0  # mission s per wall s (protocol.session.scaled)
+    time_scale: float = 1.0  # mission s per wall s (runtime.clock.scaled)
     tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
     max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
 
@@ -534,7 +535,8 @@ def coordinator_command(
     import zenoh
 
     from covswarm.protocol import alive_key, check_swarm
-    from covswarm.protocol.session import session_config, token_exists
+    from covswarm.protocol.session import session_config
+    from covswarm.runtime.claims import token_exists
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s coordinator %(message)s")
     try:

@@ -31,7 +31,7 @@ from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import TIME_SCALE_OPTION
+from covswarm.runtime.options import TIME_SCALE_OPTION
 
 
 @click.command("run")

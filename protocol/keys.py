@@ -144,7 +144,7 @@ def claim_key(swarm: str, role: str, robot_id: int, nonce: str) -> str:
     """Liveliness token by which one process claims (role, id) from its start.
 
     ``nonce`` is random per process, so two claimants of the same id hold distinct tokens
-    and each can see the other (see protocol.session.claim).
+    and each can see the other (see runtime.claims.claim).
     """
     if not (nonce.isascii() and nonce.isalnum()):
         raise ValueError(f"claim nonce must be ASCII letters and digits, got {nonce!r}")

@@ -6,7 +6,7 @@ honour, and agents see nothing else of a robot:
 - subscribe to ``covswarm/<swarm>/robot/<id>/cmd`` (WheelCommand, rim speeds in m/s);
 - publish ``covswarm/<swarm>/robot/<id>/pose`` (Pose) at ``--pose-rate``;
 - declare the liveliness token ``covswarm/<swarm>/alive/robot/<id>`` once ready, and refuse
-  to start if another process already claims the same id (protocol.session.claim).
+  to start if another process already claims the same id (runtime.claims.claim).
 
 The robot integrates its kinematics (sim_robot.model.integrate, exact arcs) at ``--rate``
 from the last valid command and stops its wheels when no valid command arrived for
@@ -19,7 +19,7 @@ never reach the wheels.
 ``covswarm robot --ids 0-9 --pose x,y,theta ...`` simulates several robots in one process
 (one Zenoh session; each robot keeps its own keys, claim and token), which is how one
 machine hosts hundreds of them. ``--time-scale`` runs the simulation slower than real time
-(protocol.session.scaled).
+(runtime.clock.scaled).
 
 Import-light on purpose (numpy, msgpack, zenoh; no scipy, no matplotlib): a 2-core machine
 starts hundreds of these.
@@ -39,16 +39,10 @@ import zenoh
 from covswarm import protocol
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import (
-    MAX_CLOCK_SKEW_OPTION,
-    TIME_SCALE_OPTION,
-    StopFlag,
-    Ticker,
-    claim_or_refuse,
-    id_selection,
-    scaled,
-    session_config,
-)
+from covswarm.protocol.session import session_config
+from covswarm.runtime.claims import claim_or_refuse
+from covswarm.runtime.clock import StopFlag, Ticker, scaled
+from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
 from covswarm.sim_robot.model import integrate
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
 
@@ -151,7 +145,7 @@ def run_robots(
     robot --ids``), each with its own pose publisher, command subscriber, claim and
     liveliness token, stepped one after the other at ``rate`` Hz of mission time.
     Refuses to start (ClickException) if another process claims one of the ids.
-    ``time_scale``: see protocol.session.scaled (the robots' sims must be started on the
+    ``time_scale``: see runtime.clock.scaled (the robots' sims must be started on the
     same scaled monotonic clock).
     """
     stop = StopFlag()

@@ -180,7 +180,7 @@ def router() -> Iterator[tuple[object, str]]:
 def test_a_second_claim_on_an_id_is_refused(router: tuple) -> None:
     import zenoh
 
-    from covswarm.protocol.session import claim
+    from covswarm.runtime.claims import claim
 
     _, endpoint = router
     swarm = protocol.new_swarm_name()

@@ -420,7 +420,7 @@ def test_fuzz_structured(base: protocol.Message, overrides: dict) -> None:
 # --- process plumbing -------------------------------------------------------------------
 
 LOOP = """
-from covswarm.protocol.session import StopFlag, Ticker
+from covswarm.runtime.clock import StopFlag, Ticker
 stop = StopFlag()
 ticker = Ticker(200.0)
 print("ready", flush=True)

@@ -20,7 +20,8 @@ from covswarm.deploy.plan import covswarm_argv, initial_poses, plan_children
 from covswarm.deploy.router import local_endpoint
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import format_ids, parse_ids
-from covswarm.protocol.session import StopFlag, Ticker, id_selection, scaled
+from covswarm.runtime.clock import StopFlag, Ticker, scaled
+from covswarm.runtime.options import id_selection
 from covswarm.sim_robot.process import parse_pose
 
 
