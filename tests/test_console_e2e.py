@@ -1,0 +1,321 @@
+"""The operator console end to end: real processes, real Zenoh, real Chromium, no mocks.
+
+One ``covswarm run`` (3 robots, passage, long mission) serves the whole module; each test
+starts its own ``covswarm console`` on it and drives the page with Playwright and Debian's
+chromium. What the coordinator does is read off the wire by a Zenoh session of the test's
+own (the Domain broadcasts), what the robots do from their poses.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import secrets
+import signal
+import subprocess
+import time
+import urllib.error
+import urllib.request
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from playwright.sync_api import sync_playwright
+
+from covswarm.deploy.plan import covswarm_argv
+
+pytestmark = pytest.mark.e2e
+
+CHROMIUM = "/usr/bin/chromium"
+CHROMIUM_ARGS = [
+    "--no-sandbox",
+    "--disable-gpu",
+    "--disable-background-networking",
+    "--disable-component-update",
+    "--disable-sync",
+    "--no-first-run",
+]
+TEAM = 3
+
+
+def swarm_pids(swarm: str) -> set[int]:
+    """Live (non-zombie) processes whose command line names ``swarm``."""
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue
+        if swarm.encode() in cmdline and state != "Z":
+            pids.add(int(entry.name))
+    return pids
+
+
+def wait_until(predicate, timeout: float, period: float = 0.1) -> bool:
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(period)
+    return predicate()
+
+
+@pytest.fixture(scope="module")
+def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
+    """(endpoint, swarm) of a running mission; everything of it killed at the end."""
+    swarm = f"e2e-{secrets.token_hex(4)}"
+    out = tmp_path_factory.mktemp("console") / "run"
+    log = (out.parent / "launcher.log").open("wb")
+    launcher = subprocess.Popen(
+        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm,
+         "--agents", str(TEAM), "--scenario", "passage", "--duration", "300"],
+        stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        coordinator_log = out / "logs" / "coordinator-0.log"
+        started = wait_until(
+            lambda: coordinator_log.exists() and "mission started" in coordinator_log.read_text(),
+            timeout=90,
+        )
+        assert started, (out.parent / "launcher.log").read_text()
+        endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
+        yield endpoint, swarm
+    finally:
+        launcher.kill()
+        launcher.wait()
+        log.close()
+        for pid in swarm_pids(swarm):
+            os.kill(pid, signal.SIGKILL)
+
+
+@contextmanager
+def console(endpoint: str, swarm: str, *args: str) -> Iterator[str]:
+    """``covswarm console`` on a free port; yields the URL it printed."""
+    process = subprocess.Popen(
+        [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm, "--port", "0",
+         *args],
+        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True,
+    )  # fmt: skip
+    try:
+        line = process.stdout.readline()
+        assert "http://" in line, f"console printed {line!r}"
+        yield line[line.index("http://") :].strip()
+    finally:
+        process.terminate()
+        try:
+            process.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            process.kill()
+            process.wait()
+
+
+@pytest.fixture(scope="module")
+def browser() -> Iterator[object]:
+    with sync_playwright() as p:
+        chromium = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
+        yield chromium
+        chromium.close()
+
+
+class DomainWatch:
+    """The test's own Zenoh client: every Domain broadcast (arrival time, S) and poses."""
+
+    def __init__(self, endpoint: str, swarm: str) -> None:
+        import zenoh
+
+        from covswarm.protocol import Domain, Pose, all_poses_selector, domain_key
+        from covswarm.protocol.session import session_config
+
+        self.domains: list[tuple[float, np.ndarray, np.ndarray]] = []
+        self.poses: dict[int, tuple[float, float]] = {}
+        self.session = zenoh.open(session_config([endpoint]))
+
+        def on_domain(sample: zenoh.Sample) -> None:
+            d = Domain.decode(sample.payload.to_bytes())
+            self.domains.append((time.time(), np.array(d.vertices), np.array(d.velocities)))
+
+        def on_pose(sample: zenoh.Sample) -> None:
+            p = Pose.decode(sample.payload.to_bytes())
+            self.poses[p.id] = (p.x, p.y)
+
+        self._subs = [
+            self.session.declare_subscriber(domain_key(swarm), on_domain),
+            self.session.declare_subscriber(all_poses_selector(swarm), on_pose),
+        ]
+
+    def latest(self) -> np.ndarray:
+        return self.domains[-1][1]
+
+    def robots_mean(self) -> np.ndarray:
+        return np.mean(list(self.poses.values()), axis=0)
+
+    def close(self) -> None:
+        self.session.close()
+
+
+@pytest.fixture
+def watch(swarm_run: tuple[str, str]) -> Iterator[DomainWatch]:
+    w = DomainWatch(*swarm_run)
+    try:
+        assert wait_until(lambda: len(w.domains) > 2 and len(w.poses) == TEAM, timeout=10)
+        yield w
+    finally:
+        w.close()
+
+
+def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, bytes]:
+    request = urllib.request.Request(url, headers=headers or {})
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, response.read()
+    except urllib.error.HTTPError as error:
+        return error.code, error.read()
+
+
+def post_json(url: str, body: bytes) -> tuple[int, dict]:
+    request = urllib.request.Request(
+        url, data=body, headers={"Content-Type": "application/json"}, method="POST"
+    )
+    try:
+        with urllib.request.urlopen(request, timeout=10) as response:
+            return response.status, json.loads(response.read())
+    except urllib.error.HTTPError as error:
+        return error.code, json.loads(error.read())
+
+
+def centroid(polygon: np.ndarray) -> np.ndarray:
+    x, y = polygon[:, 0], polygon[:, 1]
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    area = cross.sum() / 2
+    return np.array(
+        [((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]
+    ) / (6 * area)
+
+
+def test_page_shows_the_live_swarm_and_api_state_has_its_shape(swarm_run, browser) -> None:
+    with console(*swarm_run) as url:
+        page = browser.new_page(viewport={"width": 1100, "height": 700})
+        page.goto(url)
+        page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        assert page.inner_text("#alive-robots") == str(TEAM)
+        assert page.inner_text("#alive-agents") == str(TEAM)
+        assert page.inner_text("#state") == "running"
+        # The view opens centred on S.
+        state = page.evaluate("window.covswarm.state()")
+        view = page.evaluate("window.covswarm.view()")
+        c = centroid(np.array(state["polygon"]))
+        assert np.hypot(view["cx"] - c[0], view["cy"] - c[1]) < 0.5
+        # State frames reach the page at >= 10 Hz.
+        first = page.evaluate("window.covswarm.hooks.frames")
+        time.sleep(3.0)
+        assert page.evaluate("window.covswarm.hooks.frames") - first >= 30
+        page.close()
+
+        status, raw = get(url.rstrip("/") + "/api/state")
+        assert status == 200
+        doc = json.loads(raw)
+        assert doc["state"] == "running" and doc["t"] > 0
+        assert len(doc["polygon"]) >= 3 and all(len(v) == 2 for v in doc["polygon"])
+        assert sorted(r["id"] for r in doc["robots"]) == list(range(TEAM))
+        for robot in doc["robots"]:
+            assert {"id", "x", "y", "theta", "error"} <= set(robot)
+            assert all(isinstance(robot[k], float | int) for k in ("x", "y", "theta", "error"))
+            assert 0.0 <= robot["error"] < 1.0
+        assert doc["alive"] == {"agents": TEAM, "robots": TEAM, "coordinator": True}
+        # e_a is the norm of the per-robot distances to the centroids (within the time
+        # between the coordinator's sample and ours).
+        assert len(doc["error_history"]) > 0
+
+
+def test_dragging_S_moves_the_coordinators_S_and_then_the_robots(
+    swarm_run, browser, watch: DomainWatch
+) -> None:
+    with console(*swarm_run) as url:
+        page = browser.new_page(viewport={"width": 1100, "height": 700})
+        page.goto(url)
+        page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        before = centroid(watch.latest())
+        robots_before = watch.robots_mean()
+        handles = page.evaluate("window.covswarm.handles()")
+        x, y = page.evaluate(f"window.covswarm.clientXY({handles['c'][0]}, {handles['c'][1]})")
+        drop = 0.4  # m, down: passage's script moves S along x only
+        scale = page.evaluate("window.covswarm.view()")["scale"]
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x, y + drop * scale, steps=10)
+        released = time.time()
+        page.mouse.up()
+        page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=5000)
+        reply = page.evaluate("window.covswarm.hooks.lastReply")
+        assert reply["accepted"], reply
+        assert page.inner_text("#steer-result").startswith("accepted")
+
+        # The coordinator's S starts moving down (its vertices' mean velocity) ...
+        def moving_down() -> list[float]:
+            return [t for t, _, v in list(watch.domains) if t > released and v[:, 1].mean() < -1e-3]
+
+        assert wait_until(lambda: moving_down(), timeout=5)
+        assert moving_down()[0] - released < 2.0
+        # ... and ends where the drag put it, then the robots follow.
+        wait_until(lambda: centroid(watch.latest())[1] < before[1] - drop + 0.01, timeout=15)
+        assert centroid(watch.latest())[1] == pytest.approx(before[1] - drop, abs=0.02)
+        assert wait_until(lambda: watch.robots_mean()[1] < robots_before[1] - 0.3, timeout=20)
+        page.close()
+
+
+def test_refused_and_malformed_requests_show_why_and_never_move_S(
+    swarm_run, browser, watch: DomainWatch
+) -> None:
+    with console(*swarm_run) as url:
+        api = url.rstrip("/") + "/api/steer"
+        # Take S over from the script and let it settle, so that S holds still.
+        status, reply = post_json(
+            api, json.dumps({"kind": "translate", "dx": 0.0, "dy": 0.05}).encode()
+        )
+        assert status == 200 and reply["accepted"], reply
+        time.sleep(reply["duration"] + 0.5)
+        held = watch.latest().copy()
+        page = browser.new_page(viewport={"width": 1100, "height": 700})
+        page.goto(url)
+        page.wait_for_function("window.covswarm.state() !== null", timeout=15000)
+        bowtie = [[-0.5, -0.2], [0.5, 0.2], [0.5, -0.2], [-0.5, 0.2]]
+        reply = page.evaluate("(p) => window.covswarm.steer({kind: 'polygon', polygon: p})", bowtie)
+        assert not reply["accepted"]
+        shown = page.inner_text("#steer-result")
+        assert shown.startswith("refused:") and "self-intersecting" in shown
+        for bad in (b"{", b'{"kind": "translate", "dx": NaN, "dy": 0}', b'{"kind": "warp"}'):
+            status, reply = post_json(api, bad)
+            assert status == 400 and not reply["accepted"] and reply["reason"], bad
+        page.wait_for_function(
+            "document.querySelectorAll('#steer-log li.refused').length >= 3", timeout=5000
+        )
+        time.sleep(1.0)
+        assert np.abs(watch.latest() - held).max() < 1e-9
+        page.close()
+
+
+def test_a_console_off_the_default_address_needs_its_token(swarm_run, browser) -> None:
+    with console(*swarm_run, "--host", "127.0.0.2") as url:
+        assert "?token=" in url
+        base, token = url.split("?token=")
+        state = base + "api/state"
+        assert get(state)[0] == 403
+        assert get(state + "?token=" + "x" * len(token))[0] == 403
+        assert get(state, {"Authorization": f"token {token}"})[0] == 200
+        assert get(base)[0] == 403  # the page itself
+        assert post_json(base + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')[0] == 403
+        # Without the token a browser gets nothing, not even the stream.
+        stranger = browser.new_page()
+        assert stranger.goto(base).status == 403
+        stranger.close()
+        # With the printed URL the page works: the token moves into a cookie.
+        page = browser.new_page()
+        page.goto(url)
+        assert "token" not in page.url
+        page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        page.close()
