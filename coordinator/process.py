@@ -20,7 +20,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import click
 import numpy as np
@@ -44,10 +44,15 @@ from covswarm.protocol.security import SECURE_OPTION
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
+if TYPE_CHECKING:
+    from covswarm.records.recorder import RunRecorder
+
 log = logging.getLogger("covswarm.coordinator")
 
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
 STATUS_PERIOD = 0.5  # s
+STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
+FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
@@ -123,10 +128,12 @@ class Coordinator:
         *,
         mission_file: Path | None = None,
         resume_wall: float | None = None,
+        recorder: RunRecorder | None = None,
     ) -> None:
         """``mission_file``: where to record the mission's start wall time once it starts;
         ``resume_wall``: a start wall time read back from it, to continue that mission (a
-        restarted coordinator) instead of waiting for the team."""
+        restarted coordinator) instead of waiting for the team; ``recorder``: where what the
+        coordinator sees goes (run.mcap, trajectories.csv, a live Foxglove view)."""
         import zenoh
 
         from covswarm.protocol import (
@@ -178,6 +185,10 @@ class Coordinator:
         # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
         # only the ones present when e_a is sampled are ever read.
         self._pose_payloads: dict[str, bytes] = {}
+        self.recorder = recorder
+        # Poses decoded since the recorder last took them: id -> (x, y, theta).
+        self._fresh_poses: dict[int, tuple[float, float, float]] = {}
+        self._next_stats_record = 0.0
 
     # -- inputs ---------------------------------------------------------------------------
 
@@ -232,6 +243,8 @@ class Coordinator:
                 obs.rejected += 1
                 continue
             obs.poses[pose.id] = (pose.x, pose.y)
+            if self.recorder is not None:
+                self._fresh_poses[pose.id] = (pose.x, pose.y, pose.theta)
         self._pose_payloads.clear()
 
     def team_ready(self) -> bool:
@@ -252,6 +265,7 @@ class Coordinator:
         while (query := self._steer.try_recv()) is not None:
             payload = b"" if query.payload is None else query.payload.to_bytes()
             reply = self.steering.handle(payload, t, time.time(), running)
+            self.record_steering(t, self.steering.records[-1].to_dict())
             if reply.accepted:
                 log.info("steering at t = %.2f s: %s", t, self.steering.records[-1].request)
             else:
@@ -296,6 +310,31 @@ class Coordinator:
             np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(t)
         )
         self.observed.record.add(t, error, positions, polygon)
+        if self.recorder is not None:
+            self.recorder.error(t, error, len(ids))
+
+    # -- recording ------------------------------------------------------------------------
+
+    def record_steering(self, t: float, event: dict[str, Any]) -> None:
+        """A steering event (JSON-able) at mission time ``t`` on the recorder's /steering."""
+        if self.recorder is not None:
+            self.recorder.steering(t, event)
+
+    def _record(self, t: float, polygon: np.ndarray) -> None:
+        """Every pose decoded since the last tick, S(t), and at lower rates the cells and
+        the agents' stats (covswarm.records.recorder)."""
+        recorder = self.recorder
+        self._decode_poses()
+        fresh, self._fresh_poses = self._fresh_poses, {}
+        ids = sorted(fresh)
+        recorder.domain(t, polygon)
+        recorder.poses(t, ids, np.array([fresh[i] for i in ids]).reshape(-1, 3))
+        if recorder.cells_due(t) and (positions := self.alive_positions()):
+            team = sorted(positions)
+            recorder.cells(t, team, np.array([positions[i] for i in team]), polygon)
+        if t >= self._next_stats_record and self.observed.agent_stats:
+            recorder.agent_stats(t, self.observed.agent_stats)
+            self._next_stats_record = t + STATS_RECORD_PERIOD
 
     def _publish_status(self, state: str, t: float) -> None:
         from covswarm.protocol import Status
@@ -360,6 +399,8 @@ class Coordinator:
                 done_since = now
                 self._sample(t, polygon)  # the final error, at the end of the mission
                 log.info("mission done at t = %.1f s (%d overrun ticks)", t, ticker.overruns)
+            if self.recorder is not None and (state == RUNNING or done_since == now):
+                self._record(t, polygon)
             finished = done_since is not None and now - done_since >= DONE_HOLD
             if now >= next_status or finished:
                 self._publish_status(state, t)
@@ -415,6 +456,47 @@ def steering_summary(steering: Steering) -> dict[str, Any]:
         "steering_largest_jump": steering.largest_jump,
         "max_domain_speed": steering.limits.max_speed,
     }
+
+
+def open_recorder(
+    settings: Settings,
+    out_dir: Path | None,
+    live_port: int | None,
+    seed: int | None,
+    resume: bool = False,
+) -> RunRecorder | None:
+    """The run's recorder (run.mcap in ``out_dir``, live view on ``live_port``), or None.
+
+    A resumed coordinator records its part beside the first (run-1.mcap, ...).
+    """
+    if out_dir is None and live_port is None:
+        return None
+    from covswarm.records.recorder import LIVE_HOST, RunRecorder
+
+    scenario = settings.scenario
+    recorder = RunRecorder(
+        out_dir,
+        run_metadata={
+            "source": "run",
+            "scenario": scenario.name,
+            "law": "d1",
+            "feedforward": settings.feedforward,
+            "kappa": settings.kappa,
+            "seed": seed,
+            "agents": settings.agents,
+            "duration": settings.duration,
+            "swarm": settings.swarm,
+            "time_scale": settings.time_scale,
+            "pose_rate_hz": settings.rate,
+        },
+        workspace=scenario.workspace,
+        obstacles=scenario.obstacles,
+        live_port=live_port,
+        continued=resume,
+    )
+    if recorder.live_port is not None:
+        log.info("Foxglove live view on ws://%s:%d", LIVE_HOST, recorder.live_port)
+    return recorder
 
 
 def read_mission_start(path: Path, swarm: str) -> float:
@@ -512,6 +594,23 @@ def write_run_outputs(
     help="Fastest a steered vertex of S may move, m/s [robots' top speed less kappa x "
     "one body diameter, at least a quarter of it].",
 )
+@click.option(
+    "--record/--no-record",
+    default=True,
+    show_default=True,
+    help="Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).",
+)
+@click.option(
+    "--foxglove",
+    "foxglove_port",
+    type=click.IntRange(0, 65535),
+    is_flag=False,
+    flag_value=FOXGLOVE_PORT,
+    default=None,
+    help=f"Serve the recorded channels live to Foxglove on ws://127.0.0.1:PORT "
+    f"[{FOXGLOVE_PORT} when given without a port; 0 picks a free one].",
+)
+@click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")
 @TIME_SCALE_OPTION
 @SECURE_OPTION
 def coordinator_command(
@@ -528,6 +627,9 @@ def coordinator_command(
     out_dir: Path,
     resume: bool,
     max_domain_speed: float | None,
+    record: bool,
+    foxglove_port: int | None,
+    seed: int | None,
     time_scale: float,
     secure: Path | None,
 ) -> None:
@@ -563,10 +665,19 @@ def coordinator_command(
     with zenoh.open(session_config(list(connect), secure=secure)) as session:
         if token_exists(session, alive_key(swarm, "coordinator", 0)):
             raise click.ClickException(f"swarm {swarm!r} already has a coordinator")
-        coordinator = Coordinator(
-            session, settings, mission_file=out_dir / MISSION_FILE, resume_wall=resume_wall
-        )
-        coordinator.run(stop)
+        recorder = open_recorder(settings, out_dir if record else None, foxglove_port, seed, resume)
+        try:
+            coordinator = Coordinator(
+                session,
+                settings,
+                mission_file=out_dir / MISSION_FILE,
+                resume_wall=resume_wall,
+                recorder=recorder,
+            )
+            coordinator.run(stop)
+        finally:
+            if recorder is not None:
+                recorder.close()
     if not coordinator.observed.record.t:
         log.info("no samples recorded: no outputs written")
         return

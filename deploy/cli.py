@@ -25,6 +25,7 @@ SUBCOMMANDS: dict[str, str] = {
     "steer": "covswarm.coordinator.steer_client:steer_command",
     "console": "covswarm.console.server:console_command",
     "bridge": "covswarm.bridge.process:bridge_group",
+    "replay": "covswarm.records.replay:replay_command",
 }
 
 

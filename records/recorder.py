@@ -46,6 +46,10 @@ ARENA_PERIOD = 1.0  # s: static, but repeated so that a live viewer joining late
 CELL_SHARE = 0.02
 LIVE_HOST = "127.0.0.1"
 
+ERROR_SCHEMA = "covswarm.ErrorSample"  # names of the JSON channels' schemas
+AGENT_STATS_SCHEMA = "covswarm.AgentStats"
+STEERING_SCHEMA = "covswarm.SteeringEvent"
+
 _ERROR_SCHEMA = {
     "type": "object",
     "properties": {
@@ -61,6 +65,13 @@ _STATS_SCHEMA = {
     },
 }
 _STEERING_SCHEMA = {"type": "object", "properties": {"t": {"type": "number"}}}
+
+
+def json_schema(name: str, schema: Mapping[str, Any]) -> foxglove.Schema:
+    """A named JSON schema (viewers list its fields; the name identifies the channel's type)."""
+    return foxglove.Schema(
+        name=name, encoding="jsonschema", data=json.dumps({"title": name, **schema}).encode()
+    )
 
 
 def versions() -> dict[str, str]:
@@ -79,6 +90,16 @@ def metadata_strings(values: Mapping[str, Any]) -> dict[str, str]:
     return {k: v if isinstance(v, str) else json.dumps(v) for k, v in values.items()}
 
 
+def record_names(out_dir: Path, continued: bool) -> tuple[str, str]:
+    """(run.mcap, trajectories.csv), or the first free (run-<k>.mcap, trajectories-<k>.csv)."""
+    if not continued:
+        return MCAP_FILE, TRAJECTORIES_FILE
+    k = 1
+    while (out_dir / f"run-{k}.mcap").exists():
+        k += 1
+    return f"run-{k}.mcap", TRAJECTORIES_FILE.replace(".csv", f"-{k}.csv")
+
+
 def _ns(t: float) -> int:
     return max(0, round(t * 1e9))
 
@@ -95,21 +116,31 @@ class RunRecorder:
         obstacles: Sequence[tuple[float, float, float, float]] = (),
         live_port: int | None = None,
         cell_share: float | None = CELL_SHARE,
+        continued: bool = False,
     ) -> None:
         """out_dir: where run.mcap and trajectories.csv go (None: live only);
         run_metadata: scenario, law, kappa, seed, agents, ... (versions are added);
         live_port: serve the channels on ws://127.0.0.1:PORT (0 picks a free port);
         cell_share: record cells less often than CELL_PERIOD when they cost more than this
-        share of a core (None: always CELL_PERIOD, deterministic)."""
+        share of a core (None: always CELL_PERIOD, deterministic); continued: a restarted
+        coordinator's part of a run, written beside the earlier parts as run-<k>.mcap and
+        trajectories-<k>.csv (k = 1, 2, ...) instead of over them."""
         self.context = foxglove.Context()
         ctx = self.context
         self._robots = SceneUpdateChannel(ROBOTS_TOPIC, context=ctx)
         self._domain = SceneUpdateChannel(DOMAIN_TOPIC, context=ctx)
         self._cells = SceneUpdateChannel(CELLS_TOPIC, context=ctx)
         self._arena = SceneUpdateChannel(ARENA_TOPIC, context=ctx)
-        self._error = foxglove.Channel(ERROR_TOPIC, schema=_ERROR_SCHEMA, context=ctx)
-        self._stats = foxglove.Channel(AGENT_STATS_TOPIC, schema=_STATS_SCHEMA, context=ctx)
-        self._steering = foxglove.Channel(STEERING_TOPIC, schema=_STEERING_SCHEMA, context=ctx)
+        self._error, self._stats, self._steering = (
+            foxglove.Channel(
+                topic, schema=json_schema(name, schema), message_encoding="json", context=ctx
+            )
+            for topic, name, schema in (
+                (ERROR_TOPIC, ERROR_SCHEMA, _ERROR_SCHEMA),
+                (AGENT_STATS_TOPIC, AGENT_STATS_SCHEMA, _STATS_SCHEMA),
+                (STEERING_TOPIC, STEERING_SCHEMA, _STEERING_SCHEMA),
+            )
+        )
         self.workspace, self.obstacles = workspace, tuple(obstacles)
         self.metadata = {
             **run_metadata,
@@ -123,7 +154,8 @@ class RunRecorder:
         if out_dir is not None:
             out = Path(out_dir)
             out.mkdir(parents=True, exist_ok=True)
-            self.mcap_path = out / MCAP_FILE
+            mcap_name, csv_name = record_names(out, continued)
+            self.mcap_path = out / mcap_name
             # compression_threads=0: compress on the calling thread, so the recorder's cost
             # shows up where it is paid and never competes with the swarm for the 2 cores.
             self._writer = foxglove.open_mcap(
@@ -133,7 +165,7 @@ class RunRecorder:
                 writer_options=MCAPWriteOptions(compression_threads=0),
             )
             self._writer.write_metadata(METADATA_NAME, metadata_strings(self.metadata))
-            self._trajectories = TrajectoryWriter(out / TRAJECTORIES_FILE)
+            self._trajectories = TrajectoryWriter(out / csv_name)
         self.server = None
         if live_port is not None:
             self.server = foxglove.start_server(

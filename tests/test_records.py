@@ -1,0 +1,241 @@
+"""Records of a run: run.mcap read back with the mcap reader, trajectories.csv, the live
+Foxglove server (a real WebSocket client speaking foxglove.sdk.v1) and ``covswarm replay``.
+
+The simulator's record is checked against an independent in-process ``simulate()`` of the
+same options; the distributed run's record is in test_records_e2e.py.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import math
+import struct
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+from mcap.reader import make_reader
+from mcap.records import Schema
+
+from covswarm.deploy.simulate import sim_command, simulate
+from covswarm.mission.scenarios import load_scenario
+from covswarm.records.recorder import (
+    CELL_PERIOD,
+    METADATA_NAME,
+    RunRecorder,
+    sim_stride,
+)
+from covswarm.records.replay import decoder_factories, frame_times, replay_command
+from covswarm.records.trajectories import read_trajectories
+
+AGENTS, DURATION, SEED = 4, 2.0, 3
+SCENE_TOPICS = {"/robots", "/domain", "/cells", "/arena"}
+
+
+@pytest.fixture(scope="module")
+def sim_dir(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sim") / "passage"
+    result = CliRunner().invoke(
+        sim_command,
+        ["--scenario", "passage", "--agents", str(AGENTS), "--duration", str(DURATION),
+         "--seed", str(SEED), "--out", str(out)],
+    )  # fmt: skip
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def read_mcap(path: Path) -> tuple[dict, dict, dict]:
+    """(summary, {topic: [(log_time ns, decoded)]}, metadata) of a run.mcap."""
+    with path.open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=decoder_factories())
+        summary = reader.get_summary()
+        metadata = {m.name: m.metadata for m in reader.iter_metadata()}
+        messages: dict[str, list] = {}
+        for _, channel, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            messages.setdefault(channel.topic, []).append((message.log_time, decoded))
+    return summary, messages, metadata
+
+
+def test_sim_writes_run_mcap_with_foxglove_schemas(sim_dir: Path) -> None:
+    summary, messages, metadata = read_mcap(sim_dir / "run.mcap")
+    schemas = {
+        channel.topic: (summary.schemas[channel.schema_id].name, channel.message_encoding)
+        for channel in summary.channels.values()
+    }
+    assert {t: schemas[t] for t in SCENE_TOPICS} == {
+        t: ("foxglove.SceneUpdate", "protobuf") for t in SCENE_TOPICS
+    }
+    assert schemas["/error"] == ("covswarm.ErrorSample", "json")
+
+    # Counts: duration x rate (+ the sample at t = 0), team size entities per pose message.
+    dt = load_scenario("passage").dt
+    stride = sim_stride(dt)
+    rate = 1.0 / (stride * dt)
+    expected = round(DURATION * rate) + 1
+    counts = {
+        summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()
+    }
+    assert counts["/robots"] == counts["/domain"] == counts["/error"] == expected
+    assert DURATION / CELL_PERIOD <= counts["/cells"] <= DURATION / CELL_PERIOD + 1
+    assert all(len(update.entities) == AGENTS for _, update in messages["/robots"])
+    assert all(len(update.entities) == AGENTS for _, update in messages["/cells"])
+    assert [update.entities[0].id for _, update in messages["/domain"]] == ["S"] * expected
+
+    # Log times are mission times, in order, on every channel and across the file.
+    robot_times = np.array([ns for ns, _ in messages["/robots"]]) / 1e9
+    np.testing.assert_allclose(robot_times, np.arange(expected) * stride * dt, atol=1e-9)
+    in_file = [ns for topic in messages for ns, _ in messages[topic]]
+    with (sim_dir / "run.mcap").open("rb") as stream:
+        in_file = [
+            m.log_time for _, _, m in make_reader(stream).iter_messages(log_time_order=False)
+        ]
+    assert in_file == sorted(in_file) and in_file[0] == 0
+
+    run = metadata[METADATA_NAME]
+    assert run["scenario"] == "passage" and run["source"] == "sim"
+    assert json.loads(run["agents"]) == AGENTS and json.loads(run["seed"]) == SEED
+    assert json.loads(run["kappa"]) == load_scenario("passage").kappa
+    assert "law" in run and json.loads(run["versions"])["foxglove-sdk"].startswith("0.")
+    assert json.loads(run["obstacles"]) == [list(b) for b in load_scenario("passage").obstacles]
+
+    # The recorded poses are the simulator's: an independent in-process run of the options.
+    reference = simulate(load_scenario("passage"), agents=AGENTS, duration=DURATION, seed=SEED)
+    for k, (_, update) in enumerate(messages["/robots"]):
+        step = k * stride
+        for entity in update.entities:
+            i = int(entity.id)
+            pose = entity.arrows[0].pose
+            assert pose.position.x == pytest.approx(reference.trajectories[step, i, 0], abs=1e-9)
+            assert pose.position.y == pytest.approx(reference.trajectories[step, i, 1], abs=1e-9)
+            yaw = 2 * math.atan2(pose.orientation.z, pose.orientation.w)
+            wrapped = math.remainder(yaw - reference.headings[step, i], 2 * math.pi)
+            assert abs(wrapped) < 1e-6
+    error = [sample["e_a"] for _, sample in messages["/error"]]
+    np.testing.assert_allclose(error, reference.error[::stride], rtol=1e-12)
+
+
+def test_sim_trajectories_csv_has_every_robot_at_the_pose_rate(sim_dir: Path) -> None:
+    rows = read_trajectories(sim_dir / "trajectories.csv")
+    dt = load_scenario("passage").dt
+    step = sim_stride(dt) * dt
+    times = np.unique(rows[:, 0])
+    np.testing.assert_allclose(np.diff(times), step, atol=1e-4)
+    assert times[0] == 0 and times[-1] == pytest.approx(DURATION, abs=1e-4)
+    for ident in range(AGENTS):
+        mine = rows[rows[:, 1] == ident]
+        np.testing.assert_array_equal(mine[:, 0], times)  # one row per robot per time
+    reference = simulate(load_scenario("passage"), agents=AGENTS, duration=DURATION, seed=SEED)
+    last = rows[rows[:, 0] == times[-1]]
+    np.testing.assert_allclose(last[:, 2:4], reference.trajectories[-1], atol=1e-5)
+
+
+def test_replay_gif_has_one_frame_per_step_of_mission_time(sim_dir: Path) -> None:
+    from PIL import Image
+
+    out = sim_dir / "replay.gif"
+    fps, speed = 5.0, 1.0
+    result = CliRunner().invoke(
+        replay_command,
+        [str(sim_dir), "--out", str(out), "--fps", str(fps), "--speed", str(speed), "--dpi", "40"],
+    )
+    assert result.exit_code == 0, result.output
+    expected = len(frame_times(DURATION, fps, speed))
+    assert expected == round(DURATION * fps / speed) + 1
+    with Image.open(out) as gif:
+        assert gif.n_frames == expected
+        assert gif.info["duration"] == pytest.approx(1000 / fps, abs=1)
+
+
+def test_replay_mp4_without_ffmpeg_says_so(sim_dir: Path, monkeypatch) -> None:
+    from matplotlib import animation
+
+    monkeypatch.setattr(animation.writers, "is_available", lambda name: False)
+    result = CliRunner().invoke(replay_command, [str(sim_dir), "--out", str(sim_dir / "r.mp4")])
+    assert result.exit_code != 0
+    assert "ffmpeg" in result.output and "gif" in result.output.lower()
+    assert not (sim_dir / "r.mp4").exists()
+
+
+def test_replay_refuses_a_folder_without_a_record(tmp_path: Path) -> None:
+    result = CliRunner().invoke(replay_command, [str(tmp_path)])
+    assert result.exit_code != 0 and "run.mcap" in result.output
+    (tmp_path / "run.mcap").write_bytes(b"not an mcap")
+    result = CliRunner().invoke(replay_command, [str(tmp_path)])
+    assert result.exit_code != 0 and "cannot read" in result.output
+
+
+def test_steering_events_keep_their_time_and_the_file_stays_ordered(tmp_path: Path) -> None:
+    with RunRecorder(tmp_path, run_metadata={"scenario": "unit"}) as recorder:
+        recorder.poses(1.0, [0], np.array([[0.0, 0.0, 0.0]]))
+        recorder.steering(0.5, {"accepted": True, "reason": "ok"})  # arrived a tick late
+        recorder.error(1.5, float("nan"), 1)
+    _, messages, _ = read_mcap(tmp_path / "run.mcap")
+    ((log_time, event),) = messages["/steering"]
+    assert log_time == 1_000_000_000 and event == {"t": 0.5, "accepted": True, "reason": "ok"}
+    assert messages["/error"][0][1] == {"e_a": None, "robots": 1}  # NaN is not JSON
+
+
+def test_live_server_sends_robot_poses_over_foxglove_sdk_v1() -> None:
+    """A WebSocket client speaking foxglove.sdk.v1 subscribes to /robots and decodes a pose."""
+    import websockets
+    from mcap_protobuf.decoder import DecoderFactory
+
+    poses = np.array([[1.25, -0.5, 0.75], [0.0, 2.0, -2.0]])
+    recorder = RunRecorder(None, run_metadata={"scenario": "unit"}, live_port=0)
+    stop = threading.Event()
+
+    def feed() -> None:
+        k = 0
+        while not stop.is_set():
+            recorder.poses(0.05 * k, [3, 8], poses)
+            k += 1
+            time.sleep(0.05)
+
+    async def first_pose() -> tuple[dict, bytes]:
+        url = f"ws://127.0.0.1:{recorder.live_port}"
+        async with websockets.connect(url, subprotocols=["foxglove.sdk.v1"]) as ws:
+            assert ws.subprotocol == "foxglove.sdk.v1"
+            channel = None
+            while channel is None:
+                message = json.loads(await asyncio.wait_for(ws.recv(), 10))
+                if message["op"] == "advertise":
+                    channel = next(
+                        (c for c in message["channels"] if c["topic"] == "/robots"), None
+                    )
+            subscribe = {
+                "op": "subscribe",
+                "subscriptions": [{"id": 42, "channelId": channel["id"]}],
+            }
+            await ws.send(json.dumps(subscribe))
+            while not isinstance(data := await asyncio.wait_for(ws.recv(), 10), bytes):
+                pass
+            return channel, data
+
+    feeder = threading.Thread(target=feed)
+    feeder.start()
+    try:
+        channel, data = asyncio.run(first_pose())
+    finally:
+        stop.set()
+        feeder.join()
+        recorder.close()
+    assert channel["schemaName"] == "foxglove.SceneUpdate" and channel["encoding"] == "protobuf"
+    opcode, subscription, log_time = struct.unpack_from("<BIQ", data)
+    assert (opcode, subscription) == (1, 42) and log_time % 50_000_000 == 0
+    schema = Schema(
+        id=1,
+        name=channel["schemaName"],
+        encoding="protobuf",
+        data=base64.b64decode(channel["schema"]),
+    )
+    update = DecoderFactory().decoder_for("protobuf", schema)(data[13:])
+    assert [e.id for e in update.entities] == ["3", "8"]
+    for entity, (x, y, theta) in zip(update.entities, poses, strict=True):
+        pose = entity.arrows[0].pose
+        assert (pose.position.x, pose.position.y) == pytest.approx((x, y))
+        assert 2 * math.atan2(pose.orientation.z, pose.orientation.w) == pytest.approx(theta)
