@@ -6,7 +6,7 @@ Three pure pieces (no I/O), used by the agent brain:
   estimate of the robot's pose at the time a new command will act. The latest pose is
   stamped when it was taken; the agent knows every wheel command it sent since (and the one
   the robot was driving then), so it integrates them forward in exact arcs, saturated and
-  timed out exactly as ``sim_robot`` drives them (covswarm.sim_robot.model.integrate, the
+  timed out exactly as ``sim_robot`` drives them (covswarm.tvd.drive.integrate, the
   robot's ``cmd_timeout``). Controlling from the prediction removes the pose-to-command
   latency from the heading loop, which is what made a late heading over-steer.
 - :class:`ClockBound`: how far another host's stamps can be trusted. ``receipt - stamp`` =
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covswarm.sim_robot.model import integrate
+from covswarm.tvd.drive import integrate
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
 
 # s: commands kept for prediction. Poses older than this are not predicted (the agent treats

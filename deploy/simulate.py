@@ -57,7 +57,7 @@ def simulate(
 
     progress(step, steps) is called after every step.
     """
-    from covswarm.sim_robot.model import integrate
+    from covswarm.tvd.drive import integrate
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import wheel_speeds

@@ -13,7 +13,7 @@ from covswarm.bridge import cdr
 from covswarm.bridge.link import RobotLink, twist_from_wheels
 from covswarm.bridge.mission_view import MissionView
 from covswarm.bridge.rmw_zenoh import encode_attachment
-from covswarm.sim_robot.model import integrate
+from covswarm.tvd.drive import integrate
 from covswarm.tvd.drive import DiffDrive
 
 WALL = 1_700_000_000.0

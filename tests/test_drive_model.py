@@ -1,16 +1,16 @@
-"""Differential-drive mapping (agent/drive.py) and arc integration (sim_robot/model.py)."""
+"""Differential-drive mapping (tvd/drive.py) and arc integration (tvd/drive.py integrate)."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from covswarm.sim_robot.model import integrate
 from covswarm.tvd.drive import (
     DEFAULT_PROJECTION_DISTANCE,
     KHEPERA_IV,
     DiffDrive,
     achieved_velocity,
+    integrate,
     wheel_speeds,
 )
 

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog, minimize
 
-from covswarm.sim_robot.model import integrate
+from covswarm.tvd.drive import integrate
 from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV, wheel_speeds
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,

@@ -15,7 +15,11 @@ differ by under 5% across the range. 0.03 m (a fifth of the body diameter) track
 of an ideal integrator, while smaller distances buy little and turn harder, which a real
 robot with command latency pays for.
 
-Pure numpy, no I/O: imported by agent processes.
+``integrate`` is the robot side: the exact arcs a differential-drive robot drives under
+held wheel speeds (what ``sim_robot`` simulates and what an agent predicts its robot
+does with the commands it sent).
+
+Pure numpy, no I/O: imported by agent and robot processes.
 """
 
 from __future__ import annotations
@@ -94,3 +98,33 @@ def achieved_velocity(
     cos, sin = np.cos(headings), np.sin(headings)
     turn = w * projection_distance
     return np.stack([v * cos - turn * sin, v * sin + turn * cos], axis=1)
+
+
+def integrate(
+    poses: np.ndarray, wheels: np.ndarray, dt: float, robot: DiffDrive = KHEPERA_IV
+) -> np.ndarray:
+    """Poses after driving the wheel speeds for dt seconds.
+
+    poses: (n, 3) [x, y, heading]; wheels: (n, 2) [left, right] m/s. Returns a new (n, 3).
+    Each wheel is clamped to +-max_wheel_speed on its own, like a motor controller would;
+    a non-finite wheel command counts as 0 (the robot stops rather than vanishing).
+    """
+    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
+    wheels = np.asarray(wheels, dtype=float).reshape(-1, 2)
+    if poses.shape[0] != wheels.shape[0]:
+        raise ValueError(f"{poses.shape[0]} poses but {wheels.shape[0]} wheel commands")
+    wheels = np.where(np.isfinite(wheels), wheels, 0.0)
+    wheels = np.clip(wheels, -robot.max_wheel_speed, robot.max_wheel_speed)
+    v = 0.5 * (wheels[:, 0] + wheels[:, 1])
+    w = (wheels[:, 1] - wheels[:, 0]) / robot.wheel_separation
+    heading = poses[:, 2]
+    turn = w * dt
+    # Chord of the arc: length v dt sin(turn/2)/(turn/2), direction heading + turn/2.
+    # np.sinc(x) = sin(pi x)/(pi x) is exact at turn = 0, so no straight-line special case.
+    chord = v * dt * np.sinc(turn / (2.0 * np.pi))
+    mid = heading + 0.5 * turn
+    out = np.empty_like(poses)
+    out[:, 0] = poses[:, 0] + chord * np.cos(mid)
+    out[:, 1] = poses[:, 1] + chord * np.sin(mid)
+    out[:, 2] = (heading + turn + np.pi) % (2.0 * np.pi) - np.pi
+    return out
