@@ -1,0 +1,109 @@
+"""The rooms of docs/ARCHITECTURE.md and what each may import.
+
+Read from the source (ast), so a forbidden import fails here even on a code path no other
+test runs; and from a fresh interpreter, so the math library's "no I/O" is what Python
+actually loads.
+"""
+
+from __future__ import annotations
+
+import ast
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+
+# room -> the other rooms it may import (docs/ARCHITECTURE.md, "Who imports whom").
+ALLOWED: dict[str, set[str]] = {
+    "tvd": set(),
+    "protocol": set(),
+    "runtime": {"protocol"},
+    "mission": {"tvd"},
+    "records": {"tvd", "protocol", "mission"},
+    "agent": {"tvd", "protocol", "runtime"},
+    "sim_robot": {"tvd", "protocol", "runtime"},
+    "bridge": {"tvd", "protocol", "runtime", "mission"},
+    "coordinator": {"tvd", "protocol", "runtime", "mission", "records"},
+    "console": {"tvd", "protocol", "runtime", "coordinator"},
+    "deploy": {
+        "tvd", "protocol", "runtime", "mission", "records", "agent", "sim_robot", "bridge",
+        "coordinator", "console",
+    },
+}  # fmt: skip
+LEGACY = {"agent", "protocol", "coordinator", "sim_robot", "deploy", "tvd", "mission"}
+
+
+def imported_modules(path: Path) -> list[str]:
+    modules = []
+    for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+        if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            modules.append(node.module)
+            modules += [f"{node.module}.{alias.name}" for alias in node.names]
+        elif isinstance(node, ast.Import):
+            modules += [alias.name for alias in node.names]
+    return modules
+
+
+def test_every_package_is_a_room_with_rules() -> None:
+    packages = {p.parent.name for p in ROOT.glob("*/__init__.py")}
+    assert packages == set(ALLOWED), "a new top-level package needs its rules here and a room"
+    mapped = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+    for room in ALLOWED:
+        assert f'"covswarm.{room}" = "{room}"' in mapped, f"{room} not installed as covswarm"
+
+
+@pytest.mark.parametrize("room", sorted(ALLOWED))
+def test_rooms_import_only_what_they_may(room: str) -> None:
+    bad = []
+    for path in sorted((ROOT / room).rglob("*.py")):
+        for module in imported_modules(path):
+            top, _, rest = module.partition(".")
+            if top in LEGACY:
+                bad.append(f"{path.relative_to(ROOT)}: '{module}' (import covswarm.{module})")
+            elif top == "covswarm" and rest:
+                other = rest.split(".")[0]
+                if other != room and other not in ALLOWED[room]:
+                    bad.append(f"{path.relative_to(ROOT)}: {module}")
+    assert not bad, "\n".join(bad)
+
+
+def test_the_rules_have_no_cycle() -> None:
+    seen: dict[str, int] = {}
+
+    def visit(room: str) -> None:
+        if seen.get(room) == 1:
+            raise AssertionError(f"import cycle through {room}")
+        if seen.get(room) == 2:
+            return
+        seen[room] = 1
+        for other in ALLOWED[room]:
+            visit(other)
+        seen[room] = 2
+
+    for room in ALLOWED:
+        visit(room)
+
+
+def test_math_library_loads_no_io() -> None:
+    code = (
+        "import sys\n"
+        "import covswarm.tvd.coverage, covswarm.tvd.control, covswarm.tvd.density\n"
+        "import covswarm.tvd.drive, covswarm.tvd.safety\n"
+        "bad = [m for m in ('zenoh', 'click', 'matplotlib', 'msgpack', 'aiohttp', 'rich',\n"
+        "       'foxglove', 'mcap', 'covswarm.protocol') if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_agent_brain_is_sans_io() -> None:
+    code = (
+        "import sys\n"
+        "import covswarm.agent.brain\n"
+        "bad = [m for m in ('zenoh', 'click', 'matplotlib') if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
