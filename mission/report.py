@@ -69,6 +69,7 @@ def write_outputs(
     import matplotlib.pyplot as plt
 
     fig = _error_figure(plt, t, error, compare)
+    _mark_steering(fig.axes[0], summary.get("steering", ()))
     fig.savefig(out / "error.png", dpi=120)
     plt.close(fig)
     fig = _trajectory_figure(
@@ -132,6 +133,24 @@ def _error_figure(plt: Any, t: np.ndarray, error: np.ndarray, compare: np.ndarra
     ax.grid(True, which="both", alpha=0.3)
     ax.legend(loc="upper right")
     return fig
+
+
+def _mark_steering(ax: Any, requests: Any) -> None:
+    """Steering requests (summary.json's ``steering``) on the e_a plot: accepted ones as a
+    green line at their arrival and a band while S moved, refused ones as a red dotted line."""
+    seen: set[bool] = set()
+    for request in requests:
+        accepted, t = bool(request["accepted"]), float(request["t"])
+        label = None
+        if accepted not in seen:
+            label = "steering request" if accepted else "refused steering request"
+            seen.add(accepted)
+        color = "tab:green" if accepted else "tab:red"
+        ax.axvline(t, color=color, linestyle="-" if accepted else ":", linewidth=1.0, label=label)
+        if accepted and request["duration"] > 0:
+            ax.axvspan(t, t + float(request["duration"]), color=color, alpha=0.12, zorder=0)
+    if seen:
+        ax.legend(loc="upper right")
 
 
 def _trajectory_figure(

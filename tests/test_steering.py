@@ -286,3 +286,41 @@ def test_translating_a_crowded_domain_is_not_too_small() -> None:
     steer = steering(limits=Limits(0.5, WORKSPACE, min_area=5.0))  # S is 1 m^2 already
     assert send(steer, SteerRequest("translate", dx=0.5, dy=0.0), 0.0).accepted
     assert not send(steer, SteerRequest("scale", factor=0.9), 1.0).accepted
+
+
+# --- records -----------------------------------------------------------------------------
+
+
+def test_the_error_plot_marks_every_request(tmp_path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from covswarm.mission.report import _mark_steering, write_outputs
+
+    steer = steering()
+    send(steer, SteerRequest("translate", dx=0.5, dy=0.0, duration=2.0), 1.0)
+    send(steer, SteerRequest("polygon", polygon=[[0, 0], [1, 1], [1, 0], [0, 1]]), 4.0)
+    send(steer, SteerRequest("scale", factor=1.2), 6.0)
+    events = [record.to_dict() for record in steer.records]
+    fig, ax = plt.subplots()
+    _mark_steering(ax, events)
+    lines = [(line.get_xdata()[0], line.get_color()) for line in ax.get_lines()]
+    assert lines == [(1.0, "tab:green"), (4.0, "tab:red"), (6.0, "tab:green")]
+    assert len(ax.patches) == 2  # the bands while S moved
+    assert [t.get_text() for t in ax.get_legend().get_texts()] == [
+        "steering request",
+        "refused steering request",
+    ]
+    plt.close(fig)
+    t = np.linspace(0.0, 10.0, 50)
+    write_outputs(
+        tmp_path,
+        summary={"steering": events, "scenario": "live"},
+        t=t,
+        error=0.1 + 0.0 * t,
+        trajectories=np.zeros((50, 2, 2)),
+        polygons=[SQUARE] * 50,
+    )
+    assert (tmp_path / "error.png").stat().st_size > 0
