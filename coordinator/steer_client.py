@@ -148,7 +148,8 @@ def steer_command(
 ) -> None:
     """Steer a running swarm: move, turn, scale or reshape S. Prints accepted or the refusal.
 
-    Exit status: 0 accepted, 1 refused, 3 no coordinator answered (2: bad options).
+    Exit status: 0 accepted, 1 refused, 3 no coordinator answered or no router let us in
+    (2: bad options).
     """
     import zenoh
 
@@ -181,7 +182,12 @@ def steer_command(
         config = session_config(list(connect), secure=secure)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    with zenoh.open(config) as session:
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as exc:  # no router there, or it refused our credentials
+        click.echo(f"no answer: cannot join {', '.join(connect)}: {exc}", err=True)
+        raise SystemExit(NO_ANSWER_EXIT) from None
+    with session:
         try:
             reply = SteeringClient(session, swarm, timeout).request(request)
         except SteerTimeout as exc:
