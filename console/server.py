@@ -369,7 +369,13 @@ def console_command(
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     token = new_token() if needs_token(host) else None
-    with zenoh.open(config) as session:
+    try:
+        session = zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise click.ClickException(
+            f"cannot reach the swarm at {', '.join(connect)}: {exc}"
+        ) from None
+    with session:
         feed = SwarmFeed(session, swarm, SwarmView(swarm))
         client = SteeringClient(session, swarm, timeout=steer_timeout)
         console = Console(feed, client.request, token=token, rate=rate)

@@ -10,12 +10,14 @@
   const ROBOT_RADIUS = 0.07; // m, a Khepera IV's footprint
   const CLICK_PX = 3; // a press that moved less than this is not a drag
   const FIT = 0.5; // S's larger side fills this share of the view when centred
+  const KEEP = 0.3; // following S: re-centre once its centroid is this share of the view off centre
 
   let state = null; // latest frame from the server
   const view = { cx: 0, cy: 0, scale: 100, ready: false }; // centre (m), px per m
+  const follow = document.getElementById("follow"); // keep S in view (a manual pan stops it)
   let drag = null; // the gesture in progress
   let pending = null; // {polygon} previewed while the request is in flight
-  const hooks = { frames: 0, lastReply: null }; // read by the browser tests
+  const hooks = { frames: 0, lastReply: null, roundTripMs: null }; // read by the browser tests
 
   // -- geometry (arrays of [x, y]) ---------------------------------------------------------
   const sub = (a, b) => [a[0] - b[0], a[1] - b[1]];
@@ -104,6 +106,16 @@
     view.scale = (FIT * Math.min(w, h)) / side;
     view.ready = true;
     return true;
+  }
+
+  // Following S: pan (zoom unchanged) when S's centroid drifts KEEP of the view off centre.
+  function keepSInView() {
+    const poly = state && state.polygon;
+    if (!follow.checked || drag || !poly || poly.length < 3) return;
+    const [w, h] = size(), [x, y] = toScreen(centroid(poly));
+    if (Math.abs(x - w / 2) > KEEP * w || Math.abs(y - h / 2) > KEEP * h) {
+      [view.cx, view.cy] = centroid(poly);
+    }
   }
 
   // Handles of S on screen: vertices, a rotation knob above S, a scale square at the
@@ -297,6 +309,7 @@
   async function steer(request, preview) {
     pending = preview ? { polygon: preview } : null;
     showResult("pending", `sending ${request.kind}…`);
+    const sent = performance.now();
     let reply;
     try {
       const response = await fetch("/api/steer", {
@@ -311,6 +324,7 @@
       reply = { accepted: false, reason: `console unreachable: ${err}` };
     }
     pending = null;
+    hooks.roundTripMs = performance.now() - sent;
     hooks.lastReply = reply;
     if (reply.accepted) {
       const note = reply.reason ? ` (${reply.reason})` : "";
@@ -358,6 +372,7 @@
     if (norm(sub(s, d.start)) >= CLICK_PX) d.moved = true;
     const m = toWorld(s);
     if (d.mode === "pan") {
+      if (d.moved) follow.checked = false;
       view.cx = d.view.cx - (s[0] - d.start[0]) / view.scale;
       view.cy = d.view.cy + (s[1] - d.start[1]) / view.scale;
     } else if (d.mode === "translate") {
@@ -418,7 +433,7 @@
   window.addEventListener("keydown", (event) => {
     if (event.key === "Escape" && drag) { drag = null; draw(); }
   });
-  map.addEventListener("dblclick", () => { centreOnS(); draw(); });
+  map.addEventListener("dblclick", () => { centreOnS(); follow.checked = true; draw(); });
   map.addEventListener("wheel", (event) => {
     event.preventDefault();
     const s = local(event), before = toWorld(s);
@@ -439,6 +454,7 @@
       state = JSON.parse(event.data);
       hooks.frames += 1;
       if (!view.ready) centreOnS();
+      keepSInView();
       panels();
       draw();
       drawChart();
