@@ -7,14 +7,15 @@ import math
 import msgpack
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from covswarm import protocol
 from covswarm.bridge import cdr
 from covswarm.bridge.link import RobotLink, twist_from_wheels
 from covswarm.bridge.mission_view import MissionView
+from covswarm.bridge.process import bridge_group
 from covswarm.bridge.rmw_zenoh import encode_attachment
-from covswarm.tvd.drive import integrate
-from covswarm.tvd.drive import DiffDrive
+from covswarm.tvd.drive import DiffDrive, integrate
 
 WALL = 1_700_000_000.0
 
@@ -157,3 +158,22 @@ def test_mission_view_keeps_the_newest_domain_error_and_fresh_poses() -> None:
     np.testing.assert_array_equal(view.poses(0.9)[:, 0], [0.0, 1.0])
     np.testing.assert_array_equal(view.poses(1.2)[:, 0], [0.0])  # robot 1's pose went stale
     assert view.drops.total == 1
+
+
+@pytest.mark.parametrize(
+    ("option", "value", "message"),
+    [
+        ("--cmd-topic", "/robot/cmd_vel", "must contain {id}"),
+        ("--pose-topic", "/robot{id}/po se", "invalid ROS 2 topic name"),
+        ("--domain-id", "233", "outside 0..232"),
+        ("--node-name", "covswarm-bridge", "invalid ROS 2 node name"),
+        ("--ids", "3-1", "invalid id range"),
+        ("--swarm", "a/b", "invalid swarm name"),
+    ],
+)
+def test_the_command_refuses_bad_options_with_the_reason(
+    option: str, value: str, message: str
+) -> None:
+    args = {"--ids": "0-2", "--connect": "tcp/127.0.0.1:9", "--swarm": "lab", option: value}
+    result = CliRunner().invoke(bridge_group, ["ros2", *(a for kv in args.items() for a in kv)])
+    assert result.exit_code == 2 and message in result.output, result.output

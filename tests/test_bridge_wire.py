@@ -14,6 +14,8 @@ import struct
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from rosbags.typesys import Stores, get_typestore
 from zenoh_ros2_sdk.attachment import Attachment as SdkAttachment
 from zenoh_ros2_sdk.entity import EndpointEntity, EntityKind, NodeEntity
@@ -261,3 +263,48 @@ def test_attachment_is_33_bytes_in_rmw_zenoh_layout() -> None:
     for bad in [data[:-1], data + b"\x00", data[:16] + b"\x0f" + data[17:]]:
         with pytest.raises(ValueError):
             rmw_zenoh.decode_attachment(bad)
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    payload=st.binary(max_size=200),
+    pose_type=st.sampled_from([cdr.POSE_STAMPED, cdr.POSE_2D, cdr.ODOMETRY]),
+)
+def test_any_bytes_decode_to_a_finite_pose_or_a_protocol_error(
+    payload: bytes, pose_type: str
+) -> None:
+    for candidate in (payload, HEADER + payload):
+        try:
+            pose = cdr.decode_pose(candidate, pose_type)
+        except ProtocolError as exc:
+            assert exc.reason in ("undecodable", "oversize", "nonfinite", "value")
+            continue
+        assert all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta))
+
+
+VALID_POSES = {
+    cdr.POSE_STAMPED: cdr.encode_pose_stamped(1.0, -2.0, 0.7, STAMP, "map"),
+    cdr.ODOMETRY: cdr.encode_odometry(1.0, -2.0, 0.7, STAMP, "odom"),
+    cdr.POSE_2D: cdr.encode_pose2d(1.0, -2.0, 0.7),
+}
+
+
+@settings(max_examples=300, deadline=None)
+@given(
+    pose_type=st.sampled_from(sorted(VALID_POSES)),
+    where=st.floats(0.0, 1.0),
+    junk=st.binary(min_size=1, max_size=9),
+    cut=st.booleans(),
+)
+def test_corrupted_poses_decode_to_a_finite_pose_or_a_protocol_error(
+    pose_type: str, where: float, junk: bytes, cut: bool
+) -> None:
+    good = VALID_POSES[pose_type]
+    at = int(where * (len(good) - 1))
+    payload = good[:at] + junk + (b"" if cut else good[at + len(junk) :])
+    try:
+        pose = cdr.decode_pose(payload, pose_type)
+    except ProtocolError as exc:
+        assert exc.reason in ("undecodable", "oversize", "nonfinite", "value")
+        return
+    assert all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta))
