@@ -25,8 +25,9 @@ from covswarm.records.recorder import (
     METADATA_NAME,
     ROBOTS_TOPIC,
 )
+from covswarm.records.scene import ROBOT_DIAMETER
 
-HEADING_LENGTH = 0.12  # m, the heading arrow drawn on each robot
+HEADING_LENGTH = 0.15  # m, the heading arrow drawn on each robot
 
 
 @dataclass
@@ -140,7 +141,7 @@ def render(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib import animation
-    from matplotlib.collections import LineCollection
+    from matplotlib.collections import EllipseCollection, LineCollection
     from matplotlib.patches import Rectangle
 
     suffix = out.suffix.lower()
@@ -158,8 +159,8 @@ def render(
 
     times = frame_times(record.end, fps, speed)
     meta = record.metadata
-    fig = plt.figure(figsize=(6.4, 5.0))
-    grid = fig.add_gridspec(2, 1, height_ratios=(3.2, 1.0), hspace=0.3)
+    fig = plt.figure(figsize=(7.2, 5.6), layout="constrained")
+    grid = fig.add_gridspec(2, 1, height_ratios=(4.0, 1.0))
     ax, ax_err = fig.add_subplot(grid[0]), fig.add_subplot(grid[1])
     ax.set_aspect("equal")
     workspace = meta.get("workspace")
@@ -183,7 +184,11 @@ def render(
         [0.0], [0.0], [0.0], [0.0], color="#e08a1a", angles="xy", scale_units="xy", scale=1.0,
         width=0.006, zorder=4,
     )  # fmt: skip
-    dots = ax.scatter([], [], s=18, color="#1f59d9", zorder=3)
+    bodies = EllipseCollection(
+        ROBOT_DIAMETER, ROBOT_DIAMETER, 0.0, units="xy", offsets=np.zeros((0, 2)),
+        offset_transform=ax.transData, facecolors="#1f59d9", alpha=0.85, zorder=3,
+    )  # fmt: skip
+    ax.add_collection(bodies)
     title = ax.set_title("")
     ax_err.plot(record.error_t, record.error, color="0.8", linewidth=1.0)
     (error_line,) = ax_err.plot([], [], color="C3", linewidth=1.5)
@@ -198,7 +203,7 @@ def render(
         at = float(times[frame])
         k = _latest(record.pose_t, at)
         poses = np.array(list(record.poses[k].values()) if k is not None else []).reshape(-1, 3)
-        dots.set_offsets(poses[:, :2])
+        bodies.set_offsets(poses[:, :2])
         robots.set_offsets(poses[:, :2])
         robots.N = len(poses)
         robots.set_UVC(HEADING_LENGTH * np.cos(poses[:, 2]), HEADING_LENGTH * np.sin(poses[:, 2]))

@@ -239,3 +239,25 @@ def test_live_server_sends_robot_poses_over_foxglove_sdk_v1() -> None:
         pose = entity.arrows[0].pose
         assert (pose.position.x, pose.position.y) == pytest.approx((x, y))
         assert 2 * math.atan2(pose.orientation.z, pose.orientation.w) == pytest.approx(theta)
+
+
+def test_shipped_layouts_are_the_generated_ones_and_name_recorded_channels() -> None:
+    from covswarm.coordinator.monitor import HEADLINE_STATS
+    from covswarm.records import recorder
+    from covswarm.records.layout import SCENE_TOPICS as LAYOUT_TOPICS
+    from covswarm.records.layout import STATS_PATHS, layout_files
+
+    docs = Path(__file__).resolve().parent.parent / "docs"
+    for name, text in layout_files().items():
+        assert (docs / name).read_text(encoding="utf-8") == text, f"regenerate docs/{name}"
+    scene_topics = {recorder.ROBOTS_TOPIC, recorder.DOMAIN_TOPIC, recorder.CELLS_TOPIC}
+    assert scene_topics | {recorder.ARENA_TOPIC} == set(LAYOUT_TOPICS)
+    lichtblick = json.loads(layout_files()["lichtblick-layout.json"])
+    plotted = [
+        p["value"] for key, c in lichtblick["configById"].items() if key.startswith("Plot")
+        for p in c["paths"]
+    ]  # fmt: skip
+    assert plotted == ["/error.e_a", *STATS_PATHS]
+    for path in STATS_PATHS:
+        topic, _, stat = path.partition(".mean.")
+        assert topic == recorder.AGENT_STATS_TOPIC and stat in HEADLINE_STATS
