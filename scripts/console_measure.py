@@ -14,8 +14,9 @@ page in Debian's chromium through Playwright and
   broadcast in the tick that accepts the request still shows S at rest (the motion's
   progress starts with zero velocity), so (b) is that of the next one, up to one broadcast
   period (50 ms at 20 Hz) later;
-- measures the console process's CPU (utime + stime from /proc) over ``--cpu-window`` s with
-  the page open, the frames per second the page received and the size of one frame;
+- measures the console process's CPU (utime + stime from /proc) over ``--cpu-window`` s
+  with no page open, then as long with the page open, the frames per second the page
+  received and the size of one frame;
 - optionally saves a screenshot of the page in the middle of a drag.
 
 Prints one JSON document (also written to OUT/console-measure.json).
@@ -165,6 +166,12 @@ def main(
         result: dict = {"agents": agents, "scenario": scenario, "url": url}
         with zenoh.open(session_config([endpoint])) as session, sync_playwright() as p:
             domains = Domains(session, swarm)
+            # CPU with no page open: the console only drains its subscriptions.
+            time.sleep(2.0)
+            cpu0, wall0 = cpu_seconds(console.pid), time.monotonic()
+            time.sleep(cpu_window)
+            idle = (cpu_seconds(console.pid) - cpu0) / (time.monotonic() - wall0)
+            result["console_cpu_percent_idle"] = round(100 * idle, 1)
             browser = p.chromium.launch(executable_path="/usr/bin/chromium", args=CHROMIUM_ARGS)
             page = browser.new_page(viewport={"width": 1280, "height": 760})
             page.goto(url)
@@ -185,7 +192,7 @@ def main(
             result["frame_bytes"] = len(state.encode())
             # Drag latency, each drag from rest.
             round_trips, to_domain = [], []
-            for k in range(drags + 1):
+            for k in range(drags + 1 if drags else 0):
                 held = domains.seen[-1][1]
                 shot = screenshot if screenshot is not None and k == drags else None
                 released = drag(page, -DRAG if k % 2 == 0 else DRAG, shot)

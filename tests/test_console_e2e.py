@@ -11,7 +11,9 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import shutil
 import signal
+import socket
 import subprocess
 import time
 import urllib.error
@@ -115,7 +117,10 @@ def console(endpoint: str, swarm: str, *args: str) -> Iterator[str]:
 
 
 @pytest.fixture(scope="module")
-def browser() -> Iterator[object]:
+def browser(require) -> Iterator[object]:
+    require(
+        Path(CHROMIUM).exists(), f"needs Debian's chromium at {CHROMIUM} (apt-get install chromium)"
+    )
     with sync_playwright() as p:
         chromium = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
         yield chromium
@@ -319,3 +324,51 @@ def test_a_console_off_the_default_address_needs_its_token(swarm_run, browser) -
         assert "token" not in page.url
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
         page.close()
+
+
+def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
+    require, tmp_path: Path
+) -> None:
+    import zenoh
+
+    from covswarm.protocol import Domain, domain_key
+    from covswarm.protocol.security import make_test_credentials, read_credentials
+    from covswarm.protocol.session import session_config
+
+    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
+    secure = make_test_credentials(tmp_path / "secure")
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        endpoint = f"tls/127.0.0.1:{probe.getsockname()[1]}"
+    swarm = f"e2e-{secrets.token_hex(4)}"
+    square = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
+    with (
+        zenoh.open(session_config(None, [endpoint], "router", secure=secure)),
+        zenoh.open(session_config([endpoint], secure=secure)) as member,
+        console(endpoint, swarm, "--secure", str(secure)) as url,
+    ):
+        domain = Domain(seq=0, stamp=time.time(), t=1.0, state="running", vertices=square,
+                        velocities=[(0.0, 0.0)] * 4, kappa=2.0)  # fmt: skip
+
+        def polygon_seen() -> bool:
+            member.put(domain_key(swarm), domain.encode())
+            return json.loads(get(url + "api/state")[1])["polygon"] == [list(v) for v in square]
+
+        assert wait_until(polygon_seen, timeout=10, period=0.2)
+        # Steering goes over the same secured session: with no coordinator, nobody answers.
+        status, reply = post_json(url + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')
+        assert status == 504 and "no coordinator" in reply["reason"]
+
+        user, _ = read_credentials(secure)[0]
+        wrong = tmp_path / "wrong"
+        wrong.mkdir()
+        shutil.copy(secure / "ca.pem", wrong / "ca.pem")
+        (wrong / "credentials").write_text(f"{user}:not-the-password\n")
+        for extra in (["--secure", str(wrong)], []):
+            outsider = subprocess.run(
+                [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm,
+                 "--port", "0", *extra],
+                capture_output=True, text=True, timeout=60,
+            )  # fmt: skip
+            assert outsider.returncode != 0 and "http://" not in outsider.stdout
+            assert "cannot reach the swarm" in outsider.stderr, outsider.stderr
