@@ -189,6 +189,7 @@ class Coordinator:
         # Poses decoded since the recorder last took them: id -> (x, y, theta).
         self._fresh_poses: dict[int, tuple[float, float, float]] = {}
         self._next_stats_record = 0.0
+        self.recording_seconds = 0.0  # wall time spent in _record (decoding every pose too)
 
     # -- inputs ---------------------------------------------------------------------------
 
@@ -324,6 +325,7 @@ class Coordinator:
         """Every pose decoded since the last tick, S(t), and at lower rates the cells and
         the agents' stats (covswarm.records.recorder)."""
         recorder = self.recorder
+        began = time.perf_counter()
         self._decode_poses()
         fresh, self._fresh_poses = self._fresh_poses, {}
         ids = sorted(fresh)
@@ -335,6 +337,7 @@ class Coordinator:
         if t >= self._next_stats_record and self.observed.agent_stats:
             recorder.agent_stats(t, self.observed.agent_stats)
             self._next_stats_record = t + STATS_RECORD_PERIOD
+        self.recording_seconds += time.perf_counter() - began
 
     def _publish_status(self, state: str, t: float) -> None:
         from covswarm.protocol import Status
@@ -678,6 +681,15 @@ def coordinator_command(
         finally:
             if recorder is not None:
                 recorder.close()
+    if recorder is not None and coordinator.clock.state != WAITING:
+        mission = coordinator.clock.mission_time(coordinator.clock.stopped_at or 0.0)
+        log.info(
+            "recording took %.2f s over %.1f s of mission (%.2f%% of a core); %s",
+            coordinator.recording_seconds,
+            mission,
+            100 * coordinator.recording_seconds / max(mission / time_scale, 1e-9),
+            recorder.counts,
+        )
     if not coordinator.observed.record.t:
         log.info("no samples recorded: no outputs written")
         return
