@@ -57,6 +57,9 @@ MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
 SAMPLE_SHARE = 0.05
+# Likewise for recording (covswarm.records): past this share of a core, poses are recorded
+# every k-th tick instead of every tick (about 1 ms a tick at 100 robots: every tick).
+RECORD_SHARE = 0.05
 # Beacon tile side, in units of the mean spacing of the team in S(0): a converged cell's
 # reach (agent.neighbourhood.cell_reach) is about 2.1 spacings while the domain moves, so it
 # fits in an agent's 3 x 3 tiles, which hold ~56 robots whatever the team's size and
@@ -190,6 +193,7 @@ class Coordinator:
         self._fresh_poses: dict[int, tuple[float, float, float]] = {}
         self._next_stats_record = 0.0
         self.recording_seconds = 0.0  # wall time spent in _record (decoding every pose too)
+        self.recording_skipped = 0  # ticks not recorded because recording was too expensive
 
     # -- inputs ---------------------------------------------------------------------------
 
@@ -321,9 +325,9 @@ class Coordinator:
         if self.recorder is not None:
             self.recorder.steering(t, event)
 
-    def _record(self, t: float, polygon: np.ndarray) -> None:
-        """Every pose decoded since the last tick, S(t), and at lower rates the cells and
-        the agents' stats (covswarm.records.recorder)."""
+    def _record(self, t: float, polygon: np.ndarray) -> float:
+        """Every pose decoded since the last record, S(t), and at lower rates the cells and
+        the agents' stats (covswarm.records.recorder); returns the wall time it took, s."""
         recorder = self.recorder
         began = time.perf_counter()
         self._decode_poses()
@@ -337,7 +341,9 @@ class Coordinator:
         if t >= self._next_stats_record and self.observed.agent_stats:
             recorder.agent_stats(t, self.observed.agent_stats)
             self._next_stats_record = t + STATS_RECORD_PERIOD
-        self.recording_seconds += time.perf_counter() - began
+        cost = time.perf_counter() - began
+        self.recording_seconds += cost
+        return cost
 
     def _publish_status(self, state: str, t: float) -> None:
         from covswarm.protocol import Status
@@ -361,7 +367,7 @@ class Coordinator:
         ticker = Ticker(self.settings.rate, time_scale=self.settings.time_scale)
         next_status = ticker.now()
         every = max(1, round(self.settings.rate / self.settings.sample_rate))
-        ticks_to_sample = 0
+        ticks_to_sample = ticks_to_record = 0
         done_since: float | None = None
         log.info("waiting for %d agents and %d robots", self.settings.agents, self.settings.agents)
         while True:
@@ -403,7 +409,14 @@ class Coordinator:
                 self._sample(t, polygon)  # the final error, at the end of the mission
                 log.info("mission done at t = %.1f s (%d overrun ticks)", t, ticker.overruns)
             if self.recorder is not None and (state == RUNNING or done_since == now):
-                self._record(t, polygon)
+                ticks_to_record -= 1
+                if ticks_to_record <= 0 or done_since == now:
+                    cost = self._record(t, polygon)
+                    ticks_to_record = math.ceil(
+                        cost / RECORD_SHARE * self.settings.rate * self.settings.time_scale
+                    )
+                else:
+                    self.recording_skipped += 1
             finished = done_since is not None and now - done_since >= DONE_HOLD
             if now >= next_status or finished:
                 self._publish_status(state, t)
@@ -669,6 +682,7 @@ def coordinator_command(
         if token_exists(session, alive_key(swarm, "coordinator", 0)):
             raise click.ClickException(f"swarm {swarm!r} already has a coordinator")
         recorder = open_recorder(settings, out_dir if record else None, foxglove_port, seed, resume)
+        coordinator = None
         try:
             coordinator = Coordinator(
                 session,
@@ -679,15 +693,28 @@ def coordinator_command(
             )
             coordinator.run(stop)
         finally:
+            if recorder is not None and coordinator is not None:
+                recorder.note(
+                    "recording",
+                    {
+                        "seconds": coordinator.recording_seconds,
+                        "skipped_ticks": coordinator.recording_skipped,
+                        "record_share": RECORD_SHARE,
+                        **recorder.counts,
+                    },
+                )
             if recorder is not None:
                 recorder.close()
     if recorder is not None and coordinator.clock.state != WAITING:
         mission = coordinator.clock.mission_time(coordinator.clock.stopped_at or 0.0)
         log.info(
-            "recording took %.2f s over %.1f s of mission (%.2f%% of a core); %s",
+            "recording took %.2f s over %.1f s of mission (%.2f%% of a core), %d ticks "
+            "skipped to keep it under %g%%; %s",
             coordinator.recording_seconds,
             mission,
             100 * coordinator.recording_seconds / max(mission / time_scale, 1e-9),
+            coordinator.recording_skipped,
+            100 * RECORD_SHARE,
             recorder.counts,
         )
     if not coordinator.observed.record.t:

@@ -248,6 +248,11 @@ class RunRecorder:
         self._steering.log({"t": float(t), **event}, log_time=self._log_time(t))
         self.counts["steering"] += 1
 
+    def note(self, name: str, values: Mapping[str, Any]) -> None:
+        """An extra MCAP metadata record (e.g. what recording cost), if writing a file."""
+        if self._writer is not None:
+            self._writer.write_metadata(name, metadata_strings(values))
+
     # -- lifetime -------------------------------------------------------------------------
 
     @property
