@@ -273,6 +273,70 @@ def test_dragging_S_moves_the_coordinators_S_and_then_the_robots(
         page.close()
 
 
+def same_polygon(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
+    """Every vertex of each polygon is within ``tol`` of a vertex of the other."""
+    d = np.linalg.norm(np.asarray(a)[:, None, :] - np.asarray(b)[None, :, :], axis=2)
+    return bool(d.min(axis=1).max() < tol and d.min(axis=0).max() < tol)
+
+
+def test_rotate_scale_and_vertex_handles_steer_what_was_dragged(
+    swarm_run, browser, watch: DomainWatch
+) -> None:
+    from shapely.geometry import Polygon
+
+    with console(*swarm_run) as url:
+        page = browser.new_page(viewport={"width": 1100, "height": 700})
+        page.goto(url)
+        page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+
+        def gesture(start, end) -> tuple[dict, dict]:
+            page.evaluate("window.covswarm.hooks.lastReply = null")
+            x0, y0 = page.evaluate(f"window.covswarm.clientXY({start[0]}, {start[1]})")
+            x1, y1 = page.evaluate(f"window.covswarm.clientXY({end[0]}, {end[1]})")
+            page.mouse.move(x0, y0)
+            page.mouse.down()
+            page.mouse.move(x1, y1, steps=20)
+            page.mouse.up()
+            page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=5000)
+            request, reply = page.evaluate(
+                "[window.covswarm.hooks.lastRequest, window.covswarm.hooks.lastReply]"
+            )
+            assert reply["accepted"], (request, reply)
+            time.sleep(reply["duration"] + 0.5)  # S gets there and holds
+            return request, reply
+
+        # A quarter turn clockwise: the knob above the centroid dragged to its right.
+        before, h = watch.latest().copy(), page.evaluate("window.covswarm.handles()")
+        c, knob = np.array(h["c"]), np.array(h["rotate"])
+        request, _ = gesture(knob, c + [np.linalg.norm(knob - c), 0.0])
+        assert request["kind"] == "rotate" and request["angle"] == pytest.approx(
+            -np.pi / 2, abs=0.03
+        )
+        turn = np.array([[0.0, 1.0], [-1.0, 0.0]])  # rotation by -pi/2
+        assert same_polygon(watch.latest(), c + (before - c) @ turn.T, tol=0.03)
+
+        # The corner handle dragged 1.25 times as far from the centroid.
+        before, h = watch.latest().copy(), page.evaluate("window.covswarm.handles()")
+        c, corner = np.array(h["c"]), np.array(h["scale"])
+        request, _ = gesture(corner, c + 1.25 * (corner - c))
+        assert request["kind"] == "scale" and request["factor"] == pytest.approx(1.25, abs=0.02)
+        assert same_polygon(watch.latest(), c + request["factor"] * (before - c), tol=0.02)
+
+        # A vertex dragged through S to beyond the opposite one: the page stops it where S
+        # is still convex, and the coordinator's S becomes exactly that polygon.
+        polygon = np.array(page.evaluate("window.covswarm.state().polygon"))
+        v0, opposite = polygon[0], polygon[2]
+        request, _ = gesture(v0, opposite + 0.2 * (opposite - v0))
+        assert request["kind"] == "polygon"
+        sent = np.array(request["polygon"])
+        shape = Polygon(sent)
+        assert shape.is_valid and shape.area == pytest.approx(shape.convex_hull.area, rel=1e-9)
+        assert np.linalg.norm(sent[0] - v0) > 0.05  # it moved ...
+        assert np.linalg.norm(sent[0] - opposite) > 0.1  # ... but not as far as the mouse
+        assert same_polygon(watch.latest(), sent, tol=0.01)
+        page.close()
+
+
 def test_refused_and_malformed_requests_show_why_and_never_move_S(
     swarm_run, browser, watch: DomainWatch
 ) -> None:
@@ -293,6 +357,14 @@ def test_refused_and_malformed_requests_show_why_and_never_move_S(
         assert not reply["accepted"]
         shown = page.inner_text("#steer-result")
         assert shown.startswith("refused:") and "self-intersecting" in shown
+        # Another site's page cannot steer through the operator's browser.
+        forged = urllib.request.Request(
+            api, data=b'{"kind": "translate", "dx": 1, "dy": 0}', method="POST",
+            headers={"Content-Type": "application/json", "Origin": "http://evil.example"},
+        )  # fmt: skip
+        with pytest.raises(urllib.error.HTTPError) as refused:
+            urllib.request.urlopen(forged, timeout=10)
+        assert refused.value.code == 403
         for bad in (b"{", b'{"kind": "translate", "dx": NaN, "dy": 0}', b'{"kind": "warp"}'):
             status, reply = post_json(api, bad)
             assert status == 400 and not reply["accepted"] and reply["reason"], bad

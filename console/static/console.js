@@ -17,7 +17,7 @@
   const follow = document.getElementById("follow"); // keep S in view (a manual pan stops it)
   let drag = null; // the gesture in progress
   let pending = null; // {polygon} previewed while the request is in flight
-  const hooks = { frames: 0, lastReply: null, roundTripMs: null }; // read by the browser tests
+  const hooks = { frames: 0, lastRequest: null, lastReply: null, roundTripMs: null }; // read by the browser tests
 
   // -- geometry (arrays of [x, y]) ---------------------------------------------------------
   const sub = (a, b) => [a[0] - b[0], a[1] - b[1]];
@@ -310,6 +310,7 @@
     pending = preview ? { polygon: preview } : null;
     showResult("pending", `sending ${request.kind}…`);
     const sent = performance.now();
+    hooks.lastRequest = request;
     let reply;
     try {
       const response = await fetch("/api/steer", {
