@@ -5,8 +5,8 @@ only its two-hop neighbourhood. This benchmark measures it in this implementatio
 
 1. per-agent compute vs N: every robot's complete ``covswarm.tvd.control.local_step`` (building
    its local partial Voronoi diagram included) from exactly its two-hop neighbourhood, on
-   random and near-CVT layouts, several seeds; uniform, and again with a moving Gaussian
-   density (``bench_density``: quadrature instead of closed forms);
+   random and near-CVT layouts, several seeds; uniform, and with a moving Gaussian density
+   (``bench_density``) timed interleaved with the uniform step on the same view;
 2. the centralised baseline: full-team ``tvd_c`` and ``tvd_d1`` per step vs N;
 3. the neighbour-count histogram vs N (the paper's Table 1 at N = 100);
 4. with ``--live``: real distributed runs (``covswarm run`` over Zenoh, LIVE_PER_PROCESS
@@ -127,6 +127,29 @@ def time_local_steps(
     return np.array(times), np.array(sizes)
 
 
+def time_density_vs_uniform(
+    layout: Layout, sample: int | None, density: Density, kappa: float = 1.0
+) -> tuple[np.ndarray, np.ndarray]:
+    """Microseconds of each sampled robot's local step with ``density`` and, interleaved on
+    the same two-hop view, without (uniform), so that the machine's drift lands on both:
+    (density times, uniform times)."""
+    adjacency = neighbors(layout.positions, layout.polygon)
+    n = len(layout.positions)
+    robots = np.arange(n)
+    if sample is not None and sample < n:
+        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    spent: dict[str, list[float]] = {"density": [], "uniform": []}
+    for me in robots:
+        view = {j: layout.positions[j] for j in two_hop(adjacency, int(me))}
+        for name in ("uniform", "density", "uniform", "density"):  # the first of each warms
+            phi = density if name == "density" else None
+            start = time.perf_counter()
+            local_step(int(me), view, layout.polygon, velocity, kappa, density=phi)
+            spent[name].append((time.perf_counter() - start) * 1e6)
+    return np.array(spent["density"][1::2]), np.array(spent["uniform"][1::2])
+
+
 def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[str, float]:
     """Median milliseconds of one full-team step of each law."""
     velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
@@ -194,13 +217,15 @@ def run_bench(
                 times.append(t)
                 hood.append(s)
                 side = float(layout.polygon[:, 0].max())
-                weighted.append(time_local_steps(layout, sample, density=bench_density(side))[0])
+                weighted.append(time_density_vs_uniform(layout, sample, bench_density(side)))
                 histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
                 central.append(time_centralized(layout, repeats))
                 safety.append(time_safety_filter(layout, sample))
                 if progress is not None:
                     progress(n, kind, seed)
             t = np.concatenate(times)
+            with_phi = np.concatenate([pair[0] for pair in weighted])
+            without_phi = np.concatenate([pair[1] for pair in weighted])
             rows.append(
                 {
                     "agents": n,
@@ -210,7 +235,10 @@ def run_bench(
                     "local_step_p50_us": float(np.percentile(t, 50)),
                     "local_step_p99_us": float(np.percentile(t, 99)),
                     "local_step_mean_us": float(np.mean(t)),
-                    "local_step_density_p50_us": float(np.percentile(np.concatenate(weighted), 50)),
+                    "local_step_density_p50_us": float(np.percentile(with_phi, 50)),
+                    "density_over_uniform": float(
+                        np.percentile(with_phi, 50) / np.percentile(without_phi, 50)
+                    ),
                     "two_hop_mean": float(np.mean(np.concatenate(hood))),
                     "tvd_c_ms": float(np.median([c["tvd_c_ms"] for c in central])),
                     "tvd_d1_ms": float(np.median([c["tvd_d1_ms"] for c in central])),
@@ -499,7 +527,8 @@ def bench_command(
     write_bench(out, rows + live_rows)
     table = Table(title="covswarm bench: one robot's control step vs team size")
     for name in (
-        "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "two-hop", "TVD-C ms",
+        "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "phi/uniform", "two-hop",
+        "TVD-C ms",
         "TVD-D1 ms", "safety p50 us", "safety/step",
     ):  # fmt: skip
         table.add_column(name, justify="right")
@@ -511,6 +540,7 @@ def bench_command(
             f"{row['local_step_p99_us']:.0f}",
             f"{row['local_step_mean_us']:.0f}",
             f"{row['local_step_density_p50_us']:.0f}",
+            f"{row['density_over_uniform']:.2f}",
             f"{row['two_hop_mean']:.1f}",
             f"{row['tvd_c_ms']:.1f}",
             f"{row['tvd_d1_ms']:.1f}",
