@@ -10,73 +10,21 @@ from __future__ import annotations
 
 import json
 import os
-import secrets
 import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from live_runs import ROUTER, launch, new_swarm, swarm_pids, wait_until
 
-from covswarm.deploy.plan import covswarm_argv
 from covswarm.deploy.router import free_port
+from covswarm.deploy.simulate import simulate
+from covswarm.mission.report import steady_state_mean
+from covswarm.mission.scenarios import load_scenario
 
 pytestmark = pytest.mark.e2e
-
-
-def swarm_pids(swarm: str, *words: str) -> set[int]:
-    """Live (non-zombie) processes whose command line names ``swarm`` and ``words``."""
-    wanted = {swarm.encode(), *(w.encode() for w in words)}
-    pids = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue  # exited while we looked
-        if wanted <= set(cmdline) and state != "Z":
-            pids.add(int(entry.name))
-    return pids
-
-
-def wait_until(predicate, timeout: float, period: float = 0.2) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(period)
-    return predicate()
-
-
-@contextmanager
-def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subprocess.Popen]:
-    """``covswarm run`` in the background; killed (with whatever it left) if the test fails."""
-    swarm_args = ["--swarm", swarm] if swarm else []
-    log = (out.parent / f"{out.name}.launcher.log").open("wb")
-    process = subprocess.Popen(
-        [*covswarm_argv(), "run", "--out", str(out), *swarm_args, *args],
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        stdin=subprocess.DEVNULL,
-    )
-    try:
-        yield process
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        log.close()
-        for pid in swarm_pids(swarm) if swarm else ():
-            os.kill(pid, signal.SIGKILL)
-
-
-def new_swarm() -> str:
-    return f"e2e-{secrets.token_hex(4)}"
 
 
 def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> None:
@@ -97,9 +45,17 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     assert summary["final_error"] < 0.25 * summary["initial_error"]
     assert summary["steady_state_error_mean"] < 0.05
     assert summary["agent_stats"]["team"]["rate_hz"]["min"] > 8.0
+    # A healthy run: no control step failed (the step's catch-all counts, never hides).
+    assert summary["agent_stats"]["team"]["step_errors"]["max"] == 0
     rows = (out / "error.csv").read_text().splitlines()
     assert rows[0] == "t,e_a" and len(rows) > 100
     assert swarm_pids(swarm) == set()
+    # README: the distributed run's steady-state e_a is within 10 % of the in-process
+    # simulation of the same robots (same seed, law and unicycle model; measured 2 %).
+    scenario = load_scenario("passage")  # seed 0: covswarm run's default --seed
+    sim = simulate(scenario, agents=4, duration=15.0, law="d1", dynamics="unicycle", seed=0)
+    expected = steady_state_mean(sim.t, sim.error)
+    assert summary["steady_state_error_mean"] == pytest.approx(expected, rel=0.10)
 
 
 def test_two_runs_at_once_do_not_collide(tmp_path: Path) -> None:
@@ -133,15 +89,6 @@ def test_a_dead_agent_is_reported_and_the_run_goes_on(tmp_path: Path) -> None:
     assert 0.0 <= lost[0]["t"] < 8.0
     assert "agent-1" in (tmp_path / "death.launcher.log").read_text()
     assert swarm_pids(swarm) == set()
-
-
-ROUTER = """
-import signal, sys, zenoh
-from covswarm.protocol import session_config
-with zenoh.open(session_config(None, [sys.argv[1]], mode="router")):
-    print("ready", flush=True)
-    signal.pause()  # until SIGTERM (default action: exit)
-"""
 
 
 def test_run_joins_an_existing_router(tmp_path: Path) -> None:

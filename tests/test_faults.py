@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_e2e import ROUTER, launch, new_swarm, swarm_pids, wait_until
+from live_runs import ROUTER, launch, new_swarm, swarm_pids, wait_until
 
 from covswarm import protocol
 from covswarm.agent.brain import AgentBrain

@@ -14,7 +14,7 @@ from pathlib import Path
 import click
 import numpy as np
 import pytest
-from test_e2e import launch, new_swarm, swarm_pids
+from live_runs import launch, new_swarm, swarm_pids
 
 from covswarm.deploy.plan import covswarm_argv, initial_poses, plan_children
 from covswarm.deploy.router import local_endpoint
@@ -124,6 +124,7 @@ def test_a_scaled_ticker_keeps_its_rate_in_mission_time() -> None:
     assert scaled(clock, 1.0) is clock
 
 
+@pytest.mark.e2e
 def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "packed"
     with launch(out, "--agents", "6", "--agents-per-process", "3", "--time-scale", "0.5",
@@ -138,7 +139,8 @@ def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> No
     assert summary["final_error"] < 0.25 * summary["initial_error"]
     team = summary["agent_stats"]["team"]
     assert team["rate_hz"]["min"] > 8.0  # 10 Hz of mission time, i.e. 5 Hz of wall time
-    assert 0.0 <= team["missed_deadline"]["max"] <= 1.0
+    assert team["missed_deadline"]["max"] <= 0.05  # fraction of periods late, per agent
+    assert team["step_errors"]["max"] == 0
     assert team["pose_age_ms_p50"]["min"] > 0.0
     resources = json.loads((out / "resources.json").read_text())
     assert resources["robots_per_process"] == {"coordinator": [1], "robot": [3, 3],
@@ -146,6 +148,7 @@ def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> No
     assert swarm_pids(swarm) == set()
 
 
+@pytest.mark.e2e
 def test_bench_live_writes_a_live_row(tmp_path: Path) -> None:
     out = tmp_path / "bench"
     argv = [*covswarm_argv(), "bench", "--sizes", "10", "--seeds", "1", "--sample", "3",
@@ -157,9 +160,18 @@ def test_bench_live_writes_a_live_row(tmp_path: Path) -> None:
     (live,) = [row for row in rows if row["layout"] == "live"]
     assert live["agents"] == 3 and live["rate_asked_hz"] == 10.0
     assert live["agents_per_process"] == 20 and live["time_scale"] == 1.0  # recorded
-    for key in ("live_step_p50_us", "live_step_p99_us", "rx_per_agent_per_s",
-                "pose_to_cmd_p50_ms", "pose_to_cmd_p99_ms", "rate_held_mean_hz",
-                "missed_deadline_mean", "rss_per_agent_mb", "rss_per_robot_mb"):  # fmt: skip
-        assert live[key] is not None and live[key] >= 0.0, key
+    # Each figure within what a working run of 3 agents can show (a missing stat, a unit
+    # slip or a run that did not steer falls outside).
+    ranges = {
+        "live_step_p50_us": (10.0, 50_000.0), "live_step_p99_us": (10.0, 500_000.0),
+        "rx_per_agent_per_s": (20.0, 400.0),  # at least its own pose and the domain, 20 Hz each
+        "pose_to_cmd_p50_ms": (0.01, 500.0), "pose_to_cmd_p99_ms": (0.01, 2000.0),
+        "rate_held_mean_hz": (8.0, 10.5), "missed_deadline_mean": (0.0, 0.05),
+        "rss_per_agent_mb": (10.0, 1000.0), "rss_per_robot_mb": (10.0, 1000.0),
+    }  # fmt: skip
+    for key, (low, high) in ranges.items():
+        assert live[key] is not None and low <= live[key] <= high, (key, live[key])
+    assert live["live_step_p99_us"] >= live["live_step_p50_us"]
+    assert live["pose_to_cmd_p99_ms"] >= live["pose_to_cmd_p50_ms"]
     header = (out / "bench.csv").read_text().splitlines()[0].split(",")
     assert "pose_to_cmd_p99_ms" in header and "local_step_p50_us" in header

@@ -1,0 +1,85 @@
+"""Shared helpers of the tests that start real processes (not a test module).
+
+Each run gets its own swarm name; its processes are found by that name in /proc (every
+child has ``--swarm NAME`` on its command line), which is how tests check that no child
+outlives the launcher, and how whatever a failed test left behind is killed, by pid.
+"""
+
+from __future__ import annotations
+
+import os
+import secrets
+import signal
+import subprocess
+import time
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+from covswarm.deploy.plan import covswarm_argv
+
+# A stand-alone Zenoh router: ``python -c ROUTER ENDPOINT`` prints "ready", runs until SIGTERM.
+ROUTER = """
+import signal, sys, zenoh
+from covswarm.protocol import session_config
+with zenoh.open(session_config(None, [sys.argv[1]], mode="router")):
+    print("ready", flush=True)
+    signal.pause()  # until SIGTERM (default action: exit)
+"""
+
+
+def swarm_pids(swarm: str, *words: str) -> set[int]:
+    """Live (non-zombie) processes whose command line names ``swarm`` and ``words``."""
+    wanted = {swarm.encode(), *(w.encode() for w in words)}
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue  # exited while we looked
+        if wanted <= set(cmdline) and state != "Z":
+            pids.add(int(entry.name))
+    return pids
+
+
+def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.2) -> bool:
+    """Poll ``predicate`` every ``period`` s for up to ``timeout`` s; its last value."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(period)
+    return predicate()
+
+
+@contextmanager
+def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subprocess.Popen]:
+    """``covswarm run`` in the background; killed (with whatever it left) if the test fails.
+
+    Its output goes to ``<out>.launcher.log`` beside ``out``.
+    """
+    swarm_args = ["--swarm", swarm] if swarm else []
+    log = (out.parent / f"{out.name}.launcher.log").open("wb")
+    process = subprocess.Popen(
+        [*covswarm_argv(), "run", "--out", str(out), *swarm_args, *args],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        log.close()
+        for pid in swarm_pids(swarm) if swarm else ():
+            os.kill(pid, signal.SIGKILL)
+
+
+def new_swarm() -> str:
+    """A swarm name of its own for one test run."""
+    return f"e2e-{secrets.token_hex(4)}"
