@@ -37,7 +37,7 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.tvd.control import local_step, tvd_c, tvd_d1
+from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
 
@@ -127,6 +127,38 @@ def time_local_steps(
     return np.array(times), np.array(sizes)
 
 
+def time_da_vs_d1(layout: Layout, sample: int | None, kappa: float = 1.0) -> dict[str, float]:
+    """One robot's TVD-DA step beside its TVD-D1 step (docs/tracking.md), interleaved.
+
+    For each sampled robot, both laws on the same two-hop view, alternately, so that the
+    machine's drift lands on both. The domain translates, rotates and scales (so the affine
+    field is not trivial). Returns the p50 microseconds of the TVD-DA step and the median of
+    the per-robot ratio TVD-DA / TVD-D1.
+    """
+    adjacency = neighbors(layout.positions, layout.polygon)
+    n = len(layout.positions)
+    robots = np.arange(n)
+    if sample is not None and sample < n:
+        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    centre = layout.polygon.mean(axis=0)
+    turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+    velocity = [0.05, 0.02] + 0.01 * (layout.polygon - centre) @ (np.eye(2) + turn).T
+    da, ratios = [], []
+    for me in robots:
+        view = {j: layout.positions[j] for j in two_hop(adjacency, int(me))}
+        spent = {}
+        for law in ("d1", "da", "d1", "da"):  # the first of each warms
+            start = time.perf_counter()
+            local_step(int(me), view, layout.polygon, velocity, kappa, law=law)
+            spent[law] = (time.perf_counter() - start) * 1e6
+        da.append(spent["da"])
+        ratios.append(spent["da"] / spent["d1"])
+    return {
+        "local_step_da_p50_us": float(np.percentile(da, 50)),
+        "da_over_d1": float(np.median(ratios)),
+    }
+
+
 def time_density_vs_uniform(
     layout: Layout, sample: int | None, density: Density, kappa: float = 1.0
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -154,7 +186,7 @@ def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[s
     """Median milliseconds of one full-team step of each law."""
     velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
     result = {}
-    for name, law in (("tvd_c", tvd_c), ("tvd_d1", tvd_d1)):
+    for name, law in (("tvd_c", tvd_c), ("tvd_d1", tvd_d1), ("tvd_da", tvd_da)):
         samples = []
         for _ in range(repeats):
             start = time.perf_counter()
@@ -211,6 +243,7 @@ def run_bench(
         for kind in ("random", "cvt"):
             times, hood, histogram, central, weighted = [], [], Counter(), [], []
             safety: list[dict] = []
+            laws: list[dict] = []
             for seed in range(seeds):
                 layout = make_layout(n, kind, seed)
                 t, s = time_local_steps(layout, sample)
@@ -221,6 +254,7 @@ def run_bench(
                 histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
                 central.append(time_centralized(layout, repeats))
                 safety.append(time_safety_filter(layout, sample))
+                laws.append(time_da_vs_d1(layout, sample))
                 if progress is not None:
                     progress(n, kind, seed)
             t = np.concatenate(times)
@@ -242,9 +276,11 @@ def run_bench(
                     "two_hop_mean": float(np.mean(np.concatenate(hood))),
                     "tvd_c_ms": float(np.median([c["tvd_c_ms"] for c in central])),
                     "tvd_d1_ms": float(np.median([c["tvd_d1_ms"] for c in central])),
+                    "tvd_da_ms": float(np.median([c["tvd_da_ms"] for c in central])),
                     **{
                         key: float(np.median([entry[key] for entry in safety])) for key in safety[0]
                     },
+                    **{key: float(np.median([entry[key] for entry in laws])) for key in laws[0]},
                     "neighbor_histogram": {
                         str(k): round(v / seeds, 2) for k, v in sorted(histogram.items())
                     },
@@ -529,7 +565,7 @@ def bench_command(
     for name in (
         "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "phi/uniform", "two-hop",
         "TVD-C ms",
-        "TVD-D1 ms", "safety p50 us", "safety/step",
+        "TVD-D1 ms", "TVD-DA ms", "safety p50 us", "safety/step", "DA p50 us", "DA/D1",
     ):  # fmt: skip
         table.add_column(name, justify="right")
     for row in rows:
@@ -544,8 +580,11 @@ def bench_command(
             f"{row['two_hop_mean']:.1f}",
             f"{row['tvd_c_ms']:.1f}",
             f"{row['tvd_d1_ms']:.1f}",
+            f"{row['tvd_da_ms']:.1f}",
             f"{row['safety_filter_p50_us']:.0f}",
             f"{row['safety_over_step']:.2f}",
+            f"{row['local_step_da_p50_us']:.0f}",
+            f"{row['da_over_d1']:.2f}",
         )
     Console().print(table)
     if live_rows:

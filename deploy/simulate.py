@@ -1,13 +1,16 @@
 """``covswarm sim``: the deterministic in-process simulator (no Zenoh, no processes).
 
 Fixed-step over the whole team: at each step the domain S(t) comes from the scenario, the
-centralised (TVD-C) or one-hop (TVD-D1) law gives every robot's velocity, and robots move as
-single integrators or as Khepera IV unicycles (wheel mapping + exact arc integration).
+centralised (TVD-C), one-hop (TVD-D1) or domain-motion feedforward (TVD-DA, the default) law
+gives every robot's velocity, and robots move as single integrators or as Khepera IV
+unicycles (wheel mapping + exact arc integration). Every guard and fallback the law takes is
+counted (``SimResult.guarded``, ``fallbacks``) and reported in summary.json.
 Same seed, same options -> byte-identical summary.json and error.csv.
 """
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -20,7 +23,8 @@ import numpy as np
 
 from covswarm.mission.scenarios import Scenario, load_scenario
 
-LAWS = ("c", "d1")
+LAWS = ("c", "d1", "da")
+PRIORS = ("affine", "zero")
 DYNAMICS = ("single", "unicycle")
 
 
@@ -34,6 +38,8 @@ class SimResult:
     headings: np.ndarray  # (T, n), zeros for single integrators
     polygons: list[np.ndarray]  # T arrays (k, 2): S(t) at each sample
     positions: np.ndarray  # (n, 2) final positions
+    guarded: int = 0  # robot-steps whose row the amplification guard rescaled
+    fallbacks: int = 0  # steps on which the law's team-wide fallback was taken (TVD-C)
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -44,7 +50,7 @@ def simulate(
     scenario: Scenario,
     *,
     agents: int | None = None,
-    law: str = "d1",
+    law: str = "da",
     feedforward: bool = True,
     kappa: float | None = None,
     dt: float | None = None,
@@ -52,10 +58,14 @@ def simulate(
     seed: int = 0,
     dynamics: str | None = None,
     progress: Callable[[int, int], None] | None = None,
+    damping: float | None = None,
+    prior: str = "affine",
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
-    progress(step, steps) is called after every step.
+    progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
+    covswarm.tvd.control.team_step), damping None for covswarm.tvd.control.DAMPING, 0 for the
+    paper's exact TVD-C with its fallback to TVD-D1.
     """
     from covswarm.tvd.drive import integrate
     from covswarm.tvd import control
@@ -73,7 +83,11 @@ def simulate(
         raise ValueError(f"dynamics must be one of {DYNAMICS}, not {dynamics!r}")
     if n < 1 or kappa <= 0 or dt <= 0 or duration <= 0:
         raise ValueError("agents, kappa, dt and duration must be positive")
-    velocity_law = control.tvd_c if law == "c" else control.tvd_d1
+    if damping is None:
+        damping = control.DAMPING
+    if not (math.isfinite(damping) and damping >= 0):
+        raise ValueError(f"damping must be a finite number >= 0, not {damping!r}")
+    exact = damping == 0
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
@@ -87,6 +101,7 @@ def simulate(
     trajectories = np.empty((steps + 1, n, 2))
     heading_log = np.empty((steps + 1, n))
     polygons: list[np.ndarray] = []
+    guarded = fallbacks = 0
     for k in range(steps + 1):
         polygon, polygon_velocity = scenario.domain(t[k])
         density = scenario.density(t[k])
@@ -96,9 +111,13 @@ def simulate(
         error[k] = aggregate_error(positions, polygon, density)
         if k == steps:
             break
-        velocity = velocity_law(
-            positions, polygon, polygon_velocity, kappa, feedforward=feedforward, density=density
-        )
+        step = control.team_step(
+            law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
+            density=density, damping=None if exact else damping, prior=prior,
+        )  # fmt: skip
+        velocity = step.velocity
+        guarded += int(step.guarded.sum())
+        fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
             raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {t[k]:.4g} s")
         if dynamics == "single":
@@ -110,7 +129,20 @@ def simulate(
             positions, headings = poses[:, :2], poses[:, 2]
         if progress is not None:
             progress(k + 1, steps)
-    return SimResult(t, error, trajectories, heading_log, polygons, positions)
+    return SimResult(t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks)
+
+
+def guard_counts(result: SimResult) -> dict[str, Any]:
+    """How often the law's guards acted: rows rescaled per robot-step, team fallbacks per step."""
+    steps = int(result.t.size - 1)
+    robot_steps = steps * int(result.positions.shape[0])
+    return {
+        "robot_steps": robot_steps,
+        "rows_rescaled": result.guarded,
+        "rows_rescaled_rate": result.guarded / max(1, robot_steps),
+        "fallback_steps": result.fallbacks,
+        "fallback_rate": result.fallbacks / max(1, steps),
+    }
 
 
 def build_summary(
@@ -125,6 +157,8 @@ def build_summary(
     seed: int,
     dynamics: str,
     without: SimResult | None = None,
+    damping: float | None = None,
+    prior: str = "affine",
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
@@ -144,8 +178,15 @@ def build_summary(
         "final_error": float(result.error[-1]),
         "initial_error": float(result.error[0]),
         "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
+        "guards": guard_counts(result),
     }
+    if law == "c":
+        from covswarm.tvd.control import DAMPING
+
+        summary["damping"] = float(DAMPING if damping is None else damping)
+        summary["prior"] = prior
     if without is not None:
+        summary["guards_without_feedforward"] = guard_counts(without)
         ss_without = steady_state_mean(without.t, without.error)
         summary["steady_state_error_mean_without_feedforward"] = ss_without
         summary["final_error_without_feedforward"] = float(without.error[-1])
@@ -165,9 +206,23 @@ def build_summary(
 @click.option(
     "--law",
     type=click.Choice(LAWS),
-    default="d1",
+    default="da",
     show_default=True,
-    help="c: centralised TVD-C, d1: one-hop TVD-D1.",
+    help="da: domain-motion feedforward (docs/tracking.md), c: centralised TVD-C, "
+    "d1: one-hop TVD-D1.",
+)
+@click.option(
+    "--damping",
+    type=click.FloatRange(min=0),
+    help="TVD-C's feedforward damping [covswarm.tvd.control.DAMPING]; 0: the paper's exact "
+    "TVD-C, falling back to TVD-D1 when unusable.",
+)
+@click.option(
+    "--prior",
+    type=click.Choice(PRIORS),
+    default="affine",
+    show_default=True,
+    help="What TVD-C's damped feedforward is pulled toward: S's affine field, or zero.",
 )
 @click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt feedforward term.")
 @click.option(
@@ -194,6 +249,8 @@ def sim_command(
     scenario_name: str,
     agents: int | None,
     law: str,
+    damping: float | None,
+    prior: str,
     no_feedforward: bool,
     kappa: float | None,
     dt: float | None,
@@ -230,6 +287,8 @@ def sim_command(
         "duration": scenario.duration if duration is None else duration,
         "seed": seed,
         "dynamics": scenario.dynamics if dynamics is None else dynamics,
+        "damping": damping,
+        "prior": prior,
     }
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()

@@ -69,9 +69,11 @@ def all_outputs(positions, polygon, V, kappa=1.0):
     r, _, _ = pieces(positions, polygon, V, kappa)
     bound = A * np.max(np.linalg.norm(r, axis=1))
     assert np.all(np.linalg.norm(out["d1"], axis=1) <= bound * (1 + 1e-9) + 1e-300)
-    # damped TVD-C: kappa (c - p) plus a feedforward whose rows are capped at A max |dc/dt|
+    # damped TVD-C: kappa (c - p) + v(p) plus a correction whose rows are capped at
+    # A max |dc/dt| (tvd/control.py)
     feedback = np.linalg.norm(pieces(positions, polygon, V, kappa, False)[0], axis=1).max()
-    bound_c = feedback + A * np.linalg.norm(out["rate"], axis=1).max()
+    field = np.linalg.norm(control.affine_field(polygon, V)(positions), axis=1).max()
+    bound_c = feedback + field + A * np.linalg.norm(out["rate"], axis=1).max()
     assert np.all(np.linalg.norm(out["c"], axis=1) <= bound_c * (1 + 1e-9) + 1e-300)
     assert np.all(np.isfinite(control.tvd_da(positions, polygon, V, kappa)))
     return out

@@ -7,29 +7,38 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
 - TVD-DA (domain-motion feedforward, docs/tracking.md): with v(q) = A q + b the affine field
   fitted (least squares) to S's vertex velocities,
 
-      pdot = kappa (c - p) + v(p) + (I + J) rho,   rho = dc/dt - (I - J) v(p).
+      pdot = v(p) + (I + J) (kappa (c - p) + rho),   rho = dc/dt - (I - J) v(p),
 
-  At a CVT of a domain moving by a similarity (translation, rotation, uniform scaling) with
-  uniform density, v(p) solves (I - J) x = dc/dt exactly, so rho = 0 and the feedforward is
-  TVD-C's; the last term is TVD-D1's one-hop correction of whatever the affine guess misses
-  (non-affine vertex motion, a moving density, shear). Same information as a TVD-D1 step.
+  i.e. TVD-D1 applied to r - (I - J) v(p), plus v(p). At a CVT of a domain moving by a
+  similarity (translation, rotation, uniform scaling) with uniform density, v(p) solves
+  (I - J) x = dc/dt exactly, so rho = 0 and the feedforward is TVD-C's; the one-hop
+  correction (I + J) rho carries whatever the affine guess misses (non-affine vertex motion,
+  a moving density, shear). Same information as a TVD-D1 step. The issue's first form kept
+  Lloyd's feedback kappa (c - p) outside (I + J); the Neumann factor on the feedback too
+  halves the decay time of the slow modes and measured 1.2 to 3 times lower errors
+  (docs/tracking.md).
 - TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=None``; by
   default the feedback stays outside the inverse and only the feedforward is solved, damped
-  (Tikhonov / Levenberg-Marquardt): pdot = kappa (c - p) + x with
-  x = argmin |(I - J) x - dc/dt|^2 + damping^2 |x|^2. I - J is near singular close to a CVT
-  of a large team (the slow "sliding" modes of Lloyd's algorithm), which made the exact law
-  fall back to TVD-D1 almost always; the damped solve is bounded, |x| <= |dc/dt| / (2 damping).
+  (Tikhonov / Levenberg-Marquardt) toward a prior x0: pdot = kappa (c - p) + x with
+  x = argmin |(I - J) x - dc/dt|^2 + damping^2 |x - x0|^2. I - J is near singular close to a
+  CVT of a large team (the slow "sliding" modes of Lloyd's algorithm), which made the exact
+  law fall back to TVD-D1 almost always; the damped solve is bounded,
+  |x - x0| <= |dc/dt - (I - J) x0| / (2 damping). The prior is the affine field v(p)
+  (``prior="affine"``, the default: exact at a CVT of a similarity motion, where it is the
+  solution) or zero (``prior="zero"``, plain Tikhonov, which drops the feedforward along the
+  sliding modes: for a translating team that is most of it; docs/tracking.md).
 
-Without feedforward (``feedforward=False``) dc/dt is dropped: TVD-D1 is (I + J) kappa (c - p),
-TVD-DA and the damped TVD-C are Lloyd's kappa (c - p), the exact TVD-C (I - J)^-1 kappa (c - p).
+Without feedforward (``feedforward=False``) dc/dt and v are dropped: TVD-D1 and TVD-DA are
+(I + J) kappa (c - p), the damped TVD-C is Lloyd's kappa (c - p), the exact TVD-C
+(I - J)^-1 kappa (c - p).
 
 Guards, counted (``TeamStep.guarded``, ``TeamStep.fallback``, ``LocalStep.guarded``), because
 far from a CVT the spectral radius of J is 2 to 5 and near-coincident robots make J grow as
 1 / |p_i - p_j|:
 
-- a row of (I + J) r (TVD-D1) or of (I + J) rho (TVD-DA) whose speed exceeds
-  ``max_amplification`` times the largest |r_j| (|rho_j|) among the robot and its
-  neighbours is rescaled to that speed, keeping its direction;
+- a row of (I + J) r (TVD-D1) or of (I + J) (kappa (c - p) + rho) (TVD-DA) whose speed
+  exceeds ``max_amplification`` times the largest |r_j| (resp. |kappa (c_j - p_j) + rho_j|)
+  among the robot and its neighbours is rescaled to that speed, keeping its direction;
 - damped TVD-C: a row of x faster than ``max_amplification`` times max |dc/dt| is rescaled
   likewise; if the solve fails the feedforward is dropped for that step (a fallback);
 - exact TVD-C: falls back to the guarded TVD-D1 velocities when the solve fails, gives a
@@ -79,6 +88,7 @@ MAX_AMPLIFICATION = 10.0
 # Measured on circle/100 (docs/tracking.md).
 DAMPING = 0.05
 LAWS = ("c", "d1", "da")
+PRIORS = ("affine", "zero")
 
 
 @dataclass(frozen=True)
@@ -140,10 +150,19 @@ def affine_field(polygon: np.ndarray, polygon_velocity: np.ndarray) -> AffineFie
 
 
 def _fit(domain: Domain) -> AffineField:
-    origin = domain.vertices.mean(axis=0)
-    design = np.column_stack((domain.vertices - origin, np.ones(len(domain.vertices))))
-    solution = np.linalg.lstsq(design, domain.velocities, rcond=None)[0]  # (3, 2)
-    return AffineField(matrix=solution[:2].T.copy(), origin=origin, velocity=solution[2].copy())
+    """Least squares about the vertices' mean q0: the centred design [q - q0, 1] has its
+    last column orthogonal to the others, so b0 = mean velocity and A^T = (Q^T Q)^-1 Q^T V
+    (2 x 2, written out: this runs in every robot's step)."""
+    weight = 1.0 / len(domain.vertices)
+    origin = domain.vertices.sum(axis=0) * weight
+    centred = domain.vertices - origin
+    (sxx, sxy), (_, syy) = centred.T @ centred
+    moments = centred.T @ domain.velocities  # (2, 2): rows x, y; columns vx, vy
+    det = sxx * syy - sxy * sxy  # > 0: a valid polygon's vertices are not collinear
+    inverse = np.array([[syy, -sxy], [-sxy, sxx]]) / det
+    return AffineField(
+        matrix=(inverse @ moments).T, origin=origin, velocity=domain.velocities.sum(axis=0) * weight
+    )
 
 
 def _check_kappa(kappa: float) -> None:
@@ -258,13 +277,17 @@ def team_step(
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
     damping: float | None = DAMPING,
+    prior: str = "affine",
 ) -> TeamStep:
     """One full-team step of ``law`` ("c", "d1" or "da"), with its guard counts.
 
     positions: (n, 2) m; polygon, polygon_velocity: (k, 2) m and m/s; kappa 1/s.
-    ``damping`` applies to "c" only (None: the exact TVD-C with its fallback).
+    ``damping`` and ``prior`` apply to "c" only (damping None: the exact TVD-C with its
+    fallback).
     """
     _check_law(law)
+    if prior not in PRIORS:
+        raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
     if damping is not None and not (math.isfinite(damping) and damping > 0.0):
         raise ValueError(f"damping must be a positive finite number or None, got {damping!r}")
     points, domain, batch = _team_cells(positions, polygon, polygon_velocity, kappa, density)
@@ -277,7 +300,8 @@ def team_step(
         return _team_da(batch, points, domain, feedback, rate, max_amplification, density)
     if damping is None:
         return _team_c_exact(batch, points, feedback, rate, max_amplification, density)
-    return _team_c_damped(batch, points, feedback, rate, max_amplification, density, damping)
+    field = as_complex(_fit(domain)(points)) if prior == "affine" else None
+    return _team_c_damped(batch, points, feedback, rate, max_amplification, density, damping, field)
 
 
 def _team_d1(
@@ -308,19 +332,36 @@ def _team_da(
     max_amplification: float,
     density: DensityModel | None,
 ) -> TeamStep:
-    """TVD-DA of the whole team: kappa (c - p) + v(p) + (I + J) rho."""
+    """TVD-DA of the whole team: v(p) + (I + J) (kappa (c - p) + rho)."""
     if rate is None:
-        return TeamStep(as_vectors(feedback), np.zeros(len(points), dtype=bool))
+        return _team_d1(batch, points, feedback, max_amplification, density)
     blocks = None if density is None else density.jacobian_blocks(batch, points)
     field = as_complex(_fit(domain)(points))
     labels = np.maximum(batch.labels, 0)
-    residual = (
-        rate - field + _jacobian_product(batch, points, field, field[labels], density, blocks)
+    references = feedback + _residual(batch, points, rate, field, field[labels], density, blocks)
+    rows, guarded = _neumann_rows(
+        batch, points, references, references[labels], max_amplification, density, blocks
     )
-    correction, guarded = _neumann_rows(
-        batch, points, residual, residual[labels], max_amplification, density, blocks
-    )
-    return TeamStep(as_vectors(feedback + field + correction), guarded)
+    return TeamStep(as_vectors(field + rows), guarded)
+
+
+def _residual(
+    batch: CellBatch,
+    points: np.ndarray,
+    rate: np.ndarray,
+    own_field: np.ndarray,
+    neighbor_field: np.ndarray,
+    density: DensityModel | None,
+    blocks: Blocks | None,
+) -> np.ndarray:
+    """rho_i = dc_i/dt - v(p_i) + (J v)_i for the batch's rows, (K,) complex: what the affine
+    guess v misses of TVD-C's feedforward (zero at a CVT of a similarity motion).
+
+    own_field: (K,) v(p_i); neighbor_field: (K, L) v(p_j) of the robot each line comes from.
+    An empty cell's row of J is zero, so its rho is dc_S/dt - v(p_i).
+    """
+    product = _jacobian_product(batch, points, own_field, neighbor_field, density, blocks)
+    return rate - own_field + product
 
 
 def _control_jacobian(
@@ -386,21 +427,29 @@ def _team_c_damped(
     max_amplification: float,
     density: DensityModel | None,
     damping: float,
+    prior: np.ndarray | None,
 ) -> TeamStep:
-    """kappa (c - p) + x, x the Tikhonov-damped solution of (I - J) x = dc/dt."""
+    """kappa (c - p) + x, x the solution of (I - J) x = dc/dt damped toward ``prior`` ((n,)
+    complex, None for zero); a correction x - prior faster than ``max_amplification`` times
+    max |dc/dt| is rescaled to that speed."""
     n = len(points)
     if rate is None:
         return TeamStep(as_vectors(feedback), np.zeros(n, dtype=bool))
     matrix = _control_matrix(batch, points, density)
     normal = (matrix.T @ matrix + damping**2 * scipy.sparse.eye_array(2 * n)).tocsc()
-    solution = _solve(normal, matrix.T @ as_vectors(rate).ravel())
+    rhs = as_vectors(rate).ravel()
+    if prior is not None:
+        rhs = rhs - matrix @ as_vectors(prior).ravel()
+    solution = _solve(normal, matrix.T @ rhs)
     if solution is None:
-        return TeamStep(as_vectors(feedback), np.zeros(n, dtype=bool), fallback=True)
-    feedforward = as_complex(solution.reshape(-1, 2))
+        fallback = feedback if prior is None else feedback + prior
+        return TeamStep(as_vectors(fallback), np.zeros(n, dtype=bool), fallback=True)
+    correction = as_complex(solution.reshape(-1, 2))
     limit = max_amplification * float(np.max(np.abs(rate)))
-    speed = np.abs(feedforward)
+    speed = np.abs(correction)
     guarded = speed > limit
-    feedforward = np.where(guarded, feedforward * limit / np.maximum(speed, 1e-300), feedforward)
+    correction = np.where(guarded, correction * limit / np.maximum(speed, 1e-300), correction)
+    feedforward = correction if prior is None else prior + correction
     return TeamStep(as_vectors(feedback + feedforward), guarded)
 
 
@@ -431,7 +480,7 @@ def tvd_da(
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
 ) -> np.ndarray:
-    """TVD-DA velocities kappa (c - p) + v(p) + (I + dc/dp) rho for the whole team.
+    """TVD-DA velocities v(p) + (I + dc/dp)(kappa (c - p) + rho) for the whole team.
 
     v: the affine field fitted to S's vertex velocities (``affine_field``); rho = dc/dt -
     (I - dc/dp) v(p), the residual of the affine guess. positions: (n, 2) m; polygon,
@@ -451,10 +500,12 @@ def tvd_c(
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
     damping: float | None = DAMPING,
+    prior: str = "affine",
 ) -> np.ndarray:
     """TVD-C velocities for the whole team (module notes).
 
-    Default: kappa (c - p) + x, x = argmin |(I - dc/dp) x - dc/dt|^2 + damping^2 |x|^2.
+    Default: kappa (c - p) + x, x = argmin |(I - dc/dp) x - dc/dt|^2 + damping^2 |x - x0|^2,
+    x0 the affine field v(p) (``prior="affine"``) or 0 (``prior="zero"``).
     ``damping=None``: the paper's exact (I - dc/dp)^-1 (kappa (c - p) + dc/dt), falling back
     to the guarded TVD-D1 velocities when I - dc/dp is numerically singular or the solution
     amplifies a robot's speed beyond ``max_amplification`` times max |r|.
@@ -470,6 +521,7 @@ def tvd_c(
         density,
         max_amplification,
         damping,
+        prior,
     ).velocity
 
 
@@ -517,45 +569,31 @@ def local_step(
     here = as_complex(points)
     feedback = kappa * (target - here[owners])
     mine = _rows(batch, slice(0, 1))
-    if law == "d1":
-        references = feedback if rate is None else feedback + rate
-        by_robot = np.zeros(len(ids), dtype=np.complex128)
-        by_robot[owners] = references
-        row, guarded = _neumann_rows(
-            mine,
-            points,
-            references[:1],
-            by_robot[np.maximum(mine.labels, 0)],
-            max_amplification,
-            density,
-        )
-        velocity = row[0]
-    elif rate is None:
-        velocity, guarded = feedback[0], np.zeros(1, dtype=bool)
-    else:
-        # TVD-DA: rho of our cell and our neighbours' (their J rows need their neighbours'
-        # v, which the two-hop view holds), then our row of (I + J) rho.
-        blocks = None if density is None else density.jacobian_blocks(batch, points)
+    # What (I + J) acts on, for our cell and our neighbours': r (TVD-D1), or kappa (c - p)
+    # + rho (TVD-DA; our neighbours' rows of J need their neighbours' v, in the two-hop view).
+    field = blocks = None
+    references = feedback
+    if rate is not None and law == "d1":
+        references = feedback + rate
+    elif rate is not None:
         field = as_complex(_fit(domain)(points))
-        residual = (
-            rate
-            - field[owners]
-            + _jacobian_product(
-                batch, points, field[owners], field[np.maximum(batch.labels, 0)], density, blocks
-            )
+        blocks = None if density is None else density.jacobian_blocks(batch, points)
+        neighbor_field = field[np.maximum(batch.labels, 0)]
+        references = feedback + _residual(
+            batch, points, rate, field[owners], neighbor_field, density, blocks
         )
-        by_robot = np.zeros(len(ids), dtype=np.complex128)
-        by_robot[owners] = residual
-        row, guarded = _neumann_rows(
-            mine,
-            points,
-            residual[:1],
-            by_robot[np.maximum(mine.labels, 0)],
-            max_amplification,
-            density,
-            None if blocks is None else (blocks[0][:1], blocks[1][:1]),
-        )
-        velocity = feedback[0] + field[index] + row[0]
+    by_robot = np.zeros(len(ids), dtype=np.complex128)
+    by_robot[owners] = references
+    row, guarded = _neumann_rows(
+        mine,
+        points,
+        references[:1],
+        by_robot[np.maximum(mine.labels, 0)],
+        max_amplification,
+        density,
+        None if blocks is None else (blocks[0][:1], blocks[1][:1]),
+    )
+    velocity = row[0] if field is None else field[index] + row[0]
     neighbor_indices = mine.labels[0][mine.shared[0]]
     return LocalStep(
         velocity=as_vectors(np.array([velocity]))[0],
