@@ -487,29 +487,32 @@ def open_recorder(
     """
     if out_dir is None and live_port is None:
         return None
-    from covswarm.records.recorder import LIVE_HOST, RunRecorder
+    from covswarm.records.recorder import LIVE_HOST, LiveViewError, RunRecorder
 
     scenario = settings.scenario
-    recorder = RunRecorder(
-        out_dir,
-        run_metadata={
-            "source": "run",
-            "scenario": scenario.name,
-            "law": "d1",
-            "feedforward": settings.feedforward,
-            "kappa": settings.kappa,
-            "seed": seed,
-            "agents": settings.agents,
-            "duration": settings.duration,
-            "swarm": settings.swarm,
-            "time_scale": settings.time_scale,
-            "pose_rate_hz": settings.rate,
-        },
-        workspace=scenario.workspace,
-        obstacles=scenario.obstacles,
-        live_port=live_port,
-        continued=resume,
-    )
+    try:
+        recorder = RunRecorder(
+            out_dir,
+            run_metadata={
+                "source": "run",
+                "scenario": scenario.name,
+                "law": "d1",
+                "feedforward": settings.feedforward,
+                "kappa": settings.kappa,
+                "seed": seed,
+                "agents": settings.agents,
+                "duration": settings.duration,
+                "swarm": settings.swarm,
+                "time_scale": settings.time_scale,
+                "pose_rate_hz": settings.rate,
+            },
+            workspace=scenario.workspace,
+            obstacles=scenario.obstacles,
+            live_port=live_port,
+            continued=resume,
+        )
+    except LiveViewError as exc:
+        raise click.ClickException(f"--foxglove: {exc}") from None
     if recorder.live_port is not None:
         log.info("Foxglove live view on ws://%s:%d", LIVE_HOST, recorder.live_port)
     return recorder

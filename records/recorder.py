@@ -67,6 +67,10 @@ _STATS_SCHEMA = {
 _STEERING_SCHEMA = {"type": "object", "properties": {"t": {"type": "number"}}}
 
 
+class LiveViewError(RuntimeError):
+    """The live view's server could not start (typically: the port is taken)."""
+
+
 def json_schema(name: str, schema: Mapping[str, Any]) -> foxglove.Schema:
     """A named JSON schema (viewers list its fields; the name identifies the channel's type)."""
     return foxglove.Schema(
@@ -148,6 +152,14 @@ class RunRecorder:
             "obstacles": [list(box) for box in obstacles],
             "versions": versions(),
         }
+        self.server = None
+        if live_port is not None:  # first, so that a busy port leaves no half-written file
+            try:
+                self.server = foxglove.start_server(
+                    name="covswarm", host=LIVE_HOST, port=live_port, context=ctx
+                )
+            except RuntimeError as exc:
+                raise LiveViewError(f"cannot serve on {LIVE_HOST}:{live_port}: {exc}") from None
         self.mcap_path: Path | None = None
         self._writer = None
         self._trajectories: TrajectoryWriter | None = None
@@ -166,11 +178,6 @@ class RunRecorder:
             )
             self._writer.write_metadata(METADATA_NAME, metadata_strings(self.metadata))
             self._trajectories = TrajectoryWriter(out / csv_name)
-        self.server = None
-        if live_port is not None:
-            self.server = foxglove.start_server(
-                name="covswarm", host=LIVE_HOST, port=live_port, context=ctx
-            )
         self.cell_share = cell_share
         self._last_ns = 0
         self._next_cells = 0.0

@@ -261,3 +261,17 @@ def test_shipped_layouts_are_the_generated_ones_and_name_recorded_channels() -> 
     for path in STATS_PATHS:
         topic, _, stat = path.partition(".mean.")
         assert topic == recorder.AGENT_STATS_TOPIC and stat in HEADLINE_STATS
+
+
+def test_live_view_on_a_taken_port_is_a_clear_error(tmp_path: Path) -> None:
+    import socket
+
+    from covswarm.records.recorder import LiveViewError
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        with pytest.raises(LiveViewError, match=f"127.0.0.1:{port}"):
+            RunRecorder(tmp_path, run_metadata={}, live_port=port)
+    assert not (tmp_path / "run.mcap").exists()  # nothing half-written
