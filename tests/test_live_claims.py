@@ -1,0 +1,97 @@
+"""README claims that only real processes can show, from two short ``covswarm run``s.
+
+The circle scenario with 10 and then 40 robots (8 s of mission each, 20 brains or robots
+per process, as the README's live bench packs them) over loopback Zenoh:
+
+- "What an agent receives per second depends on how many robots are next to it, not on the
+  team size": the mean messages received per agent per second (``rx_per_s`` in the agents'
+  stats) may grow by at most RATIO from 10 to 40 robots. Had every agent listened to
+  everyone, it would grow about 4x (39 teammates' states at the control rate against 9).
+- A healthy run counts no failed control step (``step_errors``; the step's catch-all makes
+  "never raises" true by construction, the count is what shows it did not fire).
+- The agent process does not import matplotlib, the robot process neither scipy nor
+  matplotlib: read from the running processes' memory maps (/proc/PID/maps lists every
+  compiled extension a process loaded, and both libraries load theirs on import).
+"""
+
+from __future__ import annotations
+
+import functools
+import json
+from pathlib import Path
+
+import pytest
+from live_runs import launch, new_swarm, swarm_pids, wait_until
+
+pytestmark = pytest.mark.e2e
+
+SIZES = (10, 40)
+RATIO = 1.5  # measured 1.17 (78 -> 92 messages per agent per second)
+
+
+def loaded_libraries(pid: int) -> set[str]:
+    """Top-level packages under site-packages whose files process ``pid`` has mapped."""
+    packages = set()
+    for line in Path(f"/proc/{pid}/maps").read_text().splitlines():
+        _, _, path = line.partition("site-packages/")
+        if path:
+            packages.add(path.split("/", 1)[0])
+    return packages
+
+
+def mission_started(out: Path) -> bool:
+    log = out / "logs" / "coordinator-0.log"
+    return log.exists() and "mission started" in log.read_text()
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
+    """{team size: {"summary": summary.json, "agent": [libraries per agent process],
+    "robot": [libraries per robot process]}}, the libraries read mid-mission."""
+    results = {}
+    for n in SIZES:
+        swarm, out = new_swarm(), tmp_path_factory.mktemp("live") / f"circle-{n}"
+        args = ["--scenario", "circle", "--agents", str(n), "--duration", "8",
+                "--agents-per-process", "20"]  # fmt: skip
+        with launch(out, *args, swarm=swarm) as launcher:
+            assert wait_until(functools.partial(mission_started, out), 90)
+            libraries = {
+                role: [loaded_libraries(pid) for pid in swarm_pids(swarm, role)]
+                for role in ("agent", "robot")
+            }
+            code = launcher.wait(timeout=180)
+            assert code == 0, (out.parent / f"{out.name}.launcher.log").read_text()
+        assert swarm_pids(swarm) == set()
+        summary = json.loads((out / "summary.json").read_text())
+        results[n] = {"summary": summary, **libraries}
+    return results
+
+
+def test_messages_per_agent_do_not_grow_with_the_team(runs: dict[int, dict]) -> None:
+    rx = {}
+    for n, run in runs.items():
+        summary = run["summary"]
+        assert summary["alive_at_end"] == {"agents": n, "robots": n}
+        assert summary["lost_processes"] == []
+        rx[n] = summary["agent_stats"]["team"]["rx_per_s"]["mean"]
+    small, large = SIZES
+    assert rx[small] >= 20.0, rx  # at least its own robot's poses and the domain, 20 Hz each
+    assert rx[large] <= RATIO * rx[small], rx
+
+
+def test_a_healthy_run_has_no_failed_control_step(runs: dict[int, dict]) -> None:
+    for n, run in runs.items():
+        team = run["summary"]["agent_stats"]["team"]
+        assert team["step_errors"]["max"] == 0, (n, team["step_errors"])
+
+
+def test_agents_load_no_matplotlib_and_robots_no_scipy(runs: dict[int, dict]) -> None:
+    for n, run in runs.items():
+        processes = -(-n // 20)  # 20 brains (robots) per process
+        assert len(run["agent"]) == len(run["robot"]) == processes, run
+        for libraries in run["agent"]:
+            assert "numpy" in libraries and "scipy" in libraries  # the maps are read right
+            assert "matplotlib" not in libraries
+        for libraries in run["robot"]:
+            assert "numpy" in libraries
+            assert not libraries & {"scipy", "matplotlib"}, libraries
