@@ -177,7 +177,9 @@ class Console:
         now = time.monotonic()
         if now - self._frame_at >= 0.5 * self.period:
             self.feed.drain(now)
-            self._frame = json.dumps(self.view.snapshot(now, time.time()), separators=(",", ":"))
+            document = self.view.snapshot(now, time.time())
+            document["console"] = {"pages": self.clients, "refused_requests": self.refused_requests}
+            self._frame = json.dumps(document, separators=(",", ":"))
             self._frame_at = now
             self._version += 1
         return self._frame

@@ -192,10 +192,13 @@ def main(
             result["frame_bytes"] = len(state.encode())
             # Drag latency, each drag from rest.
             round_trips, to_domain = [], []
+            # First towards y = 0 (S stays in the workspace wherever the script left it),
+            # then back, and so on.
+            first = -DRAG if domains.seen[-1][1][:, 1].mean() > 0 else DRAG
             for k in range(drags + 1 if drags else 0):
                 held = domains.seen[-1][1]
                 shot = screenshot if screenshot is not None and k == drags else None
-                released = drag(page, -DRAG if k % 2 == 0 else DRAG, shot)
+                released = drag(page, first if k % 2 == 0 else -first, shot)
                 page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=10000)
                 reply = page.evaluate("window.covswarm.hooks.lastReply")
                 if not reply["accepted"]:

@@ -383,7 +383,8 @@ def test_a_console_off_the_default_address_needs_its_token(swarm_run, browser) -
         state = base + "api/state"
         assert get(state)[0] == 403
         assert get(state + "?token=" + "x" * len(token))[0] == 403
-        assert get(state, {"Authorization": f"token {token}"})[0] == 200
+        status, raw = get(state, {"Authorization": f"token {token}"})
+        assert status == 200 and json.loads(raw)["console"]["refused_requests"] == 2
         assert get(base)[0] == 403  # the page itself
         assert post_json(base + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')[0] == 403
         # Without the token a browser gets nothing, not even the stream.
