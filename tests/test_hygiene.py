@@ -1,0 +1,118 @@
+"""Claims the README makes about the code itself, and the test suite's own rules.
+
+- "`ruff check` and `ruff format` are clean": both run here, on the whole repository.
+- "multicast scouting and gossip are off everywhere": every Zenoh configuration covswarm
+  opens comes from protocol.session.session_config (no other module builds a zenoh.Config),
+  and that one has both off in every mode, secured or not.
+- Test modules never import each other (shared code lives in tests/conftest.py and in
+  helper modules whose names do not start with ``test_``).
+- ``pytest -q`` as a user who is not root skips the multi-host test with its reason, and
+  fails it under CI=true (tests/conftest.py ``require``).
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from covswarm import protocol
+from covswarm.protocol.session import MODES
+
+ROOT = Path(__file__).resolve().parents[1]
+TESTS = ROOT / "tests"
+
+
+def package_folders() -> list[Path]:
+    """The folders installed as covswarm.<name> (pyproject's package-dir)."""
+    return sorted(p.parent for p in ROOT.glob("*/__init__.py"))
+
+
+@pytest.mark.parametrize("command", [["check"], ["format", "--check"]], ids=" ".join)
+def test_ruff_is_clean(command: list[str], require) -> None:
+    ruff = Path(sys.executable).with_name("ruff")
+    require(ruff.exists(), "needs ruff (pip install -e '.[test]')")
+    done = subprocess.run(
+        [str(ruff), *command, "."], cwd=ROOT, capture_output=True, text=True, timeout=120
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
+
+
+@pytest.mark.parametrize("mode", MODES)
+def test_multicast_scouting_and_gossip_are_off_in_every_mode(mode: str, tmp_path: Path) -> None:
+    endpoints = ["tcp/127.0.0.1:7447"]
+    config = protocol.session_config(endpoints, endpoints if mode != "client" else None, mode)
+    for key in ("scouting/multicast/enabled", "scouting/gossip/enabled"):
+        assert config.get_json(key) == "false", (mode, key, config.get_json(key))
+
+
+def test_secured_sessions_keep_scouting_and_gossip_off(tmp_path: Path, require) -> None:
+    import shutil
+
+    from covswarm.protocol.security import make_test_credentials
+
+    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
+    secure = make_test_credentials(tmp_path / "secure")
+    for mode, connect, listen in (("client", True, False), ("router", False, True)):
+        endpoints = ["tls/127.0.0.1:7447"]
+        config = protocol.session_config(
+            endpoints if connect else None, endpoints if listen else None, mode, secure=secure
+        )
+        assert config.get_json("scouting/multicast/enabled") == "false"
+        assert config.get_json("scouting/gossip/enabled") == "false"
+
+
+CONFIG_MAKERS = {"zenoh.Config", "zenoh.Config.from_file", "zenoh.Config.from_json5"}
+
+
+def test_only_session_config_builds_a_zenoh_config() -> None:
+    """A zenoh.Config made anywhere else could leave scouting or gossip on."""
+    home = ROOT / "protocol" / "session.py"
+    found = []
+    for folder in package_folders():
+        for path in sorted(folder.rglob("*.py")):
+            if path == home:
+                continue
+            for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+                if isinstance(node, ast.Call) and ast.unparse(node.func) in CONFIG_MAKERS:
+                    found.append(f"{path.relative_to(ROOT)}:{node.lineno}")
+    assert not found, found
+
+
+def test_test_modules_do_not_import_each_other() -> None:
+    modules = {p.stem for p in TESTS.glob("test_*.py")}
+    found = []
+    for path in sorted(TESTS.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            names = []
+            if isinstance(node, ast.Import):
+                names = [alias.name for alias in node.names]
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                names = [node.module]
+            found += [f"{path.name} imports {n}" for n in names if n.split(".")[0] in modules]
+    assert not found, found
+
+
+PRETEND_NOT_ROOT = """
+import os, sys, pytest
+os.geteuid = lambda: 1000  # as a contributor who is not root sees it
+sys.exit(pytest.main(["-q", "-rs", "-p", "no:cacheprovider", sys.argv[1]]))
+"""
+
+
+@pytest.mark.parametrize("ci", [False, True], ids=["contributor", "ci"])
+def test_the_multihost_test_skips_for_non_root_and_fails_in_ci(ci: bool) -> None:
+    env = {k: v for k, v in os.environ.items() if k != "CI"} | ({"CI": "true"} if ci else {})
+    done = subprocess.run(
+        [sys.executable, "-c", PRETEND_NOT_ROOT, str(TESTS / "test_multihost.py")],
+        cwd=ROOT, env=env, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    if ci:
+        assert done.returncode == 1 and "1 failed" in done.stdout, done.stdout
+    else:
+        assert done.returncode == 0 and "1 skipped" in done.stdout, done.stdout
+        assert "needs root" in done.stdout
