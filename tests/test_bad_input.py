@@ -177,6 +177,7 @@ def router() -> Iterator[tuple[object, str]]:
 
 
 @pytest.mark.timeout(60)
+@pytest.mark.e2e
 def test_a_second_claim_on_an_id_is_refused(router: tuple) -> None:
     import zenoh
 

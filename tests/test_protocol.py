@@ -430,6 +430,7 @@ print("stopped", ticker.ticks > 0, flush=True)
 """
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize("signum", [signal.SIGTERM, signal.SIGINT])
 def test_stop_flag_ends_a_ticking_loop(signum: int) -> None:
     child = subprocess.Popen([sys.executable, "-c", LOOP], stdout=subprocess.PIPE, text=True)
