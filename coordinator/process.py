@@ -54,6 +54,7 @@ STATUS_PERIOD = 0.5  # s
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
 FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
+STEERING_JOURNAL = "steering.jsonl"  # in --out: accepted steering requests, for --resume
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
 SAMPLE_SHARE = 0.05
@@ -183,6 +184,10 @@ class Coordinator:
         # request is answered and acted on within one broadcast period.
         self._steer = session.declare_queryable(steer_key(swarm), zenoh.handlers.FifoChannel(64))
         self.steering = Steering(settings.scenario.domain, steering_limits(settings))
+        self._journal = None if mission_file is None else mission_file.with_name(STEERING_JOURNAL)
+        if resume_wall is not None and self._journal is not None and self._journal.exists():
+            lines = self._journal.read_text(encoding="utf-8").splitlines()
+            log.info("resumed %d steering requests", self.steering.replay(lines))
         self._status = session.declare_publisher(status_key(swarm))
         self._seq = 0
         # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
@@ -273,6 +278,9 @@ class Coordinator:
             self.record_steering(t, self.steering.records[-1].to_dict())
             if reply.accepted:
                 log.info("steering at t = %.2f s: %s", t, self.steering.records[-1].request)
+                if self._journal is not None:
+                    with self._journal.open("a", encoding="utf-8") as journal:
+                        journal.write(self.steering.journal_line() + "\n")
             else:
                 log.warning("steering request refused at t = %.2f s: %s", t, reply.reason)
             query.reply(query.key_expr, reply.encode())
@@ -391,6 +399,7 @@ class Coordinator:
                     }
                     self.mission_file.parent.mkdir(parents=True, exist_ok=True)
                     self.mission_file.write_text(json.dumps(mission) + "\n", encoding="utf-8")
+                    self._journal.unlink(missing_ok=True)  # a previous mission's requests
             t = self.clock.mission_time(now)
             polygon = self._publish_domain(state, t)
             ticks_to_sample -= 1

@@ -444,6 +444,32 @@ class Steering:
         self.records.append(SteeringRecord(t, wall, request.to_dict(), True, note, span))
         return reply
 
+    def replay(self, lines: list[str]) -> int:
+        """Carry out again the accepted requests of a journal (one :meth:`journal_line`
+        each, in order): a restarted coordinator (``--resume``) puts S back where the
+        steering took it. Motions depend only on the request, its time and S then, so the
+        replay is exact. Returns how many lines were replayed; unreadable ones are skipped.
+        """
+        import json
+
+        replayed = 0
+        for line in lines:
+            try:
+                entry = json.loads(line)
+                request = SteerRequest(**entry["request"])
+                t, wall = float(entry["t"]), float(entry["wall"])
+            except (ValueError, TypeError, KeyError):
+                continue
+            replayed += self.handle(request.encode(), t, wall, True).accepted
+        return replayed
+
+    def journal_line(self) -> str:
+        """The last record as one JSON line of the journal that :meth:`replay` reads."""
+        import json
+
+        record = self.records[-1]
+        return json.dumps({"t": record.t, "wall": record.wall, "request": record.request})
+
     def _refuse(
         self, refusal: Refusal, request: SteerRequest | None, t: float, wall: float
     ) -> SteerReply:

@@ -324,3 +324,22 @@ def test_the_error_plot_marks_every_request(tmp_path) -> None:
         polygons=[SQUARE] * 50,
     )
     assert (tmp_path / "error.png").stat().st_size > 0
+
+
+def test_a_restarted_coordinator_replays_the_journal_exactly() -> None:
+    steer, journal = steering(), []
+    requests = [
+        (SteerRequest("translate", dx=1.0, dy=0.2), 1.0),
+        (SteerRequest("polygon", polygon=[[0, 0], [1, 1], [1, 0], [0, 1]]), 2.0),  # refused
+        (SteerRequest("rotate", angle=0.7), 2.5),  # pre-empts the translation
+        (SteerRequest("polygon", polygon=[[0, -1], [2, -1], [2, 0.5], [0.5, 1]]), 6.0),
+    ]
+    for request, t in requests:
+        if send(steer, request, t).accepted:
+            journal.append(steer.journal_line())
+    assert len(journal) == 3
+    again = steering()
+    assert again.replay([*journal, "not json", '{"t": 1}']) == 3  # bad lines skipped
+    for t in (0.5, 1.7, 3.0, 6.5, 30.0):
+        np.testing.assert_array_equal(again.domain(t)[0], steer.domain(t)[0])
+        np.testing.assert_array_equal(again.domain(t)[1], steer.domain(t)[1])
