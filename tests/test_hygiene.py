@@ -6,6 +6,7 @@
   and that one has both off in every mode, secured or not.
 - Test modules never import each other (shared code lives in tests/conftest.py and in
   helper modules whose names do not start with ``test_``).
+- The README's and docs' Python examples parse, and everything they import exists.
 - ``pytest -q`` as a user who is not root skips the multi-host test with its reason, and
   fails it under CI=true (tests/conftest.py ``require``).
 """
@@ -95,6 +96,26 @@ def test_test_modules_do_not_import_each_other() -> None:
                 names = [node.module]
             found += [f"{path.name} imports {n}" for n in names if n.split(".")[0] in modules]
     assert not found, found
+
+
+def python_examples() -> list[tuple[str, str]]:
+    """(where, code) of every fenced python block in README.md and docs/*.md."""
+    examples = []
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+        blocks = path.read_text(encoding="utf-8").split("```python\n")[1:]
+        examples += [(f"{path.name}#{k}", block.split("```")[0]) for k, block in enumerate(blocks)]
+    return examples
+
+
+def test_documented_python_examples_parse_and_their_imports_exist() -> None:
+    examples = python_examples()
+    assert examples, "the README's bridge example is gone"
+    for where, code in examples:
+        tree = ast.parse(code, filename=where)  # a syntax error fails here
+        imports = [n for n in tree.body if isinstance(n, ast.Import | ast.ImportFrom)]
+        script = "\n".join(ast.unparse(node) for node in imports)
+        done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True)
+        assert done.returncode == 0, f"{where}: {done.stderr}"
 
 
 PRETEND_NOT_ROOT = """
