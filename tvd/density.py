@@ -390,12 +390,14 @@ class _Bumps:
 class _Edges:
     """Every (cell, line, bump) edge in its bump's whitened plane, (K, L, B) arrays.
 
-    h: signed distance of the mean from the edge's line; u: unit direction (complex; 0 on
-    absent lines); t_a, t_b: ends along u from the foot; e0, e1, e2: int (t - origin)^k G dt,
-    about the foot (origin 0) in the closed forms and about the edge's start (origin t_a)
-    where the Gauss rule is used, so that a short edge far from its foot keeps its digits.
+    y_a: the edge's start, whitened (complex); h: signed distance of the mean from the
+    edge's line; u: unit direction (complex; 0 on absent lines); t_a, t_b: ends along u from
+    the foot; e0, e1, e2: int (t - origin)^k G dt, about the foot (origin 0) in the closed
+    forms and about the edge's start (origin t_a) where the Gauss rule is used, so that a
+    short edge far from its foot keeps its digits.
     """
 
+    y_a: np.ndarray
     h: np.ndarray
     u: np.ndarray
     t_a: np.ndarray
@@ -472,7 +474,7 @@ def _compute_integrals(bumps: _Bumps, floor: float, batch: CellBatch) -> _Integr
     present = batch.present[:, :lines]
     first = start[:, :1]
     extent = np.where(present, np.abs(start - first), 0.0).max(axis=1)  # (K,)
-    size = extent[:, None] / bumps.deviation  # whitened size, (K, B)
+    size = extent[:, None] / bumps.deviation  # at least the whitened extent, (K, B)
     reach = np.abs(bumps.whiten(first[:, 0]))  # whitened distance to the first vertex
     near = np.maximum(reach - size, 0.0)
     amplitude = np.abs(bumps.weights) * (
@@ -486,6 +488,8 @@ def _compute_integrals(bumps: _Bumps, floor: float, batch: CellBatch) -> _Integr
         bumps, size, reach = bumps.take(kept), size[:, kept], reach[:, kept]
     edges = _edge_moments(bumps, start, end, present)
     integrals = _closed_moments(bumps, edges)
+    # The whitened extent itself (an elongated bump: the bound above can be far larger).
+    size = np.where(present[..., None], np.abs(edges.y_a - edges.y_a[:, :1]), 0.0).max(axis=1)
     small = size < SMALL_CELL
     if small.any():
         order = _rule_order(float((size * (reach + size))[small].max()))
@@ -510,7 +514,7 @@ def _edge_moments(bumps: _Bumps, start: np.ndarray, end: np.ndarray, present: np
     g_a, g_b = np.exp(-0.5 * t_a * t_a), np.exp(-0.5 * t_b * t_b)
     e1 = foot * (g_a - g_b)
     e2 = foot * (t_a * g_a - t_b * g_b) + e0
-    return _Edges(h=h, u=u, t_a=t_a, t_b=t_b, e0=e0, e1=e1, e2=e2)
+    return _Edges(y_a=y_a, h=h, u=u, t_a=t_a, t_b=t_b, e0=e0, e1=e1, e2=e2)
 
 
 def _closed_moments(bumps: _Bumps, edges: _Edges) -> _Integrals:
@@ -609,6 +613,7 @@ def _small_cells(
     g = (span[..., None] * node_weights) * np.exp(-0.5 * (edges.h[..., None] ** 2 + t * t))
     pair = small[:, None, :]
     rule_edges = _Edges(
+        y_a=edges.y_a,
         h=edges.h,
         u=edges.u,
         t_a=edges.t_a,
