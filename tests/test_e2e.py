@@ -69,6 +69,8 @@ def test_two_runs_at_once_do_not_collide(tmp_path: Path) -> None:
     launches = [json.loads((out / "launch.json").read_text()) for out in outs]
     assert launches[0]["swarm"] != launches[1]["swarm"]
     assert launches[0]["endpoint"] != launches[1]["endpoint"]
+    for launched in launches:  # an embedded router listens on loopback unless told otherwise
+        assert launched["endpoint"].startswith("tcp/127.0.0.1:"), launched["endpoint"]
     for out in outs:
         summary = json.loads((out / "summary.json").read_text())
         # Each coordinator saw exactly its own team, none of the other run's processes.
@@ -98,11 +100,20 @@ def test_run_joins_an_existing_router(tmp_path: Path) -> None:
     )
     try:
         assert router.stdout.readline().strip() == "ready"
-        out = tmp_path / "joined"
-        with launch(out, "--agents", "2", "--duration", "4", "--connect", endpoint) as launcher:
-            assert launcher.wait(timeout=120) == 0
-        assert json.loads((out / "launch.json").read_text())["endpoint"] == endpoint
-        assert json.loads((out / "summary.json").read_text())["alive_at_end"]["robots"] == 2
+        # Two runs share the router: each swarm name keeps them apart (README, "<swarm>").
+        # Teams of 2 and 3: a run that saw the other's robot 2 or its states would say so.
+        outs = {2: tmp_path / "joined-2", 3: tmp_path / "joined-3"}
+        common = ("--duration", "4", "--connect", endpoint)
+        with (
+            launch(outs[2], "--agents", "2", *common) as first,
+            launch(outs[3], "--agents", "3", *common) as second,
+        ):
+            assert first.wait(timeout=120) == 0 and second.wait(timeout=120) == 0
+        for n, out in outs.items():
+            assert json.loads((out / "launch.json").read_text())["endpoint"] == endpoint
+            summary = json.loads((out / "summary.json").read_text())
+            assert summary["alive_at_end"] == {"agents": n, "robots": n}
+            assert sorted(summary["agent_stats"]["per_agent"]) == [str(i) for i in range(n)]
     finally:
         router.terminate()
         router.wait(timeout=10)
