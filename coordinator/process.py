@@ -17,6 +17,7 @@ import json
 import logging
 import math
 import time
+from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -194,11 +195,19 @@ class Coordinator:
         # only the ones present when e_a is sampled are ever read.
         self._pose_payloads: dict[str, bytes] = {}
         self.recorder = recorder
-        # Poses decoded since the recorder last took them: id -> (x, y, theta).
-        self._fresh_poses: dict[int, tuple[float, float, float]] = {}
+        # Every pose payload received while the mission runs, until the recorder takes them
+        # (bounded: a few seconds of the team's poses when recording falls behind).
+        self._pose_backlog: deque[bytes] = deque(maxlen=64 * max(n, 16))
+        self._last_pose_time: dict[int, float] = {}  # mission time of each robot's last record
+        self._last_record_t = 0.0
         self._next_stats_record = 0.0
-        self.recording_seconds = 0.0  # wall time spent in _record (decoding every pose too)
-        self.recording_skipped = 0  # ticks not recorded because recording was too expensive
+        self.recording = {  # what recording cost and what it could not record, counted
+            "seconds": 0.0,  # wall time spent in _record (decoding every pose too)
+            "skipped_ticks": 0,  # ticks not recorded because recording was too expensive
+            "backlog_overflow": 0,  # poses dropped because the backlog was full
+            "stale_poses": 0,  # poses not newer than the robot's last recorded one
+            "rejected_poses": 0,  # payloads that did not decode (ProtocolError)
+        }
 
     # -- inputs ---------------------------------------------------------------------------
 
@@ -230,8 +239,15 @@ class Coordinator:
             log.warning(
                 "team changed at t = %.1f s: lost %s, joined %s", t, change.lost, change.joined
             )
+        if self.clock.state == WAITING:  # the first record holds the poses of one tick
+            self._pose_backlog.clear()
         while (sample := self._poses.try_recv()) is not None:
-            self._pose_payloads[str(sample.key_expr)] = sample.payload.to_bytes()
+            payload = sample.payload.to_bytes()
+            self._pose_payloads[str(sample.key_expr)] = payload
+            if self.recorder is not None:
+                if len(self._pose_backlog) == self._pose_backlog.maxlen:
+                    self.recording["backlog_overflow"] += 1
+                self._pose_backlog.append(payload)
         while (sample := self._states.try_recv()) is not None:
             try:
                 state = AgentState.decode(sample.payload.to_bytes())
@@ -253,8 +269,6 @@ class Coordinator:
                 obs.rejected += 1
                 continue
             obs.poses[pose.id] = (pose.x, pose.y)
-            if self.recorder is not None:
-                self._fresh_poses[pose.id] = (pose.x, pose.y, pose.theta)
         self._pose_payloads.clear()
 
     def team_ready(self) -> bool:
@@ -334,15 +348,39 @@ class Coordinator:
             self.recorder.steering(t, event)
 
     def _record(self, t: float, polygon: np.ndarray) -> float:
-        """Every pose decoded since the last record, S(t), and at lower rates the cells and
-        the agents' stats (covswarm.records.recorder); returns the wall time it took, s."""
-        recorder = self.recorder
+        """Every pose received since the last record, each at the mission time it was
+        measured (covswarm.records.observations), S(t), and at lower rates the cells and the
+        agents' stats (covswarm.records.recorder); returns the wall time it took, s."""
+        from covswarm.protocol import Pose, ProtocolError
+        from covswarm.records.observations import Observation, timed_layers
+
+        recorder, counts = self.recorder, self.recording
         began = time.perf_counter()
-        self._decode_poses()
-        fresh, self._fresh_poses = self._fresh_poses, {}
-        ids = sorted(fresh)
+        observations = []
+        while self._pose_backlog:
+            try:
+                pose = Pose.decode(self._pose_backlog.popleft())
+            except ProtocolError:
+                counts["rejected_poses"] += 1
+                continue
+            observations.append(
+                Observation(pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta)
+            )
+        layers, stale = timed_layers(
+            observations, t, self._last_record_t, self._wall(), self._last_pose_time
+        )
+        counts["stale_poses"] += stale
+        for layer in layers:  # one /robots message per layer, no robot twice in one
+            recorder.poses(t, layer.ids, layer.poses, layer.times, trajectories=False)
+            self._last_pose_time.update(zip(layer.ids, layer.times.tolist(), strict=True))
+        if layers:  # trajectories.csv in time order
+            times = np.concatenate([layer.times for layer in layers])
+            ids = np.concatenate([layer.ids for layer in layers])
+            order = np.lexsort((ids, times))
+            poses = np.concatenate([layer.poses for layer in layers])[order]
+            recorder.trajectory_rows(times[order], ids[order].tolist(), poses)
+        self._last_record_t = t
         recorder.domain(t, polygon)
-        recorder.poses(t, ids, np.array([fresh[i] for i in ids]).reshape(-1, 3))
         if recorder.cells_due(t) and (positions := self.alive_positions()):
             team = sorted(positions)
             recorder.cells(t, team, np.array([positions[i] for i in team]), polygon)
@@ -350,7 +388,7 @@ class Coordinator:
             recorder.agent_stats(t, self.observed.agent_stats)
             self._next_stats_record = t + STATS_RECORD_PERIOD
         cost = time.perf_counter() - began
-        self.recording_seconds += cost
+        counts["seconds"] += cost
         return cost
 
     def _publish_status(self, state: str, t: float) -> None:
@@ -425,7 +463,7 @@ class Coordinator:
                         cost / RECORD_SHARE * self.settings.rate * self.settings.time_scale
                     )
                 else:
-                    self.recording_skipped += 1
+                    self.recording["skipped_ticks"] += 1
             finished = done_since is not None and now - done_since >= DONE_HOLD
             if now >= next_status or finished:
                 self._publish_status(state, t)
@@ -708,25 +746,19 @@ def coordinator_command(
             if recorder is not None and coordinator is not None:
                 recorder.note(
                     "recording",
-                    {
-                        "seconds": coordinator.recording_seconds,
-                        "skipped_ticks": coordinator.recording_skipped,
-                        "record_share": RECORD_SHARE,
-                        **recorder.counts,
-                    },
+                    {**coordinator.recording, "record_share": RECORD_SHARE, **recorder.counts},
                 )
             if recorder is not None:
                 recorder.close()
     if recorder is not None and coordinator.clock.state != WAITING:
         mission = coordinator.clock.mission_time(coordinator.clock.stopped_at or 0.0)
+        cost = coordinator.recording
         log.info(
-            "recording took %.2f s over %.1f s of mission (%.2f%% of a core), %d ticks "
-            "skipped to keep it under %g%%; %s",
-            coordinator.recording_seconds,
+            "recording took %.2f s over %.1f s of mission (%.2f%% of a core); %s; %s",
+            cost["seconds"],
             mission,
-            100 * coordinator.recording_seconds / max(mission / time_scale, 1e-9),
-            coordinator.recording_skipped,
-            100 * RECORD_SHARE,
+            100 * cost["seconds"] / max(mission / time_scale, 1e-9),
+            {k: v for k, v in cost.items() if k != "seconds"},
             recorder.counts,
         )
     if not coordinator.observed.record.t:

@@ -191,20 +191,41 @@ class RunRecorder:
         self._last_ns = max(self._last_ns, _ns(t))
         return self._last_ns
 
-    def poses(self, t: float, ids: Sequence[int], poses: np.ndarray) -> None:
-        """Robots observed at mission time t. ids: n ids, ascending; poses: (n, 3) x, y, theta."""
+    def poses(
+        self,
+        t: float,
+        ids: Sequence[int],
+        poses: np.ndarray,
+        times: np.ndarray | None = None,
+        *,
+        trajectories: bool = True,
+    ) -> None:
+        """Robots observed at mission time t: one /robots message (log time t).
+
+        ids: n distinct ids, ascending; poses: (n, 3) x, y, theta; times: (n,) mission times
+        the poses were measured at (entity timestamps; default t); trajectories: also append
+        them to trajectories.csv (False when the caller writes the rows in time order itself,
+        see trajectory_rows).
+        """
         if not len(ids):
             return
         log_time = self._log_time(t)
-        self._robots.log(scene.robots_update(t, ids, poses), log_time=log_time)
-        if self._trajectories is not None:
-            self._trajectories.write(t, ids, poses)
+        self._robots.log(scene.robots_update(t, ids, poses, times), log_time=log_time)
+        if trajectories:
+            self.trajectory_rows(t if times is None else times, ids, poses)
         self.counts["poses"] += 1
         if t >= self._next_arena and (self.workspace is not None or self.obstacles):
             self._arena.log(
                 scene.arena_update(t, self.workspace, self.obstacles), log_time=log_time
             )
             self._next_arena = t + ARENA_PERIOD
+
+    def trajectory_rows(
+        self, times: float | np.ndarray, ids: Sequence[int], poses: np.ndarray
+    ) -> None:
+        """Rows of trajectories.csv: times (s, one or one per row), ids, poses (n, 3)."""
+        if self._trajectories is not None:
+            self._trajectories.write(times, ids, poses)
 
     def domain(self, t: float, vertices: np.ndarray) -> None:
         """S(t): (k, 2) vertices, m."""

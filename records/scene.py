@@ -54,14 +54,18 @@ def planar_pose(x: float, y: float, theta: float, z: float = 0.0) -> Pose:
     )
 
 
-def robots_update(t: float, ids: Sequence[int], poses: np.ndarray) -> SceneUpdate:
+def robots_update(
+    t: float, ids: Sequence[int], poses: np.ndarray, times: np.ndarray | None = None
+) -> SceneUpdate:
     """One entity per robot: a Khepera-sized disc and an arrow along its heading.
 
-    ids: n robot ids; poses: (n, 3) rows x, y (m), theta (rad).
+    ids: n robot ids; poses: (n, 3) rows x, y (m), theta (rad); times: (n,) mission times
+    at which each pose was measured, the entities' timestamps (default: all t).
     """
-    stamp = timestamp(t)
+    stamps = [timestamp(t)] * len(ids) if times is None else [timestamp(w) for w in times]
     entities = []
-    for ident, (x, y, theta) in zip(ids, np.asarray(poses, dtype=float).tolist(), strict=True):
+    rows = np.asarray(poses, dtype=float).tolist()
+    for ident, (x, y, theta), stamp in zip(ids, rows, stamps, strict=True):
         pose = planar_pose(x, y, theta, ROBOT_HEIGHT)
         body = planar_pose(x, y, theta, 0.5 * ROBOT_HEIGHT)
         entities.append(

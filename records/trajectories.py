@@ -25,14 +25,15 @@ class TrajectoryWriter:
         self._file.write(HEADER)
         self.rows = 0
 
-    def write(self, t: float, ids: Sequence[int], poses: np.ndarray) -> None:
-        """ids: n robot ids; poses: (n, 3) x, y (m), theta (rad) observed at mission time t."""
-        stamp = f"{t:.4f}"
+    def write(self, t: float | np.ndarray, ids: Sequence[int], poses: np.ndarray) -> None:
+        """t: mission time (s) of all rows, or (n,) one per row; ids: n robot ids; poses:
+        (n, 3) x, y (m), theta (rad)."""
+        times = np.broadcast_to(np.asarray(t, dtype=float), (len(ids),)).tolist()
         self._file.write(
             "".join(
-                f"{stamp},{ident},{x:.5f},{y:.5f},{theta:.5f}\n"
-                for ident, (x, y, theta) in zip(
-                    ids, np.asarray(poses, dtype=float).tolist(), strict=True
+                f"{when:.4f},{ident},{x:.5f},{y:.5f},{theta:.5f}\n"
+                for when, ident, (x, y, theta) in zip(
+                    times, ids, np.asarray(poses, dtype=float).tolist(), strict=True
                 )
             )
         )

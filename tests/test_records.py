@@ -275,3 +275,29 @@ def test_live_view_on_a_taken_port_is_a_clear_error(tmp_path: Path) -> None:
         with pytest.raises(LiveViewError, match=f"127.0.0.1:{port}"):
             RunRecorder(tmp_path, run_metadata={}, live_port=port)
     assert not (tmp_path / "run.mcap").exists()  # nothing half-written
+
+
+def test_timed_layers_place_every_observed_pose_once_at_its_measured_time() -> None:
+    from covswarm.records.observations import Observation, timed_layers
+
+    wall, t, t_prev = 1000.0, 5.0, 4.95
+
+    def seen(ident: int, seq: int, age: float) -> Observation:
+        return Observation(ident, seq, wall - age, float(ident), float(seq), 0.1 * seq)
+
+    observations = [
+        seen(7, 11, 0.01),  # robot 7's second pose of the tick, listed first
+        seen(2, 4, 0.03),
+        seen(7, 10, 0.04),
+        seen(9, 1, 0.5),  # measured before the previous record: clipped to t_prev
+        seen(3, 8, -0.2),  # stamped in the future (another host's clock): clipped to t
+        seen(4, 5, 0.02),  # not newer than what was recorded for robot 4: stale
+    ]
+    layers, stale = timed_layers(observations, t, t_prev, wall, {4: 4.99})
+    assert stale == 1
+    assert [layer.ids for layer in layers] == [[2, 3, 7, 9], [7]]
+    np.testing.assert_allclose(layers[0].times, [4.97, 5.0, 4.96, 4.95])
+    np.testing.assert_allclose(layers[1].times, [4.99])
+    np.testing.assert_allclose(layers[0].poses[2], [7.0, 10.0, 1.0])  # seq 10 before 11
+    np.testing.assert_allclose(layers[1].poses[0], [7.0, 11.0, 1.1])
+    assert timed_layers([], t, t_prev, wall, {}) == ([], 0)
