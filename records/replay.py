@@ -25,7 +25,7 @@ from covswarm.records.recorder import (
     METADATA_NAME,
     ROBOTS_TOPIC,
 )
-from covswarm.records.scene import ROBOT_DIAMETER
+from covswarm.records.scene import ROBOT_DIAMETER, ROBOT_LIFETIME
 
 HEADING_LENGTH = 0.15  # m, the heading arrow drawn on each robot
 
@@ -35,7 +35,8 @@ class Recording:
     """What a run.mcap holds, as arrays. Times are mission times (s)."""
 
     metadata: dict[str, Any] = field(default_factory=dict)
-    pose_t: list[float] = field(default_factory=list)
+    pose_t: list[float] = field(default_factory=list)  # distinct /robots log times
+    # The robots in the scene at each pose_t: id -> (x, y, theta).
     poses: list[dict[int, tuple[float, float, float]]] = field(default_factory=list)
     domain_t: list[float] = field(default_factory=list)
     domains: list[np.ndarray] = field(default_factory=list)  # (k, 2) each
@@ -65,6 +66,8 @@ def read_recording(path: str | Path) -> Recording:
     from mcap.reader import make_reader
 
     record = Recording()
+    robots: dict[int, tuple[float, float, float]] = {}
+    updated: dict[int, float] = {}
     topics = [ROBOTS_TOPIC, DOMAIN_TOPIC, CELLS_TOPIC, ERROR_TOPIC]
     with open(path, "rb") as stream:
         reader = make_reader(stream, decoder_factories=decoder_factories())
@@ -79,17 +82,20 @@ def read_recording(path: str | Path) -> Recording:
                 record.error_t.append(t)
                 record.error.append(math.nan if value is None else float(value))
             elif channel.topic == ROBOTS_TOPIC:
-                record.pose_t.append(t)
-                record.poses.append(
-                    {
-                        int(e.id): (
-                            e.arrows[0].pose.position.x,
-                            e.arrows[0].pose.position.y,
-                            _yaw(e.arrows[0].pose.orientation),
-                        )
-                        for e in update.entities
-                    }
-                )
+                # Scene semantics: an entity replaces the robot's previous one, and a robot
+                # not updated for ROBOT_LIFETIME leaves the scene.
+                for e in update.entities:
+                    pose = e.arrows[0].pose
+                    robots[int(e.id)] = (
+                        pose.position.x, pose.position.y, _yaw(pose.orientation)
+                    )  # fmt: skip
+                    updated[int(e.id)] = t
+                scene = {i: p for i, p in robots.items() if t - updated[i] <= ROBOT_LIFETIME}
+                if record.pose_t and record.pose_t[-1] == t:  # a second message of a tick
+                    record.poses[-1] = scene
+                else:
+                    record.pose_t.append(t)
+                    record.poses.append(scene)
             elif channel.topic == DOMAIN_TOPIC:
                 record.domain_t.append(t)
                 record.domains.append(_loop_points(update.entities[0]))

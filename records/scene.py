@@ -16,6 +16,7 @@ from foxglove.messages import (
     Color,
     CubePrimitive,
     CylinderPrimitive,
+    Duration,
     LinePrimitive,
     LinePrimitiveLineType,
     Point3,
@@ -30,6 +31,8 @@ from foxglove.messages import (
 FRAME = "world"
 ROBOT_DIAMETER = 0.14  # m, a Khepera IV
 ROBOT_HEIGHT = 0.05  # m
+# A robot not updated for this long leaves the scene (a dead robot does not linger).
+ROBOT_LIFETIME = 1.0  # s
 ROBOT_COLOR = Color(r=0.12, g=0.35, b=0.85, a=0.9)
 HEADING_COLOR = Color(r=0.95, g=0.55, b=0.1, a=1.0)
 DOMAIN_COLOR = Color(r=0.1, g=0.1, b=0.1, a=1.0)
@@ -73,6 +76,7 @@ def robots_update(
                 timestamp=stamp,
                 frame_id=FRAME,
                 id=str(ident),
+                lifetime=Duration(sec=int(ROBOT_LIFETIME), nsec=0),
                 arrows=[
                     ArrowPrimitive(
                         pose=pose,

@@ -301,3 +301,16 @@ def test_timed_layers_place_every_observed_pose_once_at_its_measured_time() -> N
     np.testing.assert_allclose(layers[0].poses[2], [7.0, 10.0, 1.0])  # seq 10 before 11
     np.testing.assert_allclose(layers[1].poses[0], [7.0, 11.0, 1.1])
     assert timed_layers([], t, t_prev, wall, {}) == ([], 0)
+
+
+def test_replay_merges_a_ticks_messages_and_lets_silent_robots_go(tmp_path: Path) -> None:
+    from covswarm.records.replay import read_recording
+
+    with RunRecorder(tmp_path, run_metadata={"scenario": "unit"}) as recorder:
+        recorder.poses(1.0, [0, 1], np.array([[0.0, 0.0, 0.0], [1.0, 1.0, 0.5]]))
+        recorder.poses(1.0, [1], np.array([[1.5, 1.0, 0.5]]))  # robot 1's second pose
+        recorder.poses(3.0, [0], np.array([[0.2, 0.0, 0.0]]))  # robot 1 silent for 2 s
+    record = read_recording(tmp_path / "run.mcap")
+    assert record.pose_t == [1.0, 3.0]
+    assert record.poses[0] == {0: (0.0, 0.0, 0.0), 1: (1.5, 1.0, pytest.approx(0.5))}
+    assert record.poses[1] == {0: (0.2, 0.0, 0.0)}
