@@ -314,3 +314,17 @@ def test_replay_merges_a_ticks_messages_and_lets_silent_robots_go(tmp_path: Path
     assert record.pose_t == [1.0, 3.0]
     assert record.poses[0] == {0: (0.0, 0.0, 0.0), 1: (1.5, 1.0, pytest.approx(0.5))}
     assert record.poses[1] == {0: (0.2, 0.0, 0.0)}
+
+
+def test_a_resumed_coordinator_records_beside_the_first_part(tmp_path: Path) -> None:
+    from covswarm.records.recorder import record_names
+
+    with RunRecorder(tmp_path, run_metadata={}) as first:
+        first.poses(0.0, [0], np.zeros((1, 3)))
+    for k in (1, 2):
+        with RunRecorder(tmp_path, run_metadata={}, continued=True) as part:
+            part.poses(1.0 * k, [0], np.ones((1, 3)))
+        assert part.mcap_path == tmp_path / f"run-{k}.mcap"
+        assert (tmp_path / f"trajectories-{k}.csv").is_file()
+    assert record_names(tmp_path, False) == ("run.mcap", "trajectories.csv")
+    assert len(read_trajectories(tmp_path / "trajectories.csv")) == 1  # not overwritten
