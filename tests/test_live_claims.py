@@ -9,6 +9,9 @@ per process, as the README's live bench packs them) over loopback Zenoh:
   everyone, it would grow about 4x (39 teammates' states at the control rate against 9).
 - A healthy run counts no failed control step (``step_errors``; the step's catch-all makes
   "never raises" true by construction, the count is what shows it did not fire).
+- The wire table's rates: poses 20 Hz, commands and agent states at the control rate
+  (10 Hz), the domain 20 Hz, the status 2 Hz, counted by a Zenoh client on the run's router
+  over WINDOW seconds of the 10-robot mission.
 - The agent process does not import matplotlib, the robot process neither scipy nor
   matplotlib: read from the running processes' memory maps (/proc/PID/maps lists every
   compiled extension a process loaded, and both libraries load theirs on import).
@@ -18,6 +21,8 @@ from __future__ import annotations
 
 import functools
 import json
+import time
+from collections import Counter
 from pathlib import Path
 
 import pytest
@@ -27,6 +32,10 @@ pytestmark = pytest.mark.e2e
 
 SIZES = (10, 40)
 RATIO = 1.5  # measured 1.17 (78 -> 92 messages per agent per second)
+WINDOW = 3.0  # s of mission over which the wire rates are counted
+# Per robot (pose, cmd, state) or per swarm (domain, status), Hz: (README's rate, tolerance).
+RATES = {"pose": 20.0, "cmd": 10.0, "state": 10.0, "domain": 20.0, "status": 2.0}
+TOLERANCE = 0.3  # relative; a shared 2-core machine delays, it does not halve or double
 
 
 def loaded_libraries(pid: int) -> set[str]:
@@ -37,6 +46,27 @@ def loaded_libraries(pid: int) -> set[str]:
         if path:
             packages.add(path.split("/", 1)[0])
     return packages
+
+
+def count_messages(endpoint: str, swarm: str, seconds: float) -> Counter:
+    """Messages per kind (pose, cmd, state, domain, status, ...) on the swarm's keys."""
+    import zenoh
+
+    from covswarm.protocol.session import session_config
+
+    counts: Counter = Counter()
+
+    def on_sample(sample: zenoh.Sample) -> None:
+        parts = str(sample.key_expr).split("/")  # covswarm/<swarm>/<kind>[/<id>/<what>]
+        counts[parts[4] if parts[2] in ("robot", "agent") else parts[2]] += 1
+
+    with zenoh.open(session_config([endpoint])) as session:
+        subscriber = session.declare_subscriber(f"covswarm/{swarm}/**", on_sample)
+        time.sleep(0.5)  # let the subscription reach the router
+        counts.clear()
+        time.sleep(seconds)
+        subscriber.undeclare()
+    return counts
 
 
 def mission_started(out: Path) -> bool:
@@ -59,6 +89,9 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
                 role: [loaded_libraries(pid) for pid in swarm_pids(swarm, role)]
                 for role in ("agent", "robot")
             }
+            if n == SIZES[0]:
+                endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
+                libraries["counts"] = count_messages(endpoint, swarm, WINDOW)
             code = launcher.wait(timeout=180)
             assert code == 0, (out.parent / f"{out.name}.launcher.log").read_text()
         assert swarm_pids(swarm) == set()
@@ -77,6 +110,17 @@ def test_messages_per_agent_do_not_grow_with_the_team(runs: dict[int, dict]) -> 
     small, large = SIZES
     assert rx[small] >= 20.0, rx  # at least its own robot's poses and the domain, 20 Hz each
     assert rx[large] <= RATIO * rx[small], rx
+
+
+def test_the_wire_rates_are_the_documented_ones(runs: dict[int, dict]) -> None:
+    n = SIZES[0]
+    counts = runs[n]["counts"]
+    measured = {
+        kind: counts[kind] / WINDOW / (n if kind in ("pose", "cmd", "state") else 1)
+        for kind in RATES
+    }
+    for kind, rate in RATES.items():
+        assert measured[kind] == pytest.approx(rate, rel=TOLERANCE), measured
 
 
 def test_a_healthy_run_has_no_failed_control_step(runs: dict[int, dict]) -> None:
