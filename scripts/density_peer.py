@@ -98,9 +98,21 @@ def two_hop(adjacency: list[set[int]], me: int) -> set[int]:
     return known
 
 
-def measure(peer, utils, positions: np.ndarray, samples: int, repeats: int) -> dict:
+def first_quadrature():
+    """The first implementation of the density integrals (Gauss rule on subdivided
+    triangles), kept as the tests' reference: tests/density_reference.py."""
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+    from density_reference import QuadratureDensity  # noqa: PLC0415 (on the path only now)
+
+    return QuadratureDensity
+
+
+def measure(
+    peer, utils, positions: np.ndarray, samples: int, repeats: int, quadrature=None
+) -> dict:
     """One layout: the peer's full-team step per agent, our local steps (interleaved with and
-    without the density), our full-team TVD-C per agent, and the peer's centroid error."""
+    without the density, and with the first quadrature when given), our full-team TVD-C per
+    agent, and the peer's centroid error."""
     n = len(positions)
     controller = peer_controller(peer, utils, positions, samples)
     controller.calculateVelocities(positions.T.copy())  # warms (first-call costs)
@@ -116,11 +128,14 @@ def measure(peer, utils, positions: np.ndarray, samples: int, repeats: int) -> d
     density = peer_density(frames[-1])
     adjacency = neighbors(positions, ARENA)
     still = np.zeros_like(ARENA)
-    ours: dict[str, list[float]] = {"density": [], "uniform": []}
+    models = {"uniform": None, "density": density}
+    if quadrature is not None:
+        models["quadrature"] = quadrature(density)
+    ours: dict[str, list[float]] = {name: [] for name in models}
     for me in range(n):
         view = {j: positions[j] for j in two_hop(adjacency, me)}
-        for name in ("uniform", "density") * 3:  # the first of each warms
-            phi = density if name == "density" else None
+        for name in tuple(models) * 3:  # the first of each warms
+            phi = models[name]
             start = time.perf_counter()
             local_step(me, view, ARENA, still, 1.0, density=phi)
             ours[name].append((time.perf_counter() - start) * 1e6)
@@ -130,8 +145,11 @@ def measure(peer, utils, positions: np.ndarray, samples: int, repeats: int) -> d
         start = time.perf_counter()
         tvd_c(positions, ARENA, still, 1.0, density=density)
         team_ms.append((time.perf_counter() - start) * 1e3)
-    density_us = [x for i, x in enumerate(ours["density"]) if i % 3]
-    uniform_us = [x for i, x in enumerate(ours["uniform"]) if i % 3]
+    timed = {name: [x for i, x in enumerate(spent) if i % 3] for name, spent in ours.items()}
+    density_us, uniform_us = timed["density"], timed["uniform"]
+    first = {}
+    if "quadrature" in timed:
+        first["ours_local_first_quadrature_p50_us"] = float(np.percentile(timed["quadrature"], 50))
     return {
         "agents": n,
         "peer_step_ms": float(np.median(peer_ms)),
@@ -141,6 +159,7 @@ def measure(peer, utils, positions: np.ndarray, samples: int, repeats: int) -> d
         "ours_local_density_p50_us": float(np.percentile(density_us, 50)),
         "ours_local_uniform_p50_us": float(np.percentile(uniform_us, 50)),
         "ours_team_tvd_c_per_agent_us": float(np.median(team_ms)) * 1e3 / n,
+        **first,
     }
 
 
@@ -152,12 +171,18 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3, help="peer steps timed per layout")
     parser.add_argument("--samples", type=int, default=SAMPLES, help="the peer's MC points")
     parser.add_argument("--out", type=Path, default=Path("runs/density-peer"))
+    parser.add_argument(
+        "--first-quadrature",
+        action="store_true",
+        help="also time our step with the first implementation (tests/density_reference.py)",
+    )
     args = parser.parse_args()
     peer, utils = load_peer(args.peer)
+    quadrature = first_quadrature() if args.first_quadrature else None
     sizes = [int(s) for s in args.sizes.split(",")]
     rows = []
     for positions in layouts(sizes, args.layouts):
-        rows.append(measure(peer, utils, positions, args.samples, args.repeats))
+        rows.append(measure(peer, utils, positions, args.samples, args.repeats, quadrature))
         print(json.dumps(rows[-1]), flush=True)
     summary = []
     for n in sizes:
@@ -187,6 +212,11 @@ def main() -> None:
             f"{row['density_over_uniform']:.2f}  {row['peer_over_ours_density']:.1f}  "
             f"{row['ours_team_tvd_c_per_agent_us']:.0f}  "
             f"{row['peer_centroid_error_mm_median']:.2f}, {row['peer_centroid_error_mm_max']:.2f}"
+            + (
+                f"  first quadrature {row['ours_local_first_quadrature_p50_us']:.0f} us"
+                if "ours_local_first_quadrature_p50_us" in row
+                else ""
+            )
         )
     print(f"wrote {args.out / 'peer.json'}")
 
