@@ -42,6 +42,7 @@ from covswarm.coordinator.monitor import (
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
 from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.protocol.security import SECURE_OPTION
+from covswarm.records.live import DEFAULT_PORT
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
@@ -53,7 +54,6 @@ log = logging.getLogger("covswarm.coordinator")
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
 STATUS_PERIOD = 0.5  # s
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
-FOXGLOVE_PORT = 8765  # Foxglove's usual WebSocket port
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
 STEERING_JOURNAL = "steering.jsonl"  # in --out: accepted steering requests, for --resume
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
@@ -671,10 +671,10 @@ def write_run_outputs(
     "foxglove_port",
     type=click.IntRange(0, 65535),
     is_flag=False,
-    flag_value=FOXGLOVE_PORT,
+    flag_value=DEFAULT_PORT,
     default=None,
     help=f"Serve the recorded channels live to Foxglove on ws://127.0.0.1:PORT "
-    f"[{FOXGLOVE_PORT} when given without a port; 0 picks a free one].",
+    f"[{DEFAULT_PORT} when given without a port; 0 picks a free one].",
 )
 @click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")
 @TIME_SCALE_OPTION

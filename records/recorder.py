@@ -28,6 +28,7 @@ from foxglove.channels import SceneUpdateChannel
 from foxglove.mcap import MCAPWriteOptions
 
 from covswarm.records import scene
+from covswarm.records.live import LIVE_HOST
 from covswarm.records.trajectories import TRAJECTORIES_FILE, TrajectoryWriter
 
 MCAP_FILE = "run.mcap"
@@ -44,7 +45,6 @@ ARENA_PERIOD = 1.0  # s: static, but repeated so that a live viewer joining late
 # Largest share of a core the recorded tessellation may take (about 4 ms at 100 robots,
 # 50 ms at 1000): beyond it cells are recorded less often, like the coordinator's e_a.
 CELL_SHARE = 0.02
-LIVE_HOST = "127.0.0.1"
 
 ERROR_SCHEMA = "covswarm.ErrorSample"  # names of the JSON channels' schemas
 AGENT_STATS_SCHEMA = "covswarm.AgentStats"

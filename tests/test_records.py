@@ -266,14 +266,17 @@ def test_shipped_layouts_are_the_generated_ones_and_name_recorded_channels() -> 
 def test_live_view_on_a_taken_port_is_a_clear_error(tmp_path: Path) -> None:
     import socket
 
+    from covswarm.records.live import port_is_free
     from covswarm.records.recorder import LiveViewError
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
         port = taken.getsockname()[1]
+        assert not port_is_free(port)
         with pytest.raises(LiveViewError, match=f"127.0.0.1:{port}"):
             RunRecorder(tmp_path, run_metadata={}, live_port=port)
+    assert port_is_free(port) and port_is_free(0)
     assert not (tmp_path / "run.mcap").exists()  # nothing half-written
 
 
