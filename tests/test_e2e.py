@@ -53,7 +53,8 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     # README: the distributed run's steady-state e_a is within 10 % of the in-process
     # simulation of the same robots (same seed, law and unicycle model; measured 2 %).
     scenario = load_scenario("passage")  # seed 0: covswarm run's default --seed
-    sim = simulate(scenario, agents=4, duration=15.0, law="d1", dynamics="unicycle", seed=0)
+    law = summary["law"]
+    sim = simulate(scenario, agents=4, duration=15.0, law=law, dynamics="unicycle", seed=0)
     expected = steady_state_mean(sim.t, sim.error)
     assert summary["steady_state_error_mean"] == pytest.approx(expected, rel=0.10)
 
