@@ -6,8 +6,7 @@ import numpy as np
 import pytest
 from scipy.optimize import linprog, minimize
 
-from covswarm.tvd.drive import integrate
-from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV, wheel_speeds
+from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV, integrate, wheel_speeds
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     barrier_gain,
@@ -15,6 +14,7 @@ from covswarm.tvd.safety import (
     closest_feasible,
     pair_constraints,
     safe_velocity,
+    unicycle_rows,
 )
 
 
@@ -47,16 +47,28 @@ def test_filter_matches_dense_qp_on_random_layouts(seed: int) -> None:
     others = me + rng.normal(size=(m, 2)) * 0.4 * scale
     safe = 0.3 * scale * rng.uniform(0.3, 1.0)
     nominal = rng.normal(size=2) * scale
-    A, b = pair_constraints(me, others, safe, DEFAULT_GAMMA)
+    velocity, theirs = rng.normal(size=2) * scale, rng.normal(size=(m, 2)) * scale
+    heading = rng.uniform(-np.pi, np.pi) if seed % 2 else None
+    A, b = pair_constraints(me, others, safe, DEFAULT_GAMMA, velocity, theirs)
+    if heading is not None:
+        A = unicycle_rows(A, heading)
     reference = dense_qp(nominal, A, b)
     if reference is None:
         with pytest.raises(ValueError):
             closest_feasible(nominal, A, b)
-        result = safe_velocity(me, nominal, others, safe)
+        result = safe_velocity(
+            me, nominal, others, safe, heading=heading, velocity=velocity,
+            neighbor_velocities=theirs,
+        )  # fmt: skip
         assert result.relaxed
-        assert np.all(A @ result.velocity <= np.maximum(b, 0.0) + 1e-9 * scale)
+        fallback = np.maximum(pair_constraints(me, others, safe, DEFAULT_GAMMA)[1], 0.0)
+        assert np.all(A @ result.velocity <= fallback + 1e-9 * np.maximum(1.0, fallback))
         return
     u, active = closest_feasible(nominal, A, b)
+    filtered = safe_velocity(
+        me, nominal, others, safe, heading=heading, velocity=velocity, neighbor_velocities=theirs
+    )
+    np.testing.assert_array_equal(filtered.velocity, u)
     assert np.all(A @ u <= b + 1e-8 * np.maximum(1.0, np.abs(b)))
     cost, ref_cost = np.sum((u - nominal) ** 2), np.sum((reference - nominal) ** 2)
     assert cost <= ref_cost * (1 + 1e-7) + 1e-12
@@ -98,21 +110,29 @@ def test_overlapping_robots_never_close_further() -> None:
     assert np.all(closing <= 1e-12)
 
 
-def test_sampled_single_integrators_never_cross_the_safe_distance() -> None:
-    # The module's claim: with gamma T <= 1 and zero-order hold, h(t) >= (1 - gamma s) h.
+@pytest.mark.parametrize("reciprocal", [False, True])
+def test_sampled_single_integrators_never_cross_the_safe_distance(reciprocal: bool) -> None:
+    # The module's claim: with gamma T <= 1 and zero-order hold, h(t) >= (1 - gamma s) h, for
+    # both splits (the reciprocal one with everyone's previous velocity, as reported).
     # Eight robots swap places across a circle (everyone through the centre) at 5 Hz.
     period, safe = 0.2, 0.25
     gamma = barrier_gain(DEFAULT_GAMMA, period)
     angles = np.linspace(0, 2 * np.pi, 8, endpoint=False)
     p = 1.0 * np.column_stack([np.cos(angles), np.sin(angles)])
     goals = -p
+    u = np.zeros_like(p)
     closest = np.inf
     for _ in range(200):
         nominal = np.clip(goals - p, -0.3, 0.3)
-        u = np.array(
-            [safe_velocity(p[i], nominal[i], np.delete(p, i, 0), safe, gamma).velocity
-             for i in range(len(p))]
-        )  # fmt: skip
+        known = {"velocity": None, "neighbor_velocities": None}
+        u = np.array([
+            safe_velocity(
+                p[i], nominal[i], np.delete(p, i, 0), safe, gamma,
+                **({"velocity": u[i], "neighbor_velocities": np.delete(u, i, 0)}
+                   if reciprocal else known),
+            ).velocity
+            for i in range(len(p))
+        ])  # fmt: skip
         for s in np.linspace(0, period, 11)[1:]:
             q = p + s * u
             d = np.linalg.norm(q[:, None] - q[None], axis=2) + np.eye(len(q)) * 9
@@ -125,24 +145,32 @@ def unicycle_run(
     poses: np.ndarray, goals: np.ndarray, safety: bool, seconds: float = 12.0
 ) -> tuple[float, np.ndarray]:
     """Khepera IV unicycles at 10 Hz, each steered to its goal at up to 0.2 m/s through the
-    filter (own steered point vs the others' centres, as the agents do), integrated in
-    exact arcs 10 substeps per period. (closest centre distance, final poses)."""
-    period, substeps, ahead = 0.1, 10, DEFAULT_PROJECTION_DISTANCE
-    safe = body_safe_distance(KHEPERA_IV.body_diameter, ahead)
+    filter as the agents use it (centre rows, reciprocal split with the centre velocities of
+    the last commands), integrated in exact arcs 10 substeps per period.
+    (closest centre distance, final poses)."""
+    period, substeps = 0.1, 10
+    safe = body_safe_distance(KHEPERA_IV.body_diameter)
     gamma = barrier_gain(DEFAULT_GAMMA, period)
     closest = np.inf
+    centre_velocity = np.zeros((len(poses), 2))
     for _ in range(round(seconds / period)):
         heading = poses[:, 2]
-        steered = poses[:, :2] + ahead * np.column_stack([np.cos(heading), np.sin(heading)])
+        ahead = np.column_stack([np.cos(heading), np.sin(heading)])
+        steered = poses[:, :2] + DEFAULT_PROJECTION_DISTANCE * ahead
         gap = goals - steered
         speed = np.linalg.norm(gap, axis=1, keepdims=True)
         nominal = gap * np.minimum(1.0, 0.2 / np.maximum(speed, 1e-12))
         if safety:
-            nominal = np.array(
-                [safe_velocity(steered[i], nominal[i], np.delete(poses[:, :2], i, 0), safe,
-                               gamma).velocity for i in range(len(poses))]
-            )  # fmt: skip
+            nominal = np.array([
+                safe_velocity(
+                    poses[i, :2], nominal[i], np.delete(poses[:, :2], i, 0), safe, gamma,
+                    heading=heading[i], velocity=centre_velocity[i],
+                    neighbor_velocities=np.delete(centre_velocity, i, 0),
+                ).velocity
+                for i in range(len(poses))
+            ])  # fmt: skip
         wheels = wheel_speeds(heading, nominal)
+        centre_velocity = wheels.mean(axis=1, keepdims=True) * ahead
         for _ in range(substeps):
             poses = integrate(poses, wheels, period / substeps)
             d = np.linalg.norm(poses[:, None, :2] - poses[None, :, :2], axis=2)
@@ -170,6 +198,32 @@ def test_crossing_unicycles_with_random_headings(seed: int) -> None:
     poses = np.column_stack([xy, rng.uniform(-np.pi, np.pi, 6)])
     closest, final = unicycle_run(poses, -xy, safety=True, seconds=20.0)
     assert closest >= KHEPERA_IV.body_diameter
-    # Barrier certificates promise safety, not arrival: a symmetric swap jams at the centre
-    # (the known deadlock). Everyone still got at least 0.3 m closer to its goal (from 1.2 m).
-    assert np.all(np.linalg.norm(final[:, :2] + xy, axis=1) < 0.9)
+    # Barrier certificates promise safety, not arrival: a symmetric swap can jam at the
+    # centre (the known deadlock). The team still got closer to its goals (1.2 m at start).
+    assert np.linalg.norm(final[:, :2] + xy, axis=1).mean() < 1.0
+
+
+def test_convoy_is_not_held_back_by_the_reciprocal_split() -> None:
+    # A robot 0.22 m behind another, both moving at 0.16 m/s in +x: the Robotarium split
+    # (velocities unknown) lets the follower advance at only gamma h / (4 d) ~ 0.13 m/s, the
+    # reciprocal one keeps the convoy's speed.
+    me, leader, v = np.zeros(2), np.array([[0.22, 0.0]]), np.array([0.16, 0.0])
+    safe = body_safe_distance(KHEPERA_IV.body_diameter)
+    blind = safe_velocity(me, v, leader, safe).velocity
+    assert blind[0] < 0.14
+    shared = safe_velocity(me, v, leader, safe, velocity=v, neighbor_velocities=v[None]).velocity
+    np.testing.assert_allclose(shared, v)
+
+
+def test_unicycle_rows_only_limit_the_forward_speed() -> None:
+    # A neighbour dead ahead: the steered velocity keeps its sideways part (the turn) and
+    # loses the forward part that would close the gap; rows match the dense QP.
+    me, heading = np.zeros(2), 0.0
+    others = np.array([[0.17, 0.0]])
+    nominal = np.array([0.2, 0.1])
+    result = safe_velocity(me, nominal, others, 0.16, heading=heading)
+    A, b = pair_constraints(me, others, 0.16, DEFAULT_GAMMA)
+    rows = unicycle_rows(A, heading)
+    np.testing.assert_allclose(result.velocity, dense_qp(nominal, rows, b), atol=1e-7)
+    assert result.velocity[1] == pytest.approx(0.1)
+    assert result.velocity[0] < 0.2

@@ -1,8 +1,8 @@
 """Collision avoidance: decentralised barrier certificates on single-integrator velocities.
 
-Robots are disks. A pair (i, j) is safe while h_ij = |p_i - p_j|^2 - D_s^2 >= 0, D_s the safe
-distance between the points that the controller steers. Ames et al.'s control barrier
-function condition for single integrators, dh/dt >= -gamma h, reads
+Robots are disks. A pair (i, j) is safe while h_ij = |p_i - p_j|^2 - D_s^2 >= 0, p the robots'
+centres and D_s the safe distance between them (a diameter plus a margin). Ames et al.'s
+control barrier function condition for single integrators, dh/dt >= -gamma h, reads
 
     -2 (p_i - p_j) . (u_i - u_j) <= gamma h_ij,
 
@@ -12,9 +12,26 @@ of it, with its neighbour's velocity left out:
 
     a_ij . u_i <= b_ij,   a_ij = -2 (p_i - p_j),   b_ij = gamma h_ij / 2.
 
-If both robots satisfy their halves, the pair satisfies the whole. Each robot then solves a
-QP in the plane, min |u - u_hat|^2 subject to one such row per neighbour, here exactly (see
+If both robots satisfy their halves, the pair satisfies the whole. That split is
+conservative for robots moving together: a robot following another at the domain's speed
+may not close on it at all, whatever the leader does, and on the passage it held the team
+back by e_a ~0.2 m. So when both robots' current velocities v_i, v_j are known (our last
+command, the neighbour's reported one), each takes half of the *change* instead:
+
+    a_ij . u_i <= gamma h_ij / 2 + c_ij,   c_ij = clip(a_ij . (v_i + v_j) / 2, +-gamma h_ij / 2),
+
+and the two halves (robot j's row has a_ji = -a_ij, the same v_i, v_j, so c_ji = -c_ij) still
+sum to the pair's condition. The clip keeps both bounds in [0, gamma h]: u = 0 meets every
+row while h >= 0, so the QP is never infeasible for robots that are apart, and neither robot
+is asked to flee. With v = 0 it is the Robotarium's split. Each robot then solves a QP in
+the plane, min |u - u_hat|^2 subject to one such row per neighbour, here exactly (see
 :func:`closest_feasible`), never by an iterative solver.
+
+Differential-drive robots (:func:`unicycle_rows`): the wheels move the axle centre p only
+along the heading e, with speed v = e . u for the steered velocity u (covswarm.tvd.drive),
+so dp/dt = e e^T u and a row a . dp/dt <= b is the row (a . e) e^T u <= b on u: exact for
+the body centre, and every row then limits only the forward speed (turning in place never
+moves the centre), so the QP keeps the turn and clamps the speed to an interval.
 
 Linear class-K function (gamma h, not the Robotarium's gamma h^3) on purpose: with velocities
 held over a sampling period T (zero-order hold, the agents' control period),
@@ -37,7 +54,7 @@ import numpy as np
 DEFAULT_GAMMA = 5.0
 # m: distance between robot centres kept beyond the body diameter, for what the model does
 # not know (pose noise, a neighbour's dead-reckoning error, the arc a unicycle drives
-# between two commands).
+# between two commands instead of the straight line of the rows).
 DEFAULT_MARGIN = 0.02
 FEASIBILITY_TOL = 1e-9  # m^2/s: slack allowed on a row when checking a candidate
 
@@ -57,6 +74,12 @@ class FilterResult:
     relaxed: bool
 
 
+def body_safe_distance(body_diameter: float, margin: float = DEFAULT_MARGIN) -> float:
+    """Safe distance between two robots' centres: a body diameter (two radii) plus
+    ``margin``, m."""
+    return body_diameter + margin
+
+
 def barrier_gain(gamma: float, period: float) -> float:
     """The decay rate to use at a sampling period of ``period`` s: min(gamma, 1 / period),
     the largest that keeps the sampled guarantee of the module docstring."""
@@ -65,32 +88,42 @@ def barrier_gain(gamma: float, period: float) -> float:
     return min(gamma, 1.0 / period)
 
 
-def body_safe_distance(
-    body_diameter: float, projection_distance: float, margin: float = DEFAULT_MARGIN
-) -> float:
-    """Safe distance D_s between a unicycle's steered point and its neighbours' centres.
-
-    A differential-drive robot steers the point q = p + l (cos th, sin th) ahead of its axle
-    centre p (covswarm.tvd.drive, l = ``projection_distance``), and knows its neighbours'
-    centres p_j (their AgentStates). Since |p - p_j| >= |q - p_j| - l, keeping
-    |q - p_j| >= diameter + l + margin keeps the two bodies ``margin`` apart.
-    """
-    return body_diameter + projection_distance + margin
-
-
 def pair_constraints(
-    position: np.ndarray, neighbors: np.ndarray, safe_distance: float, gamma: float
+    position: np.ndarray,
+    neighbors: np.ndarray,
+    safe_distance: float,
+    gamma: float,
+    velocity: np.ndarray | None = None,
+    neighbor_velocities: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One robot's half of each pair's barrier condition: rows (A (m, 2), b (m,)), A u <= b.
 
-    position: (2,) m; neighbors: (m, 2) m. a_j = -2 (p - p_j), b_j = gamma (|p - p_j|^2 -
-    safe_distance^2) / 2.
+    position: (2,) m; neighbors: (m, 2) m; velocity: (2,) m/s, this robot's current one, and
+    neighbor_velocities: (m, 2) m/s, theirs (None: zero, the Robotarium's split).
+    a_j = -2 (p - p_j), b_j = gamma h_j / 2 + clip(a_j . (v + v_j) / 2, +-gamma h_j / 2) with
+    h_j = |p - p_j|^2 - safe_distance^2 (no share for a pair already inside, h_j < 0).
     """
     offset = np.asarray(position, dtype=float).reshape(2) - np.asarray(
         neighbors, dtype=float
     ).reshape(-1, 2)
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
-    return -2.0 * offset, 0.5 * gamma * h
+    A, b = -2.0 * offset, 0.5 * gamma * h
+    if velocity is not None or neighbor_velocities is not None:
+        mean = np.zeros((len(A), 2))
+        if velocity is not None:
+            mean = mean + 0.5 * np.asarray(velocity, dtype=float).reshape(1, 2)
+        if neighbor_velocities is not None:
+            mean = mean + 0.5 * np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
+        share = np.maximum(b, 0.0)
+        b = b + np.clip(np.einsum("ij,ij->i", A, mean), -share, share)
+    return A, b
+
+
+def unicycle_rows(A: np.ndarray, heading: float) -> np.ndarray:
+    """Rows on the steered velocity u of a differential-drive robot heading ``heading``
+    (rad) from rows ``A`` (m, 2) on its centre's velocity: (A e) e^T (module docstring)."""
+    e = np.array([np.cos(heading), np.sin(heading)])
+    return (np.asarray(A, dtype=float).reshape(-1, 2) @ e)[:, None] * e[None, :]
 
 
 def closest_feasible(nominal: np.ndarray, A: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, int]:
@@ -146,29 +179,51 @@ def safe_velocity(
     neighbors: np.ndarray,
     safe_distance: float,
     gamma: float = DEFAULT_GAMMA,
+    *,
+    heading: float | None = None,
+    velocity: np.ndarray | None = None,
+    neighbor_velocities: np.ndarray | None = None,
 ) -> FilterResult:
     """The velocity closest to ``nominal`` that keeps this robot's half of every pair safe.
 
-    position: (2,) m, the steered point of this robot; nominal: (2,) m/s, the coverage
-    law's velocity; neighbors: (m, 2) m, the other robots' points this robot knows;
-    safe_distance: m between two robots' points; gamma: 1/s (:func:`barrier_gain`).
-    Non-finite neighbours are ignored; a non-finite position or nominal velocity gives 0.
-    When the rows cannot all hold (a pair already inside the safe distance and boxed in),
-    the bounds are raised to 0, which the zero velocity satisfies: the robot then gets the
-    velocity closest to ``nominal`` that closes on no neighbour (``relaxed``).
+    position: (2,) m, this robot's centre; nominal: (2,) m/s, the coverage law's velocity;
+    neighbors: (m, 2) m, the other robots' centres this robot knows; safe_distance: m
+    between two centres (:func:`body_safe_distance`); gamma: 1/s (:func:`barrier_gain`).
+    heading: rad, for a differential-drive robot whose steered point moves with ``nominal``
+    (:func:`unicycle_rows`; None: a single integrator). velocity, neighbor_velocities: the
+    current centre velocities for the reciprocal split (:func:`pair_constraints`).
+    Non-finite neighbours are ignored; a non-finite position, heading or nominal velocity
+    gives 0. When the rows cannot all hold (``relaxed``: a pair already inside the safe
+    distance, boxed in), every bound is raised to max(gamma h / 2, 0), which the zero
+    velocity meets: the robot closes on no one that way, but the pair's guarantee is gone
+    until it is apart again. Callers count these.
     """
     if safe_distance < 0.0 or gamma <= 0.0:
         raise ValueError(f"need safe_distance >= 0 and gamma > 0, got {safe_distance}, {gamma}")
     position = np.asarray(position, dtype=float).reshape(2)
     nominal = np.asarray(nominal, dtype=float).reshape(2)
-    if not (np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))):
+    finite = np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))
+    if not finite or (heading is not None and not np.isfinite(heading)):
         return FilterResult(np.zeros(2), 0, False)
     neighbors = np.asarray(neighbors, dtype=float).reshape(-1, 2)
-    neighbors = neighbors[np.all(np.isfinite(neighbors), axis=1)]
-    A, b = pair_constraints(position, neighbors, safe_distance, gamma)
+    keep = np.all(np.isfinite(neighbors), axis=1)
+    if neighbor_velocities is not None:
+        neighbor_velocities = np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
+        keep &= np.all(np.isfinite(neighbor_velocities), axis=1)
+        neighbor_velocities = neighbor_velocities[keep]
+    if velocity is not None and not np.all(np.isfinite(velocity)):
+        velocity = None
+    A, b = pair_constraints(
+        position, neighbors[keep], safe_distance, gamma, velocity, neighbor_velocities
+    )
+    if heading is not None:
+        A = unicycle_rows(A, heading)
     try:
         velocity, active = closest_feasible(nominal, A, b)
         return FilterResult(velocity, active, False)
     except ValueError:
-        velocity, active = closest_feasible(nominal, A, np.maximum(b, 0.0))
-        return FilterResult(velocity, active, True)
+        pass
+    offset = position - neighbors[keep]
+    h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
+    velocity, active = closest_feasible(nominal, A, np.maximum(0.5 * gamma * h, 0.0))
+    return FilterResult(velocity, active, True)
