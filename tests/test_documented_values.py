@@ -1,0 +1,69 @@
+"""The defaults and limits the README states are the ones the code has.
+
+Each row pairs a phrase of the README (whitespace collapsed, so line breaks do not matter)
+with the value behind it, read from the code or from the command's own option default (what
+a user gets). Changing one without the other fails here.
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from collections.abc import Callable
+from pathlib import Path
+
+import click
+import pytest
+
+from covswarm.agent import brain, neighbourhood
+from covswarm.agent.brain import AgentConfig
+from covswarm.deploy.cli import main
+from covswarm.protocol import messages
+from covswarm.protocol.session import session_config
+from covswarm.tvd import control, coverage, drive
+
+README = re.sub(r"\s+", " ", (Path(__file__).resolve().parents[1] / "README.md").read_text())
+
+
+def option_default(command: str, option: str) -> object:
+    """The default of ``covswarm COMMAND --OPTION`` as click gives it to a user."""
+    with click.Context(main) as ctx:
+        (param,) = [p for p in main.get_command(ctx, command).params if p.name == option]
+    return param.default
+
+
+def reconnect(key: str) -> int:
+    retry = session_config(["tcp/127.0.0.1:7447"]).get_json("connect/retry")
+    return json.loads(retry)[key]
+
+
+DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
+    ("`MAX_AMPLIFICATION` (10)", lambda: control.MAX_AMPLIFICATION, 10.0),
+    ("a 3 cm projection distance", lambda: drive.DEFAULT_PROJECTION_DISTANCE, 0.03),
+    ("wheel radius 21 mm", lambda: drive.KHEPERA_IV.wheel_radius, 0.021),
+    ("wheel separation 105.4 mm", lambda: drive.KHEPERA_IV.wheel_separation, 0.1054),
+    ("top rim speed `--max-wheel-speed` 0.8 m/s",
+     lambda: option_default("robot", "max_wheel_speed"), 0.8),
+    ("`--cmd-timeout` (0.5 s)", lambda: option_default("robot", "cmd_timeout"), 0.5),
+    ("at most 0.25 s ahead per hop", lambda: neighbourhood.DEAD_RECKONING_LIMIT, 0.25),
+    ("linger 0.5 s", lambda: option_default("agent", "linger"), 0.5),
+    ("linger 0.5 s", lambda: AgentConfig().linger, 0.5),
+    ("publishes a Beacon every 10 s", lambda: AgentConfig().beacon_period, 10.0),
+    ("sends its next beacon within a second", lambda: brain.BEACON_MIN_PERIOD, 1.0),
+    ("more than 80 % of its gap", lambda: brain.MAX_STEP_FRACTION, 0.8),
+    ("once its pose is 1 s old", lambda: AgentConfig().stale_timeout, 1.0),
+    ("extrapolate the last domain for 1 s", lambda: AgentConfig().max_extrapolation, 1.0),
+    ("more than 1024 vertices", lambda: coverage.MAX_POLYGON_VERTICES, 1024),
+    ("per neighbour, at most 64", lambda: messages.MAX_RELAY, 64),
+    ("every 250 ms, backing off to 1 s", lambda: reconnect("period_init_ms"), 250),
+    ("every 250 ms, backing off to 1 s", lambda: reconnect("period_max_ms"), 1000),
+    ("control rate (10 Hz)", lambda: option_default("run", "rate"), 10.0),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(
+    ("phrase", "value", "expected"), DOCUMENTED, ids=[d[0] for d in DOCUMENTED]
+)
+def test_the_readme_states_the_code_default(phrase: str, value: Callable, expected: object) -> None:
+    assert phrase in README, f"the README no longer says {phrase!r}: update this row"
+    assert value() == pytest.approx(expected), phrase
