@@ -82,7 +82,7 @@ def make_layout(n: int, kind: str, seed: int, lloyd_iterations: int = 40) -> Lay
 
 def bench_density(side: float) -> Density:
     """A bump of standard deviation ~side / 4 on the centre of [0, side]^2, drifting and
-    growing: each cell then needs a few quadrature pieces, as in a real mission."""
+    growing, as in a real mission (docs/density-peer.md times the peer's narrower bumps)."""
     spread = (side / 4.0) ** 2
     return Density(
         floor=1.0,
