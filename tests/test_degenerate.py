@@ -230,8 +230,12 @@ def test_cw_equals_ccw(seed, n, shift):
 # ---------------------------------------------------------------------------------------
 
 SQ = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+_ANGLES = (
+    2 * np.pi * np.arange(coverage.MAX_POLYGON_VERTICES + 1) / (coverage.MAX_POLYGON_VERTICES + 1)
+)
 INVALID_POLYGONS = {
     "non-convex": (np.array([[0, 0], [2, 0], [1, 0.5], [2, 2], [0, 2]], float), r"convex"),
+    "too-many-vertices": (np.c_[np.cos(_ANGLES), np.sin(_ANGLES)], r"1024"),
     "self-intersecting": (
         np.array([[0, 0], [1, 1], [1, 0], [0, 1]], float),
         r"self-intersect|convex|simple",
