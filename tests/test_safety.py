@@ -204,13 +204,13 @@ def test_crossing_unicycles_with_random_headings(seed: int) -> None:
 
 
 def test_convoy_is_not_held_back_by_the_reciprocal_split() -> None:
-    # A robot 0.22 m behind another, both moving at 0.16 m/s in +x: the Robotarium split
-    # (velocities unknown) lets the follower advance at only gamma h / (4 d) ~ 0.13 m/s, the
+    # A robot 0.18 m behind another, both moving at 0.16 m/s in +x: the Robotarium split
+    # (velocities unknown) lets the follower advance at only gamma h / (4 d) ~ 0.09 m/s, the
     # reciprocal one keeps the convoy's speed.
-    me, leader, v = np.zeros(2), np.array([[0.22, 0.0]]), np.array([0.16, 0.0])
+    me, leader, v = np.zeros(2), np.array([[0.18, 0.0]]), np.array([0.16, 0.0])
     safe = body_safe_distance(KHEPERA_IV.body_diameter)
     blind = safe_velocity(me, v, leader, safe).velocity
-    assert blind[0] < 0.14
+    assert blind[0] < 0.1
     shared = safe_velocity(me, v, leader, safe, velocity=v, neighbor_velocities=v[None]).velocity
     np.testing.assert_allclose(shared, v)
 
