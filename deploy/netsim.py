@@ -1,0 +1,219 @@
+"""The distributed run in one process, on a simulated clock: real brains, real robots, no Zenoh.
+
+``covswarm run`` with the network replaced by a deterministic in-memory bus: every agent is
+an :class:`covswarm.agent.brain.AgentBrain` fed the same encoded payloads a Zenoh
+subscriber would hand it (newest per key per tick, its pose loss and delay applied by the
+same :class:`covswarm.agent.faults.PoseImpairment`), every robot a
+:class:`covswarm.sim_robot.process.RobotSim`, and the coordinator's Domain broadcasts are
+built as the coordinator builds them. Robots and the coordinator tick at 20 Hz, agents at
+their rate with a random phase each; a message is delivered ``transit`` s after it was
+sent. Wall and monotonic clocks are one simulated clock (``clock_skew`` shifts the robots'
+stamps to emulate another host).
+
+What it is for: measuring how latency, loss and the agents' options change e_a in seconds
+of CPU rather than a minute of a loaded machine per run, deterministically, to choose
+parameters (see covswarm.agent.latency and scripts/latency_table.py). What it is not: a
+substitute for the e2e tests, which run real processes over real Zenoh sessions.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+from collections import defaultdict
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from covswarm import protocol
+from covswarm.agent.brain import (
+    AgentBrain,
+    AgentConfig,
+    FollowStates,
+    PublishBeacon,
+    PublishState,
+    SendCommand,
+)
+from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.faults import PoseImpairment
+from covswarm.mission.scenarios import Scenario
+from covswarm.tvd.drive import DiffDrive
+
+ROBOT_RATE = 20.0  # Hz, poses (as covswarm robot)
+DOMAIN_RATE = 20.0  # Hz (as covswarm coordinator)
+SAMPLE_PERIOD = 0.1  # s between e_a samples
+START_WALL = 1.7e9  # s: the simulated epoch (stamps must look like wall time)
+
+
+@dataclass
+class NetsimResult:
+    """t (T,), e_a (T,), trajectories (T, n, 2), wheels (T, n, 2) (the commands held at each
+    sample), and the agents' last stats."""
+
+    t: np.ndarray
+    error: np.ndarray
+    trajectories: np.ndarray
+    wheels: np.ndarray
+    stats: dict[int, dict] = field(default_factory=dict)
+
+
+def run_netsim(
+    scenario: Scenario,
+    *,
+    agents: int | None = None,
+    seed: int = 0,
+    duration: float | None = None,
+    config: AgentConfig | None = None,
+    rate: float = 10.0,
+    transit: float = 0.001,
+    clock_skew: float = 0.0,
+    cmd_timeout: float = 0.5,
+    warmup: float = 2.0,
+    robot_model: DiffDrive | None = None,
+    command_delay: float = 0.0,
+) -> NetsimResult:
+    """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
+
+    The mission starts after ``warmup`` s of "waiting" broadcasts (neighbour discovery, as in
+    a real start). clock_skew: s added to the robots' pose stamps (their host's clock ahead).
+    robot_model: the robots' true geometry when it differs from what the agents assume
+    (``config.robot``), to measure how model error degrades the agents' prediction.
+    command_delay: s between a command's stamp and when the robot acts on it, on top of
+    ``transit`` (a slow actuator or command link, which the agents do not see).
+    """
+    from covswarm.deploy.plan import initial_poses
+    from covswarm.sim_robot.process import RobotSim
+    from covswarm.tvd.coverage import aggregate_error
+
+    n = scenario.agents if agents is None else agents
+    duration = scenario.duration if duration is None else duration
+    config = config or AgentConfig()
+    poses = initial_poses(scenario, n, seed)
+    decoder = MessageDecoder()
+    robots = [
+        RobotSim(
+            i, tuple(poses[i]), robot=robot_model or config.robot, cmd_timeout=cmd_timeout, now=0.0
+        )
+        for i in range(n)
+    ]
+    brains = [AgentBrain(i, config, decoder, clock=lambda: 0.0) for i in range(n)]
+    impair = [
+        PoseImpairment(
+            config.pose_loss, config.pose_delay, np.random.default_rng([config.pose_seed, i])
+        )
+        if config.pose_loss > 0.0 or config.pose_delay > 0.0
+        else None
+        for i in range(n)
+    ]
+    for brain in brains:
+        for other in range(n):
+            if other != brain.id:
+                brain.on_liveliness("agent", other, True)
+                brain.on_liveliness("robot", other, True)
+    follows: list[frozenset[int]] = [frozenset()] * n
+    # Per agent: key -> newest undelivered (kind, key id, payload), as a ring of one per key.
+    inbox: list[dict[tuple[str, int | None], bytes]] = [{} for _ in range(n)]
+    pending: list[tuple[float, int, int, str, int | None, bytes]] = []  # (due, order, to, ...)
+    order = 0
+    commands: list[tuple[float, int, int, bytes]] = []  # (due, order, robot, payload)
+
+    def send(due: float, to: int, kind: str, key_id: int | None, payload: bytes) -> None:
+        nonlocal order
+        heapq.heappush(pending, (due, order, to, kind, key_id, payload))
+        order += 1
+
+    rng = np.random.default_rng([seed, 7])
+    agent_phase = rng.uniform(0.0, 1.0 / rate, n)
+    events: list[tuple[float, int, str, int]] = []  # (time, order, what, index)
+    for i in range(n):
+        heapq.heappush(events, (float(agent_phase[i]), i, "agent", i))
+    heapq.heappush(events, (0.0, -2, "robots", 0))
+    heapq.heappush(events, (0.0, -1, "domain", 0))
+    end = warmup + duration
+    seq = 0
+    wheels = np.zeros((n, 2))
+    t_log: list[float] = []
+    e_log: list[float] = []
+    traj: list[np.ndarray] = []
+    wheel_log: list[np.ndarray] = []
+    next_sample = warmup
+    while events:
+        now, rank, what, index = heapq.heappop(events)
+        if now > end + 1e-9:
+            break
+        while commands and commands[0][0] <= now:
+            due, _, to, payload = heapq.heappop(commands)
+            robots[to].on_command(payload, due, START_WALL + due)
+        while pending and pending[0][0] <= now:
+            _, _, to, kind, key_id, payload = heapq.heappop(pending)
+            inbox[to][(kind, key_id)] = payload
+        wall = START_WALL + now
+        mission_t = min(max(now - warmup, 0.0), duration)
+        state = "waiting" if now < warmup else ("running" if now < end else "done")
+        if what == "robots":
+            for robot in robots:
+                robot.step(now)
+                pose = robot.pose_message(wall + clock_skew, int(round(now * ROBOT_RATE)))
+                send(now + transit, robot.id, "pose", robot.id, pose.encode())
+            heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
+        elif what == "domain":
+            vertices, velocities = scenario.domain(mission_t)
+            if state != "running":
+                velocities = np.zeros_like(velocities)
+            payload = protocol.Domain(
+                seq=seq, stamp=wall, t=mission_t, state=state, vertices=vertices,
+                velocities=velocities, kappa=scenario.kappa,
+            ).encode()  # fmt: skip
+            seq += 1
+            for i in range(n):
+                send(now + transit, i, "domain", None, payload)
+            if state == "running" and now >= next_sample - 1e-9:
+                positions = np.array([r.pose[:2] for r in robots])
+                t_log.append(mission_t)
+                e_log.append(aggregate_error(positions, vertices))
+                traj.append(positions)
+                wheel_log.append(wheels.copy())
+                next_sample += SAMPLE_PERIOD
+            heapq.heappush(events, (now + 1.0 / DOMAIN_RATE, rank, what, index))
+        else:
+            brain = brains[index]
+            items = [(kind, key_id, payload) for (kind, key_id), payload in inbox[index].items()]
+            inbox[index].clear()
+            if impair[index] is not None:
+                items = impair[index].filter(items, now)
+            for kind, key_id, payload in items:
+                if kind == "state" and key_id not in follows[index]:
+                    continue
+                brain.receive(kind, payload, now, wall, key_id)
+            for action in brain.tick(now, wall):
+                if isinstance(action, SendCommand):
+                    command = action.command
+                    wheels[index] = (command.left, command.right)
+                    due = now + transit + command_delay
+                    heapq.heappush(commands, (due, order, index, command.encode()))
+                    order += 1
+                elif isinstance(action, PublishState):
+                    payload = action.state.encode()
+                    for j in range(n):
+                        if j != index:
+                            send(now + transit, j, "state", index, payload)
+                elif isinstance(action, PublishBeacon):
+                    payload = action.beacon.encode()
+                    for j in range(n):
+                        if j != index:
+                            send(now + transit, j, "beacon", index, payload)
+                elif isinstance(action, FollowStates):
+                    follows[index] = action.ids
+            heapq.heappush(events, (now + 1.0 / rate, rank, what, index))
+    stats = defaultdict(dict, {b.id: b.stats() for b in brains})
+    return NetsimResult(
+        np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log), dict(stats)
+    )
+
+
+def steady_state(result: NetsimResult) -> float:
+    """Mean e_a over the second half of the mission (as summary.json's)."""
+    t, e = result.t, result.error
+    if t.size == 0:
+        return math.nan
+    return float(e[t >= 0.5 * t[-1]].mean())
