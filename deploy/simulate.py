@@ -40,6 +40,7 @@ class SimResult:
     positions: np.ndarray  # (n, 2) final positions
     guarded: int = 0  # robot-steps whose row the amplification guard rescaled
     fallbacks: int = 0  # steps on which the law's team-wide fallback was taken (TVD-C)
+    wheels: np.ndarray | None = None  # (T, n, 2) rim speeds commanded (unicycle), NaN at the end
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -67,10 +68,9 @@ def simulate(
     covswarm.tvd.control.team_step), damping None for covswarm.tvd.control.DAMPING, 0 for the
     paper's exact TVD-C with its fallback to TVD-D1.
     """
-    from covswarm.tvd.drive import integrate
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
-    from covswarm.tvd.drive import wheel_speeds
+    from covswarm.tvd.drive import integrate, wheel_speeds
 
     n = scenario.agents if agents is None else agents
     kappa = scenario.kappa if kappa is None else kappa
@@ -102,6 +102,7 @@ def simulate(
     heading_log = np.empty((steps + 1, n))
     polygons: list[np.ndarray] = []
     guarded = fallbacks = 0
+    wheel_log = np.full((steps + 1, n, 2), np.nan) if dynamics == "unicycle" else None
     for k in range(steps + 1):
         polygon, polygon_velocity = scenario.domain(t[k])
         density = scenario.density(t[k])
@@ -123,13 +124,15 @@ def simulate(
         if dynamics == "single":
             positions = positions + dt * velocity
         else:
-            poses = integrate(
-                np.column_stack([positions, headings]), wheel_speeds(headings, velocity), dt
-            )
+            wheels = wheel_speeds(headings, velocity)
+            wheel_log[k] = wheels
+            poses = integrate(np.column_stack([positions, headings]), wheels, dt)
             positions, headings = poses[:, :2], poses[:, 2]
         if progress is not None:
             progress(k + 1, steps)
-    return SimResult(t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks)
+    return SimResult(
+        t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log
+    )
 
 
 def guard_counts(result: SimResult) -> dict[str, Any]:
@@ -161,7 +164,9 @@ def build_summary(
     prior: str = "affine",
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
+    from covswarm.coordinator.physical import physical_summary, wheel_figures
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
+    from covswarm.tvd.drive import KHEPERA_IV
 
     summary: dict[str, Any] = {
         "scenario": scenario.name,
@@ -179,6 +184,13 @@ def build_summary(
         "initial_error": float(result.error[0]),
         "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
         "guards": guard_counts(result),
+        **physical_summary(result.t, result.trajectories, KHEPERA_IV.body_diameter)[0],
+        # Single integrators have no wheels: null, not a made-up figure.
+        **(
+            wheel_figures(result.t, result.wheels, KHEPERA_IV.max_wheel_speed)
+            if result.wheels is not None
+            else dict.fromkeys(("max_wheel_speed_used", "saturated_time", "saturated_fraction"))
+        ),
     }
     if law == "c":
         from covswarm.tvd.control import DAMPING
@@ -192,6 +204,22 @@ def build_summary(
         summary["final_error_without_feedforward"] = float(without.error[-1])
         summary["improvement"] = (ss_without - summary["steady_state_error_mean"]) / ss_without
     return summary
+
+
+def physical_line(summary: dict[str, Any]) -> str:
+    """The physical figures of summary.json (coordinator.physical) on one console line."""
+    closest = summary.get("min_pairwise_distance")
+    line = (f"closest robots {closest:.3f} m" if closest is not None else "closest robots -") + (
+        f"; {summary['close_approaches']} close approaches (< {summary['robot_diameter']:g} m),"
+        f" {summary['close_approach_time']:.1f} pair-s"
+    )
+    if summary.get("max_wheel_speed_used") is not None:
+        line += (
+            f"; wheels up to {summary['max_wheel_speed_used']:.2f} m/s,"
+            f" saturated {summary['saturated_time']:.1f} robot-s"
+            f" ({summary['saturated_fraction']:.1%} of commands)"
+        )
+    return line
 
 
 @click.command("sim")
@@ -348,6 +376,7 @@ def sim_command(
     console.print(
         f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s (CPU {cpu:.1f} s)"
     )
+    console.print(physical_line(summary))
     console.print(
         f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png, run.mcap, "
         "trajectories.csv)"

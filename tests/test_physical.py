@@ -62,3 +62,19 @@ def test_wheel_figures() -> None:
     assert figures["max_wheel_speed_used"] == pytest.approx(0.8)
     assert figures["saturated_time"] == pytest.approx(0.2)  # two commands held 0.1 s each
     assert figures["saturated_fraction"] == pytest.approx(2 / 7)
+
+
+def test_sim_summary_reports_physical_figures(tmp_path) -> None:
+    from covswarm.deploy.simulate import build_summary, simulate
+    from covswarm.mission.scenarios import load_scenario
+
+    scenario = load_scenario("passage")
+    options = dict(law="da", kappa=scenario.kappa, dt=0.05, duration=2.0, seed=0)
+    result = simulate(scenario, agents=6, dynamics="unicycle", **options)
+    summary = build_summary(scenario, result, feedforward=True, dynamics="unicycle", **options)
+    d = np.linalg.norm(result.trajectories[:, :, None] - result.trajectories[:, None], axis=3)
+    assert summary["min_pairwise_distance"] == pytest.approx((d + 9 * np.eye(6)).min())
+    assert 0 < summary["max_wheel_speed_used"] <= 0.8 + 1e-12
+    single = simulate(scenario, agents=6, dynamics="single", **options)
+    summary = build_summary(scenario, single, feedforward=True, dynamics="single", **options)
+    assert summary["max_wheel_speed_used"] is None
