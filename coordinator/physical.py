@@ -104,6 +104,21 @@ def wheel_figures(t: np.ndarray, wheels: np.ndarray, max_wheel_speed: float) -> 
     }
 
 
+def agent_wheel_figures(stats: dict[int, dict[str, float]], mission_time: float) -> dict:
+    """:func:`wheel_figures`' keys from the agents' own counts (their AgentState.stats:
+    ``wheel_max`` m/s and ``saturated_s`` s of mission under a saturated command), for a
+    distributed run whose coordinator never sees the commands. None without such stats."""
+    reported = [entry for entry in stats.values() if "wheel_max" in entry]
+    if not reported:
+        return dict.fromkeys(("max_wheel_speed_used", "saturated_time", "saturated_fraction"))
+    saturated = float(sum(entry.get("saturated_s", 0.0) for entry in reported))
+    return {
+        "max_wheel_speed_used": float(max(entry["wheel_max"] for entry in reported)),
+        "saturated_time": saturated,
+        "saturated_fraction": saturated / max(len(reported) * mission_time, 1e-9),
+    }
+
+
 def physical_summary(
     t: np.ndarray, trajectories: np.ndarray, diameter: float, ids: list[int] | None = None
 ) -> tuple[dict, list[CloseApproach]]:

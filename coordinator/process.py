@@ -476,7 +476,9 @@ def build_summary(
     settings: Settings, observed: Observed, steering: Steering | None = None
 ) -> dict[str, Any]:
     """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
+    from covswarm.coordinator.physical import agent_wheel_figures, physical_summary
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
+    from covswarm.tvd.drive import KHEPERA_IV
 
     record = observed.record
     final = record.positions[-1]
@@ -508,6 +510,10 @@ def build_summary(
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
         **({} if steering is None else steering_summary(steering)),
+        **physical_summary(
+            np.array(record.t), record.trajectories(), KHEPERA_IV.body_diameter, record.robot_ids()
+        )[0],
+        **agent_wheel_figures(observed.agent_stats, record.t[-1]),
     }
 
 

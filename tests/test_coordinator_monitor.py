@@ -133,6 +133,16 @@ def test_summary_has_the_sim_keys_and_process_figures() -> None:
     assert summary["neighbor_histogram"] == {1: 2}
     assert summary["lost_processes"] == [{"role": "agent", "id": 1, "t": 2.0, "wall": 3.0}]
     assert summary["agent_stats"]["per_agent"] == {"0": {"rate_hz": 10.0}}
+    # Physical figures: the two robots stay 0.51 m apart; no agent reported its wheels.
+    assert summary["min_pairwise_distance"] == pytest.approx(np.hypot(0.5, 0.1))
+    assert summary["close_approaches"] == 0 and summary["max_wheel_speed_used"] is None
+    observed.agent_stats = {
+        0: {"wheel_max": 0.8, "saturated_s": 1.0},
+        1: {"wheel_max": 0.3, "saturated_s": 0.0},
+    }
+    summary = build_summary(settings, observed)
+    assert summary["max_wheel_speed_used"] == 0.8 and summary["saturated_time"] == 1.0
+    assert summary["saturated_fraction"] == pytest.approx(1.0 / (2 * 4.0))
 
 
 def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
