@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from functools import cache
+from functools import cache, cached_property
 from typing import Any
 
 import numpy as np
@@ -96,9 +96,6 @@ class Density:
     covariance_rates: np.ndarray | None = None
     weight_rates: np.ndarray | None = None
     time: float = 0.0
-    precisions: np.ndarray = field(init=False, repr=False)
-    sigma_min: float = field(init=False, repr=False)
-    bumps: _Bumps = field(init=False, repr=False)
     _memo: list = field(init=False, repr=False, default_factory=list)
 
     def __post_init__(self) -> None:
@@ -125,10 +122,23 @@ class Density:
         for name in ("covariances", "covariance_rates"):  # symmetric up to rounding: exactly
             matrix = getattr(self, name)
             object.__setattr__(self, name, 0.5 * (matrix + matrix.transpose(0, 2, 1)))
-        object.__setattr__(self, "precisions", np.linalg.inv(self.covariances))
-        smallest = np.linalg.eigvalsh(self.covariances)[:, 0] if count else np.array([np.inf])
-        object.__setattr__(self, "sigma_min", float(np.sqrt(smallest.min())))
-        object.__setattr__(self, "bumps", _Bumps.of(self))
+
+    # Derived on first use: a robot makes a snapshot every tick (``at``) and may not need all.
+
+    @cached_property
+    def precisions(self) -> np.ndarray:
+        """Sigma^-1 of every bump, (B, 2, 2)."""
+        return np.linalg.inv(self.covariances)
+
+    @cached_property
+    def sigma_min(self) -> float:
+        """The smallest standard deviation of any bump (inf without bumps)."""
+        return float(self.bumps.deviation.min(initial=np.inf))
+
+    @cached_property
+    def bumps(self) -> _Bumps:
+        """The bumps as the closed-form integrals use them."""
+        return _Bumps.of(self)
 
     # ---------------------------------------------------------------- evaluation
 
@@ -246,14 +256,20 @@ def _array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
 
 
 def _problems(density: Density) -> list[str]:
-    """Why ``density`` is invalid (empty list when it is valid)."""
+    """Why ``density`` is invalid (empty list when it is valid). Each check runs on every
+    array at once and names the culprits only when it fails: a robot validates a snapshot
+    every tick."""
     problems = []
     if len(density.weights) > MAX_BUMPS:
         problems.append(f"{len(density.weights)} bumps, at most {MAX_BUMPS}")
-    arrays = ("means", "covariances", "weights", "mean_rates", "covariance_rates", "weight_rates")
-    for name in arrays:
-        if not np.all(np.isfinite(getattr(density, name))):
-            problems.append(f"{name} contain NaN or inf")
+    names = ("means", "covariances", "weights", "mean_rates", "covariance_rates", "weight_rates")
+    arrays = [getattr(density, name) for name in names]
+    if not np.isfinite(np.concatenate([array.ravel() for array in arrays])).all():
+        problems += [
+            f"{name} contain NaN or inf"
+            for name, array in zip(names, arrays, strict=True)
+            if not np.isfinite(array).all()
+        ]
     if not math.isfinite(density.floor) or not math.isfinite(density.time):
         problems.append("floor and time must be finite")
     if problems:
@@ -263,20 +279,21 @@ def _problems(density: Density) -> list[str]:
         problems.append(
             f"phi can reach {lowest:g} <= 0: need floor > 0 and floor + negative weights > 0"
         )
-    for name in ("covariances", "covariance_rates"):
-        matrix = getattr(density, name)
-        asymmetry = np.abs(matrix[:, 0, 1] - matrix[:, 1, 0])
-        size = np.abs(matrix).max(axis=(1, 2), initial=0.0)
-        bad = np.flatnonzero(asymmetry > SYMMETRY_TOL * np.maximum(size, 1e-300))
-        if len(bad):
-            problems.append(f"{name} of bumps {bad.tolist()} not symmetric")
-    if len(density.weights):
-        # Cholesky-free test of a symmetric 2x2: positive trace and determinant.
-        cov = density.covariances
-        det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
-        bad = np.flatnonzero((det <= 0.0) | (cov[:, 0, 0] <= 0.0))
-        if len(bad):
-            problems.append(f"covariances of bumps {bad.tolist()} not positive definite")
+    matrices = np.stack((density.covariances, density.covariance_rates))  # (2, B, 2, 2)
+    asymmetry = np.abs(matrices[..., 0, 1] - matrices[..., 1, 0])
+    size = np.abs(matrices).max(axis=(2, 3), initial=0.0)
+    asymmetric = asymmetry > SYMMETRY_TOL * np.maximum(size, 1e-300)
+    if asymmetric.any():
+        for name, bad in zip(("covariances", "covariance_rates"), asymmetric, strict=True):
+            if bad.any():
+                problems.append(f"{name} of bumps {np.flatnonzero(bad).tolist()} not symmetric")
+    # Cholesky-free test of a symmetric 2x2: positive trace and determinant.
+    cov = density.covariances
+    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
+    indefinite = (det <= 0.0) | (cov[:, 0, 0] <= 0.0)
+    if indefinite.any():
+        bad = np.flatnonzero(indefinite).tolist()
+        problems.append(f"covariances of bumps {bad} not positive definite")
     return problems
 
 
@@ -317,10 +334,42 @@ RULE_TOL = 1e-12
 MAX_RULE_ORDER = 12
 
 
-def _complex_map(matrix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A real 2x2 map (..., 2, 2) as complex coefficients: A x = alpha z + beta conj(z)."""
-    a, b, c, d = matrix[..., 0, 0], matrix[..., 0, 1], matrix[..., 1, 0], matrix[..., 1, 1]
-    return 0.5 * ((a + d) + 1j * (c - b)), 0.5 * ((a - d) + 1j * (c + b))
+def _bump_row(
+    a: float,
+    b: float,
+    _: float,
+    c: float,
+    s00: float,
+    s01: float,
+    __: float,
+    s11: float,
+    mx: float,
+    my: float,
+) -> tuple[complex, complex, complex, complex, float, float, complex, float, complex]:
+    """One bump's row of _Bumps from Sigma = [[a, b], [b, c]], Sigma_dot = [[s00, s01],
+    [s01, s11]] and mu_dot = (mx, my). Cholesky Sigma = L L^T, L = [[l00, 0], [l10, l11]],
+    W = L^-1 = [[w00, 0], [w10, w11]]; a real map [[p, q], [r, s]] is the complex pair
+    ((p + s) + i (r - q)) / 2, ((p - s) + i (r + q)) / 2; M = W Sigma_dot W^T / 2."""
+    l00 = math.sqrt(a)
+    l10 = b / l00
+    l11 = math.sqrt(c - l10 * l10)
+    w00, w11 = 1.0 / l00, 1.0 / l11
+    w10 = -l10 * w00 * w11
+    m00 = 0.5 * w00 * w00 * s00
+    m01 = 0.5 * w00 * (s00 * w10 + s01 * w11)
+    m11 = 0.5 * (w10 * (w10 * s00 + w11 * s01) + w11 * (w10 * s01 + w11 * s11))
+    largest = 0.5 * (a + c) + math.hypot(0.5 * (a - c), b)  # eigenvalues of Sigma
+    return (
+        complex(0.5 * (w00 + w11), 0.5 * w10),
+        complex(0.5 * (w00 - w11), 0.5 * w10),
+        complex(0.5 * (l00 + l11), 0.5 * l10),
+        complex(0.5 * (l00 - l11), 0.5 * l10),
+        l00 * l11,
+        math.sqrt((a * c - b * b) / largest),  # the smallest deviation, without cancellation
+        complex(w00 * mx, w10 * mx + w11 * my),
+        0.5 * (m00 + m11),
+        complex(0.5 * (m00 - m11), m01),
+    )
 
 
 @dataclass(frozen=True)
@@ -346,21 +395,29 @@ class _Bumps:
 
     @classmethod
     def of(cls, density: Density) -> _Bumps:
-        count = len(density.weights)
-        lower = np.linalg.cholesky(density.covariances) if count else np.zeros((0, 2, 2))
-        white = np.linalg.inv(lower) if count else lower
-        spread, twist = _complex_map(
-            0.5 * white @ density.covariance_rates @ white.transpose(0, 2, 1)
-        )
+        """From a validated density, in closed form for 2 x 2 matrices, bump by bump in
+        Python floats: this runs once per snapshot, i.e. per robot per tick, for a few
+        bumps, where numpy's per-call cost would dominate."""
+        rows = [
+            _bump_row(*cov, *rate, *mean_rate)
+            for cov, rate, mean_rate in zip(
+                density.covariances.reshape(-1, 4).tolist(),
+                density.covariance_rates.reshape(-1, 4).tolist(),
+                density.mean_rates.tolist(),
+                strict=True,
+            )
+        ]
+        columns = np.array(rows, dtype=np.complex128).reshape(-1, 9).T
+        white_a, white_b, lower_a, lower_b, scale, deviation, drift, spread, twist = columns
         return cls(
             centers=as_complex(density.means),
-            white=_complex_map(white),
-            lower=_complex_map(lower),
-            scale=lower[:, 0, 0] * lower[:, 1, 1],
-            deviation=np.sqrt(np.linalg.eigvalsh(density.covariances)[:, 0]),
+            white=(white_a, white_b),
+            lower=(lower_a, lower_b),
+            scale=scale.real,
+            deviation=deviation.real,
             weights=density.weights,
             weight_rates=density.weight_rates,
-            drift=as_complex(np.einsum("bij,bj->bi", white, density.mean_rates)),
+            drift=drift,
             spread=spread.real,
             twist=twist,
         )
