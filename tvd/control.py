@@ -5,7 +5,8 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
 - TVD-D1 (eq. TVD-D1): pdot = (I + J) r, the one-term Neumann truncation, whose row i needs
   only robot i's cell and its neighbours' cells.
 - TVD-DA (domain-motion feedforward, docs/tracking.md): with v(q) = A q + b the affine field
-  fitted (least squares) to S's vertex velocities,
+  fitted (least squares) to S's vertex velocities (near a density's bumps, blended with the
+  bumps' own motion: ``motion_field``),
 
       pdot = v(p) + (I + J) (kappa (c - p) + rho),   rho = dc/dt - (I - J) v(p),
 
@@ -81,11 +82,13 @@ from covswarm.tvd.coverage import (
     tessellate,
     validate_positions,
 )
+from covswarm.tvd.density import Density
 
 MAX_AMPLIFICATION = 10.0
 # Tikhonov damping of TVD-C's feedforward solve (dimensionless, like I - J): singular
-# directions of I - J below it are attenuated, so |x| <= |dc/dt| / (2 DAMPING).
-# Measured on circle/100 (docs/tracking.md).
+# directions of I - J below it are attenuated toward the prior x0, so
+# |x - x0| <= |dc/dt - (I - J) x0| / (2 DAMPING). With the affine prior circle/100 gives
+# the same e_a at 0.05 and 0.01 (docs/tracking.md, section 4).
 DAMPING = 0.05
 LAWS = ("c", "d1", "da")
 PRIORS = ("affine", "zero")
@@ -113,7 +116,7 @@ class TeamStep:
 
     velocity: (n, 2) m/s; guarded: (n,) rows rescaled by the amplification guard;
     fallback: the team-wide fallback was taken (exact TVD-C: guarded TVD-D1 instead; damped
-    TVD-C: feedforward dropped because the solve failed).
+    TVD-C: the solve failed, so only the prior is fed forward).
     """
 
     velocity: np.ndarray
@@ -163,6 +166,41 @@ def _fit(domain: Domain) -> AffineField:
     return AffineField(
         matrix=(inverse @ moments).T, origin=origin, velocity=domain.velocities.sum(axis=0) * weight
     )
+
+
+def motion_field(
+    polygon: np.ndarray,
+    polygon_velocity: np.ndarray,
+    points: np.ndarray,
+    density: DensityModel | None = None,
+) -> np.ndarray:
+    """TVD-DA's guess of the feedforward at ``points`` (P, 2): (P, 2) m/s.
+
+    Uniform density: S's affine field v_S (``affine_field``). With Gaussian bumps
+    (covswarm.tvd.density.Density), each bump b's share of phi pulls the guess toward the
+    bump's own motion, its mean's drift plus S's stretch and turn about the mean:
+
+        v(q) = (floor v_S(q) + sum_b |w_b| g_b(q) (mu_dot_b + A (q - mu_b)))
+               / (floor + sum_b |w_b| g_b(q)),
+
+    so a bump that rides with S gives v_S exactly. Any guess is corrected by TVD-DA's
+    residual term; this one took ``formation`` from 0.0137 to 0.011 m (docs/tracking.md).
+    """
+    return as_vectors(_motion_field(make_domain(polygon, polygon_velocity), points, density))
+
+
+def _motion_field(domain: Domain, points: np.ndarray, density: DensityModel | None) -> np.ndarray:
+    """``motion_field`` of a validated domain, (P,) complex."""
+    field = _fit(domain)
+    guess = field(points)
+    if isinstance(density, Density) and len(density.weights):
+        offset = points[:, None, :] - density.means  # (P, B, 2)
+        spread = np.einsum("pbi,bij,pbj->pb", offset, density.precisions, offset)
+        share = np.abs(density.weights) * np.exp(-0.5 * spread)  # (P, B)
+        bump = density.mean_rates + offset @ field.matrix.T  # (P, B, 2)
+        total = density.floor + share.sum(axis=1)
+        guess = (density.floor * guess + np.einsum("pb,pbi->pi", share, bump)) / total[:, None]
+    return as_complex(np.ascontiguousarray(guess))
 
 
 def _check_kappa(kappa: float) -> None:
@@ -336,7 +374,7 @@ def _team_da(
     if rate is None:
         return _team_d1(batch, points, feedback, max_amplification, density)
     blocks = None if density is None else density.jacobian_blocks(batch, points)
-    field = as_complex(_fit(domain)(points))
+    field = _motion_field(domain, points, density)
     labels = np.maximum(batch.labels, 0)
     references = feedback + _residual(batch, points, rate, field, field[labels], density, blocks)
     rows, guarded = _neumann_rows(
@@ -576,7 +614,7 @@ def local_step(
     if rate is not None and law == "d1":
         references = feedback + rate
     elif rate is not None:
-        field = as_complex(_fit(domain)(points))
+        field = _motion_field(domain, points, density)
         blocks = None if density is None else density.jacobian_blocks(batch, points)
         neighbor_field = field[np.maximum(batch.labels, 0)]
         references = feedback + _residual(
