@@ -175,7 +175,9 @@ def time_density_vs_uniform(
     for me in robots:
         view = {j: layout.positions[j] for j in two_hop(adjacency, int(me))}
         for name in ("uniform", "density", "uniform", "density"):  # the first of each warms
-            phi = density if name == "density" else None
+            # A fresh snapshot per step, as an agent makes one per tick: a snapshot keeps the
+            # integrals of its last cells, which a step with the same view would reuse.
+            phi = density.at(density.time) if name == "density" else None
             start = time.perf_counter()
             local_step(int(me), view, layout.polygon, velocity, kappa, density=phi)
             spent[name].append((time.perf_counter() - start) * 1e6)

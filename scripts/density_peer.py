@@ -135,7 +135,13 @@ def measure(
     for me in range(n):
         view = {j: positions[j] for j in two_hop(adjacency, me)}
         for name in tuple(models) * 3:  # the first of each warms
+            # A fresh snapshot per step, as an agent makes one per tick: a snapshot keeps the
+            # integrals of its last cells, which a step with the same view would reuse.
             phi = models[name]
+            if name == "density":
+                phi = density.at(density.time)
+            elif name == "quadrature":
+                phi = quadrature(density.at(density.time))
             start = time.perf_counter()
             local_step(me, view, ARENA, still, 1.0, density=phi)
             ours[name].append((time.perf_counter() - start) * 1e6)

@@ -58,10 +58,9 @@ from typing import Any
 import numpy as np
 from scipy.special import erfc, owens_t
 
-from covswarm.tvd.coverage import CellBatch, as_complex, as_vectors
+from covswarm.tvd.coverage import CellBatch, as_complex
 from covswarm.tvd.coverage import Domain as CoverageDomain
 from covswarm.tvd.coverage import boundary_rates as uniform_boundary_rates
-from covswarm.tvd.coverage import jacobian_blocks as uniform_jacobian_blocks
 
 # Gauss-Legendre points per direction of the collapsed triangle rule (exact to degree
 # 2 TRIANGLE_ORDER - 2) and per edge (exact to degree 2 EDGE_ORDER - 1).
@@ -322,9 +321,9 @@ SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
 # Whitened cell size (its extent over the bump's smallest deviation) below which a (cell,
 # bump) pair uses the Gauss rule (measured: closed forms to 1e-9 down to 0.1, 1e-5 at 0.01).
 SMALL_CELL = 0.1
-# A bump is left out of a batch when g * (|w| + |w_dot| + |w| (|W mu_dot| + |M|) d^2) < SKIP
-# * floor on every cell of it (d: a lower bound on the whitened distance to the cell; rates
-# per second): far below the rounding of the floor's part.
+# A bump is left out of a batch when it adds less than SKIP times the floor to every cell of
+# it, phi and dphi/dt alike (rates per second; ``_bump_row``): far below the rounding of the
+# floor's part.
 SKIP = 1e-13
 # The small-cell rule: G varies across such a cell by a factor exp(+-v), v = size (reach +
 # size), so a Taylor polynomial of degree k is within e^v v^(k+1) / (k+1)! of it, relative;
@@ -345,11 +344,19 @@ def _bump_row(
     s11: float,
     mx: float,
     my: float,
-) -> tuple[complex, complex, complex, complex, float, float, complex, float, complex]:
+    weight: float,
+    weight_rate: float,
+    floor: float,
+) -> tuple[complex, complex, complex, complex, float, float, complex, float, complex, float]:
     """One bump's row of _Bumps from Sigma = [[a, b], [b, c]], Sigma_dot = [[s00, s01],
-    [s01, s11]] and mu_dot = (mx, my). Cholesky Sigma = L L^T, L = [[l00, 0], [l10, l11]],
-    W = L^-1 = [[w00, 0], [w10, w11]]; a real map [[p, q], [r, s]] is the complex pair
-    ((p + s) + i (r - q)) / 2, ((p - s) + i (r + q)) / 2; M = W Sigma_dot W^T / 2."""
+    [s01, s11]], mu_dot = (mx, my), w, w_dot and the floor. Cholesky Sigma = L L^T,
+    L = [[l00, 0], [l10, l11]], W = L^-1 = [[w00, 0], [w10, w11]]; a real map [[p, q],
+    [r, s]] is the complex pair ((p + s) + i (r - q)) / 2, ((p - s) + i (r + q)) / 2;
+    M = W Sigma_dot W^T / 2.
+
+    The reach: at a whitened distance r, g (|w_dot| + |w| (1 + |a| r + |M| r^2)) <=
+    A (1 + r^2) exp(-r^2 / 2) <= 2 A exp(-r^2 / 4), A = |w_dot| + |w| (1 + |a| + |M|),
+    which is below SKIP times the floor beyond r = 2 sqrt(ln(2 A / (SKIP floor)))."""
     l00 = math.sqrt(a)
     l10 = b / l00
     l11 = math.sqrt(c - l10 * l10)
@@ -359,6 +366,9 @@ def _bump_row(
     m01 = 0.5 * w00 * (s00 * w10 + s01 * w11)
     m11 = 0.5 * (w10 * (w10 * s00 + w11 * s01) + w11 * (w10 * s01 + w11 * s11))
     largest = 0.5 * (a + c) + math.hypot(0.5 * (a - c), b)  # eigenvalues of Sigma
+    drift = complex(w00 * mx, w10 * mx + w11 * my)
+    spread, twist = 0.5 * (m00 + m11), complex(0.5 * (m00 - m11), m01)
+    amplitude = abs(weight_rate) + abs(weight) * (1.0 + abs(drift) + abs(spread) + abs(twist))
     return (
         complex(0.5 * (w00 + w11), 0.5 * w10),
         complex(0.5 * (w00 - w11), 0.5 * w10),
@@ -366,9 +376,10 @@ def _bump_row(
         complex(0.5 * (l00 - l11), 0.5 * l10),
         l00 * l11,
         math.sqrt((a * c - b * b) / largest),  # the smallest deviation, without cancellation
-        complex(w00 * mx, w10 * mx + w11 * my),
-        0.5 * (m00 + m11),
-        complex(0.5 * (m00 - m11), m01),
+        drift,
+        spread,
+        twist,
+        2.0 * math.sqrt(math.log(max(2.0 * amplitude / (SKIP * floor), 1.0))),
     )
 
 
@@ -379,7 +390,8 @@ class _Bumps:
     centers mu; white, lower: W and L = W^-1 as complex maps (alpha, beta), A z = alpha z +
     beta conj(z), with Sigma = L L^T (Cholesky); scale det L; deviation the smallest standard
     deviation; weights, weight_rates w, w_dot; drift W mu_dot; spread, twist: the complex map
-    of M = W Sigma_dot W^T / 2 (symmetric: spread real, the half trace).
+    of M = W Sigma_dot W^T / 2 (symmetric: spread real, the half trace); reach the whitened
+    distance beyond which the bump is negligible (``_bump_row``).
     """
 
     centers: np.ndarray
@@ -392,6 +404,7 @@ class _Bumps:
     drift: np.ndarray
     spread: np.ndarray
     twist: np.ndarray
+    reach: np.ndarray
 
     @classmethod
     def of(cls, density: Density) -> _Bumps:
@@ -399,16 +412,18 @@ class _Bumps:
         Python floats: this runs once per snapshot, i.e. per robot per tick, for a few
         bumps, where numpy's per-call cost would dominate."""
         rows = [
-            _bump_row(*cov, *rate, *mean_rate)
-            for cov, rate, mean_rate in zip(
+            _bump_row(*cov, *rate, *mean_rate, weight, weight_rate, density.floor)
+            for cov, rate, mean_rate, weight, weight_rate in zip(
                 density.covariances.reshape(-1, 4).tolist(),
                 density.covariance_rates.reshape(-1, 4).tolist(),
                 density.mean_rates.tolist(),
+                density.weights.tolist(),
+                density.weight_rates.tolist(),
                 strict=True,
             )
         ]
-        columns = np.array(rows, dtype=np.complex128).reshape(-1, 9).T
-        white_a, white_b, lower_a, lower_b, scale, deviation, drift, spread, twist = columns
+        columns = np.array(rows, dtype=np.complex128).reshape(-1, 10).T
+        white_a, white_b, lower_a, lower_b, scale, deviation, drift, spread, twist, reach = columns
         return cls(
             centers=as_complex(density.means),
             white=(white_a, white_b),
@@ -420,6 +435,7 @@ class _Bumps:
             drift=drift,
             spread=spread.real,
             twist=twist,
+            reach=reach.real,
         )
 
     def take(self, kept: np.ndarray) -> _Bumps:
@@ -484,6 +500,8 @@ class _Integrals:
 
     def rows(self, count: int) -> _Integrals:
         """The first ``count`` cells."""
+        if count == len(self.m0):
+            return self
         edges = _Edges(
             **{
                 name: value[:count] if np.ndim(value) else value
@@ -531,18 +549,15 @@ def _compute_integrals(bumps: _Bumps, floor: float, batch: CellBatch) -> _Integr
     present = batch.present[:, :lines]
     first = start[:, :1]
     extent = np.where(present, np.abs(start - first), 0.0).max(axis=1)  # (K,)
-    size = extent[:, None] / bumps.deviation  # at least the whitened extent, (K, B)
     reach = np.abs(bumps.whiten(first[:, 0]))  # whitened distance to the first vertex
-    near = np.maximum(reach - size, 0.0)
-    amplitude = np.abs(bumps.weights) * (
-        1.0 + (np.abs(bumps.drift) + np.abs(bumps.spread) + np.abs(bumps.twist)) * (1.0 + near**2)
-    ) + np.abs(bumps.weight_rates)
-    matters = amplitude * np.exp(-0.5 * near * near) >= SKIP * floor  # (K, B)
-    if not matters.all():
-        kept = np.flatnonzero(matters.any(axis=0))
+    # A lower bound on the whitened distance from the mean to the cell, against the bump's
+    # reach (``_bump_row``).
+    far = reach - extent[:, None] / bumps.deviation > bumps.reach  # (K, B)
+    if far.any():
+        kept = np.flatnonzero(~far.all(axis=0))
         if not len(kept):
             return None
-        bumps, size, reach = bumps.take(kept), size[:, kept], reach[:, kept]
+        bumps, reach = bumps.take(kept), reach[:, kept]
     edges = _edge_moments(bumps, start, end, present)
     integrals = _closed_moments(bumps, edges)
     # The whitened extent itself (an elongated bump: the bound above can be far larger).
@@ -746,6 +761,18 @@ def _edge_lines(bumps: _Bumps, edges: _Edges) -> tuple[np.ndarray, np.ndarray, n
     return foot, beta, np.abs(beta)
 
 
+def _outer_blocks(plain: np.ndarray, twisted: np.ndarray) -> np.ndarray:
+    """Sums of outer products a b^T of plane vectors as 2 x 2 blocks (..., 2, 2), from
+    plain = sum a b and twisted = sum a conj(b) (complex products): a_x b_x is half the real
+    part of their sum, a_y b_y half that of their difference, and so on."""
+    blocks = np.empty((*plain.shape, 2, 2))
+    blocks[..., 0, 0] = 0.5 * (plain.real + twisted.real)
+    blocks[..., 0, 1] = 0.5 * (plain.imag - twisted.imag)
+    blocks[..., 1, 0] = 0.5 * (plain.imag + twisted.imag)
+    blocks[..., 1, 1] = 0.5 * (twisted.real - plain.real)
+    return blocks
+
+
 def jacobian_blocks(
     density: Density, batch: CellBatch, points: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -754,16 +781,18 @@ def jacobian_blocks(
     off (K, L, 2, 2): -int_{dV_ij} (q - c_i)(q - p_j)^T phi / (m_i |p_i - p_j|) for the
     edge on line l shared with robot j = labels[k, l], zero elsewhere; diagonal (K, 2, 2):
     the sum over j of the same integrals with p_i in place of p_j, plus sign. Empty cells
-    get zero blocks (as covswarm.tvd.coverage.jacobian_blocks). The floor's part is the
-    uniform closed form; each bump's is E0..E2 along the edge.
+    get zero blocks (as covswarm.tvd.coverage.jacobian_blocks).
+
+    On an edge, int (q - c)(q - p_j)^T phi ds = X + Y (p_i - p_j)^T with X the same integral
+    about p_i and Y = int (q - c) phi ds. The floor's part is the Lemma's bracket (as in
+    covswarm.tvd.coverage.jacobian_blocks): from the edge's start v, u = v - c, w = v - p_i
+    and d the edge, X = |d| [u (w + d/2)^T + d (w/2 + d/3)^T], Y = |d| (u + d/2). Each
+    bump's, with q = foot + t beta along the edge, P = foot - c and Q = foot - p_i:
+    X = |beta| [P (E0 Q + E1 beta)^T + beta (E1 Q + E2 beta)^T], Y = |beta| (E0 P + E1 beta).
     """
-    off, diagonal = uniform_jacobian_blocks(batch, points)
-    off, diagonal = density.floor * off, density.floor * diagonal
     integrals = _integrals(density, batch)
-    if integrals is None:
-        return off, diagonal
-    bumps, edges = integrals.bumps, integrals.edges
-    lines = edges.h.shape[1]
+    # The lines of the integrals (a reused batch's may be more than this one needs: padding).
+    lines = _trim(batch) if integrals is None else integrals.edges.h.shape[1]
     where = as_complex(points)
     me = where[batch.owners][:, None]
     gap = me - np.take(where, batch.labels[:, :lines], mode="wrap")  # polygon lines: masked
@@ -771,26 +800,29 @@ def jacobian_blocks(
         1.0, np.abs(gap) * batch.mass[:, None], out=np.zeros(gap.shape),
         where=batch.shared[:, :lines],
     )  # fmt: skip
-    foot, beta, speed = _edge_lines(bumps, edges)
-    weight = (scale[..., None] * bumps.weights) * speed
-    about_c = foot - batch.centroid[:, None, None]
-    about_me = foot - me[..., None]
-    # int (q - c)(q - p_i)^T g ds = |beta| [P (E0 Q + E1 beta)^T + beta (E1 Q + E2 beta)^T]
-    # with P = foot - c, Q = foot - p_i; int (q - c) g ds = |beta| (E0 P + E1 beta).
-    left = as_vectors(np.stack((about_c, beta), axis=-1))
-    right = as_vectors(
-        np.stack(
-            (
-                weight * (edges.e0 * about_me + edges.e1 * beta),
-                weight * (edges.e1 * about_me + edges.e2 * beta),
-            ),
-            axis=-1,
-        )
-    )
-    block = np.einsum("klbta,klbtc->klac", left, right)
-    column = as_vectors((weight * (edges.e0 * about_c + edges.e1 * beta)).sum(axis=2))
-    off[:, :lines] -= block + column[..., None] * as_vectors(gap)[..., None, :]
-    return off, diagonal + block.sum(axis=1)
+    start = batch.start[:, :lines]
+    d = batch.end[:, :lines] - start
+    u = start - batch.centroid[:, None]
+    w = start - me
+    length = (density.floor * scale) * np.abs(d)
+    first, second = w + 0.5 * d, 0.5 * w + d / 3.0
+    plain = length * (u * first + d * second)
+    twisted = length * (u * first.conj() + d * second.conj())
+    column = length * (u + 0.5 * d)
+    if integrals is not None:
+        bumps, edges = integrals.bumps, integrals.edges
+        foot, beta, speed = _edge_lines(bumps, edges)
+        weight = (scale[..., None] * bumps.weights) * speed
+        about_c = foot - batch.centroid[:, None, None]
+        about_me = foot - me[..., None]
+        near = weight * (edges.e0 * about_me + edges.e1 * beta)
+        far = weight * (edges.e1 * about_me + edges.e2 * beta)
+        plain = plain + (about_c * near + beta * far).sum(axis=2)
+        twisted = twisted + (about_c * near.conj() + beta * far.conj()).sum(axis=2)
+        column = column + (weight * (edges.e0 * about_c + edges.e1 * beta)).sum(axis=2)
+    off = np.zeros((*batch.labels.shape, 2, 2))
+    off[:, :lines] = -_outer_blocks(plain + column * gap, twisted + column * gap.conj())
+    return off, _outer_blocks(plain.sum(axis=1), twisted.sum(axis=1))
 
 
 def centroid_rates(
