@@ -18,6 +18,7 @@ import pytest
 from covswarm.agent import brain, neighbourhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.deploy.cli import main
+from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol import messages
 from covswarm.protocol.session import session_config
 from covswarm.tvd import control, coverage, drive
@@ -58,6 +59,10 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("every 250 ms, backing off to 1 s", lambda: reconnect("period_init_ms"), 250),
     ("every 250 ms, backing off to 1 s", lambda: reconnect("period_max_ms"), 1000),
     ("control rate (10 Hz)", lambda: option_default("run", "rate"), 10.0),
+    ("This is the default run (`passage`, 10 robots, 45 s)",
+     lambda: option_default("run", "scenario_name") == "passage", True),
+    ("This is the default run (`passage`, 10 robots, 45 s)",
+     lambda: (load_scenario("passage").agents, load_scenario("passage").duration), (10, 45.0)),
 ]  # fmt: skip
 
 
