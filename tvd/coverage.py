@@ -41,7 +41,7 @@ Degenerate layouts have defined behaviour:
 
 Every public function accepts ``density``: None is uniform (phi = 1, the closed forms
 above); otherwise a DensityModel snapshot at the current time (covswarm.tvd.density.Density),
-whose own quadrature replaces the mass, centroid, dc/dp and dc/dt integrals. Cells do not
+whose own integrals replace the mass, centroid, dc/dp and dc/dt closed forms. Cells do not
 depend on phi.
 """
 
@@ -159,7 +159,7 @@ def check_density(density: object) -> None:
 def cell_jacobian_blocks(
     batch: CellBatch, points: np.ndarray, density: DensityModel | None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """``jacobian_blocks`` for phi = 1 (closed form) or the density's quadrature."""
+    """``jacobian_blocks`` for phi = 1 (closed form) or the density's own integrals."""
     if density is None:
         return jacobian_blocks(batch, points)
     return density.jacobian_blocks(batch, points)
