@@ -158,6 +158,8 @@ def steer_command(
     chosen = [o for o in (translate_, rotate, scale, polygon) if o is not None]
     if len(chosen) != 1:
         raise click.UsageError("give exactly one of --translate, --rotate, --scale, --polygon")
+    if about is not None and rotate is None and scale is None:
+        raise click.UsageError("--about is the fixed point of --rotate or --scale only")
     try:
         check_swarm(swarm)
         centre = None if about is None else _pair(about, "--about")
