@@ -236,6 +236,25 @@ def test_motion_field_with_bumps() -> None:
     np.testing.assert_allclose(control.motion_field(polygon, V, q, far), field(q), atol=1e-12)
 
 
+def test_mass_weighted_jacobian_is_symmetric_at_a_cvt() -> None:
+    """docs/tracking.md, section 3: at a CVT M J is symmetric (M = diag(m_i) x I2), so J has
+    real eigenvalues; near a CVT they lie in [0, 1). Off a CVT neither holds."""
+    rng = np.random.default_rng(12)
+    polygon = random_convex_polygon(rng, k=6, scale=1.0, offset=1.0)
+    p = lloyd_cvt(polygon, 15, seed=4)
+    for positions, at_cvt in ((p, True), (random_robots(rng, polygon, 15), False)):
+        mass = coverage.mass_centroid(positions, polygon)[0]
+        jacobian = coverage.centroid_jacobian(positions, polygon)
+        weighted = np.repeat(mass, 2)[:, None] * jacobian
+        asymmetry = np.abs(weighted - weighted.T).max() / np.abs(weighted).max()
+        mu = np.linalg.eigvals(jacobian)
+        if at_cvt:
+            assert asymmetry < 1e-12
+            assert np.abs(mu.imag).max() < 1e-9 and -1e-9 <= mu.real.min() and mu.real.max() < 1
+        else:
+            assert asymmetry > 1e-3
+
+
 def test_scaling_stability_edge() -> None:
     """S scales about o at the constant rate s (S(t) = o + e^{st} (S0 - o)). At a CVT the
     closed loop is edot = -(kappa (I - J^2) - s J^2) e with J constant (a CVT scales with S),
