@@ -9,6 +9,8 @@
    README states beside it. Each figure is also looked up in the README row or paragraph
    that shows it, so that the README and this file cannot drift apart. About 2 minutes of
    CPU, run two at a time.
+3. Why the paper's exact TVD-C falls back: the conditioning of I - dc/dp the README states,
+   far from and near a CVT.
 """
 
 from __future__ import annotations
@@ -25,6 +27,7 @@ import pytest
 from covswarm.deploy.simulate import LAWS, simulate
 from covswarm.mission.report import neighbor_histogram, steady_state_mean
 from covswarm.mission.scenarios import BUILTINS, load_scenario
+from covswarm.tvd import coverage
 
 README = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
 
@@ -221,3 +224,40 @@ def test_neighbour_counts_of_table_1_within_their_band(sims: dict[str, dict]) ->
     for k, expected in TABLE_1.items():
         assert mean[k] == pytest.approx(expected, abs=NEIGHBOURS), mean
     assert max(mean, key=mean.get) == 6  # most robots have 6 neighbours, as in the paper
+
+
+# ------------------------------------------------------------ 3. why the exact TVD-C falls back
+
+SQUARE = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])  # the circle's S
+
+
+def conditioning(positions: np.ndarray) -> tuple[float, float]:
+    """(spectral radius of dc/dp, smallest singular value of I - dc/dp) in SQUARE."""
+    jacobian = coverage.centroid_jacobian(positions, SQUARE)
+    radius = float(np.abs(np.linalg.eigvals(jacobian)).max())
+    identity = np.eye(len(jacobian))
+    return radius, float(np.linalg.svd(identity - jacobian, compute_uv=False).min())
+
+
+def test_far_from_a_cvt_the_spectral_radius_is_above_one() -> None:
+    """README: "Far from a CVT the spectral radius of dc/dp is 2 to 11" (20 robots at
+    random in a square), so I - dc/dp can be near singular and the Neumann series diverges."""
+    radii = [conditioning(np.random.default_rng(s).uniform(-1, 1, (20, 2)))[0] for s in range(10)]
+    assert 2.0 <= min(radii) and max(radii) <= 11.0, radii
+
+
+def test_near_a_cvt_of_100_robots_i_minus_j_is_near_singular() -> None:
+    """README: near a CVT of 100 robots in a still square (Lloyd's algorithm from random
+    starts, 3 cm to 4 mm from the CVT) the spectral radius of dc/dp is 1.03 to 1.22 and the
+    smallest singular value of I - dc/dp 6e-5 to 8e-3."""
+    radii, smallest = [], []
+    for seed in range(3):
+        positions = np.random.default_rng(seed).uniform(-1, 1, (100, 2))
+        for iteration in range(1, 101):
+            positions = coverage.mass_centroid(positions, SQUARE)[1]
+            if iteration % 20 == 0:
+                radius, sigma = conditioning(positions)
+                radii.append(radius)
+                smallest.append(sigma)
+    assert 1.0 < min(radii) and max(radii) < 1.25, radii
+    assert max(smallest) < 1e-2 and min(smallest) < 1e-3, smallest
