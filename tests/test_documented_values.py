@@ -40,6 +40,7 @@ def reconnect(key: str) -> int:
 
 DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("`MAX_AMPLIFICATION` (10)", lambda: control.MAX_AMPLIFICATION, 10.0),
+    ("`DAMPING` = 0.05", lambda: control.DAMPING, 0.05),
     ("a 3 cm projection distance", lambda: drive.DEFAULT_PROJECTION_DISTANCE, 0.03),
     ("wheel radius 21 mm", lambda: drive.KHEPERA_IV.wheel_radius, 0.021),
     ("wheel separation 105.4 mm", lambda: drive.KHEPERA_IV.wheel_separation, 0.1054),
