@@ -181,6 +181,9 @@ FIGURES: list[tuple[str, list[Figure]]] = [
     ("| `covswarm sim` (unicycle) |", [
         e_a("passage-d1", 0.0541), e_a("passage-d1-noff", 0.0962),
         improvement("passage-d1", "passage-d1-noff", 0.438), e_a("passage-da", 0.00092)]),
+    ("| `covswarm sim --scenario passage` (same unicycle model", [  # beside the live run
+        e_a("passage-d1", 0.0541), e_a("passage-d1-noff", 0.0962),
+        improvement("passage-d1", "passage-d1-noff", 0.438)]),
     ("a bump that drifts and turns so the team gathers on one side", [
         e_a("formation-d1", 0.0445), e_a("formation-d1-noff", 0.0659),
         improvement("formation-d1", "formation-d1-noff", 0.325), e_a("formation-da", 0.0137),
