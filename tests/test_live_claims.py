@@ -33,7 +33,7 @@ pytestmark = pytest.mark.e2e
 SIZES = (10, 40)
 RATIO = 1.5  # measured 1.17 (78 -> 92 messages per agent per second)
 WINDOW = 3.0  # s of mission over which the wire rates are counted
-# Per robot (pose, cmd, state) or per swarm (domain, status), Hz: (README's rate, tolerance).
+# The wire table's rates, Hz: per robot (pose, cmd, state) or per swarm (domain, status).
 RATES = {"pose": 20.0, "cmd": 10.0, "state": 10.0, "domain": 20.0, "status": 2.0}
 TOLERANCE = 0.3  # relative; a shared 2-core machine delays, it does not halve or double
 
