@@ -7,6 +7,8 @@ per process, as the README's live bench packs them) over loopback Zenoh:
   team size": the mean messages received per agent per second (``rx_per_s`` in the agents'
   stats) may grow by at most RATIO from 10 to 40 robots. Had every agent listened to
   everyone, it would grow about 4x (39 teammates' states at the control rate against 9).
+- Agents subscribe to their one-hop neighbours' AgentStates only (``state_subs`` against
+  ``neighbors`` in the agents' stats, at 40 robots).
 - A healthy run counts no failed control step (``step_errors``; the step's catch-all makes
   "never raises" true by construction, the count is what shows it did not fire).
 - The wire table's rates: poses 20 Hz, commands and agent states at the control rate
@@ -110,6 +112,15 @@ def test_messages_per_agent_do_not_grow_with_the_team(runs: dict[int, dict]) -> 
     small, large = SIZES
     assert rx[small] >= 20.0, rx  # at least its own robot's poses and the domain, 20 Hz each
     assert rx[large] <= RATIO * rx[small], rx
+
+
+def test_agents_subscribe_to_their_neighbours_states_only(runs: dict[int, dict]) -> None:
+    """README: an agent subscribes to its one-hop neighbours' AgentStates (plus, briefly, a
+    two-hop robot no relay carries yet, and 0.5 s of linger), not to the team's."""
+    team = runs[SIZES[1]]["summary"]["agent_stats"]["team"]
+    subscriptions, neighbours = team["state_subs"], team["neighbors"]
+    assert subscriptions["mean"] <= neighbours["mean"] + 2.0, (subscriptions, neighbours)
+    assert subscriptions["max"] <= 12 < SIZES[1] - 1, subscriptions
 
 
 def test_the_wire_rates_are_the_documented_ones(runs: dict[int, dict]) -> None:
