@@ -9,6 +9,8 @@ per process, as the README's live bench packs them) over loopback Zenoh:
   everyone, it would grow about 4x (39 teammates' states at the control rate against 9).
 - Agents subscribe to their one-hop neighbours' AgentStates only (``state_subs`` against
   ``neighbors`` in the agents' stats, at 40 robots).
+- No thread per subscriber: an agent process's thread count (/proc/PID/status) stays below
+  its number of subscriptions and does not grow with them.
 - A healthy run counts no failed control step (``step_errors``; the step's catch-all makes
   "never raises" true by construction, the count is what shows it did not fire).
 - The wire table's rates: poses 20 Hz, commands and agent states at the control rate
@@ -50,6 +52,14 @@ def loaded_libraries(pid: int) -> set[str]:
     return packages
 
 
+def threads(pid: int) -> int:
+    """Number of threads of process ``pid`` (/proc/PID/status)."""
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("Threads:"):
+            return int(line.split()[1])
+    raise AssertionError(f"no thread count for {pid}")
+
+
 def count_messages(endpoint: str, swarm: str, seconds: float) -> Counter:
     """Messages per kind (pose, cmd, state, domain, status, ...) on the swarm's keys."""
     import zenoh
@@ -79,7 +89,8 @@ def mission_started(out: Path) -> bool:
 @pytest.fixture(scope="module")
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
     """{team size: {"summary": summary.json, "agent": [libraries per agent process],
-    "robot": [libraries per robot process]}}, the libraries read mid-mission."""
+    "robot": [libraries per robot process], "threads": [threads per agent process],
+    "counts": messages per kind (10 robots only)}}, read mid-mission."""
     results = {}
     for n in SIZES:
         swarm, out = new_swarm(), tmp_path_factory.mktemp("live") / f"circle-{n}"
@@ -91,6 +102,7 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
                 role: [loaded_libraries(pid) for pid in swarm_pids(swarm, role)]
                 for role in ("agent", "robot")
             }
+            libraries["threads"] = [threads(pid) for pid in swarm_pids(swarm, "agent")]
             if n == SIZES[0]:
                 endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
                 libraries["counts"] = count_messages(endpoint, swarm, WINDOW)
@@ -121,6 +133,20 @@ def test_agents_subscribe_to_their_neighbours_states_only(runs: dict[int, dict])
     subscriptions, neighbours = team["state_subs"], team["neighbors"]
     assert subscriptions["mean"] <= neighbours["mean"] + 2.0, (subscriptions, neighbours)
     assert subscriptions["max"] <= 12 < SIZES[1] - 1, subscriptions
+
+
+def test_no_thread_per_subscriber(runs: dict[int, dict]) -> None:
+    """README: subscribers are ring channels the agent polls once per tick, no thread per
+    subscriber: an agent process has fewer threads than subscriptions, and no more with more
+    of them."""
+    per_process = {}
+    for n, run in runs.items():
+        brains = min(n, 20)
+        per_process[n] = brains * run["summary"]["agent_stats"]["team"]["state_subs"]["mean"]
+        assert max(run["threads"]) < per_process[n], (n, run["threads"], per_process[n])
+    small, large = SIZES
+    assert per_process[large] > per_process[small]
+    assert max(runs[large]["threads"]) <= max(runs[small]["threads"]) + 2, runs
 
 
 def test_the_wire_rates_are_the_documented_ones(runs: dict[int, dict]) -> None:
