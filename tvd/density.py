@@ -307,7 +307,7 @@ def _problems(density: Density) -> list[str]:
 
 # ---------------------------------------------------------------------------- integrals
 #
-# Closed forms (module docstring, "How the integrals are computed"). After whitening a bump,
+# Closed forms (the module docstring says what they serve). After whitening a bump,
 # y = W (q - mu) with W^T W = Sigma^-1 (dq = det L dy, L = W^-1), its Gaussian is
 # G(y) = exp(-|y|^2 / 2). On a cell edge in the whitened plane, y = F + t u: u the unit
 # direction, F = h n the foot of the perpendicular from the mean (n = -i u the outward
@@ -323,12 +323,14 @@ def _problems(density: Density) -> list[str]:
 #
 # Rounding: the sums over edges cancel when a cell is much smaller than a bump; (cell, bump)
 # pairs whose whitened size is below SMALL_CELL take m0..m3 and E0..E2 from a Gauss rule on
-# the cell instead, accurate there because the bump is smooth across the cell.
+# the cell instead, accurate there because the bump is smooth across the cell. Far out in a
+# bump's tail, m0 avoids O(1) terms (``_closed_moments``, ``_owens_difference``).
 
 SQRT_HALF = math.sqrt(0.5)
 SQRT_HALF_PI = math.sqrt(0.5 * math.pi)
-# Whitened cell size (its extent over the bump's smallest deviation) below which a (cell,
-# bump) pair uses the Gauss rule (measured: closed forms to 1e-9 down to 0.1, 1e-5 at 0.01).
+# Whitened cell size (the largest whitened distance from its first vertex to another) below
+# which a (cell, bump) pair uses the Gauss rule (measured: the closed forms hold 1e-9 down to
+# 0.1, 1e-5 at 0.01).
 SMALL_CELL = 0.1
 # A bump is left out of a batch when it adds less than SKIP times the floor to every cell of
 # it, phi and dphi/dt alike (rates per second; ``_bump_row``): far below the rounding of the
@@ -517,8 +519,11 @@ class _Integrals:
                 for name, value in vars(self.edges).items()
             }
         )
-        moments = {name: value[:count] for name, value in vars(self).items() if name[0] == "m"}
+        moments = {name: getattr(self, name)[:count] for name in _MOMENTS}
         return _Integrals(bumps=self.bumps, edges=edges, **moments)
+
+
+_MOMENTS = ("m0", "m1", "m2_a", "m_m2", "m3_m")
 
 
 def _integrals(density: Density, batch: CellBatch) -> _Integrals | None:
