@@ -147,6 +147,21 @@ def agent_figures(stats: Mapping[int, Mapping[str, float]]) -> dict:
     return {"team": team, "per_agent": per_agent}
 
 
+def agent_guards(stats: Mapping[int, Mapping[str, float]]) -> dict:
+    """How often the agents' amplification guard rescaled their control step, summed over the
+    team from their latest stats (``guarded`` and ``mission_steps``; agents that do not report
+    them are left out and counted in ``agents_reporting``)."""
+    reporting = [e for e in stats.values() if "guarded" in e and "mission_steps" in e]
+    guarded = int(sum(e["guarded"] for e in reporting))
+    steps = int(sum(e["mission_steps"] for e in reporting))
+    return {
+        "agents_reporting": len(reporting),
+        "robot_steps": steps,
+        "rows_rescaled": guarded,
+        "rows_rescaled_rate": guarded / steps if steps else 0.0,
+    }
+
+
 def losses_summary(events: Iterable[LivenessEvent]) -> list[dict]:
     """Tokens that disappeared (processes that died or hung), for summary.json."""
     return [{"role": e.role, "id": e.id, "t": e.t, "wall": e.wall} for e in events if not e.alive]

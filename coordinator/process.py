@@ -35,6 +35,7 @@ from covswarm.coordinator.monitor import (
     MissionClock,
     TeamChange,
     agent_figures,
+    agent_guards,
     losses_summary,
     team_changes_summary,
     team_of,
@@ -105,6 +106,7 @@ class Settings:
     rate: float  # Hz of Domain broadcasts
     sample_rate: float  # Hz of e_a samples (at most)
     feedforward: bool  # what the agents were started with, recorded in the summary
+    law: str = "da"  # the agents' control law ("da" or "d1"), recorded in the summary
     time_scale: float = 1.0  # mission s per wall s (runtime.clock.scaled)
     tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
     max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
@@ -486,7 +488,7 @@ def build_summary(
     return {
         "scenario": settings.scenario.name,
         "agents": settings.agents,
-        "law": "d1",
+        "law": settings.law,
         "feedforward": settings.feedforward,
         "kappa": float(settings.kappa),
         "duration": float(settings.duration),
@@ -506,6 +508,7 @@ def build_summary(
         "lost_processes": losses_summary(observed.liveness.events),
         "team_changes": team_changes_summary(observed.team_changes, record),
         "agent_stats": agent_figures(observed.agent_stats),
+        "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
@@ -549,7 +552,7 @@ def open_recorder(
             run_metadata={
                 "source": "run",
                 "scenario": scenario.name,
-                "law": "d1",
+                "law": settings.law,
                 "feedforward": settings.feedforward,
                 "kappa": settings.kappa,
                 "seed": seed,
@@ -649,6 +652,13 @@ def write_run_outputs(
     help="How the agents run (recorded in summary.json).",
 )
 @click.option(
+    "--law",
+    type=click.Choice(("da", "d1")),
+    default="da",
+    show_default=True,
+    help="The agents' control law (recorded in summary.json).",
+)
+@click.option(
     "--out",
     "out_dir",
     type=click.Path(file_okay=False, path_type=Path),
@@ -696,6 +706,7 @@ def coordinator_command(
     kappa: float | None,
     tile_size: float | None,
     feedforward: bool,
+    law: str,
     out_dir: Path,
     resume: bool,
     max_domain_speed: float | None,
@@ -728,6 +739,7 @@ def coordinator_command(
         rate=rate,
         sample_rate=sample_rate,
         feedforward=feedforward,
+        law=law,
         time_scale=time_scale,
         tile_size=swarm_tile_size(scenario, team) if tile_size is None else tile_size,
         max_domain_speed=max_domain_speed,

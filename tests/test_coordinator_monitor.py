@@ -112,7 +112,7 @@ def test_summary_has_the_sim_keys_and_process_figures() -> None:
     scenario = load_scenario("passage")
     settings = Settings(
         scenario=scenario, swarm="s", agents=2, duration=4.0, kappa=2.0, rate=20.0,
-        sample_rate=10.0, feedforward=False,
+        sample_rate=10.0, feedforward=False, law="d1",
     )  # fmt: skip
     observed = Observed()
     polygon = scenario.domain(0.0)[0]

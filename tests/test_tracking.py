@@ -384,3 +384,21 @@ def test_damped_tvd_c_matches_dense_tikhonov(prior: str, with_density: bool) -> 
             assert np.abs(step.velocity - expected).max() <= 1e-9 * np.abs(expected).max()
             checked += 1
     assert checked >= 3
+
+
+def test_agent_guards_sum_the_teams_stats() -> None:
+    """covswarm run's summary.json ``guards``: the agents' counters summed over the team."""
+    from covswarm.coordinator.monitor import agent_guards
+
+    stats = {
+        0: {"guarded": 2, "mission_steps": 400, "rate_hz": 10.0},
+        1: {"guarded": 0, "mission_steps": 398},
+        2: {"rate_hz": 10.0},  # an agent that does not report them
+    }
+    assert agent_guards(stats) == {
+        "agents_reporting": 2,
+        "robot_steps": 798,
+        "rows_rescaled": 2,
+        "rows_rescaled_rate": 2 / 798,
+    }
+    assert agent_guards({})["rows_rescaled_rate"] == 0.0
