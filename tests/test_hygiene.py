@@ -6,6 +6,8 @@
   and that one has both off in every mode, secured or not.
 - Test modules never import each other (shared code lives in tests/conftest.py and in
   helper modules whose names do not start with ``test_``).
+- Every test that opens a Zenoh session or starts swarm processes is marked ``e2e`` (so
+  ``pytest -m "not e2e"`` leaves them all out).
 - The README's and docs' Python examples parse, and everything they import exists.
 - ``pytest -q`` as a user who is not root skips the multi-host test with its reason, and
   fails it under CI=true (tests/conftest.py ``require``).
@@ -95,6 +97,44 @@ def test_test_modules_do_not_import_each_other() -> None:
             elif isinstance(node, ast.ImportFrom) and node.module:
                 names = [node.module]
             found += [f"{path.name} imports {n}" for n in names if n.split(".")[0] in modules]
+    assert not found, found
+
+
+# What starts a router, a session or swarm processes, in a test's body or in a fixture or
+# helper of its module that it uses (one-shot ``python -c`` import checks do not count).
+STARTS = ("zenoh.open(", "Popen(", "launch(", "*covswarm_argv()", "ROUTER", '"run", "--')
+
+
+def unmarked_e2e_tests(path: Path) -> list[str]:
+    source = path.read_text(encoding="utf-8")
+    tree = ast.parse(source)
+    if "pytestmark = pytest.mark.e2e" in source:
+        return []
+    functions = {n.name: n for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)}
+
+    def starts(node: ast.AST, seen: set[str]) -> bool:
+        text = ast.get_source_segment(source, node) or ""
+        if any(word in text for word in STARTS):
+            return True
+        used = {n.id for n in ast.walk(node) if isinstance(n, ast.Name)}
+        if isinstance(node, ast.FunctionDef):
+            used |= {a.arg for a in node.args.args}
+        return any(
+            starts(functions[name], seen | {name})
+            for name in used & set(functions) - seen - {getattr(node, "name", "")}
+        )
+
+    unmarked = []
+    for node in tree.body:
+        if isinstance(node, ast.FunctionDef) and node.name.startswith("test_"):
+            marks = " ".join(ast.unparse(d) for d in node.decorator_list)
+            if "e2e" not in marks and starts(node, {node.name}):
+                unmarked.append(f"{path.name}::{node.name}")
+    return unmarked
+
+
+def test_tests_that_start_processes_are_marked_e2e() -> None:
+    found = [name for path in sorted(TESTS.glob("test_*.py")) for name in unmarked_e2e_tests(path)]
     assert not found, found
 
 
