@@ -1,4 +1,4 @@
-"""How the covered subdomain S(t) moves: exact vertices and vertex velocities at any t.
+"""How the covered subdomain S(t) and the density move over a mission, exactly at any t.
 
 A motion returns the CCW vertices of S(t) and their time derivatives (not finite
 differences), which the feedforward term of the control law needs.
@@ -13,6 +13,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from covswarm.mission.toml_text import toml_float, toml_list, toml_points
+from covswarm.tvd.density import Density
 
 # Samples per keyframe segment / over a rigid mission checked for convexity: linear
 # interpolation of two convex polygons is not always convex.
@@ -161,3 +162,71 @@ class Rigid:
             f"rotation_rate = {toml_float(self.rotation_rate)}\n"
             f"scale_rate = {toml_float(self.scale_rate)}\n"
         )
+
+
+@dataclass(frozen=True, eq=False)
+class DensityPath:
+    """A mission's exact density law: ``base`` at t = 0, each bump also turning.
+
+    Bump b at time t: mean mu + t mu_dot, weight w + t w_dot, covariance
+    R(omega_b t) (Sigma + t Sigma_dot) R(omega_b t)^T with turn_rates omega_b (B,) in rad/s,
+    so an elongated bump can turn for ever and stay positive definite. ``self(t)`` is the
+    snapshot at t with the exact rates (what the coordinator broadcasts).
+    """
+
+    base: Density
+    turn_rates: np.ndarray
+
+    def __post_init__(self) -> None:
+        try:
+            rates = np.array(self.turn_rates, dtype=np.float64).reshape(len(self.base.weights))
+        except (TypeError, ValueError):
+            raise ValueError("invalid density: turn_rates must be one number per bump") from None
+        if not np.all(np.isfinite(rates)):
+            raise ValueError("invalid density: turn_rates contain NaN or inf")
+        object.__setattr__(self, "turn_rates", rates)
+
+    def __call__(self, t: float) -> Density:
+        base, t = self.base, float(t)
+        angle = self.turn_rates * t
+        cos, sin = np.cos(angle), np.sin(angle)
+        rotation = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)
+        body = base.covariances + t * base.covariance_rates
+        # d/dt (R B R^T) = R (B_dot + omega (J B - B J)) R^T, J the +90 degree rotation.
+        turn = np.array([[0.0, -1.0], [1.0, 0.0]])
+        body_rate = base.covariance_rates + self.turn_rates[:, None, None] * (
+            turn @ body - body @ turn
+        )
+        spin = rotation.transpose(0, 2, 1)
+        return Density(
+            floor=base.floor,
+            means=base.means + t * base.mean_rates,
+            covariances=rotation @ body @ spin,
+            weights=base.weights + t * base.weight_rates,
+            mean_rates=base.mean_rates,
+            covariance_rates=rotation @ body_rate @ spin,
+            weight_rates=base.weight_rates,
+            time=t,
+        )
+
+    @classmethod
+    def from_table(cls, table: Any) -> DensityPath:
+        """From a TOML ``[density]`` table: Density.from_dict keys, bumps may add turn_rate."""
+        if not isinstance(table, dict) or "t" in table:
+            raise ValueError("[density] must be a table of floor and bumps (no 't': t = 0)")
+        bumps = table.get("bumps", [])
+        if not isinstance(bumps, list) or not all(isinstance(b, dict) for b in bumps):
+            raise ValueError("[density] bumps must be an array of tables ([[density.bumps]])")
+        turns = [b.get("turn_rate", 0.0) for b in bumps]
+        if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in turns):
+            raise ValueError(f"density: turn_rate must be a number, got {turns!r}")
+        plain = [{k: v for k, v in b.items() if k != "turn_rate"} for b in bumps]
+        return cls(Density.from_dict({**table, "bumps": plain}), np.array(turns))
+
+    def to_table(self) -> dict[str, Any]:
+        """Inverse of ``from_table`` (plain data)."""
+        table = self.base.to_dict()
+        del table["t"]
+        for bump, turn in zip(table["bumps"], self.turn_rates.tolist(), strict=True):
+            bump["turn_rate"] = turn
+        return table

@@ -106,7 +106,7 @@ def scenario_from_dict(data: dict[str, Any]) -> Scenario:
         if key in options and isinstance(options[key], int):
             options[key] = float(options[key])
     if "density" in data:
-        from covswarm.tvd.density import DensityPath
+        from covswarm.mission.motion import DensityPath
 
         options["density_path"] = DensityPath.from_table(data["density"])
     return Scenario(

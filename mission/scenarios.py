@@ -10,15 +10,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy as np
 
-from covswarm.mission.motion import DomainMotion, Keyframes, Rigid, signed_area
+from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid, signed_area
 from covswarm.mission.toml_text import density_toml, toml_float, toml_list, toml_str
-
-if TYPE_CHECKING:
-    from covswarm.tvd.density import Density, DensityPath
+from covswarm.tvd.density import Density
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 
@@ -203,8 +200,6 @@ def formation() -> Scenario:
     The bump (peak 8x the floor, 0.5 m x 0.18 m) starts in the upper half of S, drifts with
     S and slides to its lower half while its long axis turns a quarter turn every 20 s.
     """
-    from covswarm.tvd.density import Density, DensityPath
-
     bump = Density(
         floor=1.0,
         means=[[-1.0, 0.5]],

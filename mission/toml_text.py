@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 if TYPE_CHECKING:
-    from covswarm.tvd.density import DensityPath
+    from covswarm.mission.motion import DensityPath
 
 
 def toml_float(value: float) -> str:

@@ -24,10 +24,11 @@ from reference import (
 from scipy import integrate
 from scipy.special import erf
 
+from covswarm.mission.motion import DensityPath
 from covswarm.mission.scenario_files import scenario_from_dict
 from covswarm.mission.scenarios import load_scenario
 from covswarm.tvd import control, coverage
-from covswarm.tvd.density import Density, DensityPath
+from covswarm.tvd.density import Density
 
 TOL = 1e-5
 

@@ -30,8 +30,9 @@ from shapely.geometry import Point
 from shapely.geometry.polygon import orient
 from shapely.ops import nearest_points
 
+from covswarm.mission.motion import DensityPath
 from covswarm.tvd import coverage
-from covswarm.tvd.density import Density, DensityPath
+from covswarm.tvd.density import Density
 
 CONTRACT = 1e-6
 
