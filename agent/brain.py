@@ -373,7 +373,9 @@ class AgentBrain:
             self._beacon_due = True
         self._local = len(others)
         if result.mass > 0.0:
-            self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.mass)
+            # The area, not the mass: a density's mass overstates the cell's size (by the
+            # bump's peak over the floor under a bump), and with it the local set.
+            self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.area)
             self.radius = tile_radius(
                 self.reach, self.tile_size, self.radius, self.config.max_tile_radius
             )

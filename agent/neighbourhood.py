@@ -39,14 +39,14 @@ class Track:
     vy: float = 0.0
 
 
-def cell_reach(distance_to_centroid: float, mass: float) -> float:
+def cell_reach(distance_to_centroid: float, area: float) -> float:
     """Distance within which a robot can cut this cell: twice the cell radius R.
 
-    R is estimated from the cell's centroid c and mass m as |p - c| + sqrt(m): 1.4x the
-    true R of a square cell centred on p, about R for a 4:1 rectangle; the two-hop set
+    R is estimated from the cell's centroid c and area A (m^2) as |p - c| + sqrt(A): 1.4x
+    the true R of a square cell centred on p, about R for a 4:1 rectangle; the two-hop set
     covers what the estimate misses.
     """
-    return 2.0 * (distance_to_centroid + math.sqrt(max(mass, 0.0)))
+    return 2.0 * (distance_to_centroid + math.sqrt(max(area, 0.0)))
 
 
 def tile_radius(reach: float, tile_size: float, current: int, max_radius: int) -> int:

@@ -193,6 +193,31 @@ def test_far_candidates_are_left_out_of_the_local_diagram() -> None:
     assert brain.stats()["local_set"] == sum(1 for i, j in grid if math.hypot(i, j) <= 2.5)
 
 
+def test_a_density_does_not_widen_the_local_diagram() -> None:
+    """Under a bump 8x the floor the cell's mass is about 8 times its area: the reach comes
+    from the area, so the local set is the uniform one (from the mass: 2.9x wider reach)."""
+    import dataclasses
+
+    from covswarm.tvd.density import Density
+
+    bump = Density(floor=1.0, means=[[0.5, 0.5]], covariances=[np.eye(2)], weights=[8.0])
+    brain = brain_at(0.5, 0.5)
+    square = [[0.0, 0.0], [10.0, 0.0], [10.0, 10.0], [0.0, 10.0]]
+    with_bump = dataclasses.replace(domain(vertices=square), density=bump.to_dict())
+    assert brain.on_domain(with_bump, 0.0)
+    assert brain.density is not None
+    grid = [(i, j) for i in range(10) for j in range(10) if (i, j) != (0, 0)]
+    for rid, (i, j) in enumerate(grid, start=1):
+        brain.on_beacon(protocol.Beacon(id=rid, x=i + 0.5, y=j + 0.5, stamp=WALL), now=0.0)
+    brain.step(0.1, WALL)
+    # The unit square around us, centred on the bump: c = p, area 1, mass about 8.4.
+    assert brain.reach == pytest.approx(2.0)
+    brain.step(0.2, WALL)
+    limit = 1.25 * brain.reach
+    assert brain.stats()["local_set"] == sum(1 for i, j in grid if math.hypot(i, j) <= limit)
+    assert brain.stats()["local_set"] <= 12
+
+
 @pytest.mark.parametrize("relayed", [False, True])
 def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
     """Fed only what its subscriptions would deliver, an interior agent's velocity equals

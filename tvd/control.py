@@ -100,7 +100,8 @@ class LocalStep:
 
     velocity: (2,) the law's velocity; neighbors: ids of its Voronoi neighbours
     (positive-length shared edge); centroid: (2,) c_i; mass: m_i (0 for an empty cell);
-    guarded: the amplification guard rescaled this robot's row (module notes).
+    guarded: the amplification guard rescaled this robot's row (module notes); area: the
+    cell's area in m^2 (its mass when the density is uniform).
     """
 
     velocity: np.ndarray
@@ -108,6 +109,7 @@ class LocalStep:
     centroid: np.ndarray
     mass: float
     guarded: bool = False
+    area: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -602,7 +604,8 @@ def local_step(
     # one vectorised pass: one robot's step is a few dozen numpy calls on small arrays, so
     # calls count as much as cells, and the outer ring's cells are not needed.
     owners = np.concatenate(([index], cell_neighbors(points, index, domain)))
-    batch = _weigh(build_cells(points, owners, everyone, domain), density)
+    cells = build_cells(points, owners, everyone, domain)  # their mass is their area
+    batch = _weigh(cells, density)
     target, rate = _targets(batch, points, domain, feedforward, density)
     here = as_complex(points)
     feedback = kappa * (target - here[owners])
@@ -639,6 +642,7 @@ def local_step(
         centroid=as_vectors(mine.centroid)[0],
         mass=float(mine.mass[0]),
         guarded=bool(guarded[0]),
+        area=float(cells.mass[0]),
     )
 
 
