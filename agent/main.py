@@ -106,6 +106,7 @@ def run_agents(
     config: zenoh.Config,
     rate: float,
     time_scale: float = 1.0,
+    phase: float | None = None,
 ) -> list[Counters]:
     """Zenoh shell around ``brains``: runs until SIGINT/SIGTERM, returns their counters.
 
@@ -119,13 +120,16 @@ def run_agents(
     an id that is already running refuses to start. A brain's liveliness token (what
     launcher and coordinator wait for) is declared once it hears its own robot, so "every
     agent alive" means "every agent can steer". ``time_scale``: see runtime.clock.scaled.
+    ``phase``: when in the period the batch starts (runtime.clock.Ticker): the launcher
+    spreads the agent processes of a machine over the period, so that their batches take
+    turns on the cores rather than collide.
     """
     stop = StopFlag()
     wall_clock = scaled(time.time, time_scale)
     with zenoh.open(config) as session:
         claims: list[zenoh.LivelinessToken] = []
         links: list[AgentLink] = []
-        ticker = Ticker(rate, time_scale=time_scale)
+        ticker = Ticker(rate, time_scale=time_scale, phase=phase)
         try:
             for brain in brains:
                 claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
@@ -176,6 +180,13 @@ def run_agents(
 )
 @click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
 @click.option("--rate", type=click.FloatRange(min=0.5), default=10.0, show_default=True)
+@click.option(
+    "--tick-phase",
+    type=click.FloatRange(0.0, 1.0, max_open=True),
+    default=None,
+    help="Start the control periods at this fraction of a period of the machine's "
+    "monotonic clock (default: one period after start).",
+)
 @TIME_SCALE_OPTION
 @click.option(
     "--kappa",
@@ -221,6 +232,7 @@ def agent_command(
     connect: tuple[str, ...],
     swarm: str,
     rate: float,
+    tick_phase: float | None,
     time_scale: float,
     kappa: float | None,
     no_feedforward: bool,
@@ -267,4 +279,4 @@ def agent_command(
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
     brains = [AgentBrain(i, config, decoder) for i in robot_ids]
-    run_agents(brains, swarm, zenoh_config, rate, time_scale)
+    run_agents(brains, swarm, zenoh_config, rate, time_scale, tick_phase)

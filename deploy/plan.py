@@ -87,7 +87,9 @@ def plan_children(
     seed reproduce the one-host run. ``per_process`` robots (brains) share a robot (agent)
     process; ``coordinator=False`` leaves the coordinator to another host. ``agent_args``
     are appended to every agent's command line (fault injection). ``secure``: every child
-    gets ``--secure`` (protocol.security).
+    gets ``--secure`` (protocol.security). Agent process k of n gets ``--tick-phase k/n``:
+    their batches of brains take turns within the control period instead of colliding on
+    the cores at chance moments.
     """
     secured = () if secure is None else ("--secure", str(secure))
     common = ("--connect", endpoint, "--swarm", swarm, *secured)
@@ -103,6 +105,7 @@ def plan_children(
         specs.append(ChildSpec("coordinator", 0, argv))
     poses = initial_poses(scenario, agents, seed)
     chosen = list(range(agents)) if ids is None else sorted(ids)
+    processes = -(-len(chosen) // per_process)
     for start in range(0, len(chosen), per_process):
         group = chosen[start : start + per_process]
         if per_process == 1:
@@ -119,7 +122,7 @@ def plan_children(
         robot = (*base, "robot", *robot_ids, *common, *scale)
         agent = (
             *base, "agent", *agent_ids, *common, "--rate", repr(rate), "--kappa", repr(kappa),
-            *ff, *scale, *agent_args,
+            "--tick-phase", repr(start // per_process / processes), *ff, *scale, *agent_args,
         )  # fmt: skip
         members = tuple(group) if per_process > 1 else ()
         specs += [

@@ -56,24 +56,41 @@ class Ticker:
     """Fixed-rate loop timing on the monotonic clock, with overrun accounting.
 
     Deadlines advance by whole periods so the average rate holds; after an overrun of more
-    than one period the schedule restarts from now instead of bursting to catch up.
+    than one period the schedule restarts from now (from the next tick of its phase) instead
+    of bursting to catch up.
     ``time_scale`` s makes the ticker run on mission time (``clock() * s``, see
     :func:`scaled`): ``rate_hz`` ticks per mission second are ``rate_hz * s`` per wall second.
+    ``phase`` in [0, 1): the ticks fall at (k + phase) periods of the clock rather than one
+    period after the start, so processes of one machine (one monotonic clock) can take
+    turns within the period instead of starting their work at chance moments.
     """
 
     def __init__(
-        self, rate_hz: float, clock: Callable[[], float] = time.monotonic, time_scale: float = 1.0
+        self,
+        rate_hz: float,
+        clock: Callable[[], float] = time.monotonic,
+        time_scale: float = 1.0,
+        phase: float | None = None,
     ) -> None:
         if not rate_hz > 0:
             raise ValueError(f"rate must be positive, got {rate_hz!r}")
         if not (time_scale > 0 and math.isfinite(time_scale)):
             raise ValueError(f"time scale must be positive, got {time_scale!r}")
+        if phase is not None and not 0.0 <= phase < 1.0:
+            raise ValueError(f"phase must be in [0, 1), got {phase!r}")
         self.period = 1.0 / rate_hz
         self._scale = time_scale
         self._clock = scaled(clock, time_scale)
-        self._next = self._clock() + self.period
+        self._phase = phase
+        self._next = self._after(self._clock() + self.period)
         self.ticks = 0
         self.overruns = 0
+
+    def _after(self, moment: float) -> float:
+        """The first tick time at or after ``moment``: ``moment`` itself without a phase."""
+        if self._phase is None:
+            return moment
+        return (math.ceil(moment / self.period - self._phase) + self._phase) * self.period
 
     def now(self) -> float:
         """The ticker's clock (mission seconds when scaled)."""
@@ -90,7 +107,9 @@ class Ticker:
         if now > self._next:
             self.overruns += 1  # the deadline passed before we were ready to wait for it
         if now > self._next + self.period:
-            self._next = now
+            self._next = self._after(now)
+            if self._next > now:  # back on the phase
+                stop.sleep((self._next - now) / self._scale)
         else:
             stop.sleep((self._next - now) / self._scale)  # mission seconds -> wall seconds
         self._next += self.period

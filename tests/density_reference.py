@@ -48,6 +48,16 @@ class QuadratureDensity:
     ) -> tuple[np.ndarray, np.ndarray]:
         return jacobian_blocks(self.density, batch, points)
 
+    def jacobian_times(
+        self, batch: CellBatch, points: np.ndarray, own: np.ndarray, others: np.ndarray
+    ) -> np.ndarray:
+        off, diagonal = jacobian_blocks(self.density, batch, points)
+        others = np.where(batch.shared, others, 0.0)
+        return as_complex(
+            np.einsum("kab,kb->ka", diagonal, as_vectors(own))
+            + np.einsum("klab,klb->ka", off, as_vectors(others))
+        )
+
     def boundary_rates(
         self, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
     ) -> np.ndarray:

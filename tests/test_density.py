@@ -204,6 +204,34 @@ def test_exact_tvd_c_with_density_takes_the_branch_its_rule_names(branch: str) -
     assert shipped.fallback == (amplification > control.MAX_AMPLIFICATION)
 
 
+def test_jacobian_times_applies_the_blocks() -> None:
+    """The robot's step multiplies dc/dp without forming its blocks: the same products as
+    the blocks (tested against finite differences above) on random vectors, for a batch and
+    for its first row (whose integrals are the batch's, reused)."""
+    rng = np.random.default_rng(8)
+    for _ in range(5):
+        polygon = random_convex_polygon(rng, scale=2.0)
+        positions = random_robots(rng, polygon, 9, outside_fraction=0.1)
+        density = random_density(rng, polygon).at(rng.uniform(0.0, 0.1))
+        domain = coverage.make_domain(polygon, np.zeros_like(polygon))
+        owners = np.arange(len(positions))
+        everyone = owners[None]
+        batch = density.weigh(coverage.build_cells(positions, owners, everyone, domain))
+        for rows in (slice(None), slice(0, 1)):
+            cells = control._rows(batch, rows)
+            own = rng.normal(size=len(cells.owners)) + 1j * rng.normal(size=len(cells.owners))
+            others = rng.normal(size=cells.labels.shape) + 1j * rng.normal(size=cells.labels.shape)
+            off, diagonal = density.jacobian_blocks(cells, positions)
+            expected = np.einsum("kab,kb->ka", diagonal, coverage.as_vectors(own)) + np.einsum(
+                "klab,klb->ka",
+                off,
+                coverage.as_vectors(np.where(cells.shared, others, 0.0)),
+            )
+            product = density.jacobian_times(cells, positions, own, others)
+            scale = np.abs(expected).max()
+            assert np.abs(coverage.as_vectors(product) - expected).max() <= 1e-12 * scale
+
+
 @pytest.mark.parametrize("feedforward", [True, False])
 def test_local_velocity_equals_team_row(feedforward: bool) -> None:
     rng = np.random.default_rng(21)
@@ -264,6 +292,32 @@ def test_advancing_into_an_invalid_density_raises() -> None:
     density.at(0.5)
     with pytest.raises(ValueError, match="positive definite"):
         density.at(1.5)
+
+
+def test_the_unvalidated_advance_equals_the_validated_snapshot() -> None:
+    """``at`` skips the full validation when its cheap checks pass: same values bit for
+    bit as the constructor's, and the constructor's refusals otherwise."""
+    rng = np.random.default_rng(5)
+    for _ in range(20):
+        density = random_density(rng, random_convex_polygon(rng))
+        t = rng.uniform(-0.05, 0.05)
+        fast = density.at(t)
+        full = Density(
+            density.floor, density.means + t * density.mean_rates,
+            density.covariances + t * density.covariance_rates,
+            density.weights + t * density.weight_rates,
+            density.mean_rates, density.covariance_rates, density.weight_rates, t,
+        )  # fmt: skip
+        for name in ("means", "covariances", "weights", "mean_rates", "covariance_rates"):
+            assert np.array_equal(getattr(fast, name), getattr(full, name))
+        assert (fast.time, fast.floor) == (full.time, full.floor)
+        assert np.array_equal(fast.covariances, fast.covariances.transpose(0, 2, 1))
+    fading = Density.from_dict(bad(bump={"weight": -0.5, "weight_rate": -1.0}))
+    with pytest.raises(ValueError, match="phi can reach"):
+        fading.at(1.0)
+    exploding = Density.from_dict(bad(bump={"mean_rate": [1e308, 0.0]}))
+    with np.errstate(over="ignore"), pytest.raises(ValueError, match="NaN or inf"):
+        exploding.at(1e10)
 
 
 def test_a_non_density_is_refused() -> None:

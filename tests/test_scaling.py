@@ -80,6 +80,12 @@ def test_a_slice_starts_where_the_full_team_would() -> None:
         np.testing.assert_array_equal(poses, full[list(spec.members)])  # repr is exact
 
 
+def test_agent_processes_take_turns_within_the_period() -> None:
+    agents = [s for s in _plan(per_process=2) if s.role == "agent"]
+    assert [_options(s.argv, "--tick-phase") for s in agents] == [[repr(k / 3)] for k in range(3)]
+    assert _options(_plan()[2].argv, "--tick-phase") == ["0.0"]  # agent 0 of 6: phase 0
+
+
 def test_one_robot_per_process_keeps_the_single_id_form() -> None:
     specs = _plan(ids=[1], time_scale=0.25)
     assert [s.name for s in specs] == ["coordinator-0", "robot-1", "agent-1"]
@@ -122,6 +128,23 @@ def test_a_scaled_ticker_keeps_its_rate_in_mission_time() -> None:
     assert ticker.now() == pytest.approx(clock.t * 0.25)
     assert ticker.deadline == pytest.approx(ticks[-1] + 0.1)  # the period's end
     assert scaled(clock, 1.0) is clock
+
+
+def test_a_phased_ticker_ticks_at_its_share_of_the_period() -> None:
+    """Packed agent processes take turns: ticks at (k + phase) periods of the shared clock,
+    the first at least a period after the start, and back on the phase after a stall."""
+    clock = FakeClock()
+    clock.t = 100.03
+    ticker = Ticker(10.0, clock=clock, phase=0.25)
+    stop = RecordingStop(clock)
+    ticks = [ticker.wait(stop) for _ in range(3)]
+    np.testing.assert_allclose(ticks, [100.225, 100.325, 100.425])
+    clock.t += 0.47  # a stall of 4.7 periods: one overrun, then the next tick of the phase
+    assert ticker.wait(stop) == pytest.approx(100.925)
+    assert ticker.overruns == 1
+    assert ticker.deadline == pytest.approx(101.025)
+    with pytest.raises(ValueError, match="phase"):
+        Ticker(10.0, phase=1.0)
 
 
 @pytest.mark.e2e

@@ -264,7 +264,9 @@ def _jacobian_product(
     """
     if density is None:
         return jacobian_times(batch, points, own, np.where(batch.shared, others, 0.0))
-    off, diagonal = density.jacobian_blocks(batch, points) if blocks is None else blocks
+    if blocks is None:
+        return density.jacobian_times(batch, points, own, others)
+    off, diagonal = blocks
     return as_complex(
         np.einsum("kab,kb->ka", diagonal, as_vectors(own))
         + np.einsum("klab,klb->ka", off, as_vectors(np.where(batch.shared, others, 0.0)))

@@ -134,7 +134,9 @@ class DensityModel(Protocol):
     """A non-uniform phi at the current time and its integrals over a batch of cells.
 
     weigh: the batch with m_i, c_i of phi; jacobian_blocks / boundary_rates: as the
-    functions of that name here (boundary_rates with the dphi/dt term of Proposition 1).
+    functions of that name here (boundary_rates with the dphi/dt term of Proposition 1);
+    jacobian_times: the blocks applied to own (K,) and others (K, L) complex vectors,
+    (K,) complex, as ``jacobian_times`` here (what a robot's step needs, without the blocks).
     """
 
     def weigh(self, batch: CellBatch) -> CellBatch: ...
@@ -143,6 +145,10 @@ class DensityModel(Protocol):
         self, batch: CellBatch, points: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]: ...
 
+    def jacobian_times(
+        self, batch: CellBatch, points: np.ndarray, own: np.ndarray, others: np.ndarray
+    ) -> np.ndarray: ...
+
     def boundary_rates(
         self, batch: CellBatch, points: np.ndarray, domain: Domain
     ) -> np.ndarray: ...
@@ -150,10 +156,18 @@ class DensityModel(Protocol):
 
 def check_density(density: object) -> None:
     """Raise TypeError unless ``density`` is None (uniform) or a DensityModel."""
-    if density is not None and not isinstance(density, DensityModel):
+    # isinstance against a runtime Protocol inspects the class each time: a robot checks
+    # a fresh snapshot every tick, so the classes that passed once are remembered.
+    if density is None or type(density) in _DENSITY_MODELS:
+        return
+    if not isinstance(density, DensityModel):
         raise TypeError(
             f"density must be None (uniform) or a tvd.density.Density, not {type(density)}"
         )
+    _DENSITY_MODELS.add(type(density))
+
+
+_DENSITY_MODELS: set[type] = set()
 
 
 def cell_jacobian_blocks(

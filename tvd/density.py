@@ -169,18 +169,38 @@ class Density:
         return np.sum(g * (self.weight_rates + self.weights * (drift + spread)), axis=-1)
 
     def at(self, t: float) -> Density:
-        """The snapshot at time t, every parameter advanced linearly; ValueError if invalid."""
-        step = float(t) - self.time
-        return Density(
-            floor=self.floor,
-            means=self.means + step * self.mean_rates,
-            covariances=self.covariances + step * self.covariance_rates,
-            weights=self.weights + step * self.weight_rates,
-            mean_rates=self.mean_rates,
-            covariance_rates=self.covariance_rates,
-            weight_rates=self.weight_rates,
-            time=float(t),
-        )
+        """The snapshot at time t, every parameter advanced linearly; ValueError if invalid.
+
+        A robot makes one per tick, so the advance of a valid snapshot is checked for what
+        it can break (finiteness, positive definite covariances, phi > 0: symmetric
+        matrices advanced by symmetric rates stay exactly symmetric) and built without the
+        full validation; anything else takes the full one, which names the problems.
+        """
+        time = float(t)
+        step = time - self.time
+        means = self.means + step * self.mean_rates
+        covariances = self.covariances + step * self.covariance_rates
+        weights = self.weights + step * self.weight_rates
+        if not _still_valid(self.floor, means, covariances, weights):
+            return Density(
+                self.floor, means, covariances, weights, self.mean_rates,
+                self.covariance_rates, self.weight_rates, time,
+            )  # fmt: skip
+        advanced = object.__new__(Density)
+        fields = {
+            "floor": self.floor,
+            "means": means,
+            "covariances": covariances,
+            "weights": weights,
+            "mean_rates": self.mean_rates,
+            "covariance_rates": self.covariance_rates,
+            "weight_rates": self.weight_rates,
+            "time": time,
+            "_memo": [],
+        }
+        for name, value in fields.items():
+            object.__setattr__(advanced, name, value)
+        return advanced
 
     def frozen(self) -> Density:
         """This snapshot with every rate zero: a density that holds still."""
@@ -244,6 +264,11 @@ class Density:
     ) -> tuple[np.ndarray, np.ndarray]:
         return jacobian_blocks(self, batch, points)
 
+    def jacobian_times(
+        self, batch: CellBatch, points: np.ndarray, own: np.ndarray, others: np.ndarray
+    ) -> np.ndarray:
+        return jacobian_times(self, batch, points, own, others)
+
     def boundary_rates(
         self, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
     ) -> np.ndarray:
@@ -261,6 +286,18 @@ def _array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
         return np.array(value, dtype=np.float64).reshape(shape)
     except (TypeError, ValueError):
         raise ValueError(f"invalid density: {name} must be numbers of shape {shape}") from None
+
+
+def _still_valid(
+    floor: float, means: np.ndarray, covariances: np.ndarray, weights: np.ndarray
+) -> bool:
+    """Whether a valid density's linear advance to these parameters is valid (``at``)."""
+    finite = np.isfinite(means).all() and np.isfinite(covariances).all()
+    if not (finite and np.isfinite(weights).all()):
+        return False
+    lowest = floor + float(weights[weights < 0.0].sum())
+    det = covariances[:, 0, 0] * covariances[:, 1, 1] - covariances[:, 0, 1] ** 2
+    return lowest > 0.0 and bool((det > 0.0).all() and (covariances[:, 0, 0] > 0.0).all())
 
 
 def _problems(density: Density) -> list[str]:
@@ -613,7 +650,7 @@ def _owens_difference(h: np.ndarray, t_a: np.ndarray, t_b: np.ndarray) -> np.nda
     term is as small as the edge's own share.
     """
     g = np.abs(h)
-    ends = np.stack((t_b, t_a))
+    ends = np.array((t_b, t_a))
     size = np.abs(ends)
     far = size > g
     tail_g = 0.5 * erfc(SQRT_HALF * g)
@@ -621,8 +658,8 @@ def _owens_difference(h: np.ndarray, t_a: np.ndarray, t_b: np.ndarray) -> np.nda
     owen = owens_t(np.where(far, size, g), np.where(far, g / np.where(far, size, 1.0), size / g))
     # Each end's T(g, |t| / g) - Q(g) / 2, signed by t.
     middle = 0.5 * erf(SQRT_HALF * g)  # 1/2 - Q(g), without cancellation for a small g
-    value = np.sign(ends) * np.where(far, tail_t * middle - owen, owen - 0.5 * tail_g)
     sign = np.sign(ends)
+    value = sign * np.where(far, tail_t * middle - owen, owen - 0.5 * tail_g)
     return np.sign(h) * (value[0] - value[1] + 0.5 * tail_g * (sign[0] - sign[1]))
 
 
@@ -837,6 +874,33 @@ def jacobian_blocks(
     bump's, with q = foot + t beta along the edge, P = foot - c and Q = foot - p_i:
     X = |beta| [P (E0 Q + E1 beta)^T + beta (E1 Q + E2 beta)^T], Y = |beta| (E0 P + E1 beta).
     """
+    plain, twisted, column, gap = _jacobian_sums(density, batch, points)
+    off = np.zeros((*batch.labels.shape, 2, 2))
+    off[:, : gap.shape[1]] = -_outer_blocks(plain + column * gap, twisted + column * gap.conj())
+    return off, _outer_blocks(plain.sum(axis=1), twisted.sum(axis=1))
+
+
+def jacobian_times(
+    density: Density, batch: CellBatch, points: np.ndarray, own: np.ndarray, others: np.ndarray
+) -> np.ndarray:
+    """(J w)_i = sum_j dc_i/dp_j w_j for a weighed batch, (K,) complex: ``jacobian_blocks``
+    applied to own (K,) w_i and others (K, L) w_j (read on shared edges only) without
+    forming the blocks. A block given as the complex sums plain = sum a b and twisted =
+    sum a conj(b) (``_outer_blocks``) maps w to sum a (b . w) = (plain conj(w) + twisted w) / 2.
+    """
+    plain, twisted, column, gap = _jacobian_sums(density, batch, points)
+    w = np.where(batch.shared[:, : gap.shape[1]], others[:, : gap.shape[1]], 0.0)
+    diagonal = plain.sum(axis=1) * own.conj() + twisted.sum(axis=1) * own
+    off = (plain + column * gap) * w.conj() + (twisted + column * gap.conj()) * w
+    return 0.5 * (diagonal - off.sum(axis=1))
+
+
+def _jacobian_sums(
+    density: Density, batch: CellBatch, points: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The complex sums of ``jacobian_blocks``' edge integrals, (K, L') each, L' the lines
+    used: plain and twisted (``_outer_blocks``) of X / (m_i |p_i - p_j|), column =
+    Y / (m_i |p_i - p_j|), all three zero off shared edges, and gap = p_i - p_j."""
     integrals = _integrals(density, batch)
     # The lines of the integrals (a reused batch's may be more than this one needs: padding).
     lines = _trim(batch) if integrals is None else integrals.edges.h.shape[1]
@@ -867,9 +931,7 @@ def jacobian_blocks(
         plain = plain + (about_c * near + beta * far).sum(axis=2)
         twisted = twisted + (about_c * near.conj() + beta * far.conj()).sum(axis=2)
         column = column + (weight * (edges.e0 * about_c + edges.e1 * beta)).sum(axis=2)
-    off = np.zeros((*batch.labels.shape, 2, 2))
-    off[:, :lines] = -_outer_blocks(plain + column * gap, twisted + column * gap.conj())
-    return off, _outer_blocks(plain.sum(axis=1), twisted.sum(axis=1))
+    return plain, twisted, column, gap
 
 
 def centroid_rates(
