@@ -35,8 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covswarm.tvd.drive import integrate
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate
 
 # s: commands kept for prediction. Poses older than this are not predicted (the agent treats
 # its pose as stale long before: --stale-timeout).

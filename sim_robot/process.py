@@ -102,6 +102,10 @@ class RobotSim:
         if command.id != self.id:
             self.drops.drop("wrong_id", f"command for robot {command.id}")
             return False
+        # The old command drives until now, the new one from now on (not back to the last
+        # step: a command must not act before it arrived, which agents predicting their
+        # robot's pose from the commands they sent rely on).
+        self.step(now)
         # Decoding guarantees finite speeds; the model clamps them to this robot's limit.
         self.wheels = np.array([command.left, command.right])
         self._last_command = now
