@@ -568,7 +568,8 @@ def _integrals(density: Density, batch: CellBatch) -> _Integrals | None:
 
     weigh, then dc/dt and dc/dp, are called on the same cells (a weighed batch shares the
     edge arrays; a robot's own row is a prefix of its batch): the last result is kept and
-    reused when the edges are the same values, checked here, not assumed.
+    reused when the edges are the same values, checked here, not assumed (the same arrays,
+    or views of their leading rows, else compared value by value).
     """
     memo = density._memo
     if memo:
@@ -577,14 +578,30 @@ def _integrals(density: Density, batch: CellBatch) -> _Integrals | None:
         if batch.start is start or (
             count <= len(start)
             and lines == start.shape[1]
-            and np.array_equal(batch.start, start[:count])
-            and np.array_equal(batch.end, end[:count])
-            and np.array_equal(batch.present, present[:count])
+            and all(
+                _leading_rows(mine, theirs) or np.array_equal(mine, theirs[:count])
+                for mine, theirs in (
+                    (batch.start, start),
+                    (batch.end, end),
+                    (batch.present, present),
+                )
+            )
         ):
             return None if kept is None else kept.rows(count)
     result = _compute_integrals(density.bumps, density.floor, batch)
     memo[:] = [(batch.start, batch.end, batch.present, result)]
     return result
+
+
+def _leading_rows(view: np.ndarray, array: np.ndarray) -> bool:
+    """Whether ``view`` is a slice of the leading rows of ``array`` (the same memory, as a
+    robot's own row of its batch is): then it holds their values without comparing them."""
+    return (
+        view.base is not None
+        and (view.base is array or view.base is array.base)
+        and view.strides == array.strides
+        and view.__array_interface__["data"][0] == array.__array_interface__["data"][0]
+    )
 
 
 def _trim(batch: CellBatch) -> int:
