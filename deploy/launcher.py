@@ -25,12 +25,13 @@ from pathlib import Path
 import click
 
 from covswarm.deploy.display import summary_table
-from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children
+from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children, recording_args
 from covswarm.deploy.router import zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
+from covswarm.records.live import DEFAULT_PORT, LIVE_HOST, port_is_free
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
 
@@ -45,6 +46,14 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
 @click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt feedforward term.")
+@click.option(
+    "--law",
+    type=click.Choice(("da", "d1")),
+    default="da",
+    show_default=True,
+    help="The agents' control law: da, domain-motion feedforward (docs/tracking.md); d1, the "
+    "paper's TVD-D1.",
+)
 @click.option(
     "--duration",
     type=click.FloatRange(min=0, min_open=True),
@@ -87,6 +96,14 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     help="Another host's router for the embedded router to connect to (repeatable).",
 )
 @click.option(
+    "--robots",
+    type=click.Choice(["sim", "none"]),
+    default="sim",
+    show_default=True,
+    help="sim: a simulated robot per agent; none: the robots come from bridges that join "
+    "the swarm (covswarm bridge ros2), and the mission starts once all are there. Needs --swarm.",
+)
+@click.option(
     "--agents-per-process",
     "per_process",
     type=click.IntRange(min=1),
@@ -110,11 +127,35 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     help="Fault injection: every agent receives poses this many s late.",
 )
 @click.option(
+    "--no-safety", is_flag=True, help="Agents run without the collision-avoidance filter."
+)
+@click.option(
+    "--no-prediction",
+    is_flag=True,
+    help="Agents control from poses as received, not predicted to the command's time.",
+)
+@click.option(
     "--startup-timeout",
     type=click.FloatRange(min=0, min_open=True),
     default=300.0,
     show_default=True,
     help="Give up if the team is not up after this many s.",
+)
+@click.option(
+    "--foxglove",
+    "foxglove_port",
+    type=click.IntRange(0, 65535),
+    is_flag=False,
+    flag_value=DEFAULT_PORT,
+    default=None,
+    help=f"Live view: the coordinator serves the run's channels to Foxglove on "
+    f"ws://127.0.0.1:PORT [{DEFAULT_PORT} without a port] (docs/records.md).",
+)
+@click.option(
+    "--record/--no-record",
+    default=True,
+    show_default=True,
+    help="The coordinator writes run.mcap and trajectories.csv.",
 )
 @SECURE_OPTION
 def run_command(
@@ -122,6 +163,7 @@ def run_command(
     agents: int | None,
     kappa: float | None,
     no_feedforward: bool,
+    law: str,
     duration: float | None,
     seed: int,
     out_dir: Path | None,
@@ -132,11 +174,16 @@ def run_command(
     no_coordinator: bool,
     router_listen: tuple[str, ...],
     router_connect: tuple[str, ...],
+    robots: str,
     per_process: int,
     time_scale: float,
     pose_loss: float,
     pose_delay: float,
+    no_safety: bool,
+    no_prediction: bool,
     startup_timeout: float,
+    foxglove_port: int | None,
+    record: bool,
     secure: Path | None,
 ) -> None:
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
@@ -146,8 +193,14 @@ def run_command(
 
     if (ids_arg is not None or no_coordinator) and not swarm:
         raise click.UsageError("--ids and --no-coordinator need --swarm (the same on every host)")
+    if robots == "none" and not swarm:
+        raise click.UsageError("--robots none needs --swarm, the name the bridges join")
     if connect is not None and (router_listen or router_connect):
         raise click.UsageError("--connect joins a router: no --router-listen/--router-connect")
+    if foxglove_port is not None and no_coordinator:
+        raise click.UsageError("--foxglove: the coordinator serves the live view; run it there")
+    if foxglove_port is not None and not port_is_free(foxglove_port):
+        raise click.UsageError(f"--foxglove: {LIVE_HOST}:{foxglove_port} is already in use")
     try:
         scenario = load_scenario(scenario_name)
         swarm = check_swarm(swarm) if swarm else new_swarm_name()
@@ -172,16 +225,29 @@ def run_command(
         connect, max(1000, 4 * n), router_listen, router_connect, secure=secure
     ) as (session, endpoint):  # fmt: skip
         console.log(
-            f"swarm {swarm} on {endpoint}; {here} robots + {here} agents here (team of {n}); "
+            f"swarm {swarm} on {endpoint}; {here if robots == 'sim' else 'no'} robots + "
+            f"{here} agents here (team of {n}); "
             f"logs in {log_dir}"
         )
         specs = plan_children(
             scenario, scenario_arg=scenario_name, agents=n, seed=seed, endpoint=endpoint,
-            swarm=swarm, rate=rate, kappa=kappa, feedforward=not no_feedforward,
+            swarm=swarm, rate=rate, kappa=kappa, feedforward=not no_feedforward, law=law,
             duration=duration, out_dir=out_dir, base=covswarm_argv(), ids=ids,
-            per_process=per_process, coordinator=not no_coordinator, time_scale=time_scale,
-            agent_args=impairment_args(pose_loss, pose_delay, seed), secure=secure,
+            per_process=per_process, coordinator=not no_coordinator, robots=robots == "sim",
+            time_scale=time_scale,
+            agent_args=(
+                *impairment_args(pose_loss, pose_delay, seed),
+                *(("--no-safety",) if no_safety else ()),
+                *(("--no-prediction",) if no_prediction else ()),
+            ),
+            secure=secure,
+            coordinator_args=recording_args(seed, foxglove_port, record),
         )  # fmt: skip
+        if foxglove_port is not None:
+            port = "a free port (see the coordinator's log)" if foxglove_port == 0 else (
+                f"ws://{LIVE_HOST}:{foxglove_port}"
+            )  # fmt: skip
+            console.log(f"Foxglove live view on {port} (docs/records.md)")
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "argv": [s.argv for s in specs]},
                        indent=1) + "\n", encoding="utf-8",

@@ -72,9 +72,12 @@ def plan_children(
     ids: Sequence[int] | None = None,
     per_process: int = 1,
     coordinator: bool = True,
+    robots: bool = True,
     time_scale: float = 1.0,
     agent_args: Sequence[str] = (),
     secure: Path | None = None,
+    law: str = "da",
+    coordinator_args: Sequence[str] = (),
 ) -> list[ChildSpec]:
     """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
 
@@ -85,22 +88,28 @@ def plan_children(
     ``ids``: the slice of the team of ``agents`` this host runs (default: all of it); a
     robot starts where it would in the full team, so hosts that split a team with the same
     seed reproduce the one-host run. ``per_process`` robots (brains) share a robot (agent)
-    process; ``coordinator=False`` leaves the coordinator to another host. ``agent_args``
-    are appended to every agent's command line (fault injection). ``secure``: every child
+    process; ``coordinator=False`` leaves the coordinator to another host, ``robots=False``
+    the robots to bridges (covswarm bridge ros2) that join the swarm. ``agent_args``
+    are appended to every agent's command line (fault injection), ``coordinator_args`` to
+    the coordinator's (recording, live view). ``secure``: every child
     gets ``--secure`` (protocol.security). Agent process k of n gets ``--tick-phase k/n``:
     their batches of brains take turns within the control period instead of colliding on
-    the cores at chance moments.
+    the cores at chance moments. ``law``: the agents' control law, "da" or "d1"
+    (covswarm.tvd.control.local_step), also recorded by the coordinator.
     """
     secured = () if secure is None else ("--secure", str(secure))
     common = ("--connect", endpoint, "--swarm", swarm, *secured)
-    ff = () if feedforward else ("--no-feedforward",)
+    ff = ("--law", law) if feedforward else ("--law", law, "--no-feedforward")
     scale = () if time_scale == 1.0 else ("--time-scale", repr(time_scale))
+    # The scenario's bodies, for the agents' safety filter (theirs by default: a Khepera IV).
+    body = ("--body-diameter", repr(scenario.robot_diameter))
     specs = []
     if coordinator:
         argv = (
             *base, "coordinator", "--scenario", scenario_arg, *common, "--agents", str(agents),
             "--duration", repr(duration), "--kappa", repr(kappa), "--out", str(out_dir),
-            "--feedforward" if feedforward else "--no-feedforward", *scale,
+            "--feedforward" if feedforward else "--no-feedforward", "--law", law, *scale,
+            *coordinator_args,
         )  # fmt: skip
         specs.append(ChildSpec("coordinator", 0, argv))
     poses = initial_poses(scenario, agents, seed)
@@ -123,13 +132,20 @@ def plan_children(
         agent = (
             *base, "agent", *agent_ids, *common, "--rate", repr(rate), "--kappa", repr(kappa),
             "--tick-phase", repr(start // per_process / processes), *ff, *scale, *agent_args,
+            *body,
         )  # fmt: skip
         members = tuple(group) if per_process > 1 else ()
-        specs += [
-            ChildSpec("robot", group[0], robot, members),
-            ChildSpec("agent", group[0], agent, members),
-        ]
+        if robots:
+            specs.append(ChildSpec("robot", group[0], robot, members))
+        specs.append(ChildSpec("agent", group[0], agent, members))
     return specs
+
+
+def recording_args(seed: int, foxglove_port: int | None, record: bool) -> tuple[str, ...]:
+    """Coordinator options for the run's records: the seed (run.mcap's metadata), the live
+    view's port, and --no-record when recording is off (covswarm.records)."""
+    live = () if foxglove_port is None else ("--foxglove", str(foxglove_port))
+    return ("--seed", str(seed), *live, *(() if record else ("--no-record",)))
 
 
 def impairment_args(loss: float, delay: float, seed: int) -> tuple[str, ...]:

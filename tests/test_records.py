@@ -331,3 +331,23 @@ def test_a_resumed_coordinator_records_beside_the_first_part(tmp_path: Path) -> 
         assert (tmp_path / f"trajectories-{k}.csv").is_file()
     assert record_names(tmp_path, False) == ("run.mcap", "trajectories.csv")
     assert len(read_trajectories(tmp_path / "trajectories.csv")) == 1  # not overwritten
+
+
+def test_run_refuses_a_live_view_it_cannot_serve(tmp_path: Path) -> None:
+    import socket
+
+    from covswarm.deploy.launcher import run_command
+    from covswarm.deploy.plan import recording_args
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = CliRunner().invoke(
+            run_command, ["--foxglove", str(port), "--out", str(tmp_path / "run")]
+        )
+    assert result.exit_code == 2 and "already in use" in result.output
+    result = CliRunner().invoke(run_command, ["--foxglove", "--no-coordinator", "--swarm", "s"])
+    assert result.exit_code == 2 and "coordinator serves the live view" in result.output
+    assert recording_args(3, None, True) == ("--seed", "3")
+    assert recording_args(3, 0, False) == ("--seed", "3", "--foxglove", "0", "--no-record")

@@ -1,0 +1,195 @@
+"""End to end: ``covswarm run --foxglove PORT`` records what its coordinator sees into
+run.mcap and trajectories.csv and serves the same channels live; real processes over
+loopback Zenoh, a real WebSocket client speaking foxglove.sdk.v1.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import base64
+import json
+import os
+import secrets
+import signal
+import struct
+import subprocess
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+import pytest
+from mcap.reader import make_reader
+from mcap.records import Schema
+from mcap_protobuf.decoder import DecoderFactory
+
+from covswarm.deploy.plan import covswarm_argv
+from covswarm.deploy.router import free_port
+from covswarm.records.replay import decoder_factories
+from covswarm.records.trajectories import read_trajectories
+
+pytestmark = pytest.mark.e2e
+
+AGENTS, DURATION = 3, 5.0
+POSE_RATE, TICK_RATE, SAMPLE_RATE = 20.0, 20.0, 10.0  # robots' poses, coordinator, e_a (Hz)
+
+
+def swarm_pids(swarm: str) -> set[int]:
+    """Live processes whose command line names ``swarm`` (every child of the run does)."""
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+        except OSError:
+            continue
+        if swarm.encode() in cmdline:
+            pids.add(int(entry.name))
+    return pids
+
+
+@contextmanager
+def launch(out: Path, swarm: str, *args: str) -> Iterator[subprocess.Popen]:
+    """``covswarm run`` in the background; killed (with what it left) if the test fails."""
+    log = (out.parent / f"{out.name}.launcher.log").open("wb")
+    process = subprocess.Popen(
+        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm, *args],
+        stdout=log,
+        stderr=subprocess.STDOUT,
+        stdin=subprocess.DEVNULL,
+    )
+    try:
+        yield process
+    finally:
+        if process.poll() is None:
+            process.kill()
+            process.wait()
+        log.close()
+        for pid in swarm_pids(swarm):
+            os.kill(pid, signal.SIGKILL)
+
+
+async def first_robots_message(port: int, timeout: float) -> tuple[dict, bytes]:
+    """Connect (retrying until the coordinator's server is up), subscribe to /robots and
+    return its advertisement and the first binary message."""
+    import websockets
+
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            ws = await websockets.connect(
+                f"ws://127.0.0.1:{port}", subprotocols=["foxglove.sdk.v1"]
+            )
+            break
+        except OSError:
+            if time.monotonic() > deadline:
+                raise
+            await asyncio.sleep(0.3)
+    async with ws:
+        channel = None
+        while channel is None:
+            message = json.loads(await asyncio.wait_for(ws.recv(), timeout))
+            if message["op"] == "advertise":
+                channel = next((c for c in message["channels"] if c["topic"] == "/robots"), None)
+        await ws.send(
+            json.dumps(
+                {"op": "subscribe", "subscriptions": [{"id": 1, "channelId": channel["id"]}]}
+            )
+        )
+        while not isinstance(data := await asyncio.wait_for(ws.recv(), timeout), bytes):
+            pass
+        return channel, data
+
+
+def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
+    out, port, swarm = tmp_path / "run", free_port(), f"e2e-{secrets.token_hex(4)}"
+    router = f"tcp/127.0.0.1:{free_port()}"
+    with launch(
+        out, swarm, "--scenario", "passage", "--agents", str(AGENTS), "--duration", str(DURATION),
+        "--seed", "5", "--foxglove", str(port), "--router-listen", router,
+    ) as process:  # fmt: skip
+        channel, data = asyncio.run(first_robots_message(port, timeout=90))
+        # The mission runs: one steering request (accepted or refused, it is an event).
+        steer = subprocess.run(
+            [*covswarm_argv(), "steer", "--connect", router, "--swarm", swarm,
+             "--translate", "0.1,0", "--duration", "1"],
+            capture_output=True, timeout=60,
+        )  # fmt: skip
+        assert steer.returncode in (0, 1), steer.stderr
+        assert process.wait(timeout=120) == 0
+
+    # Live: a pose message of the team, in the Foxglove schema the channel advertised.
+    assert channel["schemaName"] == "foxglove.SceneUpdate"
+    opcode, subscription, _ = struct.unpack_from("<BIQ", data)
+    assert (opcode, subscription) == (1, 1)
+    schema = Schema(
+        id=1, name="foxglove.SceneUpdate", encoding="protobuf",
+        data=base64.b64decode(channel["schema"]),
+    )  # fmt: skip
+    live = DecoderFactory().decoder_for("protobuf", schema)(data[13:])
+    assert {e.id for e in live.entities} <= {str(i) for i in range(AGENTS)}
+    assert live.entities
+
+    # The file: topics, schema names, counts against duration x rate x team size.
+    with (out / "run.mcap").open("rb") as stream:
+        reader = make_reader(stream, decoder_factories=decoder_factories())
+        summary = reader.get_summary()
+        records = {m.name: m.metadata for m in reader.iter_metadata()}
+        metadata, recording = records["run"], records["recording"]
+        robots, steering, file_order = [], [], []
+        for _, ch, message, decoded in reader.iter_decoded_messages(log_time_order=False):
+            file_order.append(message.log_time)
+            if ch.topic == "/robots":
+                robots.append((message.log_time, decoded))
+            elif ch.topic == "/steering":
+                steering.append(decoded)
+    topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
+    for topic in ("/robots", "/domain", "/cells", "/arena"):
+        assert topics[topic] == "foxglove.SceneUpdate"
+    assert topics["/error"] == "covswarm.ErrorSample"
+    assert topics["/agents/stats"] == "covswarm.AgentStats"
+    counts = {
+        summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()
+    }
+    ticks = DURATION * TICK_RATE
+    assert 0.7 * ticks <= counts["/domain"] <= ticks + 2
+    # One /robots message per tick, a second when a robot's two poses arrived in one tick.
+    assert 0.7 * counts["/domain"] <= counts["/robots"] <= 2 * counts["/domain"]
+    assert counts["/robots"] == json.loads(recording["poses"])
+    assert json.loads(recording["skipped_ticks"]) <= 0.1 * ticks  # recording kept up
+    assert json.loads(recording["backlog_overflow"]) == 0
+    (event,) = steering
+    assert event["accepted"] in (True, False) and 0 <= event["t"] <= DURATION
+    assert event["accepted"] == (steer.returncode == 0)
+    assert 0.7 * DURATION * SAMPLE_RATE <= counts["/error"] <= DURATION * SAMPLE_RATE + 2
+    assert DURATION - 1 <= counts["/cells"] <= DURATION + 1
+    assert counts["/agents/stats"] >= DURATION - 2
+    # Every pose the robots published (POSE_RATE each) during the mission, once.
+    poses = sum(len(update.entities) for _, update in robots)
+    assert 0.7 * DURATION * POSE_RATE * AGENTS <= poses <= (DURATION + 0.2) * POSE_RATE * AGENTS
+
+    # Mission time, in order, from the start to the end of the mission.
+    assert file_order == sorted(file_order)
+    assert file_order[0] < 0.2e9 and abs(file_order[-1] - DURATION * 1e9) < 0.1e9
+    assert metadata["source"] == "run" and metadata["scenario"] == "passage"
+    assert json.loads(metadata["agents"]) == AGENTS and json.loads(metadata["seed"]) == 5
+    assert json.loads(metadata["versions"])["covswarm"]
+
+    # trajectories.csv: the same poses, every robot at the pose rate.
+    rows = read_trajectories(out / "trajectories.csv")
+    assert len(rows) == poses
+    assert np.all(np.diff(rows[:, 0]) >= 0)  # in time order
+    for ident in range(AGENTS):
+        times = rows[rows[:, 1] == ident, 0]
+        assert len(times) >= 0.7 * DURATION * POSE_RATE
+        assert np.all(np.diff(times) > 0)
+        assert np.median(np.diff(times)) == pytest.approx(1 / POSE_RATE, rel=0.2)
+    # Each row is a /robots entity at the time the robot measured it (its timestamp).
+    recorded = {
+        (round(e.timestamp.seconds + e.timestamp.nanos / 1e9, 4), int(e.id))
+        for _, update in robots
+        for e in update.entities
+    }
+    assert recorded == {(round(t, 4), int(i)) for t, i in rows[:, :2]}
