@@ -225,7 +225,27 @@ def formation() -> Scenario:
     )
 
 
-BUILTINS = {"circle": circle, "passage": passage, "formation": formation}
+def live() -> Scenario:
+    """An operator's mission: a still 1.6 m x 0.8 m rectangle in the middle of the passage
+    arena (between the obstacles) until someone steers it (coordinator.steering: the
+    console, ``covswarm steer`` or a planner); 10 Khepera IV, 30 minutes or Ctrl-C.
+    """
+    return Scenario(
+        name="live",
+        motion=Keyframes(
+            times=np.array([0.0]), vertices=np.array([_rectangle(-0.8, 0.8, -0.4, 0.4)])
+        ),
+        agents=10,
+        kappa=2.0,
+        duration=1800.0,
+        dt=0.02,
+        dynamics="unicycle",
+        workspace=_ARENA,
+        obstacles=_OBSTACLES,
+    )
+
+
+BUILTINS = {"circle": circle, "passage": passage, "formation": formation, "live": live}
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
