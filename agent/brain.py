@@ -59,6 +59,7 @@ class AgentConfig:
 
     kappa: float | None = None  # None: use the kappa broadcast with the domain
     feedforward: bool = True
+    law: str = "da"  # covswarm.tvd.control.local_step's: "da" (default) or "d1" (the paper's)
     stale_timeout: float = 1.0
     # Beacons only bootstrap: neighbours' relays keep the two-hop set current, and a
     # teammate's new token triggers an early beacon (see AgentBrain.beacon).
@@ -366,7 +367,9 @@ class AgentBrain:
             density=extrapolate_density(
                 self.density, now_wall - self.domain.stamp, self.config.max_extrapolation
             ),
+            law=self.config.law,
         )
+        self.counters.guarded += int(result.guarded and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         self.neighbourhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
         if self.neighbourhood.unrequited(now):
@@ -431,6 +434,8 @@ class AgentBrain:
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
             "stale_dropped": self.neighbourhood.stale_dropped,
             "step_errors": c.step_errors,
+            "mission_steps": c.mission_steps,
+            "guarded": c.guarded,
             "candidates": len(self.neighbourhood.reckoned),
             "local_set": self._local,
             "neighbors": len(self.neighbourhood.one_hop),

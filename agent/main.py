@@ -195,6 +195,13 @@ def run_agents(
     help="Gain; default: the kappa broadcast with the domain.",
 )
 @click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt term (ablation).")
+@click.option(
+    "--law",
+    type=click.Choice(("da", "d1")),
+    default="da",
+    show_default=True,
+    help="da: domain-motion feedforward (docs/tracking.md); d1: the paper's TVD-D1.",
+)
 @click.option("--stale-timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
 @click.option("--beacon-period", type=click.FloatRange(min=0.05), default=10.0, show_default=True)
 @click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=25.0, show_default=True)
@@ -236,6 +243,7 @@ def agent_command(
     time_scale: float,
     kappa: float | None,
     no_feedforward: bool,
+    law: str,
     stale_timeout: float,
     beacon_period: float,
     beacon_timeout: float,
@@ -261,6 +269,7 @@ def agent_command(
     config = AgentConfig(
         kappa=kappa,
         feedforward=not no_feedforward,
+        law=law,
         stale_timeout=stale_timeout,
         beacon_period=beacon_period,
         beacon_timeout=beacon_timeout,

@@ -50,5 +50,6 @@ class Counters:
     step_errors: int = 0  # control steps that failed (robot commanded to stop)
     steps: int = 0
     mission_steps: int = 0  # steps while the mission runs
+    guarded: int = 0  # mission steps whose velocity the control law's amplification guard cut
     # control periods of the mission whose command went out after the period had ended
     overruns: int = 0

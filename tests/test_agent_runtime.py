@@ -221,10 +221,11 @@ def test_a_density_does_not_widen_the_local_diagram() -> None:
 @pytest.mark.parametrize("relayed", [False, True])
 def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
     """Fed only what its subscriptions would deliver, an interior agent's velocity equals
-    row ``me`` of TVD-D1 computed on the whole team: from its two-hop set's AgentStates
+    row ``me`` of the default law (TVD-DA) computed on the whole team: from its two-hop
+    set's AgentStates
     (senders without relays), or from its one-hop neighbours' alone, whose relays carry
     their own neighbours' positions."""
-    from covswarm.tvd.control import tvd_d1
+    from covswarm.tvd.control import tvd_da
     from covswarm.tvd.coverage import neighbors
 
     rng = np.random.default_rng(4 if relayed else 3)
@@ -251,7 +252,7 @@ def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
             )
             brain.on_agent_state(state, now)
         decision = brain.step(now, WALL)
-    expected = tvd_d1(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
+    expected = tvd_da(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
     assert brain.neighbourhood.one_hop == truth[me]
     assert brain.stats()["local_set"] < 30  # not the whole team of 100
     assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
