@@ -5,9 +5,19 @@ Feed it raw payloads with :meth:`AgentBrain.receive` and liveliness changes with
 everything to do, in order: the wheel command, the AgentState, a beacon when one is due,
 the AgentStates and beacon tiles to follow, and the liveliness token to declare once the
 agent hears its own robot. No Zenoh, no wall clock of its own: ``now`` arguments are
-monotonic seconds (receipt and staleness), ``now_wall`` seconds since the epoch (domain
-extrapolation and message stamps), and the step timer is passed in (``clock``). The shell
-(:mod:`covswarm.agent.link`) only carries the actions out.
+monotonic seconds (receipt, staleness, the domain's mission clock), ``now_wall`` seconds
+since the epoch (message stamps and the commands' timeline), and the step timer is passed in
+(``clock``). The shell (:mod:`covswarm.agent.link`) only carries the actions out.
+
+Latency (covswarm.agent.latency): the step controls from its robot's pose *predicted* to
+the time of the command (the stamped pose moved along the commands sent since, in exact
+arcs), tells its neighbours that same prediction in its AgentState, and dead-reckons
+theirs from their stamps (on its own clock within the one-sided bound of each sender's
+offset), not from when they arrived. The domain runs on the coordinator's mission clock as
+seen from this host (its broadcasts' mission time against their receipt), and newer means
+a higher sequence number. Safety (covswarm.tvd.safety): the velocity is filtered so that
+this robot's half of every pair's barrier condition holds against every robot it knows
+within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY).
 """
 
 from __future__ import annotations
@@ -23,9 +33,9 @@ import numpy as np
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
+from covswarm.agent.latency import ClockBound, CommandHistory, MissionClock
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighbourhood import (
-    DEAD_RECKONING_LIMIT,
     Neighbourhood,
     cell_reach,
     clamp_position,
@@ -34,14 +44,21 @@ from covswarm.agent.neighbourhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import local_step
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, achieved_velocity, wheel_speeds
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from covswarm.tvd.safety import (
+    DEFAULT_GAMMA,
+    DEFAULT_MARGIN,
+    barrier_gain,
+    body_safe_distance,
+    safe_velocity,
+)
 
 DROP_REASONS = (
     *protocol.REASONS,
     *STAMP_REASONS,
     "wrong_id",  # key and message disagree about the robot id, or a malformed key
     "bad_domain",  # valid message, invalid polygon (non-convex, self-intersecting, ...)
-    "old_domain",  # older than the domain already held
+    "old_domain",  # older than the domain already held (by sequence number)
 )
 # Largest fraction of the gap to the centroid one control period may close (sampled_gain).
 MAX_STEP_FRACTION = 0.8
@@ -51,6 +68,29 @@ IDLE_STEP_PERIOD = 1.0
 # a whole team starting at once costs each agent one beacon per second, not per tick.
 BEACON_MIN_PERIOD = 1.0
 STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
+# s: a pose older than this (on our clock) is used as it is, not predicted (an agent whose
+# pose is that old stops its robot anyway: --stale-timeout); and the largest age a
+# neighbour's AgentState is dead-reckoned over.
+MAX_PREDICTION = 1.0
+# s: a domain with a sequence number not above the one held is dropped as a late duplicate,
+# unless the held one's coordinator has been silent this long (10 broadcast periods): then
+# it is a restarted coordinator, whose numbers start again.
+DOMAIN_RESTART_SILENCE = 0.5
+# m: robots within this distance of ours enter the safety filter (and their AgentStates are
+# followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
+# have none). At 0.8 m/s two robots close 0.16 m per 10 Hz period.
+SAFETY_RADIUS = 1.0
+# s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
+# last known position for the safety filter this long after it left the coverage step.
+OBSTACLE_MEMORY = 30.0
+# m: the near-identity mapping's projection distance the agents use. The heading loop it
+# closes has gain |u| / l (1/s); with a residual, uncompensated latency tau it is stable only
+# while tau |u| / l < pi / 2. Measured (deploy.netsim, passage, 10 robots, prediction on),
+# e_a's second-half mean with unmodelled command latency of 0.1 / 0.2 / 0.3 s: 0.054 / 7.1 /
+# 17.6 m at l = 0.03 m, 0.055 / 0.055 / 9.4 m at 0.05 m, - / 0.063 / 0.066 m at 0.08 m;
+# without latency 0.054 m at 0.03 m and 0.055 m at 0.05 m. 0.05 m doubles the latency the
+# loop tolerates beyond what the prediction removes, for 2 % of e_a.
+AGENT_PROJECTION_DISTANCE = 0.05
 
 
 @dataclass(frozen=True)
@@ -75,6 +115,17 @@ class AgentConfig:
     pose_loss: float = 0.0
     pose_delay: float = 0.0
     pose_seed: int = 0
+    # Latency compensation (covswarm.agent.latency): predict the pose to the command's time.
+    # cmd_timeout: the robot's (it stops that long after a command); command_latency: known
+    # time from a command's stamp to the wheels acting on it.
+    prediction: bool = True
+    cmd_timeout: float = 0.5
+    command_latency: float = 0.0
+    projection_distance: float = AGENT_PROJECTION_DISTANCE
+    # Collision avoidance (covswarm.tvd.safety), on the robots' centres.
+    safety: bool = True
+    safety_margin: float = DEFAULT_MARGIN
+    safety_gamma: float = DEFAULT_GAMMA
 
 
 @dataclass(frozen=True)
@@ -84,8 +135,9 @@ class Decision:
     left: float
     right: float
     reason: str  # "running" or why the robot holds still
-    velocity: tuple[float, float] = (0.0, 0.0)  # m/s, the control law's
-    achieved: tuple[float, float] = (0.0, 0.0)  # m/s, what the (saturated) wheels give
+    velocity: tuple[float, float] = (0.0, 0.0)  # m/s, the control law's (after the filter)
+    # m/s: what the (saturated) wheels give the robot's centre, v (cos th, sin th)
+    achieved: tuple[float, float] = (0.0, 0.0)
 
 
 # --- actions: what a tick asks the shell to do ---------------------------------------
@@ -129,6 +181,11 @@ class DeclareAlive:
 Action = SendCommand | PublishState | PublishBeacon | FollowStates | FollowTiles | DeclareAlive
 
 
+def _ms(seconds: float) -> float:
+    """Seconds as rounded milliseconds for the stats (NaN, before any sample, as 0)."""
+    return round(seconds * 1e3, 2) if math.isfinite(seconds) else 0.0
+
+
 def sampled_gain(kappa: float, period: float) -> float:
     """The gain to hold over one control period of ``period`` s in place of ``kappa`` (1/s).
 
@@ -161,6 +218,14 @@ class AgentBrain:
         self.log = log or logging.getLogger("covswarm.agent")
         self.pose: protocol.Pose | None = None
         self.pose_received = -math.inf
+        self.pose_taken = -math.inf  # our wall time at which self.pose was taken
+        self.history = CommandHistory(config.robot, config.cmd_timeout)
+        self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
+        self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
+        self.mission_clock = MissionClock()
+        self._domain_received = -math.inf
+        # id -> (x, y, when last a candidate, monotonic): robots that left the candidates
+        self.obstacles: dict[int, tuple[float, float, float]] = {}
         self.domain: protocol.Domain | None = None
         self.density: Density | None = None  # the domain's density, validated (None: uniform)
         self.neighbourhood = Neighbourhood(
@@ -176,6 +241,7 @@ class AgentBrain:
         # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
+        self._period = 1.0  # s, the last control period (at most 1)
         self._last_idle_step = -math.inf
         self._next_stats = -math.inf
         self._alive = False
@@ -183,6 +249,12 @@ class AgentBrain:
         self._seq = 0
         self._step_us = Percentiles()
         self._pose_age_ms = Percentiles()
+        self.safety_active = 0  # mission steps on which the filter changed the velocity
+        self.safety_relaxed = 0  # ... on which its rows could not all hold (see safe_velocity)
+        self.wheel_max = 0.0  # m/s, largest rim speed commanded during the mission
+        self.saturated_s = 0.0  # s of mission under a saturated command
+        self._saturated = False
+        self._last_running_command: float | None = None
         self._step_rate = Rate()
         self._rx_rate = Rate()
         self._rates = (0.0, 0.0)
@@ -205,11 +277,24 @@ class AgentBrain:
         if key_id is not None and message.id != key_id:
             self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
             return False
+        if kind == "pose" and message.id == self.id:
+            self.robot_clock.add(now, now_wall, message.stamp)
+        elif kind == "state":
+            # Dead reckoning counts from when the state was stamped, not from when it
+            # arrived: on our clock, within the bound on its sender's offset.
+            clock = self.peer_clocks.get(message.id)
+            if clock is None:
+                clock = self.peer_clocks[message.id] = ClockBound()
+            clock.add(now, now_wall, message.stamp)
+            now -= min(max(now_wall - clock.to_local(message.stamp), 0.0), MAX_PREDICTION)
         return _HANDLERS[kind](self, message, now)
 
     def on_pose(self, pose: protocol.Pose, now: float) -> bool:
         if pose.id == self.id:
+            if self.pose is not None and pose.stamp < self.pose.stamp and self.pose_fresh(now):
+                return False  # overtaken by a newer one (same robot clock): keep the newer
             self.pose, self.pose_received = pose, now
+            self.pose_taken = self.robot_clock.to_local(pose.stamp)
         else:
             self.neighbourhood.on_pose(pose, now)
         return True
@@ -233,8 +318,17 @@ class AgentBrain:
             self._beacon_due = True  # a newcomer: let it find us without waiting
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
-        if self.domain is not None and domain.stamp < self.domain.stamp:
-            self.drops.drop("old_domain", f"domain stamped {domain.stamp} < {self.domain.stamp}")
+        """Hold a newer domain: a higher sequence number than the held one (stamps come
+        from the coordinator's clock and would drop a restarted coordinator on a host whose
+        clock is behind), or any number once the held one's sender has been silent for
+        DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again)."""
+        held = self.domain
+        if (
+            held is not None
+            and domain.seq <= held.seq
+            and now - self._domain_received < DOMAIN_RESTART_SILENCE
+        ):
+            self.drops.drop("old_domain", f"domain seq {domain.seq} <= {held.seq}")
             return False
         try:
             density = self.decoder.domain_geometry(domain)
@@ -243,6 +337,11 @@ class AgentBrain:
             return False
         self.domain = domain
         self.density = density
+        self._domain_received = now
+        if domain.state == "running":
+            self.mission_clock.add(now, domain.t, domain.seq)
+        else:  # mission time stands still: no clock to follow until it runs
+            self.mission_clock.reset()
         return True
 
     @property
@@ -286,7 +385,10 @@ class AgentBrain:
         beacon = self.beacon(now, now_wall)
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
-        actions.append(FollowStates(frozenset(self.neighbourhood.wanted_state_ids(now))))
+        wanted = self.neighbourhood.wanted_state_ids(now)
+        if self.config.safety:
+            wanted |= self.near_ids()
+        actions.append(FollowStates(frozenset(wanted)))
         actions.append(FollowTiles(frozenset(self.wanted_tiles())))
         if not self._alive and self.pose is not None:
             self._alive = True
@@ -349,14 +451,21 @@ class AgentBrain:
         self, others: dict[int, tuple[float, float]], now: float, now_wall: float
     ) -> Decision:
         assert self.pose is not None and self.domain is not None
+        config = self.config
+        pose = self.predicted_pose(now_wall + config.command_latency)
+        mission_t = self.mission_clock.mission_time(now)
+        elapsed = 0.0 if mission_t is None else mission_t - self.domain.t
+        elapsed += config.command_latency
         vertices, velocities = extrapolate_domain(
-            self.domain, now_wall, self.config.max_extrapolation
+            self.domain, elapsed, self.config.max_extrapolation
         )
-        me = np.array([self.pose.x, self.pose.y])
+        me = pose[:2]
         kappa = self.config.kappa if self.config.kappa is not None else self.domain.kappa
+        period = 1.0 if self._last_control is None else min(now_wall - self._last_control, 1.0)
         if self._last_control is not None:
-            kappa = sampled_gain(kappa, min(now_wall - self._last_control, 1.0))
+            kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
+        self._period = period
         result = local_step(
             self.id,
             {**others, self.id: me},
@@ -364,9 +473,7 @@ class AgentBrain:
             velocities,
             kappa,
             feedforward=self.config.feedforward,
-            density=extrapolate_density(
-                self.density, now_wall - self.domain.stamp, self.config.max_extrapolation
-            ),
+            density=extrapolate_density(self.density, elapsed, self.config.max_extrapolation),
             law=self.config.law,
         )
         self.counters.guarded += int(result.guarded and self.running)
@@ -389,13 +496,78 @@ class AgentBrain:
         velocity = np.asarray(result.velocity, dtype=float)
         if not np.all(np.isfinite(velocity)):
             raise ValueError(f"non-finite velocity {velocity}")
-        heading = np.array([self.pose.theta])
-        wheels = wheel_speeds(heading, velocity[None], self.config.robot)
-        # What the robot will do, not what was asked: what our AgentState reports for
-        # neighbours to dead-reckon with (a saturated command overstates the speed).
-        achieved = achieved_velocity(heading, wheels, self.config.robot)[0].tolist()
+        if config.safety:
+            velocity = self._safe(velocity, pose, now, now_wall)
+        heading = pose[2]
+        wheels = wheel_speeds(
+            np.array([heading]), velocity[None], config.robot, config.projection_distance
+        )
         left, right = wheels[0].tolist()
-        return Decision(left, right, "running", tuple(velocity.tolist()), tuple(achieved))
+        # What the robot's centre will do, not what was asked: what our AgentState reports
+        # for neighbours to dead-reckon our position with (a saturated command overstates
+        # the speed, and the steered point is not the centre).
+        forward = 0.5 * (left + right)
+        achieved = (forward * math.cos(heading), forward * math.sin(heading))
+        return Decision(left, right, "running", tuple(velocity.tolist()), achieved)
+
+    def predicted_pose(self, target_wall: float) -> np.ndarray:
+        """(x, y, heading) of our robot at our wall time ``target_wall``: its last pose moved
+        along the commands sent since it was taken (covswarm.agent.latency), or as taken when
+        prediction is off or the pose is older than MAX_PREDICTION."""
+        assert self.pose is not None
+        pose = np.array([self.pose.x, self.pose.y, self.pose.theta])
+        horizon = target_wall - self.pose_taken
+        if not self.config.prediction or not 0.0 < horizon <= MAX_PREDICTION:
+            return pose
+        return self.history.predict(pose, self.pose_taken, target_wall)
+
+    def near_ids(self) -> set[int]:
+        """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
+        AgentStates whether or not they are Voronoi neighbours)."""
+        if self.pose is None:
+            return set()
+        x, y = self.pose.x, self.pose.y
+        return {
+            rid
+            for rid, (rx, ry, _, _) in self.neighbourhood.reckoned.items()
+            if math.hypot(rx - x, ry - y) <= SAFETY_RADIUS
+        }
+
+    def _safe(
+        self, velocity: np.ndarray, pose: np.ndarray, now: float, now_wall: float
+    ) -> np.ndarray:
+        """``velocity`` filtered by covswarm.tvd.safety against the robots near us: the
+        candidates (dead-reckoned, with their reported velocities) and the obstacles we
+        stopped hearing from (at rest where last known)."""
+        config = self.config
+        me = pose[:2]
+        reckoned = self.neighbourhood.reckoned
+        for rid, (x, y, _, _) in reckoned.items():
+            self.obstacles[rid] = (x, y, now)
+        dead = self.neighbourhood.dead
+        for rid in [
+            r
+            for r, (_, _, seen) in self.obstacles.items()
+            if now - seen > OBSTACLE_MEMORY or "robot" in dead.get(r, ())
+        ]:
+            del self.obstacles[rid]
+        rows = [(x, y, vx, vy) for x, y, vx, vy in reckoned.values()]
+        rows += [(x, y, 0.0, 0.0) for r, (x, y, _) in self.obstacles.items() if r not in reckoned]
+        near = np.array(rows, dtype=float).reshape(-1, 4)
+        near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
+        result = safe_velocity(
+            me,
+            velocity,
+            near[:, :2],
+            body_safe_distance(config.robot.body_diameter, config.safety_margin),
+            barrier_gain(config.safety_gamma, self._period),
+            heading=float(pose[2]),
+            velocity=np.array(self.velocity),
+            neighbor_velocities=near[:, 2:],
+        )
+        self.safety_active += result.active > 0
+        self.safety_relaxed += result.relaxed
+        return result.velocity
 
     # --- output --------------------------------------------------------------------------
 
@@ -405,10 +577,20 @@ class AgentBrain:
         if not (math.isfinite(left) and math.isfinite(right)):
             left = right = 0.0
         self._seq += 1
+        self.history.add(stamp + self.config.command_latency, left, right)
         if self.pose is not None:
-            # Pose-to-command latency: the robot's pose stamp to this command's stamp (one
-            # clock on one machine; across machines it includes their clock offset).
-            self._pose_age_ms.add((stamp - self.pose.stamp) * 1e3)
+            # Pose-to-command latency: when the pose was taken (on our clock, within the
+            # bound on our robot's offset: covswarm.agent.latency) to this command's stamp.
+            self._pose_age_ms.add((stamp - self.pose_taken) * 1e3)
+        if decision.reason == "running":
+            if self._last_running_command is not None and self._saturated:
+                self.saturated_s += min(stamp - self._last_running_command, 1.0)
+            peak = max(abs(left), abs(right))
+            self.wheel_max = max(self.wheel_max, peak)
+            self._saturated = peak >= self.config.robot.max_wheel_speed * (1.0 - 1e-9)
+            self._last_running_command = stamp
+        else:
+            self._last_running_command = None
         return protocol.WheelCommand(
             id=self.id,
             left=left,
@@ -428,6 +610,12 @@ class AgentBrain:
             "rx_per_s": round(self._rates[1], 1),
             "pose_age_ms_p50": round(self._pose_age_ms.get(0.50), 2),
             "pose_age_ms_p99": round(self._pose_age_ms.get(0.99), 2),
+            # our clock minus our robot's is at most this (includes the fastest transit)
+            "robot_clock_bound_ms": _ms(self.robot_clock.bound),
+            "safety_active": self.safety_active,
+            "safety_relaxed": self.safety_relaxed,
+            "wheel_max": round(self.wheel_max, 4),
+            "saturated_s": round(self.saturated_s, 3),
             "missed_deadline": round(c.overruns / c.mission_steps, 4) if c.mission_steps else 0.0,
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
@@ -447,12 +635,11 @@ class AgentBrain:
         """Our AgentState (with our stats if ``stats``), or None before our own pose is known."""
         if self.pose is None:
             return None
-        # The position dead-reckoned from the pose's stamp to the state's (same robot-side
-        # clock on one machine; bounded, in case of skew across machines).
-        # The control velocity is unbounded (a fast domain) and the wire's is not: clamped.
+        # Where the robot is at the state's stamp by the same prediction the control step
+        # uses, so that neighbours and we agree on it; they dead-reckon from the stamp on with
+        # the velocity (clamped: the control's is unbounded, the wire's is not).
         vx, vy = (min(max(v, -protocol.MAX_SPEED), protocol.MAX_SPEED) for v in self.velocity)
-        lead = min(max(stamp - self.pose.stamp, 0.0), DEAD_RECKONING_LIMIT)
-        x, y = clamp_position(self.pose.x + lead * vx, self.pose.y + lead * vy)
+        x, y = clamp_position(*self.predicted_pose(stamp)[:2])
         return protocol.AgentState(
             id=self.id,
             x=x,

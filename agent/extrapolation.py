@@ -15,16 +15,18 @@ from covswarm.tvd.density import Density
 
 
 def extrapolate_domain(
-    domain: protocol.Domain, now_wall: float, max_extrapolation: float
+    domain: protocol.Domain, elapsed: float, max_extrapolation: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (k, 2) m and vertex velocities (k, 2) m/s of the domain at ``now_wall``.
+    """Vertices (k, 2) m and vertex velocities (k, 2) m/s of the domain ``elapsed`` s of
+    mission time after the broadcast's ``t``.
 
-    Moves the vertices along their velocities for the time since the domain's stamp, at most
-    ``max_extrapolation`` s; beyond that the domain holds still (zero velocities).
+    Moves the vertices along their velocities for ``elapsed`` (never backwards), at most
+    ``max_extrapolation`` s; beyond that the domain holds still (zero velocities). The
+    agent measures ``elapsed`` on the coordinator's mission clock as seen from its own host
+    (covswarm.agent.latency.MissionClock), never by comparing two hosts' wall clocks.
     """
     vertices = np.array(domain.vertices, dtype=float)
     velocities = np.array(domain.velocities, dtype=float)
-    elapsed = now_wall - domain.stamp
     if elapsed > max_extrapolation:
         return vertices + velocities * max_extrapolation, np.zeros_like(velocities)
     return vertices + velocities * max(elapsed, 0.0), velocities

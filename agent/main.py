@@ -86,7 +86,13 @@ import click
 import zenoh
 
 from covswarm import protocol
-from covswarm.agent.brain import AgentBrain, AgentConfig, DeclareAlive, SendCommand
+from covswarm.agent.brain import (
+    AGENT_PROJECTION_DISTANCE,
+    AgentBrain,
+    AgentConfig,
+    DeclareAlive,
+    SendCommand,
+)
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.link import AgentLink
 from covswarm.agent.metrics import Counters
@@ -95,7 +101,8 @@ from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
-from covswarm.tvd.drive import DiffDrive
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
+from covswarm.tvd.safety import DEFAULT_MARGIN
 
 log = logging.getLogger("covswarm.agent")
 
@@ -231,6 +238,47 @@ def run_agents(
     help="Fault injection: deliver received poses this many s late.",
 )
 @click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
+@click.option(
+    "--no-prediction",
+    is_flag=True,
+    help="Control from the last pose as received, not predicted to the command's time.",
+)
+@click.option(
+    "--cmd-timeout",
+    type=click.FloatRange(min=0.01),
+    default=0.5,
+    show_default=True,
+    help="The robot's command timeout, s (what the prediction assumes it does meanwhile).",
+)
+@click.option(
+    "--command-latency",
+    type=click.FloatRange(0.0, 0.5),
+    default=0.0,
+    show_default=True,
+    help="Known time from a command's stamp to the wheels acting on it, s.",
+)
+@click.option(
+    "--projection-distance",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=AGENT_PROJECTION_DISTANCE,
+    show_default=True,
+    help="Near-identity mapping's point ahead of the axle, m (covswarm.agent.brain).",
+)
+@click.option("--no-safety", is_flag=True, help="No collision-avoidance filter (to compare).")
+@click.option(
+    "--safety-margin",
+    type=click.FloatRange(min=0.0),
+    default=DEFAULT_MARGIN,
+    show_default=True,
+    help="Distance kept between two robots' bodies, m.",
+)
+@click.option(
+    "--body-diameter",
+    type=click.FloatRange(min=0.0, min_open=True),
+    default=KHEPERA_IV.body_diameter,
+    show_default=True,
+    help="This robot's body diameter, m (the safety filter's disks).",
+)
 @SECURE_OPTION
 @click.option("--verbose", is_flag=True, help="Log at INFO level.")
 def agent_command(
@@ -255,6 +303,13 @@ def agent_command(
     drop_poses: float,
     delay_poses: float,
     pose_seed: int,
+    no_prediction: bool,
+    cmd_timeout: float,
+    command_latency: float,
+    projection_distance: float,
+    no_safety: bool,
+    safety_margin: float,
+    body_diameter: float,
     secure: Path | None,
     verbose: bool,
 ) -> None:
@@ -277,10 +332,16 @@ def agent_command(
         max_extrapolation=max_extrapolation,
         linger=linger,
         max_clock_skew=max_clock_skew,
-        robot=DiffDrive(max_wheel_speed=max_wheel_speed),
+        robot=DiffDrive(max_wheel_speed=max_wheel_speed, body_diameter=body_diameter),
         pose_loss=drop_poses,
         pose_delay=delay_poses,
         pose_seed=pose_seed,
+        prediction=not no_prediction,
+        cmd_timeout=cmd_timeout,
+        command_latency=command_latency,
+        projection_distance=projection_distance,
+        safety=not no_safety,
+        safety_margin=safety_margin,
     )
     try:
         zenoh_config = session_config(list(connect), None, "client", secure=secure)

@@ -15,8 +15,9 @@ from dataclasses import dataclass
 
 from covswarm import protocol
 
-# s: at most this far ahead are positions dead-reckoned from a reported velocity.
-DEAD_RECKONING_LIMIT = 0.25
+# s: at most this far ahead are positions dead-reckoned from a reported velocity. Ages count
+# from the sender's stamp (covswarm.agent.brain), so a link 0.3 s late is still compensated.
+DEAD_RECKONING_LIMIT = 0.5
 LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see relevant())
 # s: a neighbour whose AgentState has left us out of its neighbours for this long gets an
 # early beacon (no relay told it about us; a common neighbour's usually does in a tick).

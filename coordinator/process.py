@@ -480,7 +480,6 @@ def build_summary(
     """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
     from covswarm.coordinator.physical import agent_wheel_figures, physical_summary
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
-    from covswarm.tvd.drive import KHEPERA_IV
 
     record = observed.record
     final = record.positions[-1]
@@ -514,7 +513,10 @@ def build_summary(
         "started_wall": observed.started_wall,
         **({} if steering is None else steering_summary(steering)),
         **physical_summary(
-            np.array(record.t), record.trajectories(), KHEPERA_IV.body_diameter, record.robot_ids()
+            np.array(record.t),
+            record.trajectories(),
+            settings.scenario.robot_diameter,
+            record.robot_ids(),
         )[0],
         **agent_wheel_figures(observed.agent_stats, record.t[-1]),
     }

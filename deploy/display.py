@@ -76,6 +76,21 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
     table.add_row("e_a initial", fmt(summary.get("initial_error"), " m"))
     table.add_row("e_a steady state (2nd half)", fmt(summary.get("steady_state_error_mean"), " m"))
     table.add_row("e_a final", fmt(summary.get("final_error"), " m"))
+    # Physical figures (coordinator.physical): how close robots came, how hard wheels worked.
+    closest, diameter = summary.get("min_pairwise_distance"), summary.get("robot_diameter")
+    if diameter is not None:
+        table.add_row("closest robots", fmt(closest, " m"))
+        table.add_row(
+            f"close approaches (< {diameter:g} m)",
+            f"{summary.get('close_approaches', 0)}, {summary.get('close_approach_time', 0.0):.1f} "
+            "pair-s",
+        )
+    if summary.get("max_wheel_speed_used") is not None:
+        table.add_row(
+            "wheels",
+            f"up to {summary['max_wheel_speed_used']:.2f} m/s, saturated "
+            f"{summary['saturated_time']:.1f} robot-s ({summary['saturated_fraction']:.1%})",
+        )
     team = summary.get("agent_stats", {}).get("team", {})
     for name in HEADLINE_STATS:
         if name in team:

@@ -61,6 +61,7 @@ def simulate(
     progress: Callable[[int, int], None] | None = None,
     damping: float | None = None,
     prior: str = "affine",
+    projection_distance: float | None = None,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
@@ -70,6 +71,7 @@ def simulate(
     """
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
+    from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
     from covswarm.tvd.drive import integrate, wheel_speeds
 
     n = scenario.agents if agents is None else agents
@@ -124,7 +126,9 @@ def simulate(
         if dynamics == "single":
             positions = positions + dt * velocity
         else:
-            wheels = wheel_speeds(headings, velocity)
+            wheels = wheel_speeds(
+                headings, velocity, projection_distance=projection_distance or DEFAULT_L
+            )
             wheel_log[k] = wheels
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)
             positions, headings = poses[:, :2], poses[:, 2]
@@ -184,7 +188,7 @@ def build_summary(
         "initial_error": float(result.error[0]),
         "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
         "guards": guard_counts(result),
-        **physical_summary(result.t, result.trajectories, KHEPERA_IV.body_diameter)[0],
+        **physical_summary(result.t, result.trajectories, scenario.robot_diameter)[0],
         # Single integrators have no wheels: null, not a made-up figure.
         **(
             wheel_figures(result.t, result.wheels, KHEPERA_IV.max_wheel_speed)

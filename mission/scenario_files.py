@@ -10,6 +10,8 @@ TOML format (every top-level key but ``name`` and ``[domain]`` has a default)::
     dynamics = "unicycle"      # "single" (integrator) or "unicycle" (Khepera IV wheels)
     workspace = [-2.591, 2.591, -1.829, 1.829]        # xmin, xmax, ymin, ymax (plots)
     obstacles = [[-0.3, 0.3, 0.45, 1.829]]            # rectangles xmin, xmax, ymin, ymax
+    robot_diameter = 0.14      # m: bodies start at least this far apart (and the
+                               # summary's close approaches are closer than it)
 
     [initial]                  # optional; default: uniform at random inside S(0)
     box = [-2.4, -1.2, -0.8, 0.8]                     # uniform at random in this box
@@ -85,6 +87,7 @@ def read_scenario_file(path: Path) -> Scenario:
 
 _TOP_KEYS = {
     "name", "agents", "kappa", "duration", "dt", "dynamics", "workspace", "obstacles",
+    "robot_diameter",
     "initial", "domain", "density",
 }  # fmt: skip
 
@@ -100,9 +103,11 @@ def scenario_from_dict(data: dict[str, Any]) -> Scenario:
     if set(initial) - {"box"}:
         raise ValueError(f"[initial]: unknown keys {sorted(set(initial) - {'box'})}")
     options: dict[str, Any] = {
-        key: data[key] for key in ("agents", "kappa", "duration", "dt", "dynamics") if key in data
+        key: data[key]
+        for key in ("agents", "kappa", "duration", "dt", "dynamics", "robot_diameter")
+        if key in data
     }
-    for key in ("kappa", "duration", "dt"):
+    for key in ("kappa", "duration", "dt", "robot_diameter"):
         if key in options and isinstance(options[key], int):
             options[key] = float(options[key])
     if "density" in data:

@@ -37,10 +37,11 @@ def domain(
     vertices: list | None = None,
     velocity=(0.0, 0.0),
     tile_size: float | None = None,
+    seq: int = 1,
 ) -> protocol.Domain:
     vertices = SQUARE if vertices is None else vertices
     return protocol.Domain(
-        seq=1,
+        seq=seq,
         stamp=stamp,
         t=0.0,
         state=state,
@@ -62,13 +63,13 @@ def brain_at(x: float, y: float, theta: float = 0.0, **config: object) -> AgentB
 
 def test_extrapolation_moves_then_holds_still() -> None:
     d = domain(velocity=(0.1, 0.0))
-    vertices, velocities = extrapolate_domain(d, WALL + 0.5, max_extrapolation=1.0)
+    vertices, velocities = extrapolate_domain(d, 0.5, max_extrapolation=1.0)
     assert vertices == pytest.approx(np.array(SQUARE) + [0.05, 0.0])
     assert velocities == pytest.approx(np.tile([0.1, 0.0], (4, 1)))
-    vertices, velocities = extrapolate_domain(d, WALL + 5.0, max_extrapolation=1.0)
+    vertices, velocities = extrapolate_domain(d, 5.0, max_extrapolation=1.0)
     assert vertices == pytest.approx(np.array(SQUARE) + [0.1, 0.0])
     assert not velocities.any()
-    vertices, _ = extrapolate_domain(d, WALL - 1.0, max_extrapolation=1.0)  # clock skew
+    vertices, _ = extrapolate_domain(d, -1.0, max_extrapolation=1.0)  # never backwards
     assert vertices == pytest.approx(np.array(SQUARE))
 
 
@@ -157,14 +158,20 @@ def test_neighbour_states_are_dead_reckoned() -> None:
     assert brain.neighbourhood.candidates(0.1)[2] == pytest.approx([0.5, 0.5])
 
 
-def test_own_state_reports_the_commanded_velocity() -> None:
-    brain = brain_at(0.5, 1.0)
+def test_own_state_reports_the_predicted_position_and_velocity() -> None:
+    brain = brain_at(0.5, 1.0)  # heading 0, pose stamped WALL
     brain.on_domain(domain(velocity=(0.1, 0.0)), now=0.0)
+    brain.command(Decision(0.3, 0.3, "running"), WALL)  # straight ahead at 0.3 m/s
     brain.velocity = (0.3, 500.0)  # beyond what the wire carries: clamped, not refused
     state = brain.agent_state(WALL + 0.1, stats=False)
     decoded = protocol.AgentState.decode(state.encode())
     assert (decoded.vx, decoded.vy) == (0.3, protocol.MAX_SPEED)
-    assert decoded.x == pytest.approx(0.5 + 0.3 * 0.1)  # the pose is 0.1 s older
+    # Where the command sent since the pose has taken the robot by the state's stamp.
+    assert (decoded.x, decoded.y) == pytest.approx((0.5 + 0.3 * 0.1, 1.0))
+    # Without prediction, the pose as taken.
+    still = brain_at(0.5, 1.0, prediction=False)
+    still.command(Decision(0.3, 0.3, "running"), WALL)
+    assert still.agent_state(WALL + 0.1, stats=False).x == 0.5
 
 
 def test_stale_poses_are_dropped() -> None:
@@ -345,19 +352,28 @@ def test_the_tile_size_is_the_one_the_domain_broadcasts() -> None:
     assert brain.wanted_tiles() == {(i, j) for i in (1, 2, 3) for j in (-3, -2, -1)}
     tile, _ = brain.beacon(0.0, WALL)
     assert tile == (2, -2)
-    brain.on_domain(domain(stamp=WALL + 1, tile_size=2.0), now=0.1)
+    brain.on_domain(domain(stamp=WALL + 1, tile_size=2.0, seq=2), now=0.1)
     assert brain.wanted_tiles() == {(i, j) for i in (-1, 0, 1) for j in (-2, -1, 0)}
 
 
 def test_domain_order_and_validation() -> None:
+    # Newer means a higher sequence number, whatever the stamps say (they come from the
+    # coordinator's clock); a lower one is a restarted coordinator once the held one's
+    # sender has been silent for DOMAIN_RESTART_SILENCE.
     brain = brain_at(0.5, 0.5)
-    assert brain.on_domain(domain(stamp=WALL + 1), now=0.0)
-    assert not brain.on_domain(domain(stamp=WALL), now=0.0)
-    assert brain.drops.counts["old_domain"] == 1
+    assert brain.on_domain(domain(stamp=WALL + 1, seq=5), now=0.0)
+    assert not brain.on_domain(domain(stamp=WALL + 2, seq=4), now=0.1)
+    assert not brain.on_domain(domain(stamp=WALL + 2, seq=5), now=0.1)  # a duplicate
+    assert brain.drops.counts["old_domain"] == 2
+    assert brain.on_domain(domain(stamp=WALL - 5, seq=6), now=0.2)  # a clock behind
     bowtie = [[0.0, 0.0], [2.0, 2.0], [2.0, 0.0], [0.0, 2.0]]
-    assert not brain.on_domain(domain(stamp=WALL + 2, vertices=bowtie), now=0.0)
+    assert not brain.on_domain(domain(stamp=WALL + 2, vertices=bowtie, seq=7), now=0.3)
     assert brain.drops.counts["bad_domain"] == 1
-    assert brain.domain.stamp == WALL + 1
+    assert brain.domain.seq == 6
+    silence = 0.2 + brain_module.DOMAIN_RESTART_SILENCE
+    assert not brain.on_domain(domain(seq=0), now=silence - 0.01)
+    assert brain.on_domain(domain(seq=0), now=silence + 0.01)  # restarted coordinator
+    assert brain.domain.seq == 0
 
 
 def test_bad_payloads_are_counted_not_raised() -> None:

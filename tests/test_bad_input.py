@@ -28,9 +28,9 @@ def pose(rid: int, stamp: float) -> bytes:
     return protocol.Pose(id=rid, x=0.5, y=0.5, theta=0.0, stamp=stamp, seq=0).encode()
 
 
-def domain(stamp: float) -> bytes:
+def domain(stamp: float, seq: int = 0) -> bytes:
     return protocol.Domain(
-        seq=0,
+        seq=seq,
         stamp=stamp,
         t=0.0,
         state="running",
@@ -64,7 +64,7 @@ def test_a_domain_from_the_future_cannot_pin_the_agent() -> None:
     brain = AgentBrain(0)
     assert not brain.receive("domain", domain(WALL + 3600.0), 0.0, WALL)
     assert brain.receive("domain", domain(WALL), 0.0, WALL)  # accepted: not "older than held"
-    assert brain.receive("domain", domain(WALL + 0.3), 0.0, WALL)  # within the skew
+    assert brain.receive("domain", domain(WALL + 0.3, seq=1), 0.0, WALL)  # within the skew
     assert brain.drops.counts["stamp_future"] == 1
     assert brain.stats()["drop_stamp_future"] == 1
 

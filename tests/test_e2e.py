@@ -19,6 +19,7 @@ from pathlib import Path
 import pytest
 from live_runs import ROUTER, launch, new_swarm, swarm_pids, wait_until
 
+from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE
 from covswarm.deploy.router import free_port
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import steady_state_mean
@@ -30,7 +31,7 @@ pytestmark = pytest.mark.e2e
 def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "run"
     with launch(out, "--agents", "4", "--scenario", "passage", "--duration", "15",
-                swarm=swarm) as launcher:  # fmt: skip
+                "--no-safety", "--no-prediction", swarm=swarm) as launcher:  # fmt: skip
         assert wait_until(lambda: len(swarm_pids(swarm)) >= 1 + 1 + 4 + 4, timeout=60)
         assert launcher.wait(timeout=150) == 0, (out.parent / "run.launcher.log").read_text()
     for name in ("summary.json", "error.csv", "error.png", "trajectories.png"):
@@ -51,10 +52,16 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     assert rows[0] == "t,e_a" and len(rows) > 100
     assert swarm_pids(swarm) == set()
     # README: the distributed run's steady-state e_a is within 10 % of the in-process
-    # simulation of the same robots (same seed, law and unicycle model; measured 2 %).
+    # simulation of the same robots (same seed, law, unicycle model and projection distance;
+    # without the safety filter and the pose prediction, which covswarm sim does not have:
+    # the simulator holds each velocity for 20 ms from the exact pose, and a pose predicted
+    # to the command's time then held for 100 ms lags more, measured +36 %).
     scenario = load_scenario("passage")  # seed 0: covswarm run's default --seed
     law = summary["law"]
-    sim = simulate(scenario, agents=4, duration=15.0, law=law, dynamics="unicycle", seed=0)
+    sim = simulate(
+        scenario, agents=4, duration=15.0, law=law, dynamics="unicycle", seed=0,
+        projection_distance=AGENT_PROJECTION_DISTANCE,
+    )  # fmt: skip
     expected = steady_state_mean(sim.t, sim.error)
     assert summary["steady_state_error_mean"] == pytest.approx(expected, rel=0.10)
 

@@ -1,0 +1,70 @@
+"""e_a against pose delay and loss: ``covswarm run`` on the passage, 10 robots, one run each.
+
+Usage: .venv/bin/python scripts/latency_table.py [--delays 0,0.1,0.2,0.3] [--losses 0,0.3]
+       [--agents 10] [--out runs/latency] [--extra "--no-safety"]
+
+Prints the Markdown table of README.md / docs/faults.md: per (delay, loss), the steady-state
+(second half) and final e_a, the closest two robots came and the close approaches (pairs
+nearer than a diameter) after the first second (the start), and the agents' measured
+pose-to-command latency (team mean of their p50). ``--extra`` options go to every run
+(e.g. ``--no-safety`` or ``--no-prediction``, to compare). Each run takes about a minute.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+import subprocess
+from pathlib import Path
+
+import click
+
+from covswarm.deploy.plan import covswarm_argv
+
+
+def run_once(out: Path, agents: int, delay: float, loss: float, extra: list[str]) -> dict:
+    """One run; its summary.json."""
+    subprocess.run(
+        [*covswarm_argv(), "run", "--scenario", "passage", "--agents", str(agents),
+         "--pose-delay", repr(delay), "--pose-loss", repr(loss), "--out", str(out), *extra],
+        check=True, stdout=subprocess.DEVNULL,
+    )  # fmt: skip
+    return json.loads((out / "summary.json").read_text(encoding="utf-8"))
+
+
+def row(delay: float, loss: float, summary: dict) -> str:
+    """One Markdown row of the table."""
+    late = [a for a in summary["close_approach_list"] if a["start"] >= 1.0]
+    closest = summary["min_pairwise_distance"]
+    age = summary["agent_stats"]["team"].get("pose_age_ms_p50", {}).get("mean", float("nan"))
+    return (
+        f"| {delay:g} s | {loss:.0%} | {summary['steady_state_error_mean']:.4f} "
+        f"| {summary['final_error']:.4f} | {closest:.3f} | {len(late)} | {age:.0f} |"
+    )
+
+
+@click.command()
+@click.option("--delays", default="0,0.1,0.2,0.3", show_default=True, help="Pose delays, s.")
+@click.option("--losses", default="0,0.3", show_default=True, help="Pose loss fractions.")
+@click.option("--agents", type=int, default=10, show_default=True)
+@click.option("--out", type=click.Path(path_type=Path), default=Path("runs/latency"))
+@click.option("--extra", default="", help="More `covswarm run` options for every run.")
+def main(delays: str, losses: str, agents: int, out: Path, extra: str) -> None:
+    """Run the passage once per (delay, loss) and print the table."""
+    rows = []
+    options = shlex.split(extra)
+    for delay in (float(v) for v in delays.split(",")):
+        for loss in (float(v) for v in losses.split(",")):
+            summary = run_once(out / f"delay-{delay:g}-loss-{loss:g}", agents, delay, loss, options)
+            rows.append(row(delay, loss, summary))
+            click.echo(rows[-1], err=True)
+    click.echo(
+        "| pose delay | pose loss | e_a steady state (m) | e_a final (m) | closest (m) "
+        "| close approaches after 1 s | pose-to-command latency p50 (ms) |"
+    )
+    click.echo("|---|---|---|---|---|---|---|")
+    click.echo("\n".join(rows))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,181 @@
+"""Real robots' troubles with real processes over loopback Zenoh (no mocks): late and lost
+poses, a frozen (SIGSTOPped) brain, robots squeezed together. Each run on its own free port
+and swarm; a test watches a run through its own Zenoh client, as an operator would."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from live_runs import launch, new_swarm, swarm_pids, wait_until
+
+from covswarm import protocol
+
+# A short passage for the delay tests: 6 robots, 30 s (S is crossing the gap in the second
+# half, the hard part of the mission).
+PASSAGE = ("--scenario", "passage", "--agents", "6", "--duration", "30")
+
+
+class Watch:
+    """A Zenoh client on a run's router recording poses and agent states by wall time."""
+
+    def __init__(self, endpoint: str, swarm: str) -> None:
+        import zenoh
+
+        self.poses: dict[int, list[tuple[float, float, float]]] = {}  # id -> [(wall, x, y)]
+        self.states: list[tuple[float, int, list[int]]] = []  # (wall, id, neighbours)
+        self._lock = threading.Lock()
+        self.session = zenoh.open(protocol.session_config([endpoint]))
+        self._subs = [
+            self.session.declare_subscriber(protocol.all_poses_selector(swarm), self._pose),
+            self.session.declare_subscriber(protocol.all_agent_states_selector(swarm), self._state),
+        ]
+
+    def _pose(self, sample) -> None:
+        m = protocol.Pose.decode(sample.payload.to_bytes())
+        with self._lock:
+            self.poses.setdefault(m.id, []).append((time.time(), m.x, m.y))
+
+    def _state(self, sample) -> None:
+        m = protocol.AgentState.decode(sample.payload.to_bytes())
+        with self._lock:
+            self.states.append((time.time(), m.id, list(m.neighbors)))
+
+    def displacement(self, rid: int, start: float, end: float) -> float:
+        with self._lock:
+            track = [(x, y) for w, x, y in self.poses.get(rid, []) if start <= w <= end]
+        assert len(track) >= 2, f"no poses of robot {rid} in [{start}, {end}]"
+        return float(np.hypot(track[-1][0] - track[0][0], track[-1][1] - track[0][1]))
+
+    def mentions(self, rid: int, start: float, end: float) -> list[float]:
+        """Wall times of other agents' states listing ``rid`` as a neighbour in [start, end]."""
+        with self._lock:
+            return [w for w, i, nb in self.states if i != rid and rid in nb and start <= w <= end]
+
+    def states_of(self, rid: int, start: float, end: float) -> int:
+        with self._lock:
+            return sum(1 for w, i, _ in self.states if i == rid and start <= w <= end)
+
+    def close(self) -> None:
+        for sub in self._subs:
+            sub.undeclare()
+        self.session.close()
+
+
+def mission_started(out: Path) -> float:
+    path = out / "mission.json"
+    assert wait_until(path.exists, timeout=90), "the mission did not start"
+    return json.loads(path.read_text())["started_wall"]
+
+
+def run(tmp_path: Path, name: str, *args: str) -> dict:
+    """One ``covswarm run`` to the end; its summary."""
+    out = tmp_path / name
+    with launch(out, *args, swarm=new_swarm()) as launcher:
+        assert launcher.wait(timeout=240) == 0, (tmp_path / f"{name}.launcher.log").read_text()
+    return json.loads((out / "summary.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def undelayed(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    return run(tmp_path_factory.mktemp("undelayed"), "run", *PASSAGE)
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(("delay", "loss"), [(0.15, 0.3), (0.3, 0.0)])
+def test_late_and_lost_poses_keep_the_undelayed_error(
+    tmp_path: Path, undelayed: dict, delay: float, loss: float
+) -> None:
+    """The issue's target: with 0.15 s of pose delay and 30 % loss, or 0.3 s of delay, the
+    team converges and its steady-state e_a stays within 1.5x the undelayed run's (before
+    the agents predicted their pose, the team flew apart: e_a 12.3 m and 9.9 m)."""
+    summary = run(
+        tmp_path, "late", *PASSAGE, "--pose-delay", repr(delay), "--pose-loss", repr(loss)
+    )
+    bound = 1.5 * undelayed["steady_state_error_mean"]
+    assert summary["steady_state_error_mean"] <= bound, (summary, undelayed)
+    assert summary["final_error"] < 0.05
+    team = summary["agent_stats"]["team"]
+    # The agents saw the delay (pose-to-command latency) and compensated it.
+    assert team["pose_age_ms_p50"]["mean"] > 1e3 * delay
+
+
+@pytest.mark.e2e
+def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbours(tmp_path: Path) -> None:
+    """Agent 2 is SIGSTOPped for 5 s mid-mission, then SIGCONTed. Its robot stops within the
+    command timeout; within 2.5 s no other agent lists it as a Voronoi neighbour (its states
+    stopped: stale after --stale-timeout, and relays carry only first-hand positions); after
+    SIGCONT it steers again and is a neighbour again. The Zenoh lease (~10 s) never expires,
+    so its liveliness token stays throughout: none of this relies on it."""
+    swarm, out = new_swarm(), tmp_path / "frozen"
+    with launch(out, "--agents", "5", "--duration", "30", swarm=swarm) as launcher:
+        start = mission_started(out)
+        endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
+        watch = Watch(endpoint, swarm)
+        try:
+            time.sleep(max(0.0, start + 6.0 - time.time()))
+            (brain,) = swarm_pids(swarm, "agent", "--id", "2")
+            os.kill(brain, signal.SIGSTOP)
+            stopped = time.time()
+            time.sleep(5.0)
+            os.kill(brain, signal.SIGCONT)
+            resumed = time.time()
+            assert wait_until(lambda: watch.states_of(2, resumed, time.time()) > 10, 10)
+            time.sleep(3.0)
+            assert watch.displacement(2, stopped + 0.6, resumed) < 0.005
+            assert watch.mentions(2, start + 2.0, stopped), "robot 2 was never a neighbour"
+            assert not watch.mentions(2, stopped + 2.5, resumed)
+            assert watch.mentions(2, resumed + 1.0, resumed + 3.0)
+            assert watch.displacement(2, resumed, resumed + 3.0) > 0.005
+        finally:
+            watch.close()
+            for pid in swarm_pids(swarm, "agent", "--id", "2"):
+                os.kill(pid, signal.SIGCONT)  # never leave a stopped process behind
+        assert launcher.wait(timeout=90) == 0, (tmp_path / "frozen.launcher.log").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["lost_processes"] == []  # the token outlived the freeze
+
+
+SQUEEZE = """
+name = "squeeze"
+agents = 2
+kappa = 2.0
+duration = 10.0
+dynamics = "unicycle"
+workspace = [-1.0, 1.0, -1.0, 1.0]
+
+[initial]
+box = [-0.5, 0.5, -0.05, 0.05]
+
+[domain]
+kind = "keyframes"
+times = [0.0, 4.0, 10.0]
+vertices = [
+  [[-0.6, -0.3], [0.6, -0.3], [0.6, 0.3], [-0.6, 0.3]],
+  [[-0.02, -0.02], [0.02, -0.02], [0.02, 0.02], [-0.02, 0.02]],
+  [[-0.02, -0.02], [0.02, -0.02], [0.02, 0.02], [-0.02, 0.02]],
+]
+"""
+
+
+@pytest.mark.e2e
+def test_robots_driven_into_each_other_keep_their_bodies_apart(tmp_path: Path) -> None:
+    """S shrinks to a 4 cm square in 4 s, so both robots' centroids, and their coverage
+    velocities, head for the same point: without the filter the two bodies (14 cm) overlap,
+    with it (the default) their centres stay at least a diameter apart in every sample of
+    the coordinator (10 Hz)."""
+    scenario = tmp_path / "squeeze.toml"
+    scenario.write_text(SQUEEZE)
+    filtered = run(tmp_path, "safe", "--scenario", str(scenario), "--seed", "1")
+    unfiltered = run(tmp_path, "unsafe", "--scenario", str(scenario), "--seed", "1", "--no-safety")
+    assert unfiltered["min_pairwise_distance"] < 0.14, unfiltered
+    assert unfiltered["close_approaches"] >= 1
+    assert filtered["min_pairwise_distance"] >= 0.14, filtered
+    assert filtered["close_approaches"] == 0
+    assert filtered["agent_stats"]["team"]["safety_active"]["max"] > 0
