@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import signal
 import subprocess
 import sys
 import time
@@ -20,13 +21,16 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+import numpy as np
 import pytest
 import zenoh
+from rosbags.typesys import Stores, get_typestore
 
 from covswarm import protocol
-from covswarm.bridge import rmw_zenoh
-from covswarm.deploy.plan import covswarm_argv
+from covswarm.bridge import cdr, rmw_zenoh
+from covswarm.deploy.plan import covswarm_argv, initial_poses
 from covswarm.deploy.router import free_port
+from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol import session_config
 
 pytestmark = pytest.mark.e2e
@@ -132,6 +136,19 @@ def wait_until(predicate, timeout: float, period: float = 0.2) -> bool:
     return predicate()
 
 
+def next_sample(subscriber: zenoh.Subscriber, timeout: float) -> zenoh.Sample:
+    deadline = time.monotonic() + timeout
+    while (sample := subscriber.try_recv()) is None:
+        assert time.monotonic() < deadline, "no sample"
+        time.sleep(0.05)
+    return sample
+
+
+def decode(sample: zenoh.Sample, ros_type: str) -> object:
+    """A ROS 2 sample as rosbags reads it (an independent CDR reader)."""
+    return get_typestore(Stores.ROS2_JAZZY).deserialize_cdr(sample.payload.to_bytes(), ros_type)
+
+
 def bridge_argv(endpoint: str, swarm: str, ids: str, *extra: str) -> list[str]:
     return [*covswarm_argv(), "bridge", "ros2", "--ids", ids, "--connect", endpoint,
             "--swarm", swarm, "--verbose", *extra]  # fmt: skip
@@ -150,7 +167,7 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
             [sys.executable, "-c", SDK_NODE, endpoint.rsplit(":", 1)[1], *hashes],
             text=True,
             env=env,
-        ) as sdk,  # fmt: skip
+        ) as sdk,
         process(bridge_argv(endpoint, swarm, "5", "--publish-state"), tmp_path / "bridge.log"),
         zenoh.open(session_config([endpoint])) as session,
     ):
@@ -160,8 +177,7 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
         )
         # ROS 2 -> covswarm: the SDK's PoseStamped (with its attachment) becomes a Pose, and
         # the robot's liveliness token appears with it.
-        assert wait_until(lambda: poses.try_recv() is not None, 20)
-        pose = protocol.Pose.decode(poses.recv().payload.to_bytes())
+        pose = protocol.Pose.decode(next_sample(poses, 20).payload.to_bytes())
         assert (pose.id, pose.x, pose.y) == (5, 0.5, 0.25)
         assert pose.theta == pytest.approx(0.3) and abs(pose.stamp - time.time()) < 1.0
         alive = session.liveliness().get(protocol.alive_key(swarm, "robot", 5), timeout=2)
@@ -183,6 +199,17 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
             ("MS", "/robot5/cmd_vel")
         }
 
+        # --publish-state: the robots' poses as a PoseArray, with attachments, for RViz.
+        state = session.declare_subscriber(
+            rmw_zenoh.topic_key(0, "/covswarm/poses", "geometry_msgs/msg/PoseArray"),
+            zenoh.handlers.RingChannel(4),
+        )
+        sample = next_sample(state, 10)
+        array = decode(sample, "geometry_msgs/msg/PoseArray")
+        assert array.header.frame_id == "map"
+        assert [(p.position.x, p.position.y) for p in array.poses] == [(0.5, 0.25)]
+        assert rmw_zenoh.decode_attachment(sample.attachment.to_bytes()).sequence_number >= 1
+
         # covswarm -> ROS 2: wheel commands become Twists that the SDK decodes.
         commands = session.declare_publisher(protocol.cmd_key(swarm, 5))
         for seq in range(5):
@@ -199,3 +226,106 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
             assert time.monotonic() < deadline, twist
     log = (tmp_path / "bridge.log").read_text()
     assert "robot 5: 5 commands" in log and "dropped none" in log, log
+
+
+def swarm_pids(swarm: str, *words: str) -> set[int]:
+    """Live (non-zombie) processes whose command line names ``swarm`` and ``words``."""
+    wanted = {swarm.encode(), *(w.encode() for w in words)}
+    pids = set()
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
+            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
+        except OSError:
+            continue  # exited while we looked
+        if wanted <= set(cmdline) and state != "Z":
+            pids.add(int(entry.name))
+    return pids
+
+
+def mission_started(log: Path) -> bool:
+    return log.exists() and "mission started" in log.read_text()
+
+
+def test_ros2_robots_run_a_mission_and_stop_when_their_agents_go_quiet(tmp_path: Path) -> None:
+    """4 ROS 2 robots (scripts/ros2_robot_sim.py) behind the bridge, 4 agents and the
+    coordinator of ``covswarm run --robots none``: the team converges; at t = 10 s, while
+    the domain moves, the agents are killed and the bridge stops every robot."""
+    swarm, out, agents, kill_at = f"e2e-{secrets.token_hex(4)}", tmp_path / "run", 4, 10.0
+    poses = initial_poses(load_scenario("passage"), agents, 0)
+    robots = [f"--robot={i}:{x},{y},{theta}" for i, (x, y, theta) in enumerate(poses.tolist())]
+    record = tmp_path / "twists.jsonl"
+    sim_argv = [sys.executable, str(ROOT / "scripts" / "ros2_robot_sim.py"), "--record",
+                str(record)]  # fmt: skip
+    with (
+        router() as endpoint,
+        process([*sim_argv, "--connect", endpoint, *robots], text=True) as sim,
+    ):
+        assert sim.stdout.readline().strip() == "ready"
+        with (
+            process(
+                bridge_argv(endpoint, swarm, f"0-{agents - 1}", "--publish-state"),
+                tmp_path / "bridge.log",
+            ),
+            zenoh.open(session_config([endpoint])) as session,
+        ):
+            state = {
+                ros_type: session.declare_subscriber(
+                    rmw_zenoh.topic_key(0, f"/covswarm/{name}", ros_type),
+                    zenoh.handlers.RingChannel(1),
+                )
+                for name, ros_type in (("domain", cdr.POLYGON_STAMPED), ("error", cdr.FLOAT64))
+            }
+            launcher = subprocess.Popen(
+                [*covswarm_argv(), "run", "--robots", "none", "--connect", endpoint, "--swarm",
+                 swarm, "--scenario", "passage", "--agents", str(agents), "--duration", "12",
+                 "--out", str(out)],
+                stdout=(tmp_path / "launcher.log").open("wb"), stderr=subprocess.STDOUT,
+            )  # fmt: skip
+            try:
+                coordinator_log = out / "logs" / "coordinator-0.log"
+                assert wait_until(lambda: mission_started(coordinator_log), 90, 0.05)
+                started = time.monotonic()
+                # No simulated robot was started: the bridge's tokens started the mission.
+                assert swarm_pids(swarm, "robot") == set()
+                # --publish-state: S(t) and e_a on ROS 2 topics, as RViz would read them.
+                polygon = decode(next_sample(state[cdr.POLYGON_STAMPED], 10), cdr.POLYGON_STAMPED)
+                assert polygon.header.frame_id == "map" and len(polygon.polygon.points) == 4
+                error = decode(next_sample(state[cdr.FLOAT64], 10), cdr.FLOAT64).data
+                assert 0.0 <= error < 1.0
+                time.sleep(max(0.0, kill_at - (time.monotonic() - started)))
+                victims = swarm_pids(swarm, "agent")
+                killed = time.time()
+                for pid in victims:
+                    os.kill(pid, signal.SIGKILL)
+                assert len(victims) == agents
+                assert launcher.wait(timeout=60) == 0, (tmp_path / "launcher.log").read_text()
+            finally:
+                if launcher.poll() is None:
+                    launcher.kill()
+                    launcher.wait()
+            time.sleep(1.0)
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["alive_at_end"]["robots"] == agents  # the bridge held every robot's token
+    t, e = np.loadtxt(out / "error.csv", delimiter=",", skiprows=1, unpack=True)
+    before = e[(t >= 6.0) & (t <= kill_at - 0.5)]
+    # The random start (~0.3 m) has converged while the domain moves.
+    assert before.size and before.max() < 0.05 and e[0] > 2 * before.max(), (e[0], before.max())
+
+    lines = [json.loads(line) for line in record.read_text().splitlines()]
+    counters = lines[-1]["counters"]
+    assert counters["dropped_no_attachment"] == 0 and counters["dropped_malformed"] == 0
+    for rid in range(agents):
+        mine = [line for line in lines[:-1] if line["id"] == rid]
+        driving = [line for line in mine if line["t"] < killed]
+        after = [line for line in mine if line["t"] >= killed]
+        assert max(abs(line["v"]) for line in driving) > 0.01, rid  # it was driven
+        assert abs(driving[-1]["v"]) > 1e-3, rid  # and was moving when its agent died
+        # The bridge's zero Twist within the command timeout (0.5 s) plus a tick or two.
+        assert after and after[0]["t"] - killed < 0.8, (rid, after[:1])
+        assert all(line["v"] == 0.0 and line["omega"] == 0.0 for line in after), rid
+    log = (tmp_path / "bridge.log").read_text()
+    for rid in range(agents):
+        assert f"robot {rid} visible" in log
