@@ -445,3 +445,44 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
             )  # fmt: skip
             assert outsider.returncode != 0 and "http://" not in outsider.stdout
             assert "cannot reach the swarm" in outsider.stderr, outsider.stderr
+
+
+def listening(port: int) -> bool:
+    with socket.socket() as probe:
+        return probe.connect_ex(("127.0.0.1", port)) == 0
+
+
+def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
+    browser, tmp_path: Path
+) -> None:
+    with socket.socket() as probe:
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    swarm, out = f"e2e-{secrets.token_hex(4)}", tmp_path / "run"
+    log = (tmp_path / "launcher.log").open("wb")
+    launcher = subprocess.Popen(
+        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm, "--agents", "2",
+         "--duration", "10", "--console", "--console-port", str(port)],
+        stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
+    )  # fmt: skip
+    try:
+        assert wait_until(lambda: (out / "launch.json").exists(), timeout=60)
+        url = json.loads((out / "launch.json").read_text())["console"]
+        assert url == f"http://127.0.0.1:{port}/"
+        assert wait_until(lambda: listening(port), timeout=60)
+        page = browser.new_page()
+        page.goto(url)
+        page.wait_for_function("document.body.dataset.robotsDrawn === '2'", timeout=60000)
+        page.wait_for_function("document.getElementById('state').textContent === 'running'")
+        page.close()
+        assert launcher.wait(timeout=120) == 0, (tmp_path / "launcher.log").read_text()
+        assert not listening(port)  # the console went with the run
+        resources = json.loads((out / "resources.json").read_text())
+        assert len(resources["cpu_percent_of_core"]["console"]) == 1
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+            launcher.wait()
+        log.close()
+        for pid in swarm_pids(swarm):
+            os.kill(pid, signal.SIGKILL)
