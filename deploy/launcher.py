@@ -157,6 +157,19 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     show_default=True,
     help="The coordinator writes run.mcap and trajectories.csv.",
 )
+@click.option(
+    "--console",
+    "with_console",
+    is_flag=True,
+    help="Also serve the operator console (covswarm console) on 127.0.0.1.",
+)
+@click.option(
+    "--console-port",
+    type=click.IntRange(0, 65535),
+    default=7480,
+    show_default=True,
+    help="Port of --console (0: a free one).",
+)
 @SECURE_OPTION
 def run_command(
     scenario_name: str,
@@ -184,6 +197,8 @@ def run_command(
     startup_timeout: float,
     foxglove_port: int | None,
     record: bool,
+    with_console: bool,
+    console_port: int,
     secure: Path | None,
 ) -> None:
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
@@ -197,6 +212,8 @@ def run_command(
         raise click.UsageError("--robots none needs --swarm, the name the bridges join")
     if connect is not None and (router_listen or router_connect):
         raise click.UsageError("--connect joins a router: no --router-listen/--router-connect")
+    if with_console and console_port and not port_is_free(console_port):
+        raise click.UsageError(f"--console-port: 127.0.0.1:{console_port} is already in use")
     if foxglove_port is not None and no_coordinator:
         raise click.UsageError("--foxglove: the coordinator serves the live view; run it there")
     if foxglove_port is not None and not port_is_free(foxglove_port):
@@ -248,9 +265,21 @@ def run_command(
                 f"ws://{LIVE_HOST}:{foxglove_port}"
             )  # fmt: skip
             console.log(f"Foxglove live view on {port} (docs/records.md)")
+        console_url = None
+        if with_console:
+            from covswarm.deploy.plan import console_spec
+            from covswarm.deploy.router import free_port
+
+            port = console_port or free_port()
+            first = 1 if specs and specs[0].role == "coordinator" else 0
+            specs.insert(first, console_spec(
+                covswarm_argv(), endpoint=endpoint, swarm=swarm, port=port, secure=secure,
+            ))  # fmt: skip
+            console_url = f"http://127.0.0.1:{port}/"
+            console.log(f"operator console on {console_url}")
         (out_dir / "launch.json").write_text(
-            json.dumps({"swarm": swarm, "endpoint": endpoint, "argv": [s.argv for s in specs]},
-                       indent=1) + "\n", encoding="utf-8",
+            json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
+                        "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
         result = run_processes(
             specs, session=session, swarm=swarm, agents=n, duration=duration, log_dir=log_dir,

@@ -153,3 +153,16 @@ def impairment_args(loss: float, delay: float, seed: int) -> tuple[str, ...]:
     if loss == 0.0 and delay == 0.0:
         return ()
     return ("--drop-poses", repr(loss), "--delay-poses", repr(delay), "--pose-seed", str(seed))
+
+
+def console_spec(
+    base: Sequence[str], *, endpoint: str, swarm: str, port: int, secure: Path | None = None
+) -> ChildSpec:
+    """The operator console of ``covswarm run --console``: ``covswarm console`` on
+    127.0.0.1:``port`` (no token on loopback); it holds no liveliness token, so the
+    supervisor counts it ready once spawned."""
+    secured = () if secure is None else ("--secure", str(secure))
+    argv = (
+        *base, "console", "--connect", endpoint, "--swarm", swarm, "--port", str(port), *secured,
+    )  # fmt: skip
+    return ChildSpec("console", 0, argv)

@@ -105,6 +105,8 @@ class Supervisor:
             self.children[spec.name] = spawn(spec, self.log_dir)
             if spec.role == "coordinator":
                 self.coordinator = self.children[spec.name]
+            elif spec.role == "console":
+                self.startup.ready.add(spec.name)  # it holds no liveliness token
         while (sample := self._alive.try_recv()) is not None:
             try:
                 role, ident = parse_alive_key(str(sample.key_expr), self.swarm)
