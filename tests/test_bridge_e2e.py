@@ -297,9 +297,9 @@ def test_ros2_robots_run_a_mission_and_stop_when_their_agents_go_quiet(tmp_path:
                 assert 0.0 <= error < 1.0
                 time.sleep(max(0.0, kill_at - (time.monotonic() - started)))
                 victims = swarm_pids(swarm, "agent")
-                killed = time.time()
                 for pid in victims:
                     os.kill(pid, signal.SIGKILL)
+                killed = time.time()
                 assert len(victims) == agents
                 assert launcher.wait(timeout=60) == 0, (tmp_path / "launcher.log").read_text()
             finally:
@@ -320,12 +320,15 @@ def test_ros2_robots_run_a_mission_and_stop_when_their_agents_go_quiet(tmp_path:
     for rid in range(agents):
         mine = [line for line in lines[:-1] if line["id"] == rid]
         driving = [line for line in mine if line["t"] < killed]
-        after = [line for line in mine if line["t"] >= killed]
+        stops = [line for line in mine if line["t"] >= killed and line["v"] == line["omega"] == 0]
+        # A command sent just before the kill may still be on its way for a few tens of ms.
+        late = [line for line in mine if line["t"] >= killed + 0.25]
         assert max(abs(line["v"]) for line in driving) > 0.01, rid  # it was driven
         assert abs(driving[-1]["v"]) > 1e-3, rid  # and was moving when its agent died
-        # The bridge's zero Twist within the command timeout (0.5 s) plus a tick or two.
-        assert after and after[0]["t"] - killed < 0.8, (rid, after[:1])
-        assert all(line["v"] == 0.0 and line["omega"] == 0.0 for line in after), rid
+        # The bridge's zero Twist within the command timeout (0.5 s) plus scheduling slack,
+        # and nothing but zero Twists after it.
+        assert stops and stops[0]["t"] - killed < 1.0, (rid, mine[-3:])
+        assert late and all(line["v"] == line["omega"] == 0 for line in late), rid
     log = (tmp_path / "bridge.log").read_text()
     for rid in range(agents):
         assert f"robot {rid} visible" in log
