@@ -168,7 +168,10 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
             text=True,
             env=env,
         ) as sdk,
-        process(bridge_argv(endpoint, swarm, "5", "--publish-state"), tmp_path / "bridge.log"),
+        process(
+            bridge_argv(endpoint, swarm, "5", "--publish-state", "--cmd-timeout", "2"),
+            tmp_path / "bridge.log",
+        ) as bridge,
         zenoh.open(session_config([endpoint])) as session,
     ):
         assert sdk.stdout.readline().strip() == "ready"
@@ -212,20 +215,34 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
 
         # covswarm -> ROS 2: wheel commands become Twists that the SDK decodes.
         commands = session.declare_publisher(protocol.cmd_key(swarm, 5))
-        for seq in range(5):
-            now = time.time()
-            commands.put(protocol.WheelCommand(id=5, left=0.1, right=0.2, stamp=now, seq=seq,
-                                               pose_stamp=now).encode())  # fmt: skip
-            time.sleep(0.1)
+
+        def drive(first: int) -> None:
+            for seq in range(first, first + 5):
+                now = time.time()
+                commands.put(protocol.WheelCommand(id=5, left=0.1, right=0.2, stamp=now,
+                                                   seq=seq, pose_stamp=now).encode())  # fmt: skip
+                time.sleep(0.1)
+
+        def seconds_to_zero_twist() -> float:
+            start = time.monotonic()
+            while (twist := json.loads(sdk.stdout.readline())) != {"v": 0.0, "omega": 0.0}:
+                assert twist["v"] == pytest.approx(0.15), twist
+                assert time.monotonic() - start < 10, twist
+            return time.monotonic() - start
+
+        drive(0)
         twist = json.loads(sdk.stdout.readline())
         assert twist["v"] == pytest.approx(0.15)
         assert twist["omega"] == pytest.approx(0.1 / 0.1054)
-        # No command for 0.5 s: the bridge stops the robot with a zero Twist.
-        deadline = time.monotonic() + 5
-        while (twist := json.loads(sdk.stdout.readline())) != {"v": 0.0, "omega": 0.0}:
-            assert time.monotonic() < deadline, twist
+        # No command for --cmd-timeout (2 s): the bridge stops the robot with a zero Twist.
+        assert 1.0 < seconds_to_zero_twist() < 4.0
+        # A bridge told to stop while the robot drives stops it first, before any timeout.
+        drive(5)
+        bridge.terminate()
+        assert seconds_to_zero_twist() < 1.5
+        assert bridge.wait(timeout=10) == 0
     log = (tmp_path / "bridge.log").read_text()
-    assert "robot 5: 5 commands" in log and "dropped none" in log, log
+    assert "robot 5: 10 commands" in log and "dropped none" in log, log
 
 
 def swarm_pids(swarm: str, *words: str) -> set[int]:
