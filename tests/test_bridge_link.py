@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import subprocess
+import sys
 
 import msgpack
 import numpy as np
@@ -177,3 +179,16 @@ def test_the_command_refuses_bad_options_with_the_reason(
     args = {"--ids": "0-2", "--connect": "tcp/127.0.0.1:9", "--swarm": "lab", option: value}
     result = CliRunner().invoke(bridge_group, ["ros2", *(a for kv in args.items() for a in kv)])
     assert result.exit_code == 2 and message in result.output, result.output
+
+
+def test_without_the_ros2_extra_the_command_says_what_to_install() -> None:
+    script = (
+        "import sys; sys.modules['rosbags'] = sys.modules['rosbags.typesys'] = None\n"
+        "from click.testing import CliRunner\n"
+        "from covswarm.bridge.process import bridge_group\n"
+        "r = CliRunner().invoke(bridge_group, ['ros2', '--ids', '0', '--connect', "
+        "'tcp/127.0.0.1:9', '--swarm', 'lab'])\n"
+        "print(r.exit_code, r.output)\n"
+    )
+    out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True).stdout
+    assert out.startswith("1 ") and "pip install 'covswarm[ros2]'" in out, out
