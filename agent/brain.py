@@ -85,11 +85,11 @@ SAFETY_RADIUS = 1.0
 OBSTACLE_MEMORY = 30.0
 # m: the near-identity mapping's projection distance the agents use. The heading loop it
 # closes has gain |u| / l (1/s); with a residual, uncompensated latency tau it is stable only
-# while tau |u| / l < pi / 2. Measured (deploy.netsim, passage, 10 robots, prediction on),
-# e_a's second-half mean with unmodelled command latency of 0.1 / 0.2 / 0.3 s: 0.054 / 7.1 /
-# 17.6 m at l = 0.03 m, 0.055 / 0.055 / 9.4 m at 0.05 m, - / 0.063 / 0.066 m at 0.08 m;
-# without latency 0.054 m at 0.03 m and 0.055 m at 0.05 m. 0.05 m doubles the latency the
-# loop tolerates beyond what the prediction removes, for 2 % of e_a.
+# while tau |u| / l < pi / 2. Measured (scripts/projection_distance.py: deploy.netsim,
+# passage, 10 robots, prediction on), e_a's second-half mean with 0 / 0.1 / 0.2 / 0.3 s of
+# command latency the agents do not know about: 0.0085 / 0.0091 / 15.3 / 10.9 m at
+# l = 0.03 m, 0.0096 / 0.0103 / 0.0122 / 11.7 m at 0.05 m. 0.05 m doubles the latency the
+# loop tolerates beyond what the prediction removes, for ~0.001 m of e_a.
 AGENT_PROJECTION_DISTANCE = 0.05
 
 

@@ -51,8 +51,8 @@ import numpy as np
 # 1/s: the barrier's decay rate. gamma T <= 1 is what keeps the guarantee at a sampling
 # period T (module docstring): this is the largest for the agents' 10 Hz, and an agent
 # running slower caps it (barrier_gain). Smaller is more cautious and costs coverage: on the
-# passage (deploy.netsim, 10 robots) e_a's second-half mean was 0.069 m at 10/s against
-# 0.115 m at 5/s and 0.055 m without the filter.
+# passage (deploy.netsim, 10 robots, the agents then on TVD-D1) e_a's second-half mean was
+# 0.069 m at 10/s against 0.115 m at 5/s and 0.055 m without the filter.
 DEFAULT_GAMMA = 10.0
 # m: distance between robot centres kept beyond the body diameter, for what the model does
 # not know (pose noise, a neighbour's dead-reckoning error, the arc a unicycle drives
