@@ -197,15 +197,16 @@ class Coordinator:
         # only the ones present when e_a is sampled are ever read.
         self._pose_payloads: dict[str, bytes] = {}
         self.recorder = recorder
-        # Every pose payload received while the mission runs, until the recorder takes them
-        # (bounded: a few seconds of the team's poses when recording falls behind).
-        self._pose_backlog: deque[bytes] = deque(maxlen=64 * max(n, 16))
+        # Every (key, pose payload) received while the mission runs, until the recorder
+        # takes them (bounded: a few seconds of the team's poses).
+        self._pose_backlog: deque[tuple[str, bytes]] = deque(maxlen=64 * max(n, 16))
         self._last_pose_time: dict[int, float] = {}  # mission time of each robot's last record
         self._last_record_t = 0.0
         self._next_stats_record = 0.0
         self.recording = {  # what recording cost and what it could not record, counted
             "seconds": 0.0,  # wall time spent in _record (decoding every pose too)
             "skipped_ticks": 0,  # ticks not recorded because recording was too expensive
+            "thinned_poses": 0,  # older poses of a robot left out after skipped ticks
             "backlog_overflow": 0,  # poses dropped because the backlog was full
             "stale_poses": 0,  # poses not newer than the robot's last recorded one
             "rejected_poses": 0,  # payloads that did not decode (ProtocolError)
@@ -244,12 +245,12 @@ class Coordinator:
         if self.clock.state == WAITING:  # the first record holds the poses of one tick
             self._pose_backlog.clear()
         while (sample := self._poses.try_recv()) is not None:
-            payload = sample.payload.to_bytes()
-            self._pose_payloads[str(sample.key_expr)] = payload
+            key, payload = str(sample.key_expr), sample.payload.to_bytes()
+            self._pose_payloads[key] = payload
             if self.recorder is not None:
                 if len(self._pose_backlog) == self._pose_backlog.maxlen:
                     self.recording["backlog_overflow"] += 1
-                self._pose_backlog.append(payload)
+                self._pose_backlog.append((key, payload))
         while (sample := self._states.try_recv()) is not None:
             try:
                 state = AgentState.decode(sample.payload.to_bytes())
@@ -349,19 +350,26 @@ class Coordinator:
         if self.recorder is not None:
             self.recorder.steering(t, event)
 
-    def _record(self, t: float, polygon: np.ndarray) -> float:
+    def _record(self, t: float, polygon: np.ndarray, thin: bool) -> float:
         """Every pose received since the last record, each at the mission time it was
         measured (covswarm.records.observations), S(t), and at lower rates the cells and the
-        agents' stats (covswarm.records.recorder); returns the wall time it took, s."""
+        agents' stats (covswarm.records.recorder). ``thin``: ticks were skipped, record only
+        each robot's newest pose, so that skipping bounds the work. Returns the wall time
+        the poses and S took, s (the cells have their own budget)."""
         from covswarm.protocol import Pose, ProtocolError
         from covswarm.records.observations import Observation, timed_layers
 
         recorder, counts = self.recorder, self.recording
         began = time.perf_counter()
+        payloads = [payload for _, payload in self._pose_backlog]
+        if thin:
+            payloads = list(dict(self._pose_backlog).values())  # the newest per key
+            counts["thinned_poses"] += len(self._pose_backlog) - len(payloads)
+        self._pose_backlog.clear()
         observations = []
-        while self._pose_backlog:
+        for payload in payloads:
             try:
-                pose = Pose.decode(self._pose_backlog.popleft())
+                pose = Pose.decode(payload)
             except ProtocolError:
                 counts["rejected_poses"] += 1
                 continue
@@ -383,14 +391,14 @@ class Coordinator:
             recorder.trajectory_rows(times[order], ids[order].tolist(), poses)
         self._last_record_t = t
         recorder.domain(t, polygon)
+        cost = time.perf_counter() - began
         if recorder.cells_due(t) and (positions := self.alive_positions()):
             team = sorted(positions)
             recorder.cells(t, team, np.array([positions[i] for i in team]), polygon)
         if t >= self._next_stats_record and self.observed.agent_stats:
             recorder.agent_stats(t, self.observed.agent_stats)
             self._next_stats_record = t + STATS_RECORD_PERIOD
-        cost = time.perf_counter() - began
-        counts["seconds"] += cost
+        counts["seconds"] += time.perf_counter() - began
         return cost
 
     def _publish_status(self, state: str, t: float) -> None:
@@ -415,7 +423,7 @@ class Coordinator:
         ticker = Ticker(self.settings.rate, time_scale=self.settings.time_scale)
         next_status = ticker.now()
         every = max(1, round(self.settings.rate / self.settings.sample_rate))
-        ticks_to_sample = ticks_to_record = 0
+        ticks_to_sample = ticks_to_record = skipped = 0
         done_since: float | None = None
         log.info("waiting for %d agents and %d robots", self.settings.agents, self.settings.agents)
         while True:
@@ -460,12 +468,15 @@ class Coordinator:
             if self.recorder is not None and (state == RUNNING or done_since == now):
                 ticks_to_record -= 1
                 if ticks_to_record <= 0 or done_since == now:
-                    cost = self._record(t, polygon)
+                    cost = self._record(t, polygon, thin=skipped > 0)
+                    skipped = 0
+                    # Past RECORD_SHARE of a core, record every k-th tick (newest poses).
                     ticks_to_record = math.ceil(
                         cost / RECORD_SHARE * self.settings.rate * self.settings.time_scale
                     )
                 else:
                     self.recording["skipped_ticks"] += 1
+                    skipped += 1
             finished = done_since is not None and now - done_since >= DONE_HOLD
             if now >= next_status or finished:
                 self._publish_status(state, t)

@@ -154,12 +154,14 @@ def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
         summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()
     }
     ticks = DURATION * TICK_RATE
+    poses_expected = DURATION * POSE_RATE * AGENTS
     assert 0.7 * ticks <= counts["/domain"] <= ticks + 2
     # One /robots message per tick, a second when a robot's two poses arrived in one tick.
     assert 0.7 * counts["/domain"] <= counts["/robots"] <= 2 * counts["/domain"]
     assert counts["/robots"] == json.loads(recording["poses"])
     assert json.loads(recording["skipped_ticks"]) <= 0.1 * ticks  # recording kept up
     assert json.loads(recording["backlog_overflow"]) == 0
+    assert json.loads(recording["thinned_poses"]) <= 0.1 * poses_expected
     (event,) = steering
     assert event["accepted"] in (True, False) and 0 <= event["t"] <= DURATION
     assert event["accepted"] == (steer.returncode == 0)
@@ -168,7 +170,7 @@ def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
     assert counts["/agents/stats"] >= DURATION - 2
     # Every pose the robots published (POSE_RATE each) during the mission, once.
     poses = sum(len(update.entities) for _, update in robots)
-    assert 0.7 * DURATION * POSE_RATE * AGENTS <= poses <= (DURATION + 0.2) * POSE_RATE * AGENTS
+    assert 0.7 * poses_expected <= poses <= (DURATION + 0.2) * POSE_RATE * AGENTS
 
     # Mission time, in order, from the start to the end of the mission.
     assert file_order == sorted(file_order)
