@@ -295,7 +295,37 @@ def live() -> Scenario:
     )
 
 
-BUILTINS = {"circle": circle, "passage": passage, "formation": formation, "live": live}
+def pinwheel() -> Scenario:
+    """A pentagon that turns, orbits and shrinks at once: rotation and scaling of S.
+
+    30 Khepera IV. The pentagon (circumradius 1.4 m) turns at 0.15 rad/s about its centre,
+    its centre circles 1 m around the origin every 60 s, and it shrinks to 0.6 of its size
+    over the 40 s (scale 1 - 0.01 t); its vertices move at up to 0.33 m/s. TVD-D1 lags
+    such a domain by 0.11 m, the domain-motion feedforward by under 1 cm (docs/tracking.md).
+    """
+    angles = 2.0 * math.pi * np.arange(5) / 5
+    pentagon = 1.4 * np.column_stack([np.cos(angles), np.sin(angles)])
+    return Scenario(
+        name="pinwheel",
+        motion=Rigid(
+            polygon=pentagon, radius=1.0, period=60.0, rotation_rate=0.15, scale_rate=-0.01
+        ),
+        agents=30,
+        kappa=2.0,
+        duration=40.0,
+        dt=0.02,
+        dynamics="unicycle",
+        workspace=(-3.0, 3.0, -3.0, 3.0),
+    )
+
+
+BUILTINS = {
+    "circle": circle,
+    "passage": passage,
+    "formation": formation,
+    "pinwheel": pinwheel,
+    "live": live,
+}
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:

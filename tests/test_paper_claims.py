@@ -39,6 +39,7 @@ QUICK = {
     "circle": {"agents": 12, "duration": 16.0, "dt": 0.05},
     "passage": {"agents": 6, "dt": 0.05},
     "formation": {"agents": 8, "duration": 16.0, "dt": 0.05},
+    "pinwheel": {"agents": 10, "duration": 16.0, "dt": 0.05},
 }
 MARGIN = 0.9  # with feedforward <= 0.9 x without: measured 0.01 to 0.6 x
 
