@@ -170,6 +170,11 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     show_default=True,
     help="Port of --console (0: a free one).",
 )
+@click.option(
+    "--max-domain-speed",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Fastest a steered vertex of S may move, m/s [the coordinator's default].",
+)
 @SECURE_OPTION
 def run_command(
     scenario_name: str,
@@ -199,6 +204,7 @@ def run_command(
     record: bool,
     with_console: bool,
     console_port: int,
+    max_domain_speed: float | None,
     secure: Path | None,
 ) -> None:
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
@@ -258,7 +264,10 @@ def run_command(
                 *(("--no-prediction",) if no_prediction else ()),
             ),
             secure=secure,
-            coordinator_args=recording_args(seed, foxglove_port, record),
+            coordinator_args=(
+                *recording_args(seed, foxglove_port, record),
+                *(("--max-domain-speed", repr(max_domain_speed)) if max_domain_speed else ()),
+            ),
         )  # fmt: skip
         if foxglove_port is not None:
             port = "a free port (see the coordinator's log)" if foxglove_port == 0 else (

@@ -75,7 +75,7 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
     from covswarm.coordinator.steer_client import SteeringClient
 
     swarm, out = new_swarm(), tmp_path / "live"
-    args = ("--scenario", "live", "--agents", "3", "--duration", "60")
+    args = ("--scenario", "live", "--agents", "3", "--duration", "60", "--max-domain-speed", "0.4")
     with launch(out, *args, swarm=swarm) as run:
         log = out / "logs" / "coordinator-0.log"
         assert wait_until(
@@ -93,7 +93,9 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
 
             reply = SteeringClient(watcher.session, swarm).translate(0.8, 0.0, duration=2.0)
             assert reply.accepted, reply.reason
-            assert 2.0 <= reply.duration < 6.0  # stretched only to the domain speed limit
+            # 2 s would be too fast: stretched to the limit's 15/8 x 0.8 m / 0.4 m/s.
+            assert reply.duration == pytest.approx(1.875 * 0.8 / 0.4)
+            assert "stretched" in reply.reason
             assert wait_until(lambda: np.abs(watcher.poll().velocities).max() > 0.0, 2.0)
             time.sleep(reply.duration + 0.5)
             moved = watcher.vertices()
@@ -122,6 +124,7 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
         run.send_signal(signal.SIGTERM)
         assert run.wait(timeout=60) == 128 + signal.SIGTERM
     summary = json.loads((out / "summary.json").read_text())
+    assert summary["max_domain_speed"] == 0.4
     records = summary["steering"]
     assert [(r["request"]["kind"], r["accepted"]) for r in records] == [
         ("translate", True),
