@@ -15,6 +15,7 @@ SLACK x that level, and under ABSOLUTE, for good (up to the next request).
 from __future__ import annotations
 
 import json
+import os
 import secrets
 import signal
 import subprocess
@@ -27,7 +28,7 @@ import numpy as np
 from covswarm.deploy.plan import covswarm_argv
 
 SETTLE = 30.0  # s of mission time before the first request
-GAP = 20.0  # s between requests
+GAP = 30.0  # s between requests
 WINDOW = 5.0  # s before a request over which its steady-state level is taken
 SLACK = 2.0  # "back under its level": e_a's floor depends on the robots' headings (the
 # control point is 3 cm ahead of the axle), which a translation changes
@@ -114,6 +115,11 @@ def main(scenario: str, agents: int, speeds: str, repeats: int, out: Path) -> No
             launcher.wait(timeout=60)
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     t, e = np.loadtxt(out / "error.csv", delimiter=",", skiprows=1, unpack=True)
+    # e_a is sampled less often when the coordinator is starved: say how well it was sampled.
+    click.echo(
+        f"load average {os.getloadavg()[0]:.1f} at the end; e_a samples {t.size}, longest gap "
+        f"{np.diff(t).max():.2f} s"
+    )
     times = [r["t"] for r in summary["steering"] if r["accepted"]]
     click.echo(
         f"| request | S moves (s) | e_a before (m) | e_a peak (m) | back under {SLACK:g}x "
