@@ -32,7 +32,7 @@ from __future__ import annotations
 import math
 from collections import Counter
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -367,15 +367,7 @@ def plan(
         span = PEAK_RATE * rate / speed
     if span > MAX_DURATION:
         raise Refusal("too-slow", f"the motion would take {span:.3g} s (> {MAX_DURATION:g} s)")
-    return _with_span(motion, span), note, jump
-
-
-def _with_span(motion: Similarity | Morph, span: float) -> Similarity | Morph:
-    if isinstance(motion, Similarity):
-        return Similarity(
-            motion.start, motion.t0, span, motion.about, motion.shift, motion.angle, motion.factor
-        )
-    return Morph(motion.start, motion.target, motion.t0, span, motion.pairs)
+    return replace(motion, span=span), note, jump
 
 
 @dataclass
