@@ -357,7 +357,7 @@ class Coordinator:
         each robot's newest pose, so that skipping bounds the work. Returns the wall time
         the poses and S took, s (the cells have their own budget)."""
         from covswarm.protocol import Pose, ProtocolError
-        from covswarm.records.observations import Observation, timed_layers
+        from covswarm.records.observations import timed_layers
 
         recorder, counts = self.recorder, self.recording
         began = time.perf_counter()
@@ -373,11 +373,13 @@ class Coordinator:
             except ProtocolError:
                 counts["rejected_poses"] += 1
                 continue
-            observations.append(
-                Observation(pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta)
-            )
+            observations.append((pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta))
         layers, stale = timed_layers(
-            observations, t, self._last_record_t, self._wall(), self._last_pose_time
+            np.array(observations, dtype=float).reshape(-1, 6),
+            t,
+            self._last_record_t,
+            self._wall(),
+            self._last_pose_time,
         )
         counts["stale_poses"] += stale
         for layer in layers:  # one /robots message per layer, no robot twice in one

@@ -9,23 +9,10 @@ pose of the tick, so no layer names a robot twice (a viewer's scene entity per r
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import numpy as np
-
-
-@dataclass(frozen=True)
-class Observation:
-    """One decoded pose: robot id, its sequence number, stamp (s, the run's scaled wall
-    clock), x, y (m), theta (rad)."""
-
-    id: int
-    seq: int
-    stamp: float
-    x: float
-    y: float
-    theta: float
 
 
 @dataclass(frozen=True)
@@ -39,7 +26,7 @@ class Layer:
 
 
 def timed_layers(
-    observations: Sequence[Observation],
+    observations: np.ndarray,
     t: float,
     t_prev: float,
     wall_now: float,
@@ -47,40 +34,39 @@ def timed_layers(
 ) -> tuple[list[Layer], int]:
     """Split one tick's observations into layers; returns (layers, stale).
 
-    t: the tick's mission time; t_prev: the previous record's (the poses were received in
-    between); wall_now: the scaled wall clock at t. A pose measured at stamp s is given
-    mission time t - (wall_now - s), clipped to [t_prev, t] (clocks of other hosts may be
-    off by a little; a pose is never placed outside the interval it arrived in). A pose not
-    later than the robot's ``last_time`` (a repeat or one overtaken in transit) is stale:
-    dropped and counted, so each robot's times strictly increase.
+    observations: (m, 6) rows id, seq, stamp (s, the run's scaled wall clock), x, y (m),
+    theta (rad), in any order; t: the tick's mission time; t_prev: the previous record's
+    (the poses were received in between); wall_now: the scaled wall clock at t. A pose
+    stamped s is given mission time t - (wall_now - s), clipped to [t_prev, t] (clocks of
+    other hosts may be off by a little; a pose is never placed outside the interval it
+    arrived in). A pose not later than the robot's ``last_time`` or its previous pose (a
+    repeat, or one overtaken in transit) is stale: dropped and counted, so each robot's
+    times strictly increase. Vectorised: this runs at the team's pose rate.
     """
-    by_robot: dict[int, list[Observation]] = {}
-    for obs in observations:
-        by_robot.setdefault(obs.id, []).append(obs)
-    stale = 0
-    timed: dict[int, list[tuple[float, Observation]]] = {}
-    for ident, seen in by_robot.items():
-        latest = last_time.get(ident, -np.inf)
-        kept = []
-        for obs in sorted(seen, key=lambda o: o.seq):
-            when = min(max(t - (wall_now - obs.stamp), t_prev), t)
-            if when <= latest:
-                stale += 1
-                continue
-            kept.append((when, obs))
-            latest = when
-        if kept:
-            timed[ident] = kept
-    layers = []
-    depth = max((len(v) for v in timed.values()), default=0)
-    for k in range(depth):
-        ids = sorted(i for i, v in timed.items() if len(v) > k)
-        rows = [timed[i][k] for i in ids]
-        layers.append(
-            Layer(
-                ids=ids,
-                poses=np.array([[o.x, o.y, o.theta] for _, o in rows], dtype=float),
-                times=np.array([when for when, _ in rows], dtype=float),
-            )
-        )
+    rows = np.asarray(observations, dtype=float).reshape(-1, 6)
+    if not len(rows):
+        return [], 0
+    rows = rows[np.lexsort((rows[:, 1], rows[:, 0]))]  # by robot, then sequence number
+    ids = rows[:, 0].astype(np.int64)
+    when = np.clip(t - (wall_now - rows[:, 2]), t_prev, t)
+    first = np.r_[True, ids[1:] != ids[:-1]]
+    group = np.cumsum(first) - 1
+    floor = np.array([last_time.get(int(i), -np.inf) for i in ids[first]])[group]
+    # The latest time before each pose within its robot's run: a running maximum per group
+    # (groups offset by more than the times' range so that one never leaks into the next).
+    span = t - t_prev + 1.0
+    running = np.maximum.accumulate(when + group * span) - group * span
+    before = np.r_[-np.inf, running[:-1]]
+    before[first] = -np.inf
+    keep = when > np.maximum(floor, before)
+    stale = int(np.count_nonzero(~keep))
+    rows, ids, when, group = rows[keep], ids[keep], when[keep], group[keep]
+    if not len(rows):
+        return [], stale
+    first = np.r_[True, group[1:] != group[:-1]]
+    rank = np.arange(len(rows)) - np.maximum.accumulate(np.where(first, np.arange(len(rows)), 0))
+    layers = [
+        Layer(ids=ids[rank == k].tolist(), poses=rows[rank == k, 3:6], times=when[rank == k])
+        for k in range(int(rank.max()) + 1)
+    ]
     return layers, stale

@@ -281,29 +281,64 @@ def test_live_view_on_a_taken_port_is_a_clear_error(tmp_path: Path) -> None:
 
 
 def test_timed_layers_place_every_observed_pose_once_at_its_measured_time() -> None:
-    from covswarm.records.observations import Observation, timed_layers
+    from covswarm.records.observations import timed_layers
 
     wall, t, t_prev = 1000.0, 5.0, 4.95
 
-    def seen(ident: int, seq: int, age: float) -> Observation:
-        return Observation(ident, seq, wall - age, float(ident), float(seq), 0.1 * seq)
+    def seen(ident: int, seq: int, age: float) -> list[float]:
+        return [ident, seq, wall - age, float(ident), float(seq), 0.1 * seq]
 
-    observations = [
+    observations = np.array([
         seen(7, 11, 0.01),  # robot 7's second pose of the tick, listed first
         seen(2, 4, 0.03),
         seen(7, 10, 0.04),
         seen(9, 1, 0.5),  # measured before the previous record: clipped to t_prev
         seen(3, 8, -0.2),  # stamped in the future (another host's clock): clipped to t
         seen(4, 5, 0.02),  # not newer than what was recorded for robot 4: stale
-    ]
+        seen(2, 4, 0.03),  # the same pose delivered twice: stale
+    ])  # fmt: skip
     layers, stale = timed_layers(observations, t, t_prev, wall, {4: 4.99})
-    assert stale == 1
+    assert stale == 2
     assert [layer.ids for layer in layers] == [[2, 3, 7, 9], [7]]
     np.testing.assert_allclose(layers[0].times, [4.97, 5.0, 4.96, 4.95])
     np.testing.assert_allclose(layers[1].times, [4.99])
     np.testing.assert_allclose(layers[0].poses[2], [7.0, 10.0, 1.0])  # seq 10 before 11
     np.testing.assert_allclose(layers[1].poses[0], [7.0, 11.0, 1.1])
-    assert timed_layers([], t, t_prev, wall, {}) == ([], 0)
+    assert timed_layers(np.empty((0, 6)), t, t_prev, wall, {}) == ([], 0)
+
+
+def test_timed_layers_agree_with_a_plain_loop_on_random_ticks() -> None:
+    """The vectorised layers against the rule written as a loop, on random arrivals."""
+    from covswarm.records.observations import timed_layers
+
+    rng = np.random.default_rng(4)
+    for _ in range(50):
+        m = int(rng.integers(1, 40))
+        rows = np.column_stack([
+            rng.integers(0, 6, m), rng.permutation(m), 1000 - rng.uniform(-0.05, 0.2, m),
+            rng.normal(size=(m, 3)),
+        ])  # fmt: skip
+        last = {int(i): float(rng.uniform(4.9, 5.0)) for i in rng.integers(0, 6, 3)}
+        layers, stale = timed_layers(rows, 5.0, 4.9, 1000.0, last)
+        expected: dict[int, list[tuple[float, int]]] = {}
+        dropped = 0
+        for ident in sorted(set(rows[:, 0].astype(int))):
+            latest = last.get(ident, -np.inf)
+            mine = rows[rows[:, 0] == ident]
+            for row in mine[np.argsort(mine[:, 1])]:
+                when = min(max(5.0 - (1000.0 - row[2]), 4.9), 5.0)
+                if when <= latest:
+                    dropped += 1
+                    continue
+                expected.setdefault(ident, []).append((when, int(row[1])))
+                latest = when
+        got: dict[int, list[tuple[float, int]]] = {}
+        for layer in layers:
+            assert layer.ids == sorted(set(layer.ids))  # no robot twice in a layer
+            for ident, when, pose in zip(layer.ids, layer.times, layer.poses, strict=True):
+                seq = int(rows[(rows[:, 0] == ident) & (rows[:, 3] == pose[0]), 1][0])
+                got.setdefault(ident, []).append((float(when), seq))
+        assert stale == dropped and got == expected
 
 
 def test_replay_merges_a_ticks_messages_and_lets_silent_robots_go(tmp_path: Path) -> None:
