@@ -204,7 +204,7 @@ class Coordinator:
         self._last_record_t = 0.0
         self._next_stats_record = 0.0
         self.recording = {  # what recording cost and what it could not record, counted
-            "seconds": 0.0,  # wall time spent in _record (decoding every pose too)
+            "seconds": 0.0,  # CPU time spent in _record (decoding every pose too)
             "skipped_ticks": 0,  # ticks not recorded because recording was too expensive
             "thinned_poses": 0,  # older poses of a robot left out after skipped ticks
             "backlog_overflow": 0,  # poses dropped because the backlog was full
@@ -354,13 +354,14 @@ class Coordinator:
         """Every pose received since the last record, each at the mission time it was
         measured (covswarm.records.observations), S(t), and at lower rates the cells and the
         agents' stats (covswarm.records.recorder). ``thin``: ticks were skipped, record only
-        each robot's newest pose, so that skipping bounds the work. Returns the wall time
-        the poses and S took, s (the cells have their own budget)."""
+        each robot's newest pose, so that skipping bounds the work. Returns the CPU time
+        the poses and S took, s (the cells have their own budget): a busy machine that
+        descheduled us is not recording's cost."""
         from covswarm.protocol import Pose, ProtocolError
         from covswarm.records.observations import timed_layers
 
         recorder, counts = self.recorder, self.recording
-        began = time.perf_counter()
+        began = time.thread_time()
         payloads = [payload for _, payload in self._pose_backlog]
         if thin:
             payloads = list(dict(self._pose_backlog).values())  # the newest per key
@@ -393,14 +394,14 @@ class Coordinator:
             recorder.trajectory_rows(times[order], ids[order].tolist(), poses)
         self._last_record_t = t
         recorder.domain(t, polygon)
-        cost = time.perf_counter() - began
+        cost = time.thread_time() - began
         if recorder.cells_due(t) and (positions := self.alive_positions()):
             team = sorted(positions)
             recorder.cells(t, team, np.array([positions[i] for i in team]), polygon)
         if t >= self._next_stats_record and self.observed.agent_stats:
             recorder.agent_stats(t, self.observed.agent_stats)
             self._next_stats_record = t + STATS_RECORD_PERIOD
-        counts["seconds"] += time.perf_counter() - began
+        counts["seconds"] += time.thread_time() - began
         return cost
 
     def _publish_status(self, state: str, t: float) -> None:
@@ -787,7 +788,7 @@ def coordinator_command(
         mission = coordinator.clock.mission_time(coordinator.clock.stopped_at or 0.0)
         cost = coordinator.recording
         log.info(
-            "recording took %.2f s over %.1f s of mission (%.2f%% of a core); %s; %s",
+            "recording took %.2f s of CPU over %.1f s of mission (%.2f%% of a core); %s; %s",
             cost["seconds"],
             mission,
             100 * cost["seconds"] / max(mission / time_scale, 1e-9),

@@ -242,10 +242,10 @@ class RunRecorder:
         """
         from covswarm.tvd.coverage import cells
 
-        began = time.perf_counter()
+        began = time.thread_time()
         pieces = cells(np.asarray(positions, dtype=float), np.asarray(polygon, dtype=float))
         self._cells.log(scene.cells_update(t, ids, pieces), log_time=self._log_time(t))
-        cost = time.perf_counter() - began
+        cost = time.thread_time() - began
         share = self.cell_share
         self._next_cells = t + (CELL_PERIOD if share is None else max(CELL_PERIOD, cost / share))
         self.counts["cells"] += 1

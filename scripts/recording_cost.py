@@ -8,7 +8,7 @@ process, an embedded router) and the coordinator separately, so the coordinator'
 is read exactly from its own rusage (os.wait4). Runs alternate: with recording, without
 (``--no-record``), with, ... Prints a Markdown table (README) and writes
 OUT/recording_cost.json: per run the coordinator's CPU seconds, its mission time, the wall
-time it logged for recording, and the size of run.mcap per robot-minute.
+CPU time it logged for recording, and the size of run.mcap per robot-minute.
 """
 
 from __future__ import annotations
@@ -26,7 +26,7 @@ import click
 from covswarm.deploy.plan import covswarm_argv
 from covswarm.deploy.router import free_port
 
-RECORDING_LINE = re.compile(r"recording took ([0-9.]+) s over ([0-9.]+) s of mission")
+RECORDING_LINE = re.compile(r"recording took ([0-9.]+) s of CPU over ([0-9.]+) s of mission")
 
 
 def run_once(out: Path, scenario: str, agents: int, duration: float, record: bool) -> dict:
@@ -65,7 +65,7 @@ def run_once(out: Path, scenario: str, agents: int, duration: float, record: boo
     }
     if record:
         found = RECORDING_LINE.search((out / "coordinator.log").read_text(encoding="utf-8"))
-        result["recording_wall_s"] = float(found.group(1)) if found else None
+        result["recording_cpu_s"] = float(found.group(1)) if found else None
         size = (out / "run.mcap").stat().st_size
         result["mcap_bytes"] = size
         result["mcap_kb_per_robot_minute"] = size / 1e3 / (agents * summary["mission_time"] / 60)
@@ -87,12 +87,12 @@ def main(scenario: str, agents: int, duration: float, repeats: int, out: Path) -
             runs.append(run_once(out / name, scenario, agents, duration, record))
     (out / "recording_cost.json").write_text(json.dumps(runs, indent=2) + "\n", encoding="utf-8")
     click.echo(
-        "| run | coordinator CPU, start to exit (s) | recording, logged (s) "
+        "| run | coordinator CPU, start to exit (s) | recording CPU, logged (s) "
         "| run.mcap (KB per robot-minute) |"
     )
     click.echo("|---|---|---|---|")
     for r in runs:
-        logged = r.get("recording_wall_s")
+        logged = r.get("recording_cpu_s")
         size = r.get("mcap_kb_per_robot_minute")
         click.echo(
             f"| {'with' if r['record'] else 'without'} recording | {r['cpu_s']:.2f} | "
