@@ -84,6 +84,12 @@ RUNS: dict[str, dict] = {
     "passage-d1": {"scenario": "passage", "law": "d1"},
     "passage-d1-noff": {"scenario": "passage", "law": "d1", "feedforward": False},
     "passage-da": {"scenario": "passage", "law": "da"},
+    "passage-c": {"scenario": "passage", "law": "c"},
+    "formation-c": {"scenario": "formation", "law": "c"},
+    "pinwheel-d1": {"scenario": "pinwheel", "law": "d1"},
+    "pinwheel-d1-noff": {"scenario": "pinwheel", "law": "d1", "feedforward": False},
+    "pinwheel-c": {"scenario": "pinwheel", "law": "c"},
+    "pinwheel-da": {"scenario": "pinwheel", "law": "da"},
     "formation-d1": {"scenario": "formation", "law": "d1"},
     "formation-d1-noff": {"scenario": "formation", "law": "d1", "feedforward": False},
     "formation-da": {"scenario": "formation", "law": "da"},
@@ -132,20 +138,25 @@ class Figure:
     band: float
 
 
-def e_a(run: str, value: float) -> Figure:
+def e_a(run: str, text: str) -> Figure:
+    """A steady-state e_a as the README writes it, e.g. "0.0900 m"."""
+    value = float(text.removesuffix(" m"))
     band = max(E_A_REL * value, E_A_ABS)
-    return Figure(f"{value:g} m", lambda sims: sims[run]["e_a"], value, band)
+    return Figure(text, lambda sims: sims[run]["e_a"], value, band)
 
 
-def improvement(run: str, without: str, value: float) -> Figure:
+def improvement(run: str, without: str, text: str) -> Figure:
+    """An improvement as the README writes it, e.g. "25.0 %"."""
+
     def measure(sims: dict[str, dict]) -> float:
         return 1.0 - sims[run]["e_a"] / sims[without]["e_a"]
 
-    return Figure(f"{100 * value:.1f} %", measure, value, POINTS)
+    return Figure(text, measure, float(text.removesuffix(" %")) / 100, POINTS)
 
 
-def fallbacks(run: str, value: float) -> Figure:
-    return Figure(f"{100 * value:.1f} %", lambda sims: sims[run]["fallback_rate"], value, POINTS)
+def fallbacks(run: str, text: str) -> Figure:
+    value = float(text.removesuffix(" %")) / 100
+    return Figure(text, lambda sims: sims[run]["fallback_rate"], value, POINTS)
 
 
 def no_guard(run: str) -> Figure:
@@ -166,32 +177,46 @@ def times_better(run: str, than: str, value: float) -> Figure:
 
 # (where in the README: a table row's start, or a phrase of a paragraph; its figures)
 FIGURES: list[tuple[str, list[Figure]]] = [
-    ("| TVD-D1 |", [e_a("circle-d1", 0.0893), e_a("circle-d1-noff", 0.1203),
-                    improvement("circle-d1", "circle-d1-noff", 0.258)]),
-    ("| TVD-C exact", [e_a("circle-c-exact", 0.0876), e_a("circle-c-exact-noff", 0.1659),
-                       improvement("circle-c-exact", "circle-c-exact-noff", 0.472),
-                       fallbacks("circle-c-exact", 0.988)]),
+    ("| TVD-D1 |", [e_a("circle-d1", "0.0900 m"), e_a("circle-d1-noff", "0.1199 m"),
+                    improvement("circle-d1", "circle-d1-noff", "25.0 %")]),
+    ("| TVD-C exact", [e_a("circle-c-exact", "0.0876 m"), e_a("circle-c-exact-noff", "0.1444 m"),
+                       improvement("circle-c-exact", "circle-c-exact-noff", "39.4 %"),
+                       fallbacks("circle-c-exact", "99.2 %")]),
     ("| TVD-C, feedforward damped toward 0", [
-        e_a("circle-c-zero", 0.0966), e_a("circle-c-noff", 0.1834),
-        improvement("circle-c-zero", "circle-c-noff", 0.473), no_guard("circle-c-zero")]),
+        e_a("circle-c-zero", "0.0996 m"), e_a("circle-c-noff", "0.1838 m"),
+        improvement("circle-c-zero", "circle-c-noff", "45.8 %"), no_guard("circle-c-zero")]),
     ("| TVD-C, feedforward damped toward v(p)", [
-        e_a("circle-c", 0.00048), e_a("circle-c-noff", 0.1834),
-        improvement("circle-c", "circle-c-noff", 0.997), no_guard("circle-c")]),
-    ("| **TVD-DA**", [e_a("circle-da", 0.00016), e_a("circle-d1-noff", 0.1203),
-                      improvement("circle-da", "circle-d1-noff", 0.999), no_guard("circle-da")]),
+        e_a("circle-c", "0.0019 m"), e_a("circle-c-noff", "0.1838 m"),
+        improvement("circle-c", "circle-c-noff", "99.0 %"), no_guard("circle-c")]),
+    ("| **TVD-DA**", [e_a("circle-da", "0.00020 m"), e_a("circle-d1-noff", "0.1199 m"),
+                      improvement("circle-da", "circle-d1-noff", "99.8 %"),
+                      no_guard("circle-da")]),
     ("| `covswarm sim` (unicycle) |", [
-        e_a("passage-d1", 0.0541), e_a("passage-d1-noff", 0.0962),
-        improvement("passage-d1", "passage-d1-noff", 0.438), e_a("passage-da", 0.00092)]),
+        e_a("passage-d1", "0.0534 m"), e_a("passage-d1-noff", "0.0981 m"),
+        improvement("passage-d1", "passage-d1-noff", "45.6 %"), e_a("passage-da", "0.0061 m")]),
+    # The laws side by side (TVD-C damped; "without" is d1's and da's).
+    ("| circle, 100 single integrators", [
+        e_a("circle-d1", "0.0900 m"), e_a("circle-c", "0.0019 m"), e_a("circle-da", "0.00020 m"),
+        e_a("circle-d1-noff", "0.1199 m")]),
+    ("| passage, 10 Khepera IV", [
+        e_a("passage-d1", "0.0534 m"), e_a("passage-c", "0.0265 m"),
+        e_a("passage-da", "0.0061 m"), e_a("passage-d1-noff", "0.0981 m")]),
+    ("| formation, 20, moving density", [
+        e_a("formation-d1", "0.0434 m"), e_a("formation-c", "0.0100 m"),
+        e_a("formation-da", "0.0118 m"), e_a("formation-d1-noff", "0.0658 m")]),
+    ("| pinwheel, 30 Khepera IV", [
+        e_a("pinwheel-d1", "0.1118 m"), e_a("pinwheel-c", "0.0113 m"),
+        e_a("pinwheel-da", "0.0073 m"), e_a("pinwheel-d1-noff", "0.1764 m")]),
     ("| `covswarm sim --scenario passage` (same unicycle model", [  # beside the live run
-        e_a("passage-d1", 0.0541), e_a("passage-d1-noff", 0.0962),
-        improvement("passage-d1", "passage-d1-noff", 0.438)]),
+        e_a("passage-d1", "0.0534 m"), e_a("passage-d1-noff", "0.0981 m"),
+        improvement("passage-d1", "passage-d1-noff", "45.6 %"), e_a("passage-da", "0.0061 m")]),
     ("a bump that drifts and turns so the team gathers on one side", [
-        e_a("formation-d1", 0.0445), e_a("formation-d1-noff", 0.0659),
-        improvement("formation-d1", "formation-d1-noff", 0.325), e_a("formation-da", 0.0114),
-        times_better("formation-da", "formation-d1", 3.9)]),
+        e_a("formation-d1", "0.0434 m"), e_a("formation-d1-noff", "0.0658 m"),
+        improvement("formation-d1", "formation-d1-noff", "34.0 %"),
+        e_a("formation-da", "0.0118 m"), times_better("formation-da", "formation-d1", 3.7)]),
 ]  # fmt: skip
 # Paper Table 1: mean over seeds 0-4 of the number of robots with k neighbours, k = 1..8.
-TABLE_1 = {1: 0.8, 2: 2.2, 3: 10.4, 4: 23.0, 5: 14.0, 6: 41.8, 7: 7.6, 8: 0.2}
+TABLE_1 = {1: 0.8, 2: 3.2, 3: 8.2, 4: 26.6, 5: 15.0, 6: 36.2, 7: 9.6, 8: 0.4}
 TABLE_1_ROW = "| covswarm (mean of 5) |"
 
 
