@@ -16,7 +16,7 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
   correction (I + J) rho carries whatever the affine guess misses (non-affine vertex motion,
   a moving density, shear). Same information as a TVD-D1 step. The issue's first form kept
   Lloyd's feedback kappa (c - p) outside (I + J); the Neumann factor on the feedback too
-  halves the decay time of the slow modes and measured 1.2 to 3 times lower errors
+  halves the decay time of the slow modes and measured 1.4 to 9 times lower errors
   (docs/tracking.md).
 - TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=None``; by
   default the feedback stays outside the inverse and only the feedforward is solved, damped
