@@ -73,6 +73,7 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
     tmp_path: Path,
 ) -> None:
     from covswarm.coordinator.steer_client import SteeringClient
+    from covswarm.tvd.coverage import aggregate_error
 
     swarm, out = new_swarm(), tmp_path / "live"
     args = ("--scenario", "live", "--agents", "3", "--duration", "60", "--max-domain-speed", "0.4")
@@ -101,13 +102,15 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
             moved = watcher.vertices()
             np.testing.assert_allclose(moved, start + [0.8, 0.0], atol=1e-9)
             assert np.abs(np.array(watcher.domain.velocities)).max() == 0.0
-            # The robots follow: their mean moves with S, within a few cm once settled.
-            assert wait_until(
-                lambda: (
-                    abs(watcher.robots().mean(axis=0)[0] - robots_start.mean(0)[0] - 0.8) < 0.05
-                ),
-                8.0,
-            ), watcher.robots()
+
+            # The robots follow: they moved with S and cover the moved S (at a CVT of it,
+            # e_a within a few cm; the team may settle into another CVT than before).
+            def followed() -> bool:
+                robots = watcher.robots()
+                shift = robots.mean(axis=0)[0] - robots_start.mean(axis=0)[0]
+                return shift > 0.6 and aggregate_error(robots, moved) < 0.03
+
+            assert wait_until(followed, 10.0), (robots_start, watcher.robots())
 
             refused = steer_cli(endpoint, swarm, "--polygon", "0,0;1,0;0.2,0.2;0,1")
             assert refused.returncode == 1, refused.stderr
