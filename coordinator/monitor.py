@@ -27,6 +27,11 @@ class MissionClock:
     duration: float
     started_at: float | None = None
     stopped_at: float | None = None
+    # s the team must have been up before the mission starts (0: at once). Agents meet their
+    # neighbours through beacons sent within a second of a teammate's token; a robot that
+    # moves before it knows who is next to it cannot avoid them.
+    settle: float = 0.0
+    ready_since: float | None = None
 
     @property
     def state(self) -> str:
@@ -36,7 +41,11 @@ class MissionClock:
 
     def update(self, now: float, team_ready: bool) -> str:
         """Advance the state machine; returns the state at ``now``."""
-        if self.started_at is None and team_ready:
+        if not team_ready:
+            self.ready_since = None
+        elif self.ready_since is None:
+            self.ready_since = now
+        if self.started_at is None and team_ready and now - self.ready_since >= self.settle:
             self.started_at = now
         if self.state == RUNNING and now - self.started_at >= self.duration:
             self.stopped_at = self.started_at + self.duration

@@ -53,6 +53,10 @@ if TYPE_CHECKING:
 log = logging.getLogger("covswarm.coordinator")
 
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
+# s the whole team holds its tokens before the mission starts: every agent has then had its
+# early beacons (within a second of the last token) and knows the robots next to it, which
+# its safety filter needs before its robot moves (coordinator.monitor.MissionClock.settle).
+START_SETTLE = 1.5
 STATUS_PERIOD = 0.5  # s
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
@@ -155,7 +159,7 @@ class Coordinator:
 
         self.settings = settings
         self.observed = Observed()
-        self.clock = MissionClock(settings.duration)
+        self.clock = MissionClock(settings.duration, settle=START_SETTLE)
         # Mission-time clocks: the clock ticks and the stamps agents extrapolate from.
         self._mono = scaled(time.monotonic, settings.time_scale)
         self._wall = scaled(time.time, settings.time_scale)

@@ -105,6 +105,16 @@ def test_agent_figures_summarise_whatever_stats_agents_send() -> None:
     assert agent_figures({}) == {"team": {}, "per_agent": {}}
 
 
+def test_the_mission_waits_for_the_team_to_settle() -> None:
+    clock = MissionClock(duration=10.0, settle=1.5)
+    assert clock.update(0.0, team_ready=True) == WAITING
+    assert clock.update(1.0, team_ready=False) == WAITING  # a member left: start over
+    assert clock.update(2.0, team_ready=True) == WAITING
+    assert clock.update(3.4, team_ready=True) == WAITING
+    assert clock.update(3.5, team_ready=True) == RUNNING
+    assert clock.mission_time(4.0) == pytest.approx(0.5)
+
+
 def test_summary_has_the_sim_keys_and_process_figures() -> None:
     from covswarm.coordinator.process import Observed, Settings, build_summary
     from covswarm.mission.scenarios import load_scenario
