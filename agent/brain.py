@@ -78,8 +78,12 @@ MAX_PREDICTION = 1.0
 DOMAIN_RESTART_SILENCE = 0.5
 # m: robots within this distance of ours enter the safety filter (and their AgentStates are
 # followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
-# have none). At 0.8 m/s two robots close 0.16 m per 10 Hz period.
-SAFETY_RADIUS = 1.0
+# have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
+# (0.8 m/s each) close in two 10 Hz periods (0.32 m). Farther is not safer, only dearer: at
+# 1 m, a 100-robot circle run (0.2 m spacing) followed ~75 states per agent, 436 messages/s,
+# missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
+# about the two-hop set, which the coverage step follows anyway.
+SAFETY_RADIUS = 0.5
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
 # last known position for the safety filter this long after it left the coverage step.
 OBSTACLE_MEMORY = 30.0
@@ -224,8 +228,11 @@ class AgentBrain:
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
         self.mission_clock = MissionClock()
         self._domain_received = -math.inf
-        # id -> (x, y, when last a candidate, monotonic): robots that left the candidates
+        # id -> (x, y, when it vanished, monotonic): robots heard first-hand within
+        # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
+        # robot): they stay where they were, and the safety filter steers around them.
         self.obstacles: dict[int, tuple[float, float, float]] = {}
+        self._near_first_hand: dict[int, tuple[float, float]] = {}
         self.domain: protocol.Domain | None = None
         self.density: Density | None = None  # the domain's density, validated (None: uniform)
         self.neighbourhood = Neighbourhood(
@@ -542,13 +549,24 @@ class AgentBrain:
         config = self.config
         me = pose[:2]
         reckoned = self.neighbourhood.reckoned
-        for rid, (x, y, _, _) in reckoned.items():
-            self.obstacles[rid] = (x, y, now)
+        # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
+        # that merely left our candidates as the team moved on (its relays and states went
+        # to others) would be a phantom where it was, and phantoms across a moving team's
+        # path held robots back until they lost the domain (100-robot circle: e_a 5.7 m).
+        for rid, (x, y) in self._near_first_hand.items():
+            if rid not in reckoned:
+                self.obstacles[rid] = (x, y, now)
+        self._near_first_hand = {
+            rid: (x, y)
+            for rid in self.neighbourhood.first_hand
+            for x, y, _, _ in (reckoned[rid],)
+            if math.hypot(x - me[0], y - me[1]) <= SAFETY_RADIUS
+        }
         dead = self.neighbourhood.dead
         for rid in [
             r
-            for r, (_, _, seen) in self.obstacles.items()
-            if now - seen > OBSTACLE_MEMORY or "robot" in dead.get(r, ())
+            for r, (_, _, since) in self.obstacles.items()
+            if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
         rows = [(x, y, vx, vy) for x, y, vx, vy in reckoned.values()]
