@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
+from live_runs import swarm_pids, wait_until
 from rosbags.typesys import Stores, get_typestore
 
 from covswarm import protocol
@@ -125,15 +126,6 @@ def router() -> Iterator[str]:
     with process([sys.executable, "-c", ROUTER, endpoint], text=True) as child:
         assert child.stdout.readline().strip() == "ready"
         yield endpoint
-
-
-def wait_until(predicate, timeout: float, period: float = 0.2) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(period)
-    return predicate()
 
 
 def next_sample(subscriber: zenoh.Subscriber, timeout: float) -> zenoh.Sample:
@@ -245,23 +237,6 @@ def test_a_zenoh_ros2_sdk_node_and_the_bridge_understand_each_other(tmp_path: Pa
         assert bridge.wait(timeout=10) == 0
     log = (tmp_path / "bridge.log").read_text()
     assert "robot 5: 10 commands" in log and "dropped none" in log, log
-
-
-def swarm_pids(swarm: str, *words: str) -> set[int]:
-    """Live (non-zombie) processes whose command line names ``swarm`` and ``words``."""
-    wanted = {swarm.encode(), *(w.encode() for w in words)}
-    pids = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue  # exited while we looked
-        if wanted <= set(cmdline) and state != "Z":
-            pids.add(int(entry.name))
-    return pids
 
 
 def mission_started(log: Path) -> bool:

@@ -24,6 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from live_runs import swarm_pids, wait_until
 from playwright.sync_api import sync_playwright
 
 from covswarm.deploy.plan import covswarm_argv
@@ -40,31 +41,6 @@ CHROMIUM_ARGS = [
     "--no-first-run",
 ]
 TEAM = 3
-
-
-def swarm_pids(swarm: str) -> set[int]:
-    """Live (non-zombie) processes whose command line names ``swarm``."""
-    pids = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
-            state = (entry / "stat").read_text().rsplit(")", 1)[1].split()[0]
-        except OSError:
-            continue
-        if swarm.encode() in cmdline and state != "Z":
-            pids.add(int(entry.name))
-    return pids
-
-
-def wait_until(predicate, timeout: float, period: float = 0.1) -> bool:
-    deadline = time.monotonic() + timeout
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(period)
-    return predicate()
 
 
 @pytest.fixture(scope="module")
@@ -285,6 +261,15 @@ def test_rotate_scale_and_vertex_handles_steer_what_was_dragged(
     from shapely.geometry import Polygon
 
     with console(*swarm_run) as url:
+        # S back to the workspace's middle first: the module's earlier tests leave it near an
+        # edge, where a quarter turn would be refused as leaving the workspace.
+        dx, dy = -centroid(watch.latest())
+        status, reply = post_json(
+            url.rstrip("/") + "/api/steer",
+            json.dumps({"kind": "translate", "dx": float(dx), "dy": float(dy)}).encode(),
+        )
+        assert status == 200 and reply["accepted"], reply
+        time.sleep(reply["duration"] + 0.5)
         page = browser.new_page(viewport={"width": 1100, "height": 700})
         page.goto(url)
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
