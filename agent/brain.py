@@ -25,7 +25,7 @@ from __future__ import annotations
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 
 import numpy as np
@@ -533,10 +533,16 @@ class AgentBrain:
         AgentStates whether or not they are Voronoi neighbours)."""
         if self.pose is None:
             return set()
-        x, y = self.pose.x, self.pose.y
+        return set(self._near(self.neighbourhood.reckoned, self.pose.x, self.pose.y))
+
+    def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
+        """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
+        positions."""
+        reckoned = self.neighbourhood.reckoned
         return {
-            rid
-            for rid, (rx, ry, _, _) in self.neighbourhood.reckoned.items()
+            rid: (rx, ry)
+            for rid in ids
+            for rx, ry, _, _ in (reckoned[rid],)
             if math.hypot(rx - x, ry - y) <= SAFETY_RADIUS
         }
 
@@ -556,12 +562,7 @@ class AgentBrain:
         for rid, (x, y) in self._near_first_hand.items():
             if rid not in reckoned:
                 self.obstacles[rid] = (x, y, now)
-        self._near_first_hand = {
-            rid: (x, y)
-            for rid in self.neighbourhood.first_hand
-            for x, y, _, _ in (reckoned[rid],)
-            if math.hypot(x - me[0], y - me[1]) <= SAFETY_RADIUS
-        }
+        self._near_first_hand = self._near(self.neighbourhood.first_hand, *me)
         dead = self.neighbourhood.dead
         for rid in [
             r
@@ -570,7 +571,7 @@ class AgentBrain:
         ]:
             del self.obstacles[rid]
         rows = [(x, y, vx, vy) for x, y, vx, vy in reckoned.values()]
-        rows += [(x, y, 0.0, 0.0) for r, (x, y, _) in self.obstacles.items() if r not in reckoned]
+        rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
         result = safe_velocity(
