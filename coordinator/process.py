@@ -43,7 +43,7 @@ from covswarm.coordinator.monitor import (
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
 from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.records.live import DEFAULT_PORT
+from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
@@ -702,16 +702,7 @@ def write_run_outputs(
     show_default=True,
     help="Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).",
 )
-@click.option(
-    "--foxglove",
-    "foxglove_port",
-    type=click.IntRange(0, 65535),
-    is_flag=False,
-    flag_value=DEFAULT_PORT,
-    default=None,
-    help=f"Serve the recorded channels live to Foxglove on ws://127.0.0.1:PORT "
-    f"[{DEFAULT_PORT} when given without a port; 0 picks a free one].",
-)
+@FOXGLOVE_OPTION
 @click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")
 @TIME_SCALE_OPTION
 @SECURE_OPTION

@@ -31,7 +31,7 @@ from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.records.live import DEFAULT_PORT, LIVE_HOST, port_is_free
+from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
 
@@ -141,16 +141,7 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     show_default=True,
     help="Give up if the team is not up after this many s.",
 )
-@click.option(
-    "--foxglove",
-    "foxglove_port",
-    type=click.IntRange(0, 65535),
-    is_flag=False,
-    flag_value=DEFAULT_PORT,
-    default=None,
-    help=f"Live view: the coordinator serves the run's channels to Foxglove on "
-    f"ws://127.0.0.1:PORT [{DEFAULT_PORT} without a port] (docs/records.md).",
-)
+@FOXGLOVE_OPTION
 @click.option(
     "--record/--no-record",
     default=True,

@@ -4,8 +4,23 @@ from __future__ import annotations
 
 import socket
 
+import click
+
 LIVE_HOST = "127.0.0.1"  # the live view never listens beyond this machine
 DEFAULT_PORT = 8765  # Foxglove's usual WebSocket port
+
+# ``covswarm coordinator --foxglove`` and ``covswarm run --foxglove`` (passed on to it).
+FOXGLOVE_OPTION = click.option(
+    "--foxglove",
+    "foxglove_port",
+    type=click.IntRange(0, 65535),
+    is_flag=False,
+    flag_value=DEFAULT_PORT,
+    default=None,
+    help=f"Live view: the coordinator serves the run's channels to Foxglove on "
+    f"ws://{LIVE_HOST}:PORT [{DEFAULT_PORT} without a port; 0 picks a free one] "
+    f"(docs/records.md).",
+)
 
 
 def port_is_free(port: int, host: str = LIVE_HOST) -> bool:
