@@ -37,6 +37,7 @@ from covswarm.coordinator.monitor import (
     agent_figures,
     agent_guards,
     losses_summary,
+    measurement_time,
     team_changes_summary,
     team_of,
 )
@@ -123,6 +124,7 @@ class Observed:
     record: ErrorRecord = field(default_factory=ErrorRecord)
     liveness: Liveness = field(default_factory=Liveness)
     poses: dict[int, tuple[float, float]] = field(default_factory=dict)
+    pose_stamps: dict[int, float] = field(default_factory=dict)  # s, the run's wall clock
     agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
     rejected: int = 0  # messages dropped as malformed (ProtocolError)
     started_wall: float | None = None
@@ -276,6 +278,7 @@ class Coordinator:
                 obs.rejected += 1
                 continue
             obs.poses[pose.id] = (pose.x, pose.y)
+            obs.pose_stamps[pose.id] = pose.stamp
         self._pose_payloads.clear()
 
     def team_ready(self) -> bool:
@@ -334,18 +337,29 @@ class Coordinator:
         return vertices
 
     def _sample(self, t: float, polygon: np.ndarray) -> None:
+        """One e_a sample, against S at the time the team's poses were measured."""
         from covswarm.tvd.coverage import aggregate_error
 
         positions = self.alive_positions()
         if not positions:
             return
         ids = sorted(positions)
+        record = self.observed.record
+        measured = t
+        if self.clock.state == RUNNING:  # once done, S holds still at S(duration)
+            measured = measurement_time(
+                t,
+                self._wall(),
+                [self.observed.pose_stamps[i] for i in ids],
+                record.t[-1] if record.t else 0.0,
+            )
+            polygon = self.steering.domain(measured)[0]
         error = aggregate_error(
-            np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(t)
+            np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(measured)
         )
-        self.observed.record.add(t, error, positions, polygon)
+        record.add(measured, error, positions, polygon)
         if self.recorder is not None:
-            self.recorder.error(t, error, len(ids))
+            self.recorder.error(measured, error, len(ids))
 
     # -- recording ------------------------------------------------------------------------
 

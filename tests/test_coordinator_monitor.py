@@ -7,6 +7,7 @@ import pytest
 
 from covswarm.coordinator.monitor import (
     DONE,
+    MAX_POSE_AGE,
     RUNNING,
     WAITING,
     ErrorRecord,
@@ -14,6 +15,7 @@ from covswarm.coordinator.monitor import (
     MissionClock,
     agent_figures,
     losses_summary,
+    measurement_time,
 )
 
 
@@ -166,3 +168,20 @@ def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
     assert swarm_tile_size(passage, 10) == pytest.approx(
         TILE_SPACINGS * (1.2 * 1.6 / 10) ** 0.5, abs=1e-3
     )
+
+
+def test_e_a_is_placed_at_the_mean_time_its_poses_were_measured() -> None:
+    # Mission time 10 s at wall 1000 s: poses 20 ms and 40 ms old were measured at 9.97 s.
+    assert measurement_time(10.0, 1000.0, [999.98, 999.96], earliest=9.5) == pytest.approx(9.97)
+    assert measurement_time(10.0, 1000.0, [], earliest=9.5) == 10.0
+
+
+def test_measurement_time_stays_in_order_and_within_the_age_bound() -> None:
+    # A pose from a robot that went quiet long ago does not drag the sample back further.
+    assert measurement_time(10.0, 1000.0, [990.0], earliest=0.0) == 10.0 - MAX_POSE_AGE
+    # Never before the previous sample, never after now (a clock ahead of ours).
+    assert measurement_time(10.0, 1000.0, [999.9], earliest=9.95) == 9.95
+    assert measurement_time(10.0, 1000.0, [1000.3], earliest=9.0) == 10.0
+    assert measurement_time(10.0, 1000.0, [float("nan")], earliest=9.0) == 10.0
+    # At the mission's start there is nothing earlier than 0.
+    assert measurement_time(0.0, 1000.0, [999.9], earliest=0.0) == 0.0
