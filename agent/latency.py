@@ -6,7 +6,7 @@ Three pure pieces (no I/O), used by the agent brain:
   estimate of the robot's pose at the time a new command will act. The latest pose is
   stamped when it was taken; the agent knows every wheel command it sent since (and the one
   the robot was driving then), so it integrates them forward in exact arcs, saturated and
-  timed out exactly as ``sim_robot`` drives them (covswarm.tvd.drive.integrate, the
+  timed out exactly as ``sim_robot`` drives them (covswarm.tvd.drive.integrate_one, the
   robot's ``cmd_timeout``). Controlling from the prediction removes the pose-to-command
   latency from the heading loop, which is what made a late heading over-steer.
 - :class:`ClockBound`: how far another host's stamps can be trusted. ``receipt - stamp`` =
@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate_one
 
 # s: commands kept for prediction. Poses older than this are not predicted (the agent treats
 # its pose as stale long before: --stale-timeout).
@@ -107,10 +107,10 @@ class CommandHistory:
         Exact arcs of the commands in :meth:`segments` (a ``target`` before ``taken`` returns
         the pose unchanged: nothing to undo). pose: (3,).
         """
-        pose = np.asarray(pose, dtype=float).reshape(1, 3)
+        x, y, heading = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
         for duration, left, right in self.segments(taken, target):
-            pose = integrate(pose, np.array([[left, right]]), duration, self.robot)
-        return pose[0]
+            x, y, heading = integrate_one(x, y, heading, left, right, duration, self.robot)
+        return np.array([x, y, heading])
 
 
 class _WindowedExtreme:

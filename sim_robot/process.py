@@ -8,7 +8,7 @@ honour, and agents see nothing else of a robot:
 - declare the liveliness token ``covswarm/<swarm>/alive/robot/<id>`` once ready, and refuse
   to start if another process already claims the same id (runtime.claims.claim).
 
-The robot integrates its kinematics (tvd.drive.integrate, exact arcs) at ``--rate``
+The robot integrates its kinematics (tvd.drive.integrate_one, exact arcs) at ``--rate``
 from the last valid command and stops its wheels when no valid command arrived for
 ``--cmd-timeout`` seconds (an agent that dies or stalls must not leave its robot driving).
 Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
@@ -43,7 +43,7 @@ from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate_one
 
 log = logging.getLogger("covswarm.robot")
 
@@ -125,7 +125,9 @@ class RobotSim:
         dt = min(max(now - self._last_step, 0.0), self.cmd_timeout)
         self._last_step = now
         if dt > 0.0:
-            self.pose = integrate(self.pose[None], self.wheels[None], dt, self.robot)[0]
+            self.pose = np.array(
+                integrate_one(*self.pose.tolist(), *self.wheels.tolist(), dt, self.robot)
+            )
         return self.pose
 
     def pose_message(self, stamp: float, seq: int) -> protocol.Pose:

@@ -11,6 +11,7 @@ from covswarm.tvd.drive import (
     DiffDrive,
     achieved_velocity,
     integrate,
+    integrate_one,
     wheel_speeds,
 )
 
@@ -137,3 +138,17 @@ def test_achieved_velocity_inverts_the_wheel_mapping() -> None:
     ratio = np.linalg.norm(got, axis=1) / np.linalg.norm(fast, axis=1)
     assert np.all(ratio < 1.0)
     assert got == pytest.approx(ratio[:, None] * fast, abs=1e-12)
+
+
+def test_integrate_one_is_integrate_for_one_robot() -> None:
+    rng = np.random.default_rng(7)
+    poses = np.column_stack([rng.uniform(-3, 3, (400, 2)), rng.uniform(-np.pi, np.pi, 400)])
+    wheels = rng.uniform(-1.5, 1.5, (400, 2))  # beyond the limit too: clamped alike
+    wheels[:50, 1] = wheels[:50, 0]  # straight lines (turn exactly 0)
+    wheels[50:60, 0] = np.nan  # a non-finite rim speed counts as 0
+    wheels[60:70, 1] = np.inf
+    dts = rng.uniform(0.0, 0.6, 400)
+    for pose, wheel, dt in zip(poses, wheels, dts, strict=True):
+        expected = integrate(pose[None], wheel[None], dt)[0]
+        got = integrate_one(*pose.tolist(), *wheel.tolist(), dt)
+        np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)

@@ -24,6 +24,7 @@ Pure numpy, no I/O: imported by agent and robot processes.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -128,3 +129,26 @@ def integrate(
     out[:, 1] = poses[:, 1] + chord * np.sin(mid)
     out[:, 2] = (heading + turn + np.pi) % (2.0 * np.pi) - np.pi
     return out
+
+
+def integrate_one(
+    x: float, y: float, heading: float, left: float, right: float, dt: float,
+    robot: DiffDrive = KHEPERA_IV,
+) -> tuple[float, float, float]:  # fmt: skip
+    """:func:`integrate` for one robot in plain floats: (x m, y m, heading rad) after
+    driving rim speeds ``left``, ``right`` (m/s) for ``dt`` s, with the same clamping and
+    the same arc. An agent predicts its pose along a few such segments every step, where
+    numpy's per-call overhead is most of integrate's cost for a single row."""
+    limit = robot.max_wheel_speed
+    left = min(max(left, -limit), limit) if math.isfinite(left) else 0.0
+    right = min(max(right, -limit), limit) if math.isfinite(right) else 0.0
+    v = 0.5 * (left + right)
+    turn = (right - left) / robot.wheel_separation * dt
+    half = 0.5 * turn
+    chord = v * dt * (math.sin(half) / half if half != 0.0 else 1.0)
+    mid = heading + half
+    return (
+        x + chord * math.cos(mid),
+        y + chord * math.sin(mid),
+        (heading + turn + math.pi) % (2.0 * math.pi) - math.pi,
+    )
