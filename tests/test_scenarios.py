@@ -7,6 +7,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+import shapely
 
 from covswarm.mission.motion import Keyframes, Rigid
 from covswarm.mission.scenario_files import scenario_from_dict
@@ -261,3 +262,24 @@ def test_scenario_from_dict_defaults() -> None:
     )
     assert scenario.dynamics == "single" and scenario.initial_box is None
     assert scenario.obstacles == () and scenario.workspace is None
+
+
+def test_formation_100_is_the_formation_scaled_for_100_robots() -> None:
+    """scenarios/formation-100.toml's comment: every length of the built-in times sqrt(5),
+    speeds likewise, so that 100 robots have the area per robot that 20 have there."""
+    root = Path(__file__).resolve().parents[1]
+    big, small = (
+        load_scenario(root / "scenarios" / "formation-100.toml"),
+        load_scenario("formation"),
+    )
+    k = math.sqrt(5.0)
+    assert (big.agents, small.agents) == (100, 20)
+    rng = np.random.default_rng(3)
+    for t in (0.0, 7.3, 21.0, 39.9):
+        (v_big, u_big), (v_small, u_small) = big.motion(t), small.motion(t)
+        np.testing.assert_allclose(v_big, k * v_small, atol=1e-3)
+        np.testing.assert_allclose(u_big, k * u_small, atol=1e-3)
+        q = rng.uniform(-1.0, 1.0, (50, 2))
+        np.testing.assert_allclose(big.density(t).phi(k * q), small.density(t).phi(q), rtol=1e-3)
+        area_big, area_small = (shapely.Polygon(v).area for v in (v_big, v_small))
+        assert area_big / 100 == pytest.approx(area_small / 20, rel=1e-3)
