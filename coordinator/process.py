@@ -42,6 +42,7 @@ from covswarm.coordinator.monitor import (
     team_of,
 )
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
+from covswarm.mission.crowding import crowding
 from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION
@@ -541,6 +542,7 @@ def build_summary(
         "agent_stats": agent_figures(observed.agent_stats),
         "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
+        "crowding": crowding(settings.scenario, settings.agents, settings.duration).to_dict(),
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
         **({} if steering is None else steering_summary(steering)),
@@ -769,6 +771,8 @@ def coordinator_command(
         tile_size=swarm_tile_size(scenario, team) if tile_size is None else tile_size,
         max_domain_speed=max_domain_speed,
     )
+    if (crowd := crowding(scenario, team, settings.duration)).crowded:
+        log.warning(crowd.warning(team))
     resume_wall = read_mission_start(out_dir / MISSION_FILE, swarm) if resume else None
     stop = StopFlag()
     with zenoh.open(session_config(list(connect), secure=secure)) as session:

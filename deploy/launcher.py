@@ -28,6 +28,7 @@ from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children, recording_args
 from covswarm.deploy.router import zenoh_session
 from covswarm.deploy.supervisor import run_processes
+from covswarm.mission.crowding import crowding
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
@@ -234,6 +235,8 @@ def run_command(
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     console = Console()
+    if (crowd := crowding(scenario, n, duration)).crowded:
+        console.log(f"[yellow]warning: {crowd.warning(n, safety=not no_safety)}")
     here = n if ids is None else len(ids)
     with zenoh_session(
         connect, max(1000, 4 * n), router_listen, router_connect, secure=secure

@@ -21,6 +21,7 @@ from typing import Any
 import click
 import numpy as np
 
+from covswarm.mission.crowding import crowding
 from covswarm.mission.scenarios import Scenario, load_scenario
 
 LAWS = ("c", "d1", "da")
@@ -188,6 +189,8 @@ def build_summary(
         "initial_error": float(result.error[0]),
         "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
         "guards": guard_counts(result),
+        # No safety filter here: a crowded mission shows as overlapping robots instead.
+        "crowding": crowding(scenario, int(result.positions.shape[0]), duration).to_dict(),
         **physical_summary(result.t, result.trajectories, scenario.robot_diameter)[0],
         # Single integrators have no wheels: null, not a made-up figure.
         **(
@@ -349,6 +352,9 @@ def sim_command(
         scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
         **{k: v for k, v in options.items() if k != "agents"},
     )  # fmt: skip
+    if summary["crowding"]["crowded"]:
+        crowd = crowding(scenario, summary["agents"], options["duration"])
+        console.print(f"[yellow]warning: {crowd.warning(summary['agents'], safety=False)}")
     if out_dir is None:
         out_dir = Path("runs") / f"sim-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     write_outputs(

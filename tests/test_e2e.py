@@ -152,3 +152,30 @@ def test_sigterm_stops_the_run_cleanly_with_outputs(tmp_path: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert 2.0 < summary["mission_time"] < 30.0
     assert swarm_pids(swarm) == set()
+
+
+TIGHT = """name = "tight"
+agents = 4
+kappa = 2.0
+duration = 3.0
+dt = 0.02
+dynamics = "unicycle"
+workspace = [-1.0, 1.0, -1.0, 1.0]
+
+[domain]
+kind = "rigid"
+polygon = [[-0.125, -0.125], [0.125, -0.125], [0.125, 0.125], [-0.125, 0.125]]
+"""
+
+
+def test_a_team_too_big_for_its_domain_is_told_so(tmp_path: Path) -> None:
+    """Four Khepera IV in a 25 cm square: 0.0156 m^2 each where a robot needs 0.022."""
+    scenario, swarm, out = tmp_path / "tight.toml", new_swarm(), tmp_path / "tight"
+    scenario.write_text(TIGHT, encoding="utf-8")
+    with launch(out, "--scenario", str(scenario), swarm=swarm) as launcher:
+        assert launcher.wait(timeout=120) == 0
+    log = (tmp_path / "tight.launcher.log").read_text()
+    assert "4 robots do not fit" in " ".join(log.split())
+    crowd = json.loads((out / "summary.json").read_text())["crowding"]
+    assert crowd["crowded"] and crowd["smallest_cell_m2"] == pytest.approx(0.25**2 / 4, rel=0.02)
+    assert swarm_pids(swarm) == set()
