@@ -13,7 +13,7 @@ from scipy.integrate import dblquad
 
 from covswarm.deploy.simulate import build_summary, simulate
 from covswarm.mission.crowding import crowding, robot_room, smallest_cell_area
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenarios import BUILTINS, load_scenario
 from covswarm.tvd.density import Density
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -68,6 +68,9 @@ def test_which_missions_are_crowded() -> None:
     assert not crowding(formation_100, 100, 40.0).crowded
     assert not crowding(load_scenario("circle"), 100, 30.0).crowded
     assert crowding(load_scenario("circle"), 200, 30.0).crowded
+    for name, make in BUILTINS.items():  # every built-in fits its own team
+        scenario = make()
+        assert not crowding(scenario, scenario.agents, scenario.duration).crowded, name
     # Hexagonal packing at the safe distance: sqrt(3)/2 (d + m)^2.
     assert robot_room(0.14, 0.02) == pytest.approx(0.5 * math.sqrt(3.0) * 0.16**2)
 
