@@ -157,7 +157,10 @@ class SwarmView:
         error = ||p_i - c_i|| in m and cell its Voronoi cell, both None without a usable S),
         error (the coordinator's e_a), error_history ([[t, e_a]] over the last
         ``error_window`` s), alive ({agents, robots, coordinator}), steering (latest
-        outcomes, newest last), dropped (per reason).
+        outcomes, newest last), dropped (per reason), density (None: uniform; else
+        {floor, bumps: [{mean [x, y] m, precision [[a, b], [b, c]] 1/m^2, weight}]}: phi(q) =
+        floor + sum weight exp(-1/2 (q - mean)^T precision (q - mean)) at the broadcast's t,
+        which the page shades inside S).
         """
         robots = self.fresh_robots(now)
         domain = self.domain
@@ -201,4 +204,23 @@ class SwarmView:
             },
             "steering": list(self.steering),
             "dropped": dict(self.dropped),
+            "density": self._density_view(),
+        }
+
+    def _density_view(self) -> dict[str, Any] | None:
+        """The density as the page draws it (see ``snapshot``), None when uniform or unusable."""
+        try:
+            density = self._density()
+        except ValueError:
+            return None  # counted as "geometry" by the cells, which use it too
+        if density is None:
+            return None
+        return {
+            "floor": float(density.floor),
+            "bumps": [
+                {"mean": _points(mean), "precision": _points(precision), "weight": _round(weight)}
+                for mean, precision, weight in zip(
+                    density.means, density.precisions, density.weights, strict=True
+                )
+            ],
         }

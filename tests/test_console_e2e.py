@@ -437,6 +437,18 @@ def listening(port: int) -> bool:
         return probe.connect_ex(("127.0.0.1", port)) == 0
 
 
+# Mean red minus blue (0-255) over a 15 x 15 pixel patch of the map around a world point.
+TINT = """([x, y]) => {
+  const map = document.getElementById("map"), box = map.getBoundingClientRect();
+  const [cx, cy] = window.covswarm.clientXY(x, y), dpr = window.devicePixelRatio || 1;
+  const px = Math.round((cx - box.left) * dpr) - 7, py = Math.round((cy - box.top) * dpr) - 7;
+  const data = map.getContext("2d").getImageData(px, py, 15, 15).data;
+  let tint = 0;
+  for (let i = 0; i < data.length; i += 4) tint += data[i] - data[i + 2];
+  return tint / (data.length / 4);
+}"""
+
+
 def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
     browser, tmp_path: Path
 ) -> None:
@@ -447,7 +459,8 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
     log = (tmp_path / "launcher.log").open("wb")
     launcher = subprocess.Popen(
         [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm, "--agents", "2",
-         "--duration", "10", "--console", "--console-port", str(port)],
+         "--scenario", "formation", "--duration", "10", "--console", "--console-port",
+         str(port)],
         stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     try:
@@ -459,6 +472,17 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
         page.goto(url)
         page.wait_for_function("document.body.dataset.robotsDrawn === '2'", timeout=60000)
         page.wait_for_function("document.getElementById('state').textContent === 'running'")
+        # The formation's bump is shaded inside S: more orange at its mean than far from it.
+        page.wait_for_function("window.covswarm.hooks.shaded > 0", timeout=10000)
+        state = page.evaluate("window.covswarm.state()")
+        (bump,) = state["density"]["bumps"]
+        polygon = np.array(state["polygon"])
+        far = max(polygon, key=lambda v: np.hypot(*(v - bump["mean"])))
+        far = far + 0.15 * (centroid(polygon) - far)  # inside S, away from its edge
+        near_tint, far_tint = (
+            page.evaluate(TINT, list(map(float, q))) for q in (bump["mean"], far)
+        )
+        assert near_tint > far_tint + 20, (near_tint, far_tint)
         page.close()
         assert launcher.wait(timeout=120) == 0, (tmp_path / "launcher.log").read_text()
         assert not listening(port)  # the console went with the run

@@ -260,3 +260,28 @@ def test_page_requests_become_steer_requests() -> None:
 def test_malformed_page_requests_are_refused_with_the_reason(raw: bytes, words: str) -> None:
     with pytest.raises(BadSteerInput, match=words):
         parse_steer_body(raw)
+
+
+def test_snapshot_carries_the_density_the_page_shades() -> None:
+    """The page evaluates floor + sum w exp(-1/2 u^T P u) from the snapshot: that must be
+    the broadcast density's phi (independently: its covariances inverted by numpy)."""
+    from covswarm.tvd.density import Density
+
+    bumps = Density(floor=1.0, means=[[0.2, -0.3], [-0.5, 0.4]],
+                    covariances=[[[0.09, 0.03], [0.03, 0.04]], [[0.25, 0.0], [0.0, 0.01]]],
+                    weights=[6.0, 2.5])  # fmt: skip
+    view = SwarmView("s")
+    broadcast = Domain(seq=0, stamp=1.7e9, t=3.0, state="running", vertices=SQUARE,
+                       velocities=[(0.0, 0.0)] * 4, kappa=2.0, density=bumps.to_dict())  # fmt: skip
+    view.on_domain(broadcast)
+    shown = view.snapshot(now=10.0, wall=1.7e9)["density"]
+    json.dumps(shown)
+    q = np.random.default_rng(5).uniform(-1.0, 1.0, (200, 2))
+    phi = np.full(len(q), shown["floor"])
+    for bump, cov in zip(shown["bumps"], bumps.covariances, strict=True):
+        np.testing.assert_allclose(bump["precision"], np.linalg.inv(cov), atol=1e-4)
+        u = q - bump["mean"]
+        phi += bump["weight"] * np.exp(-0.5 * np.einsum("ni,ij,nj->n", u, bump["precision"], u))
+    np.testing.assert_allclose(phi, bumps.phi(q), rtol=1e-4)
+    view.on_domain(domain())  # uniform: nothing to shade
+    assert view.snapshot(now=10.0, wall=1.7e9)["density"] is None

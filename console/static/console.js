@@ -17,7 +17,7 @@
   const follow = document.getElementById("follow"); // keep S in view (a manual pan stops it)
   let drag = null; // the gesture in progress
   let pending = null; // {polygon} previewed while the request is in flight
-  const hooks = { frames: 0, lastRequest: null, lastReply: null, roundTripMs: null }; // read by the browser tests
+  const hooks = { frames: 0, shaded: 0, lastRequest: null, lastReply: null, roundTripMs: null }; // read by the browser tests
 
   // -- geometry (arrays of [x, y]) ---------------------------------------------------------
   const sub = (a, b) => [a[0] - b[0], a[1] - b[1]];
@@ -168,6 +168,37 @@
     return `hsl(${Math.round(120 * (1 - u))}, 70%, 40%)`;
   }
 
+  // The density phi inside S, shaded darker where it is higher (state.density: see
+  // console.model's snapshot). A coarse grid: the bumps are smooth, and this runs per frame.
+  const SHADE_CELLS = 48;
+  function shadeDensity(poly, density) {
+    const xs = poly.map((p) => p[0]), ys = poly.map((p) => p[1]);
+    const x0 = Math.min(...xs), y0 = Math.min(...ys);
+    const dx = (Math.max(...xs) - x0) / SHADE_CELLS, dy = (Math.max(...ys) - y0) / SHADE_CELLS;
+    const peak = density.bumps.reduce((sum, b) => sum + Math.max(b.weight, 0), 0);
+    if (!(peak > 0)) return;
+    ctx.save();
+    path(poly);
+    ctx.clip();
+    for (let i = 0; i < SHADE_CELLS; i++) {
+      for (let j = 0; j < SHADE_CELLS; j++) {
+        const qx = x0 + (i + 0.5) * dx, qy = y0 + (j + 0.5) * dy;
+        let above = 0; // phi - floor
+        for (const b of density.bumps) {
+          const ux = qx - b.mean[0], uy = qy - b.mean[1], [[a, c], [, d]] = b.precision;
+          above += b.weight * Math.exp(-0.5 * (a * ux * ux + 2 * c * ux * uy + d * uy * uy));
+        }
+        const alpha = 0.45 * Math.min(Math.max(above / peak, 0), 1);
+        if (alpha < 0.01) continue;
+        const [sx, sy] = toScreen([x0 + i * dx, y0 + (j + 1) * dy]);
+        ctx.fillStyle = `rgba(230, 120, 20, ${alpha.toFixed(3)})`;
+        ctx.fillRect(sx, sy, dx * view.scale + 1, dy * view.scale + 1);
+      }
+    }
+    ctx.restore();
+    hooks.shaded += 1;
+  }
+
   function draw() {
     const dpr = window.devicePixelRatio || 1;
     const [w, h] = size();
@@ -181,6 +212,7 @@
     if (!state) return;
     const poly = state.polygon;
     const robots = state.robots || [];
+    if (state.density && poly.length >= 3) shadeDensity(poly, state.density);
     ctx.lineWidth = 1;
     ctx.strokeStyle = "#a9b8c8";
     for (const r of robots) if (r.cell && r.cell.length >= 3) { path(r.cell); ctx.stroke(); }
