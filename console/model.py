@@ -88,7 +88,8 @@ class SwarmView:
         # whose polygon or density the cells could not be built from): counted, never shown
         # as if it were the swarm's state.
         self.dropped: dict[str, int] = {}
-        self._density_cache: tuple[Any, Any] | None = None  # (wire dict, Density)
+        # (wire dict, Density, what the page draws of it): parsed once per change of density
+        self._density_cache: tuple[Any, Any, dict[str, Any]] | None = None
 
     # -- inputs -----------------------------------------------------------------------------
 
@@ -137,16 +138,27 @@ class SwarmView:
             del self.robots[ident]
         return dict(sorted(self.robots.items()))
 
-    def _density(self) -> Any:
-        """The domain's density as a tvd Density (None: uniform), parsed once per change."""
+    def _density(self) -> tuple[Any, dict[str, Any] | None]:
+        """The domain's density as a tvd Density and as the page draws it (see ``snapshot``),
+        (None, None) when uniform; parsed once per change. ValueError if malformed."""
         wire = None if self.domain is None else self.domain.density
         if wire is None:
-            return None
+            return None, None
         if self._density_cache is None or self._density_cache[0] is not wire:
             from covswarm.tvd.density import Density
 
-            self._density_cache = (wire, Density.from_dict(wire))
-        return self._density_cache[1]
+            density = Density.from_dict(wire)
+            view = {
+                "floor": float(density.floor),
+                "bumps": [
+                    {"mean": _points(mean), "precision": _points(precision), "weight": _round(w)}
+                    for mean, precision, w in zip(
+                        density.means, density.precisions, density.weights, strict=True
+                    )
+                ],
+            }
+            self._density_cache = (wire, density, view)
+        return self._density_cache[1:]
 
     def snapshot(self, now: float, wall: float) -> dict[str, Any]:
         """The state document (JSON-ready) at monotonic ``now`` and wall-clock ``wall``.
@@ -164,14 +176,23 @@ class SwarmView:
         """
         robots = self.fresh_robots(now)
         domain = self.domain
+        density, density_view, usable = None, None, True
+        try:
+            density, density_view = self._density()
+        except ValueError:  # no cells from it, nothing shaded
+            usable = False
         polygon = np.asarray(domain.vertices, dtype=float) if domain else np.zeros((0, 2))
         cells: list[Any] = [None] * len(robots)
         errors: list[Any] = [None] * len(robots)
         if domain is not None and robots:
             positions = np.array([(r.x, r.y) for r in robots.values()])
-            try:
-                built, distances = cells_and_errors(positions, polygon, self._density())
-            except ValueError:
+            built = None
+            if usable:
+                try:
+                    built, distances = cells_and_errors(positions, polygon, density)
+                except ValueError:
+                    pass
+            if built is None:
                 self.on_dropped("geometry")
             else:
                 cells = [_points(cell) for cell in built]
@@ -204,23 +225,5 @@ class SwarmView:
             },
             "steering": list(self.steering),
             "dropped": dict(self.dropped),
-            "density": self._density_view(),
-        }
-
-    def _density_view(self) -> dict[str, Any] | None:
-        """The density as the page draws it (see ``snapshot``), None when uniform or unusable."""
-        try:
-            density = self._density()
-        except ValueError:
-            return None  # counted as "geometry" by the cells, which use it too
-        if density is None:
-            return None
-        return {
-            "floor": float(density.floor),
-            "bumps": [
-                {"mean": _points(mean), "precision": _points(precision), "weight": _round(weight)}
-                for mean, precision, weight in zip(
-                    density.means, density.precisions, density.weights, strict=True
-                )
-            ],
+            "density": density_view,
         }

@@ -21,7 +21,7 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.mission.crowding import crowding
+from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenarios import Scenario, load_scenario
 
 LAWS = ("c", "d1", "da")
@@ -352,8 +352,7 @@ def sim_command(
         scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
         **{k: v for k, v in options.items() if k != "agents"},
     )  # fmt: skip
-    if summary["crowding"]["crowded"]:
-        crowd = crowding(scenario, summary["agents"], options["duration"])
+    if (crowd := Crowding.from_dict(summary["crowding"])).crowded:
         console.print(f"[yellow]warning: {crowd.warning(summary['agents'], safety=False)}")
     if out_dir is None:
         out_dir = Path("runs") / f"sim-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"

@@ -51,6 +51,11 @@ class Crowding:
             "crowded": self.crowded,
         }
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Crowding:
+        """Inverse of ``to_dict`` (a summary.json's ``crowding``)."""
+        return cls(data["smallest_cell_m2"], data["needed_m2"], data["at_t"])
+
     def warning(self, agents: int, safety: bool = True) -> str:
         """What to tell the user; ``safety``: whether a safety filter keeps robots apart."""
         consequence = (

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import swarm_pids, wait_until
+from live_runs import launch, new_swarm, swarm_pids, wait_until
 from playwright.sync_api import sync_playwright
 
 from covswarm.deploy.plan import covswarm_argv
@@ -455,15 +455,11 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
         port = probe.getsockname()[1]
-    swarm, out = f"e2e-{secrets.token_hex(4)}", tmp_path / "run"
-    log = (tmp_path / "launcher.log").open("wb")
-    launcher = subprocess.Popen(
-        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm, "--agents", "2",
-         "--scenario", "formation", "--duration", "10", "--console", "--console-port",
-         str(port)],
-        stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
-    try:
+    swarm, out = new_swarm(), tmp_path / "run"
+    with launch(
+        out, "--agents", "2", "--scenario", "formation", "--duration", "10", "--console",
+        "--console-port", str(port), swarm=swarm,
+    ) as launcher:  # fmt: skip
         assert wait_until(lambda: (out / "launch.json").exists(), timeout=60)
         url = json.loads((out / "launch.json").read_text())["console"]
         assert url == f"http://127.0.0.1:{port}/"
@@ -484,14 +480,7 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
         )
         assert near_tint > far_tint + 20, (near_tint, far_tint)
         page.close()
-        assert launcher.wait(timeout=120) == 0, (tmp_path / "launcher.log").read_text()
+        assert launcher.wait(timeout=120) == 0, (tmp_path / "run.launcher.log").read_text()
         assert not listening(port)  # the console went with the run
         resources = json.loads((out / "resources.json").read_text())
         assert len(resources["cpu_percent_of_core"]["console"]) == 1
-    finally:
-        if launcher.poll() is None:
-            launcher.kill()
-            launcher.wait()
-        log.close()
-        for pid in swarm_pids(swarm):
-            os.kill(pid, signal.SIGKILL)

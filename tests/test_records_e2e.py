@@ -8,18 +8,14 @@ from __future__ import annotations
 import asyncio
 import base64
 import json
-import os
-import secrets
-import signal
 import struct
 import subprocess
 import time
-from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
+from live_runs import launch, new_swarm
 from mcap.reader import make_reader
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
@@ -33,42 +29,6 @@ pytestmark = pytest.mark.e2e
 
 AGENTS, DURATION = 3, 5.0
 POSE_RATE, TICK_RATE, SAMPLE_RATE = 20.0, 20.0, 10.0  # robots' poses, coordinator, e_a (Hz)
-
-
-def swarm_pids(swarm: str) -> set[int]:
-    """Live processes whose command line names ``swarm`` (every child of the run does)."""
-    pids = set()
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            cmdline = (entry / "cmdline").read_bytes().split(b"\0")
-        except OSError:
-            continue
-        if swarm.encode() in cmdline:
-            pids.add(int(entry.name))
-    return pids
-
-
-@contextmanager
-def launch(out: Path, swarm: str, *args: str) -> Iterator[subprocess.Popen]:
-    """``covswarm run`` in the background; killed (with what it left) if the test fails."""
-    log = (out.parent / f"{out.name}.launcher.log").open("wb")
-    process = subprocess.Popen(
-        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm, *args],
-        stdout=log,
-        stderr=subprocess.STDOUT,
-        stdin=subprocess.DEVNULL,
-    )
-    try:
-        yield process
-    finally:
-        if process.poll() is None:
-            process.kill()
-            process.wait()
-        log.close()
-        for pid in swarm_pids(swarm):
-            os.kill(pid, signal.SIGKILL)
 
 
 async def first_robots_message(port: int, timeout: float) -> tuple[dict, bytes]:
@@ -104,11 +64,11 @@ async def first_robots_message(port: int, timeout: float) -> tuple[dict, bytes]:
 
 
 def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
-    out, port, swarm = tmp_path / "run", free_port(), f"e2e-{secrets.token_hex(4)}"
+    out, port, swarm = tmp_path / "run", free_port(), new_swarm()
     router = f"tcp/127.0.0.1:{free_port()}"
     with launch(
-        out, swarm, "--scenario", "passage", "--agents", str(AGENTS), "--duration", str(DURATION),
-        "--seed", "5", "--foxglove", str(port), "--router-listen", router,
+        out, "--scenario", "passage", "--agents", str(AGENTS), "--duration", str(DURATION),
+        "--seed", "5", "--foxglove", str(port), "--router-listen", router, swarm=swarm,
     ) as process:  # fmt: skip
         channel, data = asyncio.run(first_robots_message(port, timeout=90))
         # The mission runs: one steering request (accepted or refused, it is an event).
