@@ -169,32 +169,38 @@
   }
 
   // The density phi inside S, shaded darker where it is higher (state.density: see
-  // console.model's snapshot). A coarse grid: the bumps are smooth, and this runs per frame.
+  // console.model's snapshot). A coarse image stretched over S's bounding box (smoothed by
+  // the canvas, so no seams): the bumps are smooth, and this runs per frame.
   const SHADE_CELLS = 48;
+  const shade = document.createElement("canvas");
+  shade.width = shade.height = SHADE_CELLS;
+  const shadeCtx = shade.getContext("2d");
   function shadeDensity(poly, density) {
     const xs = poly.map((p) => p[0]), ys = poly.map((p) => p[1]);
-    const x0 = Math.min(...xs), y0 = Math.min(...ys);
-    const dx = (Math.max(...xs) - x0) / SHADE_CELLS, dy = (Math.max(...ys) - y0) / SHADE_CELLS;
+    const x0 = Math.min(...xs), y1 = Math.max(...ys);
+    const dx = (Math.max(...xs) - x0) / SHADE_CELLS, dy = (y1 - Math.min(...ys)) / SHADE_CELLS;
     const peak = density.bumps.reduce((sum, b) => sum + Math.max(b.weight, 0), 0);
     if (!(peak > 0)) return;
-    ctx.save();
-    path(poly);
-    ctx.clip();
-    for (let i = 0; i < SHADE_CELLS; i++) {
-      for (let j = 0; j < SHADE_CELLS; j++) {
-        const qx = x0 + (i + 0.5) * dx, qy = y0 + (j + 0.5) * dy;
+    const image = shadeCtx.createImageData(SHADE_CELLS, SHADE_CELLS);
+    for (let row = 0; row < SHADE_CELLS; row++) { // row 0 at the top: highest y
+      for (let col = 0; col < SHADE_CELLS; col++) {
+        const qx = x0 + (col + 0.5) * dx, qy = y1 - (row + 0.5) * dy;
         let above = 0; // phi - floor
         for (const b of density.bumps) {
           const ux = qx - b.mean[0], uy = qy - b.mean[1], [[a, c], [, d]] = b.precision;
           above += b.weight * Math.exp(-0.5 * (a * ux * ux + 2 * c * ux * uy + d * uy * uy));
         }
-        const alpha = 0.45 * Math.min(Math.max(above / peak, 0), 1);
-        if (alpha < 0.01) continue;
-        const [sx, sy] = toScreen([x0 + i * dx, y0 + (j + 1) * dy]);
-        ctx.fillStyle = `rgba(230, 120, 20, ${alpha.toFixed(3)})`;
-        ctx.fillRect(sx, sy, dx * view.scale + 1, dy * view.scale + 1);
+        const k = 4 * (row * SHADE_CELLS + col);
+        image.data.set([230, 120, 20, Math.round(115 * Math.min(Math.max(above / peak, 0), 1))], k);
       }
     }
+    shadeCtx.putImageData(image, 0, 0);
+    const [sx, sy] = toScreen([x0, y1]);
+    ctx.save();
+    path(poly);
+    ctx.clip();
+    ctx.imageSmoothingEnabled = true;
+    ctx.drawImage(shade, sx, sy, SHADE_CELLS * dx * view.scale, SHADE_CELLS * dy * view.scale);
     ctx.restore();
     hooks.shaded += 1;
   }
