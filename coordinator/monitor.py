@@ -105,19 +105,23 @@ class Liveness:
 MAX_POSE_AGE = 0.5
 
 
-def measurement_time(t: float, wall_now: float, stamps: Iterable[float], earliest: float) -> float:
-    """Mission time at which poses stamped ``stamps`` were measured, on average.
+def mean_pose_time(t: float, wall_now: float, stamps: Iterable[float]) -> float:
+    """Mission time (s) at which poses stamped ``stamps`` were measured, on average: a pose
+    stamped s (the run's wall clock, as ``wall_now``) was taken at t - (wall_now - s). ``t``
+    without stamps; NaN when a stamp is not finite.
 
-    t: mission time now (s); wall_now: the run's wall clock now (s, the clock the robots
-    stamp poses with); stamps: the poses' stamps (s); earliest: the previous sample's time
-    (samples stay in order). A pose stamped s was taken at t - (wall_now - s); the mean over
-    the team is clipped to [max(earliest, t - MAX_POSE_AGE), t]. e_a = ||p - c(p, t)|| is
-    evaluated against S at this time: against S(now), a pose that is 25 ms old on average
-    (20 Hz poses) adds the domain's motion over 25 ms to every robot's error, which is 20 %
-    of a 12 mm steady state at 0.1 m/s.
+    The coordinator evaluates e_a = ||p - c(p, t)|| against S at this time (clipped by
+    :func:`clip_sample_time`): against S(now), a pose that is 25 ms old on average (20 Hz
+    poses) adds the domain's motion over 25 ms to every robot's error, which is 20 % of a
+    12 mm steady state at 0.1 m/s.
     """
     ages = wall_now - np.asarray(list(stamps), dtype=float)
-    when = t - float(np.mean(ages)) if ages.size else t
+    return t - float(np.mean(ages)) if ages.size else t
+
+
+def clip_sample_time(when: float, t: float, earliest: float) -> float:
+    """``when`` (s) clipped to [max(earliest, t - MAX_POSE_AGE), t]; ``t`` if not finite.
+    earliest: the previous sample's time (samples stay in order)."""
     lower = min(t, max(earliest, t - MAX_POSE_AGE))
     return float(np.clip(when, lower, t)) if math.isfinite(when) else t
 

@@ -36,8 +36,9 @@ from covswarm.coordinator.monitor import (
     TeamChange,
     agent_figures,
     agent_guards,
+    clip_sample_time,
     losses_summary,
-    measurement_time,
+    mean_pose_time,
     team_changes_summary,
     team_of,
 )
@@ -128,6 +129,7 @@ class Observed:
     pose_stamps: dict[int, float] = field(default_factory=dict)  # s, the run's wall clock
     agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
     rejected: int = 0  # messages dropped as malformed (ProtocolError)
+    clipped_samples: int = 0  # e_a samples not placed at their poses' time (clip_sample_time)
     started_wall: float | None = None
     team_changes: list[TeamChange] = field(default_factory=list)
 
@@ -348,12 +350,11 @@ class Coordinator:
         record = self.observed.record
         measured = t
         if self.clock.state == RUNNING:  # once done, S holds still at S(duration)
-            measured = measurement_time(
-                t,
-                self._wall(),
-                [self.observed.pose_stamps[i] for i in ids],
-                record.t[-1] if record.t else 0.0,
-            )
+            stamps = [self.observed.pose_stamps[i] for i in ids]
+            when = mean_pose_time(t, self._wall(), stamps)
+            measured = clip_sample_time(when, t, record.t[-1] if record.t else 0.0)
+            # Poses too old, out of order or badly stamped: the sample is placed at a bound.
+            self.observed.clipped_samples += measured != when
             polygon = self.steering.domain(measured)[0]
         error = aggregate_error(
             np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(measured)
@@ -542,6 +543,7 @@ def build_summary(
         "agent_stats": agent_figures(observed.agent_stats),
         "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
+        "error_samples_clipped": observed.clipped_samples,
         "crowding": crowding(settings.scenario, settings.agents, settings.duration).to_dict(),
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,

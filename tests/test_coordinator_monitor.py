@@ -14,8 +14,9 @@ from covswarm.coordinator.monitor import (
     Liveness,
     MissionClock,
     agent_figures,
+    clip_sample_time,
     losses_summary,
-    measurement_time,
+    mean_pose_time,
 )
 
 
@@ -168,6 +169,11 @@ def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
     assert swarm_tile_size(passage, 10) == pytest.approx(
         TILE_SPACINGS * (1.2 * 1.6 / 10) ** 0.5, abs=1e-3
     )
+
+
+def measurement_time(t: float, wall_now: float, stamps: list[float], earliest: float) -> float:
+    """Where the coordinator places an e_a sample."""
+    return clip_sample_time(mean_pose_time(t, wall_now, stamps), t, earliest)
 
 
 def test_e_a_is_placed_at_the_mean_time_its_poses_were_measured() -> None:
