@@ -84,24 +84,30 @@ def run(tmp_path: Path, name: str, *args: str) -> dict:
 
 
 @pytest.fixture(scope="module")
-def undelayed(tmp_path_factory: pytest.TempPathFactory) -> dict:
-    return run(tmp_path_factory.mktemp("undelayed"), "run", *PASSAGE)
+def undelayed(tmp_path_factory: pytest.TempPathFactory) -> float:
+    """The undelayed steady-state e_a: the mean of two identical runs. One run is not a
+    reference: the team leaves an unstable CVT of the growing rectangle at a time set by
+    timing jitter, and whether that excursion (up to 0.05 m) falls inside the second half
+    swung the second-half mean of five identical runs between 0.0098 and 0.0149 m."""
+    base = tmp_path_factory.mktemp("undelayed")
+    runs = [run(base, f"run{k}", *PASSAGE) for k in range(2)]
+    return float(np.mean([summary["steady_state_error_mean"] for summary in runs]))
 
 
 @pytest.mark.e2e
 @pytest.mark.parametrize(("delay", "loss"), [(0.15, 0.3), (0.3, 0.0)])
 def test_late_and_lost_poses_keep_the_undelayed_error(
-    tmp_path: Path, undelayed: dict, delay: float, loss: float
+    tmp_path: Path, undelayed: float, delay: float, loss: float
 ) -> None:
     """The issue's target: with 0.15 s of pose delay and 30 % loss, or 0.3 s of delay, the
-    team converges and its steady-state e_a stays within 1.5x the undelayed run's (before
+    team converges and its steady-state e_a stays within 1.5x the undelayed runs' (before
     the agents predicted their pose, the team flew apart: e_a 12.3 m and 9.9 m). Measured
-    1.16x and 1.06x (README, "Real robots")."""
+    1.16x and 1.06x (README, "Real robots"); against a single undelayed run that went low
+    (0.0098 m), 1.55x once in CI, which is why the reference is a mean of two."""
     summary = run(
         tmp_path, "late", *PASSAGE, "--pose-delay", repr(delay), "--pose-loss", repr(loss)
     )
-    bound = 1.5 * undelayed["steady_state_error_mean"]
-    assert summary["steady_state_error_mean"] <= bound, (summary, undelayed)
+    assert summary["steady_state_error_mean"] <= 1.5 * undelayed, (summary, undelayed)
     assert summary["final_error"] < 0.05
     team = summary["agent_stats"]["team"]
     # The agents saw the delay (pose-to-command latency) and compensated it.
