@@ -19,8 +19,18 @@ feedforward term (paper Eq. 9's boundary integral) needs:
   (merged), V = (1 - s) a_i + s b_j with a_i, b_j the points of A and B furthest along it,
   so dV/dt = s'(t) (b_j - a_i) exactly; the pairing is the same for every s in (0, 1).
 
-A new request pre-empts the motion in progress: the next one starts from S where it is (its
-position is continuous; its velocity restarts from zero, as s'(0) = 0).
+Pre-emption. A new request pre-empts the motion in progress (or the scenario's script)
+without a jump in S's position, velocity or acceleration. A moving S first brakes along the
+path it was on (:class:`Brake`): V(t) = M(tau(t)) with M the motion being left and the warped
+time tau(t) = t0 + T g(u), g(u) = u - u^2 + u^3 / 3, u = (t - t0) / T, so tau' = (1 - u)^2
+runs from 1 down to 0 with tau'' = 0 at the end. S then only revisits shapes M passed
+through (convex, inside the workspace, never faster than M: |dV/dt| = |M'| tau' <= |M'|) and
+stops at M(t0 + T/3); T = 2 v / BRAKE_DECELERATION for its fastest vertex speed v, so that
+vertex slows at most BRAKE_DECELERATION beyond M's own acceleration. The new motion is
+planned from where S stops and starts then, its velocity from zero (s'(0) = 0). A request
+that arrives while S brakes replaces what follows that brake (brakes never nest); an S at
+rest (the default still S, a motion that ended) does not brake: the new motion starts at
+once.
 
 Speed. The fastest vertex of a motion moves at max_u s'(u) max_s |dV/ds| =
 (15/8 T) max_s |dV/ds|, so T is chosen (or a requested duration stretched) to keep it at or
@@ -61,6 +71,10 @@ FOLLOW_GAP = 0.14  # m (a Khepera IV's diameter): the gap the robots must still 
 WORKSPACE_SLACK = 1e-9  # m: vertices on the workspace's edge are inside
 _ROTATION_SAMPLES = 65  # instants at which a rotating motion is checked against the walls
 _MERGE_TOL = 1e-9  # coincident output vertices: distance below this x half the perimeter
+# m/s^2: the most a pre-empted S's fastest vertex is slowed by its brake (module docstring).
+# About what the quintic asks when starting a 0.5 m move at the default 0.52 m/s
+# (10 / sqrt(3) x 0.5 m / (1.8 s)^2 = 0.89 m/s^2): a brake is no harsher than a start.
+BRAKE_DECELERATION = 1.0
 
 
 def default_max_domain_speed(robot_speed: float, kappa: float) -> float:
@@ -169,6 +183,43 @@ class Morph:
         """max_i |dV_i/ds| = max |b_j - a_i| over the pairs (m per unit progress)."""
         a, b = self.start[self.pairs[:, 0]], self.target[self.pairs[:, 1]]
         return float(np.linalg.norm(b - a, axis=1).max())
+
+
+@dataclass(frozen=True, eq=False)
+class Brake:
+    """S slowing to a stop along ``motion`` from ``t0`` for ``span`` s, then ``then``.
+
+    V(t) = motion(tau(t)) with tau(t) = t0 + span g(u), g(u) = u - u^2 + u^3 / 3, u = (t - t0)
+    / span (module docstring); velocities motion's times tau'(t) = (1 - u)^2. ``then`` (the
+    pre-empting motion, planned from motion(:attr:`stop_time`)) takes over at t0 + span.
+    """
+
+    motion: DomainAt
+    t0: float
+    span: float  # s (> 0)
+    then: DomainAt
+
+    @property
+    def end(self) -> float:
+        return self.t0 + self.span
+
+    @property
+    def stop_time(self) -> float:
+        """The time of ``motion`` at which S stops: tau at the brake's end."""
+        return self.t0 + self.span / 3.0
+
+    def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
+        if t >= self.end:
+            return self.then(t)
+        u = max(t - self.t0, 0.0) / self.span
+        vertices, velocities = self.motion(self.t0 + self.span * u * (1.0 - u + u * u / 3.0))
+        return vertices, velocities * (1.0 - u) ** 2
+
+
+def brake_span(speed: float) -> float:
+    """Seconds a brake takes from a fastest vertex speed ``speed`` (m/s) at
+    BRAKE_DECELERATION (the brake's tau'' = -2 / T at its start)."""
+    return 2.0 * speed / BRAKE_DECELERATION
 
 
 def support_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -379,7 +430,7 @@ class SteeringRecord:
     request: dict[str, Any] | None  # SteerRequest.to_dict(), None when undecodable
     accepted: bool
     reason: str
-    duration: float  # s the motion takes (0 if refused)
+    duration: float  # s until S arrives, a brake included (0 if refused)
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -401,7 +452,7 @@ class Steering:
 
     script: DomainAt
     limits: Limits
-    motion: Hold | Similarity | Morph | None = None
+    motion: Hold | Similarity | Morph | Brake | None = None
     records: list[SteeringRecord] = field(default_factory=list)
     refused: Counter = field(default_factory=Counter)  # refusals per code
     largest_jump: float = 0.0  # m, see simplify
@@ -424,17 +475,47 @@ class Steering:
             return self._refuse(
                 Refusal("not-running", "the mission is not running"), request, t, wall
             )
-        current, _ = self.domain(t)
+        current, velocity = self.domain(t)
+        brake = self._brake_at(t, velocity)
+        if brake is not None:
+            current, _ = brake.motion(brake.stop_time)  # where the brake stops S
         try:
-            motion, note, jump = plan(request, t, np.asarray(current, dtype=float), self.limits)
+            motion, note, jump = plan(
+                request,
+                t if brake is None else brake.end,
+                np.asarray(current, dtype=float),
+                self.limits,
+            )
+            if brake is not None and brake.end - t + getattr(motion, "span", 0.0) > MAX_DURATION:
+                raise Refusal(
+                    "too-slow",
+                    f"braking {brake.end - t:.2g} s and the motion exceed {MAX_DURATION:g} s",
+                )
         except Refusal as refusal:
             return self._refuse(refusal, request, t, wall)
+        span = getattr(motion, "span", 0.0)
+        if brake is not None:
+            motion = replace(brake, then=motion)
+            note = "; ".join(filter(None, [f"braking {brake.end - t:.2g} s first", note]))
+            span += brake.end - t
         self.motion = motion
         self.largest_jump = max(self.largest_jump, jump)
-        span = getattr(motion, "span", 0.0)
         reply = SteerReply(True, note[:MAX_REASON], span)
         self.records.append(SteeringRecord(t, wall, request.to_dict(), True, note, span))
         return reply
+
+    def _brake_at(self, t: float, velocity: np.ndarray) -> Brake | None:
+        """How S comes to rest before a request at ``t`` takes over: the brake in progress (a
+        later request only replaces what follows it, so brakes never nest), a new brake of
+        whatever moves S at ``velocity`` (k, 2), or None when S is at rest."""
+        if isinstance(self.motion, Brake) and t < self.motion.end:
+            return self.motion
+        speed = float(np.linalg.norm(velocity, axis=1).max()) if len(velocity) else 0.0
+        if speed == 0.0:
+            return None
+        moving = self.motion.then if isinstance(self.motion, Brake) else self.motion
+        leaving = self.script if moving is None else moving
+        return Brake(leaving, t, brake_span(speed), leaving)
 
     def replay(self, lines: list[str]) -> int:
         """Carry out again the accepted requests of a journal (one :meth:`journal_line`

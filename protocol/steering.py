@@ -158,8 +158,8 @@ class SteerReply(Message):
     """Coordinator -> client: whether S will move, why not, and how long the motion takes.
 
     reason: "" or a note when accepted (e.g. the speed was clipped), "<code>: <why>" when
-    refused (coordinator.steering.REFUSALS); duration: s the accepted motion takes (0 when
-    refused).
+    refused (coordinator.steering.REFUSALS); duration: s until S arrives, including the
+    brake of a moving S it pre-empts (0 when refused).
     """
 
     accepted: bool

@@ -12,11 +12,14 @@ from scipy.spatial import ConvexHull
 from shapely.geometry import MultiPoint, Polygon
 
 from covswarm.coordinator.steering import (
+    BRAKE_DECELERATION,
     PEAK_RATE,
     REFUSALS,
+    Brake,
     Limits,
     Morph,
     Steering,
+    brake_span,
     centroid,
     default_max_domain_speed,
     signed_area,
@@ -176,25 +179,91 @@ def test_default_domain_speed_leaves_room_to_close_a_gap() -> None:
 # --- pre-emption -------------------------------------------------------------------------
 
 
-def test_a_new_request_takes_over_from_wherever_s_is() -> None:
+def assert_smooth(steer: Steering, t0: float, t1: float, limit: float) -> None:
+    """Between t0 and t1: convex, velocities = central differences of the vertices, no vertex
+    faster than ``limit`` (vertex lists of a brake and of the motion after it line up)."""
+    for t in np.linspace(t0, t1, 41)[1:-1]:
+        vertices, velocity = steer.domain(t)
+        validate_polygon(vertices)
+        np.testing.assert_allclose(velocity, finite_difference(steer.domain, t), atol=1e-6)
+        assert np.linalg.norm(velocity, axis=1).max() <= limit + 1e-9
+
+
+def test_a_new_request_takes_over_from_wherever_s_is_without_a_jump() -> None:
     steer = steering()
     assert send(steer, SteerRequest("translate", dx=2.0, dy=0.0, duration=4.0), 1.0).accepted
     t = 2.7
-    before, _ = steer.domain(t)
-    assert 0.1 < before[0, 0] + 0.5 < 1.9  # mid-way
+    before, moving = steer.domain(t)
+    assert 0.1 < before[0, 0] + 0.5 < 1.9 and np.abs(moving).max() > 0.2  # mid-way, moving
     target = [[-1.0, -1.0], [0.0, -1.2], [0.5, 0.0], [-0.5, 1.0]]
     reply = send(steer, SteerRequest("polygon", polygon=target), t)
-    assert reply.accepted
+    assert reply.accepted and reply.reason.startswith("braking")
+    # S goes on where it was, at the speed it had: position and velocity continuous.
     after, velocity = steer.domain(t)
-    assert same_set(after, before)  # no jump
-    assert np.abs(velocity).max() == 0.0
-    for dt in np.linspace(1e-3, reply.duration, 20):  # continuous, convex on the way
-        validate_polygon(steer.domain(t + dt)[0])
+    np.testing.assert_array_equal(after, before)
+    np.testing.assert_array_equal(velocity, moving)
+    speed = float(np.linalg.norm(moving, axis=1).max())
+    braking = brake_span(speed)
+    assert braking == pytest.approx(2.0 * speed / BRAKE_DECELERATION)
+    # It brakes along the translation: the fastest vertex slows at most BRAKE_DECELERATION
+    # beyond what the translation itself was doing, and stops where the brake ends.
+    for tb in np.linspace(t, t + braking, 30)[1:-1]:
+        _, v_after = steer.domain(tb + 1e-6)
+        _, v_before = steer.domain(tb - 1e-6)
+        slowing = np.linalg.norm(v_after - v_before, axis=1).max() / 2e-6
+        assert slowing <= BRAKE_DECELERATION + 0.3  # the translation's own: < 0.3 m/s^2
+        assert steer.domain(tb)[0][0, 1] == pytest.approx(before[0, 1])  # still along x
+    stopped, at_rest = steer.domain(t + braking)
+    assert np.abs(at_rest).max() == 0.0
+    assert stopped[0, 0] > before[0, 0]  # it went on a little, not back
+    assert_smooth(steer, t, t + reply.duration, LIMITS.max_speed)
     assert same_set(steer.domain(t + reply.duration)[0], np.array(target))
-    # A rotation pre-empting the morph starts from the morph's S, with its vertex count.
-    mid, _ = steer.domain(t + 1.0)
-    assert send(steer, SteerRequest("rotate", angle=0.3), t + 1.0).accepted
-    np.testing.assert_allclose(steer.domain(t + 1.0)[0], mid, atol=1e-12)
+    # A rotation pre-empting the moving morph brakes it; another one during that brake
+    # keeps the brake (S's velocity is continuous) and only replaces what follows it.
+    later = t + braking + 1.0
+    mid, mid_velocity = steer.domain(later)
+    assert send(steer, SteerRequest("rotate", angle=0.3), later).accepted
+    np.testing.assert_array_equal(steer.domain(later)[0], mid)
+    np.testing.assert_array_equal(steer.domain(later)[1], mid_velocity)
+    brake = steer.motion
+    assert isinstance(brake, Brake) and brake.t0 == later
+    reply = send(steer, SteerRequest("scale", factor=0.8), later + 0.05)
+    assert reply.accepted
+    assert steer.motion.t0 == later and steer.motion.span == brake.span
+    assert reply.duration == pytest.approx(brake.end - later - 0.05 + steer.motion.then.span)
+    stop, _ = brake.motion(brake.stop_time)
+    np.testing.assert_allclose(
+        steer.domain(brake.end + steer.motion.then.span)[0],
+        centroid(stop) + 0.8 * (stop - centroid(stop)),
+        atol=1e-12,
+    )
+    assert_smooth(steer, later, later + 10.0, LIMITS.max_speed)
+
+
+def test_a_still_s_does_not_brake() -> None:
+    steer = steering()
+    reply = send(steer, SteerRequest("translate", dx=1.0, dy=0.0, duration=4.0), 1.0)
+    assert reply.accepted and reply.reason == "" and reply.duration == 4.0
+    assert not isinstance(steer.motion, Brake)
+    # Once that motion ended, S is at rest again: the next one starts at once.
+    assert send(steer, SteerRequest("rotate", angle=0.3, duration=3.0), 5.0).duration == 3.0
+    assert not isinstance(steer.motion, Brake)
+
+
+@pytest.mark.parametrize("every", [2.0, 0.05])
+def test_brakes_never_nest(every: float) -> None:
+    """Requests after the last brake ended, or a stream of them while S brakes (an operator
+    dragging at 20 Hz): at most one brake, never a chain that grows with the requests."""
+    steer = steering(limits=Limits(0.5, None, 0.0))
+    for k in range(60):
+        t = every * k + 1.0
+        before = steer.domain(t)
+        assert send(steer, SteerRequest("translate", dx=1.0, dy=0.0), t).accepted
+        for ahead, behind in zip(steer.domain(t), before, strict=True):
+            np.testing.assert_array_equal(ahead, behind)
+        assert not isinstance(getattr(steer.motion, "motion", None), Brake)
+        assert not isinstance(getattr(steer.motion, "then", None), Brake)
+        assert_smooth(steer, t, t + every, 0.5)
 
 
 def test_the_script_runs_until_a_request_takes_over() -> None:
@@ -203,9 +272,26 @@ def test_the_script_runs_until_a_request_takes_over() -> None:
 
     steer = Steering(script, LIMITS)
     np.testing.assert_allclose(steer.domain(3.0)[0], script(3.0)[0])
-    assert send(steer, SteerRequest("translate", dx=0.0, dy=0.0), 3.0).accepted  # "stop"
-    np.testing.assert_allclose(steer.domain(9.0)[0], script(3.0)[0])
+    reply = send(steer, SteerRequest("translate", dx=0.0, dy=0.0), 3.0)  # "stop"
+    assert reply.accepted
+    braking = brake_span(0.1)
+    assert reply.duration == pytest.approx(braking)
+    np.testing.assert_allclose(steer.domain(3.0)[1], script(3.0)[1])  # no jump in velocity
+    # The script's S slows down along its path and stops a third of the brake further on.
+    np.testing.assert_allclose(steer.domain(9.0)[0], script(3.0 + braking / 3.0)[0])
     assert np.all(steer.domain(9.0)[1] == 0.0)
+    assert_smooth(steer, 3.0, 9.0, 0.1)
+
+
+def test_braking_counts_against_the_longest_motion() -> None:
+    def script(t: float):
+        return SQUARE + [0.5 * t, 0.0], np.tile([0.5, 0.0], (4, 1))
+
+    steer = Steering(script, Limits(0.5, None, 0.0))
+    crawl = PEAK_RATE / 3599.5  # 1 m in 3599.5 s: fits alone, not after a 1 s brake
+    reply = send(steer, SteerRequest("translate", dx=1.0, dy=0.0, speed=crawl), 1.0)
+    assert not reply.accepted and reply.reason.startswith("too-slow")
+    assert steer.motion is None
 
 
 def test_chained_morphs_stay_within_the_wire_vertex_limit() -> None:
