@@ -42,6 +42,8 @@ class SimResult:
     guarded: int = 0  # robot-steps whose row the amplification guard rescaled
     fallbacks: int = 0  # steps on which the law's team-wide fallback was taken (TVD-C)
     wheels: np.ndarray | None = None  # (T, n, 2) rim speeds commanded (unicycle), NaN at the end
+    safety_active: int = 0  # robot-steps on which the safety filter changed the velocity
+    safety_relaxed: int = 0  # robot-steps on which it could not hold every pair (boxed in)
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -63,17 +65,28 @@ def simulate(
     damping: float | None = None,
     prior: str = "affine",
     projection_distance: float | None = None,
+    safety: bool = False,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None for covswarm.tvd.control.DAMPING, 0 for the
-    paper's exact TVD-C with its fallback to TVD-D1.
+    paper's exact TVD-C with its fallback to TVD-D1. safety: filter every robot's velocity
+    as the agents do (covswarm.tvd.safety, against the robots within the agents'
+    SAFETY_RADIUS, reciprocal split with the centres' last velocities, the scenario's
+    robot diameter), before the wheel mapping.
     """
+    from covswarm.agent.brain import SAFETY_RADIUS
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
     from covswarm.tvd.drive import integrate, wheel_speeds
+    from covswarm.tvd.safety import (
+        DEFAULT_GAMMA,
+        barrier_gain,
+        body_safe_distance,
+        team_safe_velocities,
+    )
 
     n = scenario.agents if agents is None else agents
     kappa = scenario.kappa if kappa is None else kappa
@@ -104,7 +117,9 @@ def simulate(
     trajectories = np.empty((steps + 1, n, 2))
     heading_log = np.empty((steps + 1, n))
     polygons: list[np.ndarray] = []
-    guarded = fallbacks = 0
+    guarded = fallbacks = safety_active = safety_relaxed = 0
+    centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
+    safe_distance = body_safe_distance(scenario.robot_diameter)
     wheel_log = np.full((steps + 1, n, 2), np.nan) if dynamics == "unicycle" else None
     for k in range(steps + 1):
         polygon, polygon_velocity = scenario.domain(t[k])
@@ -124,20 +139,33 @@ def simulate(
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
             raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {t[k]:.4g} s")
+        if safety:
+            velocity, active, relaxed = team_safe_velocities(
+                positions, velocity, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
+                SAFETY_RADIUS, headings=None if dynamics == "single" else headings,
+                velocities=centre_velocity,
+            )  # fmt: skip
+            safety_active += int(np.count_nonzero(active))
+            safety_relaxed += int(np.count_nonzero(relaxed))
         if dynamics == "single":
             positions = positions + dt * velocity
+            centre_velocity = velocity
         else:
             wheels = wheel_speeds(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L
             )
             wheel_log[k] = wheels
+            centre_velocity = wheels.mean(axis=1, keepdims=True) * np.column_stack(
+                [np.cos(headings), np.sin(headings)]
+            )
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)
             positions, headings = poses[:, :2], poses[:, 2]
         if progress is not None:
             progress(k + 1, steps)
     return SimResult(
-        t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log
-    )
+        t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log,
+        safety_active, safety_relaxed,
+    )  # fmt: skip
 
 
 def guard_counts(result: SimResult) -> dict[str, Any]:
@@ -167,6 +195,7 @@ def build_summary(
     without: SimResult | None = None,
     damping: float | None = None,
     prior: str = "affine",
+    safety: bool = False,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
     from covswarm.coordinator.physical import physical_summary, wheel_figures
@@ -189,8 +218,14 @@ def build_summary(
         "initial_error": float(result.error[0]),
         "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
         "guards": guard_counts(result),
-        # No safety filter here: a crowded mission shows as overlapping robots instead.
+        # Without the safety filter (the default here) a crowded mission shows as
+        # overlapping robots; with it, as robots held apart and off their centroids.
         "crowding": crowding(scenario, int(result.positions.shape[0]), duration).to_dict(),
+        "safety": {
+            "on": safety,
+            "active_robot_steps": result.safety_active,
+            "relaxed_robot_steps": result.safety_relaxed,
+        },
         **physical_summary(result.t, result.trajectories, scenario.robot_diameter)[0],
         # Single integrators have no wheels: null, not a made-up figure.
         **(
@@ -280,6 +315,12 @@ def physical_line(summary: dict[str, Any]) -> str:
     help="Output folder [runs/sim-<scenario>-<timestamp>].",
 )
 @click.option("--compare", is_flag=True, help="Also run without feedforward and compare.")
+@click.option(
+    "--safety",
+    is_flag=True,
+    help="Filter velocities for collision avoidance as covswarm run's agents do (off here by "
+    "default, as in the paper).",
+)
 def sim_command(
     scenario_name: str,
     agents: int | None,
@@ -294,6 +335,7 @@ def sim_command(
     dynamics: str | None,
     out_dir: Path | None,
     compare: bool,
+    safety: bool,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -324,6 +366,7 @@ def sim_command(
         "dynamics": scenario.dynamics if dynamics is None else dynamics,
         "damping": damping,
         "prior": prior,
+        "safety": safety,
     }
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
@@ -353,7 +396,7 @@ def sim_command(
         **{k: v for k, v in options.items() if k != "agents"},
     )  # fmt: skip
     if (crowd := Crowding.from_dict(summary["crowding"])).crowded:
-        console.print(f"[yellow]warning: {crowd.warning(summary['agents'], safety=False)}")
+        console.print(f"[yellow]warning: {crowd.warning(summary['agents'], safety=safety)}")
     if out_dir is None:
         out_dir = Path("runs") / f"sim-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     write_outputs(

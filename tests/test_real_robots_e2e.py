@@ -150,26 +150,7 @@ def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbours(tmp_path: Path
     assert summary["lost_processes"] == []  # the token outlived the freeze
 
 
-SQUEEZE = """
-name = "squeeze"
-agents = 2
-kappa = 2.0
-duration = 10.0
-dynamics = "unicycle"
-workspace = [-1.0, 1.0, -1.0, 1.0]
-
-[initial]
-box = [-0.5, 0.5, -0.05, 0.05]
-
-[domain]
-kind = "keyframes"
-times = [0.0, 4.0, 10.0]
-vertices = [
-  [[-0.6, -0.3], [0.6, -0.3], [0.6, 0.3], [-0.6, 0.3]],
-  [[-0.02, -0.02], [0.02, -0.02], [0.02, 0.02], [-0.02, 0.02]],
-  [[-0.02, -0.02], [0.02, -0.02], [0.02, 0.02], [-0.02, 0.02]],
-]
-"""
+SQUEEZE = Path(__file__).parent / "data" / "squeeze.toml"
 
 
 @pytest.mark.e2e
@@ -178,10 +159,8 @@ def test_robots_driven_into_each_other_keep_their_bodies_apart(tmp_path: Path) -
     velocities, head for the same point: without the filter the two bodies (14 cm) overlap,
     with it (the default) their centres stay at least a diameter apart in every sample of
     the coordinator (10 Hz)."""
-    scenario = tmp_path / "squeeze.toml"
-    scenario.write_text(SQUEEZE)
-    filtered = run(tmp_path, "safe", "--scenario", str(scenario), "--seed", "1")
-    unfiltered = run(tmp_path, "unsafe", "--scenario", str(scenario), "--seed", "1", "--no-safety")
+    filtered = run(tmp_path, "safe", "--scenario", str(SQUEEZE), "--seed", "1")
+    unfiltered = run(tmp_path, "unsafe", "--scenario", str(SQUEEZE), "--seed", "1", "--no-safety")
     assert unfiltered["min_pairwise_distance"] < 0.14, unfiltered
     assert unfiltered["close_approaches"] >= 1
     assert filtered["min_pairwise_distance"] >= 0.14, filtered

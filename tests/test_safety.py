@@ -14,6 +14,7 @@ from covswarm.tvd.safety import (
     closest_feasible,
     pair_constraints,
     safe_velocity,
+    team_safe_velocities,
     unicycle_rows,
 )
 
@@ -227,3 +228,27 @@ def test_unicycle_rows_only_limit_the_forward_speed() -> None:
     np.testing.assert_allclose(result.velocity, dense_qp(nominal, rows, b), atol=1e-7)
     assert result.velocity[1] == pytest.approx(0.1)
     assert result.velocity[0] < 0.2
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_team_filter_is_each_robots_filter_against_the_robots_near_it(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n, radius, safe = 12, 0.5, 0.16
+    positions = rng.uniform(-0.6, 0.6, size=(n, 2))
+    nominal = rng.normal(scale=0.2, size=(n, 2))
+    headings = rng.uniform(-np.pi, np.pi, size=n)
+    velocities = rng.normal(scale=0.1, size=(n, 2))
+    out, active, relaxed = team_safe_velocities(
+        positions, nominal, safe, 10.0, radius, headings=headings, velocities=velocities
+    )
+    for i in range(n):
+        near = [
+            j for j in range(n) if j != i and np.hypot(*(positions[j] - positions[i])) <= radius
+        ]
+        one = safe_velocity(
+            positions[i], nominal[i], positions[near], safe, 10.0, heading=headings[i],
+            velocity=velocities[i], neighbor_velocities=velocities[near],
+        )  # fmt: skip
+        np.testing.assert_array_equal(out[i], one.velocity)
+        assert (active[i], relaxed[i]) == (one.active, one.relaxed)
+    assert active.sum() > 0  # the layout is tight enough for the filter to act

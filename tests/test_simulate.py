@@ -176,3 +176,41 @@ def test_neighbor_histogram_counts_robots() -> None:
     histogram = neighbor_histogram(grid + [[0.01, 0.0], [0, 0], [0, 0], [0, 0.02]], square)
     assert sum(histogram.values()) == 4
     assert list(histogram) == sorted(histogram)
+
+
+SQUEEZE = Path(__file__).parent / "data" / "squeeze.toml"
+
+
+def test_safety_keeps_squeezed_robots_apart_in_the_simulator(tmp_path: Path) -> None:
+    """As in covswarm run (tests/test_real_robots_e2e.py): S shrinks to a point, the two
+    robots' bodies overlap without the filter and stay a diameter apart with --safety."""
+    for flag, name in (((), "unsafe"), (("--safety",), "safe")):
+        run_cli("--scenario", str(SQUEEZE), "--seed", "1", "--out", str(tmp_path / name), *flag)
+    unsafe = json.loads((tmp_path / "unsafe" / "summary.json").read_text())
+    safe = json.loads((tmp_path / "safe" / "summary.json").read_text())
+    assert unsafe["safety"] == {"on": False, "active_robot_steps": 0, "relaxed_robot_steps": 0}
+    assert unsafe["min_pairwise_distance"] < 0.14 and unsafe["close_approaches"] >= 1
+    assert safe["safety"]["on"] and safe["safety"]["active_robot_steps"] > 0
+    assert safe["min_pairwise_distance"] >= 0.14 and safe["close_approaches"] == 0
+    assert safe["safety"]["relaxed_robot_steps"] == 0
+
+
+def test_safety_holds_a_crowded_team_apart_at_a_cost_in_coverage() -> None:
+    """README, "Safety filter": the formation with 40 robots is crowded under its bump;
+    without the filter bodies overlap (closest 0.095 m), with it the closest pair stays
+    above a diameter and e_a pays for it (0.016 m -> 0.044 m). On the passage the filter
+    never acts (robots at least 0.187 m apart): the run is the unfiltered one exactly."""
+    formation = load_scenario("formation")
+    plain = simulate(formation, agents=40)
+    safe = simulate(formation, agents=40, safety=True)
+    for result, closest in ((plain, lambda d: d < 0.14), (safe, lambda d: d >= 0.14)):
+        gaps = np.linalg.norm(
+            result.trajectories[:, :, None] - result.trajectories[:, None], axis=3
+        ) + 9.0 * np.eye(40)
+        assert closest(gaps.min()), gaps.min()
+    assert safe.safety_active > 0 and safe.safety_relaxed == 0
+    assert steady_state_mean(safe.t, safe.error) > 2.0 * steady_state_mean(plain.t, plain.error)
+    passage = load_scenario("passage")
+    plain, safe = simulate(passage, duration=10.0), simulate(passage, duration=10.0, safety=True)
+    assert safe.safety_active == 0
+    np.testing.assert_array_equal(safe.trajectories, plain.trajectories)

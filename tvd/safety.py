@@ -229,3 +229,45 @@ def safe_velocity(
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
     velocity, active = closest_feasible(nominal, A, np.maximum(0.5 * gamma * h, 0.0))
     return FilterResult(velocity, active, True)
+
+
+def team_safe_velocities(
+    positions: np.ndarray,
+    nominal: np.ndarray,
+    safe_distance: float,
+    gamma: float,
+    radius: float,
+    *,
+    headings: np.ndarray | None = None,
+    velocities: np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every robot's :func:`safe_velocity` against the others within ``radius`` m, as each
+    agent filters its own (the in-process simulator's team at once).
+
+    positions: (n, 2) m; nominal: (n, 2) m/s; headings: (n,) rad for differential-drive
+    robots (None: single integrators); velocities: (n, 2) m/s, the centres' current ones for
+    the reciprocal split (None: the Robotarium's). Returns (velocities (n, 2), active (n,)
+    rows tight per robot, relaxed (n,) bool).
+    """
+    from scipy.spatial import cKDTree
+
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    n = len(positions)
+    out = np.empty((n, 2))
+    active = np.zeros(n, dtype=int)
+    relaxed = np.zeros(n, dtype=bool)
+    near = cKDTree(positions).query_ball_point(positions, radius)
+    for i in range(n):
+        others = [j for j in near[i] if j != i]
+        result = safe_velocity(
+            positions[i],
+            nominal[i],
+            positions[others],
+            safe_distance,
+            gamma,
+            heading=None if headings is None else float(headings[i]),
+            velocity=None if velocities is None else velocities[i],
+            neighbor_velocities=None if velocities is None else velocities[others],
+        )
+        out[i], active[i], relaxed[i] = result.velocity, result.active, result.relaxed
+    return out, active, relaxed
