@@ -97,7 +97,7 @@ def steering_limits(settings: Settings) -> Limits:
     if speed is None:
         speed = default_max_domain_speed(KHEPERA_IV.max_wheel_speed, settings.kappa)
     return Limits.for_team(
-        settings.agents, speed, settings.scenario.workspace, 0.5 * KHEPERA_IV.body_diameter
+        settings.agents, speed, settings.scenario.workspace, settings.scenario.robot_diameter
     )
 
 

@@ -47,8 +47,11 @@ from typing import Any
 
 import numpy as np
 
+from covswarm.mission.crowding import robot_room
 from covswarm.protocol.messages import MAX_VERTICES, ProtocolError
 from covswarm.protocol.steering import MAX_DURATION, MAX_REASON, SteerReply, SteerRequest
+from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.tvd.safety import DEFAULT_MARGIN
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 DomainAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -62,11 +65,15 @@ REFUSALS = (
     "self-intersecting",
     "degenerate",  # zero area, repeated vertices
     "outside-workspace",
-    "too-small",  # less area per robot than MIN_FOOTPRINTS robot footprints
+    "too-small",  # less area per robot than MIN_ROOMS robot rooms
     "too-slow",  # the motion would take longer than protocol.steering.MAX_DURATION
     "not-running",  # before the mission starts or after it ended
 )
-MIN_FOOTPRINTS = 3.0  # least area per robot, in robot footprints (pi r^2)
+# Least area of S per robot, in robot rooms (covswarm.mission.crowding.robot_room: hexagonal
+# packing at the safety filter's distance, the limit below which the crowding warning says a
+# uniform team cannot reach its CVT): a target is refused at twice that, well before robots
+# could not fit at all (2 rooms are 2.9 footprints pi r^2 of a Khepera IV).
+MIN_ROOMS = 2.0
 FOLLOW_GAP = 0.14  # m (a Khepera IV's diameter): the gap the robots must still close
 WORKSPACE_SLACK = 1e-9  # m: vertices on the workspace's edge are inside
 _ROTATION_SAMPLES = 65  # instants at which a rotating motion is checked against the walls
@@ -293,7 +300,7 @@ class Limits:
     """Feasibility of steering requests.
 
     max_speed: fastest vertex, m/s; workspace: box S must stay in (None: anywhere);
-    min_area: least area of S, m^2 (team size x MIN_FOOTPRINTS footprints).
+    min_area: least area of S, m^2 (team size x MIN_ROOMS robot rooms).
     """
 
     max_speed: float
@@ -306,10 +313,10 @@ class Limits:
         agents: int,
         max_speed: float,
         workspace: Box | None,
-        robot_radius: float = 0.07,
+        robot_diameter: float = KHEPERA_IV.body_diameter,
     ) -> Limits:
-        footprint = math.pi * robot_radius**2
-        return cls(max_speed, workspace, agents * MIN_FOOTPRINTS * footprint)
+        room = robot_room(robot_diameter, DEFAULT_MARGIN)
+        return cls(max_speed, workspace, agents * MIN_ROOMS * room)
 
 
 class Refusal(ValueError):

@@ -429,3 +429,22 @@ def test_a_restarted_coordinator_replays_the_journal_exactly() -> None:
     for t in (0.5, 1.7, 3.0, 6.5, 30.0):
         np.testing.assert_array_equal(again.domain(t)[0], steer.domain(t)[0])
         np.testing.assert_array_equal(again.domain(t)[1], steer.domain(t)[1])
+
+
+def test_too_small_is_twice_the_room_the_crowding_warning_asks() -> None:
+    """One rule for "too small": a target is refused below MIN_ROOMS (2) robot rooms per
+    robot, the room below which the crowding warning says the team cannot reach its CVT."""
+    from covswarm.mission.crowding import robot_room, smallest_cell_area
+    from covswarm.tvd.safety import DEFAULT_MARGIN
+
+    limits = Limits.for_team(10, 0.5, None)
+    room = robot_room(0.14, DEFAULT_MARGIN)
+    assert limits.min_area == pytest.approx(10 * 2.0 * room)
+    for scale, accepted in ((1.02, True), (0.98, False)):
+        side = math.sqrt(scale * limits.min_area)
+        target = [[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]]
+        reply = send(steering(limits=limits), SteerRequest("polygon", polygon=target), 1.0)
+        assert reply.accepted == accepted, reply.reason
+        # The crowding estimate of the target agrees: twice the room, give or take the grid.
+        estimate = smallest_cell_area(np.array(target), 10)
+        assert estimate == pytest.approx(2.0 * scale * room, rel=0.03)
