@@ -55,16 +55,16 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     assert rows[0] == "t,e_a" and len(rows) > 100
     assert swarm_pids(swarm) == set()
     # README: the distributed run's steady-state e_a is within 20 % of the in-process
-    # simulation of the same robots (same seed, law, unicycle model and projection distance;
-    # without the safety filter and the pose prediction, which covswarm sim does not have:
-    # the simulator holds each velocity for 20 ms from the exact pose, and a pose predicted
-    # to the command's time then held for 100 ms lags more, measured +36 %). The monitor
-    # evaluates e_a at the poses' time: against S(now) it measured +16 % to +29 %.
+    # simulation of the same robots (same seed, law, unicycle model, projection distance and
+    # safety filter; the simulator needs no pose prediction: it holds each velocity for
+    # 20 ms from the exact pose, where a pose predicted to the command's time then held for
+    # 100 ms lags more, measured +36 %). The monitor evaluates e_a at the poses' time:
+    # against S(now) it measured +16 % to +29 %.
     scenario = load_scenario("passage")  # seed 0: covswarm run's default --seed
     law = summary["law"]
     sim = simulate(
         scenario, agents=4, duration=15.0, law=law, dynamics="unicycle", seed=0,
-        projection_distance=AGENT_PROJECTION_DISTANCE,
+        projection_distance=AGENT_PROJECTION_DISTANCE, safety=True,
     )  # fmt: skip
     expected = steady_state_mean(sim.t, sim.error)
     assert summary["steady_state_error_mean"] == pytest.approx(expected, rel=0.20)
