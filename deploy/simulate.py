@@ -196,11 +196,12 @@ def build_summary(
     damping: float | None = None,
     prior: str = "affine",
     safety: bool = False,
+    projection_distance: float | None = None,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
     from covswarm.coordinator.physical import physical_summary, wheel_figures
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
-    from covswarm.tvd.drive import KHEPERA_IV
+    from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV
 
     summary: dict[str, Any] = {
         "scenario": scenario.name,
@@ -212,6 +213,10 @@ def build_summary(
         "duration": float(duration),
         "seed": int(seed),
         "dynamics": dynamics,
+        # m, the wheel mapping's (unicycles only)
+        "projection_distance": (
+            (projection_distance or DEFAULT_PROJECTION_DISTANCE) if dynamics == "unicycle" else None
+        ),
         "steps": int(result.t.size - 1),
         "steady_state_error_mean": steady_state_mean(result.t, result.error),
         "final_error": float(result.error[-1]),
@@ -316,6 +321,12 @@ def physical_line(summary: dict[str, Any]) -> str:
 )
 @click.option("--compare", is_flag=True, help="Also run without feedforward and compare.")
 @click.option(
+    "--projection-distance",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Unicycles: the wheel mapping's projection distance, m [covswarm.tvd.drive's 0.03; "
+    "the agents of covswarm run use 0.05].",
+)
+@click.option(
     "--safety",
     is_flag=True,
     help="Filter velocities for collision avoidance as covswarm run's agents do (off here by "
@@ -335,6 +346,7 @@ def sim_command(
     dynamics: str | None,
     out_dir: Path | None,
     compare: bool,
+    projection_distance: float | None,
     safety: bool,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
@@ -367,6 +379,7 @@ def sim_command(
         "damping": damping,
         "prior": prior,
         "safety": safety,
+        "projection_distance": projection_distance,
     }
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()

@@ -184,7 +184,7 @@ SQUEEZE = Path(__file__).parent / "data" / "squeeze.toml"
 def test_safety_keeps_squeezed_robots_apart_in_the_simulator(tmp_path: Path) -> None:
     """As in covswarm run (tests/test_real_robots_e2e.py): S shrinks to a point, the two
     robots' bodies overlap without the filter and stay a diameter apart with --safety."""
-    for flag, name in (((), "unsafe"), (("--safety",), "safe")):
+    for flag, name in (((), "unsafe"), (("--safety", "--projection-distance", "0.05"), "safe")):
         run_cli("--scenario", str(SQUEEZE), "--seed", "1", "--out", str(tmp_path / name), *flag)
     unsafe = json.loads((tmp_path / "unsafe" / "summary.json").read_text())
     safe = json.loads((tmp_path / "safe" / "summary.json").read_text())
@@ -193,6 +193,7 @@ def test_safety_keeps_squeezed_robots_apart_in_the_simulator(tmp_path: Path) -> 
     assert safe["safety"]["on"] and safe["safety"]["active_robot_steps"] > 0
     assert safe["min_pairwise_distance"] >= 0.14 and safe["close_approaches"] == 0
     assert safe["safety"]["relaxed_robot_steps"] == 0
+    assert (unsafe["projection_distance"], safe["projection_distance"]) == (0.03, 0.05)
 
 
 def test_safety_holds_a_crowded_team_apart_at_a_cost_in_coverage() -> None:
