@@ -17,10 +17,16 @@ from live_runs import launch, new_swarm, swarm_pids, wait_until
 
 from covswarm import protocol
 
-# The issue's mission for the delay tests: the passage with 10 robots, 45 s, the 10 brains in
-# one agent process (a 6-robot, 30-s passage proved too short a sample: its second-half
-# mean swung by 1.6x between runs with identical settings).
-PASSAGE = ("--scenario", "passage", "--agents", "10", "--agents-per-process", "10")
+# The issue's mission for the delay tests: the passage with 10 robots, the 10 brains in one
+# agent process, for as long as S moves (41 s: S reaches the goal box). Its second half then
+# holds the tracking of the moving S. After S stops, the team leaves an unstable CVT of the
+# still box (one or two robots out by up to 0.05 m for a few seconds) at a time set by
+# timing jitter, delay or not: whether that fell inside the scenario's 45 s swung the
+# second-half mean of eight identical undelayed runs between 0.0093 and 0.0149 m, against
+# 0.0096 to 0.0130 m over ten runs of 41 s (a 6-robot, 30-s passage had swung by 1.6x).
+PASSAGE = (
+    "--scenario", "passage", "--agents", "10", "--agents-per-process", "10", "--duration", "41",
+)  # fmt: skip
 
 
 class Watch:
@@ -85,10 +91,8 @@ def run(tmp_path: Path, name: str, *args: str) -> dict:
 
 @pytest.fixture(scope="module")
 def undelayed(tmp_path_factory: pytest.TempPathFactory) -> float:
-    """The undelayed steady-state e_a: the mean of two identical runs. One run is not a
-    reference: the team leaves an unstable CVT of the growing rectangle at a time set by
-    timing jitter, and whether that excursion (up to 0.05 m) falls inside the second half
-    swung the second-half mean of five identical runs between 0.0098 and 0.0149 m."""
+    """The undelayed steady-state e_a: the mean of two identical runs (see PASSAGE for how
+    much one run varies)."""
     base = tmp_path_factory.mktemp("undelayed")
     runs = [run(base, f"run{k}", *PASSAGE) for k in range(2)]
     return float(np.mean([summary["steady_state_error_mean"] for summary in runs]))
@@ -102,13 +106,17 @@ def test_late_and_lost_poses_keep_the_undelayed_error(
     """The issue's target: with 0.15 s of pose delay and 30 % loss, or 0.3 s of delay, the
     team converges and its steady-state e_a stays within 1.5x the undelayed runs' (before
     the agents predicted their pose, the team flew apart: e_a 12.3 m and 9.9 m). Measured
-    1.16x and 1.06x (README, "Real robots"); against a single undelayed run that went low
-    (0.0098 m), 1.55x once in CI, which is why the reference is a mean of two."""
+    1.16x and 1.06x over the scenario's 45 s (README, "Real robots"); at 45 s against a
+    single undelayed run that went low (0.0098 m), 1.55x once in CI, which is why the
+    reference is now a mean of two and the mission ends when S stops."""
     summary = run(
         tmp_path, "late", *PASSAGE, "--pose-delay", repr(delay), "--pose-loss", repr(loss)
     )
     assert summary["steady_state_error_mean"] <= 1.5 * undelayed, (summary, undelayed)
-    assert summary["final_error"] < 0.05
+    # Converged, not flown apart (12 m before): the last sample may catch the team leaving
+    # the unstable CVT of the still box, whose excursions peaked at 0.045-0.061 m in
+    # sixteen runs with and without delay.
+    assert summary["final_error"] < 0.1
     team = summary["agent_stats"]["team"]
     # The agents saw the delay (pose-to-command latency) and compensated it.
     assert team["pose_age_ms_p50"]["mean"] > 1e3 * delay
