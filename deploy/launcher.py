@@ -25,7 +25,13 @@ from pathlib import Path
 import click
 
 from covswarm.deploy.display import summary_table
-from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children, recording_args
+from covswarm.deploy.plan import (
+    covswarm_argv,
+    impairment_args,
+    parse_per_process,
+    plan_children,
+    recording_args,
+)
 from covswarm.deploy.router import zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
@@ -107,10 +113,11 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.option(
     "--agents-per-process",
     "per_process",
-    type=click.IntRange(min=1),
-    default=1,
+    default="auto",
     show_default=True,
-    help="Agent brains per agent process and robots per robot process.",
+    help="Agent brains per agent process and robots per robot process: a positive integer, "
+    "or auto (one each up to 8 agents per core on this host, else one agent process per "
+    "core of at most 50 brains; docs/scaling.md).",
 )
 @TIME_SCALE_OPTION
 @click.option(
@@ -185,7 +192,7 @@ def run_command(
     router_listen: tuple[str, ...],
     router_connect: tuple[str, ...],
     robots: str,
-    per_process: int,
+    per_process: str,
     time_scale: float,
     pose_loss: float,
     pose_delay: float,
@@ -228,6 +235,11 @@ def run_command(
         raise click.BadParameter(str(exc), param_hint="--ids") from None
     if ids is not None and ids[-1] >= n:
         raise click.BadParameter(f"ids go up to {ids[-1]} in a team of {n}", param_hint="--ids")
+    here = n if ids is None else len(ids)
+    try:
+        packing = parse_per_process(per_process, here)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
     duration = scenario.duration if duration is None else duration
     kappa = scenario.kappa if kappa is None else kappa
     if out_dir is None:
@@ -237,20 +249,19 @@ def run_command(
     console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=not no_safety)}")
-    here = n if ids is None else len(ids)
     with zenoh_session(
         connect, max(1000, 4 * n), router_listen, router_connect, secure=secure
     ) as (session, endpoint):  # fmt: skip
         console.log(
             f"swarm {swarm} on {endpoint}; {here if robots == 'sim' else 'no'} robots + "
-            f"{here} agents here (team of {n}); "
+            f"{here} agents here (team of {n}), {packing} per process; "
             f"logs in {log_dir}"
         )
         specs = plan_children(
             scenario, scenario_arg=scenario_name, agents=n, seed=seed, endpoint=endpoint,
             swarm=swarm, rate=rate, kappa=kappa, feedforward=not no_feedforward, law=law,
             duration=duration, out_dir=out_dir, base=covswarm_argv(), ids=ids,
-            per_process=per_process, coordinator=not no_coordinator, robots=robots == "sim",
+            per_process=packing, coordinator=not no_coordinator, robots=robots == "sim",
             time_scale=time_scale,
             agent_args=(
                 *impairment_args(pose_loss, pose_delay, seed),
@@ -282,6 +293,7 @@ def run_command(
             console.log(f"operator console on {console_url}")
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
+                        "agents_per_process": packing,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
         result = run_processes(

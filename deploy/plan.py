@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
@@ -34,6 +35,42 @@ class ChildSpec:
     @property
     def name(self) -> str:
         return f"{self.role}-{format_ids(list(self.members))}"
+
+
+# The default packing of brains into agent processes (and robots into robot processes),
+# from docs/scaling.md's measurements of 100 robots on 2 cores: one per process (K = 1)
+# took 9 minutes to bring up 201 processes at 85 MB per brain, K = 20 took 4-8 s and
+# K = 50 held 10 Hz with 0.02 % of periods missed, at 3.6 MB per brain. Up to
+# SOLO_PER_CORE agents per core each gets its own process (a process is a robot's unit of
+# failure, as on real robots); beyond, one agent process per core, at most MAX_PACKED brains
+# each (a process steps its brains one after the other: 50 at ~0.9 ms fill half a 10 Hz
+# period).
+SOLO_PER_CORE = 8
+MAX_PACKED = 50
+
+
+def auto_per_process(agents: int, cores: int) -> int:
+    """Brains per agent process for ``agents`` brains on a host with ``cores`` cores."""
+    if agents <= SOLO_PER_CORE * max(cores, 1):
+        return 1
+    return min(MAX_PACKED, -(-agents // max(cores, 1)))
+
+
+def parse_per_process(text: str, agents: int, cores: int | None = None) -> int:
+    """``--agents-per-process``: a positive integer, or "auto" (:func:`auto_per_process` for
+    ``agents`` brains on ``cores`` cores, default the cores this process may run on).
+    ValueError with the reason for anything else."""
+    if text.strip().lower() == "auto":
+        if cores is None:
+            cores = len(os.sched_getaffinity(0))
+        return auto_per_process(agents, cores)
+    try:
+        value = int(text)
+    except ValueError:
+        value = 0
+    if value < 1:
+        raise ValueError(f"must be a positive integer or auto, not {text!r}")
+    return value
 
 
 def covswarm_argv() -> list[str]:

@@ -16,7 +16,14 @@ import numpy as np
 import pytest
 from live_runs import launch, new_swarm, swarm_pids
 
-from covswarm.deploy.plan import covswarm_argv, initial_poses, plan_children
+from covswarm.deploy.plan import (
+    MAX_PACKED,
+    auto_per_process,
+    covswarm_argv,
+    initial_poses,
+    parse_per_process,
+    plan_children,
+)
 from covswarm.deploy.router import local_endpoint
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol.keys import format_ids, parse_ids
@@ -147,12 +154,39 @@ def test_a_phased_ticker_ticks_at_its_share_of_the_period() -> None:
         Ticker(10.0, phase=1.0)
 
 
+@pytest.mark.parametrize(
+    ("agents", "cores", "expected"),
+    [(10, 2, 1), (16, 2, 1), (17, 2, 9), (100, 2, 50), (1000, 2, MAX_PACKED), (100, 16, 1),
+     (200, 16, 13), (3, 0, 1)],
+)  # fmt: skip
+def test_auto_packing_gives_each_core_one_agent_process_once_a_team_is_big(
+    agents: int, cores: int, expected: int
+) -> None:
+    assert auto_per_process(agents, cores) == expected
+    assert parse_per_process("auto", agents, cores) == expected
+
+
+def test_agents_per_process_is_a_positive_integer_or_auto() -> None:
+    from click.testing import CliRunner
+
+    from covswarm.deploy.launcher import run_command
+
+    assert parse_per_process("7", 100, 2) == 7 and parse_per_process(" AUTO ", 4, 2) == 1
+    assert parse_per_process("auto", 4) == 1  # this machine's cores
+    for bad in ("0", "-3", "2.5", "many", ""):
+        with pytest.raises(ValueError, match="positive integer or auto"):
+            parse_per_process(bad, 10, 2)
+        result = CliRunner().invoke(run_command, ["--agents-per-process", bad, "--swarm", "s"])
+        assert result.exit_code == 2 and "positive integer or auto" in result.output
+
+
 @pytest.mark.e2e
 def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "packed"
     with launch(out, "--agents", "6", "--agents-per-process", "3", "--time-scale", "0.5",
                 "--scenario", "passage", "--duration", "8", swarm=swarm) as launcher:  # fmt: skip
         assert launcher.wait(timeout=120) == 0, (out.parent / "packed.launcher.log").read_text()
+    assert json.loads((out / "launch.json").read_text())["agents_per_process"] == 3
     logs = sorted(p.name for p in (out / "logs").iterdir())
     assert logs == ["agent-0-2.log", "agent-3-5.log", "coordinator-0.log", "robot-0-2.log",
                     "robot-3-5.log"]  # fmt: skip
