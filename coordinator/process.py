@@ -20,6 +20,7 @@ import time
 from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -43,7 +44,8 @@ from covswarm.coordinator.monitor import (
     team_of,
 )
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
-from covswarm.mission.crowding import crowding
+from covswarm.mission.crowding import Crowding
+from covswarm.mission.crowding import crowding as estimate_crowding
 from covswarm.mission.scenarios import Scenario, load_scenario
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION
@@ -117,6 +119,12 @@ class Settings:
     time_scale: float = 1.0  # mission s per wall s (runtime.clock.scaled)
     tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
     max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
+
+    @cached_property
+    def crowding(self) -> Crowding:
+        """Whether the team fits S over the mission: estimated once, for the warning at the
+        start and for summary.json."""
+        return estimate_crowding(self.scenario, self.agents, self.duration)
 
 
 @dataclass
@@ -544,7 +552,7 @@ def build_summary(
         "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
         "error_samples_clipped": observed.clipped_samples,
-        "crowding": crowding(settings.scenario, settings.agents, settings.duration).to_dict(),
+        "crowding": settings.crowding.to_dict(),
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
         **({} if steering is None else steering_summary(steering)),
@@ -773,8 +781,8 @@ def coordinator_command(
         tile_size=swarm_tile_size(scenario, team) if tile_size is None else tile_size,
         max_domain_speed=max_domain_speed,
     )
-    if (crowd := crowding(scenario, team, settings.duration)).crowded:
-        log.warning(crowd.warning(team))
+    if settings.crowding.crowded:
+        log.warning(settings.crowding.warning(team))
     resume_wall = read_mission_start(out_dir / MISSION_FILE, swarm) if resume else None
     stop = StopFlag()
     with zenoh.open(session_config(list(connect), secure=secure)) as session:

@@ -484,27 +484,22 @@ class Steering:
             )
         current, velocity = self.domain(t)
         brake = self._brake_at(t, velocity)
+        start, lead = t, 0.0  # when the new motion starts, s of braking before it
         if brake is not None:
+            start, lead = brake.end, brake.end - t
             current, _ = brake.motion(brake.stop_time)  # where the brake stops S
         try:
-            motion, note, jump = plan(
-                request,
-                t if brake is None else brake.end,
-                np.asarray(current, dtype=float),
-                self.limits,
-            )
-            if brake is not None and brake.end - t + getattr(motion, "span", 0.0) > MAX_DURATION:
+            motion, note, jump = plan(request, start, np.asarray(current, dtype=float), self.limits)
+            span = lead + getattr(motion, "span", 0.0)
+            if span > MAX_DURATION:  # plan() checked the motion alone
                 raise Refusal(
-                    "too-slow",
-                    f"braking {brake.end - t:.2g} s and the motion exceed {MAX_DURATION:g} s",
+                    "too-slow", f"braking {lead:.2g} s and the motion exceed {MAX_DURATION:g} s"
                 )
         except Refusal as refusal:
             return self._refuse(refusal, request, t, wall)
-        span = getattr(motion, "span", 0.0)
         if brake is not None:
             motion = replace(brake, then=motion)
-            note = "; ".join(filter(None, [f"braking {brake.end - t:.2g} s first", note]))
-            span += brake.end - t
+            note = "; ".join(filter(None, [f"braking {lead:.2g} s first", note]))
         self.motion = motion
         self.largest_jump = max(self.largest_jump, jump)
         reply = SteerReply(True, note[:MAX_REASON], span)

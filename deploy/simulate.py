@@ -155,9 +155,10 @@ def simulate(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L
             )
             wheel_log[k] = wheels
-            centre_velocity = wheels.mean(axis=1, keepdims=True) * np.column_stack(
-                [np.cos(headings), np.sin(headings)]
-            )
+            if safety:
+                centre_velocity = wheels.mean(axis=1, keepdims=True) * np.column_stack(
+                    [np.cos(headings), np.sin(headings)]
+                )
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)
             positions, headings = poses[:, :2], poses[:, 2]
         if progress is not None:
