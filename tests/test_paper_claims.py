@@ -122,9 +122,14 @@ def sims() -> dict[str, dict]:
     return done
 
 
-# The bands the README states beside the figures.
+# The bands the README states beside the figures. Spread measured on 2026-11-25 across three
+# OpenBLAS kernels on one machine (OPENBLAS_CORETYPE unset = SkylakeX, Haswell, Prescott;
+# numpy 2.4.6, scipy 1.17.1): every run below 0.3 % (most identical to the last digit), except
+# the ones that the paper's exact TVD-C drives (its solve falls back on ~99 % of the steps and
+# the run is chaotic: 7 % and 11 %) and the TVD-C damped toward 0 (2.6 %).
 E_A_REL, E_A_ABS = 0.03, 5e-5  # each steady-state e_a: 3 % or 0.05 mm, whichever is larger
-POINTS = 0.03  # each improvement and fallback rate: 3 percentage points
+CHAOTIC_REL = 0.08  # three times the 2.6 % kernel spread of the TVD-C damped toward 0
+POINTS = 0.03  # each improvement: 3 percentage points
 NEIGHBOURS = 2.0  # each mean count of Table 1: 2 robots
 
 
@@ -138,10 +143,10 @@ class Figure:
     band: float
 
 
-def e_a(run: str, text: str) -> Figure:
+def e_a(run: str, text: str, rel: float = E_A_REL) -> Figure:
     """A steady-state e_a as the README writes it, e.g. "0.0900 m"."""
     value = float(text.removesuffix(" m"))
-    band = max(E_A_REL * value, E_A_ABS)
+    band = max(rel * value, E_A_ABS)
     return Figure(text, lambda sims: sims[run]["e_a"], value, band)
 
 
@@ -152,11 +157,6 @@ def improvement(run: str, without: str, text: str) -> Figure:
         return 1.0 - sims[run]["e_a"] / sims[without]["e_a"]
 
     return Figure(text, measure, float(text.removesuffix(" %")) / 100, POINTS)
-
-
-def fallbacks(run: str, text: str) -> Figure:
-    value = float(text.removesuffix(" %")) / 100
-    return Figure(text, lambda sims: sims[run]["fallback_rate"], value, POINTS)
 
 
 def no_guard(run: str) -> Figure:
@@ -179,11 +179,8 @@ def times_better(run: str, than: str, value: float) -> Figure:
 FIGURES: list[tuple[str, list[Figure]]] = [
     ("| TVD-D1 |", [e_a("circle-d1", "0.0900 m"), e_a("circle-d1-noff", "0.1199 m"),
                     improvement("circle-d1", "circle-d1-noff", "25.0 %")]),
-    ("| TVD-C exact", [e_a("circle-c-exact", "0.0876 m"), e_a("circle-c-exact-noff", "0.1444 m"),
-                       improvement("circle-c-exact", "circle-c-exact-noff", "39.4 %"),
-                       fallbacks("circle-c-exact", "99.2 %")]),
     ("| TVD-C, feedforward damped toward 0", [
-        e_a("circle-c-zero", "0.0996 m"), e_a("circle-c-noff", "0.1838 m"),
+        e_a("circle-c-zero", "0.0996 m", CHAOTIC_REL), e_a("circle-c-noff", "0.1838 m"),
         improvement("circle-c-zero", "circle-c-noff", "45.8 %"), no_guard("circle-c-zero")]),
     ("| TVD-C, feedforward damped toward v(p)", [
         e_a("circle-c", "0.0019 m"), e_a("circle-c-noff", "0.1838 m"),
@@ -243,6 +240,20 @@ def test_reproduction_figures_within_their_bands(
     measured = [figure.measure(sims) for figure in figures]
     for figure, value in zip(figures, measured, strict=True):
         assert abs(value - figure.expected) <= figure.band, (figure.text, measured)
+
+
+def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: dict[str, dict]) -> None:
+    """The paper's exact TVD-C is tested by what is invariant about it, not by its figure:
+    its solve falls back to TVD-D1 on almost every step (98.3 to 99.4 % across the three
+    kernels above), so it lands within 5 % of TVD-D1 (-2.7 to +4.4 % measured) and clearly
+    below no feedforward (0.73 to 0.78 of TVD-D1's; without feedforward it is chaotic too,
+    0.130 to 0.144 m, 1.08 to 1.21 times TVD-D1's)."""
+    exact, d1 = sims["circle-c-exact"], sims["circle-d1"]
+    assert exact["fallback_rate"] >= 0.95, exact
+    assert 0.9 <= exact["e_a"] / d1["e_a"] <= 1.12, (exact, d1)
+    assert exact["e_a"] <= 0.88 * sims["circle-d1-noff"]["e_a"], (exact, sims["circle-d1-noff"])
+    assert sims["circle-c-exact-noff"]["fallback_rate"] >= 0.95
+    assert 1.0 <= sims["circle-c-exact-noff"]["e_a"] / sims["circle-d1-noff"]["e_a"] <= 1.35
 
 
 def test_neighbour_counts_of_table_1_within_their_band(sims: dict[str, dict]) -> None:
