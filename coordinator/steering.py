@@ -55,6 +55,10 @@ from covswarm.tvd.safety import DEFAULT_MARGIN
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 DomainAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
+# A veto on a planned motion of S: called with the motion (S at mission time t is
+# motion(t)), its start and its end (s of mission time); raises Refusal to refuse the request
+# (e.g. S would sweep an obstacle). Steering.checks holds them.
+MotionCheck = Callable[[DomainAt, float, float], None]
 
 PEAK_RATE = 15.0 / 8.0  # max over u of d/du of the quintic smoothstep
 # Refusal codes (the first word of a refused SteerReply's reason), counted per code.
@@ -463,6 +467,7 @@ class Steering:
     records: list[SteeringRecord] = field(default_factory=list)
     refused: Counter = field(default_factory=Counter)  # refusals per code
     largest_jump: float = 0.0  # m, see simplify
+    checks: tuple[MotionCheck, ...] = ()  # vetoes on a planned motion, in order
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
@@ -495,6 +500,8 @@ class Steering:
                 raise Refusal(
                     "too-slow", f"braking {lead:.2g} s and the motion exceed {MAX_DURATION:g} s"
                 )
+            for check in self.checks:
+                check(motion, start, start + span - lead)
         except Refusal as refusal:
             return self._refuse(refusal, request, t, wall)
         if brake is not None:
