@@ -66,9 +66,7 @@ class AgentProcessConfig:
             max_extrapolation=self.max_extrapolation,
             linger=self.linger,
             max_clock_skew=self.max_clock_skew,
-            robot=DiffDrive(
-                max_wheel_speed=self.max_wheel_speed, body_diameter=self.body_diameter
-            ),
+            robot=DiffDrive(max_wheel_speed=self.max_wheel_speed, body_diameter=self.body_diameter),
             pose_loss=self.pose_loss,
             pose_delay=self.pose_delay,
             pose_seed=self.pose_seed,

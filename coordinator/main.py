@@ -157,8 +157,8 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     help="Output folder.",
 )
 @click.option(
-    "--resume",
-    is_flag=True,
+    "--resume/--no-resume",
+    default=False,
     help=f"Continue the mission recorded in OUT/{MISSION_FILE} (a restarted coordinator).",
 )
 @click.option(

@@ -69,7 +69,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("every 250 ms, backing off to 1 s", lambda: reconnect("period_max_ms"), 1000),
     ("control rate (10 Hz)", lambda: option_default("run", "rate"), 10.0),
     ("This is the default run (`passage`, 10 robots, 45 s)",
-     lambda: option_default("run", "scenario_name") == "passage", True),
+     lambda: option_default("run", "scenario") == "passage", True),
     ("This is the default run (`passage`, 10 robots, 45 s)",
      lambda: (load_scenario("passage").agents, load_scenario("passage").duration), (10, 45.0)),
 ]  # fmt: skip
