@@ -39,6 +39,7 @@ under the limit: ``max_domain_speed`` (default :func:`default_max_domain_speed`)
 
 from __future__ import annotations
 
+import json
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -50,6 +51,7 @@ import numpy as np
 from covswarm.mission.crowding import robot_room
 from covswarm.protocol.messages import MAX_VERTICES, ProtocolError
 from covswarm.protocol.steering import MAX_DURATION, MAX_REASON, SteerReply, SteerRequest
+from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
@@ -339,8 +341,6 @@ def check_target(
     Too small means under ``limits.min_area`` and smaller than S is now (``current_area``,
     m^2): a request never has to make a crowded S bigger to be accepted.
     """
-    from covswarm.tvd.coverage import validate_polygon
-
     try:
         vertices = validate_polygon(np.asarray(polygon, dtype=float))
     except ValueError as exc:
@@ -532,8 +532,6 @@ class Steering:
         steering took it. Motions depend only on the request, its time and S then, so the
         replay is exact. Returns how many lines were replayed; unreadable ones are skipped.
         """
-        import json
-
         replayed = 0
         for line in lines:
             try:
@@ -547,8 +545,6 @@ class Steering:
 
     def journal_line(self) -> str:
         """The last record as one JSON line of the journal that :meth:`replay` reads."""
-        import json
-
         record = self.records[-1]
         return json.dumps({"t": record.t, "wall": record.wall, "request": record.request})
 
