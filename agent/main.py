@@ -202,7 +202,9 @@ def run_agents(
     help="Gain; default: the kappa broadcast with the domain.",
 )
 @click.option(
-    "--feedforward/--no-feedforward", default=True, help="--no-feedforward drops the dc/dt term."
+    "--feedforward/--no-feedforward",
+    default=True,
+    help="Use the dc/dt term (--no-feedforward: drop it, an ablation).",
 )
 @click.option(
     "--law",
@@ -268,7 +270,9 @@ def run_agents(
     help="Near-identity mapping's point ahead of the axle, m (covswarm.agent.brain).",
 )
 @click.option(
-    "--safety/--no-safety", default=True, help="--no-safety: no collision-avoidance filter."
+    "--safety/--no-safety",
+    default=True,
+    help="Collision-avoidance filter (--no-safety: none, to compare).",
 )
 @click.option(
     "--safety-margin",

@@ -59,7 +59,7 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.option(
     "--feedforward/--no-feedforward",
     default=True,
-    help="--no-feedforward drops the dc/dt feedforward term.",
+    help="Agents use the dc/dt feedforward term (--no-feedforward: drop it).",
 )
 @click.option(
     "--law",
@@ -143,7 +143,7 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.option(
     "--safety/--no-safety",
     default=True,
-    help="--no-safety: agents run without the collision-avoidance filter.",
+    help="Agents filter for collisions (--no-safety: they run without the filter).",
 )
 @click.option(
     "--prediction/--no-prediction",
