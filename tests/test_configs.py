@@ -51,6 +51,23 @@ def test_every_field_is_an_option_of_the_same_name(config: type, command: click.
         assert "--" + field.replace("_", "-") in param.opts
 
 
+@pytest.mark.parametrize(
+    ("command", "argv", "config"),
+    [
+        (coordinator_command, ["--connect", "e", "--swarm", "s", "--out", "o"],
+         CoordinatorConfig(connect=("e",), swarm="s", out=Path("o"))),
+        (agent_command, ["--connect", "e", "--id", "1"],
+         AgentProcessConfig(connect=("e",), rate=10.0, id=1)),
+        (robot_command, ["--connect", "e", "--id", "1"], RobotConfig(connect=("e",), id=1)),
+        (run_command, [], RunConfig()),
+    ],
+)  # fmt: skip
+def test_options_left_out_give_the_fields_defaults(
+    command: click.Command, argv: list[str], config: object
+) -> None:
+    assert type(config)(**parsed(command, argv)) == config
+
+
 def test_config_argv_writes_what_differs_bools_and_required_fields() -> None:
     config = CoordinatorConfig(swarm="s", out=Path("o"), connect=("a", "b"), rate=12.5)
     assert config_argv(config) == [
