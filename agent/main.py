@@ -39,8 +39,8 @@ Neighbour discovery
   achieve, not the unsaturated command), for at most DEAD_RECKONING_LIMIT s per hop.
 - **Faults** (docs/faults.md): a robot whose agent's or robot's liveliness token is deleted
   (``alive/*/*``, changes only) leaves the local diagram at once; an agent whose own pose is
-  stale commands (0, 0) and publishes no AgentState or beacon. ``--drop-poses`` /
-  ``--delay-poses`` inject seeded loss and delay of poses and AgentStates
+  stale commands (0, 0) and publishes no AgentState or beacon. ``--pose-loss`` /
+  ``--pose-delay`` inject seeded loss and delay of poses and AgentStates
   (:class:`PoseImpairment`).
 
 Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
@@ -80,7 +80,7 @@ from __future__ import annotations
 
 import logging
 import time
-from pathlib import Path
+from typing import Any
 
 import click
 import zenoh
@@ -89,10 +89,10 @@ from covswarm import protocol
 from covswarm.agent.brain import (
     AGENT_PROJECTION_DISTANCE,
     AgentBrain,
-    AgentConfig,
     DeclareAlive,
     SendCommand,
 )
+from covswarm.agent.config import AgentProcessConfig
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.link import AgentLink
 from covswarm.agent.metrics import Counters
@@ -101,7 +101,7 @@ from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
+from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
 log = logging.getLogger("covswarm.agent")
@@ -180,7 +180,7 @@ def run_agents(
 
 
 @click.command("agent")
-@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
+@click.option("--id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
 @click.option("--ids", help="Several brains in this process instead, e.g. 0-9 (one session).")
 @click.option(
     "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
@@ -201,7 +201,11 @@ def run_agents(
     default=None,
     help="Gain; default: the kappa broadcast with the domain.",
 )
-@click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt term (ablation).")
+@click.option(
+    "--feedforward/--no-feedforward",
+    default=True,
+    help="Use the dc/dt term (--no-feedforward: drop it, an ablation).",
+)
 @click.option(
     "--law",
     type=click.Choice(("da", "d1")),
@@ -224,14 +228,14 @@ def run_agents(
     help="Rim speed limit (m/s) the commands are saturated to.",
 )
 @click.option(
-    "--drop-poses",
+    "--pose-loss",
     type=click.FloatRange(0.0, 1.0, max_open=True),
     default=0.0,
     show_default=True,
     help="Fault injection: drop this fraction of received poses.",
 )
 @click.option(
-    "--delay-poses",
+    "--pose-delay",
     type=click.FloatRange(min=0.0),
     default=0.0,
     show_default=True,
@@ -239,9 +243,10 @@ def run_agents(
 )
 @click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
 @click.option(
-    "--no-prediction",
-    is_flag=True,
-    help="Control from the last pose as received, not predicted to the command's time.",
+    "--prediction/--no-prediction",
+    default=True,
+    help="--no-prediction: control from the last pose as received, not predicted to the "
+    "command's time.",
 )
 @click.option(
     "--cmd-timeout",
@@ -264,7 +269,11 @@ def run_agents(
     show_default=True,
     help="Near-identity mapping's point ahead of the axle, m (covswarm.agent.brain).",
 )
-@click.option("--no-safety", is_flag=True, help="No collision-avoidance filter (to compare).")
+@click.option(
+    "--safety/--no-safety",
+    default=True,
+    help="Collision-avoidance filter (--no-safety: none, to compare).",
+)
 @click.option(
     "--safety-margin",
     type=click.FloatRange(min=0.0),
@@ -280,73 +289,27 @@ def run_agents(
     help="This robot's body diameter, m (the safety filter's disks).",
 )
 @SECURE_OPTION
-@click.option("--verbose", is_flag=True, help="Log at INFO level.")
-def agent_command(
-    robot_id: int | None,
-    ids: str | None,
-    connect: tuple[str, ...],
-    swarm: str,
-    rate: float,
-    tick_phase: float | None,
-    time_scale: float,
-    kappa: float | None,
-    no_feedforward: bool,
-    law: str,
-    stale_timeout: float,
-    beacon_period: float,
-    beacon_timeout: float,
-    max_tile_radius: int,
-    max_extrapolation: float,
-    linger: float,
-    max_clock_skew: float,
-    max_wheel_speed: float,
-    drop_poses: float,
-    delay_poses: float,
-    pose_seed: int,
-    no_prediction: bool,
-    cmd_timeout: float,
-    command_latency: float,
-    projection_distance: float,
-    no_safety: bool,
-    safety_margin: float,
-    body_diameter: float,
-    secure: Path | None,
-    verbose: bool,
-) -> None:
+@click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
+def agent_command(**options: Any) -> None:
     """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi,
     TVD-D1)."""
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
+    run_agent_process(AgentProcessConfig(**options))
+
+
+def run_agent_process(config: AgentProcessConfig) -> None:
+    """The agent process ``config`` describes: its brains until SIGINT/SIGTERM."""
+    logging.basicConfig(level=logging.INFO if config.verbose else logging.WARNING)
     try:
-        protocol.check_swarm(swarm)
+        protocol.check_swarm(config.swarm)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--swarm") from exc
-    robot_ids = id_selection(robot_id, ids)
-    config = AgentConfig(
-        kappa=kappa,
-        feedforward=not no_feedforward,
-        law=law,
-        stale_timeout=stale_timeout,
-        beacon_period=beacon_period,
-        beacon_timeout=beacon_timeout,
-        max_tile_radius=max_tile_radius,
-        max_extrapolation=max_extrapolation,
-        linger=linger,
-        max_clock_skew=max_clock_skew,
-        robot=DiffDrive(max_wheel_speed=max_wheel_speed, body_diameter=body_diameter),
-        pose_loss=drop_poses,
-        pose_delay=delay_poses,
-        pose_seed=pose_seed,
-        prediction=not no_prediction,
-        cmd_timeout=cmd_timeout,
-        command_latency=command_latency,
-        projection_distance=projection_distance,
-        safety=not no_safety,
-        safety_margin=safety_margin,
-    )
+    robot_ids = id_selection(config.id, config.ids)
     try:
-        zenoh_config = session_config(list(connect), None, "client", secure=secure)
+        zenoh_config = session_config(list(config.connect), None, "client", secure=config.secure)
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
-    brains = [AgentBrain(i, config, decoder) for i in robot_ids]
-    run_agents(brains, swarm, zenoh_config, rate, time_scale, tick_phase)
+    brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]
+    run_agents(
+        brains, config.swarm, zenoh_config, config.rate, config.time_scale, config.tick_phase
+    )

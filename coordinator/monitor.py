@@ -1,6 +1,6 @@
 """Pure bookkeeping of the coordinator: mission clock, liveness, error record, summary.
 
-No I/O and no zenoh here: coordinator.process feeds these from its subscriptions, so the
+No I/O and no zenoh here: coordinator.core feeds these from its subscriptions, so the
 logic that decides when the mission starts, who died when and what the summary says is
 unit-tested without a network.
 """
@@ -17,7 +17,7 @@ WAITING, RUNNING, DONE = "waiting", "running", "done"
 
 
 @dataclass
-class MissionClock:
+class MissionPhase:
     """waiting -> running (once the team is up) -> done (at ``duration``).
 
     Times are monotonic seconds; mission time is 0 until the start and frozen at

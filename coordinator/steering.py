@@ -39,6 +39,7 @@ under the limit: ``max_domain_speed`` (default :func:`default_max_domain_speed`)
 
 from __future__ import annotations
 
+import json
 import math
 from collections import Counter
 from collections.abc import Callable
@@ -50,11 +51,16 @@ import numpy as np
 from covswarm.mission.crowding import robot_room
 from covswarm.protocol.messages import MAX_VERTICES, ProtocolError
 from covswarm.protocol.steering import MAX_DURATION, MAX_REASON, SteerReply, SteerRequest
+from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 DomainAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
+# A veto on a planned motion of S: called with the motion (S at mission time t is
+# motion(t)), its start and its end (s of mission time); raises Refusal to refuse the request
+# (e.g. S would sweep an obstacle). Steering.checks holds them.
+MotionCheck = Callable[[DomainAt, float, float], None]
 
 PEAK_RATE = 15.0 / 8.0  # max over u of d/du of the quintic smoothstep
 # Refusal codes (the first word of a refused SteerReply's reason), counted per code.
@@ -335,8 +341,6 @@ def check_target(
     Too small means under ``limits.min_area`` and smaller than S is now (``current_area``,
     m^2): a request never has to make a crowded S bigger to be accepted.
     """
-    from covswarm.tvd.coverage import validate_polygon
-
     try:
         vertices = validate_polygon(np.asarray(polygon, dtype=float))
     except ValueError as exc:
@@ -463,6 +467,7 @@ class Steering:
     records: list[SteeringRecord] = field(default_factory=list)
     refused: Counter = field(default_factory=Counter)  # refusals per code
     largest_jump: float = 0.0  # m, see simplify
+    checks: tuple[MotionCheck, ...] = ()  # vetoes on a planned motion, in order
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
@@ -495,6 +500,8 @@ class Steering:
                 raise Refusal(
                     "too-slow", f"braking {lead:.2g} s and the motion exceed {MAX_DURATION:g} s"
                 )
+            for check in self.checks:
+                check(motion, start, start + span - lead)
         except Refusal as refusal:
             return self._refuse(refusal, request, t, wall)
         if brake is not None:
@@ -525,8 +532,6 @@ class Steering:
         steering took it. Motions depend only on the request, its time and S then, so the
         replay is exact. Returns how many lines were replayed; unreadable ones are skipped.
         """
-        import json
-
         replayed = 0
         for line in lines:
             try:
@@ -540,8 +545,6 @@ class Steering:
 
     def journal_line(self) -> str:
         """The last record as one JSON line of the journal that :meth:`replay` reads."""
-        import json
-
         record = self.records[-1]
         return json.dumps({"t": record.t, "wall": record.wall, "request": record.request})
 

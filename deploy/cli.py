@@ -19,7 +19,7 @@ SUBCOMMANDS: dict[str, str] = {
     "run": "covswarm.deploy.launcher:run_command",
     "agent": "covswarm.agent.main:agent_command",
     "robot": "covswarm.sim_robot.process:robot_command",
-    "coordinator": "covswarm.coordinator.process:coordinator_command",
+    "coordinator": "covswarm.coordinator.main:coordinator_command",
     "bench": "covswarm.deploy.bench:bench_command",
     "credentials": "covswarm.protocol.security:credentials_command",
     "steer": "covswarm.coordinator.steer_client:steer_command",

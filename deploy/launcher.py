@@ -19,23 +19,28 @@ from __future__ import annotations
 
 import json
 import sys
+from dataclasses import replace
 from datetime import datetime
 from pathlib import Path
+from typing import Any
 
 import click
+from rich.console import Console
 
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
+    RunConfig,
+    console_spec,
     covswarm_argv,
-    impairment_args,
     parse_per_process,
     plan_children,
-    recording_args,
+    team_size,
 )
-from covswarm.deploy.router import zenoh_session
+from covswarm.deploy.router import free_port, zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
 from covswarm.mission.scenarios import load_scenario
+from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
@@ -45,14 +50,17 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.command("run")
 @click.option(
     "--scenario",
-    "scenario_name",
     default="passage",
     show_default=True,
     help="Built-in scenario (circle, passage) or a .toml file.",
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
-@click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt feedforward term.")
+@click.option(
+    "--feedforward/--no-feedforward",
+    default=True,
+    help="Agents use the dc/dt feedforward term (--no-feedforward: drop it).",
+)
 @click.option(
     "--law",
     type=click.Choice(("da", "d1")),
@@ -69,7 +77,6 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.option("--seed", type=int, default=0, show_default=True, help="Initial poses.")
 @click.option(
     "--out",
-    "out_dir",
     type=click.Path(file_okay=False, path_type=Path),
     help="Output folder [runs/run-<scenario>-<timestamp>].",
 )
@@ -84,13 +91,13 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 @click.option("--connect", help="Join this Zenoh endpoint instead of an embedded router.")
 @click.option(
     "--ids",
-    "ids_arg",
     help="Only these robot ids (and their agents) on this host, e.g. 0-49 [all]; needs --swarm.",
 )
 @click.option(
-    "--no-coordinator",
-    is_flag=True,
-    help="The coordinator runs on another host: end when it says done; needs --swarm.",
+    "--coordinator/--no-coordinator",
+    default=True,
+    help="--no-coordinator: the coordinator runs on another host: end when it says done; "
+    "needs --swarm.",
 )
 @click.option(
     "--router-listen",
@@ -112,7 +119,6 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 )
 @click.option(
     "--agents-per-process",
-    "per_process",
     default="auto",
     show_default=True,
     help="Agent brains per agent process and robots per robot process: a positive integer, "
@@ -135,12 +141,15 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     help="Fault injection: every agent receives poses this many s late.",
 )
 @click.option(
-    "--no-safety", is_flag=True, help="Agents run without the collision-avoidance filter."
+    "--safety/--no-safety",
+    default=True,
+    help="Agents filter for collisions (--no-safety: they run without the filter).",
 )
 @click.option(
-    "--no-prediction",
-    is_flag=True,
-    help="Agents control from poses as received, not predicted to the command's time.",
+    "--prediction/--no-prediction",
+    default=True,
+    help="--no-prediction: agents control from poses as received, not predicted to the "
+    "command's time.",
 )
 @click.option(
     "--startup-timeout",
@@ -158,7 +167,6 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 )
 @click.option(
     "--console",
-    "with_console",
     is_flag=True,
     help="Also serve the operator console (covswarm console) on 127.0.0.1.",
 )
@@ -175,119 +183,76 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     help="Fastest a steered vertex of S may move, m/s [the coordinator's default].",
 )
 @SECURE_OPTION
-def run_command(
-    scenario_name: str,
-    agents: int | None,
-    kappa: float | None,
-    no_feedforward: bool,
-    law: str,
-    duration: float | None,
-    seed: int,
-    out_dir: Path | None,
-    rate: float,
-    swarm: str | None,
-    connect: str | None,
-    ids_arg: str | None,
-    no_coordinator: bool,
-    router_listen: tuple[str, ...],
-    router_connect: tuple[str, ...],
-    robots: str,
-    per_process: str,
-    time_scale: float,
-    pose_loss: float,
-    pose_delay: float,
-    no_safety: bool,
-    no_prediction: bool,
-    startup_timeout: float,
-    foxglove_port: int | None,
-    record: bool,
-    with_console: bool,
-    console_port: int,
-    max_domain_speed: float | None,
-    secure: Path | None,
-) -> None:
+def run_command(foxglove_port: int | None, **options: Any) -> None:
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
-    from rich.console import Console
+    # FOXGLOVE_OPTION (shared with covswarm coordinator) names its value foxglove_port.
+    run_swarm(RunConfig(foxglove=foxglove_port, **options))
 
-    from covswarm.protocol import check_swarm, new_swarm_name
 
-    if (ids_arg is not None or no_coordinator) and not swarm:
+def run_swarm(run: RunConfig) -> None:
+    """The run ``run`` describes: router, children, live display, summary; exits with its
+    status."""
+    if (run.ids is not None or not run.coordinator) and not run.swarm:
         raise click.UsageError("--ids and --no-coordinator need --swarm (the same on every host)")
-    if robots == "none" and not swarm:
+    if run.robots == "none" and not run.swarm:
         raise click.UsageError("--robots none needs --swarm, the name the bridges join")
-    if connect is not None and (router_listen or router_connect):
+    if run.connect is not None and (run.router_listen or run.router_connect):
         raise click.UsageError("--connect joins a router: no --router-listen/--router-connect")
-    if with_console and console_port and not port_is_free(console_port):
-        raise click.UsageError(f"--console-port: 127.0.0.1:{console_port} is already in use")
-    if foxglove_port is not None and no_coordinator:
+    if run.console and run.console_port and not port_is_free(run.console_port):
+        raise click.UsageError(f"--console-port: 127.0.0.1:{run.console_port} is already in use")
+    if run.foxglove is not None and not run.coordinator:
         raise click.UsageError("--foxglove: the coordinator serves the live view; run it there")
-    if foxglove_port is not None and not port_is_free(foxglove_port):
-        raise click.UsageError(f"--foxglove: {LIVE_HOST}:{foxglove_port} is already in use")
+    if run.foxglove is not None and not port_is_free(run.foxglove):
+        raise click.UsageError(f"--foxglove: {LIVE_HOST}:{run.foxglove} is already in use")
     try:
-        scenario = load_scenario(scenario_name)
-        swarm = check_swarm(swarm) if swarm else new_swarm_name()
+        scenario = load_scenario(run.scenario)
+        swarm = check_swarm(run.swarm) if run.swarm else new_swarm_name()
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    n = scenario.agents if agents is None else agents
+    n = team_size(run, scenario)
     try:
-        ids = None if ids_arg is None else parse_ids(ids_arg)
+        ids = None if run.ids is None else parse_ids(run.ids)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--ids") from None
     if ids is not None and ids[-1] >= n:
         raise click.BadParameter(f"ids go up to {ids[-1]} in a team of {n}", param_hint="--ids")
     here = n if ids is None else len(ids)
     try:
-        packing = parse_per_process(per_process, here)
+        packing = parse_per_process(run.agents_per_process, here)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
-    duration = scenario.duration if duration is None else duration
-    kappa = scenario.kappa if kappa is None else kappa
+    duration = scenario.duration if run.duration is None else run.duration
+    out_dir = run.out
     if out_dir is None:
         out_dir = Path("runs") / f"run-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    run = replace(run, swarm=swarm, out=out_dir)
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
-        console.log(f"[yellow]warning: {crowd.warning(n, safety=not no_safety)}")
+        console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
     with zenoh_session(
-        connect, max(1000, 4 * n), router_listen, router_connect, secure=secure
+        run.connect, max(1000, 4 * n), run.router_listen, run.router_connect, secure=run.secure
     ) as (session, endpoint):  # fmt: skip
         console.log(
-            f"swarm {swarm} on {endpoint}; {here if robots == 'sim' else 'no'} robots + "
+            f"swarm {swarm} on {endpoint}; {here if run.robots == 'sim' else 'no'} robots + "
             f"{here} agents here (team of {n}), {packing} per process; "
             f"logs in {log_dir}"
         )
         specs = plan_children(
-            scenario, scenario_arg=scenario_name, agents=n, seed=seed, endpoint=endpoint,
-            swarm=swarm, rate=rate, kappa=kappa, feedforward=not no_feedforward, law=law,
-            duration=duration, out_dir=out_dir, base=covswarm_argv(), ids=ids,
-            per_process=packing, coordinator=not no_coordinator, robots=robots == "sim",
-            time_scale=time_scale,
-            agent_args=(
-                *impairment_args(pose_loss, pose_delay, seed),
-                *(("--no-safety",) if no_safety else ()),
-                *(("--no-prediction",) if no_prediction else ()),
-            ),
-            secure=secure,
-            coordinator_args=(
-                *recording_args(seed, foxglove_port, record),
-                *(("--max-domain-speed", repr(max_domain_speed)) if max_domain_speed else ()),
-            ),
-        )  # fmt: skip
-        if foxglove_port is not None:
-            port = "a free port (see the coordinator's log)" if foxglove_port == 0 else (
-                f"ws://{LIVE_HOST}:{foxglove_port}"
+            run, scenario, endpoint=endpoint, base=covswarm_argv(), ids=ids, per_process=packing
+        )
+        if run.foxglove is not None:
+            port = "a free port (see the coordinator's log)" if run.foxglove == 0 else (
+                f"ws://{LIVE_HOST}:{run.foxglove}"
             )  # fmt: skip
             console.log(f"Foxglove live view on {port} (docs/records.md)")
         console_url = None
-        if with_console:
-            from covswarm.deploy.plan import console_spec
-            from covswarm.deploy.router import free_port
-
-            port = console_port or free_port()
+        if run.console:
+            port = run.console_port or free_port()
             first = 1 if specs and specs[0].role == "coordinator" else 0
             specs.insert(first, console_spec(
-                covswarm_argv(), endpoint=endpoint, swarm=swarm, port=port, secure=secure,
+                covswarm_argv(), endpoint=endpoint, swarm=swarm, port=port, secure=run.secure,
             ))  # fmt: skip
             console_url = f"http://127.0.0.1:{port}/"
             console.log(f"operator console on {console_url}")
@@ -298,7 +263,7 @@ def run_command(
         )  # fmt: skip
         result = run_processes(
             specs, session=session, swarm=swarm, agents=n, duration=duration, log_dir=log_dir,
-            startup_timeout=startup_timeout, console=console,
+            startup_timeout=run.startup_timeout, console=console,
         )  # fmt: skip
     (out_dir / "resources.json").write_text(
         json.dumps(
@@ -317,7 +282,7 @@ def run_command(
     if summary_path.exists():
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
         console.print(summary_table(summary, result, out_dir))
-    elif no_coordinator:
+    elif not run.coordinator:
         console.log(f"the coordinator's host writes the summary; resources in {out_dir}")
     else:
         console.log(f"[red]no summary written (see {log_dir / 'coordinator-0.log'})")

@@ -1,4 +1,9 @@
-"""What ``covswarm run`` starts: one ChildSpec (role, ids, command line) per process."""
+"""What ``covswarm run`` starts: one ChildSpec (role, ids, command line) per process.
+
+``covswarm run``'s options are one RunConfig; each child's options are its own config
+object (CoordinatorConfig, RobotConfig, AgentProcessConfig), made from the RunConfig by one
+function per kind and written as a command line by runtime.options.config_argv.
+"""
 
 from __future__ import annotations
 
@@ -10,8 +15,12 @@ from pathlib import Path
 
 import numpy as np
 
+from covswarm.agent.config import AgentProcessConfig
+from covswarm.coordinator.config import CoordinatorConfig
 from covswarm.mission.scenarios import Scenario
 from covswarm.protocol.keys import format_ids
+from covswarm.runtime.options import config_argv
+from covswarm.sim_robot.config import RobotConfig
 
 
 @dataclass(frozen=True)
@@ -92,29 +101,128 @@ def initial_poses(scenario: Scenario, n: int, seed: int) -> np.ndarray:
     return np.column_stack([positions, headings])
 
 
+@dataclass(frozen=True)
+class RunConfig:
+    """Every ``covswarm run`` option, with the option's name (``--pose-loss`` is
+    ``pose_loss``): the CLI builds it with ``RunConfig(**options)``. ``None``: the
+    scenario's value (agents, duration, kappa), a generated name (swarm), a dated folder
+    (out), the whole team (ids), an embedded router (connect)."""
+
+    scenario: str = "passage"
+    agents: int | None = None
+    kappa: float | None = None
+    feedforward: bool = True
+    law: str = "da"
+    duration: float | None = None
+    seed: int = 0
+    out: Path | None = None
+    rate: float = 10.0  # the agents' control rate
+    swarm: str | None = None
+    connect: str | None = None
+    ids: str | None = None  # this host's slice, e.g. "0-49"
+    coordinator: bool = True  # False: it runs on another host
+    router_listen: tuple[str, ...] = ()
+    router_connect: tuple[str, ...] = ()
+    robots: str = "sim"  # "sim" | "none" (bridges bring them)
+    agents_per_process: str = "auto"  # parse_per_process
+    time_scale: float = 1.0
+    pose_loss: float = 0.0
+    pose_delay: float = 0.0
+    safety: bool = True
+    prediction: bool = True
+    startup_timeout: float = 300.0
+    foxglove: int | None = None
+    record: bool = True
+    console: bool = False
+    console_port: int = 7480
+    max_domain_speed: float | None = None
+    secure: Path | None = None
+
+
+def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> CoordinatorConfig:
+    """The coordinator of ``run``: the team, the mission, where its outputs and records go."""
+    if run.swarm is None or run.out is None:
+        raise ValueError("a planned run needs its swarm and output folder")
+    return CoordinatorConfig(
+        swarm=run.swarm,
+        out=run.out,
+        scenario=run.scenario,
+        connect=(endpoint,),
+        agents=team_size(run, scenario),
+        duration=scenario.duration if run.duration is None else run.duration,
+        kappa=scenario.kappa if run.kappa is None else run.kappa,
+        feedforward=run.feedforward,
+        law=run.law,
+        max_domain_speed=run.max_domain_speed,
+        record=run.record,
+        foxglove=run.foxglove,
+        seed=run.seed,
+        time_scale=run.time_scale,
+        secure=run.secure,
+    )
+
+
+def robot_config(
+    run: RunConfig, endpoint: str, group: Sequence[int], poses: np.ndarray, packed: bool
+) -> RobotConfig:
+    """The robot process of ``run`` simulating robots ``group``, at ``poses`` ((n, 3) x, y,
+    heading of the full team): ``--id``/``--x``/``--y``/``--theta`` for one robot per
+    process, ``--ids`` and a ``--pose`` each when ``packed`` (a group of one included)."""
+    common = {"connect": (endpoint,), "swarm": run.swarm, "time_scale": run.time_scale}
+    if not packed:
+        (i,) = group
+        x, y, theta = (float(v) for v in poses[i])
+        return RobotConfig(id=i, x=x, y=y, theta=theta, secure=run.secure, **common)
+    pose = tuple(",".join(repr(float(v)) for v in poses[i]) for i in group)
+    return RobotConfig(ids=format_ids(list(group)), pose=pose, secure=run.secure, **common)
+
+
+def agent_config(
+    run: RunConfig,
+    scenario: Scenario,
+    endpoint: str,
+    group: Sequence[int],
+    phase: float,
+    packed: bool,
+) -> AgentProcessConfig:
+    """The agent process of ``run`` running the brains of ``group`` (``--ids`` when
+    ``packed``, else ``--id``), starting its control periods at ``phase`` of a period; the
+    scenario's bodies for its safety filter."""
+    one = not packed
+    return AgentProcessConfig(
+        connect=(endpoint,),
+        id=group[0] if one else None,
+        ids=None if one else format_ids(list(group)),
+        swarm=run.swarm,
+        rate=run.rate,
+        tick_phase=phase,
+        time_scale=run.time_scale,
+        kappa=scenario.kappa if run.kappa is None else run.kappa,
+        feedforward=run.feedforward,
+        law=run.law,
+        pose_loss=run.pose_loss,
+        pose_delay=run.pose_delay,
+        pose_seed=run.seed,
+        prediction=run.prediction,
+        safety=run.safety,
+        body_diameter=scenario.robot_diameter,
+        secure=run.secure,
+    )
+
+
+def team_size(run: RunConfig, scenario: Scenario) -> int:
+    """The team of ``run`` (all hosts): --agents, else the scenario's."""
+    return scenario.agents if run.agents is None else run.agents
+
+
 def plan_children(
+    run: RunConfig,
     scenario: Scenario,
     *,
-    scenario_arg: str,
-    agents: int,
-    seed: int,
     endpoint: str,
-    swarm: str,
-    rate: float,
-    kappa: float,
-    feedforward: bool,
-    duration: float,
-    out_dir: Path,
     base: Sequence[str],
     ids: Sequence[int] | None = None,
     per_process: int = 1,
-    coordinator: bool = True,
-    robots: bool = True,
-    time_scale: float = 1.0,
-    agent_args: Sequence[str] = (),
-    secure: Path | None = None,
-    law: str = "da",
-    coordinator_args: Sequence[str] = (),
 ) -> list[ChildSpec]:
     """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
 
@@ -122,74 +230,37 @@ def plan_children(
     every robot before the (slower to import) agents would load the machine while the
     agents start. The coordinator holds the mission until everyone is up either way.
 
-    ``ids``: the slice of the team of ``agents`` this host runs (default: all of it); a
-    robot starts where it would in the full team, so hosts that split a team with the same
-    seed reproduce the one-host run. ``per_process`` robots (brains) share a robot (agent)
-    process; ``coordinator=False`` leaves the coordinator to another host, ``robots=False``
-    the robots to bridges (covswarm bridge ros2) that join the swarm. ``agent_args``
-    are appended to every agent's command line (fault injection), ``coordinator_args`` to
-    the coordinator's (recording, live view). ``secure``: every child
-    gets ``--secure`` (protocol.security). Agent process k of n gets ``--tick-phase k/n``:
-    their batches of brains take turns within the control period instead of colliding on
-    the cores at chance moments. ``law``: the agents' control law, "da" or "d1"
-    (covswarm.tvd.control.local_step), also recorded by the coordinator.
+    ``run``: the run's options (``swarm`` and ``out`` set); ``scenario``: its loaded
+    scenario; ``endpoint``: the router the children join; ``base``: how to run covswarm
+    (:func:`covswarm_argv`). ``ids``: the slice of the team this host runs (default: all of
+    it); a robot starts where it would in the full team, so hosts that split a team with the
+    same seed reproduce the one-host run. ``per_process`` robots (brains) share a robot
+    (agent) process; ``run.coordinator`` False leaves the coordinator to another host,
+    ``run.robots`` "none" the robots to bridges (covswarm bridge ros2) that join the swarm.
+    Agent process k of n gets ``--tick-phase k/n``: their batches of brains take turns
+    within the control period instead of colliding on the cores at chance moments. Each
+    child's command line is its config object's (runtime.options.config_argv).
     """
-    secured = () if secure is None else ("--secure", str(secure))
-    common = ("--connect", endpoint, "--swarm", swarm, *secured)
-    ff = ("--law", law) if feedforward else ("--law", law, "--no-feedforward")
-    scale = () if time_scale == 1.0 else ("--time-scale", repr(time_scale))
-    # The scenario's bodies, for the agents' safety filter (theirs by default: a Khepera IV).
-    body = ("--body-diameter", repr(scenario.robot_diameter))
+    n = team_size(run, scenario)
     specs = []
-    if coordinator:
-        argv = (
-            *base, "coordinator", "--scenario", scenario_arg, *common, "--agents", str(agents),
-            "--duration", repr(duration), "--kappa", repr(kappa), "--out", str(out_dir),
-            "--feedforward" if feedforward else "--no-feedforward", "--law", law, *scale,
-            *coordinator_args,
-        )  # fmt: skip
-        specs.append(ChildSpec("coordinator", 0, argv))
-    poses = initial_poses(scenario, agents, seed)
-    chosen = list(range(agents)) if ids is None else sorted(ids)
+    if run.coordinator:
+        config = coordinator_config(run, scenario, endpoint)
+        specs.append(ChildSpec("coordinator", 0, (*base, "coordinator", *config_argv(config))))
+    poses = initial_poses(scenario, n, run.seed)
+    chosen = list(range(n)) if ids is None else sorted(ids)
     processes = -(-len(chosen) // per_process)
     for start in range(0, len(chosen), per_process):
         group = chosen[start : start + per_process]
-        if per_process == 1:
-            (i,) = group
-            x, y, theta = (repr(float(v)) for v in poses[i])
-            robot_ids: tuple[str, ...] = ("--id", str(i), "--x", x, "--y", y, "--theta", theta)
-            agent_ids: tuple[str, ...] = ("--id", str(i))
-        else:
-            listed = format_ids(group)
-            agent_ids = ("--ids", listed)
-            robot_ids = agent_ids + tuple(
-                arg for i in group for arg in ("--pose", ",".join(repr(float(v)) for v in poses[i]))
-            )
-        robot = (*base, "robot", *robot_ids, *common, *scale)
-        agent = (
-            *base, "agent", *agent_ids, *common, "--rate", repr(rate), "--kappa", repr(kappa),
-            "--tick-phase", repr(start // per_process / processes), *ff, *scale, *agent_args,
-            *body,
-        )  # fmt: skip
         members = tuple(group) if per_process > 1 else ()
-        if robots:
-            specs.append(ChildSpec("robot", group[0], robot, members))
-        specs.append(ChildSpec("agent", group[0], agent, members))
+        if run.robots == "sim":
+            robot = robot_config(run, endpoint, group, poses, per_process > 1)
+            specs.append(
+                ChildSpec("robot", group[0], (*base, "robot", *config_argv(robot)), members)
+            )
+        phase = start // per_process / processes
+        agent = agent_config(run, scenario, endpoint, group, phase, per_process > 1)
+        specs.append(ChildSpec("agent", group[0], (*base, "agent", *config_argv(agent)), members))
     return specs
-
-
-def recording_args(seed: int, foxglove_port: int | None, record: bool) -> tuple[str, ...]:
-    """Coordinator options for the run's records: the seed (run.mcap's metadata), the live
-    view's port, and --no-record when recording is off (covswarm.records)."""
-    live = () if foxglove_port is None else ("--foxglove", str(foxglove_port))
-    return ("--seed", str(seed), *live, *(() if record else ("--no-record",)))
-
-
-def impairment_args(loss: float, delay: float, seed: int) -> tuple[str, ...]:
-    """Agent options that inject pose loss and delay (none when both are zero)."""
-    if loss == 0.0 and delay == 0.0:
-        return ()
-    return ("--drop-poses", repr(loss), "--delay-poses", repr(delay), "--pose-seed", str(seed))
 
 
 def console_spec(

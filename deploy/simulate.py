@@ -199,47 +199,57 @@ def build_summary(
     safety: bool = False,
     projection_distance: float | None = None,
 ) -> dict[str, Any]:
-    """summary.json contents: run parameters and error statistics, no timestamps."""
-    from covswarm.coordinator.physical import physical_summary, wheel_figures
-    from covswarm.mission.report import neighbor_histogram, steady_state_mean
+    """summary.json contents: run parameters and error statistics, no timestamps; the keys
+    every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s."""
+    # Deferred: coordinator.outputs pulls in matplotlib (mission.report), which simulate()
+    # alone (covswarm bench, the tests) never needs.
+    from covswarm.coordinator.outputs import mission_summary
+    from covswarm.coordinator.physical import wheel_figures
+    from covswarm.mission.report import steady_state_mean
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV
 
-    summary: dict[str, Any] = {
-        "scenario": scenario.name,
-        "agents": int(result.positions.shape[0]),
-        "law": law,
-        "feedforward": feedforward,
-        "kappa": float(kappa),
-        "dt": float(dt),
-        "duration": float(duration),
-        "seed": int(seed),
-        "dynamics": dynamics,
-        # m, the wheel mapping's (unicycles only)
-        "projection_distance": (
-            (projection_distance or DEFAULT_PROJECTION_DISTANCE) if dynamics == "unicycle" else None
-        ),
-        "steps": int(result.t.size - 1),
-        "steady_state_error_mean": steady_state_mean(result.t, result.error),
-        "final_error": float(result.error[-1]),
-        "initial_error": float(result.error[0]),
-        "neighbor_histogram": neighbor_histogram(result.positions, result.final_polygon),
-        "guards": guard_counts(result),
+    n = int(result.positions.shape[0])
+    summary: dict[str, Any] = mission_summary(
+        scenario,
+        law=law,
+        feedforward=feedforward,
+        kappa=kappa,
+        duration=duration,
+        dynamics=dynamics,
+        t=result.t,
+        error=result.error,
+        final_positions=result.positions,
+        final_polygon=result.final_polygon,
+        trajectories=result.trajectories,
         # Without the safety filter (the default here) a crowded mission shows as
         # overlapping robots; with it, as robots held apart and off their centroids.
-        "crowding": crowding(scenario, int(result.positions.shape[0]), duration).to_dict(),
-        "safety": {
-            "on": safety,
-            "active_robot_steps": result.safety_active,
-            "relaxed_robot_steps": result.safety_relaxed,
-        },
-        **physical_summary(result.t, result.trajectories, scenario.robot_diameter)[0],
+        crowding=crowding(scenario, n, duration),
         # Single integrators have no wheels: null, not a made-up figure.
-        **(
+        wheels=(
             wheel_figures(result.t, result.wheels, KHEPERA_IV.max_wheel_speed)
             if result.wheels is not None
             else dict.fromkeys(("max_wheel_speed_used", "saturated_time", "saturated_fraction"))
         ),
-    }
+    )
+    summary.update(
+        {
+            "dt": float(dt),
+            "seed": int(seed),
+            # m, the wheel mapping's (unicycles only)
+            "projection_distance": (
+                (projection_distance or DEFAULT_PROJECTION_DISTANCE)
+                if dynamics == "unicycle"
+                else None
+            ),
+            "steps": int(result.t.size - 1),
+            "guards": guard_counts(result),
+            "safety": {
+                "on": safety,
+                "active_robot_steps": result.safety_active,
+                "relaxed_robot_steps": result.safety_relaxed,
+            },
+        }
+    )
     if law == "c":
         from covswarm.tvd.control import DAMPING
 

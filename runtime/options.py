@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+from typing import Any
+
 import click
 
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
@@ -36,3 +39,31 @@ def id_selection(robot_id: int | None, ids: str | None) -> list[int]:
         return parse_ids(ids)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--ids") from None
+
+
+def config_argv(config: Any) -> list[str]:
+    """The command-line options that rebuild ``config``, a process's config dataclass whose
+    field names are its command's option names (``time_scale`` is ``--time-scale``).
+
+    Written: every field without a default; every bool, as ``--name`` or ``--no-name``
+    (its option is a ``--name/--no-name`` pair), so a command line says how the child runs
+    whatever its defaults; every other field that differs from its default and is not
+    None. A tuple is its option repeated; floats are written with repr, exact both ways.
+    """
+    if not dataclasses.is_dataclass(config):
+        raise TypeError(f"not a config dataclass: {config!r}")
+    argv: list[str] = []
+    for spec in dataclasses.fields(config):
+        value = getattr(config, spec.name)
+        flag = "--" + spec.name.replace("_", "-")
+        if isinstance(value, bool):
+            argv.append(flag if value else "--no-" + flag[2:])
+            continue
+        required = (
+            spec.default is dataclasses.MISSING and spec.default_factory is dataclasses.MISSING
+        )
+        if value is None or (not required and value == spec.default):
+            continue
+        for item in value if isinstance(value, tuple) else (value,):
+            argv += [flag, repr(item) if isinstance(item, float) else str(item)]
+    return argv

@@ -30,7 +30,7 @@ from __future__ import annotations
 import logging
 import time
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 
 import click
 import numpy as np
@@ -43,6 +43,7 @@ from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
+from covswarm.sim_robot.config import RobotConfig
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate_one
 
 log = logging.getLogger("covswarm.robot")
@@ -221,7 +222,7 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 
 
 @click.command("robot")
-@click.option("--id", "robot_id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
+@click.option("--id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
 @click.option("--ids", help="Several robots in this process instead, e.g. 0-9 (one session).")
 @click.option(
     "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
@@ -232,7 +233,6 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 @click.option("--theta", type=float, default=0.0, show_default=True, help="Initial heading.")
 @click.option(
     "--pose",
-    "poses",
     multiple=True,
     help="With --ids: initial x,y,theta of each robot, in the order of the ids [0,0,0].",
 )
@@ -252,49 +252,39 @@ def parse_pose(text: str) -> tuple[float, float, float]:
     help="Rim speed limit (m/s).",
 )
 @SECURE_OPTION
-@click.option("--verbose", is_flag=True, help="Log at INFO level.")
-def robot_command(
-    robot_id: int | None,
-    ids: str | None,
-    connect: tuple[str, ...],
-    swarm: str,
-    x: float,
-    y: float,
-    theta: float,
-    poses: tuple[str, ...],
-    rate: float,
-    pose_rate: float,
-    cmd_timeout: float,
-    time_scale: float,
-    max_clock_skew: float,
-    max_wheel_speed: float,
-    secure: Path | None,
-    verbose: bool,
-) -> None:
+@click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
+def robot_command(**options: Any) -> None:
     """Run one simulated Khepera IV, or several (pose publisher, wheel-command subscriber)."""
-    logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
-    robot_ids = id_selection(robot_id, ids)
-    if robot_id is not None and poses:
+    run_robot_process(RobotConfig(**options))
+
+
+def run_robot_process(config: RobotConfig) -> None:
+    """The robot process ``config`` describes: its robots until SIGINT/SIGTERM."""
+    logging.basicConfig(level=logging.INFO if config.verbose else logging.WARNING)
+    robot_ids = id_selection(config.id, config.ids)
+    if config.id is not None and config.pose:
         raise click.UsageError("--pose goes with --ids; one robot takes --x/--y/--theta")
-    if poses and len(poses) != len(robot_ids):
-        raise click.UsageError(f"{len(robot_ids)} ids but {len(poses)} --pose values")
+    if config.pose and len(config.pose) != len(robot_ids):
+        raise click.UsageError(f"{len(robot_ids)} ids but {len(config.pose)} --pose values")
     try:
-        protocol.check_swarm(swarm)
-        initial = [parse_pose(p) for p in poses] or [(x, y, theta)] * len(robot_ids)
-        robot = DiffDrive(max_wheel_speed=max_wheel_speed)
-        now = scaled(time.monotonic, time_scale)()
+        protocol.check_swarm(config.swarm)
+        initial = [parse_pose(p) for p in config.pose] or [
+            (config.x, config.y, config.theta)
+        ] * len(robot_ids)
+        robot = DiffDrive(max_wheel_speed=config.max_wheel_speed)
+        now = scaled(time.monotonic, config.time_scale)()
         sims = [
             RobotSim(
                 i,
                 pose,
                 robot=robot,
-                cmd_timeout=cmd_timeout,
-                max_clock_skew=max_clock_skew,
+                cmd_timeout=config.cmd_timeout,
+                max_clock_skew=config.max_clock_skew,
                 now=now,
             )
             for i, pose in zip(robot_ids, initial, strict=True)
         ]
-        config = session_config(list(connect), None, "client", secure=secure)
+        session = session_config(list(config.connect), None, "client", secure=config.secure)
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    run_robots(sims, swarm, config, rate, pose_rate, time_scale)
+    run_robots(sims, config.swarm, session, config.rate, config.pose_rate, config.time_scale)

@@ -12,7 +12,7 @@ from covswarm.coordinator.monitor import (
     WAITING,
     ErrorRecord,
     Liveness,
-    MissionClock,
+    MissionPhase,
     agent_figures,
     clip_sample_time,
     losses_summary,
@@ -21,7 +21,7 @@ from covswarm.coordinator.monitor import (
 
 
 def test_clock_waits_until_the_team_is_ready() -> None:
-    clock = MissionClock(duration=10.0)
+    clock = MissionPhase(duration=10.0)
     assert clock.update(100.0, team_ready=False) == WAITING
     assert clock.mission_time(105.0) == 0.0
     assert clock.update(107.0, team_ready=True) == RUNNING
@@ -29,7 +29,7 @@ def test_clock_waits_until_the_team_is_ready() -> None:
 
 
 def test_clock_is_done_at_duration_and_time_is_frozen_there() -> None:
-    clock = MissionClock(duration=10.0)
+    clock = MissionPhase(duration=10.0)
     clock.update(0.0, team_ready=True)
     assert clock.update(9.99, team_ready=True) == RUNNING
     # A late tick (overloaded machine) still ends the mission exactly at its duration.
@@ -39,16 +39,16 @@ def test_clock_is_done_at_duration_and_time_is_frozen_there() -> None:
 
 
 def test_clock_never_goes_back_to_waiting_when_processes_die() -> None:
-    clock = MissionClock(duration=10.0)
+    clock = MissionPhase(duration=10.0)
     clock.update(0.0, team_ready=True)
     assert clock.update(1.0, team_ready=False) == RUNNING
 
 
 def test_stop_ends_a_running_mission_early_but_not_a_waiting_one() -> None:
-    waiting = MissionClock(duration=10.0)
+    waiting = MissionPhase(duration=10.0)
     waiting.stop(1.0)
     assert waiting.state == WAITING
-    running = MissionClock(duration=10.0)
+    running = MissionPhase(duration=10.0)
     running.update(0.0, team_ready=True)
     running.stop(4.0)
     assert running.update(5.0, team_ready=True) == DONE
@@ -109,7 +109,7 @@ def test_agent_figures_summarise_whatever_stats_agents_send() -> None:
 
 
 def test_the_mission_waits_for_the_team_to_settle() -> None:
-    clock = MissionClock(duration=10.0, settle=1.5)
+    clock = MissionPhase(duration=10.0, settle=1.5)
     assert clock.update(0.0, team_ready=True) == WAITING
     assert clock.update(1.0, team_ready=False) == WAITING  # a member left: start over
     assert clock.update(2.0, team_ready=True) == WAITING
@@ -119,11 +119,12 @@ def test_the_mission_waits_for_the_team_to_settle() -> None:
 
 
 def test_summary_has_the_sim_keys_and_process_figures() -> None:
-    from covswarm.coordinator.process import Observed, Settings, build_summary
+    from covswarm.coordinator.core import CoordinatorSettings, Observed
+    from covswarm.coordinator.outputs import build_summary
     from covswarm.mission.scenarios import load_scenario
 
     scenario = load_scenario("passage")
-    settings = Settings(
+    settings = CoordinatorSettings(
         scenario=scenario, swarm="s", agents=2, duration=4.0, kappa=2.0, rate=20.0,
         sample_rate=10.0, feedforward=False, law="d1",
     )  # fmt: skip
@@ -159,7 +160,7 @@ def test_summary_has_the_sim_keys_and_process_figures() -> None:
 
 
 def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
-    from covswarm.coordinator.process import TILE_SPACINGS, swarm_tile_size
+    from covswarm.coordinator.core import TILE_SPACINGS, swarm_tile_size
     from covswarm.mission.scenarios import load_scenario
 
     circle = load_scenario("circle")  # a 2 m square

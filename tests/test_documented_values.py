@@ -17,7 +17,7 @@ import pytest
 
 from covswarm.agent import brain, neighbourhood
 from covswarm.agent.brain import AgentConfig
-from covswarm.coordinator import process as coordinator_process
+from covswarm.coordinator import core as coordinator_core
 from covswarm.deploy.cli import main
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol import messages
@@ -48,7 +48,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("`--stale-timeout` (relays carry", lambda: AgentConfig().stale_timeout, 1.0),
     ("obstacle where it was last known for 30 s", lambda: brain.OBSTACLE_MEMORY, 30.0),
     ("one row per robot it knows within 0.5 m", lambda: brain.SAFETY_RADIUS, 0.5),
-    ("liveliness token for 1.5 s", lambda: coordinator_process.START_SETTLE, 1.5),
+    ("liveliness token for 1.5 s", lambda: coordinator_core.START_SETTLE, 1.5),
     ("the last has been silent for 0.5 s", lambda: brain.DOMAIN_RESTART_SILENCE, 0.5),
     ("wheel radius 21 mm", lambda: drive.KHEPERA_IV.wheel_radius, 0.021),
     ("wheel separation 105.4 mm", lambda: drive.KHEPERA_IV.wheel_separation, 0.1054),
@@ -69,7 +69,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("every 250 ms, backing off to 1 s", lambda: reconnect("period_max_ms"), 1000),
     ("control rate (10 Hz)", lambda: option_default("run", "rate"), 10.0),
     ("This is the default run (`passage`, 10 robots, 45 s)",
-     lambda: option_default("run", "scenario_name") == "passage", True),
+     lambda: option_default("run", "scenario") == "passage", True),
     ("This is the default run (`passage`, 10 robots, 45 s)",
      lambda: (load_scenario("passage").agents, load_scenario("passage").duration), (10, 45.0)),
 ]  # fmt: skip

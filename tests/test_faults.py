@@ -27,7 +27,7 @@ from covswarm import protocol
 from covswarm.agent.brain import AgentBrain
 from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
-from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children
+from covswarm.deploy.plan import RunConfig, covswarm_argv, plan_children
 from covswarm.deploy.router import free_port
 from covswarm.mission.scenarios import load_scenario
 
@@ -75,10 +75,14 @@ def test_pose_impairment_drops_the_given_fraction_and_delays_the_rest() -> None:
 
 
 def test_impairment_args_only_when_asked() -> None:
-    assert impairment_args(0.0, 0.0, 3) == ()
-    assert impairment_args(0.3, 0.1, 3) == (
-        "--drop-poses", "0.3", "--delay-poses", "0.1", "--pose-seed", "3"
-    )  # fmt: skip
+    def agent_argv(**options) -> tuple[str, ...]:
+        run = RunConfig(agents=1, seed=3, swarm="s", out=Path("out"), **options)
+        return plan_children(run, load_scenario("passage"), endpoint="e", base=())[-1].argv
+
+    assert not {"--pose-loss", "--pose-delay"} & set(agent_argv())
+    argv = agent_argv(pose_loss=0.3, pose_delay=0.1)
+    k = argv.index("--pose-loss")
+    assert argv[k : k + 6] == ("--pose-loss", "0.3", "--pose-delay", "0.1", "--pose-seed", "3")
 
 
 def _brain_with_team() -> AgentBrain:
@@ -307,11 +311,11 @@ def test_coordinator_restart_holds_the_team_then_resumes_the_mission(tmp_path: P
     later: robots hold still meanwhile and the mission continues on the original clock."""
     swarm, out = new_swarm(), tmp_path / "coord"
     endpoint = f"tcp/127.0.0.1:{free_port()}"
-    specs = plan_children(
-        load_scenario("passage"), scenario_arg="passage", agents=4, seed=0, endpoint=endpoint,
-        swarm=swarm, rate=10.0, kappa=2.0, feedforward=True, duration=20.0, out_dir=out,
-        base=covswarm_argv(),
+    run = RunConfig(
+        scenario="passage", agents=4, seed=0, swarm=swarm, rate=10.0, kappa=2.0,
+        feedforward=True, duration=20.0, out=out,
     )  # fmt: skip
+    specs = plan_children(run, load_scenario("passage"), endpoint=endpoint, base=covswarm_argv())
     coordinator_argv, team = specs[0].argv, [s.argv for s in specs[1:]]
     with router(endpoint), watching(endpoint, swarm) as watch:
         with processes(*team, log_dir=tmp_path / "team"):
@@ -372,6 +376,6 @@ def test_lossy_late_poses_keep_e_a_bounded(tmp_path: Path) -> None:
                 swarm=swarm) as launcher:  # fmt: skip
         assert launcher.wait(timeout=120) == 0, (tmp_path / "lossy.launcher.log").read_text()
     summary = json.loads((out / "summary.json").read_text())
-    assert "--drop-poses" in json.loads((out / "launch.json").read_text())["argv"][2]
+    assert "--pose-loss" in json.loads((out / "launch.json").read_text())["argv"][2]
     assert summary["steady_state_error_mean"] < 0.05
     assert summary["final_error"] < 0.05

@@ -12,7 +12,13 @@ import numpy as np
 import pytest
 
 from covswarm.deploy.display import Progress, render
-from covswarm.deploy.plan import ChildSpec, covswarm_argv, initial_poses, plan_children
+from covswarm.deploy.plan import (
+    ChildSpec,
+    RunConfig,
+    covswarm_argv,
+    initial_poses,
+    plan_children,
+)
 from covswarm.deploy.processes import cpu_seconds, rss_mb
 from covswarm.deploy.router import free_port
 from covswarm.deploy.supervisor import Startup
@@ -20,11 +26,13 @@ from covswarm.mission.scenarios import load_scenario
 
 
 def _plan(feedforward: bool = True) -> list[ChildSpec]:
-    return plan_children(
-        load_scenario("passage"), scenario_arg="passage", agents=3, seed=7,
-        endpoint="tcp/127.0.0.1:7000", swarm="s1", rate=10.0, kappa=2.0,
-        feedforward=feedforward, duration=12.0, out_dir=Path("out"), base=["covswarm"],
+    run = RunConfig(
+        scenario="passage", agents=3, seed=7, swarm="s1", rate=10.0, kappa=2.0,
+        feedforward=feedforward, duration=12.0, out=Path("out"),
     )  # fmt: skip
+    return plan_children(
+        run, load_scenario("passage"), endpoint="tcp/127.0.0.1:7000", base=["covswarm"]
+    )
 
 
 def _option(argv: tuple[str, ...], name: str) -> str:

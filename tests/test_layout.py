@@ -107,3 +107,13 @@ def test_agent_brain_is_sans_io() -> None:
         "assert not bad, bad\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_coordinator_core_is_sans_io() -> None:
+    code = (
+        "import sys\n"
+        "import covswarm.coordinator.core\n"
+        "bad = [m for m in ('zenoh', 'click', 'matplotlib') if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)

@@ -372,7 +372,9 @@ def test_run_refuses_a_live_view_it_cannot_serve(tmp_path: Path) -> None:
     import socket
 
     from covswarm.deploy.launcher import run_command
-    from covswarm.deploy.plan import recording_args
+    from covswarm.deploy.plan import RunConfig, coordinator_config
+    from covswarm.mission.scenarios import load_scenario
+    from covswarm.runtime.options import config_argv
 
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
@@ -384,5 +386,12 @@ def test_run_refuses_a_live_view_it_cannot_serve(tmp_path: Path) -> None:
     assert result.exit_code == 2 and "already in use" in result.output
     result = CliRunner().invoke(run_command, ["--foxglove", "--no-coordinator", "--swarm", "s"])
     assert result.exit_code == 2 and "coordinator serves the live view" in result.output
-    assert recording_args(3, None, True) == ("--seed", "3")
-    assert recording_args(3, 0, False) == ("--seed", "3", "--foxglove", "0", "--no-record")
+
+    def recording_args(seed: int, foxglove: int | None, record: bool) -> list[str]:
+        run = RunConfig(seed=seed, foxglove=foxglove, record=record, swarm="s", out=Path("o"))
+        argv = config_argv(coordinator_config(run, load_scenario("passage"), "e"))
+        return [a for k, a in enumerate(argv) if a in RECORDING or argv[k - 1] in RECORDING]
+
+    RECORDING = {"--seed", "--foxglove", "--record", "--no-record"}
+    assert recording_args(3, None, True) == ["--record", "--seed", "3"]
+    assert recording_args(3, 0, False) == ["--no-record", "--foxglove", "0", "--seed", "3"]

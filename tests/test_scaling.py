@@ -18,6 +18,7 @@ from live_runs import launch, new_swarm, swarm_pids
 
 from covswarm.deploy.plan import (
     MAX_PACKED,
+    RunConfig,
     auto_per_process,
     covswarm_argv,
     initial_poses,
@@ -63,11 +64,14 @@ def test_poses_parse_or_are_refused() -> None:
             parse_pose(bad)
 
 
-def _plan(**kwargs) -> list:
+def _plan(ids: list[int] | None = None, per_process: int = 1, **options) -> list:
+    run = RunConfig(
+        scenario="passage", agents=6, seed=3, swarm="s", rate=10.0, kappa=2.0, feedforward=True,
+        duration=10.0, out=Path("out"), **options,
+    )  # fmt: skip
     return plan_children(
-        load_scenario("passage"), scenario_arg="passage", agents=6, seed=3,
-        endpoint="tcp/10.0.0.1:7447", swarm="s", rate=10.0, kappa=2.0, feedforward=True,
-        duration=10.0, out_dir=Path("out"), base=["covswarm"], **kwargs,
+        run, load_scenario("passage"), endpoint="tcp/10.0.0.1:7447", base=["covswarm"],
+        ids=ids, per_process=per_process,
     )  # fmt: skip
 
 

@@ -1,0 +1,43 @@
+"""``CoordinatorConfig``: the coordinator's command line as one typed object.
+
+One field per ``covswarm coordinator`` option, with the option's name (``--sample-rate`` is
+``sample_rate``): the CLI builds it with ``CoordinatorConfig(**options)`` and the launcher
+turns one back into a command line (deploy.plan.config_argv), so adding an option is a
+field here and a click option in coordinator.main. ``None`` means "the scenario's value"
+(agents, duration, kappa) or "derived" (tile_size, max_domain_speed): see
+coordinator.core.CoordinatorSettings, which resolves them against the loaded scenario.
+No zenoh and no scenario loading here: the launcher imports it to plan children.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
+STEERING_JOURNAL = "steering.jsonl"  # in --out: accepted steering requests, for --resume
+
+
+@dataclass(frozen=True)
+class CoordinatorConfig:
+    """Every ``covswarm coordinator`` option; times in s, distances in m, rates in Hz."""
+
+    swarm: str
+    out: Path
+    scenario: str = "passage"  # a built-in name or a .toml file
+    connect: tuple[str, ...] = ()
+    agents: int | None = None
+    duration: float | None = None
+    rate: float = 20.0  # Domain broadcasts per second
+    sample_rate: float = 10.0  # e_a samples per second (at most)
+    kappa: float | None = None
+    tile_size: float | None = None
+    feedforward: bool = True  # how the agents run (recorded in the summary)
+    law: str = "da"  # the agents' control law (recorded in the summary)
+    resume: bool = False
+    max_domain_speed: float | None = None
+    record: bool = True
+    foxglove: int | None = None  # live view port (0: a free one)
+    seed: int | None = None  # the robots' start seed, recorded in run.mcap
+    time_scale: float = 1.0
+    secure: Path | None = None

@@ -1,0 +1,551 @@
+"""The coordinator as a sans-IO state machine: messages and the clock in, actions out.
+
+Feed it what the network delivered: :meth:`CoordinatorCore.on_liveliness` (a token's key
+appeared or vanished), :meth:`~CoordinatorCore.on_pose` and
+:meth:`~CoordinatorCore.on_agent_state` (raw payloads), :meth:`~CoordinatorCore.on_steer`
+(a steering query's payload, answered at once with a :class:`ReplySteer`); once per
+broadcast period :meth:`~CoordinatorCore.tick` returns what to do, in order:
+:class:`MissionStarted` (once), :class:`PublishDomain`, :class:`PublishStatus` (every
+STATUS_PERIOD) and :class:`Finished` (after DONE_HOLD s of "done", or when stopped before
+the start). No zenoh and no clock of its own: ``now`` is monotonic mission seconds (the
+shell's runtime.clock.scaled monotonic clock), ``wall`` seconds since the epoch (the run's
+real wall clock; message stamps are ``wall * time_scale``, as runtime.clock.scaled), and
+the CPU-cost timers of the sampling and recording budgets are passed in. The shell
+(coordinator.link) only carries the actions out.
+
+Composed pieces: coordinator.monitor (the mission's state machine, liveness, e_a record),
+coordinator.steering (who moves S; ``Steering.checks`` vetoes a planned motion) and the run
+recorder (covswarm.records.recorder.RunRecorder, or None), which the core calls directly:
+recording is file output whose CPU cost the core budgets, not a network action.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections import deque
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from functools import cached_property
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from covswarm.coordinator.config import CoordinatorConfig
+from covswarm.coordinator.monitor import (
+    DONE,
+    RUNNING,
+    WAITING,
+    ErrorRecord,
+    Liveness,
+    MissionPhase,
+    TeamChange,
+    clip_sample_time,
+    mean_pose_time,
+    team_of,
+)
+from covswarm.coordinator.steering import (
+    Limits,
+    MotionCheck,
+    Steering,
+    default_max_domain_speed,
+)
+from covswarm.mission.crowding import Crowding
+from covswarm.mission.crowding import crowding as estimate_crowding
+from covswarm.mission.scenarios import Scenario
+from covswarm.protocol import AgentState, Domain, Pose, ProtocolError, Status, parse_alive_key
+from covswarm.records.observations import timed_layers
+from covswarm.tvd.coverage import aggregate_error
+from covswarm.tvd.drive import KHEPERA_IV
+
+if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only calls it
+    from covswarm.records.recorder import RunRecorder
+
+log = logging.getLogger("covswarm.coordinator")
+
+DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
+# s the whole team holds its tokens before the mission starts: every agent has then had its
+# early beacons (within a second of the last token) and knows the robots next to it, which
+# its safety filter needs before its robot moves (coordinator.monitor.MissionPhase.settle).
+START_SETTLE = 1.5
+STATUS_PERIOD = 0.5  # s
+STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
+# Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
+# ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
+SAMPLE_SHARE = 0.05
+# Likewise for recording (covswarm.records): past this share of a core, poses are recorded
+# every k-th tick instead of every tick (about 1 ms a tick at 100 robots: every tick).
+RECORD_SHARE = 0.05
+# Beacon tile side, in units of the mean spacing of the team in S(0): a converged cell's
+# reach (agent.neighbourhood.cell_reach) is about 2.1 spacings while the domain moves, so it
+# fits in an agent's 3 x 3 tiles, which hold ~56 robots whatever the team's size and
+# density (at 2 spacings the reach needs 5 x 5 tiles, at 3 they hold 81 robots).
+TILE_SPACINGS = 2.5
+
+
+def swarm_tile_size(scenario: Scenario, agents: int) -> float:
+    """The beacon tile size of a run: TILE_SPACINGS x the team's mean spacing in S(0).
+
+    Chosen once per run by the coordinator and broadcast in every Domain: every agent of a
+    swarm must use the same tiles (protocol.Domain.tile_size).
+    """
+    vertices, _ = scenario.domain(0.0)
+    x, y = np.asarray(vertices, dtype=float).T
+    area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+    return round(TILE_SPACINGS * math.sqrt(area / agents), 3)
+
+
+@dataclass(frozen=True)
+class CoordinatorSettings:
+    """What one coordinator run does: its CoordinatorConfig with the scenario loaded and
+    the scenario's defaults filled in (:meth:`from_config`)."""
+
+    scenario: Scenario
+    swarm: str
+    agents: int
+    duration: float
+    kappa: float
+    rate: float  # Hz of Domain broadcasts
+    sample_rate: float  # Hz of e_a samples (at most)
+    feedforward: bool  # what the agents were started with, recorded in the summary
+    law: str = "da"  # the agents' control law ("da" or "d1"), recorded in the summary
+    time_scale: float = 1.0  # mission s per wall s (runtime.clock.scaled)
+    tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
+    max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
+
+    @classmethod
+    def from_config(cls, config: CoordinatorConfig, scenario: Scenario) -> CoordinatorSettings:
+        """``config`` against ``scenario`` (loaded from ``config.scenario``)."""
+        agents = scenario.agents if config.agents is None else config.agents
+        return cls(
+            scenario=scenario,
+            swarm=config.swarm,
+            agents=agents,
+            duration=scenario.duration if config.duration is None else config.duration,
+            kappa=scenario.kappa if config.kappa is None else config.kappa,
+            rate=config.rate,
+            sample_rate=config.sample_rate,
+            feedforward=config.feedforward,
+            law=config.law,
+            time_scale=config.time_scale,
+            tile_size=(
+                swarm_tile_size(scenario, agents) if config.tile_size is None else config.tile_size
+            ),
+            max_domain_speed=config.max_domain_speed,
+        )
+
+    @cached_property
+    def crowding(self) -> Crowding:
+        """Whether the team fits S over the mission: estimated once, for the warning at the
+        start and for summary.json."""
+        return estimate_crowding(self.scenario, self.agents, self.duration)
+
+    def steering_limits(self) -> Limits:
+        """What a steering request may ask of this run's team (coordinator.steering.Limits)."""
+        speed = self.max_domain_speed
+        if speed is None:
+            speed = default_max_domain_speed(KHEPERA_IV.max_wheel_speed, self.kappa)
+        return Limits.for_team(
+            self.agents, speed, self.scenario.workspace, self.scenario.robot_diameter
+        )
+
+
+@dataclass
+class Observed:
+    """Everything the coordinator learnt from the network during the run."""
+
+    record: ErrorRecord = field(default_factory=ErrorRecord)
+    liveness: Liveness = field(default_factory=Liveness)
+    poses: dict[int, tuple[float, float]] = field(default_factory=dict)
+    pose_stamps: dict[int, float] = field(default_factory=dict)  # s, the run's wall clock
+    agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
+    rejected: int = 0  # messages dropped as malformed (ProtocolError)
+    clipped_samples: int = 0  # e_a samples not placed at their poses' time (clip_sample_time)
+    started_wall: float | None = None
+    team_changes: list[TeamChange] = field(default_factory=list)
+
+
+# -- actions (what the shell carries out) --------------------------------------------------
+
+
+@dataclass(frozen=True)
+class PublishDomain:
+    """Put ``domain`` on the swarm's domain key."""
+
+    domain: Domain
+
+
+@dataclass(frozen=True)
+class PublishStatus:
+    """Put ``status`` on the swarm's status key."""
+
+    status: Status
+
+
+@dataclass(frozen=True)
+class ReplySteer:
+    """Answer the steering query just handed in with ``payload`` (a SteerReply), final."""
+
+    payload: bytes
+    accepted: bool
+
+
+@dataclass(frozen=True)
+class JournalSteering:
+    """Append ``line`` to the steering journal (accepted requests, for --resume)."""
+
+    line: str
+
+
+@dataclass(frozen=True)
+class MissionStarted:
+    """The team is ready and the mission runs from now: record ``started_wall`` (for
+    --resume) and forget a previous mission's steering journal."""
+
+    swarm: str
+    started_wall: float
+
+
+@dataclass(frozen=True)
+class Finished:
+    """The loop ends; ``started``: whether the mission ever ran (outputs to write)."""
+
+    started: bool
+
+
+Action = PublishDomain | PublishStatus | ReplySteer | JournalSteering | MissionStarted | Finished
+
+
+def recording_counts() -> dict[str, float | int]:
+    """What recording cost and what it could not record, counted (all zero at the start)."""
+    return {
+        "seconds": 0.0,  # CPU time spent recording (decoding every pose too)
+        "skipped_ticks": 0,  # ticks not recorded because recording was too expensive
+        "thinned_poses": 0,  # older poses of a robot left out after skipped ticks
+        "backlog_overflow": 0,  # poses dropped because the backlog was full
+        "stale_poses": 0,  # poses not newer than the robot's last recorded one
+        "rejected_poses": 0,  # payloads that did not decode (ProtocolError)
+    }
+
+
+class CoordinatorCore:
+    """Mission clock, domain broadcasts, steering, e_a sampling and recording budgets."""
+
+    def __init__(
+        self,
+        settings: CoordinatorSettings,
+        *,
+        recorder: RunRecorder | None = None,
+        steer_checks: Sequence[MotionCheck] = (),
+        cost_clock: Callable[[], float] = time.monotonic,
+        cpu_clock: Callable[[], float] = time.thread_time,
+    ) -> None:
+        """``recorder``: where what the coordinator sees goes (run.mcap, trajectories.csv,
+        a live Foxglove view), or None; ``steer_checks``: vetoes on a steered motion of S
+        (coordinator.steering.MotionCheck, e.g. against the world's obstacles);
+        ``cost_clock`` times an e_a sample (elapsed: a slow sample on a loaded machine must
+        slow sampling down too), ``cpu_clock`` a record (CPU: a busy machine that
+        descheduled us is not recording's cost)."""
+        self.settings = settings
+        self.observed = Observed()
+        self.phase = MissionPhase(settings.duration, settle=START_SETTLE)
+        self.steering = Steering(
+            settings.scenario.domain, settings.steering_limits(), checks=tuple(steer_checks)
+        )
+        self.recorder = recorder
+        self._cost_clock = cost_clock
+        self._cpu_clock = cpu_clock
+        n = settings.agents
+        self._seq = 0
+        # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
+        # only the ones present when e_a is sampled are ever read.
+        self._pose_payloads: dict[str, bytes] = {}
+        # Every (key, pose payload) received while the mission runs, until the recorder
+        # takes them (bounded: a few seconds of the team's poses).
+        self._pose_backlog: deque[tuple[str, bytes]] = deque(maxlen=64 * max(n, 16))
+        self._last_pose_time: dict[int, float] = {}  # mission time of each robot's last record
+        self._last_record_t = 0.0
+        self._next_stats_record = 0.0
+        self.recording = recording_counts()
+        # Budgets: ticks until the next e_a sample / record, ticks not recorded since the last.
+        self._every = max(1, round(settings.rate / settings.sample_rate))
+        self._ticks_to_sample = self._ticks_to_record = self._skipped = 0
+        self._next_status: float | None = None
+        self._done_since: float | None = None
+        self._wall = 0.0  # the latest wall time handed in (stamps between ticks)
+        self._team: frozenset[int] = frozenset()  # the team at the last tick
+
+    # -- inputs ---------------------------------------------------------------------------
+
+    def stamp(self, wall: float) -> float:
+        """A message stamp at real wall time ``wall``: the run's scaled wall clock."""
+        return wall * self.settings.time_scale
+
+    def resume(self, started_wall: float, now: float, wall: float, journal: list[str]) -> None:
+        """Continue the mission that started at ``started_wall`` (a restarted coordinator),
+        with the accepted steering requests of ``journal`` (its lines) replayed."""
+        # Mission time is wall time since the original start, so agents extrapolating the
+        # last domain and the restarted broadcasts agree.
+        self.phase.started_at = now - (self.stamp(wall) - started_wall * self.settings.time_scale)
+        self.observed.started_wall = started_wall
+        if journal:
+            log.info("resumed %d steering requests", self.steering.replay(journal))
+
+    def _mission_t(self, now: float) -> float | None:
+        return self.phase.mission_time(now) if self.phase.state != WAITING else None
+
+    def on_liveliness(self, key: str, alive: bool, now: float, wall: float) -> None:
+        """A liveliness token ``key`` appeared (``alive``) or vanished."""
+        obs = self.observed
+        try:
+            role, ident = parse_alive_key(key, self.settings.swarm)
+        except ValueError:
+            obs.rejected += 1
+            return
+        # Tokens vanishing after "done" are processes shutting down, not failures.
+        if self.phase.state == DONE and not alive:
+            return
+        t = self._mission_t(now)
+        event = obs.liveness.update(role, ident, alive, wall, t)
+        if event is not None and not alive:
+            when = "before the start" if t is None else f"at t = {t:.1f} s"
+            log.warning("%s %d lost its liveliness token %s", role, ident, when)
+
+    def _note_team_change(self, now: float, wall: float) -> None:
+        """One TeamChange for every liveliness change since the last tick that changed the
+        running team (robot and agent both alive), however many tokens it took."""
+        team = team_of(self.observed.liveness.alive)
+        if self.phase.state == RUNNING and team != self._team:
+            t = self.phase.mission_time(now)
+            lost, joined = tuple(sorted(self._team - team)), tuple(sorted(team - self._team))
+            self.observed.team_changes.append(TeamChange(t, wall, lost, joined))
+            log.warning("team changed at t = %.1f s: lost %s, joined %s", t, lost, joined)
+        self._team = team
+
+    def on_pose(self, key: str, payload: bytes) -> None:
+        """A robot's pose payload on ``key`` (decoded only when sampled or recorded)."""
+        self._pose_payloads[key] = payload
+        if self.recorder is not None:  # (tick empties the backlog while waiting)
+            if len(self._pose_backlog) == self._pose_backlog.maxlen:
+                self.recording["backlog_overflow"] += 1
+            self._pose_backlog.append((key, payload))
+
+    def on_agent_state(self, payload: bytes) -> None:
+        """An agent's AgentState payload: its stats (about once a second) are kept."""
+        try:
+            state = AgentState.decode(payload)
+        except ProtocolError:
+            self.observed.rejected += 1
+            return
+        if state.stats is not None:
+            self.observed.agent_stats[state.id] = dict(state.stats)
+
+    def on_steer(self, payload: bytes, now: float, wall: float) -> list[Action]:
+        """Answer one steering request; an accepted one takes over S from ``now``."""
+        t = self.phase.mission_time(now)
+        reply = self.steering.handle(payload, t, wall, self.phase.state == RUNNING)
+        record = self.steering.records[-1]
+        if self.recorder is not None:
+            self.recorder.steering(t, record.to_dict())
+        actions: list[Action] = []
+        if reply.accepted:
+            log.info("steering at t = %.2f s: %s", t, record.request)
+            actions.append(JournalSteering(self.steering.journal_line()))
+        else:
+            log.warning("steering request refused at t = %.2f s: %s", t, reply.reason)
+        return [ReplySteer(reply.encode(), reply.accepted), *actions]
+
+    def team_ready(self) -> bool:
+        live = self.observed.liveness
+        n = self.settings.agents
+        return live.count("agent") >= n and live.count("robot") >= n
+
+    def alive_positions(self) -> dict[int, tuple[float, float]]:
+        """Latest pose of every team member (robot and agent both hold their token)."""
+        obs = self.observed
+        for payload in self._pose_payloads.values():
+            try:
+                pose = Pose.decode(payload)
+            except ProtocolError:
+                obs.rejected += 1
+                continue
+            obs.poses[pose.id] = (pose.x, pose.y)
+            obs.pose_stamps[pose.id] = pose.stamp
+        self._pose_payloads.clear()
+        team = team_of(obs.liveness.alive)
+        return {i: xy for i, xy in obs.poses.items() if i in team}
+
+    # -- the clock ------------------------------------------------------------------------
+
+    def tick(self, now: float, wall: float, stopping: bool = False) -> list[Action]:
+        """One broadcast period at ``now``: advance the mission, sample, record, broadcast.
+
+        ``stopping``: the operator interrupted; the mission ends now (done if running).
+        """
+        settings, phase = self.settings, self.phase
+        self._wall = wall
+        self._note_team_change(now, wall)
+        if stopping:
+            phase.stop(now)
+        before = phase.state
+        state = phase.update(now, self.team_ready())
+        if state == WAITING and stopping:
+            log.info("stopped before the mission started")
+            return [Finished(started=False)]
+        actions: list[Action] = []
+        if before == WAITING and state == RUNNING:
+            self.observed.started_wall = wall
+            log.info("team ready: mission started")
+            actions.append(MissionStarted(settings.swarm, wall))
+        t = phase.mission_time(now)
+        polygon, domain = self._domain(state, t)
+        actions.append(PublishDomain(domain))
+        self._ticks_to_sample -= 1
+        if state == RUNNING and self._ticks_to_sample <= 0:
+            began = self._cost_clock()
+            self._sample(t, polygon)
+            cost = self._cost_clock() - began
+            # Sample less often while e_a is expensive (big team, overloaded machine), so
+            # that it takes at most SAMPLE_SHARE of a core; back to normal once cheap.
+            self._ticks_to_sample = max(
+                self._every,
+                math.ceil(cost / SAMPLE_SHARE * settings.rate * settings.time_scale),
+            )
+        done_now = state == DONE and self._done_since is None
+        if done_now:
+            self._done_since = now
+            self._sample(t, polygon)  # the final error, at the end of the mission
+            log.info("mission done at t = %.1f s", t)
+        if self.recorder is not None and (state == RUNNING or done_now):
+            self._ticks_to_record -= 1
+            if self._ticks_to_record <= 0 or done_now:
+                cost = self._record(t, polygon, thin=self._skipped > 0)
+                self._skipped = 0
+                # Past RECORD_SHARE of a core, record every k-th tick (newest poses).
+                self._ticks_to_record = math.ceil(
+                    cost / RECORD_SHARE * settings.rate * settings.time_scale
+                )
+            else:
+                self.recording["skipped_ticks"] += 1
+                self._skipped += 1
+        if state == WAITING:  # the first record holds the poses of one tick only
+            self._pose_backlog.clear()
+        finished = self._done_since is not None and now - self._done_since >= DONE_HOLD
+        if self._next_status is None or now >= self._next_status or finished:
+            actions.append(PublishStatus(self._status(state, t)))
+            self._next_status = now + STATUS_PERIOD
+        if finished:
+            actions.append(Finished(started=True))
+        return actions
+
+    # -- outputs --------------------------------------------------------------------------
+
+    def _domain(self, state: str, t: float) -> tuple[np.ndarray, Domain]:
+        """S(t)'s vertices and the Domain message that broadcasts it (next sequence number)."""
+        vertices, velocities = self.steering.domain(t)
+        density = self.settings.scenario.density(t)
+        if state != RUNNING:
+            velocities = np.zeros_like(velocities)  # held still while waiting / done
+            density = None if density is None else density.frozen()
+        domain = Domain(
+            seq=self._seq,
+            stamp=self.stamp(self._wall),
+            t=t,
+            state=state,
+            vertices=vertices,
+            velocities=velocities,
+            kappa=self.settings.kappa,
+            density=None if density is None else density.to_dict(),
+            tile_size=self.settings.tile_size,
+        )
+        self._seq += 1
+        return vertices, domain
+
+    def _status(self, state: str, t: float) -> Status:
+        live, record = self.observed.liveness, self.observed.record
+        return Status(
+            stamp=self.stamp(self._wall),
+            t=t,
+            state=state,
+            error=record.error[-1] if record.error else None,
+            alive_agents=live.count("agent"),
+            alive_robots=live.count("robot"),
+        )
+
+    def _sample(self, t: float, polygon: np.ndarray) -> None:
+        """One e_a sample, against S at the time the team's poses were measured."""
+        positions = self.alive_positions()
+        if not positions:
+            return
+        ids = sorted(positions)
+        record = self.observed.record
+        measured = t
+        if self.phase.state == RUNNING:  # once done, S holds still at S(duration)
+            stamps = [self.observed.pose_stamps[i] for i in ids]
+            when = mean_pose_time(t, self.stamp(self._wall), stamps)
+            measured = clip_sample_time(when, t, record.t[-1] if record.t else 0.0)
+            # Poses too old, out of order or badly stamped: the sample is placed at a bound.
+            self.observed.clipped_samples += measured != when
+            polygon = self.steering.domain(measured)[0]
+        error = aggregate_error(
+            np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(measured)
+        )
+        record.add(measured, error, positions, polygon)
+        if self.recorder is not None:
+            self.recorder.error(measured, error, len(ids))
+
+    def _record(self, t: float, polygon: np.ndarray, thin: bool) -> float:
+        """Every pose received since the last record, each at the mission time it was
+        measured (covswarm.records.observations), S(t), and at lower rates the cells and the
+        agents' stats (covswarm.records.recorder). ``thin``: ticks were skipped, record only
+        each robot's newest pose, so that skipping bounds the work. Returns the CPU time
+        the poses and S took, s (the cells have their own budget)."""
+        recorder, counts = self.recorder, self.recording
+        assert recorder is not None
+        began = self._cpu_clock()
+        payloads = [payload for _, payload in self._pose_backlog]
+        if thin:
+            payloads = list(dict(self._pose_backlog).values())  # the newest per key
+            counts["thinned_poses"] += len(self._pose_backlog) - len(payloads)
+        self._pose_backlog.clear()
+        observations = []
+        for payload in payloads:
+            try:
+                pose = Pose.decode(payload)
+            except ProtocolError:
+                counts["rejected_poses"] += 1
+                continue
+            observations.append((pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta))
+        layers, stale = timed_layers(
+            np.array(observations, dtype=float).reshape(-1, 6),
+            t,
+            self._last_record_t,
+            self.stamp(self._wall),
+            self._last_pose_time,
+        )
+        counts["stale_poses"] += stale
+        for layer in layers:  # one /robots message per layer, no robot twice in one
+            recorder.poses(t, layer.ids, layer.poses, layer.times, trajectories=False)
+            self._last_pose_time.update(zip(layer.ids, layer.times.tolist(), strict=True))
+        if layers:  # trajectories.csv in time order
+            times = np.concatenate([layer.times for layer in layers])
+            ids = np.concatenate([layer.ids for layer in layers])
+            order = np.lexsort((ids, times))
+            poses = np.concatenate([layer.poses for layer in layers])[order]
+            recorder.trajectory_rows(times[order], ids[order].tolist(), poses)
+        self._last_record_t = t
+        recorder.domain(t, polygon)
+        cost = self._cpu_clock() - began
+        if recorder.cells_due(t) and (positions := self.alive_positions()):
+            team = sorted(positions)
+            recorder.cells(t, team, np.array([positions[i] for i in team]), polygon)
+        if t >= self._next_stats_record and self.observed.agent_stats:
+            recorder.agent_stats(t, self.observed.agent_stats)
+            self._next_stats_record = t + STATS_RECORD_PERIOD
+        counts["seconds"] += self._cpu_clock() - began
+        return cost
+
+    def recording_note(self) -> dict[str, Any]:
+        """What recording cost, for the recorder's "recording" note."""
+        return {**self.recording, "record_share": RECORD_SHARE}

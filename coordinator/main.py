@@ -1,0 +1,184 @@
+"""``covswarm coordinator``: broadcasts the moving domain S(t) and monitors the team.
+
+The coordinator is the mission clock. It broadcasts Domain messages at a fixed rate
+(vertices, vertex velocities, wall-clock stamp, mission time) so agents can extrapolate
+between messages; it holds the domain at t = 0 ("waiting") until every agent and robot holds
+a liveliness token, runs the scenario for its duration, says "done" for a moment and exits.
+
+It is the one process that subscribes to every pose: it samples the aggregate error e_a(t)
+over the robots alive, publishes Status, reports processes whose liveliness token
+disappears and at the end writes the same outputs as ``covswarm sim`` (mission.report).
+The decisions are in coordinator.core (sans-IO, unit-tested without a network), the Zenoh
+shell in coordinator.link, the outputs in coordinator.outputs; this module is the CLI.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+import click
+import zenoh
+
+from covswarm.coordinator.config import MISSION_FILE, STEERING_JOURNAL, CoordinatorConfig
+from covswarm.coordinator.core import (
+    TILE_SPACINGS,
+    WAITING,
+    CoordinatorCore,
+    CoordinatorSettings,
+)
+from covswarm.coordinator.link import CoordinatorLink
+from covswarm.coordinator.outputs import open_recorder, read_mission_start, write_run_outputs
+from covswarm.mission.scenarios import load_scenario
+from covswarm.protocol import alive_key, check_swarm
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.session import session_config
+from covswarm.records.live import FOXGLOVE_OPTION
+from covswarm.records.recorder import LiveViewError
+from covswarm.runtime.claims import token_exists
+from covswarm.runtime.clock import StopFlag, scaled
+from covswarm.runtime.options import TIME_SCALE_OPTION
+
+log = logging.getLogger("covswarm.coordinator")
+
+
+def run_coordinator(config: CoordinatorConfig) -> None:
+    """One coordinator run: wait for the team, broadcast, monitor, write the outputs."""
+    try:
+        scenario = load_scenario(config.scenario)
+        check_swarm(config.swarm)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    settings = CoordinatorSettings.from_config(config, scenario)
+    if settings.crowding.crowded:
+        log.warning(settings.crowding.warning(settings.agents))
+    mission_file = config.out / MISSION_FILE
+    resume_wall = None
+    if config.resume:
+        try:
+            resume_wall = read_mission_start(mission_file, config.swarm)
+        except ValueError as exc:
+            raise click.UsageError(f"--resume: {exc}") from None
+    stop = StopFlag()
+    with zenoh.open(session_config(list(config.connect), secure=config.secure)) as session:
+        if token_exists(session, alive_key(config.swarm, "coordinator", 0)):
+            raise click.ClickException(f"swarm {config.swarm!r} already has a coordinator")
+        try:
+            recorder = open_recorder(config, settings)
+        except LiveViewError as exc:
+            raise click.ClickException(f"--foxglove: {exc}") from None
+        core = CoordinatorCore(settings, recorder=recorder)
+        try:
+            if resume_wall is not None:
+                journal = config.out / STEERING_JOURNAL
+                lines = journal.read_text(encoding="utf-8").splitlines() if journal.exists() else []
+                now = scaled(time.monotonic, settings.time_scale)()  # the Ticker's clock
+                core.resume(resume_wall, now, time.time(), lines)
+            CoordinatorLink(session, core, mission_file).run(stop)
+        finally:
+            if recorder is not None:
+                recorder.note("recording", {**core.recording_note(), **recorder.counts})
+                recorder.close()
+    if recorder is not None and core.phase.state != WAITING:
+        mission = core.phase.mission_time(core.phase.stopped_at or 0.0)
+        cost = core.recording
+        log.info(
+            "recording took %.2f s of CPU over %.1f s of mission (%.2f%% of a core); %s; %s",
+            cost["seconds"],
+            mission,
+            100 * cost["seconds"] / max(mission / config.time_scale, 1e-9),
+            {k: v for k, v in cost.items() if k != "seconds"},
+            recorder.counts,
+        )
+    if not core.observed.record.t:
+        log.info("no samples recorded: no outputs written")
+        return
+    write_run_outputs(config.out, settings, core.observed, core.steering)
+    log.info("wrote %s", config.out)
+
+
+@click.command("coordinator")
+@click.option(
+    "--scenario",
+    default="passage",
+    show_default=True,
+    help="Built-in scenario (circle, passage) or a .toml file.",
+)
+@click.option(
+    "--connect",
+    multiple=True,
+    required=True,
+    help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable).",
+)
+@click.option("--swarm", required=True, help="Swarm name (key prefix) shared by the run.")
+@click.option("--agents", type=click.IntRange(min=1), help="Team size to wait for [scenario].")
+@click.option(
+    "--duration", type=click.FloatRange(min=0, min_open=True), help="Mission length, s [scenario]."
+)
+@click.option(
+    "--rate",
+    type=click.FloatRange(min=0, min_open=True),
+    default=20.0,
+    show_default=True,
+    help="Domain broadcasts per second.",
+)
+@click.option(
+    "--sample-rate",
+    type=click.FloatRange(min=0, min_open=True),
+    default=10.0,
+    show_default=True,
+    help="e_a samples per second (at most).",
+)
+@click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
+@click.option(
+    "--tile-size",
+    type=click.FloatRange(min=0, min_open=True),
+    help=f"Beacon tile side broadcast to every agent, m [{TILE_SPACINGS:g} x the team's mean "
+    "spacing in S(0)].",
+)
+@click.option(
+    "--feedforward/--no-feedforward",
+    default=True,
+    help="How the agents run (recorded in summary.json).",
+)
+@click.option(
+    "--law",
+    type=click.Choice(("da", "d1")),
+    default="da",
+    show_default=True,
+    help="The agents' control law (recorded in summary.json).",
+)
+@click.option(
+    "--out",
+    type=click.Path(file_okay=False, path_type=Path),
+    required=True,
+    help="Output folder.",
+)
+@click.option(
+    "--resume/--no-resume",
+    default=False,
+    help=f"Continue the mission recorded in OUT/{MISSION_FILE} (a restarted coordinator).",
+)
+@click.option(
+    "--max-domain-speed",
+    type=click.FloatRange(min=0, min_open=True),
+    help="Fastest a steered vertex of S may move, m/s [robots' top speed less kappa x "
+    "one body diameter, at least a quarter of it].",
+)
+@click.option(
+    "--record/--no-record",
+    default=True,
+    show_default=True,
+    help="Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).",
+)
+@FOXGLOVE_OPTION
+@click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")
+@TIME_SCALE_OPTION
+@SECURE_OPTION
+def coordinator_command(foxglove_port: int | None, **options: Any) -> None:
+    """Broadcast the moving domain, monitor the team, write the run's outputs."""
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s coordinator %(message)s")
+    # FOXGLOVE_OPTION (shared with covswarm run) names its value foxglove_port.
+    run_coordinator(CoordinatorConfig(foxglove=foxglove_port, **options))

@@ -1,0 +1,189 @@
+"""What a run leaves behind: summary.json (for ``covswarm sim`` too), the report files,
+the run recorder, and the mission file a restarted coordinator resumes from."""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from covswarm.coordinator.config import CoordinatorConfig
+from covswarm.coordinator.core import CoordinatorSettings, Observed
+from covswarm.coordinator.monitor import (
+    agent_figures,
+    agent_guards,
+    losses_summary,
+    team_changes_summary,
+)
+from covswarm.coordinator.physical import agent_wheel_figures, physical_summary
+from covswarm.coordinator.steering import Steering
+from covswarm.mission.crowding import Crowding
+from covswarm.mission.report import neighbor_histogram, steady_state_mean, write_outputs
+from covswarm.mission.scenarios import Scenario
+from covswarm.records.recorder import LIVE_HOST, RunRecorder
+
+log = logging.getLogger("covswarm.coordinator")
+
+
+def mission_summary(
+    scenario: Scenario,
+    *,
+    law: str,
+    feedforward: bool,
+    kappa: float,
+    duration: float,
+    dynamics: str,
+    t: np.ndarray,
+    error: np.ndarray,
+    final_positions: np.ndarray,
+    final_polygon: np.ndarray,
+    trajectories: np.ndarray,
+    crowding: Crowding,
+    wheels: dict[str, Any],
+    ids: list[int] | None = None,
+) -> dict[str, Any]:
+    """The summary.json keys every run has, ``covswarm sim``'s and ``covswarm run``'s alike.
+
+    t: (T,) s; error: (T,) m, e_a at t; final_positions: (n, 2) m and final_polygon (k, 2)
+    m at the last sample; trajectories: (T, n, 2) m (NaN where a robot is absent), robots
+    ``ids`` (default 0..n-1); ``wheels``: the wheel-speed figures
+    (coordinator.physical.wheel_figures' keys, measured or reported by the agents).
+    """
+    return {
+        "scenario": scenario.name,
+        "agents": int(final_positions.shape[0]),
+        "law": law,
+        "feedforward": feedforward,
+        "kappa": float(kappa),
+        "duration": float(duration),
+        "dynamics": dynamics,
+        "steady_state_error_mean": steady_state_mean(t, error),
+        "final_error": float(error[-1]),
+        "initial_error": float(error[0]),
+        "neighbor_histogram": neighbor_histogram(final_positions, final_polygon),
+        "crowding": crowding.to_dict(),
+        **physical_summary(t, trajectories, scenario.robot_diameter, ids)[0],
+        **wheels,
+    }
+
+
+def build_summary(
+    settings: CoordinatorSettings, observed: Observed, steering: Steering | None = None
+) -> dict[str, Any]:
+    """summary.json of a distributed run: :func:`mission_summary` plus process figures."""
+    record = observed.record
+    final = record.positions[-1]
+    ids = sorted(final)
+    t = np.array(record.t)
+    summary = mission_summary(
+        settings.scenario,
+        law=settings.law,
+        feedforward=settings.feedforward,
+        kappa=settings.kappa,
+        duration=settings.duration,
+        dynamics="unicycle",
+        t=t,
+        error=np.array(record.error),
+        final_positions=np.array([final[i] for i in ids]).reshape(-1, 2),
+        final_polygon=record.polygons[-1],
+        trajectories=record.trajectories(),
+        crowding=settings.crowding,
+        wheels=agent_wheel_figures(observed.agent_stats, record.t[-1]),
+        ids=record.robot_ids(),
+    )
+    return {
+        **summary,
+        "agents": settings.agents,  # the team asked for, not the robots seen at the end
+        "mission_time": record.t[-1],
+        "samples": len(record.t),
+        "alive_at_end": {
+            "agents": observed.liveness.count("agent"),
+            "robots": observed.liveness.count("robot"),
+        },
+        "lost_processes": losses_summary(observed.liveness.events),
+        "team_changes": team_changes_summary(observed.team_changes, record),
+        "agent_stats": agent_figures(observed.agent_stats),
+        "guards": agent_guards(observed.agent_stats),
+        "rejected_messages": observed.rejected,
+        "error_samples_clipped": observed.clipped_samples,
+        "tile_size": settings.tile_size,
+        "started_wall": observed.started_wall,
+        **({} if steering is None else steering_summary(steering)),
+    }
+
+
+def steering_summary(steering: Steering) -> dict[str, Any]:
+    """summary.json's record of steering: every request, refusals per reason, the limit."""
+    return {
+        "steering": [record.to_dict() for record in steering.records],
+        "steering_refused": dict(sorted(steering.refused.items())),
+        "steering_largest_jump": steering.largest_jump,
+        "max_domain_speed": steering.limits.max_speed,
+    }
+
+
+def write_run_outputs(
+    out_dir: Path, settings: CoordinatorSettings, observed: Observed, steering: Steering | None
+) -> None:
+    """summary.json, error.csv, error.png, trajectories.png through mission.report."""
+    record = observed.record
+    write_outputs(
+        out_dir,
+        summary=build_summary(settings, observed, steering),
+        t=np.array(record.t),
+        error=np.array(record.error),
+        trajectories=record.trajectories(),
+        polygons=record.polygons,
+        obstacles=list(settings.scenario.obstacles),
+        workspace=settings.scenario.workspace,
+        density=settings.scenario.density(record.t[-1]) if record.t else None,
+    )
+
+
+def open_recorder(config: CoordinatorConfig, settings: CoordinatorSettings) -> RunRecorder | None:
+    """The run's recorder (run.mcap in ``config.out`` unless --no-record, live view on
+    --foxglove), or None. A resumed coordinator records its part beside the first
+    (run-1.mcap, ...). LiveViewError if the live view cannot start."""
+    out_dir = config.out if config.record else None
+    if out_dir is None and config.foxglove is None:
+        return None
+    scenario = settings.scenario
+    recorder = RunRecorder(
+        out_dir,
+        run_metadata={
+            "source": "run",
+            "scenario": scenario.name,
+            "law": settings.law,
+            "feedforward": settings.feedforward,
+            "kappa": settings.kappa,
+            "seed": config.seed,
+            "agents": settings.agents,
+            "duration": settings.duration,
+            "swarm": settings.swarm,
+            "time_scale": settings.time_scale,
+            "pose_rate_hz": settings.rate,
+        },
+        workspace=scenario.workspace,
+        obstacles=scenario.obstacles,
+        live_port=config.foxglove,
+        continued=config.resume,
+    )
+    if recorder.live_port is not None:
+        log.info("Foxglove live view on ws://%s:%d", LIVE_HOST, recorder.live_port)
+    return recorder
+
+
+def read_mission_start(path: Path, swarm: str) -> float:
+    """The start wall time recorded in ``path`` for ``swarm`` (ValueError if there is none)."""
+    try:
+        mission = json.loads(path.read_text(encoding="utf-8"))
+        started = float(mission["started_wall"])
+    except (OSError, ValueError, KeyError, TypeError) as exc:
+        raise ValueError(f"no mission start in {path}: {exc}") from None
+    if mission.get("swarm") != swarm or not math.isfinite(started):
+        raise ValueError(f"{path} is not a mission of swarm {swarm!r}")
+    return started

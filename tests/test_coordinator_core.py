@@ -1,0 +1,291 @@
+"""The coordinator's sans-IO core, driven with messages and a fake clock (no network)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from shapely.geometry import LineString, Point, Polygon
+from shapely.ops import split
+
+from covswarm.coordinator.core import (
+    DONE,
+    DONE_HOLD,
+    RUNNING,
+    START_SETTLE,
+    STATUS_PERIOD,
+    WAITING,
+    CoordinatorCore,
+    CoordinatorSettings,
+    Finished,
+    JournalSteering,
+    MissionStarted,
+    PublishDomain,
+    PublishStatus,
+    ReplySteer,
+)
+from covswarm.coordinator.steering import Refusal
+from covswarm.mission.scenarios import load_scenario
+from covswarm.protocol import AgentState, Pose, alive_key, pose_key
+from covswarm.protocol.steering import SteerReply, SteerRequest
+
+SWARM = "core-test"
+WALL0 = 1.7e9  # s since the epoch at now = 0
+
+
+def make_core(
+    agents: int = 2, duration: float = 3.0, time_scale: float = 1.0, checks: tuple = ()
+) -> CoordinatorCore:
+    settings = CoordinatorSettings(
+        scenario=load_scenario("circle"), swarm=SWARM, agents=agents, duration=duration,
+        kappa=2.0, rate=20.0, sample_rate=10.0, feedforward=True, time_scale=time_scale,
+        tile_size=0.5,
+    )  # fmt: skip
+    return CoordinatorCore(
+        settings, steer_checks=checks, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0
+    )
+
+
+def join(core: CoordinatorCore, ids: list[int], now: float = 0.0) -> None:
+    for i in ids:
+        for role in ("robot", "agent"):
+            core.on_liveliness(alive_key(SWARM, role, i), True, now, WALL0 + now)
+
+
+def of(kind: type, actions: list) -> list:
+    return [action for action in actions if isinstance(action, kind)]
+
+
+def start(core: CoordinatorCore) -> float:
+    """Join the whole team at 0 and tick until the mission starts; returns that time."""
+    join(core, list(range(core.settings.agents)))
+    now = 0.0
+    while core.phase.state == WAITING:
+        core.tick(now, WALL0 + now)
+        now = round(now + 0.05, 10)
+    return now - 0.05
+
+
+def test_the_mission_starts_once_the_whole_team_held_its_tokens_for_the_settle_time() -> None:
+    core = make_core()
+    join(core, [0])  # half the team
+    assert of(PublishDomain, core.tick(0.0, WALL0))[0].domain.state == WAITING
+    join(core, [1], now=0.5)
+    core.tick(0.5, WALL0 + 0.5)  # the first tick that sees the whole team
+    assert core.tick(0.5 + START_SETTLE - 0.05, WALL0 + 2.0)[0].domain.state == WAITING
+    actions = core.tick(0.5 + START_SETTLE, WALL0 + 2.05)
+    assert of(MissionStarted, actions) == [MissionStarted(SWARM, WALL0 + 2.05)]
+    domain = of(PublishDomain, actions)[0].domain
+    assert domain.state == RUNNING and domain.t == 0.0
+    assert core.observed.started_wall == WALL0 + 2.05
+    # A token lost while waiting restarts the settle time.
+    late = make_core()
+    join(late, [0, 1])
+    late.tick(0.0, WALL0)
+    late.on_liveliness(alive_key(SWARM, "agent", 1), False, 1.0, WALL0 + 1.0)
+    late.tick(1.0, WALL0 + 1.0)
+    late.on_liveliness(alive_key(SWARM, "agent", 1), True, 1.2, WALL0 + 1.2)
+    late.tick(1.2, WALL0 + 1.2)
+    assert late.tick(1.2 + START_SETTLE - 0.05, WALL0)[0].domain.state == WAITING
+    assert of(PublishDomain, late.tick(1.2 + START_SETTLE, WALL0))[0].domain.state == RUNNING
+
+
+def test_domain_broadcasts_carry_s_its_velocities_and_a_rising_sequence() -> None:
+    core = make_core(time_scale=0.5)
+    scenario = core.settings.scenario
+    waiting = of(PublishDomain, core.tick(0.0, WALL0))[0].domain
+    vertices, velocities = scenario.domain(0.0)
+    assert waiting.seq == 0 and waiting.stamp == pytest.approx(WALL0 * 0.5)
+    np.testing.assert_allclose(waiting.vertices, vertices)
+    assert np.abs(np.array(velocities)).max() > 0  # S moves, but not while waiting
+    np.testing.assert_array_equal(waiting.velocities, np.zeros_like(velocities))
+    assert waiting.kappa == 2.0 and waiting.tile_size == 0.5
+    started = start(core)
+    now = started + 0.8
+    domain = of(PublishDomain, core.tick(now, WALL0 + now))[0].domain
+    vertices, velocities = scenario.domain(0.8)
+    assert domain.t == pytest.approx(0.8) and domain.state == RUNNING
+    np.testing.assert_allclose(domain.vertices, vertices)
+    np.testing.assert_allclose(domain.velocities, velocities)
+    assert domain.seq == core._seq - 1 and domain.seq > waiting.seq
+    decoded = type(domain).decode(domain.encode())  # what the shell puts on the wire
+    assert decoded == domain
+
+
+def test_steering_is_refused_while_waiting_and_accepted_once_running() -> None:
+    core = make_core(duration=30.0)
+    request = SteerRequest(kind="translate", dx=0.1, dy=0.0, duration=2.0).encode()
+    refused = core.on_steer(request, 0.0, WALL0)
+    assert len(refused) == 1 and refused[0].accepted is False
+    reply = SteerReply.decode(refused[0].payload)
+    assert not reply.accepted and reply.reason.startswith("not-running")
+    garbage = core.on_steer(b"\x00not msgpack", 0.0, WALL0)
+    assert SteerReply.decode(garbage[0].payload).reason.startswith("undecodable")
+    started = start(core)
+    now = started + 1.0
+    before = core.steering.domain(1.0)[0]
+    actions = core.on_steer(request, now, WALL0 + now)
+    assert isinstance(actions[0], ReplySteer) and actions[0].accepted
+    assert SteerReply.decode(actions[0].payload).duration > 0
+    (journal,) = of(JournalSteering, actions)
+    assert '"translate"' in journal.line
+    assert core.steering.refused == {"not-running": 1, "undecodable": 1}
+    # S now follows the request (it brakes, then moves 0.1 m), not the scenario's script,
+    # and rests once it arrives.
+    end = now + SteerReply.decode(actions[0].payload).duration + 0.5
+    domain = of(PublishDomain, core.tick(end, WALL0 + end))[0].domain
+    t = end - started
+    assert domain.t == pytest.approx(t)
+    np.testing.assert_allclose(domain.vertices, core.steering.domain(t)[0])
+    np.testing.assert_allclose(domain.velocities, 0.0, atol=1e-12)
+    assert np.abs(np.array(domain.vertices) - core.settings.scenario.domain(t)[0]).max() > 0.05
+    assert np.abs(np.array(domain.vertices) - before).max() > 0.05
+
+
+def test_status_every_half_second_with_the_team_and_the_latest_error() -> None:
+    core = make_core()
+    join(core, [0])
+    first = of(PublishStatus, core.tick(0.0, WALL0))
+    assert len(first) == 1
+    status = first[0].status
+    assert status.state == WAITING and status.error is None
+    assert (status.alive_agents, status.alive_robots) == (1, 1)
+    assert of(PublishStatus, core.tick(STATUS_PERIOD - 0.05, WALL0)) == []
+    assert len(of(PublishStatus, core.tick(STATUS_PERIOD, WALL0))) == 1
+
+
+def voronoi_error(positions: np.ndarray, polygon: np.ndarray) -> float:
+    """e_a for two robots, uniform density, with shapely: the cells are S split by the
+    robots' perpendicular bisector."""
+    a, b = positions
+    mid, normal = (a + b) / 2, np.array([-(b - a)[1], (b - a)[0]])
+    line = LineString([mid - 100 * normal, mid + 100 * normal])
+    cells = split(Polygon(polygon), line).geoms
+    error = 0.0
+    for p in positions:
+        (cell,) = [c for c in cells if c.contains(Point(p))]
+        error += float(np.sum((p - np.array(cell.centroid.coords[0])) ** 2))
+    return error**0.5
+
+
+def test_error_samples_use_the_poses_of_the_team_at_the_sample_rate() -> None:
+    core = make_core()
+    assert core.settings.scenario.density(0.0) is None  # uniform: the reference holds
+    started = start(core)
+    centre = core.settings.scenario.domain(0.0)[0].mean(axis=0)
+    positions = centre + np.array([[-0.3, 0.1], [0.4, -0.2]])
+    samples = []
+    for k in range(6):
+        now = round(started + 0.05 * (k + 1), 10)
+        wall = WALL0 + now
+        for i, (x, y) in enumerate(positions):
+            pose = Pose(id=i, x=x, y=y, theta=0.0, stamp=wall, seq=k)
+            core.on_pose(pose_key(SWARM, i), pose.encode())
+        core.on_pose(pose_key(SWARM, 7), b"junk")  # not decodable: counted
+        core.tick(now, wall)
+        samples.append(len(core.observed.record.t))
+    # 20 Hz broadcasts, 10 Hz samples: one sample every second tick.
+    assert samples == [0, 1, 1, 2, 2, 3]
+    record = core.observed.record
+    t = record.t[-1]
+    polygon = core.steering.domain(t)[0]
+    assert record.error[-1] == pytest.approx(voronoi_error(positions, polygon), rel=1e-9)
+    assert core.observed.rejected >= 1
+    # A robot whose agent is gone is not in e_a.
+    core.on_liveliness(alive_key(SWARM, "agent", 1), False, 0.0, WALL0)
+    assert set(core.alive_positions()) == {0}
+
+
+def test_the_team_changes_once_per_tick_and_tokens_gone_after_done_are_not_losses() -> None:
+    core = make_core(agents=3, duration=1.0)
+    started = start(core)
+    now = started + 0.2
+    core.on_liveliness(alive_key(SWARM, "robot", 1), False, now, WALL0 + now)
+    core.on_liveliness(alive_key(SWARM, "agent", 2), False, now, WALL0 + now)
+    core.on_liveliness(alive_key(SWARM, "agent", 1), False, now, WALL0 + now)
+    core.on_liveliness("not/a/key", True, now, WALL0 + now)
+    core.tick(now, WALL0 + now)
+    (change,) = core.observed.team_changes
+    assert change.lost == (1, 2) and change.joined == () and change.t == pytest.approx(0.2)
+    assert core.observed.rejected == 1
+    assert [e.t for e in core.observed.liveness.events if not e.alive] == [pytest.approx(0.2)] * 3
+    core.tick(started + 1.0, WALL0)
+    assert core.phase.state == DONE
+    core.on_liveliness(alive_key(SWARM, "robot", 0), False, started + 1.1, WALL0)
+    assert core.observed.liveness.count("robot") == 2
+
+
+def test_done_at_the_duration_with_a_final_sample_then_finished_after_the_hold() -> None:
+    core = make_core(duration=1.0)
+    started = start(core)
+    for i in range(2):
+        pose = Pose(id=i, x=0.1 * i, y=0.0, theta=0.0, stamp=WALL0, seq=0)
+        core.on_pose(pose_key(SWARM, i), pose.encode())
+    end = started + 1.0
+    actions = core.tick(end, WALL0 + end)
+    domain = of(PublishDomain, actions)[0].domain
+    assert domain.state == DONE and domain.t == pytest.approx(1.0)
+    np.testing.assert_allclose(domain.vertices, core.settings.scenario.domain(1.0)[0])
+    assert core.observed.record.t[-1] == pytest.approx(1.0)  # the final sample, at the end
+    assert of(Finished, actions) == []
+    later = core.tick(end + 5.0, WALL0)  # mission time stays at the duration
+    assert of(PublishDomain, later)[0].domain.t == pytest.approx(1.0)
+    assert of(Finished, later) == [Finished(started=True)]
+    assert DONE_HOLD <= 5.0
+
+
+def test_stopping_ends_a_waiting_mission_at_once_and_a_running_one_through_done() -> None:
+    waiting = make_core()
+    assert waiting.tick(0.0, WALL0, stopping=True) == [Finished(started=False)]
+    running = make_core()
+    started = start(running)
+    actions = running.tick(started + 0.3, WALL0, stopping=True)
+    assert running.phase.state == DONE
+    assert of(PublishDomain, actions)[0].domain.t == pytest.approx(0.3)
+    assert of(Finished, running.tick(started + 0.31 + DONE_HOLD, WALL0)) == [Finished(True)]
+
+
+def test_agent_stats_are_kept_and_malformed_states_counted() -> None:
+    core = make_core()
+    state = AgentState(id=1, x=0.0, y=0.0, stamp=WALL0, neighbors=(0,), stats={"rate_hz": 9.9})
+    core.on_agent_state(state.encode())
+    core.on_agent_state(b"\xff")
+    assert core.observed.agent_stats == {1: {"rate_hz": 9.9}}
+    assert core.observed.rejected == 1
+
+
+def test_a_resumed_core_continues_the_mission_time_and_replays_steering() -> None:
+    first = make_core(duration=30.0)
+    started = start(first)
+    request = SteerRequest(kind="translate", dx=0.1, dy=0.0, duration=2.0).encode()
+    line = first.on_steer(request, started + 1.0, WALL0 + started + 1.0)[-1].line
+    second = make_core(duration=30.0)
+    # Restarted 4 s of mission after the first started, on another monotonic clock.
+    second.resume(WALL0 + started, 100.0, WALL0 + started + 4.0, [line])
+    domain = of(PublishDomain, second.tick(100.0, WALL0 + started + 4.0))[0].domain
+    assert domain.state == RUNNING and domain.t == pytest.approx(4.0)
+    np.testing.assert_allclose(domain.vertices, first.steering.domain(4.0)[0], atol=1e-9)
+
+
+def test_a_steering_check_vetoes_a_planned_motion() -> None:
+    seen = []
+
+    def no_left_of(x: float):
+        def check(motion, begin: float, end: float) -> None:
+            seen.append((begin, end))
+            if motion(end)[0][:, 0].min() < x:
+                raise Refusal("outside-workspace", f"S would pass x = {x} m")
+
+        return check
+
+    request = SteerRequest(kind="translate", dx=-0.3, dy=0.0, duration=2.0).encode()
+    for limit, accepted in ((-10.0, True), (0.4, False)):
+        core = make_core(duration=30.0, checks=(no_left_of(limit),))
+        now = start(core) + 1.0
+        (reply,) = of(ReplySteer, core.on_steer(request, now, WALL0 + now))
+        assert reply.accepted is accepted
+    assert SteerReply.decode(reply.payload).reason.startswith("outside-workspace")
+    np.testing.assert_allclose(  # S kept its script
+        core.steering.domain(5.0)[0], core.settings.scenario.domain(5.0)[0]
+    )
+    begin, end = seen[-1]
+    assert begin >= 1.0 and end > begin
