@@ -110,6 +110,11 @@ class Neighbourhood:
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
         # no team member (a stopped robot without brain, or a brain without robot).
         self.dead: dict[int, set[str]] = {}
+        self.tokens: set[int] = set()  # ids whose agent liveliness token we saw appear
+        # id -> receipt of the first beacon since we last heard it first-hand, and the
+        # candidates of the last step known only from their beacon (see unconfirmed())
+        self.beacon_since: dict[int, float] = {}
+        self.beacon_only: set[int] = set()
         self.one_hop: frozenset[int] = frozenset()
         self.wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
         self._unrequited: dict[int, float] = {}  # neighbour id -> since when it omits us
@@ -121,11 +126,13 @@ class Neighbourhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         self.poses[pose.id] = Track(pose.x, pose.y, now)
         self._heard[pose.id] = now
+        self.beacon_since.pop(pose.id, None)
         self._revive(pose.id, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
         self._heard[state.id] = now
+        self.beacon_since.pop(state.id, None)
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
         if state.relay is None:
@@ -135,6 +142,7 @@ class Neighbourhood:
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
+        self.beacon_since.setdefault(beacon.id, now)
         self._revive(beacon.id, "agent")
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> bool:
@@ -150,7 +158,11 @@ class Neighbourhood:
             return False
         if not alive:
             self.dead.setdefault(rid, set()).add(role)
+            if role == "agent":
+                self.tokens.discard(rid)
             return False
+        if role == "agent":
+            self.tokens.add(rid)
         self._revive(rid, role)
         return role == "agent" and rid not in self.reckoned
 
@@ -208,10 +220,13 @@ class Neighbourhood:
         # A beacon only while it is the newest news of its robot: one that went stale after
         # we heard its state must not bring back where it was seconds ago.
         oldest = now - self.beacon_timeout
+        beacon_only = set()
         for rid, track in self.beacons.items():
             if track.received >= oldest and rid not in reckoned and rid not in dead:
                 if self._heard.get(rid, -math.inf) < track.received:
                     reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                    beacon_only.add(rid)
+        self.beacon_only = beacon_only
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
         if now - self._last_forget >= FORGET_PERIOD:
@@ -230,12 +245,25 @@ class Neighbourhood:
         ):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
+        for rid in [rid for rid in self.beacon_since if rid not in self.beacons]:
+            del self.beacon_since[rid]
         for sets in (self.neighbor_sets, self.relays):
             for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]
         old = now - 2.0 * self.beacon_timeout
         for rid in [rid for rid, t in self._heard.items() if t < old]:
             del self._heard[rid]
+
+    def unconfirmed(self, now: float, grace: float) -> set[int]:
+        """Candidates of the last step known only from beacons for more than ``grace`` s
+        (since the first of them) whose agent has no live liveliness token: not to be
+        trusted as obstacles (a forged beacon costs nothing). A real robot near us is
+        confirmed within a control period or two by the AgentState we then follow."""
+        return {
+            rid
+            for rid in self.beacon_only
+            if rid not in self.tokens and now - self.beacon_since.get(rid, now) > grace
+        }
 
     def relevant(
         self,

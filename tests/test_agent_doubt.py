@@ -1,0 +1,174 @@
+"""Agents doubt what they hear (issue 21, item 2), at the brain level (sans-IO).
+
+The probes: a forged Domain outside the workspace, one numbered 2^62, and a ring of phantom
+beacons around a robot. Each must be dropped or distrusted and counted, while the real
+coordinator and real neighbours keep being followed.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from covswarm import protocol
+from covswarm.agent import brain as brain_module
+from covswarm.agent.brain import AgentBrain, AgentConfig
+
+WALL = 1.7e9
+WORKSPACE = (-1.0, 3.0, -1.0, 3.0)  # xmin, xmax, ymin, ymax (m)
+SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
+OUTSIDE = [[2.5, 0.0], [3.3, 0.0], [3.3, 1.0], [2.5, 1.0]]  # the probe's x = 3.30 m
+
+
+def domain(vertices: list, seq: int) -> protocol.Domain:
+    return protocol.Domain(
+        seq=seq,
+        stamp=WALL,
+        t=0.0,
+        state="running",
+        vertices=vertices,
+        velocities=[[0.0, 0.0]] * len(vertices),
+        kappa=1.0,
+    )
+
+
+def brain_at(x: float, y: float, **config: object) -> AgentBrain:
+    brain = AgentBrain(0, AgentConfig(**config))
+    brain.on_pose(protocol.Pose(id=0, x=x, y=y, theta=0.0, stamp=WALL, seq=0), now=0.0)
+    return brain
+
+
+def test_a_domain_outside_the_workspace_is_dropped_and_counted() -> None:
+    brain = brain_at(1.0, 1.0, workspace=WORKSPACE)
+    assert brain.receive("domain", domain(SQUARE, 1).encode(), now=0.0, now_wall=WALL)
+    # Forged, numbered above the real one: refused, the real one still held and followed.
+    assert not brain.receive("domain", domain(OUTSIDE, 2).encode(), now=0.01, now_wall=WALL)
+    assert brain.drops.counts["domain_outside_workspace"] == 1
+    assert brain.stats()["drop_domain_outside_workspace"] == 1
+    assert brain.domain.vertices == tuple(map(tuple, SQUARE))
+    assert brain.receive("domain", domain(SQUARE, 3).encode(), now=0.05, now_wall=WALL)
+    assert brain.domain.seq == 3
+    # Even after the real coordinator's silence (where any number is taken) it is refused.
+    assert not brain.on_domain(domain(OUTSIDE, 0), now=5.0)
+    assert brain.drops.counts["domain_outside_workspace"] == 2
+    # The step drives towards the real S's centroid (1, 1) from (0.5, 1.0): +x.
+    brain.on_pose(protocol.Pose(id=0, x=0.5, y=1.0, theta=0.0, stamp=WALL, seq=1), now=5.0)
+    decision = brain.step(5.0, WALL)
+    assert decision.reason == "running" and decision.velocity[0] > 0.0
+
+
+def test_without_a_workspace_nothing_is_refused_and_it_can_be_set_later() -> None:
+    brain = brain_at(1.0, 1.0)
+    assert brain.on_domain(domain(OUTSIDE, 1), now=0.0)  # no workspace known: no check
+    # A world broadcast (or the scenario) gives the workspace: the held domain goes too.
+    brain.set_workspace(WORKSPACE)
+    assert brain.domain is None
+    assert brain.drops.counts["domain_outside_workspace"] == 1
+    assert not brain.on_domain(domain(OUTSIDE, 2), now=0.1)
+    assert brain.on_domain(domain(SQUARE, 3), now=0.2)
+    # On the edge (and within the slack) is inside.
+    edge = [[-1.0, -1.0], [3.0 + 1e-9, -1.0], [3.0, 3.0]]
+    assert brain.on_domain(domain(edge, 4), now=0.3)
+    for bad in [(0.0, 0.0, 0.0, 1.0), (0.0, float("nan"), 0.0, 1.0), (1.0, 0.0, 0.0, 1.0)]:
+        with pytest.raises(ValueError, match="workspace"):
+            brain.set_workspace(bad)
+    brain.set_workspace(None)
+    assert brain.on_domain(domain(OUTSIDE, 5), now=0.4)
+
+
+def test_a_domain_numbered_2_to_the_62_does_not_lock_out_the_real_coordinator() -> None:
+    brain = brain_at(1.0, 1.0)
+    period = 0.05  # the coordinator's broadcast period
+    forged_seen = 0
+    for k in range(200):  # 10 s of the real stream, a forgery between every two broadcasts
+        now = k * period
+        assert brain.on_domain(domain(SQUARE, 100 + k), now=now)
+        forged_seen += not brain.on_domain(domain(OUTSIDE, 2**62), now=now + 0.01)
+        assert brain.domain.seq == 100 + k
+    assert forged_seen == 200
+    assert brain.drops.counts["domain_seq_jump"] == 200
+    # A real jump within the bound is taken (broadcasts lost on the way).
+    jump = brain_module.MAX_DOMAIN_SEQ_JUMP
+    assert brain.on_domain(domain(SQUARE, 299 + jump), now=10.0)
+    # Silence of the held stream (a restarted coordinator) still lets any number in.
+    assert brain.on_domain(domain(SQUARE, 2**40), now=10.0 + brain_module.DOMAIN_RESTART_SILENCE)
+
+
+def _ring(brain: AgentBrain, centre: tuple[float, float], now: float, first_id: int) -> None:
+    """36 phantom beacons in a 0.12 m ring around ``centre`` (the probe of issue 21)."""
+    for k in range(36):
+        a = 2.0 * np.pi * k / 36
+        x, y = centre[0] + 0.12 * np.cos(a), centre[1] + 0.12 * np.sin(a)
+        beacon = protocol.Beacon(id=first_id + k, x=x, y=y, stamp=WALL)
+        assert brain.receive("beacon", beacon.encode(), now=now, now_wall=WALL)
+
+
+def _run(brain: AgentBrain, t0: float, t1: float, dt: float = 0.1) -> list[float]:
+    """Speeds (m/s) the control law gives from t0 to t1 s, the pose kept fresh."""
+    speeds = []
+    for now in np.arange(t0, t1, dt):
+        pose = brain.pose
+        brain.on_pose(protocol.Pose(id=0, x=pose.x, y=pose.y, theta=0.0, stamp=WALL, seq=1), now)
+        decision = brain.step(float(now), WALL + float(now))
+        assert decision.reason == "running"
+        speeds.append(float(np.hypot(*decision.velocity)))
+    return speeds
+
+
+def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time() -> None:
+    brain = brain_at(0.4, 1.0)
+    assert brain.on_domain(domain(SQUARE, 1), now=0.0)
+    _ring(brain, (0.4, 1.0), now=0.0, first_id=100)
+    confirm = brain_module.BEACON_CONFIRMATION
+    held = _run(brain, 0.0, confirm - 0.15)
+    # The phantoms count while unconfirmed: the robot, inside their ring, barely moves
+    # (the barrier condition with 0.12 m < the safe distance permits no approach).
+    assert max(held) < 0.05
+    active = brain.safety_active
+    free = _run(brain, confirm + 0.05, 3.0)
+    # Past the confirmation time the filter leaves the law's velocity alone: it heads for
+    # its centroid (the phantoms still shrink its Voronoi cell, they no longer hold it).
+    assert min(free) > 0.15
+    assert brain.safety_active == active
+    assert brain.beacon_unconfirmed == 36
+    assert brain.stats()["beacon_unconfirmed"] == 36
+    # Renewed every 20 s (a burst under the 25 s beacon timeout): the same ids stay doubted.
+    _ring(brain, (brain.pose.x, brain.pose.y), now=3.0, first_id=100)
+    assert min(_run(brain, 3.0, 3.5)) > 0.15
+    assert brain.safety_active == active
+    assert brain.beacon_unconfirmed == 36
+
+
+def _obstacle_run(token: bool) -> tuple[AgentBrain, tuple[float, float]]:
+    """Robot 7 right ahead (+x) known from its beacon (and its agent's token if ``token``),
+    robot 8 right beside (+y) from its AgentState, both closer than the safe distance;
+    the velocity after 3 s."""
+    brain = brain_at(0.4, 1.0)
+    assert brain.on_domain(domain(SQUARE, 1), now=0.0)
+    if token:
+        brain.on_liveliness("agent", 7, True)
+    brain.on_beacon(protocol.Beacon(id=7, x=0.52, y=1.0, stamp=WALL), now=0.0)
+    state = protocol.AgentState(id=8, x=0.4, y=1.12, stamp=WALL, neighbors=[])
+    for now in np.arange(0.0, 3.0, 0.1):
+        brain.on_agent_state(state, now=float(now))
+        brain.on_pose(protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL, seq=1), now)
+        brain.step(float(now), WALL + float(now))
+    return brain, brain.step(3.0, WALL + 3.0).velocity
+
+
+def test_a_beacon_with_a_live_agent_token_or_an_agent_state_stays_an_obstacle() -> None:
+    brain, (vx, vy) = _obstacle_run(token=True)
+    assert brain.beacon_unconfirmed == 0
+    # Both still bound the velocity at 3 s: neither 7 (+x) nor 8 (+y) may be approached,
+    # while the centroid (1, 1) pulls towards +x.
+    assert vx <= 1e-6 and vy <= 1e-6
+    # Without the token robot 7 is a phantom after BEACON_CONFIRMATION; robot 8, backed by
+    # its AgentState, still holds.
+    brain, (vx, vy) = _obstacle_run(token=False)
+    assert brain.beacon_unconfirmed == 1
+    assert vx > 0.1 and vy <= 1e-6
+    # Its token gone, a robot leaves the diagram at once (as before this change).
+    brain, _ = _obstacle_run(token=True)
+    brain.on_liveliness("agent", 7, False)
+    brain.step(3.1, WALL + 3.1)
+    assert 7 not in brain.neighbourhood.reckoned
