@@ -279,6 +279,14 @@ def run_agents(
     show_default=True,
     help="This robot's body diameter, m (the safety filter's disks).",
 )
+@click.option(
+    "--workspace",
+    type=float,
+    nargs=4,
+    default=None,
+    metavar="XMIN XMAX YMIN YMAX",
+    help="The scenario's workspace, m: a domain outside it is refused [no check].",
+)
 @SECURE_OPTION
 @click.option("--verbose", is_flag=True, help="Log at INFO level.")
 def agent_command(
@@ -310,6 +318,7 @@ def agent_command(
     no_safety: bool,
     safety_margin: float,
     body_diameter: float,
+    workspace: tuple[float, float, float, float] | None,
     secure: Path | None,
     verbose: bool,
 ) -> None:
@@ -342,11 +351,15 @@ def agent_command(
         projection_distance=projection_distance,
         safety=not no_safety,
         safety_margin=safety_margin,
+        workspace=workspace or None,
     )
     try:
         zenoh_config = session_config(list(connect), None, "client", secure=secure)
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
-    brains = [AgentBrain(i, config, decoder) for i in robot_ids]
+    try:
+        brains = [AgentBrain(i, config, decoder) for i in robot_ids]
+    except ValueError as exc:  # an empty or non-finite --workspace
+        raise click.BadParameter(str(exc), param_hint="--workspace") from exc
     run_agents(brains, swarm, zenoh_config, rate, time_scale, tick_phase)

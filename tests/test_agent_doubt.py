@@ -172,3 +172,15 @@ def test_a_beacon_with_a_live_agent_token_or_an_agent_state_stays_an_obstacle() 
     brain.on_liveliness("agent", 7, False)
     brain.step(3.1, WALL + 3.1)
     assert 7 not in brain.neighbourhood.reckoned
+
+
+def test_the_agent_command_refuses_a_bad_workspace_with_a_sentence() -> None:
+    from click.testing import CliRunner
+
+    from covswarm.agent.main import agent_command
+
+    args = ["--id", "0", "--connect", "tcp/127.0.0.1:1", "--workspace", "0", "1", "0", "nan"]
+    result = CliRunner().invoke(agent_command, args)
+    assert result.exit_code == 2
+    assert "Invalid value for --workspace" in result.output
+    assert "Traceback" not in result.output
