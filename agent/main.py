@@ -46,7 +46,9 @@ Neighbour discovery
 Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
 logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError
 reasons), a key and message that disagree about the id, a domain that is not a convex
-polygon or is older than the one held, and stamps outside the clock policy of
+polygon, is older than the one held, jumps implausibly far ahead of it
+(``domain_seq_jump``) or leaves ``--workspace`` (``domain_outside_workspace``), and
+stamps outside the clock policy of
 protocol.inbound (more than ``--max-clock-skew`` ahead of this clock, or older than the
 message's timeout plus that skew).
 
