@@ -88,12 +88,6 @@ DOMAIN_RESTART_SILENCE = 0.5
 MAX_DOMAIN_SEQ_JUMP = 1000
 # m: a domain vertex this far outside the workspace is still inside (wire rounding).
 WORKSPACE_SLACK = 1e-6
-# s: a robot known only from its beacon (no AgentState or pose of its own heard since,
-# no live liveliness token of its agent) is a safety obstacle only this long after its
-# first beacon. A real robot that near has its AgentState followed (near_ids) within a
-# control period or two; a phantom one (forged beacons: 36 of them in a ring around each
-# robot held a team of 6 still for the 25 s beacon timeout) stops holding us still.
-BEACON_CONFIRMATION = 1.0
 # m: robots within this distance of ours enter the safety filter (and their AgentStates are
 # followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
 # have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
@@ -102,6 +96,10 @@ BEACON_CONFIRMATION = 1.0
 # missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
 # about the two-hop set, which the coverage step follows anyway.
 SAFETY_RADIUS = 0.5
+# Unconfirmed beacon-only robots within SAFETY_RADIUS whose AgentStates are followed, the
+# nearest first: more robots than this cannot stand that close around one (hexagonal
+# packing at the safe distance gives 6 per ring), so more are forgeries.
+MAX_UNCONFIRMED_FOLLOWED = 8
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
 # last known position for the safety filter this long after it left the coverage step.
 OBSTACLE_MEMORY = 30.0
@@ -289,8 +287,6 @@ class AgentBrain:
         self.workspace: tuple[float, float, float, float] | None = None
         if config.workspace is not None:
             self.set_workspace(config.workspace)
-        self.beacon_unconfirmed = 0  # beacon-only robots that stopped being obstacles
-        self._unconfirmed: set[int] = set()
 
     def set_workspace(self, box: tuple[float, float, float, float] | None) -> None:
         """The box (xmin, xmax, ymin, ymax) m every domain must lie in from now on (None:
@@ -589,10 +585,20 @@ class AgentBrain:
 
     def near_ids(self) -> set[int]:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
-        AgentStates whether or not they are Voronoi neighbours)."""
+        AgentStates whether or not they are Voronoi neighbours), and those there known only
+        from beacons and left out for want of confirmation: a real one's AgentState then
+        confirms it (covswarm.agent.neighbourhood.BEACON_CONFIRMATION)."""
         if self.pose is None:
             return set()
-        return set(self._near(self.neighbourhood.reckoned, self.pose.x, self.pose.y))
+        x, y = self.pose.x, self.pose.y
+        distance = {
+            rid: math.hypot(ux - x, uy - y)
+            for rid, (ux, uy) in self.neighbourhood.unconfirmed.items()
+        }
+        # The nearest few only: forged ids must not cost a subscription each.
+        nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
+        unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
+        return set(self._near(self.neighbourhood.reckoned, x, y)) | unconfirmed
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
@@ -629,10 +635,7 @@ class AgentBrain:
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        unconfirmed = self.neighbourhood.unconfirmed(now, BEACON_CONFIRMATION)
-        self.beacon_unconfirmed += len(unconfirmed - self._unconfirmed)
-        self._unconfirmed = unconfirmed
-        rows = [row for rid, row in reckoned.items() if rid not in unconfirmed]
+        rows = list(reckoned.values())
         rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
@@ -702,7 +705,7 @@ class AgentBrain:
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
             "stale_dropped": self.neighbourhood.stale_dropped,
-            "beacon_unconfirmed": self.beacon_unconfirmed,
+            "beacon_unconfirmed": self.neighbourhood.unconfirmed_total,
             "step_errors": c.step_errors,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,

@@ -23,6 +23,15 @@ LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see rel
 # early beacon (no relay told it about us; a common neighbour's usually does in a tick).
 ASYMMETRY_GRACE = 0.3
 FORGET_PERIOD = 1.0  # s between two sweeps of records older than every timeout
+# s: a robot known only from its beacon (no pose or AgentState of its own heard since, no
+# live liveliness token of its agent) is a candidate only this long after its first beacon.
+# A real robot that matters to us is confirmed well within it: as a Voronoi neighbour or a
+# robot within the safety radius its AgentState is followed, and arrives within a control
+# period or two. A phantom (forged beacons: 36 in a 0.12 m ring around each robot held a
+# team of 6 still for the 25 s beacon timeout, issue 21) is then left out of the diagram
+# and the safety filter; near ones stay followed (AgentBrain.near_ids), so a real robot
+# whose state was late is taken back as soon as it arrives.
+BEACON_CONFIRMATION = 1.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
@@ -88,9 +97,15 @@ class Neighbourhood:
     """
 
     def __init__(
-        self, me: int, stale_timeout: float, beacon_timeout: float, linger_period: float
+        self,
+        me: int,
+        stale_timeout: float,
+        beacon_timeout: float,
+        linger_period: float,
+        confirmation: float = BEACON_CONFIRMATION,
     ) -> None:
         self.me = me
+        self.confirmation = confirmation
         self.stale_timeout = stale_timeout
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
@@ -111,10 +126,12 @@ class Neighbourhood:
         # no team member (a stopped robot without brain, or a brain without robot).
         self.dead: dict[int, set[str]] = {}
         self.tokens: set[int] = set()  # ids whose agent liveliness token we saw appear
-        # id -> receipt of the first beacon since we last heard it first-hand, and the
-        # candidates of the last step known only from their beacon (see unconfirmed())
+        # id -> receipt of the first beacon since we last heard it first-hand; the robots
+        # left out of the last step's candidates for want of confirmation (id -> x, y), and
+        # how many robots were so left out in all (BEACON_CONFIRMATION)
         self.beacon_since: dict[int, float] = {}
-        self.beacon_only: set[int] = set()
+        self.unconfirmed: dict[int, tuple[float, float]] = {}
+        self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
         self.wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
         self._unrequited: dict[int, float] = {}  # neighbour id -> since when it omits us
@@ -219,14 +236,19 @@ class Neighbourhood:
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         # A beacon only while it is the newest news of its robot: one that went stale after
         # we heard its state must not bring back where it was seconds ago.
+        # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
-        beacon_only = set()
+        unconfirmed = {}
         for rid, track in self.beacons.items():
             if track.received >= oldest and rid not in reckoned and rid not in dead:
                 if self._heard.get(rid, -math.inf) < track.received:
-                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
-                    beacon_only.add(rid)
-        self.beacon_only = beacon_only
+                    since = self.beacon_since.get(rid, track.received)
+                    if rid not in self.tokens and now - since > self.confirmation:
+                        unconfirmed[rid] = (track.x, track.y)
+                    else:
+                        reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+        self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
+        self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
         if now - self._last_forget >= FORGET_PERIOD:
@@ -253,17 +275,6 @@ class Neighbourhood:
         old = now - 2.0 * self.beacon_timeout
         for rid in [rid for rid, t in self._heard.items() if t < old]:
             del self._heard[rid]
-
-    def unconfirmed(self, now: float, grace: float) -> set[int]:
-        """Candidates of the last step known only from beacons for more than ``grace`` s
-        (since the first of them) whose agent has no live liveliness token: not to be
-        trusted as obstacles (a forged beacon costs nothing). A real robot near us is
-        confirmed within a control period or two by the AgentState we then follow."""
-        return {
-            rid
-            for rid in self.beacon_only
-            if rid not in self.tokens and now - self.beacon_since.get(rid, now) > grace
-        }
 
     def relevant(
         self,

@@ -12,6 +12,7 @@ import pytest
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
+from covswarm.agent import neighbourhood
 from covswarm.agent.brain import AgentBrain, AgentConfig
 
 WALL = 1.7e9
@@ -119,24 +120,43 @@ def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time
     brain = brain_at(0.4, 1.0)
     assert brain.on_domain(domain(SQUARE, 1), now=0.0)
     _ring(brain, (0.4, 1.0), now=0.0, first_id=100)
-    confirm = brain_module.BEACON_CONFIRMATION
+    confirm = neighbourhood.BEACON_CONFIRMATION
     held = _run(brain, 0.0, confirm - 0.15)
     # The phantoms count while unconfirmed: the robot, inside their ring, barely moves
     # (the barrier condition with 0.12 m < the safe distance permits no approach).
     assert max(held) < 0.05
     active = brain.safety_active
     free = _run(brain, confirm + 0.05, 3.0)
-    # Past the confirmation time the filter leaves the law's velocity alone: it heads for
-    # its centroid (the phantoms still shrink its Voronoi cell, they no longer hold it).
-    assert min(free) > 0.15
+    # Past the confirmation time the phantoms are out of the diagram and the filter: it
+    # heads for its centroid (0.6 m away) at the law's speed.
+    assert min(free) > 0.3
     assert brain.safety_active == active
-    assert brain.beacon_unconfirmed == 36
+    assert brain.neighbourhood.unconfirmed_total == 36
     assert brain.stats()["beacon_unconfirmed"] == 36
     # Renewed every 20 s (a burst under the 25 s beacon timeout): the same ids stay doubted.
     _ring(brain, (brain.pose.x, brain.pose.y), now=3.0, first_id=100)
-    assert min(_run(brain, 3.0, 3.5)) > 0.15
+    assert min(_run(brain, 3.0, 3.5)) > 0.3
     assert brain.safety_active == active
-    assert brain.beacon_unconfirmed == 36
+    assert brain.neighbourhood.unconfirmed_total == 36
+
+
+def test_unconfirmed_robots_nearby_are_followed_and_taken_back_when_confirmed() -> None:
+    brain = brain_at(0.4, 1.0)
+    assert brain.on_domain(domain(SQUARE, 1), now=0.0)
+    _ring(brain, (0.4, 1.0), now=0.0, first_id=100)
+    _run(brain, 0.0, 1.5)
+    assert len(brain.neighbourhood.unconfirmed) == 36
+    assert not brain.neighbourhood.reckoned.keys() & brain.neighbourhood.unconfirmed.keys()
+    # Their AgentStates are followed (the nearest few): a real robot among them, whose
+    # state was late, confirms itself with it and is a candidate (and obstacle) again.
+    followed = brain.near_ids() & brain.neighbourhood.unconfirmed.keys()
+    assert len(followed) == brain_module.MAX_UNCONFIRMED_FOLLOWED
+    real = min(followed)
+    beacon = brain.neighbourhood.beacons[real]
+    state = protocol.AgentState(id=real, x=beacon.x, y=beacon.y, stamp=WALL, neighbors=[])
+    brain.on_agent_state(state, now=1.5)
+    brain.step(1.5, WALL + 1.5)
+    assert real in brain.neighbourhood.reckoned and real not in brain.neighbourhood.unconfirmed
 
 
 def _obstacle_run(token: bool) -> tuple[AgentBrain, tuple[float, float]]:
@@ -158,14 +178,14 @@ def _obstacle_run(token: bool) -> tuple[AgentBrain, tuple[float, float]]:
 
 def test_a_beacon_with_a_live_agent_token_or_an_agent_state_stays_an_obstacle() -> None:
     brain, (vx, vy) = _obstacle_run(token=True)
-    assert brain.beacon_unconfirmed == 0
+    assert brain.neighbourhood.unconfirmed_total == 0
     # Both still bound the velocity at 3 s: neither 7 (+x) nor 8 (+y) may be approached,
     # while the centroid (1, 1) pulls towards +x.
     assert vx <= 1e-6 and vy <= 1e-6
     # Without the token robot 7 is a phantom after BEACON_CONFIRMATION; robot 8, backed by
     # its AgentState, still holds.
     brain, (vx, vy) = _obstacle_run(token=False)
-    assert brain.beacon_unconfirmed == 1
+    assert brain.neighbourhood.unconfirmed_total == 1
     assert vx > 0.1 and vy <= 1e-6
     # Its token gone, a robot leaves the diagram at once (as before this change).
     brain, _ = _obstacle_run(token=True)
