@@ -450,6 +450,7 @@ class AgentBrain:
         wanted = self.neighbourhood.wanted_state_ids(now)
         if self.config.safety:
             wanted |= self.near_ids()
+        self.neighbourhood.ask(wanted, now)  # robots known from beacons must now confirm
         actions.append(FollowStates(frozenset(wanted)))
         actions.append(FollowTiles(frozenset(self.wanted_tiles())))
         if not self._alive and self.pose is not None:

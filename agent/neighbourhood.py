@@ -24,14 +24,18 @@ LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see rel
 ASYMMETRY_GRACE = 0.3
 FORGET_PERIOD = 1.0  # s between two sweeps of records older than every timeout
 # s: a robot known only from its beacon (no pose or AgentState of its own heard since, no
-# live liveliness token of its agent) is a candidate only this long after its first beacon.
-# A real robot that matters to us is confirmed well within it: as a Voronoi neighbour or a
-# robot within the safety radius its AgentState is followed, and arrives within a control
-# period or two. A phantom (forged beacons: 36 in a 0.12 m ring around each robot held a
-# team of 6 still for the 25 s beacon timeout, issue 21) is then left out of the diagram
-# and the safety filter; near ones stay followed (AgentBrain.near_ids), so a real robot
-# whose state was late is taken back as soon as it arrives.
+# live liveliness token of its agent) whose AgentState we asked for (subscribed: it is a
+# Voronoi neighbour or within the safety radius, see ask()) and did not receive within this
+# long is no candidate. A real robot answers within a control period or two; a phantom
+# (forged beacons: 36 in a 0.12 m ring around each robot held a team of 6 still for the
+# 25 s beacon timeout, issue 21) never does, and then leaves the diagram and the safety
+# filter. Counting from the request, not the beacon, keeps the robots that did not matter
+# to us (never asked for) as candidates, and is independent of how often the step runs.
 BEACON_CONFIRMATION = 1.0
+# s: a robot left out so gets another chance with a beacon received this long after we
+# first asked for it (the agents' routine beacon period): a real robot whose states were
+# lost may come back. Forged beacons repeated with the same ids cost at most 1 s in 10.
+CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
@@ -126,10 +130,11 @@ class Neighbourhood:
         # no team member (a stopped robot without brain, or a brain without robot).
         self.dead: dict[int, set[str]] = {}
         self.tokens: set[int] = set()  # ids whose agent liveliness token we saw appear
-        # id -> receipt of the first beacon since we last heard it first-hand; the robots
-        # left out of the last step's candidates for want of confirmation (id -> x, y), and
-        # how many robots were so left out in all (BEACON_CONFIRMATION)
-        self.beacon_since: dict[int, float] = {}
+        # id -> when we first asked for the AgentState of a robot known only from beacons
+        # (ask()); the candidates of the last step known only from beacons; those left out
+        # of it for want of confirmation (id -> x, y), and how many were so left out in all
+        self.asked: dict[int, float] = {}
+        self.beacon_only: set[int] = set()
         self.unconfirmed: dict[int, tuple[float, float]] = {}
         self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
@@ -143,13 +148,13 @@ class Neighbourhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         self.poses[pose.id] = Track(pose.x, pose.y, now)
         self._heard[pose.id] = now
-        self.beacon_since.pop(pose.id, None)
+        self.asked.pop(pose.id, None)
         self._revive(pose.id, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
         self._heard[state.id] = now
-        self.beacon_since.pop(state.id, None)
+        self.asked.pop(state.id, None)
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
         if state.relay is None:
@@ -159,7 +164,9 @@ class Neighbourhood:
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
-        self.beacon_since.setdefault(beacon.id, now)
+        asked = self.asked.get(beacon.id)
+        if asked is not None and now - asked >= CONFIRMATION_RETRY:
+            del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
         self._revive(beacon.id, "agent")
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> bool:
@@ -238,15 +245,17 @@ class Neighbourhood:
         # we heard its state must not bring back where it was seconds ago.
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
-        unconfirmed = {}
+        beacon_only, unconfirmed = set(), {}
         for rid, track in self.beacons.items():
             if track.received >= oldest and rid not in reckoned and rid not in dead:
                 if self._heard.get(rid, -math.inf) < track.received:
-                    since = self.beacon_since.get(rid, track.received)
-                    if rid not in self.tokens and now - since > self.confirmation:
+                    asked = self.asked.get(rid, now)
+                    if rid not in self.tokens and now - asked > self.confirmation:
                         unconfirmed[rid] = (track.x, track.y)
                     else:
                         reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                        beacon_only.add(rid)
+        self.beacon_only = beacon_only
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
@@ -267,14 +276,21 @@ class Neighbourhood:
         ):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
-        for rid in [rid for rid in self.beacon_since if rid not in self.beacons]:
-            del self.beacon_since[rid]
+        for rid in [rid for rid in self.asked if rid not in self.beacons]:
+            del self.asked[rid]
         for sets in (self.neighbor_sets, self.relays):
             for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]
         old = now - 2.0 * self.beacon_timeout
         for rid in [rid for rid, t in self._heard.items() if t < old]:
             del self._heard[rid]
+
+    def ask(self, followed: Iterable[int], now: float) -> None:
+        """The AgentStates of ``followed`` are subscribed to from ``now`` on: the robots
+        among them known only from beacons start their BEACON_CONFIRMATION."""
+        for rid in followed:
+            if rid in self.beacon_only or rid in self.unconfirmed:
+                self.asked.setdefault(rid, now)
 
     def relevant(
         self,

@@ -13,7 +13,7 @@ import pytest
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
 from covswarm.agent import neighbourhood
-from covswarm.agent.brain import AgentBrain, AgentConfig
+from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
 
 WALL = 1.7e9
 WORKSPACE = (-1.0, 3.0, -1.0, 3.0)  # xmin, xmax, ymin, ymax (m)
@@ -33,8 +33,25 @@ def domain(vertices: list, seq: int) -> protocol.Domain:
     )
 
 
-def brain_at(x: float, y: float, **config: object) -> AgentBrain:
-    brain = AgentBrain(0, AgentConfig(**config))
+class Brain(AgentBrain):
+    """An AgentBrain that keeps its last Decision (tick() returns only the command)."""
+
+    decision: Decision | None = None
+
+    def step(self, now: float, now_wall: float) -> Decision:
+        self.decision = super().step(now, now_wall)
+        return self.decision
+
+
+def control(brain: Brain, now: float) -> Decision:
+    """One control period as the shell runs it (tick: step, subscriptions, ...)."""
+    brain.tick(float(now), WALL + float(now))
+    assert brain.decision is not None
+    return brain.decision
+
+
+def brain_at(x: float, y: float, **config: object) -> Brain:
+    brain = Brain(0, AgentConfig(**config))
     brain.on_pose(protocol.Pose(id=0, x=x, y=y, theta=0.0, stamp=WALL, seq=0), now=0.0)
     return brain
 
@@ -104,13 +121,13 @@ def _ring(brain: AgentBrain, centre: tuple[float, float], now: float, first_id: 
         assert brain.receive("beacon", beacon.encode(), now=now, now_wall=WALL)
 
 
-def _run(brain: AgentBrain, t0: float, t1: float, dt: float = 0.1) -> list[float]:
+def _run(brain: Brain, t0: float, t1: float, dt: float = 0.1) -> list[float]:
     """Speeds (m/s) the control law gives from t0 to t1 s, the pose kept fresh."""
     speeds = []
     for now in np.arange(t0, t1, dt):
         pose = brain.pose
         brain.on_pose(protocol.Pose(id=0, x=pose.x, y=pose.y, theta=0.0, stamp=WALL, seq=1), now)
-        decision = brain.step(float(now), WALL + float(now))
+        decision = control(brain, now)
         assert decision.reason == "running"
         speeds.append(float(np.hypot(*decision.velocity)))
     return speeds
@@ -133,11 +150,20 @@ def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time
     assert brain.safety_active == active
     assert brain.neighbourhood.unconfirmed_total == 36
     assert brain.stats()["beacon_unconfirmed"] == 36
-    # Renewed every 20 s (a burst under the 25 s beacon timeout): the same ids stay doubted.
+    # Renewed within CONFIRMATION_RETRY (under the 25 s beacon timeout): still doubted.
     _ring(brain, (brain.pose.x, brain.pose.y), now=3.0, first_id=100)
     assert min(_run(brain, 3.0, 3.5)) > 0.3
     assert brain.safety_active == active
     assert brain.neighbourhood.unconfirmed_total == 36
+    # CONFIRMATION_RETRY after the window opened, a beacon opens another (the team may
+    # have changed): 1 s of doubt in 10 for forgeries that repeat their ids.
+    retry = neighbourhood.CONFIRMATION_RETRY
+    _ring(brain, (brain.pose.x, brain.pose.y), now=retry, first_id=100)
+    control(brain, retry)
+    assert len(brain.neighbourhood.reckoned) == 36 and not brain.neighbourhood.unconfirmed
+    control(brain, retry + confirm + 0.05)
+    assert not brain.neighbourhood.reckoned and len(brain.neighbourhood.unconfirmed) == 36
+    assert brain.neighbourhood.unconfirmed_total == 72
 
 
 def test_unconfirmed_robots_nearby_are_followed_and_taken_back_when_confirmed() -> None:
@@ -155,11 +181,11 @@ def test_unconfirmed_robots_nearby_are_followed_and_taken_back_when_confirmed() 
     beacon = brain.neighbourhood.beacons[real]
     state = protocol.AgentState(id=real, x=beacon.x, y=beacon.y, stamp=WALL, neighbors=[])
     brain.on_agent_state(state, now=1.5)
-    brain.step(1.5, WALL + 1.5)
+    control(brain, 1.5)
     assert real in brain.neighbourhood.reckoned and real not in brain.neighbourhood.unconfirmed
 
 
-def _obstacle_run(token: bool) -> tuple[AgentBrain, tuple[float, float]]:
+def _obstacle_run(token: bool) -> tuple[Brain, tuple[float, float]]:
     """Robot 7 right ahead (+x) known from its beacon (and its agent's token if ``token``),
     robot 8 right beside (+y) from its AgentState, both closer than the safe distance;
     the velocity after 3 s."""
@@ -172,8 +198,8 @@ def _obstacle_run(token: bool) -> tuple[AgentBrain, tuple[float, float]]:
     for now in np.arange(0.0, 3.0, 0.1):
         brain.on_agent_state(state, now=float(now))
         brain.on_pose(protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL, seq=1), now)
-        brain.step(float(now), WALL + float(now))
-    return brain, brain.step(3.0, WALL + 3.0).velocity
+        control(brain, now)
+    return brain, control(brain, 3.0).velocity
 
 
 def test_a_beacon_with_a_live_agent_token_or_an_agent_state_stays_an_obstacle() -> None:
@@ -204,3 +230,20 @@ def test_the_agent_command_refuses_a_bad_workspace_with_a_sentence() -> None:
     assert result.exit_code == 2
     assert "Invalid value for --workspace" in result.output
     assert "Traceback" not in result.output
+
+
+def test_a_beacon_only_robot_never_asked_for_stays_a_candidate() -> None:
+    # Robots 0 (us), 8 (AgentState) and 9 (beacon only) on the line y = 1 across the
+    # square: the cells are strips, 9 is no neighbour of ours and 1.4 m away, so we never
+    # subscribe to its AgentState and it cannot confirm itself; it stays a candidate (it
+    # is how newcomers are found), and becomes doubted only once asked for and silent.
+    brain = brain_at(0.4, 1.0)
+    assert brain.on_domain(domain(SQUARE, 1), now=0.0)
+    brain.on_beacon(protocol.Beacon(id=9, x=1.8, y=1.0, stamp=WALL), now=0.0)
+    state = protocol.AgentState(id=8, x=1.0, y=1.0, stamp=WALL, neighbors=[0])
+    for now in np.arange(0.0, 3.0, 0.1):
+        brain.on_agent_state(state, now=float(now))
+        brain.on_pose(protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL, seq=1), now)
+        control(brain, now)
+    assert 9 in brain.neighbourhood.reckoned and 9 not in brain.neighbourhood.asked
+    assert brain.neighbourhood.unconfirmed_total == 0
