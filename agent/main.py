@@ -344,7 +344,9 @@ def agent_command(
         safety_margin=safety_margin,
     )
     try:
-        zenoh_config = session_config(list(connect), None, "client", secure=secure)
+        zenoh_config = session_config(
+            list(connect), None, "client", secure=secure, role="agent", id=robot_ids
+        )
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once

@@ -785,7 +785,7 @@ def coordinator_command(
         log.warning(settings.crowding.warning(team))
     resume_wall = read_mission_start(out_dir / MISSION_FILE, swarm) if resume else None
     stop = StopFlag()
-    with zenoh.open(session_config(list(connect), secure=secure)) as session:
+    with zenoh.open(session_config(list(connect), secure=secure, role="coordinator")) as session:
         if token_exists(session, alive_key(swarm, "coordinator", 0)):
             raise click.ClickException(f"swarm {swarm!r} already has a coordinator")
         recorder = open_recorder(settings, out_dir if record else None, foxglove_port, seed, resume)

@@ -111,7 +111,11 @@ def apply_security(
         needed.append(IDENTITIES)
     missing = [n for n in needed if not (directory / n).is_file()]
     if missing:
-        hint = "" if mode == "router" else f" (issue it with `covswarm credentials {directory}`)"
+        hint = ""
+        if mode != "router":
+            group = name.partition("-")[2]
+            extra = f" --group {group}" if group and not group.isdigit() else ""
+            hint = f" (issue it: covswarm credentials {directory}{extra})"
         raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}{hint}")
 
     def put(key: str, value: object) -> None:
@@ -176,9 +180,11 @@ def _router_alt_names(hosts: Iterable[str]) -> list[str]:
     for host in ["127.0.0.1", "localhost", *hosts]:
         if not _HOST_RE.match(host):
             raise ValueError(f"invalid router host {host!r}")
-        kind = "IP" if re.fullmatch(r"[0-9.]+|[0-9a-fA-F:]+", host) and any(
-            c in host for c in ".:"
-        ) else "DNS"
+        kind = (
+            "IP"
+            if re.fullmatch(r"[0-9.]+|[0-9a-fA-F:]+", host) and any(c in host for c in ".:")
+            else "DNS"
+        )
         names.append(f"{kind}:{host}")
     return list(dict.fromkeys(names))
 
@@ -195,7 +201,8 @@ def issue_credentials(
     Creates the CA on first use (kept in ``ca/ca.key``, owner-only), the router's
     certificate (127.0.0.1, localhost and ``hosts``), the coordinator, bridge, console and
     operator, one agent per id of ``agents``, one robot per id of ``robots``, and one agent
-    per group of ``groups`` (a process running several brains presents one certificate).
+    and one robot per group of ``groups`` (a process running several brains or simulated
+    robots, ``--ids``, presents one certificate for them all).
     Run again on the same folder, it adds identities signed by the same CA and keeps the
     existing ones. Private files are owner-only. RuntimeError without ``openssl``.
     """
@@ -222,7 +229,7 @@ def issue_credentials(
         (directory / CA).chmod(0o644)
     wanted: list[tuple[str, list[int]]] = [(role, []) for role in SINGLE_ROLES]
     wanted += [("agent", [i]) for i in agents] + [("robot", [i]) for i in robots]
-    wanted += [("agent", sorted(set(group))) for group in groups]
+    wanted += [(role, sorted(set(group))) for group in groups for role in ID_ROLES]
     names = {entry["name"] for entry in known}
     if hosts or not (directory / ROUTER / CERT).is_file():
         _issue(directory, ROUTER, _router_alt_names(hosts))
@@ -268,8 +275,8 @@ def _id_list(ctx: click.Context, param: click.Parameter, value: str | None) -> l
     "--group",
     "groups",
     multiple=True,
-    help="One certificate for an agent process running several brains, e.g. 0-49 "
-    "(repeatable).",
+    help="One agent and one robot certificate for a process running several ids "
+    "(--ids), e.g. 0-49 (repeatable).",
 )
 @click.option(
     "--host",
@@ -291,9 +298,7 @@ def credentials_command(
     both = list(range(agents)) if agents is not None else ids
     try:
         group_ids = [parse_ids(group) for group in groups]
-        issue_credentials(
-            directory, agent_ids or both, robot_ids or both, group_ids, hosts
-        )
+        issue_credentials(directory, agent_ids or both, robot_ids or both, group_ids, hosts)
     except (RuntimeError, ValueError, subprocess.CalledProcessError) as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(

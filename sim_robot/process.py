@@ -294,7 +294,9 @@ def robot_command(
             )
             for i, pose in zip(robot_ids, initial, strict=True)
         ]
-        config = session_config(list(connect), None, "client", secure=secure)
+        config = session_config(
+            list(connect), None, "client", secure=secure, role="robot", id=robot_ids
+        )
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
     run_robots(sims, swarm, config, rate, pose_rate, time_scale)
