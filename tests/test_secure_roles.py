@@ -343,17 +343,3 @@ def test_a_process_of_several_ids_holds_one_group_certificate(endpoint: str, cre
             assert inbox.wait_for(b"cmd 7")
             time.sleep(SETTLE)
     assert sorted(p for _, p in inbox.items) == [b"cmd 5", b"cmd 6", b"cmd 7"]
-
-
-@pytest.mark.e2e
-@pytest.mark.timeout(60)
-def test_outsiders_cannot_connect(endpoint: str, creds: Path, tmp_path: Path) -> None:
-    other = issue_credentials(tmp_path / "other-lab", agents=[0], robots=[0])  # another CA
-    foreign = session_config([endpoint], secure=other, role="agent", id=0)
-    no_certificate = session_config([endpoint])
-    no_certificate.insert_json5("transport/link/tls/root_ca_certificate", f'"{creds / "ca.pem"}"')
-    plain = session_config([endpoint.replace("tls/", "tcp/")])
-    for name, config in {"other CA": foreign, "no cert": no_certificate, "tcp": plain}.items():
-        with pytest.raises(zenoh.ZError, match="Unable to connect"):
-            zenoh.open(config).close()
-            pytest.fail(f"{name}: connected")
