@@ -14,7 +14,9 @@ applies the *rules* its *policies* bind to it; anything no rule allows is denied
   ``robot/i/pose`` and hold ``alive/robot/i`` and ``claim/robot/i/*``;
 - only the ``coordinator`` may put the Domain and the Status, hold its tokens, declare the
   ``steer`` queryable, receive the queries and reply;
-- the ``operator`` and the ``console`` (and the coordinator) may query ``steer``.
+- the ``operator`` and the ``console`` (and the coordinator) may query ``steer``;
+- the ``bridge`` also speaks ROS 2 (rmw_zenoh) on the same session: everything under the
+  ROS 2 keys (``<domain id>/**``, ``@ros2_lv/**``), none of which is under ``covswarm/``.
 
 Message kinds are Zenoh's: ingress is what the router accepts from the subject, egress what
 it forwards to it. Pure data, no zenoh import: the dict goes into the config as JSON.
@@ -27,6 +29,18 @@ from typing import Any
 
 SWARM = "covswarm/*"  # every swarm name: one certificate serves any run of the lab
 READ = "read"
+ROS2_DOMAINS = range(233)  # ROS 2 domain ids 0..232 (bridge.rmw_zenoh.MAX_DOMAIN_ID)
+ALL_MESSAGES = (
+    "put",
+    "delete",
+    "query",
+    "reply",
+    "declare_subscriber",
+    "declare_queryable",
+    "liveliness_token",
+    "declare_liveliness_subscriber",
+    "liveliness_query",
+)
 READ_MESSAGES = (
     "put",
     "delete",
@@ -100,7 +114,11 @@ def access_control(identities: Sequence[dict[str, Any]]) -> dict[str, Any]:
         [f"{SWARM}/domain", f"{SWARM}/status"],
         [f"{SWARM}/alive/coordinator/0", f"{SWARM}/claim/coordinator/0/*"],
     )
-    bridge = _writer("bridge", *robot_keys(None))
+    ros2 = ["@ros2_lv/**", *(f"{domain}/**" for domain in ROS2_DOMAINS)]
+    bridge = [
+        *_writer("bridge", *robot_keys(None)),
+        _rule("bridge/ros2", ["ingress", "egress"], ALL_MESSAGES, ros2),
+    ]
     rules += coordinator + bridge
     base = [READ, "subscribe"]
     by_role = {

@@ -216,6 +216,16 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
             subject in ("coordinator", "console", "operator")
         )
         assert not _allowed(acl, subject, "ingress", "put", "@/router/x")  # nothing outside
+        ros2 = ["0/robot_0/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_x", "@ros2_lv/0/a"]
+        for key in ros2:  # the bridge speaks ROS 2 on its session too
+            assert _allowed(acl, subject, "ingress", "put", key) == (subject == "bridge")
+
+
+def test_the_ros2_domains_are_the_bridges() -> None:
+    from covswarm.bridge.rmw_zenoh import MAX_DOMAIN_ID
+    from covswarm.protocol.access import ROS2_DOMAINS
+
+    assert ROS2_DOMAINS == range(MAX_DOMAIN_ID + 1)
 
 
 # ---- forgeries against a real router ----
