@@ -295,6 +295,8 @@ def credentials_command(
 ) -> None:
     """Issue a CA and one certificate per role for `--secure`: router, coordinator, bridge,
     console, operator, one agent and one robot per id. Run again to add identities."""
+    if agents is not None and ids:
+        raise click.UsageError("give --agents N or --ids, not both")
     both = list(range(agents)) if agents is not None else ids
     try:
         group_ids = [parse_ids(group) for group in groups]
