@@ -15,6 +15,9 @@ applies the *rules* its *policies* bind to it; anything no rule allows is denied
 - only the ``coordinator`` may put the Domain and the Status, hold its tokens, declare the
   ``steer`` queryable, receive the queries and reply;
 - the ``operator`` and the ``console`` (and the coordinator) may query ``steer``;
+- another host's router (``--router-connect``; common name ``router``) relays everything:
+  each router enforces the rules on its own clients, so what reaches a router from
+  another has already been checked at its entry;
 - the ``bridge`` also speaks ROS 2 (rmw_zenoh) on the same session: everything under the
   ROS 2 keys (``<domain id>/**``, ``@ros2_lv/**``), none of which is under ``covswarm/``.
 
@@ -128,7 +131,9 @@ def access_control(identities: Sequence[dict[str, Any]]) -> dict[str, Any]:
         "console": [*base, "steer/ask"],
         "operator": [*base, "steer/ask"],
     }
-    subjects, policies = [], []
+    rules.append(_rule("relay", ["ingress", "egress"], ALL_MESSAGES, ["**"]))
+    subjects = [{"id": "router", "cert_common_names": ["router"]}]
+    policies = [{"id": "router", "rules": ["relay"], "subjects": ["router"]}]
     for identity in identities:
         name, role, ids = identity["name"], identity["role"], list(identity.get("ids") or [])
         if role == "agent":

@@ -16,9 +16,11 @@ import sys
 import threading
 import time
 from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
+from live_runs import wait_until
 
 from covswarm import protocol
 from covswarm.protocol.access import access_control
@@ -35,7 +37,8 @@ ROUTER = """
 import signal, sys, zenoh
 from pathlib import Path
 from covswarm.protocol import session_config
-with zenoh.open(session_config(None, [sys.argv[1]], mode="router", secure=Path(sys.argv[2]))):
+peers = sys.argv[3:]  # other hosts' routers
+with zenoh.open(session_config(peers, [sys.argv[1]], mode="router", secure=Path(sys.argv[2]))):
     print("ready", flush=True)
     signal.pause()  # until SIGTERM
 """
@@ -61,13 +64,13 @@ def _free_port() -> int:
         return s.getsockname()[1]
 
 
-@pytest.fixture(scope="module")
-def endpoint(creds: Path) -> Iterator[str]:
+@contextmanager
+def secured_router(creds: Path, *peers: str) -> Iterator[str]:
     """A secured router in its own process: its tls endpoint (stopped by pid at the end)."""
     for _ in range(5):  # the port can be taken between probing and binding
         endpoint = f"tls/127.0.0.1:{_free_port()}"
         router = subprocess.Popen(
-            [sys.executable, "-c", ROUTER, endpoint, str(creds)],
+            [sys.executable, "-c", ROUTER, endpoint, str(creds), *peers],
             stdout=subprocess.PIPE,
             stderr=subprocess.PIPE,
             text=True,
@@ -82,6 +85,12 @@ def endpoint(creds: Path) -> Iterator[str]:
     finally:
         router.terminate()
         router.wait(timeout=30)
+
+
+@pytest.fixture(scope="module")
+def endpoint(creds: Path) -> Iterator[str]:
+    with secured_router(creds) as endpoint:
+        yield endpoint
 
 
 def join(endpoint: str, creds: Path, role: str, id: int | list[int] | None = None):  # noqa: A002
@@ -199,7 +208,8 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
         robot = owners[protocol.pose_key(swarm, i)]
         tokens[protocol.alive_key(swarm, "robot", i)] = robot
         tokens[protocol.claim_key(swarm, "robot", i, "ab12")] = robot
-    subjects = [s["id"] for s in acl["subjects"]]
+    subjects = [s["id"] for s in acl["subjects"] if s["id"] != "router"]
+    assert _allowed(acl, "router", "ingress", "put", protocol.cmd_key(swarm, 0))  # a relay
     for subject in subjects:
         for key, who in owners.items():
             assert _allowed(acl, subject, "ingress", "put", key) == (subject in who), (subject, key)
@@ -353,3 +363,26 @@ def test_a_process_of_several_ids_holds_one_group_certificate(endpoint: str, cre
             assert inbox.wait_for(b"cmd 7")
             time.sleep(SETTLE)
     assert sorted(p for _, p in inbox.items) == [b"cmd 5", b"cmd 6", b"cmd 7"]
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_routers_of_two_hosts_relay_only_what_their_clients_may_send(creds: Path) -> None:
+    """Host B's router connects to host A's with the router certificate: agent 0 on B
+    commands robot 0 on A, an operator on B cannot (B refuses it at the entry)."""
+    swarm = protocol.new_swarm_name()
+    key = protocol.cmd_key(swarm, 0)
+    with secured_router(creds) as host_a, secured_router(creds, host_a) as host_b:
+        with join(host_a, creds, "robot", 0) as robot:
+            inbox = Inbox(robot, key)
+            with (
+                join(host_b, creds, "operator") as hostile,
+                join(host_b, creds, "agent", 0) as agent,
+            ):
+                # The routers link up in the background: resend until one arrives.
+                assert wait_until(lambda: agent.put(key, b"legitimate") or bool(inbox.items), 15)
+                hostile.put(key, b"forged")
+                agent.put(key, b"after")
+                assert inbox.wait_for(b"after")
+                time.sleep(SETTLE)
+    assert set(p for _, p in inbox.items) == {b"legitimate", b"after"}
