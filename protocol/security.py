@@ -135,6 +135,23 @@ def apply_security(
         put("access_control", access_control(read_identities(directory)))
 
 
+def require_identities(directory: Path, names: Iterable[str]) -> None:
+    """ValueError naming the command that issues whichever of ``names`` (identity names,
+    e.g. ``agent-0-9``) ``directory`` lacks; for a launcher to check before it starts
+    processes that would each fail on its own."""
+    directory = Path(directory)
+    missing = [n for n in names if not (directory / n / CERT).is_file()]
+    if missing:
+        ids = sorted({n.partition("-")[2] for n in missing} - {""})
+        groups = [i for i in ids if not i.isdigit()]
+        single = [i for i in ids if i.isdigit()]
+        command = f"covswarm credentials {directory}"
+        command += "".join(f" --group {g}" for g in groups)
+        if single:
+            command += f" --ids {format_ids([int(i) for i in single])}"
+        raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}: {command}")
+
+
 def _openssl(*args: str) -> None:
     subprocess.run(["openssl", *args], check=True, capture_output=True, timeout=60)
 

@@ -28,6 +28,7 @@ from covswarm.protocol.security import (
     identity_name,
     issue_credentials,
     read_identities,
+    require_identities,
 )
 from covswarm.protocol.session import session_config
 
@@ -171,6 +172,14 @@ def test_a_machine_without_its_certificate_is_told_how_to_issue_it(creds: Path) 
         session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=9)
     with pytest.raises(ValueError, match=r"--group 0-49"):
         session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=range(50))
+
+
+def test_a_launcher_learns_every_missing_identity_at_once(creds: Path) -> None:
+    require_identities(creds, ["coordinator", "agent-0", "robot-5-7"])
+    with pytest.raises(ValueError) as missing:
+        require_identities(creds, ["agent-0", "agent-8-9", "robot-8-9", "robot-11", "agent-12"])
+    assert "lacks agent-8-9, robot-8-9, robot-11, agent-12" in str(missing.value)
+    assert str(missing.value).endswith(f"covswarm credentials {creds} --group 8-9 --ids 11-12")
 
 
 def _allowed(acl: dict, subject: str, flow: str, message: str, key: str) -> bool:
