@@ -24,6 +24,7 @@ folder with the ``openssl`` command-line tool.
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
 import re
@@ -36,7 +37,7 @@ from typing import Any
 
 import click
 
-from covswarm.protocol.keys import format_ids, parse_ids
+from covswarm.protocol.keys import check_id, format_ids, parse_ids
 
 CA, CERT, KEY, IDENTITIES = "ca.pem", "cert.pem", "key.pem", "identities.json"
 CA_KEY = Path("ca") / "ca.key"
@@ -46,7 +47,7 @@ CERT_DAYS = 365
 ID_ROLES = ("agent", "robot")
 SINGLE_ROLES = ("coordinator", "bridge", "console", "operator")
 ROLES = (*ID_ROLES, *SINGLE_ROLES)
-_HOST_RE = re.compile(r"^[A-Za-z0-9.:-]{1,253}$")
+_HOSTNAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]{0,251}[A-Za-z0-9])?$")
 
 
 def identity_name(role: str, ids: int | Sequence[int] | None = None) -> str:
@@ -67,7 +68,7 @@ def identity_name(role: str, ids: int | Sequence[int] | None = None) -> str:
     id_list = [ids] if isinstance(ids, int) else list(ids)
     if not id_list:
         raise ValueError(f"role {role!r} needs at least one id")
-    return f"{role}-{format_ids(parse_ids(format_ids(id_list)))}"
+    return f"{role}-{format_ids([check_id(i) for i in id_list])}"
 
 
 def read_identities(directory: Path) -> list[dict[str, Any]]:
@@ -193,16 +194,15 @@ def _issue(directory: Path, name: str, alt_names: Sequence[str]) -> None:
 
 
 def _router_alt_names(hosts: Iterable[str]) -> list[str]:
+    """subjectAltName entries of the router's certificate: loopback plus ``hosts``."""
     names = []
     for host in ["127.0.0.1", "localhost", *hosts]:
-        if not _HOST_RE.match(host):
-            raise ValueError(f"invalid router host {host!r}")
-        kind = (
-            "IP"
-            if re.fullmatch(r"[0-9.]+|[0-9a-fA-F:]+", host) and any(c in host for c in ".:")
-            else "DNS"
-        )
-        names.append(f"{kind}:{host}")
+        try:
+            names.append(f"IP:{ipaddress.ip_address(host)}")
+        except ValueError:
+            if not _HOSTNAME_RE.match(host):
+                raise ValueError(f"invalid router host {host!r}: a name or an IP") from None
+            names.append(f"DNS:{host}")
     return list(dict.fromkeys(names))
 
 
@@ -223,6 +223,7 @@ def issue_credentials(
     Run again on the same folder, it adds identities signed by the same CA and keeps the
     existing ones. Private files are owner-only. RuntimeError without ``openssl``.
     """
+    alt_names = _router_alt_names(hosts)  # bad input refused before anything is written
     if shutil.which("openssl") is None:
         raise RuntimeError("covswarm credentials needs the 'openssl' command-line tool")
     directory = Path(directory)
@@ -249,7 +250,7 @@ def issue_credentials(
     wanted += [(role, sorted(set(group))) for group in groups for role in ID_ROLES]
     names = {entry["name"] for entry in known}
     if hosts or not (directory / ROUTER / CERT).is_file():
-        _issue(directory, ROUTER, _router_alt_names(hosts))
+        _issue(directory, ROUTER, alt_names)
     for role, ids in wanted:
         name = identity_name(role, ids or None)
         if name in names:

@@ -142,7 +142,16 @@ def test_credentials_give_each_identity_its_own_certificate(creds: Path) -> None
 
 
 def test_issuing_again_adds_identities_signed_by_the_same_ca(tmp_path: Path) -> None:
-    folder = issue_credentials(tmp_path / "lab", agents=[0], robots=[0])
+    folder = issue_credentials(tmp_path / "lab", agents=[0], robots=[0], hosts=["10.0.0.7"])
+    router = str(folder / "router" / "cert.pem")
+    names = subprocess.run(
+        ["openssl", "x509", "-noout", "-ext", "subjectAltName", "-in", router],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    assert "IP Address:127.0.0.1" in names and "IP Address:10.0.0.7" in names
+    assert "DNS:localhost" in names
+    with pytest.raises(ValueError, match="invalid router host"):
+        issue_credentials(folder, hosts=["bad host;rm"])
     ca, first = (folder / "ca.pem").read_bytes(), (folder / "agent-0" / "cert.pem").read_bytes()
     issue_credentials(folder, agents=[0, 9], robots=[])
     assert (folder / "ca.pem").read_bytes() == ca  # same CA
@@ -160,7 +169,8 @@ def test_identity_names_and_bad_roles() -> None:
     assert identity_name("agent", 3) == "agent-3"
     assert identity_name("robot", [0, 1, 2, 4]) == "robot-0-2,4"
     assert identity_name("coordinator") == "coordinator"
-    for role, ids in [("agent", None), ("operator", 1), ("admin", None), ("robot", [])]:
+    bad = [("agent", None), ("operator", 1), ("admin", None), ("robot", []), ("robot", [-1])]
+    for role, ids in [*bad, ("agent", True), ("agent", 70000)]:
         with pytest.raises(ValueError):
             identity_name(role, ids)
     with pytest.raises(ValueError, match="needs an id"):
