@@ -107,17 +107,14 @@ def apply_security(
 
     directory = Path(directory).resolve()
     name = ROUTER if mode == "router" else identity_name(role, ids)
+    if mode != "router":
+        require_identities(directory, [name])  # names the command that issues it
     needed = [CA, f"{name}/{CERT}", f"{name}/{KEY}"]
     if mode == "router":
         needed.append(IDENTITIES)
     missing = [n for n in needed if not (directory / n).is_file()]
     if missing:
-        hint = ""
-        if mode != "router":
-            group = name.partition("-")[2]
-            extra = f" --group {group}" if group and not group.isdigit() else ""
-            hint = f" (issue it: covswarm credentials {directory}{extra})"
-        raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}{hint}")
+        raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}")
 
     def put(key: str, value: object) -> None:
         config.insert_json5(key, json.dumps(value))
@@ -160,10 +157,6 @@ def _openssl(*args: str) -> None:
 _EC = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes")
 
 
-def _private(path: Path) -> None:
-    path.chmod(0o600)
-
-
 def _issue(directory: Path, name: str, alt_names: Sequence[str]) -> None:
     """Key and certificate for ``name`` in ``directory/name/``, signed by the CA."""
     folder = directory / name
@@ -179,7 +172,7 @@ def _issue(directory: Path, name: str, alt_names: Sequence[str]) -> None:
         if alt_names:
             lines.append(f"subjectAltName={','.join(alt_names)}")
         extensions.write_text("\n".join(lines) + "\n")
-        # umask so that the key is never readable by others, even for an instant.
+        # umask: the key is created owner-only, never readable by others even for an instant.
         old = os.umask(0o077)
         try:
             _openssl(
@@ -190,7 +183,6 @@ def _issue(directory: Path, name: str, alt_names: Sequence[str]) -> None:
             )  # fmt: skip
         finally:
             os.umask(old)
-    _private(folder / KEY)
 
 
 def _router_alt_names(hosts: Iterable[str]) -> list[str]:

@@ -178,7 +178,7 @@ def test_identity_names_and_bad_roles() -> None:
 
 
 def test_a_machine_without_its_certificate_is_told_how_to_issue_it(creds: Path) -> None:
-    with pytest.raises(ValueError, match=r"lacks agent-9/cert.pem.*credentials"):
+    with pytest.raises(ValueError, match=r"lacks agent-9: covswarm credentials .* --ids 9$"):
         session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=9)
     with pytest.raises(ValueError, match=r"--group 0-49"):
         session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=range(50))

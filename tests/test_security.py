@@ -81,7 +81,7 @@ def test_secured_mode_refuses_clear_endpoints_and_incomplete_folders(
     with pytest.raises(ValueError, match="needs tls/ endpoints"):
         session_config(["tcp/127.0.0.1:7447"], secure=secure)
     (tmp_path / "ca.pem").write_text("")
-    with pytest.raises(ValueError, match="lacks operator/cert.pem, operator/key.pem"):
+    with pytest.raises(ValueError, match="lacks operator: covswarm credentials"):
         session_config(["tls/127.0.0.1:7447"], secure=tmp_path)
     with pytest.raises(ValueError, match="lacks router/cert.pem, router/key.pem, identities"):
         session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
