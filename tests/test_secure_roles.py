@@ -405,3 +405,55 @@ def test_routers_of_two_hosts_relay_only_what_their_clients_may_send(creds: Path
                 assert inbox.wait_for(b"after")
                 time.sleep(SETTLE)
     assert set(p for _, p in inbox.items) == {b"legitimate", b"after"}
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(90)
+def test_forged_commands_do_not_move_a_secured_robot(endpoint: str, creds: Path) -> None:
+    """Issue 21's probe against a real `covswarm robot --id 0 --secure`: valid
+    WheelCommands from an operator and from agent 1 at 50 Hz leave it where it is; the same
+    commands from agent 0 move it (so the robot was listening)."""
+    from covswarm.deploy.plan import covswarm_argv
+
+    swarm = protocol.new_swarm_name()
+    argv = [*covswarm_argv(), "robot", "--id", "0", "--connect", endpoint, "--swarm", swarm]
+    robot = subprocess.Popen(
+        [*argv, "--secure", str(creds)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    poses: list[protocol.Pose] = []
+    try:
+        with join(endpoint, creds, "console") as watcher:
+            watcher.declare_subscriber(
+                protocol.pose_key(swarm, 0),
+                lambda s: poses.append(protocol.Pose.decode(s.payload.to_bytes())),
+            )
+            assert wait_until(lambda: len(poses) > 3, 30), "the secured robot sent no pose"
+
+            def drive(role: str, i: int | None, seconds: float) -> None:
+                with join(endpoint, creds, role, i) as sender:
+                    time.sleep(SETTLE)
+                    end, seq = time.monotonic() + seconds, 0
+                    while time.monotonic() < end:
+                        seq += 1
+                        command = protocol.WheelCommand(
+                            id=0, left=0.2, right=0.2, stamp=time.time(), seq=seq,
+                            pose_stamp=poses[-1].stamp,
+                        )  # fmt: skip
+                        sender.put(protocol.cmd_key(swarm, 0), command.encode())
+                        time.sleep(0.02)
+
+            start = poses[-1]
+            drive("operator", None, 1.5)
+            drive("agent", 1, 1.5)
+            time.sleep(SETTLE)
+            still = poses[-1]
+            assert still.seq > start.seq  # poses kept coming while it was attacked
+            assert (still.x, still.y) == (start.x, start.y)
+            drive("agent", 0, 1.0)
+            time.sleep(SETTLE)
+            moved = poses[-1]
+            assert abs(moved.x - still.x) + abs(moved.y - still.y) > 0.05
+    finally:
+        robot.terminate()
+        robot.wait(timeout=30)
+    assert robot.returncode in (0, -15), robot.stderr.read()[-2000:]
