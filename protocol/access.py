@@ -19,7 +19,8 @@ applies the *rules* its *policies* bind to it; anything no rule allows is denied
   each router enforces the rules on its own clients, so what reaches a router from
   another has already been checked at its entry;
 - the ``bridge`` also speaks ROS 2 (rmw_zenoh) on the same session: everything under the
-  ROS 2 keys (``<domain id>/**``, ``@ros2_lv/**``), none of which is under ``covswarm/``.
+  ROS 2 keys (``<domain id>/**``, ``@ros2_lv/**``), none of which is under ``covswarm/``;
+  so may ROS 2 nodes on the same router (certificate ``ros2``), and nothing else.
 
 Message kinds are Zenoh's: ingress is what the router accepts from the subject, egress what
 it forwards to it. Pure data, no zenoh import: the dict goes into the config as JSON.
@@ -120,14 +121,15 @@ def access_control(identities: Sequence[dict[str, Any]]) -> dict[str, Any]:
     ros2 = ["@ros2_lv/**", *(f"{domain}/**" for domain in ROS2_DOMAINS)]
     bridge = [
         *_writer("bridge", *robot_keys(None)),
-        _rule("bridge/ros2", ["ingress", "egress"], ALL_MESSAGES, ros2),
     ]
+    rules.append(_rule("ros2", ["ingress", "egress"], ALL_MESSAGES, ros2))
     rules += coordinator + bridge
     base = [READ, "subscribe"]
     by_role = {
         "coordinator": [*base, "steer/ask", "steer/answer", "steer/serve"]
         + [r["id"] for r in coordinator],
-        "bridge": base + [r["id"] for r in bridge],
+        "bridge": [*base, "ros2"] + [r["id"] for r in bridge],
+        "ros2": ["ros2"],  # ROS 2 nodes: their own keys only, nothing of covswarm
         "console": [*base, "steer/ask"],
         "operator": [*base, "steer/ask"],
     }

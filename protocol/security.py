@@ -45,7 +45,8 @@ ROUTER = "router"
 CERT_DAYS = 365
 # Roles with one identity per robot id, and roles with a single identity.
 ID_ROLES = ("agent", "robot")
-SINGLE_ROLES = ("coordinator", "bridge", "console", "operator")
+# ros2: the ROS 2 nodes (rmw_zenoh) a bridge talks to, when they share the swarm's router.
+SINGLE_ROLES = ("coordinator", "bridge", "console", "operator", "ros2")
 ROLES = (*ID_ROLES, *SINGLE_ROLES)
 _HOSTNAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]{0,251}[A-Za-z0-9])?$")
 

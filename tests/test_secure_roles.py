@@ -123,7 +123,7 @@ class Inbox:
 
 def test_credentials_give_each_identity_its_own_certificate(creds: Path) -> None:
     names = {entry["name"] for entry in read_identities(creds)}
-    expected = {"coordinator", "bridge", "console", "operator", "agent-5-7", "robot-5-7"}
+    expected = {"coordinator", "bridge", "console", "operator", "ros2", "agent-5-7", "robot-5-7"}
     expected |= {f"agent-{i}" for i in AGENTS} | {f"robot-{i}" for i in ROBOTS}
     assert names == expected
     for name in [*names, "router"]:
@@ -158,7 +158,7 @@ def test_issuing_again_adds_identities_signed_by_the_same_ca(tmp_path: Path) -> 
     assert (folder / "agent-0" / "cert.pem").read_bytes() == first  # kept, not re-issued
     names = [entry["name"] for entry in read_identities(folder)]
     assert sorted(names) == sorted(
-        ["coordinator", "bridge", "console", "operator", "agent-0", "robot-0", "agent-9"]
+        ["coordinator", "bridge", "console", "operator", "ros2", "agent-0", "robot-0", "agent-9"]
     )
     (folder / "ca" / "ca.key").unlink()  # a machine's copy cannot issue
     with pytest.raises(ValueError, match="cannot issue"):
@@ -227,7 +227,8 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
         robot = owners[protocol.pose_key(swarm, i)]
         tokens[protocol.alive_key(swarm, "robot", i)] = robot
         tokens[protocol.claim_key(swarm, "robot", i, "ab12")] = robot
-    subjects = [s["id"] for s in acl["subjects"] if s["id"] != "router"]
+    subjects = [s["id"] for s in acl["subjects"] if s["id"] not in ("router", "ros2")]
+    ros2 = ["0/robot_0/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_x", "@ros2_lv/0/a"]
     assert _allowed(acl, "router", "ingress", "put", protocol.cmd_key(swarm, 0))  # a relay
     for subject in subjects:
         for key, who in owners.items():
@@ -245,9 +246,19 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
             subject in ("coordinator", "console", "operator")
         )
         assert not _allowed(acl, subject, "ingress", "put", "@/router/x")  # nothing outside
-        ros2 = ["0/robot_0/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_x", "@ros2_lv/0/a"]
         for key in ros2:  # the bridge speaks ROS 2 on its session too
             assert _allowed(acl, subject, "ingress", "put", key) == (subject == "bridge")
+    # ROS 2 nodes on the same router: their keys, nothing of covswarm (not even to read).
+    for key in ros2:
+        assert _allowed(acl, "ros2", "ingress", "put", key)
+        assert _allowed(acl, "ros2", "egress", "put", key)
+    for key in [*owners, *tokens]:
+        for flow, message in [
+            ("ingress", "put"),
+            ("egress", "put"),
+            ("ingress", "liveliness_token"),
+        ]:
+            assert not _allowed(acl, "ros2", flow, message, key)
 
 
 def test_the_ros2_domains_are_the_bridges() -> None:

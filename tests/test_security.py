@@ -68,7 +68,7 @@ def router(secure: Path) -> Iterator[tuple[zenoh.Session, str]]:
 def test_secure_folder_is_complete_and_private(secure: Path) -> None:
     names = {entry["name"] for entry in read_identities(secure)}
     assert {"coordinator", "bridge", "console", "operator", "agent-15", "robot-0"} <= names
-    assert len(names) == 4 + 2 * 16
+    assert len(names) == 5 + 2 * 16
     for name in [*names, "router"]:
         assert {p.name for p in (secure / name).iterdir()} == {"cert.pem", "key.pem"}
         assert (secure / name / "key.pem").stat().st_mode & 0o077 == 0
