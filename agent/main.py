@@ -315,7 +315,9 @@ def run_agent_process(config: AgentProcessConfig) -> None:
         raise click.BadParameter(str(exc), param_hint="--swarm") from exc
     robot_ids = id_selection(config.id, config.ids)
     try:
-        zenoh_config = session_config(list(config.connect), None, "client", secure=config.secure)
+        zenoh_config = session_config(
+            list(config.connect), None, "client", secure=config.secure, role="agent", id=robot_ids
+        )
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once

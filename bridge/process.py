@@ -383,7 +383,7 @@ def ros2_command(
             )
             for rid in robot_ids
         ]
-        config = session_config(list(connect), None, "client", secure=secure)
+        config = session_config(list(connect), None, "client", secure=secure, role="bridge")
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
     run_bridge(links, swarm, config, options, rate)

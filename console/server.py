@@ -371,7 +371,7 @@ def console_command(
     logging.basicConfig(level=logging.INFO, format="%(asctime)s console %(message)s")
     try:
         check_swarm(swarm)
-        config = session_config(list(connect), secure=secure)
+        config = session_config(list(connect), secure=secure, role="console")
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     token = new_token() if needs_token(host) else None

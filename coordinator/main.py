@@ -62,7 +62,9 @@ def run_coordinator(config: CoordinatorConfig) -> None:
         except ValueError as exc:
             raise click.UsageError(f"--resume: {exc}") from None
     stop = StopFlag()
-    with zenoh.open(session_config(list(config.connect), secure=config.secure)) as session:
+    with zenoh.open(
+        session_config(list(config.connect), secure=config.secure, role="coordinator")
+    ) as session:
         if token_exists(session, alive_key(config.swarm, "coordinator", 0)):
             raise click.ClickException(f"swarm {config.swarm!r} already has a coordinator")
         try:

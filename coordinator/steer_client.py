@@ -181,7 +181,7 @@ def steer_command(
     except ValueError as exc:  # ProtocolError included: NaN, too many vertices, ...
         raise click.UsageError(str(exc)) from None
     try:
-        config = session_config(list(connect), secure=secure)
+        config = session_config(list(connect), secure=secure, role="operator")
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:

@@ -300,7 +300,9 @@ def run_robot_process(config: RobotConfig) -> None:
             )
             for i, pose in zip(robot_ids, initial, strict=True)
         ]
-        session = session_config(list(config.connect), None, "client", secure=config.secure)
+        session = session_config(
+            list(config.connect), None, "client", secure=config.secure, role="robot", id=robot_ids
+        )
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
     run_robots(sims, config.swarm, session, config.rate, config.pose_rate, config.time_scale)

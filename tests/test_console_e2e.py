@@ -390,7 +390,7 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
     import zenoh
 
     from covswarm.protocol import Domain, domain_key
-    from covswarm.protocol.security import make_test_credentials, read_credentials
+    from covswarm.protocol.security import make_test_credentials
     from covswarm.protocol.session import session_config
 
     require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
@@ -402,7 +402,8 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
     square = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
     with (
         zenoh.open(session_config(None, [endpoint], "router", secure=secure)),
-        zenoh.open(session_config([endpoint], secure=secure)) as member,
+        # The Domain is the coordinator's to publish (protocol.access): the test acts as it.
+        zenoh.open(session_config([endpoint], secure=secure, role="coordinator")) as member,
         console(endpoint, swarm, "--secure", str(secure)) as url,
     ):
         domain = Domain(seq=0, stamp=time.time(), t=1.0, state="running", vertices=square,
@@ -417,11 +418,7 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
         status, reply = post_json(url + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')
         assert status == 504 and "no coordinator" in reply["reason"]
 
-        user, _ = read_credentials(secure)[0]
-        wrong = tmp_path / "wrong"
-        wrong.mkdir()
-        shutil.copy(secure / "ca.pem", wrong / "ca.pem")
-        (wrong / "credentials").write_text(f"{user}:not-the-password\n")
+        wrong = make_test_credentials(tmp_path / "wrong", ids=[])  # another lab's CA
         for extra in (["--secure", str(wrong)], []):
             outsider = subprocess.run(
                 [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm,
