@@ -42,7 +42,7 @@ from covswarm.mission.crowding import crowding
 from covswarm.mission.scenarios import load_scenario
 from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, identity_name, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
@@ -226,6 +226,18 @@ def run_swarm(run: RunConfig) -> None:
     if out_dir is None:
         out_dir = Path("runs") / f"run-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     run = replace(run, swarm=swarm, out=out_dir)
+    if run.secure is not None:
+        # Every child needs its own certificate: one missing would make that child exit and
+        # the launcher wait for its token forever, so all are checked before anything starts.
+        planned = plan_children(
+            run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids, per_process=packing
+        )
+        names = {identity_name(s.role, s.members if s.role != "coordinator" else None)
+                 for s in planned} | ({"console"} if run.console else set())  # fmt: skip
+        try:
+            require_identities(run.secure, sorted(names))
+        except ValueError as exc:
+            raise click.UsageError(str(exc)) from None
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     console = Console()

@@ -23,6 +23,7 @@ import pytest
 from live_runs import wait_until
 
 from covswarm import protocol
+from covswarm.deploy.plan import covswarm_argv
 from covswarm.protocol.access import access_control
 from covswarm.protocol.security import (
     identity_name,
@@ -468,3 +469,21 @@ def test_forged_commands_do_not_move_a_secured_robot(endpoint: str, creds: Path)
         robot.terminate()
         robot.wait(timeout=30)
     assert robot.returncode in (0, -15), robot.stderr.read()[-2000:]
+
+
+def test_covswarm_run_refuses_before_starting_when_a_certificate_is_missing(
+    creds: Path, tmp_path: Path
+) -> None:
+    """A packed run needs group certificates (agent-0-1, ...) the folder lacks: the launcher
+    says so and exits 2 before any router or child starts, instead of waiting for tokens
+    that children without certificates never declare."""
+    started = time.monotonic()
+    done = subprocess.run(
+        [*covswarm_argv(), "run", "--secure", str(creds),
+         "--agents", "4", "--agents-per-process", "2", "--out", str(tmp_path / "run")],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert "lacks agent-0-1" in done.stderr and "--group 0-1" in done.stderr
+    assert time.monotonic() - started < 30
+    assert not (tmp_path / "run" / "logs").exists()
