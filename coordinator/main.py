@@ -32,12 +32,12 @@ from covswarm.coordinator.core import (
 from covswarm.coordinator.link import CoordinatorLink
 from covswarm.coordinator.outputs import open_recorder, read_mission_start, write_run_outputs
 from covswarm.mission.scenarios import load_scenario
-from covswarm.protocol import alive_key, check_swarm
+from covswarm.protocol import check_swarm
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.records.recorder import LiveViewError
-from covswarm.runtime.claims import token_exists
+from covswarm.runtime.claims import claim_exclusive
 from covswarm.runtime.clock import StopFlag, scaled
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
@@ -65,7 +65,8 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     with zenoh.open(
         session_config(list(config.connect), secure=config.secure, role="coordinator")
     ) as session:
-        if token_exists(session, alive_key(config.swarm, "coordinator", 0)):
+        claim = claim_exclusive(session, config.swarm, "coordinator", 0)
+        if claim is None:
             raise click.ClickException(f"swarm {config.swarm!r} already has a coordinator")
         try:
             recorder = open_recorder(config, settings)

@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from live_runs import wait_until
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -226,3 +227,71 @@ def test_second_robot_or_agent_process_with_the_same_id_is_refused(router: tuple
             p.terminate()
         for p in first:
             p.wait(timeout=30)
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.e2e
+def test_exclusive_claims_started_together_leave_exactly_one(router: tuple) -> None:
+    """Five sessions claim the coordinator's id at the same instant, ten times over: each
+    time exactly one wins (claim alone may let all back off), and a later claimant loses
+    to the running winner."""
+    import threading
+
+    import zenoh
+
+    from covswarm.runtime.claims import claim_exclusive
+
+    _, endpoint = router
+    sessions = [zenoh.open(protocol.session_config([endpoint])) for _ in range(5)]
+    try:
+        for _ in range(10):
+            swarm = protocol.new_swarm_name()
+            tokens: list = [None] * len(sessions)
+            start = threading.Barrier(len(sessions))
+
+            def contend(k: int, swarm: str = swarm, start=start, tokens=tokens) -> None:
+                start.wait()
+                tokens[k] = claim_exclusive(sessions[k], swarm, "coordinator", 0)
+
+            threads = [threading.Thread(target=contend, args=(k,)) for k in range(5)]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+            winners = [t for t in tokens if t is not None]
+            assert len(winners) == 1, tokens
+            assert claim_exclusive(sessions[0], swarm, "coordinator", 0) is None
+            winners[0].undeclare()
+    finally:
+        for session in sessions:
+            session.close()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.e2e
+def test_two_coordinators_started_together_leave_exactly_one_running(
+    router: tuple, tmp_path: Path
+) -> None:
+    _, endpoint = router
+    swarm = protocol.new_swarm_name()
+    coordinators = [
+        subprocess.Popen(
+            [COVSWARM, "coordinator", "--scenario", "passage", "--connect", endpoint,
+             "--swarm", swarm, "--out", str(tmp_path / f"c{k}")],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        for k in range(2)
+    ]  # fmt: skip
+    try:
+        assert wait_until(lambda: any(c.poll() is not None for c in coordinators), 60.0)
+        time.sleep(3.0)  # the survivor is past its claim: it stays
+        alive = [c for c in coordinators if c.poll() is None]
+        assert len(alive) == 1
+        [loser] = [c for c in coordinators if c.poll() is not None]
+        assert loser.returncode != 0
+        assert "already has a coordinator" in loser.stderr.read()
+    finally:
+        for c in coordinators:
+            if c.poll() is None:
+                c.kill()
+            c.wait()
