@@ -520,7 +520,7 @@ def build_summary(
     settings: Settings, observed: Observed, steering: Steering | None = None
 ) -> dict[str, Any]:
     """summary.json: the keys of ``covswarm sim`` plus process-level figures."""
-    from covswarm.coordinator.physical import agent_wheel_figures, physical_summary
+    from covswarm.mission.physical import agent_wheel_figures, physical_summary
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
 
     record = observed.record

@@ -76,7 +76,7 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
     table.add_row("e_a initial", fmt(summary.get("initial_error"), " m"))
     table.add_row("e_a steady state (2nd half)", fmt(summary.get("steady_state_error_mean"), " m"))
     table.add_row("e_a final", fmt(summary.get("final_error"), " m"))
-    # Physical figures (coordinator.physical): how close robots came, how hard wheels worked.
+    # Physical figures (mission.physical): how close robots came, how hard wheels worked.
     closest, diameter = summary.get("min_pairwise_distance"), summary.get("robot_diameter")
     if diameter is not None:
         table.add_row("closest robots", fmt(closest, " m"))

@@ -200,7 +200,7 @@ def build_summary(
     projection_distance: float | None = None,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps."""
-    from covswarm.coordinator.physical import physical_summary, wheel_figures
+    from covswarm.mission.physical import physical_summary, wheel_figures
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV
 

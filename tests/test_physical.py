@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from covswarm.coordinator.physical import physical_summary, proximity, wheel_figures
+from covswarm.mission.physical import physical_summary, proximity, wheel_figures
 
 
 def brute_force(t: np.ndarray, traj: np.ndarray, diameter: float) -> tuple[float, int, float]:
