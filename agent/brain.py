@@ -44,7 +44,7 @@ from covswarm.agent.neighbourhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import local_step
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -513,7 +513,7 @@ class AgentBrain:
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
-        forward = 0.5 * (left + right)
+        forward, _ = twist_from_wheels(left, right, config.robot.wheel_separation)
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
         return Decision(left, right, "running", tuple(velocity.tolist()), achieved)
 

@@ -26,21 +26,19 @@ import math
 from covswarm import protocol
 from covswarm.bridge import cdr
 from covswarm.bridge.rmw_zenoh import decode_attachment
-from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, check_stamp
-from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.protocol.inbound import (
+    COMMAND_REASONS,
+    MAX_CLOCK_SKEW,
+    DropLog,
+    accept_command,
+    check_stamp,
+)
+from covswarm.tvd.drive import KHEPERA_IV, twist_from_wheels
 
 log = logging.getLogger("covswarm.bridge")
 
-DROP_REASONS = (*protocol.REASONS, *STAMP_REASONS, "wrong_id", "attachment")
+DROP_REASONS = (*COMMAND_REASONS, "attachment")
 STAMP_SOURCES = ("message", "receive")
-
-
-def twist_from_wheels(left: float, right: float, axle: float) -> tuple[float, float]:
-    """Differential-drive kinematics: rim speeds (m/s) -> (v m/s, omega rad/s).
-
-    v = (left + right) / 2, omega = (right - left) / axle, ``axle`` the wheel separation (m).
-    """
-    return 0.5 * (left + right), (right - left) / axle
 
 
 class RobotLink:
@@ -98,14 +96,10 @@ class RobotLink:
     # covswarm -> ROS 2 ------------------------------------------------------------------
     def on_command(self, payload: bytes, now: float, now_wall: float) -> bool:
         """Take a raw WheelCommand payload; False if it was dropped."""
-        try:
-            command = protocol.WheelCommand.decode(payload)
-            check_stamp(command.stamp, now_wall, self.cmd_timeout, self.max_clock_skew)
-        except protocol.ProtocolError as exc:
-            self.drops.drop(exc.reason, f"command: {exc}")
-            return False
-        if command.id != self.id:
-            self.drops.drop("wrong_id", f"command for robot {command.id}")
+        command = accept_command(
+            payload, self.id, now_wall, self.cmd_timeout, self.max_clock_skew, self.drops
+        )
+        if command is None:
             return False
         self._twist = twist_from_wheels(command.left, command.right, self.axle)
         self._last_command = now

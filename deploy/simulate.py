@@ -80,7 +80,7 @@ def simulate(
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
-    from covswarm.tvd.drive import integrate, wheel_speeds
+    from covswarm.tvd.drive import KHEPERA_IV, integrate, twist_from_wheels, wheel_speeds
     from covswarm.tvd.safety import (
         DEFAULT_GAMMA,
         barrier_gain,
@@ -156,7 +156,10 @@ def simulate(
             )
             wheel_log[k] = wheels
             if safety:
-                centre_velocity = wheels.mean(axis=1, keepdims=True) * np.column_stack(
+                forward, _ = twist_from_wheels(
+                    wheels[:, 0], wheels[:, 1], KHEPERA_IV.wheel_separation
+                )
+                centre_velocity = forward[:, None] * np.column_stack(
                     [np.cos(headings), np.sin(headings)]
                 )
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)

@@ -13,11 +13,11 @@ from click.testing import CliRunner
 
 from covswarm import protocol
 from covswarm.bridge import cdr
-from covswarm.bridge.link import RobotLink, twist_from_wheels
+from covswarm.bridge.link import RobotLink
 from covswarm.bridge.mission_view import MissionView
 from covswarm.bridge.process import bridge_group
 from covswarm.bridge.rmw_zenoh import encode_attachment
-from covswarm.tvd.drive import DiffDrive, integrate
+from covswarm.tvd.drive import DiffDrive, integrate, twist_from_wheels
 
 WALL = 1_700_000_000.0
 
