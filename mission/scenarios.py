@@ -13,8 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid, signed_area
+from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
 from covswarm.mission.toml_text import density_toml, toml_float, toml_list, toml_str
+from covswarm.tvd.coverage import signed_area
 from covswarm.tvd.density import Density
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
@@ -113,8 +114,7 @@ class Scenario:
             xmin, xmax, ymin, ymax = self.initial_box
             area = (xmax - xmin) * (ymax - ymin)
         else:
-            x, y = self.domain(0.0)[0].T
-            area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+            area = abs(signed_area(self.domain(0.0)[0]))
         fits = 2.0 * math.sqrt(START_PACKING * area / (math.pi * max(n, 1)))
         return min(self.robot_diameter, fits)
 

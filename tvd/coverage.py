@@ -319,6 +319,13 @@ def _crossing_edges(vertices: np.ndarray) -> tuple[int, int] | None:
     return (int(hits[0][0]), int(hits[0][1])) if len(hits) else None
 
 
+def signed_area(polygon: np.ndarray) -> float:
+    """Shoelace area of a polygon's ``(k, 2)`` vertices (m^2), positive when they run
+    counter-clockwise: the mass of S for phi = 1 (Section 4.2's sum over its edges)."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """z-component of the cross product of stacked 2-vectors: (..., 2) x (..., 2) -> (...)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
