@@ -23,9 +23,8 @@ import numpy as np
 
 from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenarios import Scenario, load_scenario
+from covswarm.tvd.control import LAWS, PRIORS
 
-LAWS = ("c", "d1", "da")
-PRIORS = ("affine", "zero")
 DYNAMICS = ("single", "unicycle")
 
 
@@ -70,8 +69,8 @@ def simulate(
     """Run the scenario; None options take the scenario's defaults.
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
-    covswarm.tvd.control.team_step), damping None for covswarm.tvd.control.DAMPING, 0 for the
-    paper's exact TVD-C with its fallback to TVD-D1. safety: filter every robot's velocity
+    covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
+    0 for the paper's exact TVD-C with its fallback to TVD-D1, as in team_step. safety: filter every robot's velocity
     as the agents do (covswarm.tvd.safety, against the robots within the agents'
     SAFETY_RADIUS, reciprocal split with the centres' last velocities, the scenario's
     robot diameter), before the wheel mapping.
@@ -103,7 +102,6 @@ def simulate(
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
         raise ValueError(f"damping must be a finite number >= 0, not {damping!r}")
-    exact = damping == 0
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
@@ -132,7 +130,7 @@ def simulate(
             break
         step = control.team_step(
             law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
-            density=density, damping=None if exact else damping, prior=prior,
+            density=density, damping=damping, prior=prior,
         )  # fmt: skip
         velocity = step.velocity
         guarded += int(step.guarded.sum())

@@ -191,7 +191,7 @@ def test_exact_tvd_c_with_density_takes_the_branch_its_rule_names(branch: str) -
     amplification = np.linalg.norm(expected, axis=1).max() / largest
     limit = 2.0 * amplification if branch == "solve" else 0.5 * amplification
     args = (positions, polygon, velocity, 1.5)
-    step = control.team_step("c", *args, density=density, max_amplification=limit, damping=None)
+    step = control.team_step("c", *args, density=density, max_amplification=limit, damping=0.0)
     assert step.fallback == (branch == "fallback")
     if branch == "solve":
         np.testing.assert_allclose(step.velocity, expected, rtol=0, atol=1e-9 * largest)
@@ -200,7 +200,7 @@ def test_exact_tvd_c_with_density_takes_the_branch_its_rule_names(branch: str) -
         np.testing.assert_allclose(step.velocity, d1.velocity, rtol=0, atol=1e-12 * largest)
     # With the shipped limit the flag follows the same rule (this layout is far from the edge).
     assert abs(amplification / control.MAX_AMPLIFICATION - 1.0) > 0.05
-    shipped = control.team_step("c", *args, density=density, damping=None)
+    shipped = control.team_step("c", *args, density=density, damping=0.0)
     assert shipped.fallback == (amplification > control.MAX_AMPLIFICATION)
 
 

@@ -24,10 +24,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covswarm.deploy.simulate import LAWS, simulate
+from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import neighbor_histogram, steady_state_mean
 from covswarm.mission.scenarios import BUILTINS, load_scenario
 from covswarm.tvd import coverage
+from covswarm.tvd.control import LAWS
 
 README = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
 

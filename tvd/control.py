@@ -18,7 +18,7 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
   Lloyd's feedback kappa (c - p) outside (I + J); the Neumann factor on the feedback too
   halves the decay time of the slow modes and measured 1.4 to 9 times lower errors
   (docs/tracking.md).
-- TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=None``; by
+- TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=0``; by
   default the feedback stays outside the inverse and only the feedforward is solved, damped
   (Tikhonov / Levenberg-Marquardt) toward a prior x0: pdot = kappa (c - p) + x with
   x = argmin |(I - J) x - dc/dt|^2 + damping^2 |x - x0|^2. I - J is near singular close to a
@@ -318,20 +318,20 @@ def team_step(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
-    damping: float | None = DAMPING,
+    damping: float = DAMPING,
     prior: str = "affine",
 ) -> TeamStep:
     """One full-team step of ``law`` ("c", "d1" or "da"), with its guard counts.
 
     positions: (n, 2) m; polygon, polygon_velocity: (k, 2) m and m/s; kappa 1/s.
-    ``damping`` and ``prior`` apply to "c" only (damping None: the exact TVD-C with its
+    ``damping`` and ``prior`` apply to "c" only (damping 0: the exact TVD-C with its
     fallback).
     """
     _check_law(law)
     if prior not in PRIORS:
         raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
-    if damping is not None and not (math.isfinite(damping) and damping > 0.0):
-        raise ValueError(f"damping must be a positive finite number or None, got {damping!r}")
+    if not (math.isfinite(damping) and damping >= 0.0):
+        raise ValueError(f"damping must be a finite number >= 0, got {damping!r}")
     points, domain, batch = _team_cells(positions, polygon, polygon_velocity, kappa, density)
     target, rate = _targets(batch, points, domain, feedforward, density)
     feedback = kappa * (target - as_complex(points))
@@ -340,7 +340,7 @@ def team_step(
         return _team_d1(batch, points, references, max_amplification, density)
     if law == "da":
         return _team_da(batch, points, domain, feedback, rate, max_amplification, density)
-    if damping is None:
+    if damping == 0.0:
         return _team_c_exact(batch, points, feedback, rate, max_amplification, density)
     field = as_complex(_fit(domain)(points)) if prior == "affine" else None
     return _team_c_damped(batch, points, feedback, rate, max_amplification, density, damping, field)
@@ -541,14 +541,14 @@ def tvd_c(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
-    damping: float | None = DAMPING,
+    damping: float = DAMPING,
     prior: str = "affine",
 ) -> np.ndarray:
     """TVD-C velocities for the whole team (module notes).
 
     Default: kappa (c - p) + x, x = argmin |(I - dc/dp) x - dc/dt|^2 + damping^2 |x - x0|^2,
     x0 the affine field v(p) (``prior="affine"``) or 0 (``prior="zero"``).
-    ``damping=None``: the paper's exact (I - dc/dp)^-1 (kappa (c - p) + dc/dt), falling back
+    ``damping=0``: the paper's exact (I - dc/dp)^-1 (kappa (c - p) + dc/dt), falling back
     to the guarded TVD-D1 velocities when I - dc/dp is numerically singular or the solution
     amplifies a robot's speed beyond ``max_amplification`` times max |r|.
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).
