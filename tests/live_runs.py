@@ -17,6 +17,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 from covswarm.deploy.plan import covswarm_argv
+from covswarm.deploy.router import free_port
 
 # A stand-alone Zenoh router: ``python -c ROUTER ENDPOINT`` prints "ready", runs until SIGTERM.
 ROUTER = """
@@ -83,3 +84,28 @@ def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subproce
 def new_swarm() -> str:
     """A swarm name of its own for one test run."""
     return f"e2e-{secrets.token_hex(4)}"
+
+
+def open_router(scheme: str = "tcp", secure: Path | None = None) -> tuple[object, str]:
+    """A router-mode Zenoh session on a free loopback port: (session, endpoint).
+
+    ``scheme``: "tcp", or "tls" with ``secure`` (a covswarm secure folder). Tried five times:
+    the port can be taken between probing and binding."""
+    import zenoh
+
+    from covswarm.protocol import session_config
+
+    for attempt in range(5):
+        endpoint = f"{scheme}/127.0.0.1:{free_port()}"
+        try:
+            return zenoh.open(session_config(None, [endpoint], "router", secure=secure)), endpoint
+        except zenoh.ZError:
+            if attempt == 4:
+                raise
+    raise AssertionError("unreachable")
+
+
+def alive_tokens(session: object, selector: str) -> list[str]:
+    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
+    replies = session.liveliness().get(selector, timeout=1.0)
+    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]

@@ -5,7 +5,6 @@ from __future__ import annotations
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
 import threading
@@ -14,6 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from live_runs import open_router
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -495,12 +495,6 @@ REPO = Path(__file__).resolve().parent.parent
 COVSWARM = str(Path(sys.executable).with_name("covswarm"))
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 class Latest:
     """Newest decoded message per key, filled from Zenoh callbacks."""
 
@@ -524,20 +518,13 @@ class Latest:
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_three_robots_and_agents_over_zenoh() -> None:
-    zenoh = pytest.importorskip("zenoh")
+    pytest.importorskip("zenoh")
     from covswarm.tvd.coverage import mass_centroid
 
     swarm = protocol.new_swarm_name()
     starts = [(0.3, 0.3), (0.6, 0.4), (0.4, 0.7)]
     children: list[subprocess.Popen] = []
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    session, endpoint = open_router()
     try:
         poses = Latest(protocol.Pose)
         states = Latest(protocol.AgentState)

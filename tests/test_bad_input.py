@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import socket
 import subprocess
 import sys
 import time
@@ -11,6 +10,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from live_runs import alive_tokens, open_router
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -148,30 +148,11 @@ def test_failing_control_step_logs_once_per_interval(
 # --- over Zenoh ---------------------------------------------------------------------------
 
 
-def alive_tokens(session: object, selector: str) -> list[str]:
-    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
-    replies = session.liveliness().get(selector, timeout=1.0)
-    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def router() -> Iterator[tuple[object, str]]:
     """A router-mode session on a free loopback port: (session, endpoint)."""
-    zenoh = pytest.importorskip("zenoh")
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    pytest.importorskip("zenoh")
+    session, endpoint = open_router()
     yield session, endpoint
     session.close()
 

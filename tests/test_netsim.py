@@ -6,8 +6,8 @@ from __future__ import annotations
 import pytest
 
 from covswarm.agent.brain import AgentConfig
-from covswarm.mission.physical import physical_summary
 from covswarm.deploy.netsim import run_netsim, steady_state
+from covswarm.mission.physical import physical_summary
 from covswarm.mission.scenarios import load_scenario
 
 AGENTS, DURATION = 6, 30.0
