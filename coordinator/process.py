@@ -46,7 +46,7 @@ from covswarm.coordinator.monitor import (
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.crowding import crowding as estimate_crowding
-from covswarm.mission.scenarios import Scenario, load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario, load_scenario
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
@@ -658,7 +658,7 @@ def write_run_outputs(
     "scenario_name",
     default="passage",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option(
     "--connect",

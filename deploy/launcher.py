@@ -35,7 +35,7 @@ from covswarm.deploy.plan import (
 from covswarm.deploy.router import zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, load_scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
@@ -48,7 +48,7 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     "scenario_name",
     default="passage",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")

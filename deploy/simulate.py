@@ -22,7 +22,7 @@ import click
 import numpy as np
 
 from covswarm.mission.crowding import Crowding, crowding
-from covswarm.mission.scenarios import Scenario, load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario, load_scenario
 from covswarm.tvd.control import LAWS, PRIORS
 
 DYNAMICS = ("single", "unicycle")
@@ -70,10 +70,10 @@ def simulate(
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
-    0 for the paper's exact TVD-C with its fallback to TVD-D1, as in team_step. safety: filter every robot's velocity
-    as the agents do (covswarm.tvd.safety, against the robots within the agents'
-    SAFETY_RADIUS, reciprocal split with the centres' last velocities, the scenario's
-    robot diameter), before the wheel mapping.
+    0 for the paper's exact TVD-C with its fallback to TVD-D1, as in team_step. safety:
+    filter every robot's velocity as the agents do (covswarm.tvd.safety, against the robots
+    within its SAFETY_RADIUS, reciprocal split with the centres' last velocities, the
+    scenario's robot diameter), before the wheel mapping.
     """
     from covswarm.agent.brain import SAFETY_RADIUS
     from covswarm.tvd import control
@@ -277,7 +277,7 @@ def physical_line(summary: dict[str, Any]) -> str:
     "scenario_name",
     default="circle",
     show_default=True,
-    help="Built-in scenario (circle, passage, formation) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option(

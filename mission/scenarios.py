@@ -326,6 +326,12 @@ BUILTINS = {
     "pinwheel": pinwheel,
     "live": live,
 }
+# The --scenario help of every command that takes one, built from BUILTINS so that it
+# names every built-in there is.
+SCENARIO_HELP = (
+    f"Built-in scenario ({', '.join(BUILTINS)}) or a .toml file (format: "
+    "covswarm.mission.scenario_files)."
+)
 
 
 def load_scenario(name_or_path: str | Path) -> Scenario:
