@@ -48,6 +48,7 @@ from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_s
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
+    SAFETY_RADIUS,
     barrier_gain,
     body_safe_distance,
     safe_velocity,
@@ -76,14 +77,6 @@ MAX_PREDICTION = 1.0
 # unless the held one's coordinator has been silent this long (10 broadcast periods): then
 # it is a restarted coordinator, whose numbers start again.
 DOMAIN_RESTART_SILENCE = 0.5
-# m: robots within this distance of ours enter the safety filter (and their AgentStates are
-# followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
-# have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
-# (0.8 m/s each) close in two 10 Hz periods (0.32 m). Farther is not safer, only dearer: at
-# 1 m, a 100-robot circle run (0.2 m spacing) followed ~75 states per agent, 436 messages/s,
-# missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
-# about the two-hop set, which the coverage step follows anyway.
-SAFETY_RADIUS = 0.5
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
 # last known position for the safety filter this long after it left the coverage step.
 OBSTACLE_MEMORY = 30.0

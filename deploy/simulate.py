@@ -75,13 +75,13 @@ def simulate(
     within its SAFETY_RADIUS, reciprocal split with the centres' last velocities, the
     scenario's robot diameter), before the wheel mapping.
     """
-    from covswarm.agent.brain import SAFETY_RADIUS
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
     from covswarm.tvd.drive import KHEPERA_IV, integrate, twist_from_wheels, wheel_speeds
     from covswarm.tvd.safety import (
         DEFAULT_GAMMA,
+        SAFETY_RADIUS,
         barrier_gain,
         body_safe_distance,
         team_safe_velocities,

@@ -71,14 +71,6 @@ from covswarm.tvd.coverage import CellBatch, as_complex
 from covswarm.tvd.coverage import Domain as CoverageDomain
 from covswarm.tvd.coverage import boundary_rates as uniform_boundary_rates
 
-# Gauss-Legendre points per direction of the collapsed triangle rule (exact to degree
-# 2 TRIANGLE_ORDER - 2) and per edge (exact to degree 2 EDGE_ORDER - 1).
-TRIANGLE_ORDER = 8
-EDGE_ORDER = 8
-# Largest piece of a subdivided triangle or edge, in standard deviations of the narrowest
-# bump, and the cap on pieces per side (the cost grows as its square).
-RESOLUTION = 4.0
-MAX_SUBDIVISION = 8
 MAX_BUMPS = 16
 # Relative asymmetry of a covariance (or its rate) accepted as rounding.
 SYMMETRY_TOL = 1e-9
