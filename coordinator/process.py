@@ -46,7 +46,8 @@ from covswarm.coordinator.monitor import (
 from covswarm.coordinator.steering import Limits, Steering, default_max_domain_speed
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.crowding import crowding as estimate_crowding
-from covswarm.mission.scenarios import SCENARIO_HELP, Scenario, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.runtime.clock import StopFlag, Ticker, scaled

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from covswarm.coordinator.monitor import HEADLINE_STATS
-
-if TYPE_CHECKING:
-    from covswarm.deploy.supervisor import RunResult
+from covswarm.deploy.processes import RunResult
 
 
 @dataclass

@@ -35,7 +35,8 @@ from covswarm.deploy.plan import (
 from covswarm.deploy.router import zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
-from covswarm.mission.scenarios import SCENARIO_HELP, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free

@@ -22,7 +22,8 @@ import click
 import numpy as np
 
 from covswarm.mission.crowding import Crowding, crowding
-from covswarm.mission.scenarios import SCENARIO_HELP, Scenario, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
 from covswarm.tvd.control import LAWS, PRIORS
 
 DYNAMICS = ("single", "unicycle")

@@ -226,3 +226,16 @@ class DensityPath:
         for bump, turn in zip(table["bumps"], self.turn_rates.tolist(), strict=True):
             bump["turn_rate"] = turn
         return table
+
+    def to_toml(self) -> str:
+        """The ``[density]`` table and its ``[[density.bumps]]`` as TOML text."""
+        table = self.to_table()
+        lines = [f"\n[density]\nfloor = {toml_float(table['floor'])}"]
+        for bump in table["bumps"]:
+            lines.append("\n[[density.bumps]]")
+            for key, value in bump.items():
+                text = toml_points(value) if key in ("cov", "cov_rate") else (
+                    toml_list(value) if isinstance(value, list) else toml_float(value)
+                )  # fmt: skip
+                lines.append(f"{key} = {text}")
+        return "\n".join(lines) + "\n"

@@ -21,7 +21,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.tvd import control, coverage
 
 

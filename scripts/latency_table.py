@@ -45,7 +45,7 @@ def replica_once(agents: int, delay: float, loss: float, extra: list[str]) -> di
     from covswarm.coordinator.monitor import agent_figures
     from covswarm.deploy.netsim import run_netsim, steady_state
     from covswarm.mission.physical import physical_summary
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     unknown = set(extra) - {"--no-safety", "--no-prediction"}
     if unknown:

@@ -25,8 +25,7 @@ from scipy import integrate
 from scipy.special import erf
 
 from covswarm.mission.motion import DensityPath
-from covswarm.mission.scenario_files import scenario_from_dict
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario, scenario_from_dict
 from covswarm.tvd import control, coverage
 from covswarm.tvd.density import Density
 

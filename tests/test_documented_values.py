@@ -19,7 +19,7 @@ from covswarm.agent import brain, neighbourhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator import process as coordinator_process
 from covswarm.deploy.cli import main
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import messages
 from covswarm.protocol.session import session_config
 from covswarm.tvd import control, coverage, drive, safety

@@ -29,7 +29,7 @@ from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
 from covswarm.deploy.plan import covswarm_argv, impairment_args, plan_children
 from covswarm.deploy.router import free_port
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 WALL = 1.7e9
 

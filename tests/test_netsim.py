@@ -8,7 +8,7 @@ import pytest
 from covswarm.agent.brain import AgentConfig
 from covswarm.deploy.netsim import run_netsim, steady_state
 from covswarm.mission.physical import physical_summary
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 AGENTS, DURATION = 6, 30.0
 

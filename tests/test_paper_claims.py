@@ -26,7 +26,8 @@ import pytest
 
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import neighbor_histogram, steady_state_mean
-from covswarm.mission.scenarios import BUILTINS, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import BUILTINS
 from covswarm.tvd import coverage
 from covswarm.tvd.control import LAWS
 

@@ -66,7 +66,7 @@ def test_wheel_figures() -> None:
 
 def test_sim_summary_reports_physical_figures(tmp_path) -> None:
     from covswarm.deploy.simulate import build_summary, simulate
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     scenario = load_scenario("passage")
     options = dict(law="da", kappa=scenario.kappa, dt=0.05, duration=2.0, seed=0)

@@ -23,7 +23,7 @@ from mcap.reader import make_reader
 from mcap.records import Schema
 
 from covswarm.deploy.simulate import sim_command, simulate
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.records.recorder import (
     CELL_PERIOD,
     METADATA_NAME,
