@@ -35,8 +35,8 @@ from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
 from covswarm.agent.latency import ClockBound, CommandHistory, MissionClock
 from covswarm.agent.metrics import Counters, Percentiles, Rate
-from covswarm.agent.neighbourhood import (
-    Neighbourhood,
+from covswarm.agent.neighborhood import (
+    Neighborhood,
     cell_reach,
     clamp_position,
     tile_radius,
@@ -228,7 +228,7 @@ class AgentBrain:
         self._near_first_hand: dict[int, tuple[float, float]] = {}
         self.domain: protocol.Domain | None = None
         self.density: Density | None = None  # the domain's density, validated (None: uniform)
-        self.neighbourhood = Neighbourhood(
+        self.neighborhood = Neighborhood(
             self.id, config.stale_timeout, config.beacon_timeout, config.linger
         )
         self.radius = 1
@@ -296,25 +296,25 @@ class AgentBrain:
             self.pose, self.pose_received = pose, now
             self.pose_taken = self.robot_clock.to_local(pose.stamp)
         else:
-            self.neighbourhood.on_pose(pose, now)
+            self.neighborhood.on_pose(pose, now)
         return True
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
         if state.id == self.id:
             return False
-        self.neighbourhood.on_agent_state(state, now)
+        self.neighborhood.on_agent_state(state, now)
         return True
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> bool:
         if beacon.id == self.id:
             return False  # our own beacon, heard through our own tile subscription
-        self.neighbourhood.on_beacon(beacon, now)
+        self.neighborhood.on_beacon(beacon, now)
         return True
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> None:
         """Another robot's agent or robot token appeared or vanished (see
         Neighbourhood.on_liveliness); a newcomer is owed an early beacon."""
-        if self.neighbourhood.on_liveliness(role, rid, alive):
+        if self.neighborhood.on_liveliness(role, rid, alive):
             self._beacon_due = True  # a newcomer: let it find us without waiting
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
@@ -385,7 +385,7 @@ class AgentBrain:
         beacon = self.beacon(now, now_wall)
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
-        wanted = self.neighbourhood.wanted_state_ids(now)
+        wanted = self.neighborhood.wanted_state_ids(now)
         if self.config.safety:
             wanted |= self.near_ids()
         actions.append(FollowStates(frozenset(wanted)))
@@ -415,7 +415,7 @@ class AgentBrain:
             self._step_rate.add(now, self.counters.steps),
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
         )
-        others = self.neighbourhood.candidates(now)
+        others = self.neighborhood.candidates(now)
         if not self.pose_fresh(now):
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
@@ -428,7 +428,7 @@ class AgentBrain:
         started = self._clock()
         assert self.pose is not None
         try:
-            relevant = self.neighbourhood.relevant(
+            relevant = self.neighborhood.relevant(
                 others, now, (self.pose.x, self.pose.y), self.reach
             )
             decision = self._control(relevant, now, now_wall)
@@ -478,8 +478,8 @@ class AgentBrain:
         )
         self.counters.guarded += int(result.guarded and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
-        self.neighbourhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
-        if self.neighbourhood.unrequited(now):
+        self.neighborhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(others)
         if result.mass > 0.0:
@@ -526,12 +526,12 @@ class AgentBrain:
         AgentStates whether or not they are Voronoi neighbours)."""
         if self.pose is None:
             return set()
-        return set(self._near(self.neighbourhood.reckoned, self.pose.x, self.pose.y))
+        return set(self._near(self.neighborhood.reckoned, self.pose.x, self.pose.y))
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
         positions."""
-        reckoned = self.neighbourhood.reckoned
+        reckoned = self.neighborhood.reckoned
         return {
             rid: (rx, ry)
             for rid in ids
@@ -547,7 +547,7 @@ class AgentBrain:
         stopped hearing from (at rest where last known)."""
         config = self.config
         me = pose[:2]
-        reckoned = self.neighbourhood.reckoned
+        reckoned = self.neighborhood.reckoned
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
@@ -555,8 +555,8 @@ class AgentBrain:
         for rid, (x, y) in self._near_first_hand.items():
             if rid not in reckoned:
                 self.obstacles[rid] = (x, y, now)
-        self._near_first_hand = self._near(self.neighbourhood.first_hand, *me)
-        dead = self.neighbourhood.dead
+        self._near_first_hand = self._near(self.neighborhood.first_hand, *me)
+        dead = self.neighborhood.dead
         for rid in [
             r
             for r, (_, _, since) in self.obstacles.items()
@@ -632,14 +632,14 @@ class AgentBrain:
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
-            "stale_dropped": self.neighbourhood.stale_dropped,
+            "stale_dropped": self.neighborhood.stale_dropped,
             "step_errors": c.step_errors,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
-            "candidates": len(self.neighbourhood.reckoned),
+            "candidates": len(self.neighborhood.reckoned),
             "local_set": self._local,
-            "neighbors": len(self.neighbourhood.one_hop),
-            "state_subs": len(self.neighbourhood.wanted),
+            "neighbors": len(self.neighborhood.one_hop),
+            "state_subs": len(self.neighborhood.wanted),
             "tile_radius": self.radius,
         }
 
@@ -657,11 +657,11 @@ class AgentBrain:
             x=x,
             y=y,
             stamp=stamp,
-            neighbors=sorted(self.neighbourhood.one_hop),
+            neighbors=sorted(self.neighborhood.one_hop),
             stats=self.stats() if stats else None,
             vx=vx,
             vy=vy,
-            relay=self.neighbourhood.relay(),
+            relay=self.neighborhood.relay(),
         )
 
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:

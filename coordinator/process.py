@@ -74,7 +74,7 @@ SAMPLE_SHARE = 0.05
 # every k-th tick instead of every tick (about 1 ms a tick at 100 robots: every tick).
 RECORD_SHARE = 0.05
 # Beacon tile side, in units of the mean spacing of the team in S(0): a converged cell's
-# reach (agent.neighbourhood.cell_reach) is about 2.1 spacings while the domain moves, so it
+# reach (agent.neighborhood.cell_reach) is about 2.1 spacings while the domain moves, so it
 # fits in an agent's 3 x 3 tiles, which hold ~56 robots whatever the team's size and
 # density (at 2 spacings the reach needs 5 x 5 tiles, at 3 they hold 81 robots).
 TILE_SPACINGS = 2.5

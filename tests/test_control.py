@@ -235,8 +235,8 @@ def test_local_velocity_dominated_robot_outside_s() -> None:
     np.testing.assert_allclose(team[1], [0.0, 5.5], atol=1e-12)
     alone = control.local_velocity(1, {1: p[1]}, SQUARE, V, 1.0)
     np.testing.assert_allclose(alone, team[1], atol=1e-12)
-    planar_neighbours = {0}  # the only other robot borders robot 1's region in the plane
-    view = {j: p[j] for j in planar_neighbours | {1}}
+    planar_neighbors = {0}  # the only other robot borders robot 1's region in the plane
+    view = {j: p[j] for j in planar_neighbors | {1}}
     np.testing.assert_allclose(control.local_velocity(1, view, SQUARE, V, 1.0), team[1], atol=1e-9)
 
 

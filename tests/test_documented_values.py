@@ -15,7 +15,7 @@ from pathlib import Path
 import click
 import pytest
 
-from covswarm.agent import brain, neighbourhood
+from covswarm.agent import brain, neighborhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator import process as coordinator_process
 from covswarm.deploy.cli import main
@@ -55,7 +55,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("top rim speed `--max-wheel-speed` 0.8 m/s",
      lambda: option_default("robot", "max_wheel_speed"), 0.8),
     ("`--cmd-timeout` (0.5 s)", lambda: option_default("robot", "cmd_timeout"), 0.5),
-    ("at most 0.5 s ahead per hop", lambda: neighbourhood.DEAD_RECKONING_LIMIT, 0.5),
+    ("at most 0.5 s ahead per hop", lambda: neighborhood.DEAD_RECKONING_LIMIT, 0.5),
     ("linger 0.5 s", lambda: option_default("agent", "linger"), 0.5),
     ("linger 0.5 s", lambda: AgentConfig().linger, 0.5),
     ("publishes a Beacon every 10 s", lambda: AgentConfig().beacon_period, 10.0),

@@ -127,7 +127,7 @@ def sims() -> dict[str, dict]:
 # The bands the README states beside the figures.
 E_A_REL, E_A_ABS = 0.03, 5e-5  # each steady-state e_a: 3 % or 0.05 mm, whichever is larger
 POINTS = 0.03  # each improvement and fallback rate: 3 percentage points
-NEIGHBOURS = 2.0  # each mean count of Table 1: 2 robots
+NEIGHBORS = 2.0  # each mean count of Table 1: 2 robots
 
 
 @dataclass(frozen=True)
@@ -247,13 +247,13 @@ def test_reproduction_figures_within_their_bands(
         assert abs(value - figure.expected) <= figure.band, (figure.text, measured)
 
 
-def test_neighbour_counts_of_table_1_within_their_band(sims: dict[str, dict]) -> None:
+def test_neighbor_counts_of_table_1_within_their_band(sims: dict[str, dict]) -> None:
     cells = [cell.strip() for cell in readme_text(TABLE_1_ROW).strip("|").split("|")[1:]]
     assert [float(cell) for cell in cells] == list(TABLE_1.values())
     histograms = [sims[f"circle-d1-seed{seed}"]["histogram"] for seed in range(5)]
     mean = {k: float(np.mean([h.get(k, 0) for h in histograms])) for k in TABLE_1}
     for k, expected in TABLE_1.items():
-        assert mean[k] == pytest.approx(expected, abs=NEIGHBOURS), mean
+        assert mean[k] == pytest.approx(expected, abs=NEIGHBORS), mean
     assert max(mean, key=mean.get) == 6  # most robots have 6 neighbours, as in the paper
 
 

@@ -123,7 +123,7 @@ def test_late_and_lost_poses_keep_the_undelayed_error(
 
 
 @pytest.mark.e2e
-def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbours(tmp_path: Path) -> None:
+def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbors(tmp_path: Path) -> None:
     """Agent 2 is SIGSTOPped for 5 s mid-mission, then SIGCONTed. Its robot stops within the
     command timeout; within 2.5 s no other agent lists it as a Voronoi neighbour (its states
     stopped: stale after --stale-timeout, and relays carry only first-hand positions); after
