@@ -1,8 +1,9 @@
-"""One ROS 2 robot standing in for one covswarm robot: the bridge's state machine, no I/O.
+"""One ROS 2 robot standing in for one covswarm robot: the bridge's sans-IO state machine
+(its brain, as agent.brain is the agent's; bridge.process is the Zenoh shell).
 
 covswarm -> ROS 2: an agent's WheelCommand (rim speeds of a differential drive, m/s)
 becomes a Twist (v, omega) for the robot's ``cmd_vel``. When no valid command arrived for
-``cmd_timeout`` the link asks for a zero Twist, repeated every ``stop_period`` for
+``cmd_timeout`` the brain asks for a zero Twist, repeated every ``stop_period`` for
 ``stop_hold`` seconds (one lost sample must not leave a robot driving), then stays quiet so
 that a teleop node can take over between missions.
 
@@ -41,7 +42,7 @@ DROP_REASONS = (*COMMAND_REASONS, "attachment")
 STAMP_SOURCES = ("message", "receive")
 
 
-class RobotLink:
+class RobotBrain:
     """The bridge's view of one robot: its last command, its newest pose, its drops."""
 
     def __init__(
