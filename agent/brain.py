@@ -33,7 +33,7 @@ import numpy as np
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
-from covswarm.agent.latency import ClockBound, CommandHistory, MissionClock
+from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
     Neighborhood,
@@ -219,7 +219,7 @@ class AgentBrain:
         self.history = CommandHistory(config.robot, config.cmd_timeout)
         self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
-        self.mission_clock = MissionClock()
+        self.mission_estimate = MissionTimeEstimate()
         self._domain_received = -math.inf
         # id -> (x, y, when it vanished, monotonic): robots heard first-hand within
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
@@ -339,9 +339,9 @@ class AgentBrain:
         self.density = density
         self._domain_received = now
         if domain.state == "running":
-            self.mission_clock.add(now, domain.t, domain.seq)
+            self.mission_estimate.add(now, domain.t, domain.seq)
         else:  # mission time stands still: no clock to follow until it runs
-            self.mission_clock.reset()
+            self.mission_estimate.reset()
         return True
 
     @property
@@ -453,7 +453,7 @@ class AgentBrain:
         assert self.pose is not None and self.domain is not None
         config = self.config
         pose = self.predicted_pose(now_wall + config.command_latency)
-        mission_t = self.mission_clock.mission_time(now)
+        mission_t = self.mission_estimate.mission_time(now)
         elapsed = 0.0 if mission_t is None else mission_t - self.domain.t
         elapsed += config.command_latency
         vertices, velocities = extrapolate_domain(
