@@ -20,12 +20,12 @@ import numpy as np
 
 from covswarm.tvd.coverage import (
     CellBatch,
+    CoverageDomain,
     as_complex,
     as_vectors,
     cross,
     nearest_point_derivatives,
 )
-from covswarm.tvd.coverage import Domain as CoverageDomain
 from covswarm.tvd.density import Density
 
 TRIANGLE_ORDER = 8

@@ -68,8 +68,8 @@ import scipy.sparse.linalg
 
 from covswarm.tvd.coverage import (
     CellBatch,
+    CoverageDomain,
     DensityModel,
-    Domain,
     as_complex,
     as_vectors,
     build_cells,
@@ -154,7 +154,7 @@ def affine_field(polygon: np.ndarray, polygon_velocity: np.ndarray) -> AffineFie
     return _fit(make_domain(polygon, polygon_velocity))
 
 
-def _fit(domain: Domain) -> AffineField:
+def _fit(domain: CoverageDomain) -> AffineField:
     """Least squares about the vertices' mean q0: the centred design [q - q0, 1] has its
     last column orthogonal to the others, so b0 = mean velocity and A^T = (Q^T Q)^-1 Q^T V
     (2 x 2, written out: this runs in every robot's step)."""
@@ -191,7 +191,9 @@ def motion_field(
     return as_vectors(_motion_field(make_domain(polygon, polygon_velocity), points, density))
 
 
-def _motion_field(domain: Domain, points: np.ndarray, density: DensityModel | None) -> np.ndarray:
+def _motion_field(
+    domain: CoverageDomain, points: np.ndarray, density: DensityModel | None
+) -> np.ndarray:
     """``motion_field`` of a validated domain, (P,) complex."""
     field = _fit(domain)
     guess = field(points)
@@ -218,7 +220,7 @@ def _check_law(law: str) -> None:
 def _targets(
     batch: CellBatch,
     points: np.ndarray,
-    domain: Domain,
+    domain: CoverageDomain,
     feedforward: bool,
     density: DensityModel | None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -238,7 +240,7 @@ def _targets(
     return target, rate
 
 
-def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[complex, complex]:
+def _whole_domain(domain: CoverageDomain, density: DensityModel | None) -> tuple[complex, complex]:
     """Centroid of all of S and its rate: the cell of a robot alone in S."""
     alone = domain.vertices.mean(axis=0, keepdims=True)
     cell = _weigh(build_cells(alone, np.array([0]), np.full((1, 1), -1), domain), density)
@@ -304,7 +306,7 @@ def _team_cells(
     polygon_velocity: np.ndarray,
     kappa: float,
     density: DensityModel | None,
-) -> tuple[np.ndarray, Domain, CellBatch]:
+) -> tuple[np.ndarray, CoverageDomain, CellBatch]:
     _check_kappa(kappa)
     return tessellate(positions, polygon, polygon_velocity, density)
 
@@ -368,7 +370,7 @@ def _team_d1(
 def _team_da(
     batch: CellBatch,
     points: np.ndarray,
-    domain: Domain,
+    domain: CoverageDomain,
     feedback: np.ndarray,
     rate: np.ndarray | None,
     max_amplification: float,

@@ -65,7 +65,7 @@ MAX_POLYGON_VERTICES = 1024
 
 
 @dataclass(frozen=True)
-class Domain:
+class CoverageDomain:
     """A validated subdomain S: counter-clockwise vertices and matching vertex velocities.
 
     vertices: (k, 2) counter-clockwise; velocities: (k, 2); size: half the perimeter of S,
@@ -150,7 +150,7 @@ class DensityModel(Protocol):
     ) -> np.ndarray: ...
 
     def boundary_rates(
-        self, batch: CellBatch, points: np.ndarray, domain: Domain
+        self, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
     ) -> np.ndarray: ...
 
 
@@ -180,7 +180,7 @@ def cell_jacobian_blocks(
 
 
 def cell_rates(
-    batch: CellBatch, points: np.ndarray, domain: Domain, density: DensityModel | None
+    batch: CellBatch, points: np.ndarray, domain: CoverageDomain, density: DensityModel | None
 ) -> np.ndarray:
     """dc/dt of Proposition 1, (K,) complex: ``boundary_rates`` for phi = 1, else both of its
     terms."""
@@ -210,13 +210,13 @@ def validate_positions(positions: np.ndarray) -> np.ndarray:
     return points
 
 
-def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None) -> Domain:
+def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None) -> CoverageDomain:
     """Validate S (``polygon: (k, 2)``) and its vertex velocities; orient both CCW.
 
     ``polygon_velocity: (k, 2)`` defaults to a still domain. Raises ValueError (see
     ``validate_polygon``).
     """
-    vertices = np.array(polygon, dtype=np.float64)  # a copy: the Domain is immutable
+    vertices = np.array(polygon, dtype=np.float64)  # a copy: the CoverageDomain is immutable
     if vertices.ndim != 2 or vertices.shape[1] != 2:
         raise ValueError(f"polygon must have shape (k, 2), got {vertices.shape}")
     k = vertices.shape[0]
@@ -282,8 +282,8 @@ def _derive(
     size: float,
     edges: np.ndarray,
     lengths: np.ndarray,
-) -> Domain:
-    """The Domain of valid CCW ``vertices`` and ``velocities`` (k, 2), with its derived
+) -> CoverageDomain:
+    """The CoverageDomain of valid CCW ``vertices`` and ``velocities`` (k, 2), with its derived
     arrays; ``edges`` (k,) complex, ``lengths`` (k,) their lengths."""
     z = vertices.view(np.complex128)[:, 0]
     u = velocities.view(np.complex128)[:, 0]
@@ -292,7 +292,7 @@ def _derive(
     end_speed = (normal.conj() * _following(u)).real
     # nu(q) = nu_start + (nu_end - nu_start) (q - vertex) . edge / |edge|^2 along edge l.
     gradient = ((end_speed - start_speed) / (lengths * lengths)) * edges
-    return Domain(
+    return CoverageDomain(
         vertices=vertices,
         velocities=velocities,
         size=size,
@@ -332,7 +332,7 @@ def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def build_cells(
-    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: Domain
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
 ) -> CellBatch:
     """The clipped Voronoi cells of ``owners: (K,)`` among ``points: (n, 2)``.
 
@@ -406,7 +406,7 @@ def as_vectors(numbers: np.ndarray) -> np.ndarray:
     return numbers.view(np.float64).reshape(*numbers.shape, 2)
 
 
-def cell_neighbors(points: np.ndarray, owner: int, domain: Domain) -> np.ndarray:
+def cell_neighbors(points: np.ndarray, owner: int, domain: CoverageDomain) -> np.ndarray:
     """Robots whose bisector may bound the cell of ``owner`` among ``points: (n, 2)``, (m,).
 
     A superset of its Voronoi neighbours in S, for deciding whose cells to build next: the
@@ -448,7 +448,9 @@ class _Lines(NamedTuple):
     present: np.ndarray
 
 
-def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: Domain) -> _Lines:
+def _clip(
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+) -> _Lines:
     """Each candidate line's piece inside all the other half-planes: see ``build_cells``."""
     tol = domain.tol
     count = len(owners)
@@ -578,7 +580,7 @@ TEAM_CANDIDATES = 16
 BATCH_CELLS = 512
 
 
-def team_cells(points: np.ndarray, domain: Domain) -> CellBatch:
+def team_cells(points: np.ndarray, domain: CoverageDomain) -> CellBatch:
     """Every robot's cell, ``points: (n, 2)``; owners are 0..n-1 in order."""
     n = len(points)
     everyone = np.arange(n)
@@ -643,7 +645,7 @@ def _replace(batch: CellBatch, rows: np.ndarray, rebuilt: CellBatch) -> CellBatc
     return CellBatch(**fields)
 
 
-def nearest_point(domain: Domain, point: np.ndarray) -> tuple[np.ndarray, int, float]:
+def nearest_point(domain: CoverageDomain, point: np.ndarray) -> tuple[np.ndarray, int, float]:
     """Nearest point of S to ``point: (2,)``.
 
     Returns (q (2,), edge l, sigma): q = S_l + sigma (S_{l+1} - S_l); l = -1 when the point is
@@ -662,7 +664,7 @@ def nearest_point(domain: Domain, point: np.ndarray) -> tuple[np.ndarray, int, f
 
 
 def nearest_point_derivatives(
-    domain: Domain, point: np.ndarray
+    domain: CoverageDomain, point: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The nearest point q of S to ``point: (2,)`` and (q, dq/dp (2, 2), dq/dt (2,)).
 
@@ -772,7 +774,7 @@ def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., :, None] * b[..., None, :]
 
 
-def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.ndarray:
+def boundary_rates(batch: CellBatch, points: np.ndarray, domain: CoverageDomain) -> np.ndarray:
     """dc_i/dt of Proposition 1 for the batch's cells, (K,) complex.
 
     The boundary term: on a cell edge lying on edge l of S the outward normal speed nu is
@@ -808,7 +810,7 @@ def tessellate(
     polygon: np.ndarray,
     polygon_velocity: np.ndarray | None = None,
     density: DensityModel | None = None,
-) -> tuple[np.ndarray, Domain, CellBatch]:
+) -> tuple[np.ndarray, CoverageDomain, CellBatch]:
     """Validate the inputs and build every robot's cell: (points, domain, cells).
 
     With a density the cells' masses and centroids are those of phi.

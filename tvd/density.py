@@ -67,8 +67,7 @@ from typing import Any
 import numpy as np
 from scipy.special import erf, erfc, owens_t
 
-from covswarm.tvd.coverage import CellBatch, as_complex
-from covswarm.tvd.coverage import Domain as CoverageDomain
+from covswarm.tvd.coverage import CellBatch, CoverageDomain, as_complex
 from covswarm.tvd.coverage import boundary_rates as uniform_boundary_rates
 
 MAX_BUMPS = 16
