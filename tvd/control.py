@@ -2,8 +2,8 @@
 
 With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
 
-- TVD-D1 (eq. TVD-D1): pdot = (I + J) r, the one-term Neumann truncation, whose row i needs
-  only robot i's cell and its neighbours' cells.
+- TVD-D1 (eq. (5), Section 2.3): pdot = (I + J) r, the one-term Neumann truncation, whose
+  row i needs only robot i's cell and its neighbours' cells.
 - TVD-DA (domain-motion feedforward, docs/tracking.md): with v(q) = A q + b the affine field
   fitted (least squares) to S's vertex velocities (near a density's bumps, blended with the
   bumps' own motion: ``motion_field``),
@@ -18,7 +18,7 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
   Lloyd's feedback kappa (c - p) outside (I + J); the Neumann factor on the feedback too
   halves the decay time of the slow modes and measured 1.4 to 9 times lower errors
   (docs/tracking.md).
-- TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=0``; by
+- TVD-C (eq. (4), Section 2.3): the exact law pdot = (I - J)^-1 r is kept as ``damping=0``; by
   default the feedback stays outside the inverse and only the feedforward is solved, damped
   (Tikhonov / Levenberg-Marquardt) toward a prior x0: pdot = kappa (c - p) + x with
   x = argmin |(I - J) x - dc/dt|^2 + damping^2 |x - x0|^2. I - J is near singular close to a

@@ -4,9 +4,9 @@ Implements Sections 2-4 of Xu & Diaz-Mercado, "Multi-Agent Control Using Coverag
 Time-Varying Domains", for uniform density phi = 1 over a convex polygon S(t):
 
 - mass m_i and centroid c_i of each cell V_i (Section 4.2, sums wrapping around the cell);
-- dc/dp, the blocks of eqs. (dcidpj) / (dcidpi) in the closed form of the Lemma "Analytic
-  Partial Derivatives";
-- dc/dt of Proposition 1 (eq. dcidt2): the boundary term, in closed form for a boundary
+- dc/dp, the blocks of eqs. (6) / (7) (Section 2.3) in the closed form of Lemma 3
+  ("Analytic Partial Derivatives", Section 4.3);
+- dc/dt of Proposition 1 (Section 3, eq. (9)): the boundary term, in closed form for a boundary
   velocity that varies linearly along each edge of S, which is exact for translation,
   scaling and rotation (the paper's form with one normal speed per edge is the special
   case of an edge that does not rotate).
@@ -692,9 +692,9 @@ def nearest_point_derivatives(
 def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form blocks of dc/dp for the batch's rows (non-empty cells).
 
-    Returns off: (K, L, 2, 2), dc_i/dp_j by eq. (dcidpj) for the edge shared with robot
-    labels[k, l] (zero where there is none), and diagonal: (K, 2, 2), dc_i/dp_i by eq.
-    (dcidpi). Empty cells get zero blocks.
+    Returns off: (K, L, 2, 2), dc_i/dp_j by eq. (6) (Section 2.3) for the edge shared
+    with robot labels[k, l] (zero where there is none), and diagonal: (K, 2, 2), dc_i/dp_i
+    by eq. (7). Empty cells get zero blocks.
 
     Along a shared edge from v1 to v2 (d = v2 - v1) the Lemma's integral of
     (q - c)(q - a)^T ds is |d| [u w^T + (u d^T + d w^T) / 2 + d d^T / 3] with u = v1 - c,
@@ -735,8 +735,8 @@ def jacobian_times(
     """(dc/dp r)_i = sum_j dc_i/dp_j r_j for the batch's rows, (K,), without the blocks.
 
     own: (K,) r_i; others: (K, L) r_j of the robot each line comes from (read only on shared
-    edges); vectors as complex numbers. The closed form of ``jacobian_blocks`` (eqs. dcidpj,
-    dcidpi) applied to vectors: with the bracket's u w^T + ... written as
+    edges); vectors as complex numbers. The closed form of ``jacobian_blocks`` (eqs. (6),
+    (7)) applied to vectors: with the bracket's u w^T + ... written as
     u (A . v) + d (B . v), each shared edge adds |d| / (m_i |p_i - p_j|)
     [u (A . (r_i - r_j)) + d (B . (r_i - r_j)) - (u + d / 2) ((p_i - p_j) . r_j)],
     A = w + d / 2, B = w / 2 + d / 3. TVD-D1 needs only this product, at a fraction of the
@@ -862,7 +862,7 @@ def neighbors(
 def centroid_jacobian(
     positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> np.ndarray:
-    """dc/dp, eqs. (dcidpj)/(dcidpi): closed form for uniform density, else quadrature.
+    """dc/dp, eqs. (6)/(7) (Section 2.3): closed form for uniform density, else quadrature.
 
     positions: (n, 2); polygon: (k, 2). Returns a dense (2n, 2n) array ordered
     [x0, y0, x1, y1, ...]. The row of an empty cell is the derivative of the nearest point
@@ -887,7 +887,7 @@ def centroid_rate(
     polygon_velocity: np.ndarray,
     density: DensityModel | None = None,
 ) -> np.ndarray:
-    """dc/dt of Proposition 1 (eq. dcidt2): the boundary term, plus the dphi/dt term.
+    """dc/dt of Proposition 1 (Section 3, eq. (9)): the boundary term, plus the dphi/dt term.
 
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2). For an empty cell
     it is the velocity of the nearest point of S.
