@@ -45,4 +45,4 @@ def test_compensated_agents_keep_the_undelayed_error(undelayed: float, impairmen
 
 def test_without_prediction_a_late_pose_breaks_the_team(undelayed: float) -> None:
     error, _ = passage(pose_delay=0.3, prediction=False)
-    assert error > 10 * undelayed  # what the issue measured: robots random-walk away
+    assert error > 10 * undelayed  # measured without prediction: robots random-walk away

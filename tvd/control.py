@@ -14,10 +14,10 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
   similarity (translation, rotation, uniform scaling) with uniform density, v(p) solves
   (I - J) x = dc/dt exactly, so rho = 0 and the feedforward is TVD-C's; the one-hop
   correction (I + J) rho carries whatever the affine guess misses (non-affine vertex motion,
-  a moving density, shear). Same information as a TVD-D1 step. The issue's first form kept
-  Lloyd's feedback kappa (c - p) outside (I + J); the Neumann factor on the feedback too
-  halves the decay time of the slow modes and measured 1.4 to 9 times lower errors
-  (docs/tracking.md).
+  a moving density, shear). Same information as a TVD-D1 step. The feedback kappa (c - p)
+  goes inside (I + J) too, rather than beside it as Lloyd's plain feedback: the Neumann
+  factor halves the decay time of the slow modes, 1.4 to 9 times lower errors measured
+  (docs/tracking.md; scripts/da_variants.py "lloyd").
 - TVD-C (eq. (4), Section 2.3): the exact law pdot = (I - J)^-1 r is kept as ``damping=0``; by
   default the feedback stays outside the inverse and only the feedforward is solved, damped
   (Tikhonov / Levenberg-Marquardt) toward a prior x0: pdot = kappa (c - p) + x with
