@@ -313,7 +313,7 @@ class AgentBrain:
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> None:
         """Another robot's agent or robot token appeared or vanished (see
-        Neighbourhood.on_liveliness); a newcomer is owed an early beacon."""
+        Neighborhood.on_liveliness); a newcomer is owed an early beacon."""
         if self.neighborhood.on_liveliness(role, rid, alive):
             self._beacon_due = True  # a newcomer: let it find us without waiting
 
@@ -670,7 +670,7 @@ class AgentBrain:
         Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
         agent's liveliness token appeared (a newcomer, or a whole team starting, must find
         its neighbours, and they it, without waiting for the next routine beacon) or a
-        neighbour kept leaving us out of its neighbours (Neighbourhood.unrequited).
+        neighbour kept leaving us out of its neighbours (Neighborhood.unrequited).
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the

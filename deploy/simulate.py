@@ -257,7 +257,7 @@ def build_summary(
 
 
 def physical_line(summary: dict[str, Any]) -> str:
-    """The physical figures of summary.json (coordinator.physical) on one console line."""
+    """The physical figures of summary.json (mission.physical) on one console line."""
     closest = summary.get("min_pairwise_distance")
     line = (f"closest robots {closest:.3f} m" if closest is not None else "closest robots -") + (
         f"; {summary['close_approaches']} close approaches (< {summary['robot_diameter']:g} m),"

@@ -1,4 +1,4 @@
-"""Physical figures of a run (coordinator/physical.py) against brute-force references."""
+"""Physical figures of a run (mission/physical.py) against brute-force references."""
 
 from __future__ import annotations
 
