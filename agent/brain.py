@@ -33,10 +33,10 @@ import numpy as np
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
-from covswarm.agent.latency import ClockBound, CommandHistory, MissionClock
+from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
 from covswarm.agent.metrics import Counters, Percentiles, Rate
-from covswarm.agent.neighbourhood import (
-    Neighbourhood,
+from covswarm.agent.neighborhood import (
+    Neighborhood,
     cell_reach,
     clamp_position,
     tile_radius,
@@ -44,10 +44,11 @@ from covswarm.agent.neighbourhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import local_step
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
+    SAFETY_RADIUS,
     barrier_gain,
     body_safe_distance,
     safe_velocity,
@@ -88,14 +89,6 @@ DOMAIN_RESTART_SILENCE = 0.5
 MAX_DOMAIN_SEQ_JUMP = 1000
 # m: a domain vertex this far outside the workspace is still inside (wire rounding).
 WORKSPACE_SLACK = 1e-6
-# m: robots within this distance of ours enter the safety filter (and their AgentStates are
-# followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
-# have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
-# (0.8 m/s each) close in two 10 Hz periods (0.32 m). Farther is not safer, only dearer: at
-# 1 m, a 100-robot circle run (0.2 m spacing) followed ~75 states per agent, 436 messages/s,
-# missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
-# about the two-hop set, which the coverage step follows anyway.
-SAFETY_RADIUS = 0.5
 # Unconfirmed beacon-only robots within SAFETY_RADIUS whose AgentStates are followed, the
 # nearest first: more robots than this cannot stand that close around one (hexagonal
 # packing at the safe distance gives 6 per ring), so more are forgeries.
@@ -245,7 +238,7 @@ class AgentBrain:
         self.history = CommandHistory(config.robot, config.cmd_timeout)
         self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
-        self.mission_clock = MissionClock()
+        self.mission_estimate = MissionTimeEstimate()
         self._domain_received = -math.inf
         # id -> (x, y, when it vanished, monotonic): robots heard first-hand within
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
@@ -254,7 +247,7 @@ class AgentBrain:
         self._near_first_hand: dict[int, tuple[float, float]] = {}
         self.domain: protocol.Domain | None = None
         self.density: Density | None = None  # the domain's density, validated (None: uniform)
-        self.neighbourhood = Neighbourhood(
+        self.neighborhood = Neighborhood(
             self.id, config.stale_timeout, config.beacon_timeout, config.linger
         )
         self.radius = 1
@@ -351,25 +344,25 @@ class AgentBrain:
             self.pose, self.pose_received = pose, now
             self.pose_taken = self.robot_clock.to_local(pose.stamp)
         else:
-            self.neighbourhood.on_pose(pose, now)
+            self.neighborhood.on_pose(pose, now)
         return True
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
         if state.id == self.id:
             return False
-        self.neighbourhood.on_agent_state(state, now)
+        self.neighborhood.on_agent_state(state, now)
         return True
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> bool:
         if beacon.id == self.id:
             return False  # our own beacon, heard through our own tile subscription
-        self.neighbourhood.on_beacon(beacon, now)
+        self.neighborhood.on_beacon(beacon, now)
         return True
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> None:
         """Another robot's agent or robot token appeared or vanished (see
-        Neighbourhood.on_liveliness); a newcomer is owed an early beacon."""
-        if self.neighbourhood.on_liveliness(role, rid, alive):
+        Neighborhood.on_liveliness); a newcomer is owed an early beacon."""
+        if self.neighborhood.on_liveliness(role, rid, alive):
             self._beacon_due = True  # a newcomer: let it find us without waiting
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
@@ -401,9 +394,9 @@ class AgentBrain:
         self.density = density
         self._domain_received = now
         if domain.state == "running":
-            self.mission_clock.add(now, domain.t, domain.seq)
+            self.mission_estimate.add(now, domain.t, domain.seq)
         else:  # mission time stands still: no clock to follow until it runs
-            self.mission_clock.reset()
+            self.mission_estimate.reset()
         return True
 
     @property
@@ -447,10 +440,10 @@ class AgentBrain:
         beacon = self.beacon(now, now_wall)
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
-        wanted = self.neighbourhood.wanted_state_ids(now)
+        wanted = self.neighborhood.wanted_state_ids(now)
         if self.config.safety:
             wanted |= self.near_ids()
-        self.neighbourhood.ask(wanted, now)  # robots known from beacons must now confirm
+        self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
         actions.append(FollowStates(frozenset(wanted)))
         actions.append(FollowTiles(frozenset(self.wanted_tiles())))
         if not self._alive and self.pose is not None:
@@ -478,7 +471,7 @@ class AgentBrain:
             self._step_rate.add(now, self.counters.steps),
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
         )
-        others = self.neighbourhood.candidates(now)
+        others = self.neighborhood.candidates(now)
         if not self.pose_fresh(now):
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
@@ -491,7 +484,7 @@ class AgentBrain:
         started = self._clock()
         assert self.pose is not None
         try:
-            relevant = self.neighbourhood.relevant(
+            relevant = self.neighborhood.relevant(
                 others, now, (self.pose.x, self.pose.y), self.reach
             )
             decision = self._control(relevant, now, now_wall)
@@ -516,7 +509,7 @@ class AgentBrain:
         assert self.pose is not None and self.domain is not None
         config = self.config
         pose = self.predicted_pose(now_wall + config.command_latency)
-        mission_t = self.mission_clock.mission_time(now)
+        mission_t = self.mission_estimate.mission_time(now)
         elapsed = 0.0 if mission_t is None else mission_t - self.domain.t
         elapsed += config.command_latency
         vertices, velocities = extrapolate_domain(
@@ -541,8 +534,8 @@ class AgentBrain:
         )
         self.counters.guarded += int(result.guarded and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
-        self.neighbourhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
-        if self.neighbourhood.unrequited(now):
+        self.neighborhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(others)
         if result.mass > 0.0:
@@ -569,7 +562,7 @@ class AgentBrain:
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
-        forward = 0.5 * (left + right)
+        forward, _ = twist_from_wheels(left, right, config.robot.wheel_separation)
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
         return Decision(left, right, "running", tuple(velocity.tolist()), achieved)
 
@@ -588,23 +581,23 @@ class AgentBrain:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
         AgentStates whether or not they are Voronoi neighbours), and those there known only
         from beacons and left out for want of confirmation: a real one's AgentState then
-        confirms it (covswarm.agent.neighbourhood.BEACON_CONFIRMATION)."""
+        confirms it (covswarm.agent.neighborhood.BEACON_CONFIRMATION)."""
         if self.pose is None:
             return set()
         x, y = self.pose.x, self.pose.y
         distance = {
             rid: math.hypot(ux - x, uy - y)
-            for rid, (ux, uy) in self.neighbourhood.unconfirmed.items()
+            for rid, (ux, uy) in self.neighborhood.unconfirmed.items()
         }
         # The nearest few only: forged ids must not cost a subscription each.
         nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
         unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
-        return set(self._near(self.neighbourhood.reckoned, x, y)) | unconfirmed
+        return set(self._near(self.neighborhood.reckoned, x, y)) | unconfirmed
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
         positions."""
-        reckoned = self.neighbourhood.reckoned
+        reckoned = self.neighborhood.reckoned
         return {
             rid: (rx, ry)
             for rid in ids
@@ -620,7 +613,7 @@ class AgentBrain:
         stopped hearing from (at rest where last known)."""
         config = self.config
         me = pose[:2]
-        reckoned = self.neighbourhood.reckoned
+        reckoned = self.neighborhood.reckoned
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
@@ -628,8 +621,8 @@ class AgentBrain:
         for rid, (x, y) in self._near_first_hand.items():
             if rid not in reckoned:
                 self.obstacles[rid] = (x, y, now)
-        self._near_first_hand = self._near(self.neighbourhood.first_hand, *me)
-        dead = self.neighbourhood.dead
+        self._near_first_hand = self._near(self.neighborhood.first_hand, *me)
+        dead = self.neighborhood.dead
         for rid in [
             r
             for r, (_, _, since) in self.obstacles.items()
@@ -705,15 +698,15 @@ class AgentBrain:
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
-            "stale_dropped": self.neighbourhood.stale_dropped,
-            "beacon_unconfirmed": self.neighbourhood.unconfirmed_total,
+            "stale_dropped": self.neighborhood.stale_dropped,
+            "beacon_unconfirmed": self.neighborhood.unconfirmed_total,
             "step_errors": c.step_errors,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
-            "candidates": len(self.neighbourhood.reckoned),
+            "candidates": len(self.neighborhood.reckoned),
             "local_set": self._local,
-            "neighbors": len(self.neighbourhood.one_hop),
-            "state_subs": len(self.neighbourhood.wanted),
+            "neighbors": len(self.neighborhood.one_hop),
+            "state_subs": len(self.neighborhood.wanted),
             "tile_radius": self.radius,
         }
 
@@ -731,11 +724,11 @@ class AgentBrain:
             x=x,
             y=y,
             stamp=stamp,
-            neighbors=sorted(self.neighbourhood.one_hop),
+            neighbors=sorted(self.neighborhood.one_hop),
             stats=self.stats() if stats else None,
             vx=vx,
             vy=vy,
-            relay=self.neighbourhood.relay(),
+            relay=self.neighborhood.relay(),
         )
 
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
@@ -744,7 +737,7 @@ class AgentBrain:
         Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
         agent's liveliness token appeared (a newcomer, or a whole team starting, must find
         its neighbours, and they it, without waiting for the next routine beacon) or a
-        neighbour kept leaving us out of its neighbours (Neighbourhood.unrequited).
+        neighbour kept leaving us out of its neighbours (Neighborhood.unrequited).
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the

@@ -103,7 +103,7 @@ from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
-from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
 log = logging.getLogger("covswarm.agent")
@@ -225,7 +225,7 @@ def run_agents(
 @click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
-    default=0.8,
+    default=MAX_WHEEL_SPEED,
     show_default=True,
     help="Rim speed limit (m/s) the commands are saturated to.",
 )

@@ -45,7 +45,7 @@ log = logging.getLogger("covswarm.console")
 
 STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 7480
-DEFAULT_RATE = 15.0  # Hz of state frames to the page (the issue asks for >= 10)
+DEFAULT_RATE = 15.0  # Hz of state frames to the page (>= 10 for smooth motion)
 STATE_PATHS = ("/ws", "/api/steer")  # requests that can steer or stream: Origin checked
 
 

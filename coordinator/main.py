@@ -31,7 +31,8 @@ from covswarm.coordinator.core import (
 )
 from covswarm.coordinator.link import CoordinatorLink
 from covswarm.coordinator.outputs import open_recorder, read_mission_start, write_run_outputs
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
@@ -107,7 +108,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     "--scenario",
     default="passage",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option(
     "--connect",

@@ -19,9 +19,9 @@ from covswarm.coordinator.monitor import (
     losses_summary,
     team_changes_summary,
 )
-from covswarm.coordinator.physical import agent_wheel_figures, physical_summary
 from covswarm.coordinator.steering import Steering
 from covswarm.mission.crowding import Crowding
+from covswarm.mission.physical import agent_wheel_figures, physical_summary
 from covswarm.mission.report import neighbor_histogram, steady_state_mean, write_outputs
 from covswarm.mission.scenarios import Scenario
 from covswarm.records.recorder import LIVE_HOST, RunRecorder
@@ -51,7 +51,7 @@ def mission_summary(
     t: (T,) s; error: (T,) m, e_a at t; final_positions: (n, 2) m and final_polygon (k, 2)
     m at the last sample; trajectories: (T, n, 2) m (NaN where a robot is absent), robots
     ``ids`` (default 0..n-1); ``wheels``: the wheel-speed figures
-    (coordinator.physical.wheel_figures' keys, measured or reported by the agents).
+    (mission.physical.wheel_figures' keys, measured or reported by the agents).
     """
     return {
         "scenario": scenario.name,

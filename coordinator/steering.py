@@ -51,7 +51,7 @@ import numpy as np
 from covswarm.mission.crowding import robot_room
 from covswarm.protocol.messages import MAX_VERTICES, ProtocolError
 from covswarm.protocol.steering import MAX_DURATION, MAX_REASON, SteerReply, SteerRequest
-from covswarm.tvd.coverage import validate_polygon
+from covswarm.tvd.coverage import signed_area, validate_polygon
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
@@ -114,12 +114,6 @@ def smoothstep(u: float) -> tuple[float, float]:
     """Quintic progress s(u) and ds/du for u in [0, 1] (clamped outside)."""
     u = min(max(u, 0.0), 1.0)
     return u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 30.0 * u * u * (1.0 - u) ** 2
-
-
-def signed_area(polygon: np.ndarray) -> float:
-    """Shoelace area of (k, 2) vertices, positive when counter-clockwise (m^2)."""
-    x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
 def centroid(polygon: np.ndarray) -> np.ndarray:

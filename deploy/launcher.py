@@ -39,7 +39,8 @@ from covswarm.deploy.plan import (
 from covswarm.deploy.router import free_port, zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION, identity_name, require_identities
@@ -52,7 +53,7 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     "--scenario",
     default="passage",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")

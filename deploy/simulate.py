@@ -22,10 +22,10 @@ import click
 import numpy as np
 
 from covswarm.mission.crowding import Crowding, crowding
-from covswarm.mission.scenarios import Scenario, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
+from covswarm.tvd.control import LAWS, PRIORS
 
-LAWS = ("c", "d1", "da")
-PRIORS = ("affine", "zero")
 DYNAMICS = ("single", "unicycle")
 
 
@@ -70,19 +70,19 @@ def simulate(
     """Run the scenario; None options take the scenario's defaults.
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
-    covswarm.tvd.control.team_step), damping None for covswarm.tvd.control.DAMPING, 0 for the
-    paper's exact TVD-C with its fallback to TVD-D1. safety: filter every robot's velocity
-    as the agents do (covswarm.tvd.safety, against the robots within the agents'
-    SAFETY_RADIUS, reciprocal split with the centres' last velocities, the scenario's
-    robot diameter), before the wheel mapping.
+    covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
+    0 for the paper's exact TVD-C with its fallback to TVD-D1, as in team_step. safety:
+    filter every robot's velocity as the agents do (covswarm.tvd.safety, against the robots
+    within its SAFETY_RADIUS, reciprocal split with the centres' last velocities, the
+    scenario's robot diameter), before the wheel mapping.
     """
-    from covswarm.agent.brain import SAFETY_RADIUS
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
-    from covswarm.tvd.drive import integrate, wheel_speeds
+    from covswarm.tvd.drive import KHEPERA_IV, integrate, twist_from_wheels, wheel_speeds
     from covswarm.tvd.safety import (
         DEFAULT_GAMMA,
+        SAFETY_RADIUS,
         barrier_gain,
         body_safe_distance,
         team_safe_velocities,
@@ -103,7 +103,6 @@ def simulate(
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
         raise ValueError(f"damping must be a finite number >= 0, not {damping!r}")
-    exact = damping == 0
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
@@ -132,7 +131,7 @@ def simulate(
             break
         step = control.team_step(
             law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
-            density=density, damping=None if exact else damping, prior=prior,
+            density=density, damping=damping, prior=prior,
         )  # fmt: skip
         velocity = step.velocity
         guarded += int(step.guarded.sum())
@@ -156,7 +155,10 @@ def simulate(
             )
             wheel_log[k] = wheels
             if safety:
-                centre_velocity = wheels.mean(axis=1, keepdims=True) * np.column_stack(
+                forward, _ = twist_from_wheels(
+                    wheels[:, 0], wheels[:, 1], KHEPERA_IV.wheel_separation
+                )
+                centre_velocity = forward[:, None] * np.column_stack(
                     [np.cos(headings), np.sin(headings)]
                 )
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)
@@ -204,7 +206,7 @@ def build_summary(
     # Deferred: coordinator.outputs pulls in matplotlib (mission.report), which simulate()
     # alone (covswarm bench, the tests) never needs.
     from covswarm.coordinator.outputs import mission_summary
-    from covswarm.coordinator.physical import wheel_figures
+    from covswarm.mission.physical import wheel_figures
     from covswarm.mission.report import steady_state_mean
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV
 
@@ -265,7 +267,7 @@ def build_summary(
 
 
 def physical_line(summary: dict[str, Any]) -> str:
-    """The physical figures of summary.json (coordinator.physical) on one console line."""
+    """The physical figures of summary.json (mission.physical) on one console line."""
     closest = summary.get("min_pairwise_distance")
     line = (f"closest robots {closest:.3f} m" if closest is not None else "closest robots -") + (
         f"; {summary['close_approaches']} close approaches (< {summary['robot_diameter']:g} m),"
@@ -286,7 +288,7 @@ def physical_line(summary: dict[str, Any]) -> str:
     "scenario_name",
     default="circle",
     show_default=True,
-    help="Built-in scenario (circle, passage, formation) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option(

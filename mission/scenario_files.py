@@ -1,4 +1,4 @@
-"""Scenario files: a Scenario from TOML.
+"""Scenario files: a Scenario from TOML, and any scenario by name or path (load_scenario).
 
 TOML format (every top-level key but ``name`` and ``[domain]`` has a default)::
 
@@ -42,7 +42,7 @@ Vertex i of a rigid domain is ``o(t) + s(t) R(a(t)) q_i`` with o the origin's pa
 scale and a = rotation_rate t.
 
 An optional density phi(q, t) = floor + sum_b w_b exp(-1/2 (q - mu_b)^T Sigma_b^-1 (q - mu_b))
-(agent/density.py; absent: uniform)::
+(tvd/density.py; absent: uniform)::
 
     [density]
     floor = 1.0                # > 0, plus the negative weights
@@ -62,12 +62,28 @@ from pathlib import Path
 from typing import Any
 
 from covswarm.mission.motion import DomainMotion, Keyframes, Rigid
-from covswarm.mission.scenarios import Box, Scenario, check_box
+from covswarm.mission.scenarios import BUILTINS, Box, Scenario, check_box
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A built-in scenario by name, or a scenario read from a .toml file.
+
+    Raises ValueError naming the file and the problem for anything malformed.
+    """
+    if str(name_or_path) in BUILTINS:
+        return BUILTINS[str(name_or_path)]()
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        known = ", ".join(sorted(BUILTINS))
+        raise ValueError(
+            f"unknown scenario {str(name_or_path)!r}: use one of {known} or a .toml file"
+        )
+    return read_scenario_file(path)
 
 
 def read_scenario_file(path: Path) -> Scenario:

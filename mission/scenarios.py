@@ -9,12 +9,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid, signed_area
-from covswarm.mission.toml_text import density_toml, toml_float, toml_list, toml_str
+from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
+from covswarm.mission.toml_text import toml_float, toml_list, toml_str
+from covswarm.tvd.coverage import signed_area
 from covswarm.tvd.density import Density
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
@@ -113,8 +113,7 @@ class Scenario:
             xmin, xmax, ymin, ymax = self.initial_box
             area = (xmax - xmin) * (ymax - ymin)
         else:
-            x, y = self.domain(0.0)[0].T
-            area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+            area = abs(signed_area(self.domain(0.0)[0]))
         fits = 2.0 * math.sqrt(START_PACKING * area / (math.pi * max(n, 1)))
         return min(self.robot_diameter, fits)
 
@@ -136,7 +135,7 @@ class Scenario:
         if self.initial_box is not None:
             lines.append(f"\n[initial]\nbox = {toml_list(self.initial_box)}")
         text = "\n".join(lines) + "\n\n" + self.motion.to_toml()
-        return text if self.density_path is None else text + density_toml(self.density_path)
+        return text if self.density_path is None else text + self.density_path.to_toml()
 
 
 # Start positions: draws per robot before giving up, and the share of the start area the
@@ -326,21 +325,9 @@ BUILTINS = {
     "pinwheel": pinwheel,
     "live": live,
 }
-
-
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A built-in scenario by name, or a scenario read from a .toml file.
-
-    Raises ValueError naming the file and the problem for anything malformed.
-    """
-    if str(name_or_path) in BUILTINS:
-        return BUILTINS[str(name_or_path)]()
-    path = Path(name_or_path)
-    if path.suffix != ".toml":
-        known = ", ".join(sorted(BUILTINS))
-        raise ValueError(
-            f"unknown scenario {str(name_or_path)!r}: use one of {known} or a .toml file"
-        )
-    from covswarm.mission.scenario_files import read_scenario_file
-
-    return read_scenario_file(path)
+# The --scenario help of every command that takes one, built from BUILTINS so that it
+# names every built-in there is.
+SCENARIO_HELP = (
+    f"Built-in scenario ({', '.join(BUILTINS)}) or a .toml file (format: "
+    "covswarm.mission.scenario_files)."
+)

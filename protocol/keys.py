@@ -182,11 +182,6 @@ def all_agent_states_selector(swarm: str) -> str:
     return f"{_base(swarm)}/agent/*/state"
 
 
-def all_beacons_selector(swarm: str) -> str:
-    """Every beacon in every tile (monitoring only)."""
-    return f"{_base(swarm)}/beacon/*/*/*"
-
-
 # kind -> (words at positions 2 and 4) of "covswarm/<swarm>/<word>/<id>/<word>"
 _ID_KEYS = {"pose": ("robot", "pose"), "cmd": ("robot", "cmd"), "state": ("agent", "state")}
 

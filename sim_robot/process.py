@@ -37,19 +37,22 @@ import numpy as np
 import zenoh
 
 from covswarm import protocol
-from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from covswarm.protocol.inbound import (
+    COMMAND_REASONS,
+    MAX_CLOCK_SKEW,
+    DropLog,
+    RateLimit,
+    accept_command,
+)
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
 from covswarm.sim_robot.config import RobotConfig
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate_one
+from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate_one
 
 log = logging.getLogger("covswarm.robot")
-
-# Why a command was dropped: protocol reasons, the clock policy, or addressed to another id.
-DROP_REASONS = (*protocol.REASONS, *STAMP_REASONS, "wrong_id")
 
 
 @dataclass
@@ -87,21 +90,17 @@ class RobotSim:
         self.pose = np.array(pose, dtype=float)
         self.wheels = np.zeros(2)
         self.counters = RobotCounters()
-        self.drops = DropLog(log, f"robot {self.id}", DROP_REASONS)
+        self.drops = DropLog(log, f"robot {self.id}", COMMAND_REASONS)
         self._last_command: float | None = None
         self._last_step = now
 
     def on_command(self, payload: object, now: float, now_wall: float) -> bool:
         """Apply a raw WheelCommand payload received at ``now`` (monotonic) and ``now_wall``
         (s since the epoch); False if it was dropped."""
-        try:
-            command = protocol.WheelCommand.decode(payload)
-            check_stamp(command.stamp, now_wall, self.cmd_timeout, self.max_clock_skew)
-        except protocol.ProtocolError as exc:
-            self.drops.drop(exc.reason, f"command: {exc}")
-            return False
-        if command.id != self.id:
-            self.drops.drop("wrong_id", f"command for robot {command.id}")
+        command = accept_command(
+            payload, self.id, now_wall, self.cmd_timeout, self.max_clock_skew, self.drops
+        )
+        if command is None:
             return False
         # The old command drives until now, the new one from now on (not back to the last
         # step: a command must not act before it arrived, which agents predicting their
@@ -263,7 +262,7 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 @click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
-    default=0.8,
+    default=MAX_WHEEL_SPEED,
     show_default=True,
     help="Rim speed limit (m/s).",
 )

@@ -12,7 +12,7 @@ import pytest
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
-from covswarm.agent import neighbourhood
+from covswarm.agent import neighborhood
 from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
 
 WALL = 1.7e9
@@ -137,7 +137,7 @@ def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time
     brain = brain_at(0.4, 1.0)
     assert brain.on_domain(domain(SQUARE, 1), now=0.0)
     _ring(brain, (0.4, 1.0), now=0.0, first_id=100)
-    confirm = neighbourhood.BEACON_CONFIRMATION
+    confirm = neighborhood.BEACON_CONFIRMATION
     held = _run(brain, 0.0, confirm - 0.15)
     # The phantoms count while unconfirmed: the robot, inside their ring, barely moves
     # (the barrier condition with 0.12 m < the safe distance permits no approach).
@@ -148,22 +148,22 @@ def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time
     # heads for its centroid (0.6 m away) at the law's speed.
     assert min(free) > 0.3
     assert brain.safety_active == active
-    assert brain.neighbourhood.unconfirmed_total == 36
+    assert brain.neighborhood.unconfirmed_total == 36
     assert brain.stats()["beacon_unconfirmed"] == 36
     # Renewed within CONFIRMATION_RETRY (under the 25 s beacon timeout): still doubted.
     _ring(brain, (brain.pose.x, brain.pose.y), now=3.0, first_id=100)
     assert min(_run(brain, 3.0, 3.5)) > 0.3
     assert brain.safety_active == active
-    assert brain.neighbourhood.unconfirmed_total == 36
+    assert brain.neighborhood.unconfirmed_total == 36
     # CONFIRMATION_RETRY after the window opened, a beacon opens another (the team may
     # have changed): 1 s of doubt in 10 for forgeries that repeat their ids.
-    retry = neighbourhood.CONFIRMATION_RETRY
+    retry = neighborhood.CONFIRMATION_RETRY
     _ring(brain, (brain.pose.x, brain.pose.y), now=retry, first_id=100)
     control(brain, retry)
-    assert len(brain.neighbourhood.reckoned) == 36 and not brain.neighbourhood.unconfirmed
+    assert len(brain.neighborhood.reckoned) == 36 and not brain.neighborhood.unconfirmed
     control(brain, retry + confirm + 0.05)
-    assert not brain.neighbourhood.reckoned and len(brain.neighbourhood.unconfirmed) == 36
-    assert brain.neighbourhood.unconfirmed_total == 72
+    assert not brain.neighborhood.reckoned and len(brain.neighborhood.unconfirmed) == 36
+    assert brain.neighborhood.unconfirmed_total == 72
 
 
 def test_unconfirmed_robots_nearby_are_followed_and_taken_back_when_confirmed() -> None:
@@ -171,18 +171,18 @@ def test_unconfirmed_robots_nearby_are_followed_and_taken_back_when_confirmed() 
     assert brain.on_domain(domain(SQUARE, 1), now=0.0)
     _ring(brain, (0.4, 1.0), now=0.0, first_id=100)
     _run(brain, 0.0, 1.5)
-    assert len(brain.neighbourhood.unconfirmed) == 36
-    assert not brain.neighbourhood.reckoned.keys() & brain.neighbourhood.unconfirmed.keys()
+    assert len(brain.neighborhood.unconfirmed) == 36
+    assert not brain.neighborhood.reckoned.keys() & brain.neighborhood.unconfirmed.keys()
     # Their AgentStates are followed (the nearest few): a real robot among them, whose
     # state was late, confirms itself with it and is a candidate (and obstacle) again.
-    followed = brain.near_ids() & brain.neighbourhood.unconfirmed.keys()
+    followed = brain.near_ids() & brain.neighborhood.unconfirmed.keys()
     assert len(followed) == brain_module.MAX_UNCONFIRMED_FOLLOWED
     real = min(followed)
-    beacon = brain.neighbourhood.beacons[real]
+    beacon = brain.neighborhood.beacons[real]
     state = protocol.AgentState(id=real, x=beacon.x, y=beacon.y, stamp=WALL, neighbors=[])
     brain.on_agent_state(state, now=1.5)
     control(brain, 1.5)
-    assert real in brain.neighbourhood.reckoned and real not in brain.neighbourhood.unconfirmed
+    assert real in brain.neighborhood.reckoned and real not in brain.neighborhood.unconfirmed
 
 
 def _obstacle_run(token: bool) -> tuple[Brain, tuple[float, float]]:
@@ -204,20 +204,20 @@ def _obstacle_run(token: bool) -> tuple[Brain, tuple[float, float]]:
 
 def test_a_beacon_with_a_live_agent_token_or_an_agent_state_stays_an_obstacle() -> None:
     brain, (vx, vy) = _obstacle_run(token=True)
-    assert brain.neighbourhood.unconfirmed_total == 0
+    assert brain.neighborhood.unconfirmed_total == 0
     # Both still bound the velocity at 3 s: neither 7 (+x) nor 8 (+y) may be approached,
     # while the centroid (1, 1) pulls towards +x.
     assert vx <= 1e-6 and vy <= 1e-6
     # Without the token robot 7 is a phantom after BEACON_CONFIRMATION; robot 8, backed by
     # its AgentState, still holds.
     brain, (vx, vy) = _obstacle_run(token=False)
-    assert brain.neighbourhood.unconfirmed_total == 1
+    assert brain.neighborhood.unconfirmed_total == 1
     assert vx > 0.1 and vy <= 1e-6
     # Its token gone, a robot leaves the diagram at once (as before this change).
     brain, _ = _obstacle_run(token=True)
     brain.on_liveliness("agent", 7, False)
     brain.step(3.1, WALL + 3.1)
-    assert 7 not in brain.neighbourhood.reckoned
+    assert 7 not in brain.neighborhood.reckoned
 
 
 def test_the_agent_command_refuses_a_bad_workspace_with_a_sentence() -> None:
@@ -245,8 +245,8 @@ def test_a_beacon_only_robot_never_asked_for_stays_a_candidate() -> None:
         brain.on_agent_state(state, now=float(now))
         brain.on_pose(protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL, seq=1), now)
         control(brain, now)
-    assert 9 in brain.neighbourhood.reckoned and 9 not in brain.neighbourhood.asked
-    assert brain.neighbourhood.unconfirmed_total == 0
+    assert 9 in brain.neighborhood.reckoned and 9 not in brain.neighborhood.asked
+    assert brain.neighborhood.unconfirmed_total == 0
 
 
 class _Sample:

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from test_agent_runtime import Latest, free_port
+from live_runs import Latest, open_router
 
 from covswarm import protocol
 from covswarm.tvd.coverage import mass_centroid
@@ -46,14 +46,7 @@ def domain(vertices: list, seq: int, state: str = "running") -> bytes:
 def test_forged_domains_and_phantom_beacons_change_nothing_but_counts() -> None:
     zenoh = pytest.importorskip("zenoh")
     swarm = protocol.new_swarm_name()
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    session, endpoint = open_router()
     hostile = zenoh.open(protocol.session_config([endpoint], None, "client"))
     children: list[subprocess.Popen] = []
     try:

@@ -23,7 +23,7 @@ from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE
 from covswarm.deploy.router import free_port
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import steady_state_mean
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 pytestmark = pytest.mark.e2e
 

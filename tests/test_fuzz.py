@@ -109,10 +109,10 @@ def wire_maps(draw: st.DrawFn, kind: str) -> dict:
         d = {"id": draw(ids), "x": draw(coords), "y": draw(coords), "theta": draw(finite)}
         d |= {"seq": draw(st.integers(0, 2**40))}
     elif kind == "state":
-        neighbours = st.lists(st.integers(0, 20), max_size=8, unique=True)
+        neighbors = st.lists(st.integers(0, 20), max_size=8, unique=True)
         stats = st.dictionaries(st.text(min_size=1, max_size=8), finite, max_size=4)
         d = {"id": draw(ids), "x": draw(coords), "y": draw(coords)}
-        d |= {"neighbors": draw(neighbours), "stats": draw(stats)}
+        d |= {"neighbors": draw(neighbors), "stats": draw(stats)}
     elif kind == "beacon":
         d = {"id": draw(ids), "x": draw(coords), "y": draw(coords)}
     else:

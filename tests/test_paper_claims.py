@@ -24,10 +24,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from covswarm.deploy.simulate import LAWS, simulate
+from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import neighbor_histogram, steady_state_mean
-from covswarm.mission.scenarios import BUILTINS, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import BUILTINS
 from covswarm.tvd import coverage
+from covswarm.tvd.control import LAWS
 
 README = (Path(__file__).resolve().parent.parent / "README.md").read_text(encoding="utf-8")
 
@@ -130,7 +132,7 @@ def sims() -> dict[str, dict]:
 E_A_REL, E_A_ABS = 0.03, 5e-5  # each steady-state e_a: 3 % or 0.05 mm, whichever is larger
 CHAOTIC_REL = 0.08  # three times the 2.6 % kernel spread of the TVD-C damped toward 0
 POINTS = 0.03  # each improvement: 3 percentage points
-NEIGHBOURS = 2.0  # each mean count of Table 1: 2 robots
+NEIGHBORS = 2.0  # each mean count of Table 1: 2 robots
 
 
 @dataclass(frozen=True)
@@ -245,7 +247,7 @@ def test_reproduction_figures_within_their_bands(
 def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: dict[str, dict]) -> None:
     """The paper's exact TVD-C is tested by what is invariant about it, not by its figure:
     its solve falls back to TVD-D1 on almost every step (98.3 to 99.4 % across the three
-    kernels above), so it lands within 5 % of TVD-D1 (-2.7 to +4.4 % measured) and clearly
+    kernels above), so it lands within 10 % of TVD-D1 (-2.7 to +4.4 % measured) and clearly
     below no feedforward (0.73 to 0.78 of TVD-D1's; without feedforward it is chaotic too,
     0.130 to 0.144 m, 1.08 to 1.21 times TVD-D1's)."""
     exact, d1 = sims["circle-c-exact"], sims["circle-d1"]
@@ -256,13 +258,13 @@ def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: dict[str, dict]) -> None:
     assert 1.0 <= sims["circle-c-exact-noff"]["e_a"] / sims["circle-d1-noff"]["e_a"] <= 1.35
 
 
-def test_neighbour_counts_of_table_1_within_their_band(sims: dict[str, dict]) -> None:
+def test_neighbor_counts_of_table_1_within_their_band(sims: dict[str, dict]) -> None:
     cells = [cell.strip() for cell in readme_text(TABLE_1_ROW).strip("|").split("|")[1:]]
     assert [float(cell) for cell in cells] == list(TABLE_1.values())
     histograms = [sims[f"circle-d1-seed{seed}"]["histogram"] for seed in range(5)]
     mean = {k: float(np.mean([h.get(k, 0) for h in histograms])) for k in TABLE_1}
     for k, expected in TABLE_1.items():
-        assert mean[k] == pytest.approx(expected, abs=NEIGHBOURS), mean
+        assert mean[k] == pytest.approx(expected, abs=NEIGHBORS), mean
     assert max(mean, key=mean.get) == 6  # most robots have 6 neighbours, as in the paper
 
 

@@ -10,8 +10,8 @@ import pytest
 import shapely
 
 from covswarm.mission.motion import Keyframes, Rigid
-from covswarm.mission.scenario_files import scenario_from_dict
-from covswarm.mission.scenarios import BUILTINS, Scenario, load_scenario
+from covswarm.mission.scenario_files import load_scenario, scenario_from_dict
+from covswarm.mission.scenarios import BUILTINS, Scenario
 from covswarm.tvd.coverage import validate_polygon
 
 RIGID_TOML = """

@@ -471,6 +471,7 @@ def test_forged_commands_do_not_move_a_secured_robot(endpoint: str, creds: Path)
     assert robot.returncode in (0, -15), robot.stderr.read()[-2000:]
 
 
+@pytest.mark.e2e
 def test_covswarm_run_refuses_before_starting_when_a_certificate_is_missing(
     creds: Path, tmp_path: Path
 ) -> None:

@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import json
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -14,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from live_runs import alive_tokens, open_router
 
 from covswarm import protocol
 from covswarm.protocol.security import make_test_credentials, read_identities
@@ -38,29 +38,10 @@ def secure(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return make_test_credentials(tmp_path_factory.mktemp("secure"))
 
 
-def alive_tokens(session: object, selector: str) -> list[str]:
-    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
-    replies = session.liveliness().get(selector, timeout=1.0)
-    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def router(secure: Path) -> Iterator[tuple[zenoh.Session, str]]:
     """A secured router-mode session on a free loopback port: (session, tls endpoint)."""
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tls/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(session_config(None, [endpoint], "router", secure=secure))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    session, endpoint = open_router("tls", secure)
     yield session, endpoint
     session.close()
 

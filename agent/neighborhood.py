@@ -92,7 +92,7 @@ def linger(since: dict[int, float], current: Iterable[int], now: float, period: 
     return set(since)
 
 
-class Neighbourhood:
+class Neighborhood:
     """The other robots one agent knows of, by how it heard of them.
 
     Times are monotonic seconds of receipt. ``stale_timeout`` bounds a robot's own pose or
