@@ -163,6 +163,40 @@ def polygon_distance(a: np.ndarray, b: np.ndarray) -> float:
     return float(min(nearest_points(a, b)[1].min(), nearest_points(b, a)[1].min()))
 
 
+def clip_halfplane(polygon: np.ndarray, start: np.ndarray, direction: np.ndarray) -> np.ndarray:
+    """The part (j, 2) of a convex polygon (k, 2) on the left of (or on) the directed line
+    through ``start`` (2,) along ``direction`` (2,): one Sutherland–Hodgman step.
+
+    Shape (0, 2) when nothing is left.
+    """
+    out = np.asarray(polygon, dtype=float).reshape(-1, 2)
+    if len(out) == 0:
+        return out
+    side = direction[0] * (out[:, 1] - start[1]) - direction[1] * (out[:, 0] - start[0])
+    nxt_side = np.roll(side, -1)
+    nxt = np.roll(out, -1, axis=0)
+    pieces = []
+    for j in range(len(out)):
+        if side[j] >= 0.0:
+            pieces.append(out[j])
+        if (side[j] >= 0.0) != (nxt_side[j] >= 0.0):
+            s = side[j] / (side[j] - nxt_side[j])
+            pieces.append(out[j] + s * (nxt[j] - out[j]))
+    out = np.array(pieces, dtype=float).reshape(-1, 2)
+    return drop_repeats(out)
+
+
+def drop_repeats(polygon: np.ndarray) -> np.ndarray:
+    """Without vertices that repeat their predecessor up to rounding: the direction of so short
+    an edge is noise, and a half-plane through it would cut at random."""
+    if len(polygon) < 2:
+        return polygon
+    scale = max(float(np.ptp(polygon, axis=0).max()), 1e-300)
+    step = np.linalg.norm(polygon - np.roll(polygon, 1, axis=0), axis=1)
+    keep = step > _REL_EPS * 1e3 * scale
+    return polygon[keep] if keep.any() else polygon[:1]
+
+
 def clip_convex(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """a ∩ b for convex CCW polygons (Sutherland–Hodgman: a clipped by each edge line of b).
 
@@ -170,20 +204,9 @@ def clip_convex(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     contact along an edge or at a point may come back as a degenerate polygon of area 0.
     """
     out = np.asarray(a, dtype=float)
-    b = np.asarray(b, dtype=float)
+    b = drop_repeats(np.asarray(b, dtype=float))
     for start, end in zip(b, np.roll(b, -1, axis=0), strict=True):
         if len(out) == 0:
             break
-        d = end - start
-        side = d[0] * (out[:, 1] - start[1]) - d[1] * (out[:, 0] - start[0])  # >= 0: kept
-        nxt_side = np.roll(side, -1)
-        nxt = np.roll(out, -1, axis=0)
-        pieces = []
-        for j in range(len(out)):
-            if side[j] >= 0.0:
-                pieces.append(out[j])
-            if (side[j] >= 0.0) != (nxt_side[j] >= 0.0):
-                s = side[j] / (side[j] - nxt_side[j])
-                pieces.append(out[j] + s * (nxt[j] - out[j]))
-        out = np.array(pieces, dtype=float).reshape(-1, 2)
+        out = clip_halfplane(out, start, end - start)
     return out
