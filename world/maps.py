@@ -108,7 +108,7 @@ def read_map(yaml_path: str | Path) -> OccupancyMap:
     """The map described by a map_server YAML file; ValueError naming the file and the reason
     for anything malformed (module docstring)."""
     path = Path(yaml_path)
-    text = _read_limited(path, MAX_YAML_BYTES).decode("utf-8", errors="replace")
+    text = read_regular_file(path, MAX_YAML_BYTES).decode("utf-8", errors="replace")
     import yaml
 
     try:
@@ -197,9 +197,9 @@ def _number(value: Any, key: str) -> float:
     return float(value)
 
 
-def _read_limited(path: Path, limit: int) -> bytes:
-    """The bytes of a regular file of at most ``limit`` bytes: stat first, so a FIFO or a
-    device (/dev/zero) is refused without being opened."""
+def read_regular_file(path: Path, limit: int) -> bytes:
+    """The bytes of a regular file of at most ``limit`` bytes, or ValueError naming the file:
+    stat first, so a FIFO or a device (/dev/zero) is refused without being opened."""
     try:
         info = os.stat(path)
     except OSError as exc:
@@ -224,7 +224,7 @@ def _read_grey(path: Path) -> np.ndarray:
 
     from PIL import Image, UnidentifiedImageError
 
-    data = _read_limited(path, MAX_IMAGE_BYTES)
+    data = read_regular_file(path, MAX_IMAGE_BYTES)
     try:
         with Image.open(io.BytesIO(data)) as image:
             width, height = image.size
