@@ -42,7 +42,7 @@ from scipy.sparse.csgraph import dijkstra
 
 from covswarm.tvd.geometry import area, validate_convex
 from covswarm.world.model import World
-from covswarm.world.route import PEAK_RATE, RouteMotion, centroid, width
+from covswarm.world.route import PEAK_RATE, RouteMotion, centroid, merge_coincident, width
 from covswarm.world.sweep import first_contact
 
 # Least ratio between consecutive scale levels (geometric ladder from 1 to s_min).
@@ -561,7 +561,7 @@ def _first_contact(polygons: list[np.ndarray], world: World) -> tuple[int, str] 
         i = min(int(np.searchsorted(starts, t, side="right")) - 1, len(lengths) - 1)
         a, b = path.segment(i)
         u = min(max((t - starts[i]) / lengths[i], 0.0), 1.0)
-        return (1.0 - u) * a + u * b, (b - a) / lengths[i]
+        return merge_coincident((1.0 - u) * a + u * b, (b - a) / lengths[i])
 
     contact = first_contact(along, 0.0, float(starts[-1]), world, speed=1.0, samples=_SWEEP_SAMPLES)
     if contact is None:

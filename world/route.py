@@ -195,7 +195,7 @@ class RouteMotion:
         velocities = (b - a) * (ds_du / span)
         if len(a) == len(self.polygons[i]) == len(self.polygons[i + 1]):
             return vertices, velocities  # paired vertex for vertex: none coincide
-        return _merge_coincident(vertices, velocities)
+        return merge_coincident(vertices, velocities)
 
     def peak_speed(self) -> float:
         """Fastest vertex speed over the route (m/s): (15/8) max |B_j - A_j| / T_i."""
@@ -231,9 +231,7 @@ def _points(points: np.ndarray) -> str:
     return "[" + ", ".join(f"[{float(x)!r}, {float(y)!r}]" for x, y in points) + "]"
 
 
-def _merge_coincident(
-    vertices: np.ndarray, velocities: np.ndarray
-) -> tuple[np.ndarray, np.ndarray]:
+def merge_coincident(vertices: np.ndarray, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Drop vertices equal to the previous one (a support-point pairing near s = 0 or 1 has
     edges of length s |e|); the dropped vertex's velocity differs from the kept one's by at
     most s'(t) |e|, vanishing there (s' = 30 u^2 where s = 10 u^3)."""
