@@ -17,7 +17,7 @@ from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid,
 from covswarm.mission.toml_text import density_toml, toml_float, toml_list, toml_points, toml_str
 from covswarm.tvd.density import Density
 from covswarm.world.model import World, box_vertices
-from covswarm.world.sweep import first_contact
+from covswarm.world.sweep import SAMPLES, first_contact
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 
@@ -103,6 +103,11 @@ class Scenario:
         object.__setattr__(self, "world", world)
         object.__setattr__(self, "workspace", world.workspace)
         object.__setattr__(self, "obstacles", own)
+
+    @property
+    def goals(self) -> tuple[tuple[float, float], ...]:
+        """Where S's centroid is sent, in order (m): a planned route's goals, else none."""
+        return tuple(getattr(self.motion, "goals", ()))
 
     def density(self, t: float) -> Density | None:
         """phi at time t with its exact rates (covswarm.tvd.density.Density), None when uniform."""
@@ -201,13 +206,16 @@ def check_box(box: Box) -> None:
 def _check_clear(motion: DomainMotion, duration: float, world: World) -> None:
     """ValueError naming the mission time and the obstacle if S(t) touches an obstacle or
     leaves the workspace for some t in [0, duration] (covswarm.world.sweep)."""
+    # With an exact speed bound, a few samples suffice: they only bound the swept box.
+    speed = _speed_bound(motion, duration)
     contact = first_contact(
         motion,
         0.0,
         duration,
         world,
         tolerance=CONTACT_TOLERANCE,
-        speed=_speed_bound(motion, duration),
+        speed=speed,
+        samples=64 if speed is not None else SAMPLES,
     )
     if contact is None:
         return
@@ -403,12 +411,63 @@ def pinwheel() -> Scenario:
     )
 
 
+# The warehouse: an 8 m x 5 m hall cut by a 0.2 m wall at x = 0 with a 1.1 m door, shelves
+# along the walls (boxes xmin, xmax, ymin, ymax, m).
+_HALL: Box = (-4.0, 4.0, -2.5, 2.5)
+_DOOR = (-0.2, 0.9)  # y extent of the door, m
+_WAREHOUSE = {
+    "wall south": (-0.1, 0.1, -2.5, _DOOR[0]),
+    "wall north": (-0.1, 0.1, _DOOR[1], 2.5),
+    "shelf 1": (-3.8, -1.4, 1.7, 2.2),
+    "shelf 2": (-3.8, -1.4, -2.3, -1.8),
+    "shelf 3": (1.0, 1.4, -2.3, -0.9),
+    "shelf 4": (2.2, 3.8, 1.8, 2.3),
+    "shelf 5": (2.4, 3.8, -2.3, -1.8),
+}
+
+
+def warehouse() -> Scenario:
+    """20 Khepera IV taken from one room of a warehouse to the other by the route planner.
+
+    S, a 2.4 m x 1.6 m rectangle, cannot pass the 1.1 m door: the planner
+    (covswarm.world.planner) shrinks it on the way to the door, never below the team's least
+    S (covswarm.mission.crowding.least_domain: 0.89 m^2, 0.18 m wide), takes it through and
+    grows it back at the goal beyond shelf 3. Fastest vertex 0.25 m/s; 10 s at the end for
+    the team to settle.
+    """
+    from covswarm.mission.crowding import least_domain
+    from covswarm.world.model import Obstacle
+    from covswarm.world.planner import plan_tour
+
+    world = World(_HALL, tuple(Obstacle(n, box_vertices(b)) for n, b in _WAREHOUSE.items()))
+    min_area, min_width = least_domain(20, Scenario.robot_diameter)
+    route = plan_tour(
+        world,
+        np.array(_rectangle(-3.7, -1.3, -1.1, 0.5)),
+        [(2.7, 0.1)],
+        min_area=min_area,
+        min_width=min_width,
+        max_speed=0.25,
+    )
+    return Scenario(
+        name="warehouse",
+        motion=route.motion,
+        agents=20,
+        kappa=2.0,
+        duration=math.ceil(route.motion.end) + 10.0,
+        dt=0.02,
+        dynamics="unicycle",
+        world=world,
+    )
+
+
 BUILTINS = {
     "circle": circle,
     "passage": passage,
     "formation": formation,
     "pinwheel": pinwheel,
     "live": live,
+    "warehouse": warehouse,
 }
 
 

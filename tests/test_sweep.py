@@ -165,8 +165,9 @@ def test_through_the_wall_and_out_of_the_workspace() -> None:
 
 def test_fast_enough_for_a_steering_request() -> None:
     rng = np.random.default_rng(7)
-    centres = rng.uniform(-10, 10, size=(200, 2))
-    polys = [random_convex(rng, c, 0.25) for c in centres if np.abs(c[1]) > 1.2]
+    centres = rng.uniform(-10, 10, size=(260, 2))
+    polys = [random_convex(rng, c, 0.25) for c in centres if np.abs(c[1]) > 1.2][:200]
+    assert len(polys) == 200
     world = World.from_boxes_and_polygons((-11.0, 11.0, -11.0, 11.0), polys)
     start = rect(-9.0, -8.0, -0.5, 0.5)
     motion = Similarity(start, 0.0, 30.0, start.mean(axis=0), np.array([17.0, 0.0]), 0.4, 0.8)

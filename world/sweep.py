@@ -34,7 +34,7 @@ from covswarm.world.model import World
 Motion = Callable[[float], tuple[np.ndarray, np.ndarray]]  # t -> (vertices, velocities)
 
 SPEED_MARGIN = 1.5  # sampled speed bounds are multiplied by this (module docstring)
-SAMPLES = 512  # instants sampled for the speed bounds and the swept box
+SAMPLES = 256  # instants sampled for the speed bounds and the swept box
 
 
 @dataclass(frozen=True)
@@ -81,8 +81,8 @@ def first_contact(
         axis_speed = np.array([speed, speed])
     # Between samples a point moves at most speed * spacing / 2 from the nearer sample.
     reach = speed * (times[1] - times[0]) / 2.0 + tolerance if len(times) > 1 else tolerance
-    low = np.min([v.min(axis=0) for v in vertices], axis=0)
-    high = np.max([v.max(axis=0) for v in vertices], axis=0)
+    stacked = np.concatenate(vertices)
+    low, high = stacked.min(axis=0), stacked.max(axis=0)
     rows = world.candidates((low[0], high[0], low[1], high[1]), reach)
 
     t = float(t0)
@@ -108,12 +108,21 @@ def _sampled_axis_speed(times: np.ndarray, states: list) -> np.ndarray:
     rate and the largest mean rate between samples (vertex counts may change: Morph merges
     coincident vertices, so means use each sample's own bounding values), times SPEED_MARGIN."""
     peak = np.zeros(2)
+    counts = {len(v) for v, _ in states}
+    if len(counts) == 1:  # one vertex count throughout: all at once
+        vertices = np.array([v for v, _ in states], dtype=float)  # (samples, k, 2)
+        velocities = np.array([u for _, u in states], dtype=float)
+        if not np.all(np.isfinite(velocities)):
+            raise ValueError("first_contact: the motion gives non-finite vertex velocities")
+        peak = np.abs(velocities).max(axis=(0, 1))
+        dt = np.diff(times)[:, None, None]
+        moved = np.abs(np.diff(vertices, axis=0)) / np.where(dt > 0.0, dt, np.inf)
+        return SPEED_MARGIN * np.maximum(peak, moved.max(axis=(0, 1)))
     for _, velocities in states:
         v = np.asarray(velocities, dtype=float)
         if not np.all(np.isfinite(v)):
             raise ValueError("first_contact: the motion gives non-finite vertex velocities")
-        if len(v):
-            peak = np.maximum(peak, np.abs(v).max(axis=0))
+        peak = np.maximum(peak, np.abs(v).max(axis=0))
     for (a, _), (b, _), dt in zip(states[:-1], states[1:], np.diff(times), strict=True):
         if dt > 0.0 and len(a) == len(b):
             peak = np.maximum(peak, np.abs(np.asarray(b) - np.asarray(a)).max(axis=0) / dt)
