@@ -49,6 +49,17 @@ A rigid motion (plus uniform scaling) of a base polygon instead::
 Vertex i of a rigid domain is ``o(t) + s(t) R(a(t)) q_i`` with o the origin's path, s the
 scale and a = rotation_rate t.
 
+A planned route (covswarm.world.planner): S goes from ``polygon`` to each goal in turn
+through free space, shrinking (never below the team's least S) where a door needs it and
+growing back at each goal; planned at load, deterministically::
+
+    [domain]
+    kind = "route"
+    polygon = [[-2.4, -0.8], [-1.2, -0.8], [-1.2, 0.8], [-2.4, 0.8]]  # S at t = 0
+    goals = [[1.8, 0.0], [-1.8, 0.0]]  # where S's centroid goes, visited in order
+    speed = 0.25               # m/s, the fastest vertex (default 0.25)
+    hold = 2.0                 # s at each goal (default 0)
+
 An optional density phi(q, t) = floor + sum_b w_b exp(-1/2 (q - mu_b)^T Sigma_b^-1 (q - mu_b))
 (agent/density.py; absent: uniform)::
 
@@ -138,7 +149,14 @@ def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenar
     world = _world(data, base)
     return Scenario(
         name=data["name"],
-        motion=_motion_from_dict(_table(data["domain"], "[domain]"), world),
+        motion=_motion_from_dict(
+            _table(data["domain"], "[domain]"),
+            world,
+            (
+                options.get("agents", Scenario.agents),
+                options.get("robot_diameter", Scenario.robot_diameter),
+            ),
+        ),
         initial_box=_keyed("[initial] box", _box, initial["box"]) if "box" in initial else None,
         world=world,
         **options,
@@ -247,12 +265,46 @@ MOTION_KINDS: dict[str, Callable[[dict[str, Any], World], DomainMotion]] = {
     "keyframes": _keyframes,
     "rigid": _rigid,
 }
+ROUTE_SPEED = 0.25  # m/s: a route's fastest vertex unless the file says ``speed``
 
 
-def _motion_from_dict(domain: dict[str, Any], world: World) -> DomainMotion:
+def _route(domain: dict[str, Any], world: World, team: tuple[int, float]) -> DomainMotion:
+    """S planned from ``polygon`` through ``goals`` (covswarm.world.planner.plan_tour), never
+    smaller than the team of ``team`` = (agents, robot diameter in m) may take."""
+    from covswarm.mission.crowding import least_domain
+    from covswarm.world.planner import plan_tour
+
+    _require_keys(
+        domain, {"kind", "polygon", "goals"}, {"kind", "polygon", "goals", "speed", "hold"}
+    )
+    goals = domain["goals"]
+    if not isinstance(goals, list) or not goals:
+        raise ValueError(f"[domain] goals: need a list of [x, y] points, not {goals!r}")
+    speed = _number(domain.get("speed", ROUTE_SPEED), "[domain] speed")
+    hold = _number(domain.get("hold", 0.0), "[domain] hold")
+    if speed <= 0.0 or hold < 0.0:
+        raise ValueError(f"[domain] speed must be > 0 and hold >= 0, not {speed!r}, {hold!r}")
+    min_area, min_width = least_domain(*team)
+    route = plan_tour(
+        world,
+        _points(domain["polygon"], "[domain] polygon"),
+        [_pair(g, "goals") for g in goals],
+        min_area=min_area,
+        min_width=min_width,
+        max_speed=speed,
+        hold=hold,
+    )
+    return route.motion
+
+
+def _motion_from_dict(
+    domain: dict[str, Any], world: World, team: tuple[int, float]
+) -> DomainMotion:
     kind = domain.get("kind")
+    if kind == "route":
+        return _keyed("[domain] route", _route, domain, world, team)
     if not isinstance(kind, str) or kind not in MOTION_KINDS:
-        kinds = " or ".join(repr(k) for k in MOTION_KINDS)
+        kinds = " or ".join(repr(k) for k in [*MOTION_KINDS, "route"])
         raise ValueError(f"[domain] kind must be {kinds}, not {kind!r}")
     return MOTION_KINDS[kind](domain, world)
 

@@ -52,7 +52,10 @@ SMALL_COST = 0.1
 # Default grid: a tenth of the smallest allowed S's width, but no more than MAX_CELLS cells.
 CELLS_PER_WIDTH = 10
 MAX_CELLS = 250_000
-MIN_CELL = 0.02  # m: never finer (a 5 cm map needs no finer plan)
+MIN_CELL = 0.01  # m: never finer
+# Times the cell is halved when no route is found (the grid's conservative margin is a cell
+# or two: a way tighter than that needs a finer grid before the planner refuses).
+REFINE = 2
 # m: the grid keeps S this far from obstacles and walls, above first_contact's tolerance, so
 # a certified step is never a touch.
 CLEARANCE = 1e-3
@@ -166,11 +169,17 @@ def plan_route(
     touched = world.contact(start)
     if touched is not None:
         raise NoPath("start-blocked", f"S already touches {touched}")
-    h = resolution if resolution is not None else _default_cell(world, start, final, scales)
-    if not (math.isfinite(h) and h > 0.0):
-        raise ValueError(f"resolution must be positive, got {h!r}")
-    grid = _certify(world, shape, c0, final, scales, h)
-    cells = _search(grid, c0, target)
+    if resolution is not None and not (math.isfinite(resolution) and resolution > 0.0):
+        raise ValueError(f"resolution must be positive, got {resolution!r}")
+    tries = [resolution] if resolution is not None else _cells(world, start, final, scales)
+    for k, h in enumerate(tries):
+        grid = _certify(world, shape, c0, final, scales, h)
+        try:
+            cells = _search(grid, c0, target)
+            break
+        except NoPath:
+            if k == len(tries) - 1:
+                raise
     rate = 1.0 / float(np.linalg.norm(shape, axis=1).max())
     states = _states(grid, cells, c0, target, rate)
     polygons, kept, length = _shortcut(world, grid, shape, states, final, max_speed)
@@ -276,11 +285,20 @@ def _goal_polygon(
     return final
 
 
-def _default_cell(world: World, start: np.ndarray, final: np.ndarray, scales: np.ndarray) -> float:
-    """Cell side (m): CELLS_PER_WIDTH across the smallest S, within MIN_CELL and MAX_CELLS."""
+def _cells(world: World, start: np.ndarray, final: np.ndarray, scales: np.ndarray) -> list[float]:
+    """Cell sides (m) to try in turn: CELLS_PER_WIDTH across the smallest S, then halved
+    REFINE times while no route is found, never finer than _finest."""
+    finest = _finest(world, start, final)
+    cells = [max(scales[-1] * width(start) / CELLS_PER_WIDTH, finest)]
+    while len(cells) <= REFINE and cells[-1] > finest:
+        cells.append(max(cells[-1] / 2.0, finest))
+    return cells
+
+
+def _finest(world: World, start: np.ndarray, final: np.ndarray) -> float:
+    """The finest cell (m): MIN_CELL, or coarser to stay within MAX_CELLS cells."""
     low, high = _extent(world, start, final)
-    cell = scales[-1] * width(start) / CELLS_PER_WIDTH
-    return max(cell, MIN_CELL, math.sqrt(float(np.prod(high - low)) / MAX_CELLS))
+    return max(MIN_CELL, math.sqrt(float(np.prod(high - low)) / MAX_CELLS))
 
 
 def _extent(world: World, start: np.ndarray, final: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -313,7 +331,7 @@ def _certify(
     reach = np.ceil(np.abs(shape).max(axis=0) / h).astype(int) + 1
     ax, ay = reach.tolist()
     occupied = _rasterise(world, origin - h * reach, h, (nx + 2 * ax, ny + 2 * ay))
-    size = (nx + 4 * ax, ny + 4 * ay)
+    size = (fft.next_fast_len(nx + 4 * ax, real=True), fft.next_fast_len(ny + 4 * ay, real=True))
     occupied_hat = fft.rfft2(occupied, s=size)
     du, dv = np.meshgrid(np.arange(-ax, ax + 1), np.arange(-ay, ay + 1), indexing="ij")
     offsets = h * np.stack([du.ravel(), dv.ravel()], axis=1)
