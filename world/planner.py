@@ -15,19 +15,27 @@ s Q}, so occupied cell j blocks cell i when x_j - x_i is in it (a correlation, d
 Scaling about the centroid nests the S (s < s' gives S(c, s) inside S(c, s')), so a cell
 free at s is free at every smaller scale and one number per cell, its *capacity* (the
 largest free scale), says it all. Moves between neighbouring free cells (8 directions) at a
-scale both allow, and scale changes in place, keep S in free space by construction.
+scale both allow, and scale changes in place, keep S in free space by construction. The
+price is a margin of one to two cells: a way narrower than S plus that is not found at a
+cell, so the cell (by default a tenth of the least S's width, CELLS_PER_WIDTH) is halved up
+to REFINE times before the planner refuses.
 
 Search. Dijkstra over the cells free at s_min, a step costing its length times
 1 + SMALL_COST (1 - s) / (1 - s_min) for the scale s it is taken at (the smaller of the two
 capacities): S keeps its size where it can, and no path is longer than (1 + SMALL_COST)
-times the shortest. S takes each cell's capacity, shrinking before a step into a narrower
-cell and growing after one into a wider.
+times the shortest (on the grid). Along the path S takes the largest scale that is within
+every cell's capacity and changes by at most 1 / (S's radius) per metre (the vertices move
+no faster than the centroid to shrink), so it shrinks gradually ahead of a door and grows
+after it, shrinking in place before a step into a narrower cell and growing after one
+into a wider (so every step is certified).
 
 Shortcuts and verification. Runs of that path are replaced by straight segments (centroid
-and scale both linear in the progress) where the grid allows them, and every segment of
-the resulting :class:`~covswarm.world.route.RouteMotion` is verified exactly with
-covswarm.world.sweep.first_contact (a shortcut that fails falls back to the grid path it
-replaced); a route that fails verification is never returned.
+and scale both linear in the progress) where the grid allows them, and the path of the
+resulting :class:`~covswarm.world.route.RouteMotion` is verified end to end with
+covswarm.world.sweep.first_contact (a shortcut that touches is split at the middle of the
+run it replaced, and verified again); a route that fails verification is never returned.
+S stops (zero velocity and acceleration) at every waypoint: the route's segments are
+chained quintics.
 """
 
 from __future__ import annotations
