@@ -26,8 +26,7 @@ from covswarm.tvd.geometry import (
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax (m)
 
-# Points per chunk times obstacles times vertices held at once by clearance(): bounds memory.
-_CHUNK = 2_000_000
+CHUNK_POINTS = 256  # points clearance() handles at once (nearby ones: few obstacles each)
 
 
 @dataclass(frozen=True, eq=False)
@@ -123,15 +122,21 @@ class _Pack:
         """(n, len(rows)) signed distance of each point to obstacles ``rows``: the distance
         outside, minus the depth to the nearest edge line inside (convex, so exact)."""
         v, d, nrm, ok = self.vertices[rows], self.edges[rows], self.normals[rows], self.valid[rows]
-        rel = points[:, None, None, :] - v[None]  # (n, m, K, 2)
-        depth = np.einsum("nmkj,mkj->nmk", rel, nrm)
-        depth = np.where(ok[None], depth, -np.inf)
-        inside = depth.max(axis=2)  # <= 0 iff inside or on the boundary
-        length2 = np.einsum("mkj,mkj->mk", d, d)
-        t = np.einsum("nmkj,mkj->nmk", rel, d) / np.where(length2 > 0.0, length2, 1.0)
-        gap = rel - np.clip(t, 0.0, 1.0)[..., None] * d[None]
-        outside = np.sqrt(np.einsum("nmkj,nmkj->nmk", gap, gap).min(axis=2))
-        return np.where(inside <= 0.0, inside, outside)
+        # One edge at a time on (n, m) arrays: numpy reduces slowly over a short last axis.
+        px, py = points[:, 0, None], points[:, 1, None]
+        inside = np.full((len(points), len(rows)), -np.inf)
+        nearest2 = np.full((len(points), len(rows)), np.inf)
+        for e in range(v.shape[1]):
+            rx, ry = px - v[None, :, e, 0], py - v[None, :, e, 1]
+            depth = rx * nrm[None, :, e, 0] + ry * nrm[None, :, e, 1]
+            inside = np.maximum(inside, np.where(ok[None, :, e], depth, -np.inf))
+            dx, dy = d[None, :, e, 0], d[None, :, e, 1]
+            length2 = dx * dx + dy * dy
+            t = np.clip((rx * dx + ry * dy) / np.where(length2 > 0.0, length2, 1.0), 0.0, 1.0)
+            gx, gy = rx - t * dx, ry - t * dy
+            nearest2 = np.minimum(nearest2, gx * gx + gy * gy)
+        # inside <= 0 iff inside or on the boundary (convex: the deepest edge line decides)
+        return np.where(inside <= 0.0, inside, np.sqrt(nearest2))
 
     def separation(self, polygon: np.ndarray, rows: np.ndarray) -> np.ndarray:
         """(len(rows),) the largest gap between the projections of ``polygon`` (k, 2, convex
@@ -306,14 +311,37 @@ class World:
         m = len(self.obstacles)
         if m == 0 or len(p) == 0:
             return out
-        k = self._pack.vertices.shape[1]
-        step = max(1, _CHUNK // (m * k))
-        rows = np.arange(m)
-        for i in range(0, len(p), step):
-            chunk = p[i : i + step]
-            out[i : i + step] = np.minimum(
-                out[i : i + step], self._pack.signed_distance(chunk, rows).min(axis=1)
+        # Chunks of about CHUNK_POINTS nearby points (sorted by cells that hold about that
+        # many): only obstacles whose bounding box is nearer than some point's upper bound on
+        # its nearest obstacle can matter, usually few. The bound: a convex obstacle touches
+        # every side of its bounding box, so it is no farther than the farther end of any
+        # side: the least of those (the R-tree MINMAXDIST) bounds the distance.
+        boxes = self._pack.boxes
+        span = np.maximum(np.ptp(p, axis=0), 1e-9)
+        cell = float(np.sqrt(span[0] * span[1] * CHUNK_POINTS / len(p))) or float(span.max())
+        cells = np.floor((p - p.min(axis=0)) / cell)
+        order = np.lexsort((cells[:, 1], cells[:, 0]))
+        xs, ys = boxes[:, :2], boxes[:, 2:]
+        for start in range(0, len(p), CHUNK_POINTS):
+            idx = order[start : start + CHUNK_POINTS]
+            chunk = p[idx]
+            cx, cy = chunk[:, 0, None], chunk[:, 1, None]
+            left, right = (xs[None, :, 0] - cx) ** 2, (xs[None, :, 1] - cx) ** 2  # (c, m)
+            low, high = (ys[None, :, 0] - cy) ** 2, (ys[None, :, 1] - cy) ** 2
+            gap_x = np.maximum(np.maximum(xs[None, :, 0] - cx, cx - xs[None, :, 1]), 0.0)
+            gap_y = np.maximum(np.maximum(ys[None, :, 0] - cy, cy - ys[None, :, 1]), 0.0)
+            lower = np.hypot(gap_x, gap_y)  # (c, m) never more than the distance
+            # a vertical side's farther end: its x distance and the farther of the y ends
+            far_y, far_x = np.maximum(low, high), np.maximum(left, right)
+            upper = np.sqrt(
+                np.minimum(np.minimum(left, right) + far_y, np.minimum(low, high) + far_x).min(
+                    axis=1
+                )
             )
+            upper = np.minimum(upper, np.abs(out[idx]))  # a nearer wall: farther ones are moot
+            rows = np.flatnonzero((lower <= upper[:, None]).any(axis=0))
+            nearest = self._pack.signed_distance(chunk, rows).min(axis=1)
+            out[idx] = np.minimum(out[idx], nearest)
         return out
 
     def nearby(self, point: np.ndarray, radius: float) -> list[np.ndarray]:
