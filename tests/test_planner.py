@@ -235,3 +235,21 @@ def test_a_goal_polygon_of_another_shape_is_reached() -> None:
     obstacles = shapely.union_all([shapely.box(b[0], b[2], b[1], b[3]) for b in boxes])
     for t in np.linspace(0.0, route.motion.end, 800):
         assert shapely.Polygon(route.motion(t)[0]).distance(obstacles) > 0.0
+
+
+def test_plan_time_script_reports_json() -> None:
+    """scripts/plan_time.py (the README's plan-time figures) runs and finds its routes."""
+    import json
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    script = Path(__file__).resolve().parents[1] / "scripts" / "plan_time.py"
+    result = subprocess.run(
+        [sys.executable, str(script), "--maps", "1"], capture_output=True, text=True, timeout=300
+    )
+    assert result.returncode == 0, result.stderr
+    report = json.loads(result.stdout)
+    for family in ("random", "doors"):
+        assert report[family]["routes"] == 1
+        assert report[family]["p50_ms"] > 0.0

@@ -514,7 +514,8 @@ def _shortcut(
     max_speed: float,
 ) -> tuple[list[np.ndarray], list[int], float]:
     """Straight segments over runs of ``states`` (greedy: the furthest state the grid
-    allows, by doubling then bisection), each verified with first_contact; a failed one
+    allows, by doubling then bisection; then stops whose neighbours see each other are
+    dropped), each verified with first_contact; a failed one
     is split at the middle state of the run it replaced. Returns the route's polygons
     (the kept states' S, then ``final``), the kept state indices and the centroid path
     length (m)."""
@@ -534,6 +535,15 @@ def _shortcut(
             else:
                 high = middle
         kept.append(low)
+    # The greedy pass keeps a stop wherever the farthest reachable state happened to be;
+    # drop every stop whose neighbours see each other (S stops at each one).
+    k = 1
+    while k < len(kept) - 1:
+        if _segment_fits(grid, states[kept[k - 1]], states[kept[k + 1]]):
+            del kept[k]
+            k = max(k - 1, 1)
+        else:
+            k += 1
 
     def polygon(k: int) -> np.ndarray:
         centre, scale = states[k]
