@@ -253,3 +253,30 @@ def test_plan_time_script_reports_json() -> None:
     for family in ("random", "doors"):
         assert report[family]["routes"] == 1
         assert report[family]["p50_ms"] > 0.0
+
+
+@pytest.mark.parametrize(("door", "passes"), [(0.45, True), (0.28, False)])
+def test_the_least_width_limits_a_long_thin_s(door: float, passes: bool) -> None:
+    """S 2 m x 0.5 m: its least size is set by the width (0.3 m at scale 0.6), not the area
+    (scale 0.55): a 0.28 m door is narrower than a robot needs, a 0.45 m one is not."""
+    world, boxes = door_world(door)
+    polygon = np.array([[-1.0, -0.25], [1.0, -0.25], [1.0, 0.25], [-1.0, 0.25]]) + [-1.8, 0.0]
+    goal = np.array([1.8, 0.0])
+    exact = reference(WORKSPACE, boxes, polygon, goal)
+    if not passes:
+        with pytest.raises(NoPath) as caught:
+            plan_route(
+                world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
+            )
+        assert caught.value.code == "too-narrow"
+        assert exact is None
+        return
+    route = plan_route(
+        world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
+    )
+    assert exact is not None and route.length <= 1.2 * exact
+    obstacles = shapely.union_all([shapely.box(b[0], b[2], b[1], b[3]) for b in boxes])
+    for t in np.linspace(0.0, route.motion.end, 1500):
+        vertices = route.motion(t)[0]
+        assert shapely.Polygon(vertices).distance(obstacles) > 0.0
+        assert np.ptp(vertices[:, 1]) >= MIN_WIDTH - 1e-9
