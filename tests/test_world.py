@@ -147,3 +147,17 @@ def test_obstacle_is_frozen_and_ccw() -> None:
     assert Polygon(o.vertices).exterior.is_ccw
     with pytest.raises(ValueError):
         o.vertices[0, 0] = 5.0
+
+
+def test_clearance_of_many_points_equals_brute_force_without_a_workspace() -> None:
+    """Many points: the per-chunk pruning must keep every obstacle that can be nearest."""
+    from covswarm.tvd.geometry import point_polygon_distance_grad
+
+    rng = np.random.default_rng(14)
+    world = World(None, random_world(rng, 60, span=8.0).obstacles)
+    pts = np.concatenate([rng.uniform(-10, 10, size=(2500, 2)), rng.normal(0, 0.3, (500, 2))])
+    got = world.clearance(pts)
+    expect = [
+        min(point_polygon_distance_grad(p, o.vertices)[0] for o in world.obstacles) for p in pts
+    ]
+    np.testing.assert_allclose(got, expect, atol=1e-12)

@@ -340,6 +340,8 @@ class World:
             )
             upper = np.minimum(upper, np.abs(out[idx]))  # a nearer wall: farther ones are moot
             rows = np.flatnonzero((lower <= upper[:, None]).any(axis=0))
+            if len(rows) == 0:
+                continue  # every obstacle is farther than the walls
             nearest = self._pack.signed_distance(chunk, rows).min(axis=1)
             out[idx] = np.minimum(out[idx], nearest)
         return out
