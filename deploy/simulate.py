@@ -25,7 +25,6 @@ import numpy as np
 
 from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenarios import Scenario, load_scenario
-from covswarm.world.model import World
 
 LAWS = ("c", "d1", "da")
 PRIORS = ("affine", "zero")
@@ -127,9 +126,9 @@ def simulate(
     heading_log = np.empty((steps + 1, n))
     polygons: list[np.ndarray] = []
     guarded = fallbacks = safety_active = safety_relaxed = contact_stops = 0
-    world = scenario_world(scenario)
+    world = scenario.world
     walls = {
-        "obstacles": [o.vertices for o in world.obstacles],
+        "nearby_obstacles": world.nearby,
         "workspace": world.workspace,
         "obstacle_distance": wall_distance(scenario.robot_diameter),
     }
@@ -186,11 +185,6 @@ def simulate(
         t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log,
         safety_active, safety_relaxed, contact_stops,
     )  # fmt: skip
-
-
-def scenario_world(scenario: Scenario) -> World:
-    """The scenario's arena as a covswarm.world.model.World: its workspace and obstacles."""
-    return World.from_boxes_and_polygons(scenario.workspace, scenario.obstacles)
 
 
 def guard_counts(result: SimResult) -> dict[str, Any]:
@@ -269,7 +263,7 @@ def build_summary(
             result.trajectories,
             result.polygons,
             0.5 * scenario.robot_diameter,
-            scenario_world(scenario),
+            scenario.world,
             goals,
         ),
         "contact_stops": result.contact_stops,
@@ -461,8 +455,7 @@ def sim_command(
 
     summary = build_summary(
         scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
-        # A route scenario's goals (Scenario.goals); other scenarios have none.
-        goals=getattr(scenario, "goals", ()),
+        goals=scenario.goals,
         **{k: v for k, v in options.items() if k != "agents"},
     )  # fmt: skip
     if (crowd := Crowding.from_dict(summary["crowding"])).crowded:

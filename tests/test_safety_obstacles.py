@@ -267,7 +267,7 @@ def test_team_filter_passes_obstacles_to_every_robot() -> None:
     wall = validate_convex([[0.55, -1.0], [0.8, -1.0], [0.8, 1.0], [0.55, 1.0]])
     box = (-0.7, 1.0, -0.7, 0.7)
     out, active, relaxed = team_safe_velocities(
-        positions, nominal, 0.16, 10.0, 0.5, obstacles=[wall], workspace=box,
+        positions, nominal, 0.16, 10.0, 0.5, nearby_obstacles=lambda p, r: [wall], workspace=box,
         obstacle_distance=0.09,
     )  # fmt: skip
     for i in range(8):

@@ -57,7 +57,7 @@ Pure numpy, no I/O. Distances in m, velocities in m/s, gamma in 1/s.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -321,7 +321,7 @@ def team_safe_velocities(
     *,
     headings: np.ndarray | None = None,
     velocities: np.ndarray | None = None,
-    obstacles: Sequence[np.ndarray] = (),
+    nearby_obstacles: Callable[[np.ndarray, float], Sequence[np.ndarray]] | None = None,
     workspace: Box | None = None,
     obstacle_distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -330,8 +330,10 @@ def team_safe_velocities(
 
     positions: (n, 2) m; nominal: (n, 2) m/s; headings: (n,) rad for differential-drive
     robots (None: single integrators); velocities: (n, 2) m/s, the centres' current ones for
-    the reciprocal split (None: the Robotarium's); obstacles, workspace, obstacle_distance:
-    as in :func:`safe_velocity`, each robot with rows for those within ``radius``. Returns
+    the reciprocal split (None: the Robotarium's). nearby_obstacles(point (2,), radius): the
+    obstacles (convex polygons) within radius m of a point, say
+    covswarm.world.model.World.nearby; workspace, obstacle_distance: as in
+    :func:`safe_velocity`; each robot gets rows for those within ``radius``. Returns
     (velocities (n, 2), active (n,) rows tight per robot, relaxed (n,) bool).
     """
     from scipy.spatial import cKDTree
@@ -353,7 +355,7 @@ def team_safe_velocities(
             heading=None if headings is None else float(headings[i]),
             velocity=None if velocities is None else velocities[i],
             neighbor_velocities=None if velocities is None else velocities[others],
-            obstacles=obstacles,
+            obstacles=() if nearby_obstacles is None else nearby_obstacles(positions[i], radius),
             workspace=workspace,
             obstacle_distance=obstacle_distance,
             reach=radius,
