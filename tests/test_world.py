@@ -155,7 +155,7 @@ def test_clearance_of_many_points_equals_brute_force_without_a_workspace() -> No
 
     rng = np.random.default_rng(14)
     world = World(None, random_world(rng, 60, span=8.0).obstacles)
-    pts = np.concatenate([rng.uniform(-10, 10, size=(2500, 2)), rng.normal(0, 0.3, (500, 2))])
+    pts = np.concatenate([rng.uniform(-10, 10, size=(1000, 2)), rng.normal(0, 0.3, (200, 2))])
     got = world.clearance(pts)
     expect = [
         min(point_polygon_distance_grad(p, o.vertices)[0] for o in world.obstacles) for p in pts
