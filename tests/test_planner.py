@@ -205,6 +205,13 @@ def test_an_enclosed_goal_is_refused() -> None:
         plan_route(world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED)
     assert caught.value.code == "enclosed"
     assert reference(WORKSPACE, boxes, polygon, goal) is None
+    # A wall right across the workspace: nothing, not even a point, gets round it.
+    wall = [[-0.15, 0.15, -2.0, 2.0]]
+    with pytest.raises(NoPath, match="enclosed"):
+        plan_route(
+            World.from_boxes_and_polygons(WORKSPACE, wall), polygon, goal,
+            min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED,
+        )  # fmt: skip
 
 
 def test_goal_outside_or_blocked_is_refused_with_its_reason() -> None:

@@ -366,7 +366,12 @@ def _certify(
         free_count += free
     cap = np.where(free_count > 0, len(scales) - free_count, -1)
     cap[tuple(-lo)] = 0  # S's own cell: S(c0, 1) is free (checked exactly), the route's start
-    return _Grid(origin, h, scales, cap, occupied[ax : ax + nx, ay : ay + ny] == 0.0)
+    # Where a point could be: no obstacle in the cell, its centre in the workspace.
+    open_ = occupied[ax : ax + nx, ay : ay + ny] == 0.0
+    if world.workspace is not None:
+        xmin, xmax, ymin, ymax = world.workspace
+        open_ &= ((xs >= xmin) & (xs <= xmax))[:, None] & ((ys >= ymin) & (ys <= ymax))[None, :]
+    return _Grid(origin, h, scales, cap, open_)
 
 
 def _meets_squares(polygon: np.ndarray, centres: np.ndarray, half: float) -> np.ndarray:
@@ -409,7 +414,7 @@ def _search(grid: _Grid, c0: np.ndarray, goal: np.ndarray) -> list[tuple[int, in
     start, end = grid.cell(c0), grid.cell(goal)
     nx, ny = cap.shape
     if not (0 <= end[0] < nx and 0 <= end[1] < ny) or cap[end] < 0:
-        _refuse(grid, start, end, "S cannot reach the goal's cell at any allowed size")
+        _refuse(grid, start, end, "S at the goal is hemmed in closer than the grid can certify")
     free = cap >= 0
     index = -np.ones(cap.shape, dtype=int)
     index[free] = np.arange(int(free.sum()))
@@ -433,7 +438,7 @@ def _search(grid: _Grid, c0: np.ndarray, goal: np.ndarray) -> list[tuple[int, in
     _, previous = dijkstra(graph, directed=False, indices=index[start], return_predecessors=True)
     node = index[end]
     if node != index[start] and previous[node] < 0:
-        _refuse(grid, start, end, "no way joins S and the goal at any allowed size")
+        _refuse(grid, start, end, "")
     flat = np.argwhere(free)
     chain = [node]
     while chain[-1] != index[start]:
@@ -441,19 +446,22 @@ def _search(grid: _Grid, c0: np.ndarray, goal: np.ndarray) -> list[tuple[int, in
     return [tuple(flat[k].tolist()) for k in reversed(chain)]
 
 
-def _refuse(grid: _Grid, start: tuple[int, int], end: tuple[int, int], what: str) -> None:
+def _refuse(grid: _Grid, start: tuple[int, int], end: tuple[int, int], why: str) -> None:
     """NoPath: "enclosed" when even a point could not get from S's cell to the goal's
-    through cells no obstacle meets, else "too-narrow" (a way exists, too narrow for S)."""
+    through cells no obstacle meets, else "too-narrow" (a way exists, too narrow for S);
+    ``why``: what else to say (may be empty)."""
     nx, ny = grid.cap.shape
     if not (0 <= end[0] < nx and 0 <= end[1] < ny):
         raise NoPath("outside-workspace", "the goal is off the planning grid")
     labels, _ = ndimage.label(grid.open, structure=np.ones((3, 3), dtype=bool))
     if labels[start] == 0 or labels[start] != labels[end]:
-        raise NoPath("enclosed", f"the goal is enclosed: no opening joins it to S ({what})")
+        raise NoPath("enclosed", "the goal is enclosed: no opening joins it to S")
     raise NoPath(
         "too-narrow",
-        f"every way is narrower than the team can pass: S would have to fall below its "
-        f"least size (scale {grid.scales[-1]:.3g}) ({what})",
+        why
+        or "every way to the goal is narrower than the team can pass: S would have to "
+        f"shrink below its least size (scale {grid.scales[-1]:.3g} of S now, the team's "
+        f"least area or a robot's width with its clearance; grid {grid.h:.3g} m)",
     )
 
 
