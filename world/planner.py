@@ -605,7 +605,10 @@ def _first_contact(polygons: list[np.ndarray], world: World) -> tuple[int, str] 
         i = min(int(np.searchsorted(starts, t, side="right")) - 1, len(lengths) - 1)
         a, b = path.segment(i)
         u = min(max((t - starts[i]) / lengths[i], 0.0), 1.0)
-        return merge_coincident((1.0 - u) * a + u * b, (b - a) / lengths[i])
+        vertices, velocities = (1.0 - u) * a + u * b, (b - a) / lengths[i]
+        if len(a) == len(path.polygons[i]) == len(path.polygons[i + 1]):
+            return vertices, velocities  # paired vertex for vertex: none coincide
+        return merge_coincident(vertices, velocities)
 
     contact = first_contact(along, 0.0, float(starts[-1]), world, speed=1.0, samples=_SWEEP_SAMPLES)
     if contact is None:
