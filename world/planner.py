@@ -107,7 +107,7 @@ class Route:
     motion: RouteMotion
     duration: float
     length: float
-    resolution: float  # m, the grid it was planned on
+    resolution: float  # m, the grid it was planned on (a tour: its legs' coarsest)
 
 
 @dataclass(frozen=True, eq=False)
@@ -221,7 +221,7 @@ def plan_tour(
     spans: list[float] = []
     holds: list[float] = [0.0]
     waypoints: list[Waypoint] = []
-    length, t = 0.0, 0.0
+    length, t, cell = 0.0, 0.0, 0.0
     for k, goal in enumerate(goals):
         try:
             leg = plan_route(
@@ -236,6 +236,7 @@ def plan_tour(
         holds += list(leg.motion.holds[1:])
         waypoints += list(leg.waypoints if not waypoints else leg.waypoints[1:])
         length += leg.length
+        cell = max(cell, leg.resolution)
         t = leg.motion.end
         current = leg.motion.polygons[-1]
     motion = RouteMotion(
@@ -247,7 +248,7 @@ def plan_tour(
         speed=max_speed if speed is None else speed,
         hold=hold,
     )
-    return Route(tuple(waypoints), motion, motion.end, length, 0.0)
+    return Route(tuple(waypoints), motion, motion.end, length, cell)
 
 
 def _levels(s_min: float) -> np.ndarray:
