@@ -88,6 +88,7 @@ class NoPath(ValueError):
     def __init__(self, code: str, why: str) -> None:
         super().__init__(f"{code}: {why}")
         self.code = code
+        self.why = why
 
 
 @dataclass(frozen=True)
@@ -229,7 +230,7 @@ def plan_tour(
                 max_speed=max_speed, t0=t, hold=hold,
             )  # fmt: skip
         except NoPath as exc:
-            raise NoPath(exc.code, f"goal {k + 1} {list(goal)}: {exc}") from None
+            raise NoPath(exc.code, f"goal {k + 1} {list(goal)}: {exc.why}") from None
         polygons += list(leg.motion.polygons[1:])
         spans += list(leg.motion.spans)
         holds[-1] += leg.motion.holds[0]
