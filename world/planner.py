@@ -93,7 +93,8 @@ class NoPath(ValueError):
 
 @dataclass(frozen=True)
 class Waypoint:
-    """S = centroid + scale (P - c_P) at a stop of the route (centroid (2,), m)."""
+    """S = centroid + scale (P - c_P) at a stop of the route (centroid (2,), m); a route
+    to a goal polygon of its own shape ends by taking that shape at the last stop."""
 
     centroid: tuple[float, float]
     scale: float
@@ -169,6 +170,8 @@ def plan_route(
     for name, value in (("min_area", min_area), ("min_width", min_width)):
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    if not (math.isfinite(max_speed) and max_speed > 0.0):
+        raise ValueError(f"max_speed must be positive, got {max_speed!r}")
     c0 = centroid(start)
     shape = start - c0  # Q: S(c, s) = c + s Q
     s_min = max(math.sqrt(min_area / area(start)), min_width / width(start))
@@ -191,13 +194,15 @@ def plan_route(
                 raise
     rate = 1.0 / float(np.linalg.norm(shape, axis=1).max())
     states = _states(grid, cells, c0, target, rate)
-    polygons, kept, length = _shortcut(world, grid, shape, states, final, max_speed)
+    polygons, kept, length = _shortcut(world, grid, shape, states, final)
     holds = [0.0] * (len(polygons) - 1) + [hold]
     motion = RouteMotion.timed(polygons, max_speed, holds, t0)  # the path verified above
-    waypoints = tuple(
+    waypoints = [
         Waypoint((float(c[0]), float(c[1])), float(s)) for c, s in (states[k] for k in kept)
-    )
-    return Route(waypoints, motion, motion.end - t0, length, h)
+    ]
+    if goal_polygon is None and waypoints[-1].scale != 1.0:  # grown back at the goal
+        waypoints.append(Waypoint(waypoints[-1].centroid, 1.0))
+    return Route(tuple(waypoints), motion, motion.end - t0, length, h)
 
 
 def plan_tour(
@@ -521,7 +526,6 @@ def _shortcut(
     shape: np.ndarray,
     states: list[tuple[np.ndarray, float]],
     final: np.ndarray,
-    max_speed: float,
 ) -> tuple[list[np.ndarray], list[int], float]:
     """Straight segments over runs of ``states`` (greedy: the furthest state the grid
     allows, by doubling then bisection; then stops whose neighbours see each other are
