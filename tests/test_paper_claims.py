@@ -179,9 +179,9 @@ def times_better(run: str, than: str, value: float) -> Figure:
 FIGURES: list[tuple[str, list[Figure]]] = [
     ("| TVD-D1 |", [e_a("circle-d1", "0.0900 m"), e_a("circle-d1-noff", "0.1199 m"),
                     improvement("circle-d1", "circle-d1-noff", "25.0 %")]),
-    ("| TVD-C exact", [e_a("circle-c-exact", "0.0876 m"), e_a("circle-c-exact-noff", "0.1444 m"),
-                       improvement("circle-c-exact", "circle-c-exact-noff", "39.4 %"),
-                       fallbacks("circle-c-exact", "99.2 %")]),
+    ("| TVD-C exact", [e_a("circle-c-exact", "0.0908 m"), e_a("circle-c-exact-noff", "0.1713 m"),
+                       improvement("circle-c-exact", "circle-c-exact-noff", "47.0 %"),
+                       fallbacks("circle-c-exact", "98.9 %")]),
     ("| TVD-C, feedforward damped toward 0", [
         e_a("circle-c-zero", "0.0996 m"), e_a("circle-c-noff", "0.1838 m"),
         improvement("circle-c-zero", "circle-c-noff", "45.8 %"), no_guard("circle-c-zero")]),
