@@ -22,6 +22,7 @@ from typing import Any
 import click
 import zenoh
 
+from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.config import MISSION_FILE, STEERING_JOURNAL, CoordinatorConfig
 from covswarm.coordinator.core import (
     TILE_SPACINGS,
@@ -53,6 +54,10 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     settings = CoordinatorSettings.from_config(config, scenario)
+    try:
+        check_broadcastable(scenario, settings.kappa, settings.duration)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
     if settings.crowding.crowded:
         log.warning(settings.crowding.warning(settings.agents))
     mission_file = config.out / MISSION_FILE

@@ -27,6 +27,7 @@ from typing import Any
 import click
 from rich.console import Console
 
+from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
     RunConfig,
@@ -223,6 +224,10 @@ def run_swarm(run: RunConfig) -> None:
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
     duration = scenario.duration if run.duration is None else run.duration
+    try:
+        check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
     out_dir = run.out
     if out_dir is None:
         out_dir = Path("runs") / f"run-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"

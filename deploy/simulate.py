@@ -419,6 +419,7 @@ def sim_command(
         TimeRemainingColumn,
     )
 
+    from covswarm.coordinator.broadcastable import check_broadcastable
     from covswarm.mission.report import write_outputs
     from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
@@ -442,6 +443,10 @@ def sim_command(
         "safety": safety,
         "projection_distance": projection_distance,
     }
+    try:
+        check_broadcastable(scenario, options["kappa"], options["duration"])
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
     results: list[SimResult] = []
