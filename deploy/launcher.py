@@ -47,6 +47,7 @@ from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION, identity_name, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import TIME_SCALE_OPTION
+from covswarm.sim_robot.process import gather_drops
 
 
 @click.command("run")
@@ -299,6 +300,19 @@ def run_swarm(run: RunConfig) -> None:
     summary_path = out_dir / "summary.json"
     if summary_path.exists():
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
+        # Robots count what they drop per reason and say it once, at exit: a flood of forged
+        # or broken commands shows here, not only in their logs.
+        summary["robot_drops"] = {
+            rid: counts
+            for log in sorted(log_dir.glob("robot-*.log"))
+            for rid, counts in gather_drops(
+                log.read_text(encoding="utf-8", errors="replace")
+            ).items()
+        }
+        try:
+            summary_path.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+        except OSError as exc:  # a full disk: the coordinator's summary stays as it was
+            console.log(f"[yellow]robot drops not added to {summary_path}: {exc.strerror}")
         console.print(summary_table(summary, result, out_dir))
     elif not run.coordinator:
         console.log(f"the coordinator's host writes the summary; resources in {out_dir}")

@@ -162,7 +162,35 @@ def drops_line(sims: list[RobotSim]) -> str | None:
         for sim in sims
         if sim.drops.total
     }
-    return None if not counts else "robot drops " + json.dumps(counts, separators=(",", ":"))
+    return None if not counts else DROPS_PREFIX + json.dumps(counts, separators=(",", ":"))
+
+
+DROPS_PREFIX = "robot drops "
+
+
+def gather_drops(log_text: str) -> dict[str, dict[str, int]]:
+    """Per robot id and reason, the drop counts of every :func:`drops_line` in a robot
+    process's log (the launcher puts them in summary.json); malformed lines are skipped."""
+    import json
+
+    gathered: dict[str, dict[str, int]] = {}
+    for line in log_text.splitlines():
+        _, found, rest = line.partition(DROPS_PREFIX)
+        if not found:
+            continue
+        try:
+            counts = json.loads(rest)
+        except ValueError:
+            continue
+        if not isinstance(counts, dict):
+            continue
+        for rid, reasons in counts.items():
+            if isinstance(reasons, dict):
+                mine = gathered.setdefault(str(rid), {})
+                for reason, n in reasons.items():
+                    if isinstance(n, int):
+                        mine[str(reason)] = mine.get(str(reason), 0) + n
+    return gathered
 
 
 def run_robots(
