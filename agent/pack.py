@@ -56,6 +56,10 @@ RING_PER_TILE = 256
 KIND_ORDER = {"domain": 0, "pose": 1, "state": 2, "beacon": 3}
 
 
+# brain -> {(key, id in it): (kind, id, payload)}: the newest payload per key for a brain
+_Queues = dict[int, dict[tuple[str, int | None], InboxItem]]
+
+
 class Payload(Protocol):
     def to_bytes(self) -> bytes: ...
 
@@ -119,9 +123,9 @@ class Pack:
             bid: {"state": frozenset(), "beacon": frozenset()} for bid in self.brains
         }
         # brain -> {(key, id): (kind, id, payload)}: newest per key since its last turn
-        self._pending: dict[int, dict[tuple[str, int | None], InboxItem]] = {
-            bid: {} for bid in self.brains
-        }
+        self._pending: _Queues = {bid: {} for bid in self.brains}
+        # the same, taken out of a ring between two drains: theirs from the next drain on
+        self._later: _Queues = {bid: {} for bid in self.brains}
         self._changes: dict[int, list[tuple[str, int, bool]]] = {bid: [] for bid in self.brains}
         self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
         self._held: set[int] = set()  # brains whose last command was a hold
@@ -166,6 +170,11 @@ class Pack:
             capacity = RING_PER_TILE if wildcard else RING_PER_KEY
             sub = _Subscription(kind, key_id, wildcard, self.bus.subscribe(key, capacity))
             self._subs[key] = sub
+        else:
+            # What arrived before these brains followed the key is not theirs (a subscriber
+            # of their own would not have had it): the followers so far get it, with the
+            # next drain (as from their own rings), the newcomers do not.
+            self._drain_subscription(key, sub, self._later)
         sub.followers |= brains
 
     def _unfollow(self, bid: int, key: str) -> None:
@@ -203,32 +212,14 @@ class Pack:
     def drain(self) -> None:
         """Take everything that arrived since the last drain, once for the whole process,
         and queue each payload for every brain that follows its key."""
-        for key, sub in self._subs.items():
-            if not sub.wildcard:
-                self._drain_key(key, sub)
-                continue
-            latest: dict[str, bytes] = {}
-            coalesced = 0
-            while (sample := sub.source.try_recv()) is not None:
-                skey = str(sample.key_expr)
-                coalesced += skey in latest
-                latest[skey] = sample.payload.to_bytes()
-            malformed = 0
-            items = []
-            for skey, payload in latest.items():
-                if (rid := self._key_id(skey)) is None:
-                    malformed += 1
-                else:
-                    items.append(((key, rid), (sub.kind, rid, payload)))
-            for bid in sub.followers:
-                brain = self.brains[bid]
+        for bid, later in self._later.items():
+            if later:
                 pending = self._pending[bid]
-                for slot, item in items:
-                    brain.counters.coalesced += slot in pending
-                    pending[slot] = item
-                brain.counters.coalesced += coalesced
-                for _ in range(malformed):
-                    brain.drops.drop("wrong_id", "a beacon on a malformed key")
+                self.brains[bid].counters.coalesced += len(later.keys() & pending.keys())
+                pending.update(later)
+                later.clear()
+        for key, sub in self._subs.items():
+            self._drain_subscription(key, sub, self._pending)
         while (change := self._liveliness.try_recv()) is not None:
             try:
                 role, rid = protocol.parse_alive_key(change[0], self.swarm)
@@ -237,7 +228,38 @@ class Pack:
             for changes in self._changes.values():
                 changes.append((role, rid, change[1]))
 
-    def _drain_key(self, key: str, sub: _Subscription) -> None:
+    def _drain_subscription(self, key: str, sub: _Subscription, queues: _Queues) -> None:
+        """Queue what ``sub`` holds for its followers in ``queues``: its newest sample (one
+        key), or the newest per key in it (a beacon tile)."""
+        if not sub.wildcard:
+            self._drain_key(key, sub, queues)
+            return
+        latest: dict[str, bytes] = {}
+        coalesced = 0
+        while (sample := sub.source.try_recv()) is not None:
+            skey = str(sample.key_expr)
+            coalesced += skey in latest
+            latest[skey] = sample.payload.to_bytes()
+        if not latest:
+            return
+        malformed = 0
+        items = []
+        for skey, payload in latest.items():
+            if (rid := self._key_id(skey)) is None:
+                malformed += 1
+            else:
+                items.append(((key, rid), (sub.kind, rid, payload)))
+        for bid in sub.followers:
+            brain = self.brains[bid]
+            pending = queues[bid]
+            for slot, item in items:
+                brain.counters.coalesced += slot in pending
+                pending[slot] = item
+            brain.counters.coalesced += coalesced
+            for _ in range(malformed):
+                brain.drops.drop("wrong_id", "a beacon on a malformed key")
+
+    def _drain_key(self, key: str, sub: _Subscription, queues: _Queues) -> None:
         last = None
         coalesced = 0
         while (sample := sub.source.try_recv()) is not None:
@@ -248,7 +270,7 @@ class Pack:
         slot = (key, sub.key_id)
         item = (sub.kind, sub.key_id, last.payload.to_bytes())
         for bid in sub.followers:
-            pending = self._pending[bid]
+            pending = queues[bid]
             self.brains[bid].counters.coalesced += coalesced + (slot in pending)
             pending[slot] = item
 
@@ -267,7 +289,7 @@ class Pack:
         pose included, then the token changes (after the data: a last message from a
         process that has just died must not revive it)."""
         key = self._own_pose[bid]
-        self._drain_key(key, self._subs[key])
+        self._drain_key(key, self._subs[key], self._pending)
         brain = self.brains[bid]
         pending = self._pending[bid]
         items = [pending[slot] for slot in sorted(pending, key=_slot_order(pending))]
@@ -306,7 +328,12 @@ class Pack:
     # --- the tick ------------------------------------------------------------------------
 
     def tick(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
-        """One control period of the whole process; the number of brains that stepped.
+        """One control period of the whole process: :meth:`drain`, then :meth:`step`."""
+        self.drain()
+        return self.step(clock, wall, deadline)
+
+    def step(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
+        """Each brain's turn of one period, in order; the number of brains that stepped.
 
         ``clock``: the ticker's (monotonic, mission-scaled) clock, read for each brain when
         its turn comes (the last of a large batch dead-reckons its neighbours to its own
@@ -315,13 +342,12 @@ class Pack:
         docstring); the next tick starts with the first that held, or one brain later
         when all stepped, so no robot is always last.
         """
-        self.drain()
         stepped = 0
         for bid in self.order:
             brain = self.brains[bid]
             now = clock()
             if now > deadline:
-                self._hold(brain, now, wall())
+                self._hold(brain, wall())
                 continue
             self._held.discard(bid)
             self.receive(bid, now, wall())
@@ -336,7 +362,7 @@ class Pack:
         self.order = self.order[shift:] + self.order[:shift]
         return stepped
 
-    def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
+    def _hold(self, brain: AgentBrain, wall: float) -> None:
         """Brain's period is over before its turn: stop its robot (once) rather than step
         late on inputs a period old."""
         if not brain.running:
