@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -289,6 +290,149 @@ def run_bench(
                 }
             )
     return rows
+
+
+# --- brain-tick: the end-to-end cost of one brain's control period in a packed process ---
+
+BRAIN_TICK_SIZES = (1, 50, 200, 500)  # brains per process
+BRAIN_TICK_TEAM = 500  # robots in the team the packs share (near-CVT, paper's density)
+BRAIN_TICK_WARM = 8  # control periods before timing (subscriptions and neighbourhoods settle)
+BRAIN_TICK_ROUNDS = 4  # control periods timed
+
+
+def brain_tick_domain(layout: Layout, t: float, seq: int) -> bytes:
+    """The coordinator's Domain at mission time ``t`` as on the wire: the layout's square,
+    running, moving at 2 cm/s, tile size 2.5 spacings (as the coordinator picks it)."""
+    from covswarm import protocol
+
+    velocity = [0.02, 0.01]
+    return protocol.Domain(
+        seq=seq,
+        stamp=BRAIN_TICK_WALL + t,
+        t=t,
+        state="running",
+        vertices=(layout.polygon + np.array(velocity) * t).tolist(),
+        velocities=[velocity] * len(layout.polygon),
+        kappa=1.0,
+        tile_size=2.5 * SPACING,
+    ).encode()
+
+
+BRAIN_TICK_WALL = 1.7e9  # s since the epoch at mission time 0 (a fixed, synthetic clock)
+
+
+def time_brain_ticks(
+    per_process: int,
+    layout: Layout,
+    warm: int = BRAIN_TICK_WARM,
+    rounds: int = BRAIN_TICK_ROUNDS,
+    rate: float = LIVE_RATE,
+) -> dict[str, float]:
+    """Amortised cost of one brain-tick in packed processes of ``per_process`` brains.
+
+    The whole team of ``layout`` runs sans-IO: its brains in packs of ``per_process``
+    (covswarm.agent.pack.Pack) over one in-memory bus (LocalBus), its robots as poses
+    re-published at their layout positions every period, the coordinator as a Domain every
+    period, all encoded as on the wire. What is timed is each pack's whole tick: draining
+    its subscriptions, handing payloads to the brains that follow them, decoding and
+    validating (shared per process), each brain's bookkeeping, local step, safety filter,
+    wheel speeds, AgentState (with relay) and beacons, encoding the command and the state,
+    and the in-memory put that stands in for Zenoh's. Not timed: Zenoh itself (a put costs
+    ~30 us of CPU in a live process), the robots, the coordinator. Returns wall and CPU
+    (process_time) microseconds per brain-tick, the mean of ``rounds`` periods, and the
+    messages each brain received per tick.
+    """
+    from covswarm import protocol
+    from covswarm.agent.brain import AgentBrain, AgentConfig
+    from covswarm.agent.decoding import MessageDecoder
+    from covswarm.agent.pack import LocalBus, Pack
+
+    swarm = "bench"
+    n = len(layout.positions)
+    bus = LocalBus()
+    config = AgentConfig()
+    packs = []
+    for first in range(0, n, per_process):
+        decoder = MessageDecoder()
+        ids = range(first, min(first + per_process, n))
+        packs.append(Pack(bus, swarm, [AgentBrain(i, config, decoder) for i in ids]))
+    poses = [
+        (protocol.pose_key(swarm, i), float(x), float(y))
+        for i, (x, y) in enumerate(layout.positions)
+    ]
+    period = 1.0 / rate
+    wall_s = cpu_s = 0.0
+    received = 0
+    for k in range(warm + rounds):
+        t = k * period
+        bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, k + 1))
+        for rid, (key, x, y) in enumerate(poses):
+            pose = protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=BRAIN_TICK_WALL + t, seq=k)
+            bus.put(key, pose.encode())
+        bus.sent.clear()
+        before = sum(b.counters.received for p in packs for b in p.brains.values())
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        for pack in packs:
+            pack.tick(lambda t=t: t, lambda t=t: BRAIN_TICK_WALL + t, math.inf)
+        if k >= warm:
+            wall_s += time.perf_counter() - wall0
+            cpu_s += time.process_time() - cpu0
+            received += sum(b.counters.received for p in packs for b in p.brains.values()) - before
+    ticks = rounds * n
+    return {
+        "brain_tick_us": wall_s / ticks * 1e6,
+        "brain_tick_cpu_us": cpu_s / ticks * 1e6,
+        "rx_per_brain_tick": received / ticks,
+        "subscriptions_per_brain": sum(p.subscriptions for p in packs) / n,
+    }
+
+
+def run_brain_ticks(
+    sizes: tuple[int, ...], team: int, sample: int | None, progress=None
+) -> list[dict]:
+    """One row per process size: the amortised brain-tick (time_brain_ticks) beside the
+    local step alone (time_local_steps' p50 on the same layout)."""
+    layout = make_layout(team, "cvt", 0)
+    step_us, _ = time_local_steps(layout, sample)
+    rows = []
+    for size in sizes:
+        row = time_brain_ticks(size, layout)
+        rows.append(
+            {
+                "agents": team,
+                "layout": "brain-tick",
+                "agents_per_process": size,
+                **row,
+                "local_step_p50_us": float(np.percentile(step_us, 50)),
+                "local_step_mean_us": float(np.mean(step_us)),
+            }
+        )
+        if progress is not None:
+            progress(size)
+    return rows
+
+
+def brain_tick_table(rows: list[dict]) -> Any:
+    from rich.table import Table
+
+    table = Table(title="covswarm bench --brain-tick: one brain's period, amortised per process")
+    for name in (
+        "team", "brains per process", "brain-tick us (wall)", "brain-tick us (CPU)",
+        "local step p50 us", "local step mean us", "rx per tick", "subscriptions per brain",
+    ):  # fmt: skip
+        table.add_column(name, justify="right")
+    for row in rows:
+        table.add_row(
+            str(row["agents"]),
+            str(row["agents_per_process"]),
+            f"{row['brain_tick_us']:.0f}",
+            f"{row['brain_tick_cpu_us']:.0f}",
+            f"{row['local_step_p50_us']:.0f}",
+            f"{row['local_step_mean_us']:.0f}",
+            f"{row['rx_per_brain_tick']:.1f}",
+            f"{row['subscriptions_per_brain']:.2f}",
+        )
+    return table
 
 
 def live_row(
