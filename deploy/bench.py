@@ -653,6 +653,25 @@ def live_table(rows: list[dict]) -> Any:
     help="Brains per agent process and robots per robot process in the live runs.",
 )
 @click.option(
+    "--brain-tick",
+    is_flag=True,
+    help="Only time the end-to-end brain-tick of packed processes (sans-IO, no router) "
+    "at --brain-tick-sizes brains per process, beside the local step alone.",
+)
+@click.option(
+    "--brain-tick-sizes",
+    default=",".join(map(str, BRAIN_TICK_SIZES)),
+    show_default=True,
+    help="Brains per process for --brain-tick.",
+)
+@click.option(
+    "--brain-tick-team",
+    type=click.IntRange(min=2),
+    default=BRAIN_TICK_TEAM,
+    show_default=True,
+    help="Robots in the team the packs share for --brain-tick.",
+)
+@click.option(
     "--live-time-scale",
     type=click.FloatRange(min=0.0, min_open=True),
     default=1.0,
@@ -671,12 +690,36 @@ def bench_command(
     live_duration: float,
     live_per_process: int,
     live_time_scale: float,
+    brain_tick: bool,
+    brain_tick_sizes: str,
+    brain_tick_team: int,
 ) -> None:
     """Measure per-agent compute vs team size against the centralised baseline (and, with
-    --live, what real distributed runs achieve)."""
+    --live, what real distributed runs achieve; with --brain-tick, only what one brain's
+    control period costs in packed processes)."""
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
+
+    if brain_tick:
+        out = out or Path("runs") / f"bench-brain-tick-{time.strftime('%Y%m%d-%H%M%S')}"
+        try:
+            per_process = tuple(int(s) for s in brain_tick_sizes.split(","))
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--brain-tick-sizes") from exc
+        if not per_process or min(per_process) < 1:
+            raise click.BadParameter("positive sizes", param_hint="--brain-tick-sizes")
+        tick_rows = run_brain_ticks(
+            per_process,
+            brain_tick_team,
+            min(sample, brain_tick_team),
+            progress=lambda size: Console().log(f"{size} brains per process: done"),
+        )
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "bench.json").write_text(json.dumps(tick_rows, indent=2, sort_keys=True) + "\n")
+        Console().print(brain_tick_table(tick_rows))
+        Console().print(f"wrote {out}/bench.json")
+        return
 
     chosen = (
         tuple(int(s) for s in sizes.split(",")) if sizes else (QUICK_SIZES if quick else FULL_SIZES)
