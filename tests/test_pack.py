@@ -4,15 +4,19 @@ in-memory LocalBus."""
 
 from __future__ import annotations
 
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
 from covswarm import protocol
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.pack import LocalBus, Pack
+from covswarm.deploy.bench import bench_command
 from covswarm.tvd.coverage import aggregate_error
 
 SWARM = "t"
@@ -264,3 +268,20 @@ def test_a_starved_process_slows_down_and_stays_together(cost: float) -> None:
         assert errors[-1] < 0.15
     late = sum(b.counters.late for b in world.packs[0].brains.values())
     assert (late > 0) == (cost * n > 0.1)
+
+
+def test_bench_brain_tick_reports_every_process_size(tmp_path: Path) -> None:
+    out = tmp_path / "bt"
+    argv = ["--brain-tick", "--brain-tick-sizes", "1,15", "--brain-tick-team", "30"]
+    result = CliRunner().invoke(bench_command, [*argv, "--sample", "5", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    alone, packed = json.loads((out / "bench.json").read_text())
+    assert (alone["agents_per_process"], packed["agents_per_process"]) == (1, 15)
+    for row in (alone, packed):
+        assert row["layout"] == "brain-tick" and row["agents"] == 30
+        assert 10.0 < row["brain_tick_cpu_us"] < 1e6 and 10.0 < row["local_step_p50_us"] < 1e6
+        assert row["rx_per_brain_tick"] >= 2.0  # at least its pose and the domain
+    # A process of 15 brains subscribes once per key: fewer subscriptions per brain.
+    assert packed["subscriptions_per_brain"] < alone["subscriptions_per_brain"] / 2
+    bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-sizes", "0"])
+    assert bad.exit_code != 0 and "positive sizes" in bad.output
