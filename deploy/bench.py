@@ -296,8 +296,9 @@ def run_bench(
 
 BRAIN_TICK_SIZES = (1, 50, 200, 500)  # brains per process
 BRAIN_TICK_TEAM = 500  # robots in the team the packs share (near-CVT, paper's density)
-BRAIN_TICK_WARM = 8  # control periods before timing (subscriptions and neighbourhoods settle)
-BRAIN_TICK_ROUNDS = 4  # control periods timed
+BRAIN_TICK_WARM = 25  # periods before timing: the first beacons found every neighbour, and
+# the local sets shrank from the beacons' whole tiles to the two-hop sets (~16 robots)
+BRAIN_TICK_ROUNDS = 6  # control periods timed
 
 
 def brain_tick_domain(layout: Layout, t: float, seq: int) -> bytes:
