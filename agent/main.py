@@ -100,6 +100,11 @@ from covswarm.tvd.drive import KHEPERA_IV, DiffDrive
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
 log = logging.getLogger("covswarm.agent")
+# A late brain's robot runs on its last command for at most this many control periods
+# before the brain stops it (covswarm.agent.pack): a brain stepping every other period of
+# an overloaded process keeps its robot moving, one that cannot step for longer stops it
+# before the robot's own command timeout (0.5 s) would, at 10 Hz.
+HOLD_AFTER_PERIODS = 3.0
 
 
 def run_agents(
@@ -137,7 +142,7 @@ def run_agents(
         try:
             for brain in brains:
                 claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
-            pack = Pack(ZenohBus(session), swarm, brains)
+            pack = Pack(ZenohBus(session), swarm, brains, hold_after=HOLD_AFTER_PERIODS / rate)
             while not stop.is_set():
                 ticker.wait(stop)
                 pack.tick(ticker.now, wall_clock, ticker.deadline)

@@ -11,11 +11,14 @@ it follows itself, newest payload per key, in a canonical order (kind, id, key):
 would receive in a process of its own (tests/test_pack.py).
 
 Overload (issue 24, item 4): a brain whose turn comes after the end of the period it was
-to step for does not step on that period's inputs as if they were fresh; it commands
-(0, 0) once (:meth:`AgentBrain.hold`: the robot stops rather than overshoot on its last
-command) and waits for the next tick, which starts with it. A process that cannot hold K
-steps per period thus steps its brains in turn at the rate it can hold, and each brain's
-``rate_hz`` and ``late_held`` stats say so.
+to step for does not step on that period's inputs as if they were fresh: it skips the
+period, and the next tick starts with it. Its robot runs on the command of its last step
+(as at a lower rate: the gain is sampled for the period actually held,
+covswarm.agent.brain.sampled_gain) until that step is ``hold_after`` s old (three periods in
+``covswarm agent``); then the brain commands (0, 0) once (:meth:`AgentBrain.hold`: the
+robot stops rather than overshoot). A process that cannot hold K steps per period thus
+steps its brains in turn at the rate it can hold, and each brain's ``rate_hz`` and
+``late_held`` (the fraction of the mission's periods skipped) stats say so.
 
 The bus (:class:`Bus`) is Zenoh in a live process (:class:`covswarm.agent.link.ZenohBus`)
 and :class:`LocalBus`, an in-memory router, in tests and ``covswarm bench --brain-tick``.
@@ -111,9 +114,15 @@ class Pack:
     overload rule of the module docstring.
     """
 
-    def __init__(self, bus: Bus, swarm: str, brains: list[AgentBrain]) -> None:
+    def __init__(
+        self, bus: Bus, swarm: str, brains: list[AgentBrain], hold_after: float = 0.3
+    ) -> None:
         if len({brain.id for brain in brains}) != len(brains):
             raise ValueError("a packed process cannot host one id twice")
+        if not hold_after > 0.0:
+            raise ValueError(f"hold_after must be positive, got {hold_after!r}")
+        self.hold_after = hold_after
+        self._stepped: dict[int, float] = {}  # brain -> clock of its last turn
         self.bus, self.swarm = bus, swarm
         self.brains = {brain.id: brain for brain in brains}
         self.order = [brain.id for brain in brains]  # stepping order, rotated every tick
@@ -347,9 +356,10 @@ class Pack:
             brain = self.brains[bid]
             now = clock()
             if now > deadline:
-                self._hold(brain, wall())
+                self._hold(brain, now, wall())
                 continue
             self._held.discard(bid)
+            self._stepped[bid] = now
             self.receive(bid, now, wall())
             for action in brain.tick(now, wall()):
                 self.carry_out(bid, action)
@@ -362,15 +372,18 @@ class Pack:
         self.order = self.order[shift:] + self.order[:shift]
         return stepped
 
-    def _hold(self, brain: AgentBrain, wall: float) -> None:
-        """Brain's period is over before its turn: stop its robot (once) rather than step
-        late on inputs a period old."""
+    def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
+        """Brain's period is over before its turn: it skips this period (its robot runs on
+        the command of its last step, as at a lower rate), and once that step is more than
+        ``hold_after`` s old, stops its robot (once) rather than let it run on a command
+        computed from inputs that old."""
         if not brain.running:
             return  # before the mission the robots stand still anyway
         brain.counters.late += 1
-        if brain.id not in self._held:
-            self._held.add(brain.id)
-            self.carry_out(brain.id, brain.hold(wall))
+        if brain.id in self._held or now - self._stepped.get(brain.id, now) <= self.hold_after:
+            return
+        self._held.add(brain.id)
+        self.carry_out(brain.id, brain.hold(wall))
 
     def stop(self, wall: float) -> None:
         """Stop every robot at once (rather than after their command timeout)."""

@@ -43,6 +43,7 @@ class World:
         positions: np.ndarray,
         speed: float = 0.05,
         config: AgentConfig | None = None,
+        hold_after: float = 0.3,
     ) -> None:
         self.bus = LocalBus()
         self.positions = positions.astype(float).copy()
@@ -56,9 +57,9 @@ class World:
             brains = [AgentBrain(i, config, decoder, clock=lambda: 0.0) for i in ids]
             for brain in brains:
                 self._record(brain)
-            self.packs.append(Pack(self.bus, SWARM, brains))
+            self.packs.append(Pack(self.bus, SWARM, brains, hold_after))
         self.round = 0
-        self.wheels = np.zeros((len(positions), 2))
+        self.sent_commands: list[protocol.WheelCommand] = []
 
     def _record(self, brain: AgentBrain) -> None:
         log = self.received[brain.id] = []
@@ -151,6 +152,7 @@ class World:
             if key.endswith("/cmd"):
                 command = protocol.WheelCommand.decode(payload)
                 latest[command.id] = command
+        self.sent_commands.extend(latest.values())
         self.bus.sent.clear()
         axle = AgentConfig().robot.wheel_separation
         for rid, command in latest.items():
@@ -230,25 +232,34 @@ def test_a_subscription_lives_while_a_brain_follows_it() -> None:
         Pack(bus, SWARM, [AgentBrain(2), AgentBrain(2)])
 
 
-def test_a_late_brain_holds_its_robot_and_goes_first_next() -> None:
+def test_a_late_brain_skips_its_period_then_holds_its_robot() -> None:
     n = 6
     world = World([list(range(n))], layout(n, 5), speed=0.0)
     world.run(3)  # warm: every brain steps, robots move
     pack = world.packs[0]
     assert all(b.counters.late == 0 for b in pack.brains.values())
     first = list(pack.order)
-    # Each turn costs 0.04 s of a 0.1 s period: two brains step, four hold.
+    # Each turn costs 0.04 s of a 0.1 s period: three brains step, three skip the period,
+    # their robots on the command of their last step 0.1 s ago (no new one, no stop).
     world.run(1, cost=0.04)
-    held = first[3:]
+    late = first[3:]
     assert [pack.brains[b].counters.late for b in first] == [0, 0, 0, 1, 1, 1]
-    assert pack.order[0] == held[0]
-    for bid in held:
-        command = world.commands[bid]
-        assert (command.left, command.right) == (0.0, 0.0)
-        assert pack.brains[bid].velocity == (0.0, 0.0)
-    assert any(world.commands[b].left != 0.0 for b in first[:3])
-    stats = pack.brains[held[0]].stats()
-    assert 0.0 < stats["late_held"] < 1.0
+    assert pack.order[0] == late[0]  # the next tick starts with them
+    assert sorted(world.commands) == sorted(first[:3])
+    # At 0.15 s a turn, one brain steps per period: the others' last steps grow older than
+    # hold_after (0.3 s) and they stop their robots, once per stretch without a step.
+    steps = {bid: pack.brains[bid].counters.steps for bid in first}
+    world.sent_commands.clear()
+    world.run(8, cost=0.15)
+    for bid in first:
+        mine = [c for c in world.sent_commands if c.id == bid]
+        zeros = [c for c in mine if (c.left, c.right) == (0.0, 0.0)]
+        stepped = pack.brains[bid].counters.steps - steps[bid]
+        assert 1 <= len(zeros) <= stepped + 1 and len(mine) == stepped + len(zeros), bid
+    stats = pack.brains[late[0]].stats()
+    assert 0.5 < stats["late_held"] < 1.0
+    with pytest.raises(ValueError, match="hold_after"):
+        Pack(LocalBus(), SWARM, [AgentBrain(9)], hold_after=0.0)
 
 
 @pytest.mark.parametrize("cost", [0.0, 0.01, 0.03, 0.3])
