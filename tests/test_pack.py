@@ -296,3 +296,25 @@ def test_bench_brain_tick_reports_every_process_size(tmp_path: Path) -> None:
     assert packed["subscriptions_per_brain"] < alone["subscriptions_per_brain"] / 2
     bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-sizes", "0"])
     assert bad.exit_code != 0 and "positive sizes" in bad.output
+
+
+def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() -> None:
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1), AgentBrain(2)])
+    pack.follow(0, "beacon", frozenset({(0, 0)}))
+    pack.follow(1, "beacon", frozenset({(0, 0), (1, 0)}))
+    beacon = protocol.Beacon(id=7, x=0.1, y=0.1, stamp=WALL)
+    bus.put(protocol.beacon_key(SWARM, 0, 0, 7), beacon.encode())
+    bus.put(protocol.beacon_key(SWARM, 0, 0, 7), beacon.encode())  # coalesced
+    bus.put(protocol.beacon_tile_selector(SWARM, 0, 0)[:-1] + "x", b"junk")
+    pack.drain()
+    seen: dict[int, list] = {0: [], 1: [], 2: []}
+    for bid, brain in pack.brains.items():
+        brain.receive = lambda kind, payload, now, wall, key_id=None, b=bid: seen[b].append(  # type: ignore[method-assign]
+            (kind, key_id)
+        )
+        pack.receive(bid, 0.0, WALL)
+    assert seen == {0: [("beacon", 7)], 1: [("beacon", 7)], 2: []}
+    for bid, brain in pack.brains.items():
+        assert brain.drops.counts["wrong_id"] == (bid < 2)
+        assert brain.counters.coalesced == (bid < 2)
