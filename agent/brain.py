@@ -456,6 +456,13 @@ class AgentBrain:
         after its command timeout."""
         return SendCommand(self.command(Decision(0.0, 0.0, "stopped"), now_wall))
 
+    def hold(self, now_wall: float) -> SendCommand:
+        """A zero command for a control period this brain could not step in time (an
+        overloaded process, covswarm.agent.pack): its robot stops rather than run on the
+        last command, computed from inputs that are now a period old."""
+        self.velocity = (0.0, 0.0)
+        return SendCommand(self.command(Decision(0.0, 0.0, "late"), now_wall))
+
     # --- control -------------------------------------------------------------------------
 
     def step(self, now: float, now_wall: float) -> Decision:
@@ -695,6 +702,8 @@ class AgentBrain:
             "wheel_max": round(self.wheel_max, 4),
             "saturated_s": round(self.saturated_s, 3),
             "missed_deadline": round(c.overruns / c.mission_steps, 4) if c.mission_steps else 0.0,
+            # fraction of the mission's periods held instead of stepped (Counters.late)
+            "late_held": round(c.late / (c.late + c.mission_steps), 4) if c.late else 0.0,
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},

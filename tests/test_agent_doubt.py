@@ -249,35 +249,22 @@ def test_a_beacon_only_robot_never_asked_for_stays_a_candidate() -> None:
     assert brain.neighborhood.unconfirmed_total == 0
 
 
-class _Sample:
-    """A Zenoh sample on the domain key, as an Inbox reads it."""
-
-    def __init__(self, payload: bytes) -> None:
-        self.key_expr, self.payload, self._payload = "domain", self, payload
-
-    def to_bytes(self) -> bytes:
-        return self._payload
-
-
 def test_a_forger_right_after_each_broadcast_does_not_hide_it() -> None:
-    # The domain's inbox delivers every queued sample in order (link.Inbox every=True):
-    # newest-only, the forgery put after each real broadcast was all an agent ever saw.
-    from covswarm.agent import link
+    # A packed process hands its brains every queued domain sample in order (Pack's
+    # DOMAIN_RING): newest-only, the forgery put after each real broadcast was all an agent
+    # ever saw.
+    from covswarm.agent.pack import DOMAIN_RING, LocalBus, Pack
 
-    samples = []
+    bus = LocalBus()
+    brain = brain_at(1.0, 1.0, workspace=WORKSPACE)
+    pack = Pack(bus, protocol.new_swarm_name(), [brain])
     for seq in (10, 11):
         for vertices, number in ((SQUARE, seq), (OUTSIDE, 2**62)):
-            samples.append(_Sample(domain(vertices, number).encode()))
-
-    class Ring:
-        def try_recv(self) -> _Sample | None:
-            return samples.pop(0) if samples else None
-
-    inbox = link.Inbox()
-    inbox.add("domain", Ring(), every=True)
-    items, coalesced, _ = inbox.drain()
-    assert coalesced == 0 and len(items) == 4
-    brain = brain_at(1.0, 1.0, workspace=WORKSPACE)
-    accepted = [brain.receive(kind, payload, 0.0, WALL) for kind, _, payload in items]
-    assert accepted == [True, False, True, False] and brain.domain.seq == 11
-    assert link.DOMAIN_RING >= 4
+            bus.put(protocol.domain_key(pack.swarm), domain(vertices, number).encode())
+    pack.drain()
+    pack.receive(0, 0.0, WALL)
+    assert brain.domain is not None and brain.domain.seq == 11
+    refused = brain.drops.counts["domain_seq_jump"] + brain.drops.counts["domain_outside_workspace"]
+    assert refused == 2, brain.drops.counts
+    assert brain.counters.coalesced == 0
+    assert DOMAIN_RING >= 4

@@ -16,7 +16,7 @@ from live_runs import Latest, open_router
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
-from covswarm.agent import link, neighborhood
+from covswarm.agent import neighborhood
 from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_domain
@@ -430,48 +430,6 @@ def test_beacon_period_and_agent_state() -> None:
     slim = brain.agent_state(WALL, stats=False)
     assert slim.stats is None and len(slim.encode()) < len(state.encode()) / 4
     assert protocol.AgentState.decode(slim.encode()) == slim
-
-
-class _Sample:
-    def __init__(self, key: str, payload: bytes) -> None:
-        self.key_expr = key
-        self.payload = self
-        self._payload = payload
-
-    def to_bytes(self) -> bytes:
-        return self._payload
-
-
-class _Ring:
-    """Stands in for a ring-channel subscriber: try_recv pops the oldest sample."""
-
-    def __init__(self, *samples: _Sample) -> None:
-        self.samples = list(samples)
-
-    def try_recv(self) -> _Sample | None:
-        return self.samples.pop(0) if self.samples else None
-
-
-def test_inbox_keeps_newest_per_key() -> None:
-    ids = {"t/7": 7, "t/8": 8}
-
-    def parse(key: str, kind: str) -> int:
-        if key not in ids:
-            raise ValueError(key)
-        return ids[key]
-
-    inbox = link.Inbox(parse)
-    inbox.add("pose", _Ring(_Sample("p/3", b"1"), _Sample("p/3", b"2")), key_id=3)
-    tile = _Ring(_Sample("t/7", b"3"), _Sample("t/8", b"4"), _Sample("t/7", b"5"))
-    inbox.add("beacon", tile, wildcard=True)
-    tile.samples.append(_Sample("t/bad", b"6"))
-    removed = _Ring(_Sample("c", b"4"))
-    inbox.add("state", removed, key_id=4)
-    inbox.remove(removed)
-    items, coalesced, malformed = inbox.drain()
-    assert sorted(items) == [("beacon", 7, b"5"), ("beacon", 8, b"4"), ("pose", 3, b"2")]
-    assert (coalesced, malformed) == (2, 1)
-    assert inbox.drain() == ([], 0, 0)
 
 
 def test_brains_of_a_process_share_decoding() -> None:

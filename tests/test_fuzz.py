@@ -152,7 +152,7 @@ KINDS = ("pose", "state", "beacon", "domain")
 
 @st.composite
 def inputs(draw: st.DrawFn) -> tuple[str, bytes, int | None]:
-    """(kind, payload, id in the key) as AgentLink hands them to AgentBrain.receive."""
+    """(kind, payload, id in the key) as a Pack hands them to AgentBrain.receive."""
     kind = draw(st.sampled_from(KINDS))
     source = draw(st.sampled_from(["map", "map", "map", "bytes", "big"]))
     if source == "bytes":
