@@ -31,6 +31,8 @@ def scenario_file(tmp_path: Path, vertices: int, kappa: float) -> Path:
     return path
 
 
+# e2e: were the check to let the scenario through, `covswarm run` would start its router.
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     ("vertices", "kappa", "why"), [(100, 2.0, "vertices"), (8, 2000.0, "kappa")]
 )
