@@ -4,7 +4,9 @@ Fixed-step over the whole team: at each step the domain S(t) comes from the scen
 centralised (TVD-C), one-hop (TVD-D1) or domain-motion feedforward (TVD-DA, the default) law
 gives every robot's velocity, and robots move as single integrators or as Khepera IV
 unicycles (wheel mapping + exact arc integration). Every guard and fallback the law takes is
-counted (``SimResult.guarded``, ``fallbacks``) and reported in summary.json.
+counted (``SimResult.guarded``, ``fallbacks``) and reported in summary.json. Obstacles and
+the workspace walls are solid: a robot driving into one stops at the contact
+(covswarm.world.contact), counted in ``SimResult.contact_stops``.
 Same seed, same options -> byte-identical summary.json and error.csv.
 """
 
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -44,6 +46,7 @@ class SimResult:
     wheels: np.ndarray | None = None  # (T, n, 2) rim speeds commanded (unicycle), NaN at the end
     safety_active: int = 0  # robot-steps on which the safety filter changed the velocity
     safety_relaxed: int = 0  # robot-steps on which it could not hold every pair (boxed in)
+    contact_stops: int = 0  # robot-steps on which an obstacle or wall stopped a robot
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -74,7 +77,10 @@ def simulate(
     paper's exact TVD-C with its fallback to TVD-D1. safety: filter every robot's velocity
     as the agents do (covswarm.tvd.safety, against the robots within the agents'
     SAFETY_RADIUS, reciprocal split with the centres' last velocities, the scenario's
-    robot diameter), before the wheel mapping.
+    robot diameter), before the wheel mapping, with rows for the obstacles and walls within
+    that radius too. Obstacles and walls are solid for every robot, filtered or not
+    (covswarm.world.contact.stop_at_contacts on each step's move, the chord of a unicycle's
+    arc); a run that never touches one is exactly what it was without them.
     """
     from covswarm.agent.brain import SAFETY_RADIUS
     from covswarm.tvd import control
@@ -86,7 +92,9 @@ def simulate(
         barrier_gain,
         body_safe_distance,
         team_safe_velocities,
+        wall_distance,
     )
+    from covswarm.world.contact import stop_at_contacts
 
     n = scenario.agents if agents is None else agents
     kappa = scenario.kappa if kappa is None else kappa
@@ -117,7 +125,13 @@ def simulate(
     trajectories = np.empty((steps + 1, n, 2))
     heading_log = np.empty((steps + 1, n))
     polygons: list[np.ndarray] = []
-    guarded = fallbacks = safety_active = safety_relaxed = 0
+    guarded = fallbacks = safety_active = safety_relaxed = contact_stops = 0
+    world = scenario.world
+    walls = {
+        "nearby_obstacles": world.nearby,
+        "workspace": world.workspace,
+        "obstacle_distance": wall_distance(scenario.robot_diameter),
+    }
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
     safe_distance = body_safe_distance(scenario.robot_diameter)
     wheel_log = np.full((steps + 1, n, 2), np.nan) if dynamics == "unicycle" else None
@@ -143,10 +157,11 @@ def simulate(
             velocity, active, relaxed = team_safe_velocities(
                 positions, velocity, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
                 SAFETY_RADIUS, headings=None if dynamics == "single" else headings,
-                velocities=centre_velocity,
+                velocities=centre_velocity, **walls,
             )  # fmt: skip
             safety_active += int(np.count_nonzero(active))
             safety_relaxed += int(np.count_nonzero(relaxed))
+        start = positions
         if dynamics == "single":
             positions = positions + dt * velocity
             centre_velocity = velocity
@@ -161,11 +176,14 @@ def simulate(
                 )
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)
             positions, headings = poses[:, :2], poses[:, 2]
+        # A robot stopped by a wall still turns (a disk turning in place moves nothing).
+        positions, hit = stop_at_contacts(start, positions, 0.5 * scenario.robot_diameter, world)
+        contact_stops += int(np.count_nonzero(hit))
         if progress is not None:
             progress(k + 1, steps)
     return SimResult(
         t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log,
-        safety_active, safety_relaxed,
+        safety_active, safety_relaxed, contact_stops,
     )  # fmt: skip
 
 
@@ -198,14 +216,20 @@ def build_summary(
     prior: str = "affine",
     safety: bool = False,
     projection_distance: float | None = None,
+    goals: Sequence[Sequence[float]] = (),
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
-    every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s."""
+    every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
+
+    goals: [(x, y), ...] m, the places S's centroid should visit in order
+    (covswarm.mission.world_metrics: ``goals``, ``goals_reached``).
+    """
     # Deferred: coordinator.outputs pulls in matplotlib (mission.report), which simulate()
     # alone (covswarm bench, the tests) never needs.
     from covswarm.coordinator.outputs import mission_summary
     from covswarm.coordinator.physical import wheel_figures
     from covswarm.mission.report import steady_state_mean
+    from covswarm.mission.world_metrics import world_summary
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV
 
     n = int(result.positions.shape[0])
@@ -243,6 +267,16 @@ def build_summary(
             ),
             "steps": int(result.t.size - 1),
             "guards": guard_counts(result),
+            # Every step, not only the recorded ones: a touch between two frames still counts.
+            **world_summary(
+                result.t,
+                result.trajectories,
+                result.polygons,
+                0.5 * scenario.robot_diameter,
+                scenario.world,
+                goals,
+            ),
+            "contact_stops": result.contact_stops,
             "safety": {
                 "on": safety,
                 "active_robot_steps": result.safety_active,
@@ -277,6 +311,19 @@ def physical_line(summary: dict[str, Any]) -> str:
             f" saturated {summary['saturated_time']:.1f} robot-s"
             f" ({summary['saturated_fraction']:.1%} of commands)"
         )
+    return line
+
+
+def world_line(summary: dict[str, Any]) -> str:
+    """The arena figures of summary.json (mission.world_metrics) on one console line."""
+    clearance = summary.get("min_obstacle_clearance")
+    line = (
+        f"{summary['obstacle_contacts']} obstacle contacts; closest to a wall "
+        + ("-" if clearance is None else f"{clearance:.3f} m")
+        + f"; S over obstacles up to {summary['domain_obstacle_overlap']:.4f} m^2"
+    )
+    if summary.get("goals"):
+        line += f"; goals reached {summary['goals_reached']} of {summary['goals']}"
     return line
 
 
@@ -371,6 +418,7 @@ def sim_command(
     )
 
     from covswarm.mission.report import write_outputs
+    from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
 
     if compare and no_feedforward:
@@ -417,6 +465,7 @@ def sim_command(
 
     summary = build_summary(
         scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
+        goals=scenario.goals,
         **{k: v for k, v in options.items() if k != "agents"},
     )  # fmt: skip
     if (crowd := Crowding.from_dict(summary["crowding"])).crowded:
@@ -435,13 +484,18 @@ def sim_command(
         workspace=scenario.workspace,
         density=scenario.density(results[0].t[-1]),
     )
-    record_simulation(
+    stride = record_simulation(
         out_dir, t=results[0].t, error=results[0].error, trajectories=results[0].trajectories,
         headings=results[0].headings, polygons=results[0].polygons, dt=options["dt"],
         run_metadata={"source": "sim", "scenario": scenario.name, "feedforward": runs[0],
                       **options},
         workspace=scenario.workspace, obstacles=scenario.obstacles,
     )  # fmt: skip
+    # S at the instants of trajectories.csv, to check it against the map with other tools.
+    recorded = range(0, len(results[0].t), stride)
+    write_domain_csv(
+        out_dir / DOMAIN_FILE, results[0].t[recorded], [results[0].polygons[k] for k in recorded]
+    )
     console.print(f"steady-state mean e_a: {summary['steady_state_error_mean']:.4g} m", end="")
     if compare:
         console.print(
@@ -453,7 +507,8 @@ def sim_command(
         f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s (CPU {cpu:.1f} s)"
     )
     console.print(physical_line(summary))
+    console.print(world_line(summary))
     console.print(
         f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png, run.mcap, "
-        "trajectories.csv)"
+        "trajectories.csv, domain.csv)"
     )

@@ -14,7 +14,8 @@ from the last valid command and stops its wheels when no valid command arrived f
 Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
 than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` plus that
 skew) are dropped, counted per reason and logged rate-limited (protocol.inbound); they
-never reach the wheels.
+never reach the wheels. Given a world (``RobotSim(world=...)``), its obstacles and workspace
+walls are solid: a robot driving into one stops at the contact (covswarm.world.contact).
 
 ``covswarm robot --ids 0-9 --pose x,y,theta ...`` simulates several robots in one process
 (one Zenoh session; each robot keeps its own keys, claim and token), which is how one
@@ -45,6 +46,8 @@ from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
 from covswarm.sim_robot.config import RobotConfig
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate_one
+from covswarm.world.contact import stop_at_contact
+from covswarm.world.model import World
 
 log = logging.getLogger("covswarm.robot")
 
@@ -58,12 +61,15 @@ class RobotCounters:
 
     commands: int = 0  # valid commands applied
     timeouts: int = 0  # times the wheels were stopped for lack of commands
+    contact_stops: int = 0  # steps on which an obstacle or wall stopped the body
 
 
 class RobotSim:
     """Pure state of one simulated robot: pose, wheels, command timeout. No I/O.
 
-    Times are monotonic seconds supplied by the caller, so tests drive the clock.
+    Times are monotonic seconds supplied by the caller, so tests drive the clock. world: the
+    arena whose obstacles and walls stop the body (a disk of ``robot.body_diameter``), None
+    for an open floor.
     """
 
     def __init__(
@@ -75,6 +81,7 @@ class RobotSim:
         cmd_timeout: float = 0.5,
         max_clock_skew: float = MAX_CLOCK_SKEW,
         now: float = 0.0,
+        world: World | None = None,
     ) -> None:
         if not (cmd_timeout > 0 and np.isfinite(cmd_timeout)):
             raise ValueError(f"cmd_timeout must be positive, got {cmd_timeout!r}")
@@ -85,6 +92,7 @@ class RobotSim:
         self.cmd_timeout = cmd_timeout
         self.max_clock_skew = max_clock_skew
         self.pose = np.array(pose, dtype=float)
+        self.world = world
         self.wheels = np.zeros(2)
         self.counters = RobotCounters()
         self.drops = DropLog(log, f"robot {self.id}", DROP_REASONS)
@@ -117,7 +125,9 @@ class RobotSim:
         """Drive from the previous step to ``now``; returns the new pose (x, y, heading).
 
         The elapsed time is capped at ``cmd_timeout``: after a stall (an overloaded machine,
-        SIGSTOP) the robot must not jump by what it would have driven meanwhile.
+        SIGSTOP) the robot must not jump by what it would have driven meanwhile. In a world,
+        the move (the chord of the arc) stops at the first contact with an obstacle or wall;
+        the heading turns all the same (a disk turning in place moves nothing).
         """
         commanded = self._last_command is not None and now - self._last_command <= self.cmd_timeout
         if not commanded and self.wheels.any():
@@ -126,9 +136,14 @@ class RobotSim:
         dt = min(max(now - self._last_step, 0.0), self.cmd_timeout)
         self._last_step = now
         if dt > 0.0:
-            self.pose = np.array(
+            pose = np.array(
                 integrate_one(*self.pose.tolist(), *self.wheels.tolist(), dt, self.robot)
             )
+            if self.world is not None:
+                radius = 0.5 * self.robot.body_diameter
+                pose[:2], hit = stop_at_contact(self.pose[:2], pose[:2], radius, self.world)
+                self.counters.contact_stops += hit
+            self.pose = pose
         return self.pose
 
     def pose_message(self, stamp: float, seq: int) -> protocol.Pose:

@@ -33,6 +33,19 @@ so dp/dt = e e^T u and a row a . dp/dt <= b is the row (a . e) e^T u <= b on u: 
 the body centre, and every row then limits only the forward speed (turning in place never
 moves the centre), so the QP keeps the turn and clamps the speed to an interval.
 
+Static obstacles and walls (:func:`obstacle_constraints`): for a convex obstacle O (a polygon)
+the robot keeps h_O(p) = dist(p, O) - r - margin >= 0, r its body radius, with the row
+
+    grad h_O(p) . u >= -gamma h_O(p),   i.e.   -grad h_O . u <= gamma h_O,
+
+the robot taking the whole condition (an obstacle does not move, nobody shares it); each
+wall of the rectangular workspace is a half-plane with h = (distance to the wall) - r -
+margin. grad h_O is the unit vector from O's nearest point to p (the outward edge normal
+inside O: covswarm.tvd.geometry.point_polygon_distance_grad). dist(p, O) is convex in p,
+so h_O(p + s u) >= h_O + s grad h_O . u >= (1 - gamma s) h_O: the sampled guarantee below
+holds for obstacles too, and exactly for walls (h affine). u = 0 meets every obstacle row
+while h_O >= 0, so obstacles never make the QP infeasible for a robot that is clear of them.
+
 Linear class-K function (gamma h, not the Robotarium's gamma h^3) on purpose: with velocities
 held over a sampling period T (zero-order hold, the agents' control period),
 h(t + s) = h + 2 s d.(u_i - u_j) + s^2 |u_i - u_j|^2 >= (1 - gamma s) h, so for gamma T <= 1
@@ -44,9 +57,15 @@ Pure numpy, no I/O. Distances in m, velocities in m/s, gamma in 1/s.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+from covswarm.tvd.geometry import point_polygon_distance_grad
+
+# (xmin, xmax, ymin, ymax) m: a rectangular workspace, the robots' centres inside.
+Box = tuple[float, float, float, float]
 
 # 1/s: the barrier's decay rate. gamma T <= 1 is what keeps the guarantee at a sampling
 # period T (module docstring): this is the largest for the agents' 10 Hz, and an agent
@@ -80,6 +99,12 @@ def body_safe_distance(body_diameter: float, margin: float = DEFAULT_MARGIN) -> 
     """Safe distance between two robots' centres: a body diameter (two radii) plus
     ``margin``, m."""
     return body_diameter + margin
+
+
+def wall_distance(body_diameter: float, margin: float = DEFAULT_MARGIN) -> float:
+    """Distance kept between a robot's centre and an obstacle or wall: a body radius plus
+    ``margin``, m (the same margin as between two robots)."""
+    return 0.5 * body_diameter + margin
 
 
 def barrier_gain(gamma: float, period: float) -> float:
@@ -119,6 +144,43 @@ def pair_constraints(
         share = np.maximum(b, 0.0)
         b = b + np.clip(np.einsum("ij,ij->i", A, mean), -share, share)
     return A, b
+
+
+def obstacle_constraints(
+    position: np.ndarray,
+    obstacles: Sequence[np.ndarray],
+    workspace: Box | None,
+    distance: float,
+    gamma: float,
+    reach: float = np.inf,
+) -> tuple[np.ndarray, np.ndarray]:
+    """This robot's barrier rows for static obstacles and walls: (A (m, 2), b (m,)), A u <= b.
+
+    position: (2,) m, the robot's centre; obstacles: convex polygons (k, 2) m, CCW;
+    workspace: the walls (xmin, xmax, ymin, ymax) m, or None; distance: m kept between the
+    centre and an obstacle (:func:`wall_distance`); reach: m, obstacles and walls farther
+    than this from the centre get no row. Per obstacle or wall, h = dist - ``distance`` and
+    the row -grad h . u <= gamma h (module docstring), the whole condition.
+    """
+    p = np.asarray(position, dtype=float).reshape(2)
+    rows: list[np.ndarray] = []
+    bounds: list[float] = []
+    for polygon in obstacles:
+        signed, grad = point_polygon_distance_grad(p, polygon)
+        if signed <= reach:
+            rows.append(-grad)
+            bounds.append(gamma * (signed - distance))
+    if workspace is not None:
+        xmin, xmax, ymin, ymax = (float(v) for v in workspace)
+        if not (xmin < xmax and ymin < ymax):
+            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax), got {workspace!r}")
+        # Inward normals of the left, right, bottom and top walls, and each wall's distance.
+        inward = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        gaps = np.array([p[0] - xmin, xmax - p[0], p[1] - ymin, ymax - p[1]])
+        near = gaps <= reach
+        rows.extend(-inward[near])
+        bounds.extend(gamma * (gaps[near] - distance))
+    return np.array(rows, dtype=float).reshape(-1, 2), np.array(bounds, dtype=float)
 
 
 def unicycle_rows(A: np.ndarray, heading: float) -> np.ndarray:
@@ -185,6 +247,10 @@ def safe_velocity(
     heading: float | None = None,
     velocity: np.ndarray | None = None,
     neighbor_velocities: np.ndarray | None = None,
+    obstacles: Sequence[np.ndarray] = (),
+    workspace: Box | None = None,
+    obstacle_distance: float | None = None,
+    reach: float = np.inf,
 ) -> FilterResult:
     """The velocity closest to ``nominal`` that keeps this robot's half of every pair safe.
 
@@ -194,14 +260,22 @@ def safe_velocity(
     heading: rad, for a differential-drive robot whose steered point moves with ``nominal``
     (:func:`unicycle_rows`; None: a single integrator). velocity, neighbor_velocities: the
     current centre velocities for the reciprocal split (:func:`pair_constraints`).
+    obstacles (convex polygons (k, 2) m), workspace (walls (xmin, xmax, ymin, ymax) m): one
+    row each within ``reach`` m (:func:`obstacle_constraints`), keeping the centre
+    ``obstacle_distance`` m from them (:func:`wall_distance`; required with either). With
+    neither, the rows and the result are exactly those of the robots alone.
     Non-finite neighbours are ignored; a non-finite position, heading or nominal velocity
     gives 0. When the rows cannot all hold (``relaxed``: a pair already inside the safe
     distance, boxed in), every bound is raised to max(gamma h / 2, 0), which the zero
     velocity meets: the robot closes on no one that way, but the pair's guarantee is gone
-    until it is apart again. Callers count these.
+    until it is apart again; an obstacle's or wall's bound is raised to max(gamma h, 0)
+    likewise. Callers count these.
     """
     if safe_distance < 0.0 or gamma <= 0.0:
         raise ValueError(f"need safe_distance >= 0 and gamma > 0, got {safe_distance}, {gamma}")
+    walled = len(obstacles) > 0 or workspace is not None
+    if walled and not (obstacle_distance is not None and obstacle_distance >= 0.0):
+        raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
     position = np.asarray(position, dtype=float).reshape(2)
     nominal = np.asarray(nominal, dtype=float).reshape(2)
     finite = np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))
@@ -218,6 +292,15 @@ def safe_velocity(
     A, b = pair_constraints(
         position, neighbors[keep], safe_distance, gamma, velocity, neighbor_velocities
     )
+    offset = position - neighbors[keep]
+    h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
+    relaxed = np.maximum(0.5 * gamma * h, 0.0)
+    if walled:
+        A_o, b_o = obstacle_constraints(
+            position, obstacles, workspace, float(obstacle_distance), gamma, reach
+        )
+        A, b = np.concatenate([A, A_o]), np.concatenate([b, b_o])
+        relaxed = np.concatenate([relaxed, np.maximum(b_o, 0.0)])
     if heading is not None:
         A = unicycle_rows(A, heading)
     try:
@@ -225,9 +308,7 @@ def safe_velocity(
         return FilterResult(velocity, active, False)
     except ValueError:
         pass
-    offset = position - neighbors[keep]
-    h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
-    velocity, active = closest_feasible(nominal, A, np.maximum(0.5 * gamma * h, 0.0))
+    velocity, active = closest_feasible(nominal, A, relaxed)
     return FilterResult(velocity, active, True)
 
 
@@ -240,14 +321,20 @@ def team_safe_velocities(
     *,
     headings: np.ndarray | None = None,
     velocities: np.ndarray | None = None,
+    nearby_obstacles: Callable[[np.ndarray, float], Sequence[np.ndarray]] | None = None,
+    workspace: Box | None = None,
+    obstacle_distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every robot's :func:`safe_velocity` against the others within ``radius`` m, as each
     agent filters its own (the in-process simulator's team at once).
 
     positions: (n, 2) m; nominal: (n, 2) m/s; headings: (n,) rad for differential-drive
     robots (None: single integrators); velocities: (n, 2) m/s, the centres' current ones for
-    the reciprocal split (None: the Robotarium's). Returns (velocities (n, 2), active (n,)
-    rows tight per robot, relaxed (n,) bool).
+    the reciprocal split (None: the Robotarium's). nearby_obstacles(point (2,), radius): the
+    obstacles (convex polygons) within radius m of a point, say
+    covswarm.world.model.World.nearby; workspace, obstacle_distance: as in
+    :func:`safe_velocity`; each robot gets rows for those within ``radius``. Returns
+    (velocities (n, 2), active (n,) rows tight per robot, relaxed (n,) bool).
     """
     from scipy.spatial import cKDTree
 
@@ -268,6 +355,10 @@ def team_safe_velocities(
             heading=None if headings is None else float(headings[i]),
             velocity=None if velocities is None else velocities[i],
             neighbor_velocities=None if velocities is None else velocities[others],
+            obstacles=() if nearby_obstacles is None else nearby_obstacles(positions[i], radius),
+            workspace=workspace,
+            obstacle_distance=obstacle_distance,
+            reach=radius,
         )
         out[i], active[i], relaxed[i] = result.velocity, result.active, result.relaxed
     return out, active, relaxed
