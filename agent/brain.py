@@ -59,6 +59,8 @@ DROP_REASONS = (
     "wrong_id",  # key and message disagree about the robot id, or a malformed key
     "bad_domain",  # valid message, invalid polygon (non-convex, self-intersecting, ...)
     "old_domain",  # older than the domain already held (by sequence number)
+    "domain_outside_workspace",  # a vertex outside the workspace the agent knows
+    "domain_seq_jump",  # sequence number implausibly far ahead of the held domain's
 )
 # Largest fraction of the gap to the centroid one control period may close (sampled_gain).
 MAX_STEP_FRACTION = 0.8
@@ -76,6 +78,16 @@ MAX_PREDICTION = 1.0
 # unless the held one's coordinator has been silent this long (10 broadcast periods): then
 # it is a restarted coordinator, whose numbers start again.
 DOMAIN_RESTART_SILENCE = 0.5
+# A domain numbered more than this above the held one, while the held one's coordinator
+# still talks (within DOMAIN_RESTART_SILENCE), is refused: the coordinator numbers its
+# broadcasts one by one at 20 Hz, so a real one advances by ~10 in that time. Without this
+# bound one forged Domain numbered 2^62 made every later real one "old" for as long as the
+# forger repeated it (issue 21: the team pulled 0.75 m in 8 s). The real coordinator's
+# stream stays followed; a forger must now track the real numbers (open mode cannot stop
+# that: only the access control of --secure does).
+MAX_DOMAIN_SEQ_JUMP = 1000
+# m: a domain vertex this far outside the workspace is still inside (wire rounding).
+WORKSPACE_SLACK = 1e-6
 # m: robots within this distance of ours enter the safety filter (and their AgentStates are
 # followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
 # have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
@@ -84,6 +96,10 @@ DOMAIN_RESTART_SILENCE = 0.5
 # missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
 # about the two-hop set, which the coverage step follows anyway.
 SAFETY_RADIUS = 0.5
+# Unconfirmed beacon-only robots within SAFETY_RADIUS whose AgentStates are followed, the
+# nearest first: more robots than this cannot stand that close around one (hexagonal
+# packing at the safe distance gives 6 per ring), so more are forgeries.
+MAX_UNCONFIRMED_FOLLOWED = 8
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
 # last known position for the safety filter this long after it left the coverage step.
 OBSTACLE_MEMORY = 30.0
@@ -130,6 +146,9 @@ class AgentConfig:
     safety: bool = True
     safety_margin: float = DEFAULT_MARGIN
     safety_gamma: float = DEFAULT_GAMMA
+    # (xmin, xmax, ymin, ymax) m that every domain must lie in (the scenario's workspace;
+    # None: not known, no check). Also settable later: AgentBrain.set_workspace.
+    workspace: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -265,6 +284,35 @@ class AgentBrain:
         self._step_rate = Rate()
         self._rx_rate = Rate()
         self._rates = (0.0, 0.0)
+        self.workspace: tuple[float, float, float, float] | None = None
+        if config.workspace is not None:
+            self.set_workspace(config.workspace)
+
+    def set_workspace(self, box: tuple[float, float, float, float] | None) -> None:
+        """The box (xmin, xmax, ymin, ymax) m every domain must lie in from now on (None:
+        none): from the scenario (AgentConfig.workspace) or a world broadcast. A held
+        domain outside it is dropped too. ValueError for a box that is not finite with
+        xmin < xmax, ymin < ymax."""
+        if box is not None:
+            xmin, xmax, ymin, ymax = (float(v) for v in box)
+            if not (math.isfinite(xmin + xmax + ymin + ymax) and xmin < xmax and ymin < ymax):
+                raise ValueError(f"workspace {box}: need finite xmin < xmax, ymin < ymax")
+            box = (xmin, xmax, ymin, ymax)
+        self.workspace = box
+        if self.domain is not None and not self._inside_workspace(self.domain):
+            self.drops.drop("domain_outside_workspace", "held domain outside the new workspace")
+            self.domain = self.density = None
+
+    def _inside_workspace(self, domain: protocol.Domain) -> bool:
+        """Whether every vertex of ``domain`` lies in the workspace (True if none known)."""
+        if self.workspace is None:
+            return True
+        xmin, xmax, ymin, ymax = self.workspace
+        eps = WORKSPACE_SLACK
+        return all(
+            xmin - eps <= x <= xmax + eps and ymin - eps <= y <= ymax + eps
+            for x, y in domain.vertices
+        )
 
     # --- input -------------------------------------------------------------------------
 
@@ -328,14 +376,21 @@ class AgentBrain:
         """Hold a newer domain: a higher sequence number than the held one (stamps come
         from the coordinator's clock and would drop a restarted coordinator on a host whose
         clock is behind), or any number once the held one's sender has been silent for
-        DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again)."""
+        DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again).
+
+        Doubted: one numbered more than MAX_DOMAIN_SEQ_JUMP above a held one whose sender
+        still talks ("domain_seq_jump"), and one with a vertex outside the workspace
+        ("domain_outside_workspace"), are dropped and counted."""
         held = self.domain
-        if (
-            held is not None
-            and domain.seq <= held.seq
-            and now - self._domain_received < DOMAIN_RESTART_SILENCE
-        ):
-            self.drops.drop("old_domain", f"domain seq {domain.seq} <= {held.seq}")
+        if held is not None and now - self._domain_received < DOMAIN_RESTART_SILENCE:
+            if domain.seq <= held.seq:
+                self.drops.drop("old_domain", f"domain seq {domain.seq} <= {held.seq}")
+                return False
+            if domain.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
+                self.drops.drop("domain_seq_jump", f"domain seq {domain.seq} jumps from {held.seq}")
+                return False
+        if not self._inside_workspace(domain):
+            self.drops.drop("domain_outside_workspace", f"domain {domain.vertices}")
             return False
         try:
             density = self.decoder.domain_geometry(domain)
@@ -395,6 +450,7 @@ class AgentBrain:
         wanted = self.neighbourhood.wanted_state_ids(now)
         if self.config.safety:
             wanted |= self.near_ids()
+        self.neighbourhood.ask(wanted, now)  # robots known from beacons must now confirm
         actions.append(FollowStates(frozenset(wanted)))
         actions.append(FollowTiles(frozenset(self.wanted_tiles())))
         if not self._alive and self.pose is not None:
@@ -530,10 +586,20 @@ class AgentBrain:
 
     def near_ids(self) -> set[int]:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
-        AgentStates whether or not they are Voronoi neighbours)."""
+        AgentStates whether or not they are Voronoi neighbours), and those there known only
+        from beacons and left out for want of confirmation: a real one's AgentState then
+        confirms it (covswarm.agent.neighbourhood.BEACON_CONFIRMATION)."""
         if self.pose is None:
             return set()
-        return set(self._near(self.neighbourhood.reckoned, self.pose.x, self.pose.y))
+        x, y = self.pose.x, self.pose.y
+        distance = {
+            rid: math.hypot(ux - x, uy - y)
+            for rid, (ux, uy) in self.neighbourhood.unconfirmed.items()
+        }
+        # The nearest few only: forged ids must not cost a subscription each.
+        nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
+        unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
+        return set(self._near(self.neighbourhood.reckoned, x, y)) | unconfirmed
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
@@ -570,7 +636,7 @@ class AgentBrain:
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        rows = [(x, y, vx, vy) for x, y, vx, vy in reckoned.values()]
+        rows = list(reckoned.values())
         rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
@@ -640,6 +706,7 @@ class AgentBrain:
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
             "stale_dropped": self.neighbourhood.stale_dropped,
+            "beacon_unconfirmed": self.neighbourhood.unconfirmed_total,
             "step_errors": c.step_errors,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,

@@ -30,6 +30,11 @@ from covswarm.agent.faults import InboxItem, PoseImpairment
 # Samples kept per subscriber between two ticks: only the newest per key is used, but a
 # beacon tile carries one key per robot in it.
 RING_PER_KEY = 4
+# The domain's ring, every sample of which is delivered (Inbox ``every``): a forger that
+# puts right after each real broadcast must not make it vanish by coalescing (issue 21: the
+# agents then never saw a running domain). 16 holds 8 ticks' worth of a 20 Hz coordinator
+# at 10 Hz plus forgeries; only a flood beyond it can push the real ones out.
+DOMAIN_RING = 16
 RING_PER_TILE = 256
 # Token changes kept between two ticks: a ring never blocks Zenoh's threads, and only a
 # whole team starting at once (two tokens per robot) comes near it.
@@ -50,21 +55,28 @@ class Inbox:
     replaced ones are counted as coalesced).
 
     A source subscribed to one key (``wildcard=False``) needs no key handling at all: its
-    newest sample is the key's, and the id in its key is known when subscribing. A
+    newest sample is the key's, and the id in its key is known when subscribing; with
+    ``every``, all its queued samples are delivered in order instead (the domain: which
+    of them to believe is the brain's to judge, not the newest's). A
     wildcard source (a beacon tile) holds many keys, each parsed once with ``parse``.
     """
 
     def __init__(self, parse: Callable[[str, str], int] | None = None) -> None:
-        self._sources: dict[int, tuple[str, RingSource, int | None, bool]] = {}
+        self._sources: dict[int, tuple[str, RingSource, int | None, bool, bool]] = {}
         self._parse = parse
         self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
 
     def add(
-        self, kind: str, source: RingSource, key_id: int | None = None, wildcard: bool = False
+        self,
+        kind: str,
+        source: RingSource,
+        key_id: int | None = None,
+        wildcard: bool = False,
+        every: bool = False,
     ) -> None:
         """Poll ``source`` (anything with ``try_recv() -> Sample | None``) as ``kind``;
         ``key_id``: the id in its one key (None for the domain)."""
-        self._sources[id(source)] = (kind, source, key_id, wildcard)
+        self._sources[id(source)] = (kind, source, key_id, wildcard, every)
 
     def remove(self, source: RingSource) -> None:
         self._sources.pop(id(source), None)
@@ -77,17 +89,22 @@ class Inbox:
         capacity: int,
         key_id: int | None = None,
         wildcard: bool = False,
+        every: bool = False,
     ) -> zenoh.Subscriber:
         """Declare a ring-channel subscriber on ``key`` and poll it as ``kind``."""
         subscriber = session.declare_subscriber(key, zenoh.handlers.RingChannel(capacity))
-        self.add(kind, subscriber, key_id, wildcard)
+        self.add(kind, subscriber, key_id, wildcard, every)
         return subscriber
 
     def drain(self) -> tuple[list[InboxItem], int, int]:
         """([(kind, key id, payload)], payloads coalesced, samples on malformed keys)."""
         out: list[InboxItem] = []
         coalesced = malformed = 0
-        for kind, source, key_id, wildcard in self._sources.values():
+        for kind, source, key_id, wildcard, every in self._sources.values():
+            if every:
+                while (sample := source.try_recv()) is not None:
+                    out.append((kind, key_id, sample.payload.to_bytes()))
+                continue
             if not wildcard:
                 last = None
                 while (sample := source.try_recv()) is not None:
@@ -178,7 +195,7 @@ class AgentLink:
         self.state_pub = session.declare_publisher(
             protocol.agent_state_key(swarm, brain.id), congestion_control=drop
         )
-        self.inbox.subscribe(session, protocol.domain_key(swarm), "domain", RING_PER_KEY)
+        self.inbox.subscribe(session, protocol.domain_key(swarm), "domain", DOMAIN_RING, every=True)
         self.inbox.subscribe(
             session, protocol.pose_key(swarm, brain.id), "pose", RING_PER_KEY, brain.id
         )

@@ -46,7 +46,9 @@ Neighbour discovery
 Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
 logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError
 reasons), a key and message that disagree about the id, a domain that is not a convex
-polygon or is older than the one held, and stamps outside the clock policy of
+polygon, is older than the one held, jumps implausibly far ahead of it
+(``domain_seq_jump``) or leaves ``--workspace`` (``domain_outside_workspace``), and
+stamps outside the clock policy of
 protocol.inbound (more than ``--max-clock-skew`` ahead of this clock, or older than the
 message's timeout plus that skew).
 
@@ -288,6 +290,14 @@ def run_agents(
     show_default=True,
     help="This robot's body diameter, m (the safety filter's disks).",
 )
+@click.option(
+    "--workspace",
+    type=float,
+    nargs=4,
+    default=None,
+    metavar="XMIN XMAX YMIN YMAX",
+    help="The scenario's workspace, m: a domain outside it is refused [no check].",
+)
 @SECURE_OPTION
 @click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
 def agent_command(**options: Any) -> None:
@@ -309,7 +319,10 @@ def run_agent_process(config: AgentProcessConfig) -> None:
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
-    brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]
+    try:
+        brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]
+    except ValueError as exc:  # an empty or non-finite --workspace
+        raise click.BadParameter(str(exc), param_hint="--workspace") from exc
     run_agents(
         brains, config.swarm, zenoh_config, config.rate, config.time_scale, config.tick_phase
     )

@@ -39,6 +39,7 @@ from covswarm.console.model import SwarmView
 from covswarm.console.steer_input import MAX_BODY, BadSteerInput, parse_steer_body
 from covswarm.protocol.inbound import RateLimit
 from covswarm.protocol.security import SECURE_OPTION
+from covswarm.runtime.ratelog import RateLog
 
 log = logging.getLogger("covswarm.console")
 
@@ -135,6 +136,7 @@ class Console:
         self.clients = 0
         self.refused_requests = 0
         self._refusal_log = RateLimit()
+        self._steer_log = RateLog(log)  # refused steering: a flood of POSTs logs a few lines
         self.app = web.Application(middlewares=[self._guard], client_max_size=MAX_BODY)
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/ws", self._stream)
@@ -280,7 +282,9 @@ class Console:
         }
         self.view.on_steering(outcome)
         if not accepted:
-            log.warning("steering refused (%s): %s", outcome["what"], reason)
+            self._steer_log.warning(
+                f"steering {status}", "steering refused (%s): %s", outcome["what"], reason
+            )
         return web.json_response(
             {"accepted": accepted, "reason": reason, "duration": duration}, status=status
         )

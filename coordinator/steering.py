@@ -74,6 +74,7 @@ REFUSALS = (
     "too-small",  # less area per robot than MIN_ROOMS robot rooms
     "too-slow",  # the motion would take longer than protocol.steering.MAX_DURATION
     "not-running",  # before the mission starts or after it ended
+    "rate-limited",  # the requester's token bucket is empty (RequestLimiter)
 )
 # Least area of S per robot, in robot rooms (covswarm.mission.crowding.robot_room: hexagonal
 # packing at the safety filter's distance, the limit below which the crowding warning says a
@@ -88,6 +89,17 @@ _MERGE_TOL = 1e-9  # coincident output vertices: distance below this x half the 
 # About what the quintic asks when starting a 0.5 m move at the default 0.52 m/s
 # (10 / sqrt(3) x 0.5 m / (1.8 s)^2 = 0.89 m/s^2): a brake is no harsher than a start.
 BRAKE_DECELERATION = 1.0
+# Steering requests per requester (RequestLimiter): a token bucket of STEER_BURST requests
+# refilled at STEER_RATE per second. An operator clicks a few times a second at most; a
+# flood (10 893 valid queries in 5 s, issue 21) costs a count, not the records or the disk.
+STEER_RATE = 2.0  # 1/s
+STEER_BURST = 10
+MAX_REQUESTERS = 64  # distinct requester keys tracked; the rest share one bucket
+UNKNOWN_REQUESTER = "(unknown)"
+# summary.json and the recorder keep the first and the last this many requests, and count
+# those omitted between (SteeringRecords).
+RECORDS_HEAD = 100
+RECORDS_TAIL = 100
 
 
 def default_max_domain_speed(robot_speed: float, kappa: float) -> float:
@@ -454,6 +466,86 @@ class SteeringRecord:
         }
 
 
+def requester_key(source_info: Any) -> str:
+    """The requester a steering query came from, as a key for RequestLimiter: the Zenoh
+    source (session id and entity) when the querier attached one (``query.source_info``:
+    zenoh 1.x fills it only if the querier passes it), else UNKNOWN_REQUESTER. In open mode
+    a source can be forged like everything else: only secure mode ties it to a role."""
+    source = getattr(source_info, "source_id", None)
+    if source is None:
+        return UNKNOWN_REQUESTER
+    return f"{getattr(source, 'zid', '?')}/{getattr(source, 'eid', '?')}"
+
+
+class RequestLimiter:
+    """A token bucket per requester key: ``burst`` requests at once, ``rate`` per second
+    sustained. At most ``max_keys`` keys are tracked (a flood of forged sources must not
+    grow the table): beyond, new keys share one bucket. ``now``: monotonic or wall seconds,
+    one clock throughout (a clock stepping back refills nothing)."""
+
+    def __init__(
+        self, rate: float = STEER_RATE, burst: int = STEER_BURST, max_keys: int = MAX_REQUESTERS
+    ) -> None:
+        if not (rate > 0.0 and burst >= 1 and max_keys >= 1):
+            raise ValueError(f"RequestLimiter: rate {rate} > 0 and burst {burst} >= 1 needed")
+        self.rate, self.burst, self.max_keys = rate, burst, max_keys
+        self._buckets: dict[str, tuple[float, float]] = {}  # key -> (tokens, when)
+
+    def allow(self, key: str, now: float) -> bool:
+        """Take one token of ``key``'s bucket at ``now`` s; False when it is empty."""
+        if key not in self._buckets and len(self._buckets) >= self.max_keys:
+            self._forget_full(now)
+            if len(self._buckets) >= self.max_keys:
+                key = "(overflow)"
+        tokens, when = self._buckets.get(key, (float(self.burst), now))
+        tokens = min(float(self.burst), tokens + max(now - when, 0.0) * self.rate)
+        if tokens < 1.0:
+            self._buckets[key] = (tokens, max(now, when))
+            return False
+        self._buckets[key] = (tokens - 1.0, max(now, when))
+        return True
+
+    def _forget_full(self, now: float) -> None:
+        """Drop the buckets that have refilled (they are as good as new)."""
+        for key in [
+            k
+            for k, (tokens, when) in self._buckets.items()
+            if tokens + max(now - when, 0.0) * self.rate >= self.burst
+        ]:
+            del self._buckets[key]
+
+
+class SteeringRecords:
+    """The requests summary.json lists: the first ``head`` and the last ``tail`` kept,
+    ``omitted`` counts those between. Iterates in order; ``[-1]`` is the last appended."""
+
+    def __init__(self, head: int = RECORDS_HEAD, tail: int = RECORDS_TAIL) -> None:
+        from collections import deque
+
+        self.head: list[SteeringRecord] = []
+        self.tail: deque[SteeringRecord] = deque(maxlen=max(tail, 1))
+        self._head_size = head
+        self.omitted = 0
+
+    def append(self, record: SteeringRecord) -> None:
+        if len(self.head) < self._head_size:
+            self.head.append(record)
+            return
+        if len(self.tail) == self.tail.maxlen:
+            self.omitted += 1
+        self.tail.append(record)
+
+    def __len__(self) -> int:
+        return len(self.head) + len(self.tail)
+
+    def __iter__(self) -> Any:
+        yield from self.head
+        yield from self.tail
+
+    def __getitem__(self, index: int) -> SteeringRecord:
+        return list(self)[index] if index != -1 else (self.tail or self.head)[-1]
+
+
 @dataclass
 class Steering:
     """Who moves S: the scenario's script until the first accepted request, then steering.
@@ -464,20 +556,33 @@ class Steering:
     script: DomainAt
     limits: Limits
     motion: Hold | Similarity | Morph | Brake | None = None
-    records: list[SteeringRecord] = field(default_factory=list)
+    records: SteeringRecords = field(default_factory=SteeringRecords)
     refused: Counter = field(default_factory=Counter)  # refusals per code
     largest_jump: float = 0.0  # m, see simplify
     checks: tuple[MotionCheck, ...] = ()  # vetoes on a planned motion, in order
+    limiter: RequestLimiter = field(default_factory=RequestLimiter)
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
         return self.script(t) if self.motion is None else self.motion(t)
 
-    def handle(self, payload: Any, t: float, wall: float, running: bool) -> SteerReply:
+    def handle(
+        self, payload: Any, t: float, wall: float, running: bool, requester: str | None = None
+    ) -> SteerReply:
         """Decode, check and (if feasible) start one request at mission time ``t``.
 
         A refused request changes nothing but the records and the refusal counts.
+        ``requester`` (requester_key of the query; None: not rate-limited, as for a
+        journal's replay): one whose bucket is empty is refused ("rate-limited") before
+        the payload is even decoded.
         """
+        if requester is not None and not self.limiter.allow(requester, wall):
+            return self._refuse(
+                Refusal("rate-limited", f"more than {self.limiter.rate:g} requests/s"),
+                None,
+                t,
+                wall,
+            )
         try:
             request = SteerRequest.decode(payload)
         except ProtocolError as exc:

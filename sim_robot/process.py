@@ -152,6 +152,20 @@ class RobotSim:
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
 
 
+def drops_line(sims: list[RobotSim]) -> str | None:
+    """One log line with every robot's non-zero drop counts per reason, as JSON after a
+    fixed prefix (``robot drops {"3": {"undecodable": 2}}``), for the launcher's log and
+    whoever gathers it into summary.json; None when nothing was dropped."""
+    import json
+
+    counts = {
+        str(sim.id): {reason: n for reason, n in sorted(sim.drops.counts.items()) if n}
+        for sim in sims
+        if sim.drops.total
+    }
+    return None if not counts else "robot drops " + json.dumps(counts, separators=(",", ":"))
+
+
 def run_robots(
     sims: list[RobotSim],
     swarm: str,
@@ -220,6 +234,8 @@ def run_robots(
                 token.undeclare()
         for sim in sims:
             log.info("robot %d stopping: %s, dropped %s", sim.id, sim.counters, sim.drops.summary())
+        if (line := drops_line(sims)) is not None:  # a flood shows without --verbose
+            log.warning("%s", line)
         log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
     return [sim.counters for sim in sims]
 
