@@ -5,12 +5,19 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
-from test_robot_process import STAMP, command
 
+from covswarm import protocol
 from covswarm.sim_robot.process import RobotSim
 from covswarm.world.model import Obstacle, World, box_vertices
 
 WALL = (0.5, 0.8, -1.0, 1.0)
+STAMP = 1.7e9
+
+
+def command(left: float, right: float) -> bytes:
+    return protocol.WheelCommand(
+        id=1, left=left, right=right, stamp=STAMP, seq=1, pose_stamp=STAMP
+    ).encode()
 
 
 def drive(

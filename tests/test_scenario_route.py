@@ -118,6 +118,17 @@ def test_lab_map_route_clears_the_map() -> None:
     assert len(scenario.world.obstacles) < 40  # merged pieces, not one box per pixel
     assert scenario.motion.end <= scenario.duration
     assert_clear(scenario)
+    # Two goals, S rests hold = 5 s at each with its start shape and size, centred there.
+    motion = scenario.motion
+    assert [h for h in motion.holds if h > 0.0] == [5.0, 5.0]
+    start_area = shapely.Polygon(motion.polygons[0]).area
+    for goal, hold in zip(scenario.goals, [h for h in motion.holds if h > 0], strict=True):
+        k = [i for i, p in enumerate(motion.polygons) if np.allclose(p.mean(axis=0), goal)][0]
+        arrive = motion.arrivals[k - 1]
+        for t in (arrive, arrive + hold / 2, arrive + hold):
+            vertices, velocities = motion(t)
+            assert np.abs(velocities).max() < 1e-9
+            assert shapely.Polygon(vertices).area == pytest.approx(start_area)
 
 
 def test_sim_runs_the_warehouse(tmp_path: Path) -> None:

@@ -88,11 +88,13 @@ class NoPath(ValueError):
     def __init__(self, code: str, why: str) -> None:
         super().__init__(f"{code}: {why}")
         self.code = code
+        self.why = why
 
 
 @dataclass(frozen=True)
 class Waypoint:
-    """S = centroid + scale (P - c_P) at a stop of the route (centroid (2,), m)."""
+    """S = centroid + scale (P - c_P) at a stop of the route (centroid (2,), m); a route
+    to a goal polygon of its own shape ends by taking that shape at the last stop."""
 
     centroid: tuple[float, float]
     scale: float
@@ -107,7 +109,7 @@ class Route:
     motion: RouteMotion
     duration: float
     length: float
-    resolution: float  # m, the grid it was planned on
+    resolution: float  # m, the grid it was planned on (a tour: its legs' coarsest)
 
 
 @dataclass(frozen=True, eq=False)
@@ -168,6 +170,8 @@ def plan_route(
     for name, value in (("min_area", min_area), ("min_width", min_width)):
         if not (math.isfinite(value) and value >= 0.0):
             raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    if not (math.isfinite(max_speed) and max_speed > 0.0):
+        raise ValueError(f"max_speed must be positive, got {max_speed!r}")
     c0 = centroid(start)
     shape = start - c0  # Q: S(c, s) = c + s Q
     s_min = max(math.sqrt(min_area / area(start)), min_width / width(start))
@@ -190,13 +194,15 @@ def plan_route(
                 raise
     rate = 1.0 / float(np.linalg.norm(shape, axis=1).max())
     states = _states(grid, cells, c0, target, rate)
-    polygons, kept, length = _shortcut(world, grid, shape, states, final, max_speed)
+    polygons, kept, length = _shortcut(world, grid, shape, states, final)
     holds = [0.0] * (len(polygons) - 1) + [hold]
     motion = RouteMotion.timed(polygons, max_speed, holds, t0)  # the path verified above
-    waypoints = tuple(
+    waypoints = [
         Waypoint((float(c[0]), float(c[1])), float(s)) for c, s in (states[k] for k in kept)
-    )
-    return Route(waypoints, motion, motion.end - t0, length, h)
+    ]
+    if goal_polygon is None and waypoints[-1].scale != 1.0:  # grown back at the goal
+        waypoints.append(Waypoint(waypoints[-1].centroid, 1.0))
+    return Route(tuple(waypoints), motion, motion.end - t0, length, h)
 
 
 def plan_tour(
@@ -221,7 +227,7 @@ def plan_tour(
     spans: list[float] = []
     holds: list[float] = [0.0]
     waypoints: list[Waypoint] = []
-    length, t = 0.0, 0.0
+    length, t, cell = 0.0, 0.0, 0.0
     for k, goal in enumerate(goals):
         try:
             leg = plan_route(
@@ -229,13 +235,14 @@ def plan_tour(
                 max_speed=max_speed, t0=t, hold=hold,
             )  # fmt: skip
         except NoPath as exc:
-            raise NoPath(exc.code, f"goal {k + 1} {list(goal)}: {exc}") from None
+            raise NoPath(exc.code, f"goal {k + 1} {list(goal)}: {exc.why}") from None
         polygons += list(leg.motion.polygons[1:])
         spans += list(leg.motion.spans)
         holds[-1] += leg.motion.holds[0]
         holds += list(leg.motion.holds[1:])
         waypoints += list(leg.waypoints if not waypoints else leg.waypoints[1:])
         length += leg.length
+        cell = max(cell, leg.resolution)
         t = leg.motion.end
         current = leg.motion.polygons[-1]
     motion = RouteMotion(
@@ -247,7 +254,7 @@ def plan_tour(
         speed=max_speed if speed is None else speed,
         hold=hold,
     )
-    return Route(tuple(waypoints), motion, motion.end, length, 0.0)
+    return Route(tuple(waypoints), motion, motion.end, length, cell)
 
 
 def _levels(s_min: float) -> np.ndarray:
@@ -519,7 +526,6 @@ def _shortcut(
     shape: np.ndarray,
     states: list[tuple[np.ndarray, float]],
     final: np.ndarray,
-    max_speed: float,
 ) -> tuple[list[np.ndarray], list[int], float]:
     """Straight segments over runs of ``states`` (greedy: the furthest state the grid
     allows, by doubling then bisection; then stops whose neighbours see each other are
@@ -605,7 +611,10 @@ def _first_contact(polygons: list[np.ndarray], world: World) -> tuple[int, str] 
         i = min(int(np.searchsorted(starts, t, side="right")) - 1, len(lengths) - 1)
         a, b = path.segment(i)
         u = min(max((t - starts[i]) / lengths[i], 0.0), 1.0)
-        return merge_coincident((1.0 - u) * a + u * b, (b - a) / lengths[i])
+        vertices, velocities = (1.0 - u) * a + u * b, (b - a) / lengths[i]
+        if len(a) == len(path.polygons[i]) == len(path.polygons[i + 1]):
+            return vertices, velocities  # paired vertex for vertex: none coincide
+        return merge_coincident(vertices, velocities)
 
     contact = first_contact(along, 0.0, float(starts[-1]), world, speed=1.0, samples=_SWEEP_SAMPLES)
     if contact is None:
