@@ -17,7 +17,10 @@ offset), not from when they arrived. The domain runs on the coordinator's missio
 seen from this host (its broadcasts' mission time against their receipt), and newer means
 a higher sequence number. Safety (covswarm.tvd.safety): the velocity is filtered so that
 this robot's half of every pair's barrier condition holds against every robot it knows
-within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY).
+within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY). Once
+it knows the world (:meth:`AgentBrain.set_world`, from the coordinator's World broadcast),
+also against the obstacles and workspace walls within SAFETY_RADIUS, and it refuses a domain
+that overlaps an obstacle.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -45,13 +49,16 @@ from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, Ra
 from covswarm.tvd.control import local_step
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from covswarm.tvd.geometry import area, clip_convex
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
     barrier_gain,
     body_safe_distance,
     safe_velocity,
+    wall_distance,
 )
+from covswarm.world.model import World
 
 DROP_REASONS = (
     *protocol.REASONS,
@@ -61,6 +68,10 @@ DROP_REASONS = (
     "old_domain",  # older than the domain already held (by sequence number)
     "domain_outside_workspace",  # a vertex outside the workspace the agent knows
     "domain_seq_jump",  # sequence number implausibly far ahead of the held domain's
+    "domain_in_obstacle",  # overlaps an obstacle of the world the agent knows
+    "bad_world",  # valid message, invalid geometry (a non-convex obstacle, ...)
+    "old_world",  # older than the world already held (by sequence number)
+    "world_seq_jump",  # sequence number implausibly far ahead of the held world's
 )
 # Largest fraction of the gap to the centroid one control period may close (sampled_gain).
 MAX_STEP_FRACTION = 0.8
@@ -88,6 +99,16 @@ DOMAIN_RESTART_SILENCE = 0.5
 MAX_DOMAIN_SEQ_JUMP = 1000
 # m: a domain vertex this far outside the workspace is still inside (wire rounding).
 WORKSPACE_SLACK = 1e-6
+# m^2: a domain that overlaps an obstacle by more than this area is refused (1 mm x 1 mm:
+# far above rounding, where an S resting on an obstacle's edge overlaps it by ~1e-16 m^2,
+# and far below anything that puts a robot's cell into a wall).
+DOMAIN_OBSTACLE_SLACK = 1e-6
+# s: the coordinator repeats its World every second (late joiners); a held world whose
+# sender has been silent this long may be replaced by a lower sequence number (a restarted
+# coordinator). A World is taken up to WORLD_MAX_AGE s after its stamp: it is static, and
+# one lost repeat must not leave a joiner without it.
+WORLD_RESTART_SILENCE = 5.0
+WORLD_MAX_AGE = 10.0
 # m: robots within this distance of ours enter the safety filter (and their AgentStates are
 # followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
 # have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
@@ -287,6 +308,10 @@ class AgentBrain:
         self.workspace: tuple[float, float, float, float] | None = None
         if config.workspace is not None:
             self.set_workspace(config.workspace)
+        # The arena (covswarm.world.model): None until a World broadcast (or set_world).
+        self.world: World | None = None
+        self._world_seq: int | None = None
+        self._world_received = -math.inf
 
     def set_workspace(self, box: tuple[float, float, float, float] | None) -> None:
         """The box (xmin, xmax, ymin, ymax) m every domain must lie in from now on (None:
@@ -302,6 +327,38 @@ class AgentBrain:
         if self.domain is not None and not self._inside_workspace(self.domain):
             self.drops.drop("domain_outside_workspace", "held domain outside the new workspace")
             self.domain = self.density = None
+
+    def set_world(self, world: World | None) -> None:
+        """The arena from now on (None: none known, the filter sees robots only): its
+        obstacles and workspace walls within SAFETY_RADIUS enter the safety filter every
+        step, a domain overlapping an obstacle is refused, and its workspace (if it has one)
+        replaces the one held (:meth:`set_workspace`). A held domain that now overlaps an
+        obstacle or leaves the workspace is dropped and counted."""
+        if world is not None and not isinstance(world, World):
+            raise TypeError(f"world must be a covswarm.world.model.World, got {world!r}")
+        self.world = world
+        if world is not None and world.workspace is not None:
+            self.set_workspace(world.workspace)
+        if self.domain is not None and self._in_obstacle(self.domain):
+            self.drops.drop("domain_in_obstacle", "held domain overlaps the new world's obstacles")
+            self.domain = self.density = None
+
+    def _in_obstacle(self, domain: protocol.Domain) -> bool:
+        """Whether ``domain`` (a valid convex polygon) overlaps one of the world's obstacles
+        by more than DOMAIN_OBSTACLE_SLACK m^2 (False without a world). Only the obstacles
+        whose bounding box meets S's are clipped, so a map's hundreds cost little."""
+        if self.world is None or not self.world.obstacles:
+            return False
+        polygon = np.array(domain.vertices, dtype=float)
+        # clip_convex wants CCW; the protocol allows either orientation.
+        x, y = polygon[:, 0], polygon[:, 1]
+        if np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)) < 0.0:
+            polygon = polygon[::-1]
+        low, high = polygon.min(axis=0), polygon.max(axis=0)
+        for j in self.world.candidates((low[0], high[0], low[1], high[1])):
+            if area(clip_convex(polygon, self.world.obstacles[j].vertices)) > DOMAIN_OBSTACLE_SLACK:
+                return True
+        return False
 
     def _inside_workspace(self, domain: protocol.Domain) -> bool:
         """Whether every vertex of ``domain`` lies in the workspace (True if none known)."""
@@ -379,8 +436,9 @@ class AgentBrain:
         DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again).
 
         Doubted: one numbered more than MAX_DOMAIN_SEQ_JUMP above a held one whose sender
-        still talks ("domain_seq_jump"), and one with a vertex outside the workspace
-        ("domain_outside_workspace"), are dropped and counted."""
+        still talks ("domain_seq_jump"), one with a vertex outside the workspace
+        ("domain_outside_workspace"), and one overlapping an obstacle of the world
+        ("domain_in_obstacle"), are dropped and counted."""
         held = self.domain
         if held is not None and now - self._domain_received < DOMAIN_RESTART_SILENCE:
             if domain.seq <= held.seq:
@@ -396,6 +454,9 @@ class AgentBrain:
             density = self.decoder.domain_geometry(domain)
         except ValueError as exc:
             self.drops.drop("bad_domain", f"domain: {exc}")
+            return False
+        if self._in_obstacle(domain):
+            self.drops.drop("domain_in_obstacle", f"domain {domain.vertices}")
             return False
         self.domain = domain
         self.density = density
@@ -617,7 +678,8 @@ class AgentBrain:
     ) -> np.ndarray:
         """``velocity`` filtered by covswarm.tvd.safety against the robots near us: the
         candidates (dead-reckoned, with their reported velocities) and the obstacles we
-        stopped hearing from (at rest where last known)."""
+        stopped hearing from (at rest where last known); with a world, against its
+        obstacles and workspace walls near us too (a body radius plus the margin)."""
         config = self.config
         me = pose[:2]
         reckoned = self.neighbourhood.reckoned
@@ -640,6 +702,19 @@ class AgentBrain:
         rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
+        # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
+        # world, so the filter is then exactly the robots' alone).
+        world = self.world
+        walls: dict[str, Any] = {}
+        if world is not None:
+            walls = {
+                "obstacles": world.nearby(me, SAFETY_RADIUS),
+                "workspace": self.workspace,
+                "obstacle_distance": wall_distance(
+                    config.robot.body_diameter, config.safety_margin
+                ),
+                "reach": SAFETY_RADIUS,
+            }
         result = safe_velocity(
             me,
             velocity,
@@ -649,6 +724,7 @@ class AgentBrain:
             heading=float(pose[2]),
             velocity=np.array(self.velocity),
             neighbor_velocities=near[:, 2:],
+            **walls,
         )
         self.safety_active += result.active > 0
         self.safety_relaxed += result.relaxed

@@ -1,0 +1,220 @@
+"""Agents that know the world (issue 20 item 5, issue 21 item 2), at the brain level (sans-IO).
+
+A brain given a World keeps its robot's body clear of every obstacle and workspace wall
+(the safety filter's obstacle rows), refuses a Domain that overlaps an obstacle, and without
+a world does exactly what it did before. The runs close the loop with an ideal unicycle
+(covswarm.tvd.drive.integrate_one, exact arcs) and check every robot's clearance against
+shapely at 10 ms sub-steps, not only at the control instants.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+import shapely
+
+from covswarm import protocol
+from covswarm.agent import brain as brain_module
+from covswarm.agent.brain import AgentBrain, AgentConfig, PublishState, SendCommand
+from covswarm.tvd.drive import KHEPERA_IV, integrate_one
+from covswarm.world.model import Obstacle, World, box_vertices
+
+WALL = 1.7e9
+RADIUS = 0.5 * KHEPERA_IV.body_diameter  # m, the body's
+WORKSPACE = (-1.5, 2.5, -2.0, 2.5)
+SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]  # S; centroid (1, 1)
+BLOCK = (0.7, 1.3, -0.9, -0.05)  # just below S: a robot below it is pulled straight into it
+ARENA = World(WORKSPACE, (Obstacle("block", box_vertices(BLOCK)),))
+
+
+def domain(vertices: list, seq: int = 1, velocity: tuple[float, float] = (0.0, 0.0)):
+    return protocol.Domain(
+        seq=seq,
+        stamp=WALL,
+        t=0.0,
+        state="running",
+        vertices=vertices,
+        velocities=[list(velocity)] * len(vertices),
+        kappa=1.0,
+    )
+
+
+def pose_message(rid: int, pose: np.ndarray, stamp: float, seq: int) -> protocol.Pose:
+    return protocol.Pose(
+        id=rid, x=float(pose[0]), y=float(pose[1]), theta=float(pose[2]), stamp=stamp, seq=seq
+    )
+
+
+def clearances(world: World, points: np.ndarray) -> np.ndarray:
+    """(n,) m from each centre (n, 2) to the nearest obstacle or workspace wall, by shapely:
+    negative inside an obstacle or outside the workspace."""
+    pts = shapely.points(points)
+    gaps = [np.full(len(points), np.inf)]
+    for obstacle in world.obstacles:
+        polygon = shapely.Polygon(obstacle.vertices)
+        gap = shapely.distance(polygon, pts)
+        gaps.append(np.where(shapely.contains(polygon, pts), -1.0, gap))
+    if world.workspace is not None:
+        xmin, xmax, ymin, ymax = world.workspace
+        gaps += [points[:, 0] - xmin, xmax - points[:, 0], points[:, 1] - ymin, ymax - points[:, 1]]
+    return np.min(gaps, axis=0)
+
+
+def run(
+    brains: list[AgentBrain],
+    poses: np.ndarray,
+    seconds: float,
+    period: float = 0.1,
+    substeps: int = 10,
+    intruder: Callable[[float], protocol.AgentState] | None = None,
+) -> tuple[np.ndarray, list[np.ndarray]]:
+    """Close the loop: each period every brain hears its robot's pose and the others'
+    AgentStates, ticks, and its command drives an ideal unicycle for the period (exact arcs,
+    ``substeps`` poses recorded). ``intruder(now)``: one more robot's AgentState that every
+    brain hears (a robot without a brain in this loop). Returns (final poses (n, 3), every
+    recorded pose (n, 3))."""
+    poses = np.array(poses, dtype=float)
+    trace = [poses.copy()]
+    for k in range(round(seconds / period)):
+        now = k * period
+        wall = WALL + now
+        for brain, pose in zip(brains, poses, strict=True):
+            brain.on_pose(pose_message(brain.id, pose, wall, k), now)
+        commands, states = [], [] if intruder is None else [intruder(now)]
+        for brain in brains:
+            actions = brain.tick(now, wall)
+            commands += [a.command for a in actions if isinstance(a, SendCommand)]
+            states += [a.state for a in actions if isinstance(a, PublishState)]
+        for brain in brains:
+            for state in states:
+                if state.id != brain.id:
+                    brain.on_agent_state(state, now)
+        for i, command in enumerate(commands):
+            for _ in range(substeps):
+                poses[i] = integrate_one(*poses[i], command.left, command.right, period / substeps)
+                trace.append(poses.copy())
+    return poses, trace
+
+
+def test_a_robot_pulled_into_an_obstacle_stops_short_of_it() -> None:
+    """From below the block, S's centroid lies straight through it: without the world the
+    robot drives into it, with the world it never comes closer than its body radius."""
+    starts = [(1.0, -1.4, 1.57), (0.8, -1.2, 1.2), (1.35, -1.1, 2.0), (0.6, -0.5, 0.4)]
+    for start in starts:
+        blind = AgentBrain(0, AgentConfig())
+        blind.on_domain(domain(SQUARE), now=0.0)
+        _, trace = run([blind], np.array([start]), 4.0)
+        assert clearances(ARENA, np.array(trace)[:, 0, :2]).min() < 0.0  # it went in
+        brain = AgentBrain(0, AgentConfig())
+        brain.set_world(ARENA)
+        assert brain.on_domain(domain(SQUARE), now=0.0)
+        final, trace = run([brain], np.array([start]), 12.0)
+        gaps = clearances(ARENA, np.array(trace)[:, 0, :2])
+        assert gaps.min() >= RADIUS - 1e-9, (start, gaps.min())
+        assert brain.safety_active > 0
+
+
+def test_a_crowd_started_against_the_walls_never_touches_them() -> None:
+    """Twelve robots packed along the block and in the workspace's corner, random headings,
+    S beside them: neighbours' rows push robots toward the walls while they sort out; no
+    body ever touches the block or a wall, over 15 s."""
+    rng = np.random.default_rng(7)
+    corner = [(-1.5 + 0.09 + 0.17 * i, -2.0 + 0.09 + 0.17 * j) for i in range(3) for j in range(2)]
+    beside = [(0.7 - 0.09, -0.8 + 0.17 * j) for j in range(3)]
+    beside += [(1.3 + 0.09, -0.8 + 0.17 * j) for j in range(3)]
+    starts = np.array([(x, y, rng.uniform(-np.pi, np.pi)) for x, y in corner + beside])
+    assert clearances(ARENA, starts[:, :2]).min() >= RADIUS + 0.015  # inside the reach
+    brains = []
+    for rid in range(len(starts)):
+        brain = AgentBrain(rid, AgentConfig())
+        brain.set_world(ARENA)
+        assert brain.on_domain(domain([[-1.5, -0.0], [2.5, 0.0], [2.5, 1.0], [-1.5, 1.0]]), 0.0)
+        brains.append(brain)
+    _, trace = run(brains, starts, 15.0)
+    points = np.array(trace)[:, :, :2].reshape(-1, 2)
+    assert clearances(ARENA, points).min() >= RADIUS - 1e-9
+    assert sum(brain.safety_active for brain in brains) > 0
+    assert all(brain.counters.step_errors == 0 for brain in brains)
+
+
+def test_a_robot_shoved_toward_an_obstacle_by_a_neighbour_stops_short_of_it() -> None:
+    """A neighbour that does not give way drives at our robot from the right and parks
+    against it: our robot yields toward the block's side, and stops before touching it
+    (squeezed, the pair's rows relax; the wall's never let the body in)."""
+    start = np.array([[1.55, -0.5, np.pi / 2]])
+    home = [[1.35, -0.7], [1.75, -0.7], [1.75, -0.3], [1.35, -0.3]]  # S around it
+
+    def bully(now: float) -> protocol.AgentState:
+        x = max(2.2 - 0.3 * now, 1.45)
+        return protocol.AgentState(
+            id=9, x=x, y=-0.5, stamp=WALL + now, neighbors=[], vx=-0.3 if x > 1.45 else 0.0
+        )
+
+    brain = AgentBrain(0, AgentConfig())
+    brain.set_world(ARENA)
+    assert brain.on_domain(domain(home), now=0.0)
+    final, trace = run([brain], start, 6.0, intruder=bully)
+    gaps = clearances(ARENA, np.array(trace)[:, 0, :2])
+    assert gaps.min() >= RADIUS - 1e-9
+    assert gaps.min() < gaps[0] - 0.1  # it was shoved toward the block
+    assert brain.safety_relaxed > 0
+
+
+def test_a_domain_overlapping_an_obstacle_is_refused_and_counted() -> None:
+    brain = AgentBrain(0, AgentConfig())
+    brain.set_world(ARENA)
+    assert brain.on_domain(domain(SQUARE, 1), now=0.0)
+    over = [[0.0, -0.5], [2.0, -0.5], [2.0, 1.5], [0.0, 1.5]]  # 0.27 m^2 of the block
+    assert not brain.on_domain(domain(over, 2), now=0.01)
+    assert brain.drops.counts["domain_in_obstacle"] == 1
+    assert brain.stats()["drop_domain_in_obstacle"] == 1
+    assert brain.domain.seq == 1
+    # Clockwise, and refused all the same; through a payload too.
+    assert not brain.receive("domain", domain(over[::-1], 3).encode(), now=0.02, now_wall=WALL)
+    assert brain.drops.counts["domain_in_obstacle"] == 2
+    # Resting on the block's top edge, or overlapping it by less than the slack, is fine.
+    touching = [[0.0, -0.05], [2.0, -0.05], [2.0, 1.5], [0.0, 1.5]]
+    assert brain.on_domain(domain(touching, 4), now=0.03)
+    sliver = brain_module.DOMAIN_OBSTACLE_SLACK / 0.6 / 2.0  # depth of half the slack's area
+    inside = [[0.0, -0.05 - sliver], [2.0, -0.05 - sliver], [2.0, 1.5], [0.0, 1.5]]
+    assert brain.on_domain(domain(inside, 5), now=0.04)
+    deeper = [[0.0, -0.05 - 4 * sliver], [2.0, -0.05 - 4 * sliver], [2.0, 1.5], [0.0, 1.5]]
+    assert not brain.on_domain(domain(deeper, 6), now=0.05)
+    assert brain.drops.counts["domain_in_obstacle"] == 3
+
+
+def test_a_new_world_drops_a_held_domain_in_its_obstacles_and_sets_the_workspace() -> None:
+    brain = AgentBrain(0, AgentConfig())
+    assert brain.on_domain(domain([[0.0, -0.5], [2.0, -0.5], [2.0, 1.5], [0.0, 1.5]]), 0.0)
+    brain.set_world(ARENA)
+    assert brain.domain is None
+    assert brain.drops.counts["domain_in_obstacle"] == 1
+    assert brain.workspace == WORKSPACE
+    assert not brain.on_domain(domain([[2.0, 0.0], [3.0, 0.0], [3.0, 1.0]], 2), 0.1)
+    assert brain.drops.counts["domain_outside_workspace"] == 1
+    # A world without a workspace keeps the one the agent has (from its scenario).
+    brain.set_world(World(None, ARENA.obstacles))
+    assert brain.workspace == WORKSPACE
+    with pytest.raises(TypeError, match="World"):
+        brain.set_world(WORKSPACE)  # type: ignore[arg-type]
+
+
+def test_without_a_world_or_far_from_it_the_brain_steers_exactly_as_before() -> None:
+    """No obstacle or wall within the safety radius: not a row more, the same commands."""
+    far = World(None, (Obstacle("far", box_vertices((5.0, 6.0, 5.0, 6.0))),))
+    rng = np.random.default_rng(3)
+    starts = np.column_stack([rng.uniform(0.2, 1.8, (5, 2)), rng.uniform(-np.pi, np.pi, 5)])
+    finals = []
+    for world in (None, far):
+        brains = []
+        for rid in range(5):
+            brain = AgentBrain(rid, AgentConfig())
+            if world is not None:
+                brain.set_world(world)
+            brain.on_domain(domain(SQUARE, velocity=(0.05, 0.0)), 0.0)
+            brains.append(brain)
+        final, _ = run(brains, starts, 3.0, substeps=1)
+        finals.append(final)
+    np.testing.assert_array_equal(finals[0], finals[1])
