@@ -310,7 +310,7 @@ class AgentBrain:
             self.set_workspace(config.workspace)
         # The arena (covswarm.world.model): None until a World broadcast (or set_world).
         self.world: World | None = None
-        self._world_seq: int | None = None
+        self._world_message: protocol.World | None = None  # the message it came from
         self._world_received = -math.inf
 
     def set_workspace(self, box: tuple[float, float, float, float] | None) -> None:
@@ -342,6 +342,33 @@ class AgentBrain:
         if self.domain is not None and self._in_obstacle(self.domain):
             self.drops.drop("domain_in_obstacle", "held domain overlaps the new world's obstacles")
             self.domain = self.density = None
+
+    def on_world(self, message: protocol.World, now: float) -> bool:
+        """Hold a newer World (the coordinator's, repeated every second) and steer by it
+        (:meth:`set_world`). A repeat of the held one only refreshes it. Doubted like a
+        domain: a lower or equal sequence number for a different world while the held one's
+        sender still talks (within WORLD_RESTART_SILENCE) is "old_world", one more than
+        MAX_DOMAIN_SEQ_JUMP above it "world_seq_jump", geometry the model refuses
+        "bad_world"; each dropped and counted."""
+        held = self._world_message
+        if held is not None and message == held:
+            self._world_received = now
+            return True
+        if held is not None and now - self._world_received < WORLD_RESTART_SILENCE:
+            if message.seq <= held.seq:
+                self.drops.drop("old_world", f"world seq {message.seq} <= {held.seq}")
+                return False
+            if message.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
+                self.drops.drop("world_seq_jump", f"world seq {message.seq} jumps from {held.seq}")
+                return False
+        try:
+            world = self.decoder.world_model(message)
+        except ValueError as exc:
+            self.drops.drop("bad_world", f"world: {exc}")
+            return False
+        self.set_world(world)
+        self._world_message, self._world_received = message, now
+        return True
 
     def _in_obstacle(self, domain: protocol.Domain) -> bool:
         """Whether ``domain`` (a valid convex polygon) overlaps one of the world's obstacles
@@ -377,11 +404,14 @@ class AgentBrain:
         self, kind: str, payload: bytes, now: float, now_wall: float, key_id: int | None = None
     ) -> bool:
         """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
-        "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
+        "domain" | "world"); ``key_id`` is the id in the key it arrived on. False if
+        dropped."""
         self.counters.received += 1
         try:
             message = self.decoder.decode(kind, payload)
-            max_age = self.config.beacon_timeout if kind == "beacon" else self.config.stale_timeout
+            max_age = {"beacon": self.config.beacon_timeout, "world": WORLD_MAX_AGE}.get(
+                kind, self.config.stale_timeout
+            )
             check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
             self.drops.drop(exc.reason, f"{kind}: {exc}")
@@ -846,4 +876,5 @@ _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
     "state": AgentBrain.on_agent_state,
     "beacon": AgentBrain.on_beacon,
     "domain": AgentBrain.on_domain,
+    "world": AgentBrain.on_world,
 }

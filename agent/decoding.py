@@ -15,12 +15,15 @@ import numpy as np
 from covswarm import protocol
 from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.density import Density
+from covswarm.world.model import World
+from covswarm.world.wire import from_message
 
 MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
     "pose": protocol.Pose,
     "state": protocol.AgentState,
     "beacon": protocol.Beacon,
     "domain": protocol.Domain,
+    "world": protocol.World,
 }
 # Sized for a tick's worth of distinct payloads of a 100-brain process.
 DECODE_CACHE = 4096
@@ -32,6 +35,7 @@ class MessageDecoder:
     def __init__(self, cache_size: int = DECODE_CACHE) -> None:
         self._decode_bytes = lru_cache(maxsize=cache_size)(self._decode_uncached)
         self._geometry_of: tuple[protocol.Domain, Density | None] | None = None
+        self._world_of: tuple[protocol.World, World] | None = None
 
     def decode(self, kind: str, payload: object) -> protocol.Message:
         """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
@@ -55,3 +59,13 @@ class MessageDecoder:
         density = None if domain.density is None else Density.from_dict(domain.density)
         self._geometry_of = (domain, density)
         return density
+
+    def world_model(self, message: protocol.World) -> World:
+        """The model World of a World message (covswarm.world.wire.from_message); ValueError
+        if its geometry is refused. The last one is remembered, as for domain_geometry: the
+        brains of a process receive the same decoded message every second."""
+        if self._world_of is not None and self._world_of[0] is message:
+            return self._world_of[1]
+        world = from_message(message)
+        self._world_of = (message, world)
+        return world

@@ -199,6 +199,8 @@ class AgentLink:
         self.inbox.subscribe(
             session, protocol.pose_key(swarm, brain.id), "pose", RING_PER_KEY, brain.id
         )
+        # The arena, repeated every second by the coordinator: the newest is enough.
+        self.inbox.subscribe(session, protocol.world_key(swarm), "world", RING_PER_KEY)
         self.states = Subscriptions(
             session, self.inbox, "state", RING_PER_KEY, lambda r: protocol.agent_state_key(swarm, r)
         )

@@ -20,6 +20,7 @@ from covswarm.agent import brain as brain_module
 from covswarm.agent.brain import AgentBrain, AgentConfig, PublishState, SendCommand
 from covswarm.tvd.drive import KHEPERA_IV, integrate_one
 from covswarm.world.model import Obstacle, World, box_vertices
+from covswarm.world.wire import to_message
 
 WALL = 1.7e9
 RADIUS = 0.5 * KHEPERA_IV.body_diameter  # m, the body's
@@ -218,3 +219,55 @@ def test_without_a_world_or_far_from_it_the_brain_steers_exactly_as_before() -> 
         final, _ = run(brains, starts, 3.0, substeps=1)
         finals.append(final)
     np.testing.assert_array_equal(finals[0], finals[1])
+
+
+def world_payload(world: World, seq: int, stamp: float = WALL) -> bytes:
+    return to_message(world, seq, stamp).encode()
+
+
+def test_the_world_broadcast_is_heard_kept_by_seq_and_steers_the_filter() -> None:
+    brain = AgentBrain(0, AgentConfig())
+    assert brain.receive("world", world_payload(ARENA, 1), now=0.0, now_wall=WALL)
+    assert brain.world is not None and brain.workspace == WORKSPACE
+    np.testing.assert_array_equal(brain.world.obstacles[0].vertices, ARENA.obstacles[0].vertices)
+    assert brain.world.obstacles[0].name == "block"
+    held = brain.world
+    # The repeat every second changes nothing (not even the object) and is not a drop.
+    assert brain.receive("world", world_payload(ARENA, 1), now=1.0, now_wall=WALL + 1.0)
+    assert brain.world is held
+    # An older or same-numbered different world while the sender talks: dropped, counted.
+    empty = World(WORKSPACE)
+    assert not brain.receive("world", world_payload(empty, 0), now=1.5, now_wall=WALL + 1.5)
+    assert not brain.receive("world", world_payload(empty, 1), now=1.6, now_wall=WALL + 1.6)
+    assert brain.drops.counts["old_world"] == 2
+    jump = 2 + brain_module.MAX_DOMAIN_SEQ_JUMP
+    assert not brain.receive("world", world_payload(empty, jump), now=1.7, now_wall=WALL + 1.7)
+    assert brain.drops.counts["world_seq_jump"] == 1
+    assert brain.world is held
+    # Malformed and stale payloads are dropped and counted like other messages.
+    assert not brain.receive("world", b"\xc1junk", now=1.8, now_wall=WALL + 1.8)
+    assert brain.drops.counts["undecodable"] == 1
+    late = WALL + 2.0 + brain_module.WORLD_MAX_AGE + 1.0
+    assert not brain.receive("world", world_payload(empty, 2), now=2.0, now_wall=late)
+    # A newer world replaces it; after the sender's silence a restarted one (seq 0) too.
+    assert brain.receive("world", world_payload(empty, 2), now=2.0, now_wall=WALL + 2.0)
+    assert brain.world.obstacles == ()
+    silence = 2.0 + brain_module.WORLD_RESTART_SILENCE
+    assert brain.receive("world", world_payload(ARENA, 0), now=silence, now_wall=WALL + silence)
+    assert len(brain.world.obstacles) == 1
+    assert brain.stats()["drop_old_world"] == 2
+
+
+def test_a_world_the_model_refuses_is_dropped_as_bad_world() -> None:
+    """A message whose geometry the model refuses (here an empty name, set past the
+    message's own checks) is dropped as bad_world; the held world stays."""
+    message = protocol.World(
+        seq=1, stamp=WALL, obstacles=(((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)),), names=("x",)
+    )
+    brain = AgentBrain(0, AgentConfig())
+    assert brain.on_world(message, now=0.0)
+    bad = protocol.World(seq=2, stamp=WALL, obstacles=(((0.0, 0.0), (1.0, 0.0), (0.0, 1.0)),))
+    object.__setattr__(bad, "names", ("",))  # past the message's own checks
+    assert not brain.on_world(bad, now=0.1)
+    assert brain.drops.counts["bad_world"] == 1
+    assert brain.world is not None and brain.world.obstacles[0].name == "x"
