@@ -1,0 +1,204 @@
+"""The console's side of the world (issue 20, item 7), without a network: the arena the page
+fetches (versioned, sent again only when it changes), the route of an accepted goto, and
+the web app's ``/api/world`` and steering answers (aiohttp's test server on loopback, the
+Zenoh feed replaced by a bare SwarmView, the coordinator by a function)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from typing import Any
+
+import pytest
+from aiohttp.test_utils import TestClient, TestServer
+
+from covswarm.console.model import SwarmView
+from covswarm.console.server import Console
+from covswarm.protocol import World
+from covswarm.protocol.steering import SteerReply
+
+WALL = ((-0.3, 0.45), (0.3, 0.45), (0.3, 1.8), (-0.3, 1.8))
+WEDGE = ((1.0, -1.0), (2.0, -1.0), (1.5, -0.2))
+
+
+def world(seq: int = 0, obstacles=(WALL, WEDGE), names=("wall", "wedge"), workspace=None):
+    return World(
+        seq=seq,
+        stamp=1.7e9,
+        obstacles=obstacles,
+        workspace=(-2.5, 2.5, -1.8, 1.8) if workspace is None else workspace,
+        names=names,
+    )
+
+
+def test_the_world_document_carries_the_arena_and_its_version() -> None:
+    view = SwarmView("s")
+    assert view.world_document() is None
+    assert view.snapshot(now=0.0, wall=1.7e9)["world"] is None
+    view.on_world(world())
+    doc = view.world_document()
+    assert doc == {
+        "version": 1,
+        "workspace": [-2.5, 2.5, -1.8, 1.8],
+        "obstacles": [
+            {"name": "wall", "polygon": [list(p) for p in WALL]},
+            {"name": "wedge", "polygon": [list(p) for p in WEDGE]},
+        ],
+    }
+    assert json.loads(json.dumps(doc)) == doc  # JSON-ready
+    assert view.snapshot(now=0.0, wall=1.7e9)["world"] == {"version": 1, "obstacles": 2}
+
+
+def test_the_version_changes_only_when_the_arena_does() -> None:
+    view = SwarmView("s")
+    for seq in range(5):  # the coordinator repeats the same World every second
+        view.on_world(world(seq=seq))
+    assert view.world_document()["version"] == 1
+    view.on_world(world(obstacles=(WALL,), names=("wall",)))
+    assert view.world_document()["version"] == 2
+    assert [o["name"] for o in view.world_document()["obstacles"]] == ["wall"]
+    view.on_world(world(obstacles=(WALL,), names=("renamed",)))
+    assert view.world_document()["version"] == 3
+    view.on_world(world(obstacles=(WALL,), names=("renamed",), workspace=(-3, 3, -2, 2)))
+    doc = view.world_document()
+    assert doc["version"] == 4 and doc["workspace"] == [-3.0, 3.0, -2.0, 2.0]
+
+
+def test_a_world_without_workspace_or_names_gets_the_defaults() -> None:
+    view = SwarmView("s")
+    view.on_world(World(seq=0, stamp=1.7e9, obstacles=(WALL,)))
+    doc = view.world_document()
+    assert doc["workspace"] is None and doc["obstacles"][0]["name"] == "obstacle 1"
+
+
+def goto_outcome(accepted: bool, route: Any, wall: float = 5.0) -> dict[str, Any]:
+    return {
+        "wall": wall,
+        "request": {"kind": "goto", "goal": [1.6, 0.0]},
+        "what": "goto (1.6, 0)",
+        "accepted": accepted,
+        "reason": "" if accepted else "no-path: enclosed",
+        "duration": 9.5 if accepted else 0.0,
+        "route": route,
+    }
+
+
+def test_an_accepted_goto_draws_its_route_until_another_request_takes_S() -> None:
+    view = SwarmView("s")
+    waypoints = [[0.0, 0.0], [0.8, 0.1234567], [1.6, 0.0]]
+    view.on_steering(goto_outcome(True, waypoints))
+    route = view.snapshot(now=0.0, wall=1.7e9)["route"]
+    assert route == {
+        "goal": [1.6, 0.0],
+        "waypoints": [[0.0, 0.0], [0.8, 0.1235], [1.6, 0.0]],  # 0.1 mm, like every point
+        "wall": 5.0,
+        "duration": 9.5,
+    }
+    # A refused request leaves S (and the route it follows) as it was ...
+    view.on_steering(goto_outcome(False, None, wall=6.0))
+    view.on_steering({"wall": 7.0, "request": {"kind": "translate"}, "accepted": False})
+    assert view.snapshot(now=0.0, wall=1.7e9)["route"]["wall"] == 5.0
+    # ... an accepted one takes S off the route.
+    view.on_steering({"wall": 8.0, "request": {"kind": "translate"}, "accepted": True})
+    assert view.snapshot(now=0.0, wall=1.7e9)["route"] is None
+
+
+class StillFeed:
+    """A feed that hears nothing new: the view is whatever the test put in it."""
+
+    def __init__(self, view: SwarmView) -> None:
+        self.view = view
+
+    def drain(self, now: float) -> None:
+        pass
+
+
+async def _ask(console: Console, *requests: tuple[str, str, bytes | None]) -> list[tuple[int, Any]]:
+    answers = []
+    async with TestClient(TestServer(console.app, host="127.0.0.1")) as client:
+        for method, path, body in requests:
+            response = await client.request(
+                method,
+                path,
+                data=body,
+                headers={"Content-Type": "application/json", "Host": "127.0.0.1"},
+            )
+            answers.append((response.status, await response.json()))
+    return answers
+
+
+def test_api_world_is_404_until_the_coordinator_sends_one_then_the_document() -> None:
+    view = SwarmView("s")
+    ((status, body),) = asyncio.run(
+        _ask(Console(StillFeed(view), None, token=None), ("GET", "/api/world", None))
+    )
+    assert status == 404 and "no world" in body["error"]
+    view.on_world(world())
+    (world_answer, state_answer) = asyncio.run(
+        _ask(
+            Console(StillFeed(view), None, token=None),
+            ("GET", "/api/world", None),
+            ("GET", "/api/state", None),
+        )
+    )
+    assert world_answer == (200, view.world_document())
+    assert state_answer[1]["world"] == {"version": 1, "obstacles": 2}
+
+
+def test_api_world_needs_the_token_like_every_route() -> None:
+    view = SwarmView("s")
+    view.on_world(world())
+    console = Console(StillFeed(view), None, token="secret-token")
+    ((status, body),) = asyncio.run(_ask(console, ("GET", "/api/world", None)))
+    assert status == 403 and "obstacles" not in body
+
+
+def test_a_steering_answer_carries_the_route_and_the_page_sees_it() -> None:
+    view = SwarmView("s")
+    asked = []
+
+    def coordinator(request: Any) -> SteerReply:
+        asked.append(request)
+        if request.kind == "goto":
+            return SteerReply(
+                accepted=True, reason="", duration=9.5, route=((0.0, 0.0), (1.6, 0.0))
+            )
+        return SteerReply(accepted=False, reason="obstacle: S would touch wall at t = 3 s",
+                          duration=0.0)  # fmt: skip
+
+    console = Console(StillFeed(view), coordinator, token=None)
+    goto, translate, state = asyncio.run(
+        _ask(
+            console,
+            ("POST", "/api/steer", b'{"kind": "goto", "goal": [1.6, 0.0]}'),
+            ("POST", "/api/steer", b'{"kind": "translate", "dx": 0.0, "dy": 1.0}'),
+            ("GET", "/api/state", None),
+        )
+    )
+    assert [r.kind for r in asked] == ["goto", "translate"]
+    assert goto == (200, {"accepted": True, "reason": "", "duration": 9.5,
+                          "route": [[0.0, 0.0], [1.6, 0.0]]})  # fmt: skip
+    assert translate[1]["accepted"] is False and translate[1]["route"] is None
+    assert translate[1]["reason"].startswith("obstacle: S would touch wall")
+    document = state[1]
+    assert document["route"]["waypoints"] == [[0.0, 0.0], [1.6, 0.0]]
+    assert document["route"]["goal"] == [1.6, 0.0]
+    assert [o["accepted"] for o in document["steering"]] == [True, False]
+
+
+@pytest.mark.parametrize(
+    "body",
+    [
+        b'{"kind": "goto"}',
+        b'{"kind": "goto", "goal": [1.0]}',
+        b'{"kind": "goto", "goal": [1.0, "a"]}',
+        b'{"kind": "goto", "goal": [1.0, 2.0], "dx": 1.0}',
+    ],
+)
+def test_a_malformed_goto_never_reaches_the_coordinator(body: bytes) -> None:
+    def coordinator(request: Any) -> SteerReply:
+        raise AssertionError(f"reached the coordinator: {request}")
+
+    console = Console(StillFeed(SwarmView("s")), coordinator, token=None)
+    ((status, answer),) = asyncio.run(_ask(console, ("POST", "/api/steer", body)))
+    assert status == 400 and answer["accepted"] is False and answer["reason"], answer
