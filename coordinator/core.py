@@ -5,7 +5,8 @@ appeared or vanished), :meth:`~CoordinatorCore.on_pose` and
 :meth:`~CoordinatorCore.on_agent_state` (raw payloads), :meth:`~CoordinatorCore.on_steer`
 (a steering query's payload, answered at once with a :class:`ReplySteer`); once per
 broadcast period :meth:`~CoordinatorCore.tick` returns what to do, in order:
-:class:`MissionStarted` (once), :class:`PublishDomain`, :class:`PublishStatus` (every
+:class:`MissionStarted` (once), :class:`PublishDomain`, :class:`PublishWorld` (on the first
+tick, before the mission starts, then every WORLD_PERIOD), :class:`PublishStatus` (every
 STATUS_PERIOD) and :class:`Finished` (after DONE_HOLD s of "done", or when stopped before
 the start). No zenoh and no clock of its own: ``now`` is monotonic mission seconds (the
 shell's runtime.clock.scaled monotonic clock), ``wall`` seconds since the epoch (the run's
@@ -50,14 +51,24 @@ from covswarm.coordinator.steering import (
     MotionCheck,
     Steering,
     default_max_domain_speed,
+    world_check,
 )
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.crowding import crowding as estimate_crowding
 from covswarm.mission.scenarios import Scenario
-from covswarm.protocol import AgentState, Domain, Pose, ProtocolError, Status, parse_alive_key
+from covswarm.protocol import (
+    AgentState,
+    Domain,
+    Pose,
+    ProtocolError,
+    Status,
+    World,
+    parse_alive_key,
+)
 from covswarm.records.observations import timed_layers
 from covswarm.tvd.coverage import aggregate_error
 from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.world.wire import to_message
 
 if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only calls it
     from covswarm.records.recorder import RunRecorder
@@ -70,6 +81,7 @@ DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its 
 # its safety filter needs before its robot moves (coordinator.monitor.MissionPhase.settle).
 START_SETTLE = 1.5
 STATUS_PERIOD = 0.5  # s
+WORLD_PERIOD = 1.0  # s between World broadcasts: a late joiner has the arena within this
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
@@ -177,6 +189,13 @@ class PublishDomain:
 
 
 @dataclass(frozen=True)
+class PublishWorld:
+    """Put ``world`` (the arena, protocol.World) on the swarm's world key."""
+
+    world: World
+
+
+@dataclass(frozen=True)
 class PublishStatus:
     """Put ``status`` on the swarm's status key."""
 
@@ -214,7 +233,15 @@ class Finished:
     started: bool
 
 
-Action = PublishDomain | PublishStatus | ReplySteer | JournalSteering | MissionStarted | Finished
+Action = (
+    PublishDomain
+    | PublishWorld
+    | PublishStatus
+    | ReplySteer
+    | JournalSteering
+    | MissionStarted
+    | Finished
+)
 
 
 def recording_counts() -> dict[str, float | int]:
@@ -250,9 +277,15 @@ class CoordinatorCore:
         self.settings = settings
         self.observed = Observed()
         self.phase = MissionPhase(settings.duration, settle=START_SETTLE)
+        world = settings.scenario.world
+        # S never touches the arena: every steered motion is swept against it first.
+        checks = tuple(steer_checks)
+        if world.workspace is not None or world.obstacles:
+            checks = (world_check(world), *checks)
         self.steering = Steering(
-            settings.scenario.domain, settings.steering_limits(), checks=tuple(steer_checks)
+            settings.scenario.domain, settings.steering_limits(), checks=checks, world=world
         )
+        self._next_world: float | None = None
         self.recorder = recorder
         self._cost_clock = cost_clock
         self._cpu_clock = cpu_clock
@@ -401,6 +434,9 @@ class CoordinatorCore:
         t = phase.mission_time(now)
         polygon, domain = self._domain(state, t)
         actions.append(PublishDomain(domain))
+        if self._next_world is None or now >= self._next_world:
+            actions.append(PublishWorld(self.world_message()))
+            self._next_world = now + WORLD_PERIOD
         self._ticks_to_sample -= 1
         if state == RUNNING and self._ticks_to_sample <= 0:
             began = self._cost_clock()
@@ -461,6 +497,10 @@ class CoordinatorCore:
         )
         self._seq += 1
         return vertices, domain
+
+    def world_message(self) -> World:
+        """The arena as broadcast (seq 0: the world never changes during a run)."""
+        return to_message(self.settings.scenario.world, 0, self.stamp(self._wall))
 
     def _status(self, state: str, t: float) -> Status:
         live, record = self.observed.liveness, self.observed.record

@@ -23,6 +23,7 @@ from covswarm.coordinator.core import (
     MissionStarted,
     PublishDomain,
     PublishStatus,
+    PublishWorld,
     ReplySteer,
 )
 from covswarm.protocol import (
@@ -33,6 +34,7 @@ from covswarm.protocol import (
     domain_key,
     status_key,
     steer_key,
+    world_key,
 )
 from covswarm.runtime.clock import StopFlag, Ticker
 
@@ -74,6 +76,7 @@ class CoordinatorLink:
             steer_key(swarm), zenoh.handlers.FifoChannel(STEER_QUEUE)
         )
         self._status = session.declare_publisher(status_key(swarm))
+        self._world = session.declare_publisher(world_key(swarm))
 
     def receive(self, now: float) -> None:
         """Hand everything that arrived since the last tick to the core; answer steering."""
@@ -97,6 +100,8 @@ class CoordinatorLink:
         """Do what the core asked (see coordinator.core's actions); Finished is the loop's."""
         if isinstance(action, PublishDomain):
             self._domain.put(action.domain.encode())
+        elif isinstance(action, PublishWorld):
+            self._world.put(action.world.encode())
         elif isinstance(action, PublishStatus):
             self._status.put(action.status.encode())
         elif isinstance(action, JournalSteering):
