@@ -117,6 +117,15 @@ WORLD_MAX_AGE = 10.0
 # missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
 # about the two-hop set, which the coverage step follows anyway.
 SAFETY_RADIUS = 0.5
+# The decay rate of the obstacle and wall rows, as a fraction of the pairs' (barrier_gain's
+# 1 / period at 10 Hz). At the full rate a robot may close the whole gap to the wall's reach
+# in one period, so any command latency overshoots it: closed loop with an ideal unicycle
+# from four starts pulled into a block (tests/test_agent_world.py), the least clearance of
+# the body was 0.090 / 0.074 / 0.070 / 0.046 m with a command acting 0 / 0-20 / 0-40 /
+# 0-60 ms late (0.07 m is contact). At half, a period closes half the gap: 0.090 / 0.090 /
+# 0.089 / 0.085 m, and a command up to a period late still stops short. Robots near a wall
+# approach it more slowly; elsewhere nothing changes.
+WALL_GAMMA_FRACTION = 0.5
 # Unconfirmed beacon-only robots within SAFETY_RADIUS whose AgentStates are followed, the
 # nearest first: more robots than this cannot stand that close around one (hexagonal
 # packing at the safe distance gives 6 per ring), so more are forgeries.
@@ -244,6 +253,11 @@ def sampled_gain(kappa: float, period: float) -> float:
     return min(kappa, MAX_STEP_FRACTION / period)
 
 
+def same_world(a: protocol.World, b: protocol.World) -> bool:
+    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
+    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
+
+
 class AgentBrain:
     """Decision logic of one agent: feed it messages, ask it for actions. No I/O."""
 
@@ -351,7 +365,7 @@ class AgentBrain:
         MAX_DOMAIN_SEQ_JUMP above it "world_seq_jump", geometry the model refuses
         "bad_world"; each dropped and counted."""
         held = self._world_message
-        if held is not None and message == held:
+        if held is not None and same_world(message, held):
             self._world_received = now
             return True
         if held is not None and now - self._world_received < WORLD_RESTART_SILENCE:
@@ -734,6 +748,7 @@ class AgentBrain:
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
         # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
         # world, so the filter is then exactly the robots' alone).
+        gamma = barrier_gain(config.safety_gamma, self._period)
         world = self.world
         walls: dict[str, Any] = {}
         if world is not None:
@@ -744,13 +759,14 @@ class AgentBrain:
                     config.robot.body_diameter, config.safety_margin
                 ),
                 "reach": SAFETY_RADIUS,
+                "obstacle_gamma": WALL_GAMMA_FRACTION * gamma,
             }
         result = safe_velocity(
             me,
             velocity,
             near[:, :2],
             body_safe_distance(config.robot.body_diameter, config.safety_margin),
-            barrier_gain(config.safety_gamma, self._period),
+            gamma,
             heading=float(pose[2]),
             velocity=np.array(self.velocity),
             neighbor_velocities=near[:, 2:],

@@ -162,6 +162,11 @@ class RobotSim:
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
 
 
+def same_world(a: protocol.World, b: protocol.World) -> bool:
+    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
+    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
+
+
 class WorldHeld:
     """The newest World a robot process heard, as a model (covswarm.world.model.World).
 
@@ -185,7 +190,7 @@ class WorldHeld:
             self.drops.drop(exc.reason, f"world: {exc}")
             return False
         held = self._message
-        if held is not None and message == held:
+        if held is not None and same_world(message, held):
             self._received = now
             return True
         if held is not None and message.seq <= held.seq:

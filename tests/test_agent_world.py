@@ -70,14 +70,20 @@ def run(
     period: float = 0.1,
     substeps: int = 10,
     intruder: Callable[[float], protocol.AgentState] | None = None,
+    late: float = 0.0,
+    seed: int = 0,
 ) -> tuple[np.ndarray, list[np.ndarray]]:
     """Close the loop: each period every brain hears its robot's pose and the others'
     AgentStates, ticks, and its command drives an ideal unicycle for the period (exact arcs,
     ``substeps`` poses recorded). ``intruder(now)``: one more robot's AgentState that every
-    brain hears (a robot without a brain in this loop). Returns (final poses (n, 3), every
-    recorded pose (n, 3))."""
+    brain hears (a robot without a brain in this loop). ``late``: each command acts a
+    uniform random 0..late s into its period, the previous one driving until then (command
+    latency the brain does not know about). Returns (final poses (n, 3), every recorded pose
+    (n, 3))."""
     poses = np.array(poses, dtype=float)
     trace = [poses.copy()]
+    rng = np.random.default_rng(seed)
+    previous = [(0.0, 0.0)] * len(brains)
     for k in range(round(seconds / period)):
         now = k * period
         wall = WALL + now
@@ -92,10 +98,14 @@ def run(
             for state in states:
                 if state.id != brain.id:
                     brain.on_agent_state(state, now)
-        for i, command in enumerate(commands):
-            for _ in range(substeps):
-                poses[i] = integrate_one(*poses[i], command.left, command.right, period / substeps)
-                trace.append(poses.copy())
+        delays = rng.uniform(0.0, late, len(commands))
+        for j in range(substeps):
+            for i, command in enumerate(commands):
+                acting = j * period / substeps >= delays[i]
+                wheels = (command.left, command.right) if acting else previous[i]
+                poses[i] = integrate_one(*poses[i], wheels[0], wheels[1], period / substeps)
+            trace.append(poses.copy())
+        previous = [(command.left, command.right) for command in commands]
     return poses, trace
 
 
@@ -115,6 +125,21 @@ def test_a_robot_pulled_into_an_obstacle_stops_short_of_it() -> None:
         gaps = clearances(ARENA, np.array(trace)[:, 0, :2])
         assert gaps.min() >= RADIUS - 1e-9, (start, gaps.min())
         assert brain.safety_active > 0
+
+
+@pytest.mark.parametrize("late", [0.02, 0.06])
+def test_commands_acting_late_still_stop_short_of_the_obstacle(late: float) -> None:
+    """Command latency the brain does not know about (each command acting up to ``late`` s
+    into its period) must not let the body reach the block: the wall rows close only half
+    the gap per period (WALL_GAMMA_FRACTION)."""
+    starts = [(1.0, -1.1, np.pi / 2), (1.0, -1.4, 1.57), (0.8, -1.2, 1.2), (1.0, -1.3, 0.0)]
+    for seed, start in enumerate(starts):
+        brain = AgentBrain(0, AgentConfig())
+        brain.set_world(ARENA)
+        assert brain.on_domain(domain(SQUARE), now=0.0)
+        _, trace = run([brain], np.array([start]), 6.0, late=late, seed=seed)
+        gaps = clearances(ARENA, np.array(trace)[:, 0, :2])
+        assert gaps.min() >= RADIUS + 0.01, (start, gaps.min())
 
 
 def test_a_crowd_started_against_the_walls_never_touches_them() -> None:

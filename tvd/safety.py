@@ -251,6 +251,7 @@ def safe_velocity(
     workspace: Box | None = None,
     obstacle_distance: float | None = None,
     reach: float = np.inf,
+    obstacle_gamma: float | None = None,
 ) -> FilterResult:
     """The velocity closest to ``nominal`` that keeps this robot's half of every pair safe.
 
@@ -262,8 +263,10 @@ def safe_velocity(
     current centre velocities for the reciprocal split (:func:`pair_constraints`).
     obstacles (convex polygons (k, 2) m), workspace (walls (xmin, xmax, ymin, ymax) m): one
     row each within ``reach`` m (:func:`obstacle_constraints`), keeping the centre
-    ``obstacle_distance`` m from them (:func:`wall_distance`; required with either). With
-    neither, the rows and the result are exactly those of the robots alone.
+    ``obstacle_distance`` m from them (:func:`wall_distance`; required with either), at the
+    decay rate ``obstacle_gamma`` 1/s (None: ``gamma``; smaller leaves room for command
+    latency, covswarm.agent.brain.WALL_GAMMA_FRACTION). With neither, the rows and the
+    result are exactly those of the robots alone.
     Non-finite neighbours are ignored; a non-finite position, heading or nominal velocity
     gives 0. When the rows cannot all hold (``relaxed``: a pair already inside the safe
     distance, boxed in), every bound is raised to max(gamma h / 2, 0), which the zero
@@ -276,6 +279,8 @@ def safe_velocity(
     walled = len(obstacles) > 0 or workspace is not None
     if walled and not (obstacle_distance is not None and obstacle_distance >= 0.0):
         raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
+    if obstacle_gamma is not None and not obstacle_gamma > 0.0:
+        raise ValueError(f"need obstacle_gamma > 0, got {obstacle_gamma!r}")
     position = np.asarray(position, dtype=float).reshape(2)
     nominal = np.asarray(nominal, dtype=float).reshape(2)
     finite = np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))
@@ -296,8 +301,9 @@ def safe_velocity(
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
     relaxed = np.maximum(0.5 * gamma * h, 0.0)
     if walled:
+        wall_gamma = gamma if obstacle_gamma is None else obstacle_gamma
         A_o, b_o = obstacle_constraints(
-            position, obstacles, workspace, float(obstacle_distance), gamma, reach
+            position, obstacles, workspace, float(obstacle_distance), wall_gamma, reach
         )
         A, b = np.concatenate([A, A_o]), np.concatenate([b, b_o])
         relaxed = np.concatenate([relaxed, np.maximum(b_o, 0.0)])
