@@ -49,6 +49,19 @@ def _points(array: np.ndarray) -> list[list[float]]:
     return np.round(np.asarray(array, dtype=float), DIGITS).tolist()
 
 
+def polygon_centroid(vertices: np.ndarray) -> np.ndarray:
+    """Area centroid (2,) m of a simple polygon (k, 2) m (shoelace formula); the vertex mean
+    for a degenerate one (zero area)."""
+    x, y = vertices[:, 0], vertices[:, 1]
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    twice_area = cross.sum()
+    if abs(twice_area) < 1e-12:
+        return vertices.mean(axis=0)
+    return np.array(
+        [((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]
+    ) / (3.0 * twice_area)
+
+
 def cells_and_errors(
     positions: np.ndarray, polygon: np.ndarray, density: Any = None
 ) -> tuple[list[np.ndarray], np.ndarray]:
@@ -96,7 +109,7 @@ class SwarmView:
         self.world: dict[str, Any] | None = None  # world_document(), None before any World
         self._world_content: tuple[Any, ...] | None = None  # what the version counts changes of
         # The route of the newest accepted goto, drawn until another accepted request takes S
-        # elsewhere: {"goal": [x, y], "waypoints": [[x, y], ...], "wall": s, "duration": s}.
+        # elsewhere (see on_steering).
         self.route: dict[str, Any] | None = None
 
     # -- inputs -----------------------------------------------------------------------------
@@ -152,18 +165,28 @@ class SwarmView:
         self.dropped[reason] = self.dropped.get(reason, 0) + 1
 
     def on_steering(self, outcome: dict[str, Any]) -> None:
-        """Record one steering request's outcome (console.server's dict) for the page. An
-        accepted goto with a route (outcome["route"]: [[x, y], ...] waypoints of S's
-        centroid) becomes the route drawn; any other accepted request ends it."""
+        """Record one steering request's outcome (console.server's dict) for the page.
+
+        An accepted goto with a route (outcome["route"]: its stops [x, y, scale], S's
+        centroid in m and its size relative to S when the route starts, SteerReply.route)
+        becomes the route drawn: {"goal": [x, y], "waypoints": [[x, y, scale], ...],
+        "shape": S's vertices relative to its centroid when the goto was accepted (m; the
+        page draws S at each stop as shape * scale; [] before any Domain), "wall": s,
+        "duration": s}. Any other accepted request ends it."""
         self.steering.append(dict(outcome))
         if not outcome.get("accepted"):
             return
         request = outcome.get("request") or {}
         route = outcome.get("route")
         if request.get("kind") == "goto" and route:
+            shape = np.zeros((0, 2))
+            if self.domain is not None:
+                vertices = np.asarray(self.domain.vertices, dtype=float)
+                shape = vertices - polygon_centroid(vertices)
             self.route = {
                 "goal": [_round(v) for v in request["goal"]],
-                "waypoints": [[_round(p[0]), _round(p[1])] for p in route],
+                "waypoints": [[_round(v) for v in stop] for stop in route],
+                "shape": _points(shape),
                 "wall": outcome.get("wall"),
                 "duration": outcome.get("duration"),
             }

@@ -13,7 +13,7 @@ Origin).
 Routes: ``/`` the page, ``/static/*`` its assets, ``/ws`` the state stream,
 ``/api/state`` the state as JSON, ``/api/world`` the arena as JSON (404 before the
 coordinator has sent one), ``/api/steer`` steering (JSON body, answer ``{accepted, reason,
-duration, route}``, route the waypoints of an accepted goto or null).
+duration, route}``, route an accepted goto's stops [x m, y m, scale of S] or null).
 """
 
 from __future__ import annotations
@@ -289,7 +289,7 @@ class Console:
                 return self._answer(steer, False, str(exc), 0.0, 504)
             except ProtocolError as exc:
                 return self._answer(steer, False, f"unreadable reply: {exc}", 0.0, 502)
-        route = None if reply.route is None else [[float(x), float(y)] for x, y in reply.route]
+        route = None if reply.route is None else [[float(v) for v in stop] for stop in reply.route]
         return self._answer(steer, reply.accepted, reply.reason, reply.duration, 200, route)
 
     def _answer(
@@ -302,7 +302,7 @@ class Console:
         route: list[list[float]] | None = None,
     ) -> web.Response:
         """Record the outcome for every page and answer the one that asked (``route``: an
-        accepted goto's waypoints, m)."""
+        accepted goto's stops [x, y, scale], SteerReply.route)."""
         outcome = {
             "wall": time.time(),
             "request": None if steer is None else steer.to_dict(),

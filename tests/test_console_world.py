@@ -14,7 +14,7 @@ from aiohttp.test_utils import TestClient, TestServer
 
 from covswarm.console.model import SwarmView
 from covswarm.console.server import Console
-from covswarm.protocol import World
+from covswarm.protocol import Domain, World
 from covswarm.protocol.steering import SteerReply
 
 WALL = ((-0.3, 0.45), (0.3, 0.45), (0.3, 1.8), (-0.3, 1.8))
@@ -84,13 +84,23 @@ def goto_outcome(accepted: bool, route: Any, wall: float = 5.0) -> dict[str, Any
 
 
 def test_an_accepted_goto_draws_its_route_until_another_request_takes_S() -> None:
+    from shapely.geometry import Polygon
+
     view = SwarmView("s")
-    waypoints = [[0.0, 0.0], [0.8, 0.1234567], [1.6, 0.0]]
-    view.on_steering(goto_outcome(True, waypoints))
+    # S a trapezoid: its area centroid (the shape's origin) is not its vertices' mean
+    trapezoid = ((0.0, 0.0), (4.0, 0.0), (4.0, 1.0), (0.0, 3.0))
+    view.on_domain(
+        Domain(seq=0, stamp=1.7e9, t=3.0, state="running", vertices=trapezoid,
+               velocities=[(0.0, 0.0)] * 4, kappa=2.0)
+    )  # fmt: skip
+    stops = [[3.0, 2.0, 1.0], [0.8, 0.1234567, 0.5], [1.6, 0.0, 1.0]]
+    view.on_steering(goto_outcome(True, stops))
     route = view.snapshot(now=0.0, wall=1.7e9)["route"]
+    c = Polygon(trapezoid).centroid
     assert route == {
         "goal": [1.6, 0.0],
-        "waypoints": [[0.0, 0.0], [0.8, 0.1235], [1.6, 0.0]],  # 0.1 mm, like every point
+        "waypoints": [[3.0, 2.0, 1.0], [0.8, 0.1235, 0.5], [1.6, 0.0, 1.0]],  # 0.1 mm
+        "shape": [[round(x - c.x, 4), round(y - c.y, 4)] for x, y in trapezoid],
         "wall": 5.0,
         "duration": 9.5,
     }
@@ -161,7 +171,7 @@ def test_a_steering_answer_carries_the_route_and_the_page_sees_it() -> None:
         asked.append(request)
         if request.kind == "goto":
             return SteerReply(
-                accepted=True, reason="", duration=9.5, route=((0.0, 0.0), (1.6, 0.0))
+                accepted=True, reason="", duration=9.5, route=((0.0, 0.0, 1.0), (1.6, 0.0, 0.5))
             )
         return SteerReply(accepted=False, reason="obstacle: S would touch wall at t = 3 s",
                           duration=0.0)  # fmt: skip
@@ -177,11 +187,12 @@ def test_a_steering_answer_carries_the_route_and_the_page_sees_it() -> None:
     )
     assert [r.kind for r in asked] == ["goto", "translate"]
     assert goto == (200, {"accepted": True, "reason": "", "duration": 9.5,
-                          "route": [[0.0, 0.0], [1.6, 0.0]]})  # fmt: skip
+                          "route": [[0.0, 0.0, 1.0], [1.6, 0.0, 0.5]]})  # fmt: skip
     assert translate[1]["accepted"] is False and translate[1]["route"] is None
     assert translate[1]["reason"].startswith("obstacle: S would touch wall")
     document = state[1]
-    assert document["route"]["waypoints"] == [[0.0, 0.0], [1.6, 0.0]]
+    assert document["route"]["waypoints"] == [[0.0, 0.0, 1.0], [1.6, 0.0, 0.5]]
+    assert document["route"]["shape"] == []  # no Domain heard yet: S's shape unknown
     assert document["route"]["goal"] == [1.6, 0.0]
     assert [o["accepted"] for o in document["steering"]] == [True, False]
 

@@ -302,11 +302,11 @@ def test_the_arena_is_drawn_and_a_drag_into_an_obstacle_turns_red_and_is_refused
         reply = page.evaluate("window.covswarm.hooks.lastReply")
         assert reply == {
             "accepted": False,
-            "reason": "obstacle: S would touch obstacle 1",
+            "reason": "obstacle: S would touch obstacle 'obstacle 1'",
             "local": True,
         }
         shown = page.inner_text("#steer-result")
-        assert shown.startswith("refused: obstacle: S would touch obstacle 1"), shown
+        assert shown.startswith("refused: obstacle: S would touch obstacle 'obstacle 1'"), shown
         after = page.evaluate(COLOUR, probe)
         assert abs((after[0] - after[2]) - (before[0] - before[2])) < 10  # red gone
 
@@ -314,8 +314,8 @@ def test_the_arena_is_drawn_and_a_drag_into_an_obstacle_turns_red_and_is_refused
         request = page.evaluate("window.covswarm.hooks.lastRequest")
         assert request["kind"] == "translate" and request["dy"] == pytest.approx(0.3, abs=0.01)
         reply = page.evaluate("(r) => window.covswarm.steer(r)", request)
-        assert not reply["accepted"] and reply["reason"].startswith("obstacle"), reply
-        assert "obstacle 1" in reply["reason"]
+        assert not reply["accepted"] and reply["reason"].startswith("obstacle: S would touch")
+        assert "'obstacle 1' at t = " in reply["reason"], reply
         shown = page.inner_text("#steer-result")
         assert shown.startswith("refused: obstacle") and "obstacle 1" in shown, shown
         time.sleep(0.5)
@@ -344,8 +344,9 @@ def test_go_to_gets_a_route_that_is_drawn_and_S_follows_it(
         )
         assert np.allclose(request["goal"], goal, atol=0.02), request
         assert reply["accepted"], reply
-        route = np.array(reply["route"])
+        route = np.array(reply["route"])[:, :2]  # stops [x, y, scale]
         assert len(route) >= 2 and np.allclose(route[-1], request["goal"], atol=0.01), route
+        assert np.allclose(route[0], start, atol=0.01), route
         assert not page.evaluate("window.covswarm.gotoMode()")
         assert page.inner_text("#steer-result").startswith("accepted goto")
         # Drawn, on this page and in every frame (a page opened later draws it too).
@@ -353,7 +354,8 @@ def test_go_to_gets_a_route_that_is_drawn_and_S_follows_it(
             f"document.body.dataset.routePoints === '{len(route)}'", timeout=5000
         )
         state_route = page.evaluate("window.covswarm.state().route")
-        assert state_route is not None and np.allclose(state_route["waypoints"], route, atol=1e-3)
+        assert state_route is not None
+        assert np.allclose(np.array(state_route["waypoints"])[:, :2], route, atol=1e-3)
         mid = (route[0] + route[1]) / 2
         purple = page.evaluate(COLOUR, mid.tolist())
         assert purple[2] - purple[1] > 25, purple  # the route's line (#8e44ad) crosses there

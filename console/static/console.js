@@ -279,8 +279,16 @@
     document.body.dataset.obstaclesDrawn = String(world.obstacles.length);
   }
 
-  // The newest accepted goto's route: S's centroid's waypoints joined, a dot at each.
+  // The newest accepted goto's route: S's centroid's stops joined, a dot at each, and S's
+  // outline there (its shape at the start scaled by the stop's scale: S shrinks for doors).
   function drawRoute(route) {
+    if (route.shape && route.shape.length >= 3) {
+      ctx.setLineDash([2, 4]);
+      ctx.lineWidth = 1;
+      ctx.strokeStyle = "rgba(142, 68, 173, 0.6)";
+      for (const [x, y, s] of route.waypoints) { path(route.shape.map((p) => [x + s * p[0], y + s * p[1]])); ctx.stroke(); }
+      ctx.setLineDash([]);
+    }
     const points = route.waypoints.map(toScreen);
     ctx.beginPath();
     points.forEach(([x, y], i) => (i ? ctx.lineTo(x, y) : ctx.moveTo(x, y)));
@@ -514,7 +522,7 @@
       const note = reply.reason ? ` (${reply.reason})` : "";
       const via = reply.route ? ` via ${reply.route.length} waypoints` : "";
       showResult("accepted", `accepted ${request.kind}: S moves for ${Number(reply.duration).toFixed(1)} s${via}${note}`);
-      if (request.kind === "goto" && reply.route && state) state.route = { goal: request.goal, waypoints: reply.route };
+      if (request.kind === "goto" && reply.route && state) state.route = { goal: request.goal, waypoints: reply.route, shape: [] };
     } else {
       showResult("refused", `refused: ${reply.reason}`);
     }
@@ -527,7 +535,8 @@
   // A drag whose S would touch something is not sent: the page says why, as the
   // coordinator would (its refusal reason "obstacle: ...").
   function refuseHere(req, hit) {
-    const reason = hit === "workspace" ? "obstacle: S would leave the workspace" : `obstacle: S would touch ${hit}`;
+    // Worded as the coordinator's refusal (coordinator.steering), without its time.
+    const reason = hit === "workspace" ? "obstacle: S would leave the workspace" : `obstacle: S would touch obstacle '${hit}'`;
     hooks.lastRequest = req;
     hooks.lastReply = { accepted: false, reason, local: true };
     showResult("refused", `refused: ${reason} (checked by the console, not sent)`);
