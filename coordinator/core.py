@@ -44,7 +44,6 @@ from covswarm.coordinator.monitor import (
     TeamChange,
     clip_sample_time,
     mean_pose_time,
-    team_of,
 )
 from covswarm.coordinator.steering import (
     Limits,
@@ -53,6 +52,7 @@ from covswarm.coordinator.steering import (
     default_max_domain_speed,
     world_check,
 )
+from covswarm.coordinator.team import Roster
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.crowding import crowding as estimate_crowding
 from covswarm.mission.scenarios import Scenario
@@ -176,6 +176,12 @@ class Observed:
     clipped_samples: int = 0  # e_a samples not placed at their poses' time (clip_sample_time)
     started_wall: float | None = None
     team_changes: list[TeamChange] = field(default_factory=list)
+    # Who may be a team member (ids 0..N-1) and what came from any other id (issue 21);
+    # None only for an Observed built outside a core.
+    roster: Roster | None = None
+    # S at every recorded instant (the rows of domain.csv): mission time, vertices (k, 2).
+    domain_t: list[float] = field(default_factory=list)
+    domain_polygons: list[np.ndarray] = field(default_factory=list)
 
 
 # -- actions (what the shell carries out) --------------------------------------------------
@@ -275,7 +281,8 @@ class CoordinatorCore:
         slow sampling down too), ``cpu_clock`` a record (CPU: a busy machine that
         descheduled us is not recording's cost)."""
         self.settings = settings
-        self.observed = Observed()
+        self.roster = Roster.of_size(settings.agents)
+        self.observed = Observed(roster=self.roster)
         self.phase = MissionPhase(settings.duration, settle=START_SETTLE)
         world = settings.scenario.world
         # S never touches the arena: every steered motion is swept against it first.
@@ -336,6 +343,8 @@ class CoordinatorCore:
         except ValueError:
             obs.rejected += 1
             return
+        if not self.roster.admit_token(role, ident):  # not of the team: counted, not tracked
+            return
         # Tokens vanishing after "done" are processes shutting down, not failures.
         if self.phase.state == DONE and not alive:
             return
@@ -348,7 +357,7 @@ class CoordinatorCore:
     def _note_team_change(self, now: float, wall: float) -> None:
         """One TeamChange for every liveliness change since the last tick that changed the
         running team (robot and agent both alive), however many tokens it took."""
-        team = team_of(self.observed.liveness.alive)
+        team = self.roster.members(self.observed.liveness.alive)
         if self.phase.state == RUNNING and team != self._team:
             t = self.phase.mission_time(now)
             lost, joined = tuple(sorted(self._team - team)), tuple(sorted(team - self._team))
@@ -371,13 +380,21 @@ class CoordinatorCore:
         except ProtocolError:
             self.observed.rejected += 1
             return
+        if not self.roster.admit_state(state.id):
+            return
         if state.stats is not None:
             self.observed.agent_stats[state.id] = dict(state.stats)
 
-    def on_steer(self, payload: bytes, now: float, wall: float) -> list[Action]:
-        """Answer one steering request; an accepted one takes over S from ``now``."""
+    def on_steer(
+        self, payload: bytes, now: float, wall: float, requester: str | None = None
+    ) -> list[Action]:
+        """Answer one steering request; an accepted one takes over S from ``now``.
+
+        ``requester``: who sent it (coordinator.steering.requester_key), rate-limited per
+        requester; None: not rate-limited."""
         t = self.phase.mission_time(now)
-        reply = self.steering.handle(payload, t, wall, self.phase.state == RUNNING)
+        running = self.phase.state == RUNNING
+        reply = self.steering.handle(payload, t, wall, running, requester)
         record = self.steering.records[-1]
         if self.recorder is not None:
             self.recorder.steering(t, record.to_dict())
@@ -403,10 +420,12 @@ class CoordinatorCore:
             except ProtocolError:
                 obs.rejected += 1
                 continue
+            if not self.roster.admit_pose(pose.id):
+                continue
             obs.poses[pose.id] = (pose.x, pose.y)
             obs.pose_stamps[pose.id] = pose.stamp
         self._pose_payloads.clear()
-        team = team_of(obs.liveness.alive)
+        team = self.roster.members(obs.liveness.alive)
         return {i: xy for i, xy in obs.poses.items() if i in team}
 
     # -- the clock ------------------------------------------------------------------------
@@ -558,7 +577,7 @@ class CoordinatorCore:
                 continue
             observations.append((pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta))
         layers, stale = timed_layers(
-            np.array(observations, dtype=float).reshape(-1, 6),
+            self.roster.admit_observations(np.array(observations, dtype=float).reshape(-1, 6)),
             t,
             self._last_record_t,
             self.stamp(self._wall),
@@ -576,6 +595,8 @@ class CoordinatorCore:
             recorder.trajectory_rows(times[order], ids[order].tolist(), poses)
         self._last_record_t = t
         recorder.domain(t, polygon)
+        self.observed.domain_t.append(t)
+        self.observed.domain_polygons.append(np.asarray(polygon, dtype=float))
         cost = self._cpu_clock() - began
         if recorder.cells_due(t) and (positions := self.alive_positions()):
             team = sorted(positions)

@@ -26,6 +26,7 @@ from covswarm.coordinator.core import (
     PublishWorld,
     ReplySteer,
 )
+from covswarm.coordinator.steering import requester_key
 from covswarm.protocol import (
     alive_key,
     alive_selector,
@@ -89,7 +90,8 @@ class CoordinatorLink:
             core.on_agent_state(sample.payload.to_bytes())
         while (query := self._steer.try_recv()) is not None:
             payload = b"" if query.payload is None else query.payload.to_bytes()
-            for action in core.on_steer(payload, now, time.time()):
+            requester = requester_key(query.source_info)
+            for action in core.on_steer(payload, now, time.time(), requester):
                 if isinstance(action, ReplySteer):
                     query.reply(query.key_expr, action.payload)
                     query.drop()  # the final answer: the client stops waiting
