@@ -49,7 +49,6 @@ from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, Ra
 from covswarm.tvd.control import local_step
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, wheel_speeds
-from covswarm.tvd.geometry import area, clip_convex
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -386,20 +385,10 @@ class AgentBrain:
 
     def _in_obstacle(self, domain: protocol.Domain) -> bool:
         """Whether ``domain`` (a valid convex polygon) overlaps one of the world's obstacles
-        by more than DOMAIN_OBSTACLE_SLACK m^2 (False without a world). Only the obstacles
-        whose bounding box meets S's are clipped, so a map's hundreds cost little."""
+        by more than DOMAIN_OBSTACLE_SLACK m^2 (False without a world)."""
         if self.world is None or not self.world.obstacles:
             return False
-        polygon = np.array(domain.vertices, dtype=float)
-        # clip_convex wants CCW; the protocol allows either orientation.
-        x, y = polygon[:, 0], polygon[:, 1]
-        if np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)) < 0.0:
-            polygon = polygon[::-1]
-        low, high = polygon.min(axis=0), polygon.max(axis=0)
-        for j in self.world.candidates((low[0], high[0], low[1], high[1])):
-            if area(clip_convex(polygon, self.world.obstacles[j].vertices)) > DOMAIN_OBSTACLE_SLACK:
-                return True
-        return False
+        return self.decoder.domain_overlap(domain, self.world) > DOMAIN_OBSTACLE_SLACK
 
     def _inside_workspace(self, domain: protocol.Domain) -> bool:
         """Whether every vertex of ``domain`` lies in the workspace (True if none known)."""
@@ -747,13 +736,17 @@ class AgentBrain:
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
         # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
-        # world, so the filter is then exactly the robots' alone).
+        # world, so the filter is then exactly the robots' alone). Those whose bounding box
+        # is that near are handed over and the filter keeps the ones within its reach: the
+        # same rows as World.nearby's, without computing every distance twice (~90 us).
         gamma = barrier_gain(config.safety_gamma, self._period)
         world = self.world
         walls: dict[str, Any] = {}
         if world is not None:
+            x, y = float(me[0]), float(me[1])
+            nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
             walls = {
-                "obstacles": world.nearby(me, SAFETY_RADIUS),
+                "obstacles": [world.obstacles[j].vertices for j in nearby],
                 "workspace": self.workspace,
                 "obstacle_distance": wall_distance(
                     config.robot.body_diameter, config.safety_margin

@@ -15,6 +15,7 @@ import numpy as np
 from covswarm import protocol
 from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.density import Density
+from covswarm.tvd.geometry import area, clip_convex
 from covswarm.world.model import World
 from covswarm.world.wire import from_message
 
@@ -36,6 +37,7 @@ class MessageDecoder:
         self._decode_bytes = lru_cache(maxsize=cache_size)(self._decode_uncached)
         self._geometry_of: tuple[protocol.Domain, Density | None] | None = None
         self._world_of: tuple[protocol.World, World] | None = None
+        self._overlap_of: tuple[protocol.Domain, World, float] | None = None
 
     def decode(self, kind: str, payload: object) -> protocol.Message:
         """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
@@ -69,3 +71,26 @@ class MessageDecoder:
         world = from_message(message)
         self._world_of = (message, world)
         return world
+
+    def domain_overlap(self, domain: protocol.Domain, world: World) -> float:
+        """The largest area (m^2) the domain's polygon (valid, convex, either orientation)
+        shares with one of the world's obstacles. Only the obstacles whose bounding box
+        meets S's are clipped; the last answer is remembered (the brains of a process hold
+        the same world and receive the same Domain, 20 times a second)."""
+        cached = self._overlap_of
+        if cached is not None and cached[0] is domain and cached[1] is world:
+            return cached[2]
+        polygon = np.array(domain.vertices, dtype=float)
+        x, y = polygon[:, 0], polygon[:, 1]
+        if np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)) < 0.0:
+            polygon = polygon[::-1]  # clip_convex wants CCW
+        low, high = polygon.min(axis=0), polygon.max(axis=0)
+        overlap = max(
+            (
+                area(clip_convex(polygon, world.obstacles[j].vertices))
+                for j in world.candidates((low[0], high[0], low[1], high[1]))
+            ),
+            default=0.0,
+        )
+        self._overlap_of = (domain, world, overlap)
+        return overlap

@@ -296,3 +296,26 @@ def test_a_world_the_model_refuses_is_dropped_as_bad_world() -> None:
     assert not brain.on_world(bad, now=0.1)
     assert brain.drops.counts["bad_world"] == 1
     assert brain.world is not None and brain.world.obstacles[0].name == "x"
+
+
+def test_domain_overlap_matches_shapely_on_random_layouts() -> None:
+    """MessageDecoder.domain_overlap (what domain_in_obstacle compares to the slack): the
+    largest area S shares with one obstacle, against shapely, either orientation of S."""
+    from covswarm.agent.decoding import MessageDecoder
+
+    rng = np.random.default_rng(11)
+    for _ in range(40):
+        boxes = []
+        for x, y in rng.uniform(-2.0, 2.0, (rng.integers(1, 8), 2)):
+            boxes.append((x, x + rng.uniform(0.05, 1.0), y, y + rng.uniform(0.05, 1.0)))
+        world = World.from_boxes_and_polygons(None, boxes)
+        hull = shapely.convex_hull(shapely.multipoints(rng.uniform(-2.5, 2.5, (6, 2))))
+        if hull.geom_type != "Polygon" or hull.area < 1e-2:
+            continue
+        ring = np.asarray(shapely.orient_polygons(hull).exterior.coords)[:-1]
+        reference = max(
+            hull.intersection(shapely.box(x0, y0, x1, y1)).area for x0, x1, y0, y1 in boxes
+        )
+        for vertices in (ring, ring[::-1]):
+            got = MessageDecoder().domain_overlap(domain(vertices.tolist()), world)
+            assert got == pytest.approx(reference, abs=1e-12)
