@@ -178,7 +178,8 @@
   // The arena in view (once, when it arrives), S kept in view by following it.
   function fitWorld() {
     const w = world && world.workspace;
-    if (!w || view.moved) return;
+    if (view.moved) return;
+    if (!w) { centreOnS(); return; }
     const [sw, sh] = size();
     view.cx = (w[0] + w[1]) / 2;
     view.cy = (w[2] + w[3]) / 2;
@@ -721,7 +722,8 @@
     ws.onmessage = (event) => {
       state = JSON.parse(event.data);
       hooks.frames += 1;
-      if (!view.ready) centreOnS();
+      // Opens on the arena when there is one (fetched first: the view does not jump), else on S.
+      if (!view.ready && (!state.world || world)) centreOnS();
       if (state.world && (!world || world.version !== state.world.version) && !worldFetching) fetchWorld();
       keepSInView();
       panels();
