@@ -213,3 +213,25 @@ def test_a_malformed_goto_never_reaches_the_coordinator(body: bytes) -> None:
     console = Console(StillFeed(SwarmView("s")), coordinator, token=None)
     ((status, answer),) = asyncio.run(_ask(console, ("POST", "/api/steer", body)))
     assert status == 400 and answer["accepted"] is False and answer["reason"], answer
+
+
+def test_a_maps_world_reaches_the_page_whole_and_small() -> None:
+    """The lab map's pieces (scenarios/lab.yaml through the wire) are every obstacle drawn,
+    each exactly as broadcast, in a document of a few kB."""
+    from pathlib import Path
+
+    from covswarm.mission.scenarios import load_scenario
+    from covswarm.world.wire import to_message
+
+    scenario = load_scenario(Path(__file__).parents[1] / "scenarios" / "lab-route.toml")
+    message = World.decode(to_message(scenario.world, seq=3, stamp=1.7e9).encode())
+    view = SwarmView("s")
+    view.on_world(message)
+    doc = view.world_document()
+    assert len(doc["obstacles"]) == len(message.obstacles) >= 4
+    for drawn, polygon, name in zip(
+        doc["obstacles"], message.obstacles, message.names, strict=True
+    ):
+        assert drawn == {"name": name, "polygon": [list(p) for p in polygon]}
+    assert doc["workspace"] == list(message.workspace)
+    assert len(json.dumps(doc, separators=(",", ":"))) < 8_000
