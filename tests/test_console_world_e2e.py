@@ -329,16 +329,23 @@ def test_go_to_gets_a_route_that_is_drawn_and_S_follows_it(
     with console(*swarm_run) as url:
         page = open_page(browser, url)
         start = centroid(watch.latest())
+        # A goal inside obstacle 1: the planner (the coordinator) says there is no way.
+        page.click("#goto")
+        x, y = page.evaluate("window.covswarm.clientXY(0.0, 1.2)")
+        page.mouse.click(x, y)
+        page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=10000)
+        reply = page.evaluate("window.covswarm.hooks.lastReply")
+        assert not reply["accepted"] and reply["reason"].startswith("no-path"), reply
+        assert page.inner_text("#steer-result").startswith("refused: no-path")
+        assert page.evaluate("window.covswarm.state().route") is None
+        page.evaluate("window.covswarm.hooks.lastReply = null")
+
         goal = start + [1.5, 0.0]  # beyond the obstacles, the arena's right part
         page.click("#goto")
         assert page.evaluate("window.covswarm.gotoMode()")
         x, y = page.evaluate(f"window.covswarm.clientXY({goal[0]}, {goal[1]})")
         page.mouse.click(x, y)
-        page.wait_for_function(
-            "window.covswarm.hooks.lastReply !== null"
-            " && window.covswarm.hooks.lastRequest.kind === 'goto'",
-            timeout=10000,
-        )
+        page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=10000)
         request, reply = page.evaluate(
             "[window.covswarm.hooks.lastRequest, window.covswarm.hooks.lastReply]"
         )
