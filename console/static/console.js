@@ -549,7 +549,7 @@
     button.classList.toggle("active", on);
     button.setAttribute("aria-pressed", String(on));
     map.style.cursor = on ? "crosshair" : "default";
-    if (on) showResult("idle", "Go to: click where S's centroid should go (Esc: cancel)");
+    showResult("idle", on ? "Go to: click where S's centroid should go (Esc: cancel)" : "drag S to steer the swarm");
     draw();
   }
 
@@ -680,7 +680,7 @@
   window.addEventListener("keydown", (event) => {
     if (event.key === "Escape" && drag) { drag = null; showResult("idle", "cancelled"); draw(); }
     else if (event.key === "Escape" && gotoMode) setGoto(false);
-    else if ((event.key === "g" || event.key === "G") && !drag && event.target === document.body) setGoto(!gotoMode);
+    else if ((event.key === "g" || event.key === "G") && !drag && !(event.target instanceof HTMLInputElement)) setGoto(!gotoMode);
   });
   document.getElementById("goto").addEventListener("click", () => setGoto(!gotoMode));
   map.addEventListener("dblclick", () => { if (!gotoMode) { centreOnS(); follow.checked = true; draw(); } });
