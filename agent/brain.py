@@ -96,12 +96,16 @@ DOMAIN_RESTART_SILENCE = 0.5
 # stream stays followed; a forger must now track the real numbers (open mode cannot stop
 # that: only the access control of --secure does).
 MAX_DOMAIN_SEQ_JUMP = 1000
-# m: a domain vertex this far outside the workspace is still inside (wire rounding).
-WORKSPACE_SLACK = 1e-6
-# m^2: a domain that overlaps an obstacle by more than this area is refused (1 mm x 1 mm:
-# far above rounding, where an S resting on an obstacle's edge overlaps it by ~1e-16 m^2,
-# and far below anything that puts a robot's cell into a wall).
-DOMAIN_OBSTACLE_SLACK = 1e-6
+# m: a domain vertex this far outside the workspace is still inside: the World message rounds
+# the workspace inward to the millimetre (covswarm.world.wire), and the coordinator lets S
+# leave it by 2e-4 m at most (covswarm.world.sweep).
+WORKSPACE_SLACK = 2e-3
+# m: a domain that reaches deeper than this into an obstacle is refused. A depth, not an
+# area: the wire rounds obstacles outward to the millimetre (up to sqrt(2) mm,
+# covswarm.world.wire) and the coordinator lets S come within 1e-4 m of one
+# (covswarm.world.sweep), so a legitimate S may overlap the agent's copy by a 1.5 mm sliver
+# along a whole edge, and more than a few square millimetres.
+DOMAIN_OBSTACLE_SLACK = 2e-3
 # s: the coordinator repeats its World every second (late joiners); a held world whose
 # sender has been silent this long may be replaced by a lower sequence number (a restarted
 # coordinator). A World is taken up to WORLD_MAX_AGE s after its stamp: it is static, and
@@ -385,10 +389,10 @@ class AgentBrain:
 
     def _in_obstacle(self, domain: protocol.Domain) -> bool:
         """Whether ``domain`` (a valid convex polygon) overlaps one of the world's obstacles
-        by more than DOMAIN_OBSTACLE_SLACK m^2 (False without a world)."""
+        deeper than DOMAIN_OBSTACLE_SLACK m (False without a world)."""
         if self.world is None or not self.world.obstacles:
             return False
-        return self.decoder.domain_overlap(domain, self.world) > DOMAIN_OBSTACLE_SLACK
+        return self.decoder.domain_penetration(domain, self.world) > DOMAIN_OBSTACLE_SLACK
 
     def _inside_workspace(self, domain: protocol.Domain) -> bool:
         """Whether every vertex of ``domain`` lies in the workspace (True if none known)."""

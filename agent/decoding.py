@@ -15,7 +15,6 @@ import numpy as np
 from covswarm import protocol
 from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.density import Density
-from covswarm.tvd.geometry import area, clip_convex
 from covswarm.world.model import World
 from covswarm.world.wire import from_message
 
@@ -72,25 +71,32 @@ class MessageDecoder:
         self._world_of = (message, world)
         return world
 
-    def domain_overlap(self, domain: protocol.Domain, world: World) -> float:
-        """The largest area (m^2) the domain's polygon (valid, convex, either orientation)
-        shares with one of the world's obstacles. Only the obstacles whose bounding box
-        meets S's are clipped; the last answer is remembered (the brains of a process hold
-        the same world and receive the same Domain, 20 times a second)."""
+    def domain_penetration(self, domain: protocol.Domain, world: World) -> float:
+        """How deep (m) the domain's polygon (valid, convex, either orientation) reaches into
+        the world's obstacles: the largest, over the obstacles, of the shortest translation
+        that separates S from it (0 when S touches none). For two convex polygons that is
+        the least overlap of their projections on the edge normals of both (the
+        separating-axis theorem). Only obstacles whose bounding box meets S's are looked
+        at; the last answer is remembered (the brains of a process hold the same world and
+        receive the same Domain, 20 times a second)."""
         cached = self._overlap_of
         if cached is not None and cached[0] is domain and cached[1] is world:
             return cached[2]
         polygon = np.array(domain.vertices, dtype=float)
-        x, y = polygon[:, 0], polygon[:, 1]
-        if np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)) < 0.0:
-            polygon = polygon[::-1]  # clip_convex wants CCW
         low, high = polygon.min(axis=0), polygon.max(axis=0)
-        overlap = max(
-            (
-                area(clip_convex(polygon, world.obstacles[j].vertices))
-                for j in world.candidates((low[0], high[0], low[1], high[1]))
-            ),
-            default=0.0,
-        )
-        self._overlap_of = (domain, world, overlap)
-        return overlap
+        deepest = 0.0
+        for j in world.candidates((low[0], high[0], low[1], high[1])):
+            obstacle = world.obstacles[j].vertices
+            edges = np.concatenate(
+                [np.roll(polygon, -1, axis=0) - polygon, np.roll(obstacle, -1, axis=0) - obstacle]
+            )
+            # The edges' unit normals (either sign will do: both ends of each are compared).
+            normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+            normals /= np.linalg.norm(normals, axis=1)[:, None]
+            on_s, on_o = polygon @ normals.T, obstacle @ normals.T  # (k, axes), (m, axes)
+            overlap = np.minimum(
+                on_s.max(axis=0) - on_o.min(axis=0), on_o.max(axis=0) - on_s.min(axis=0)
+            )
+            deepest = max(deepest, float(overlap.min()))
+        self._overlap_of = (domain, world, deepest)
+        return deepest
