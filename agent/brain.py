@@ -17,7 +17,10 @@ offset), not from when they arrived. The domain runs on the coordinator's missio
 seen from this host (its broadcasts' mission time against their receipt), and newer means
 a higher sequence number. Safety (covswarm.tvd.safety): the velocity is filtered so that
 this robot's half of every pair's barrier condition holds against every robot it knows
-within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY).
+within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY). Once
+it knows the world (:meth:`AgentBrain.set_world`, from the coordinator's World broadcast),
+also against the obstacles and workspace walls within SAFETY_RADIUS, and it refuses a domain
+that overlaps an obstacle.
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -52,7 +56,9 @@ from covswarm.tvd.safety import (
     barrier_gain,
     body_safe_distance,
     safe_velocity,
+    wall_distance,
 )
+from covswarm.world.model import World
 
 DROP_REASONS = (
     *protocol.REASONS,
@@ -62,6 +68,10 @@ DROP_REASONS = (
     "old_domain",  # older than the domain already held (by sequence number)
     "domain_outside_workspace",  # a vertex outside the workspace the agent knows
     "domain_seq_jump",  # sequence number implausibly far ahead of the held domain's
+    "domain_in_obstacle",  # overlaps an obstacle of the world the agent knows
+    "bad_world",  # valid message, invalid geometry (a non-convex obstacle, ...)
+    "old_world",  # older than the world already held (by sequence number)
+    "world_seq_jump",  # sequence number implausibly far ahead of the held world's
 )
 # Largest fraction of the gap to the centroid one control period may close (sampled_gain).
 MAX_STEP_FRACTION = 0.8
@@ -87,8 +97,31 @@ DOMAIN_RESTART_SILENCE = 0.5
 # stream stays followed; a forger must now track the real numbers (open mode cannot stop
 # that: only the access control of --secure does).
 MAX_DOMAIN_SEQ_JUMP = 1000
-# m: a domain vertex this far outside the workspace is still inside (wire rounding).
-WORKSPACE_SLACK = 1e-6
+# m: a domain vertex this far outside the workspace is still inside: the World message rounds
+# the workspace inward to the millimetre (covswarm.world.wire), and the coordinator lets S
+# leave it by 2e-4 m at most (covswarm.world.sweep).
+WORKSPACE_SLACK = 2e-3
+# m: a domain that reaches deeper than this into an obstacle is refused. A depth, not an
+# area: the wire rounds obstacles outward to the millimetre (up to sqrt(2) mm,
+# covswarm.world.wire) and the coordinator lets S come within 1e-4 m of one
+# (covswarm.world.sweep), so a legitimate S may overlap the agent's copy by a 1.5 mm sliver
+# along a whole edge, and more than a few square millimetres.
+DOMAIN_OBSTACLE_SLACK = 2e-3
+# s: the coordinator repeats its World every second (late joiners); a held world whose
+# sender has been silent this long may be replaced by a lower sequence number (a restarted
+# coordinator). A World is taken up to WORLD_MAX_AGE s after its stamp: it is static, and
+# one lost repeat must not leave a joiner without it.
+WORLD_RESTART_SILENCE = 5.0
+WORLD_MAX_AGE = 10.0
+# The decay rate of the obstacle and wall rows, as a fraction of the pairs' (barrier_gain's
+# 1 / period at 10 Hz). At the full rate a robot may close the whole gap to the wall's reach
+# in one period, so any command latency overshoots it: closed loop with an ideal unicycle
+# from four starts pulled into a block (tests/test_agent_world.py), the least clearance of
+# the body was 0.090 / 0.074 / 0.070 / 0.046 m with a command acting 0 / 0-20 / 0-40 /
+# 0-60 ms late (0.07 m is contact). At half, a period closes half the gap: 0.090 / 0.090 /
+# 0.089 / 0.085 m, and a command up to a period late still stops short. Robots near a wall
+# approach it more slowly; elsewhere nothing changes.
+WALL_GAMMA_FRACTION = 0.5
 # Unconfirmed beacon-only robots within SAFETY_RADIUS whose AgentStates are followed, the
 # nearest first: more robots than this cannot stand that close around one (hexagonal
 # packing at the safe distance gives 6 per ring), so more are forgeries.
@@ -216,6 +249,11 @@ def sampled_gain(kappa: float, period: float) -> float:
     return min(kappa, MAX_STEP_FRACTION / period)
 
 
+def same_world(a: protocol.World, b: protocol.World) -> bool:
+    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
+    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
+
+
 class AgentBrain:
     """Decision logic of one agent: feed it messages, ask it for actions. No I/O."""
 
@@ -280,6 +318,10 @@ class AgentBrain:
         self.workspace: tuple[float, float, float, float] | None = None
         if config.workspace is not None:
             self.set_workspace(config.workspace)
+        # The arena (covswarm.world.model): None until a World broadcast (or set_world).
+        self.world: World | None = None
+        self._world_message: protocol.World | None = None  # the message it came from
+        self._world_received = -math.inf
 
     def set_workspace(self, box: tuple[float, float, float, float] | None) -> None:
         """The box (xmin, xmax, ymin, ymax) m every domain must lie in from now on (None:
@@ -295,6 +337,55 @@ class AgentBrain:
         if self.domain is not None and not self._inside_workspace(self.domain):
             self.drops.drop("domain_outside_workspace", "held domain outside the new workspace")
             self.domain = self.density = None
+
+    def set_world(self, world: World | None) -> None:
+        """The arena from now on (None: none known, the filter sees robots only): its
+        obstacles and workspace walls within SAFETY_RADIUS enter the safety filter every
+        step, a domain overlapping an obstacle is refused, and its workspace (if it has one)
+        replaces the one held (:meth:`set_workspace`). A held domain that now overlaps an
+        obstacle or leaves the workspace is dropped and counted."""
+        if world is not None and not isinstance(world, World):
+            raise TypeError(f"world must be a covswarm.world.model.World, got {world!r}")
+        self.world = world
+        if world is not None and world.workspace is not None:
+            self.set_workspace(world.workspace)
+        if self.domain is not None and self._in_obstacle(self.domain):
+            self.drops.drop("domain_in_obstacle", "held domain overlaps the new world's obstacles")
+            self.domain = self.density = None
+
+    def on_world(self, message: protocol.World, now: float) -> bool:
+        """Hold a newer World (the coordinator's, repeated every second) and steer by it
+        (:meth:`set_world`). A repeat of the held one only refreshes it. Doubted like a
+        domain: a lower or equal sequence number for a different world while the held one's
+        sender still talks (within WORLD_RESTART_SILENCE) is "old_world", one more than
+        MAX_DOMAIN_SEQ_JUMP above it "world_seq_jump", geometry the model refuses
+        "bad_world"; each dropped and counted."""
+        held = self._world_message
+        if held is not None and same_world(message, held):
+            self._world_received = now
+            return True
+        if held is not None and now - self._world_received < WORLD_RESTART_SILENCE:
+            if message.seq <= held.seq:
+                self.drops.drop("old_world", f"world seq {message.seq} <= {held.seq}")
+                return False
+            if message.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
+                self.drops.drop("world_seq_jump", f"world seq {message.seq} jumps from {held.seq}")
+                return False
+        try:
+            world = self.decoder.world_model(message)
+        except ValueError as exc:
+            self.drops.drop("bad_world", f"world: {exc}")
+            return False
+        self.set_world(world)
+        self._world_message, self._world_received = message, now
+        return True
+
+    def _in_obstacle(self, domain: protocol.Domain) -> bool:
+        """Whether ``domain`` (a valid convex polygon) overlaps one of the world's obstacles
+        deeper than DOMAIN_OBSTACLE_SLACK m (False without a world)."""
+        if self.world is None or not self.world.obstacles:
+            return False
+        return self.decoder.domain_penetration(domain, self.world) > DOMAIN_OBSTACLE_SLACK
 
     def _inside_workspace(self, domain: protocol.Domain) -> bool:
         """Whether every vertex of ``domain`` lies in the workspace (True if none known)."""
@@ -313,11 +404,14 @@ class AgentBrain:
         self, kind: str, payload: bytes, now: float, now_wall: float, key_id: int | None = None
     ) -> bool:
         """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
-        "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
+        "domain" | "world"); ``key_id`` is the id in the key it arrived on. False if
+        dropped."""
         self.counters.received += 1
         try:
             message = self.decoder.decode(kind, payload)
-            max_age = self.config.beacon_timeout if kind == "beacon" else self.config.stale_timeout
+            max_age = {"beacon": self.config.beacon_timeout, "world": WORLD_MAX_AGE}.get(
+                kind, self.config.stale_timeout
+            )
             check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
             self.drops.drop(exc.reason, f"{kind}: {exc}")
@@ -372,8 +466,9 @@ class AgentBrain:
         DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again).
 
         Doubted: one numbered more than MAX_DOMAIN_SEQ_JUMP above a held one whose sender
-        still talks ("domain_seq_jump"), and one with a vertex outside the workspace
-        ("domain_outside_workspace"), are dropped and counted."""
+        still talks ("domain_seq_jump"), one with a vertex outside the workspace
+        ("domain_outside_workspace"), and one overlapping an obstacle of the world
+        ("domain_in_obstacle"), are dropped and counted."""
         held = self.domain
         if held is not None and now - self._domain_received < DOMAIN_RESTART_SILENCE:
             if domain.seq <= held.seq:
@@ -389,6 +484,9 @@ class AgentBrain:
             density = self.decoder.domain_geometry(domain)
         except ValueError as exc:
             self.drops.drop("bad_domain", f"domain: {exc}")
+            return False
+        if self._in_obstacle(domain):
+            self.drops.drop("domain_in_obstacle", f"domain {domain.vertices}")
             return False
         self.domain = domain
         self.density = density
@@ -617,7 +715,8 @@ class AgentBrain:
     ) -> np.ndarray:
         """``velocity`` filtered by covswarm.tvd.safety against the robots near us: the
         candidates (dead-reckoned, with their reported velocities) and the obstacles we
-        stopped hearing from (at rest where last known)."""
+        stopped hearing from (at rest where last known); with a world, against its
+        obstacles and workspace walls near us too (a body radius plus the margin)."""
         config = self.config
         me = pose[:2]
         reckoned = self.neighborhood.reckoned
@@ -640,15 +739,35 @@ class AgentBrain:
         rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
+        # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
+        # world, so the filter is then exactly the robots' alone). Those whose bounding box
+        # is that near are handed over and the filter keeps the ones within its reach: the
+        # same rows as World.nearby's, without computing every distance twice (~90 us).
+        gamma = barrier_gain(config.safety_gamma, self._period)
+        world = self.world
+        walls: dict[str, Any] = {}
+        if world is not None:
+            x, y = float(me[0]), float(me[1])
+            nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
+            walls = {
+                "obstacles": [world.obstacles[j].vertices for j in nearby],
+                "workspace": self.workspace,
+                "obstacle_distance": wall_distance(
+                    config.robot.body_diameter, config.safety_margin
+                ),
+                "reach": SAFETY_RADIUS,
+                "obstacle_gamma": WALL_GAMMA_FRACTION * gamma,
+            }
         result = safe_velocity(
             me,
             velocity,
             near[:, :2],
             body_safe_distance(config.robot.body_diameter, config.safety_margin),
-            barrier_gain(config.safety_gamma, self._period),
+            gamma,
             heading=float(pose[2]),
             velocity=np.array(self.velocity),
             neighbor_velocities=near[:, 2:],
+            **walls,
         )
         self.safety_active += result.active > 0
         self.safety_relaxed += result.relaxed
@@ -772,4 +891,5 @@ _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
     "state": AgentBrain.on_agent_state,
     "beacon": AgentBrain.on_beacon,
     "domain": AgentBrain.on_domain,
+    "world": AgentBrain.on_world,
 }

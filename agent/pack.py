@@ -60,9 +60,10 @@ RING_PER_TILE = 256
 # to judge. 16 holds 8 ticks' worth of a 20 Hz coordinator at 10 Hz plus forgeries; only a
 # flood beyond it can push the real ones out.
 DOMAIN_RING = 16
-# The order in which a brain gets a tick's payloads (then by id and key): the domain and
-# its own pose first, as a process of its own drained its subscribers.
-KIND_ORDER = {"domain": 0, "pose": 1, "state": 2, "beacon": 3}
+# The order in which a brain gets a tick's payloads (then by id and key): the world (the
+# domain is judged against it), the domain and its own pose first, as a process of its own
+# drained its subscribers.
+KIND_ORDER = {"world": 0, "domain": 1, "pose": 2, "state": 3, "beacon": 4}
 
 
 # brain -> {(key, id in it): (kind, id, payload)}: the newest payload per key for a brain
@@ -150,6 +151,7 @@ class Pack:
             bid: bus.publisher(protocol.agent_state_key(swarm, bid)) for bid in self.brains
         }
         self._own_pose = {bid: protocol.pose_key(swarm, bid) for bid in self.brains}
+        self._follow(set(self.brains), protocol.world_key(swarm), "world", None, False)
         self._follow(set(self.brains), protocol.domain_key(swarm), "domain", None, False)
         for bid, key in self._own_pose.items():
             self._follow({bid}, key, "pose", bid, False)

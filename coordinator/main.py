@@ -104,7 +104,8 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     if not core.observed.record.t:
         log.info("no samples recorded: no outputs written")
         return
-    write_run_outputs(config.out, settings, core.observed, core.steering)
+    disk = None if recorder is None else recorder.disk
+    write_run_outputs(config.out, settings, core.observed, core.steering, disk)
     log.info("wrote %s", config.out)
 
 

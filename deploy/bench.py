@@ -199,14 +199,36 @@ def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[s
     return result
 
 
-def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -> dict:
+def bench_world(layout: Layout, obstacles: int) -> Any:
+    """The layout's square as the workspace with ``obstacles`` boxes of 0.2 m x 0.2 m at
+    random (seeded by the layout): a covswarm.world.model.World."""
+    from covswarm.world.model import World
+
+    side = float(layout.polygon[:, 0].max())
+    rng = np.random.default_rng([layout.seed, obstacles])
+    corners = rng.uniform(0.0, side - 0.2, size=(obstacles, 2))
+    boxes = [[x, x + 0.2, y, y + 0.2] for x, y in corners]
+    return World.from_boxes_and_polygons((0.0, side, 0.0, side), boxes)
+
+
+def time_safety_filter(
+    layout: Layout, sample: int | None, kappa: float = 1.0, obstacles: int = 0
+) -> dict:
     """The barrier-certificate filter (covswarm.tvd.safety) against the local step it follows.
 
     For each sampled robot, interleaved: its local step, then the filter of that step's
     velocity against its two-hop neighbours (what an agent does every tick). Returns p50 and
     p99 microseconds of the filter and the median of the per-robot ratio filter / step.
+
+    With ``obstacles`` > 0 (bench_world), the filter is also timed as an agent that knows
+    the world runs it: the obstacles whose bounding box is within SAFETY_RADIUS (the filter
+    keeps those within it) and the workspace walls as rows (covswarm.agent.brain._safe),
+    interleaved with the robots-only filter;
+    adds its p50 and p99, the median per-robot added time, and the mean obstacles nearby.
     """
-    from covswarm.tvd.safety import safe_velocity
+    from covswarm.agent.brain import SAFETY_RADIUS, WALL_GAMMA_FRACTION
+    from covswarm.tvd.drive import KHEPERA_IV
+    from covswarm.tvd.safety import DEFAULT_GAMMA, safe_velocity, wall_distance
 
     adjacency = neighbors(layout.positions, layout.polygon)
     n = len(layout.positions)
@@ -216,7 +238,8 @@ def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -
     velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
     # Robots 0.5 m apart on average: a safe distance of 0.3 m makes some rows active.
     safe = 0.6 * SPACING
-    filters, ratios = [], []
+    world = bench_world(layout, obstacles) if obstacles > 0 else None
+    filters, ratios, walled, added, nearby = [], [], [], [], []
     for me in robots:
         known = two_hop(adjacency, int(me)) - {int(me)}
         view = {j: layout.positions[j] for j in known | {int(me)}}
@@ -230,17 +253,51 @@ def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -
         filter_us = (time.perf_counter() - start) * 1e6
         filters.append(filter_us)
         ratios.append(filter_us / step_us)
-    return {
+        if world is None:
+            continue
+        p = layout.positions[me]
+        start = time.perf_counter()
+        x, y = float(p[0]), float(p[1])
+        near = [world.obstacles[j].vertices for j in world.candidates((x, x, y, y), SAFETY_RADIUS)]
+        safe_velocity(
+            p,
+            step.velocity,
+            others,
+            safe,
+            obstacles=near,
+            workspace=world.workspace,
+            obstacle_distance=wall_distance(KHEPERA_IV.body_diameter),
+            reach=SAFETY_RADIUS,
+            obstacle_gamma=WALL_GAMMA_FRACTION * DEFAULT_GAMMA,
+        )
+        walled.append((time.perf_counter() - start) * 1e6)
+        added.append(walled[-1] - filter_us)
+        nearby.append(len(world.nearby(p, SAFETY_RADIUS)))  # untimed: within reach
+    result = {
         "safety_filter_p50_us": float(np.percentile(filters, 50)),
         "safety_filter_p99_us": float(np.percentile(filters, 99)),
         "safety_over_step": float(np.median(ratios)),
     }
+    if world is not None:
+        result |= {
+            "safety_walls_p50_us": float(np.percentile(walled, 50)),
+            "safety_walls_p99_us": float(np.percentile(walled, 99)),
+            "walls_added_p50_us": float(np.median(added)),
+            "obstacles_nearby_mean": float(np.mean(nearby)),
+        }
+    return result
 
 
 def run_bench(
-    sizes: tuple[int, ...], seeds: int, sample: int | None, repeats: int, progress=None
+    sizes: tuple[int, ...],
+    seeds: int,
+    sample: int | None,
+    repeats: int,
+    progress=None,
+    obstacles: int = 0,
 ) -> list[dict]:
-    """One row per (N, layout kind): per-agent and centralised figures pooled over seeds."""
+    """One row per (N, layout kind): per-agent and centralised figures pooled over seeds
+    (``obstacles``: see time_safety_filter)."""
     rows = []
     for n in sizes:
         for kind in ("random", "cvt"):
@@ -256,7 +313,7 @@ def run_bench(
                 weighted.append(time_density_vs_uniform(layout, sample, bench_density(side)))
                 histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
                 central.append(time_centralized(layout, repeats))
-                safety.append(time_safety_filter(layout, sample))
+                safety.append(time_safety_filter(layout, sample, obstacles=obstacles))
                 laws.append(time_da_vs_d1(layout, sample))
                 if progress is not None:
                     progress(n, kind, seed)
@@ -631,6 +688,13 @@ def live_table(rows: list[dict]) -> Any:
 @click.option("--repeats", default=3, show_default=True, help="Full-team steps timed per layout.")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Output folder.")
 @click.option(
+    "--obstacles",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Also time the safety filter with this many 0.2 m boxes in the square (per N).",
+)
+@click.option(
     "--live", is_flag=True, help="Also run the swarm for real (covswarm run) at --live-sizes."
 )
 @click.option(
@@ -686,6 +750,7 @@ def bench_command(
     sample: int,
     repeats: int,
     out: Path | None,
+    obstacles: int,
     live: bool,
     live_sizes: str,
     live_duration: float,
@@ -736,6 +801,7 @@ def bench_command(
             sample,
             repeats,
             progress=lambda n, kind, seed: bar.update(task, advance=1, description=f"N={n} {kind}"),
+            obstacles=obstacles,
         )
     live_rows: list[dict] = []
     if live:
@@ -777,6 +843,20 @@ def bench_command(
             f"{row['da_over_d1']:.2f}",
         )
     Console().print(table)
+    if obstacles:
+        walls = Table(title=f"safety filter with {obstacles} obstacles and the workspace walls")
+        for name in ("N", "layout", "obstacles near", "p50 us", "p99 us", "added p50 us"):
+            walls.add_column(name, justify="right")
+        for row in rows:
+            walls.add_row(
+                str(row["agents"]),
+                row["layout"],
+                f"{row['obstacles_nearby_mean']:.1f}",
+                f"{row['safety_walls_p50_us']:.0f}",
+                f"{row['safety_walls_p99_us']:.0f}",
+                f"{row['walls_added_p50_us']:.0f}",
+            )
+        Console().print(walls)
     if live_rows:
         Console().print(live_table(live_rows))
     Console().print(

@@ -98,6 +98,11 @@ def status_key(swarm: str) -> str:
     return f"{_base(swarm)}/status"
 
 
+def world_key(swarm: str) -> str:
+    """Coordinator -> World broadcast (the arena; repeated every second)."""
+    return f"{_base(swarm)}/world"
+
+
 def steer_key(swarm: str) -> str:
     """Client -> coordinator: SteerRequest queries, answered with a SteerReply."""
     return f"{_base(swarm)}/steer"

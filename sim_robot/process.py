@@ -16,6 +16,9 @@ than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` pl
 skew) are dropped, counted per reason and logged rate-limited (protocol.inbound); they
 never reach the wheels. Given a world (``RobotSim(world=...)``), its obstacles and workspace
 walls are solid: a robot driving into one stops at the contact (covswarm.world.contact).
+The process subscribes to the coordinator's World broadcast (``covswarm/<swarm>/world``) and
+gives the newest world to all its robots (:class:`WorldHeld`); until one arrives, the floor
+is open.
 
 ``covswarm robot --ids 0-9 --pose x,y,theta ...`` simulates several robots in one process
 (one Zenoh session; each robot keeps its own keys, claim and token), which is how one
@@ -54,8 +57,16 @@ from covswarm.sim_robot.config import RobotConfig
 from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate_one
 from covswarm.world.contact import stop_at_contact
 from covswarm.world.model import World
+from covswarm.world.wire import from_message
 
 log = logging.getLogger("covswarm.robot")
+
+# Why a World broadcast was dropped: protocol reasons, geometry the model refuses, or not
+# newer than the held one (by sequence number) while its sender still talks.
+WORLD_DROP_REASONS = (*protocol.REASONS, "bad_world", "old_world")
+# s: silence of the held world's sender after which any sequence number is taken (a
+# restarted coordinator numbers from 0 again); it repeats its World every second.
+WORLD_RESTART_SILENCE = 5.0
 
 
 @dataclass
@@ -151,6 +162,50 @@ class RobotSim:
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
 
 
+def same_world(a: protocol.World, b: protocol.World) -> bool:
+    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
+    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
+
+
+class WorldHeld:
+    """The newest World a robot process heard, as a model (covswarm.world.model.World).
+
+    Sans-IO: feed it raw payloads with the monotonic time of receipt. A repeat of the held
+    message refreshes it; a different one is taken if its sequence number is higher, or
+    any once the held one's sender has been silent for WORLD_RESTART_SILENCE. Malformed
+    payloads and refused geometry are dropped and counted (``drops``), never raised.
+    """
+
+    def __init__(self) -> None:
+        self.world: World | None = None
+        self.drops = DropLog(log, "robot world", WORLD_DROP_REASONS)
+        self._message: protocol.World | None = None
+        self._received = -np.inf
+
+    def on_payload(self, payload: object, now: float) -> bool:
+        """Take a World payload received at ``now``; True if it is (or repeats) the held one."""
+        try:
+            message = protocol.World.decode(payload)
+        except protocol.ProtocolError as exc:
+            self.drops.drop(exc.reason, f"world: {exc}")
+            return False
+        held = self._message
+        if held is not None and same_world(message, held):
+            self._received = now
+            return True
+        if held is not None and message.seq <= held.seq:
+            if now - self._received < WORLD_RESTART_SILENCE:
+                self.drops.drop("old_world", f"world seq {message.seq} <= {held.seq}")
+                return False
+        try:
+            self.world = from_message(message)
+        except ValueError as exc:
+            self.drops.drop("bad_world", f"world: {exc}")
+            return False
+        self._message, self._received = message, now
+        return True
+
+
 def drops_line(sims: list[RobotSim]) -> str | None:
     """One log line with every robot's non-zero drop counts per reason, as JSON after a
     fixed prefix (``robot drops {"3": {"undecodable": 2}}``), for the launcher's log and
@@ -229,6 +284,11 @@ def run_robots(
                     protocol.cmd_key(swarm, sim.id), zenoh.handlers.RingChannel(16)
                 )
                 links.append((sim, publisher, commands))
+            # The arena, repeated every second by the coordinator: the newest is enough.
+            held = WorldHeld()
+            worlds = session.declare_subscriber(
+                protocol.world_key(swarm), zenoh.handlers.RingChannel(2)
+            )
             for sim in sims:
                 tokens.append(
                     session.liveliness().declare_token(protocol.alive_key(swarm, "robot", sim.id))
@@ -244,6 +304,10 @@ def run_robots(
                 publish = now >= next_pose
                 if publish:
                     next_pose = max(next_pose + pose_period, now)
+                while (sample := worlds.try_recv()) is not None:
+                    if held.on_payload(sample.payload.to_bytes(), now):
+                        for sim in sims:
+                            sim.world = held.world
                 for sim, publisher, commands in links:
                     while (sample := commands.try_recv()) is not None:
                         sim.on_command(sample.payload.to_bytes(), now, wall)
@@ -263,6 +327,7 @@ def run_robots(
             log.info("robot %d stopping: %s, dropped %s", sim.id, sim.counters, sim.drops.summary())
         if (line := drops_line(sims)) is not None:  # a flood shows without --verbose
             log.warning("%s", line)
+        log.info("world: %s, dropped %s", "held" if held.world else "none", held.drops.summary())
         log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
     return [sim.counters for sim in sims]
 

@@ -21,7 +21,7 @@ ALLOWED: dict[str, set[str]] = {
     "tvd": set(),
     "protocol": set(),
     "runtime": {"protocol"},
-    "world": {"tvd"},
+    "world": {"tvd", "protocol"},
     "mission": {"tvd", "world"},
     "records": {"tvd", "protocol", "mission", "world"},
     "agent": {"tvd", "protocol", "runtime", "world"},

@@ -62,8 +62,6 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from covswarm.tvd.geometry import point_polygon_distance_grad
-
 # (xmin, xmax, ymin, ymax) m: a rectangular workspace, the robots' centres inside.
 Box = tuple[float, float, float, float]
 
@@ -154,6 +152,58 @@ def pair_constraints(
     return A, b
 
 
+def polygon_distance_grads(
+    point: np.ndarray, polygons: Sequence[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`covswarm.tvd.geometry.point_polygon_distance_grad` of ``point`` (2,) m to each
+    of m convex CCW polygons (k_j, 2) m at once: (signed distances (m,) m, gradients (m, 2)).
+
+    One numpy pass over the polygons padded to the most vertices K (a short one repeats its
+    last vertex: zero-length edges, which the nearest point ignores by ties and the depth by
+    a mask), instead of a call per polygon, whose overhead dominated an agent's filter near
+    a map's many pieces. The same formulas edge by edge (equal to rounding).
+    """
+    p = np.asarray(point, dtype=float).reshape(2)
+    m = len(polygons)
+    sizes = {len(q) for q in polygons}
+    if len(sizes) == 1:  # all boxes, say: no padding
+        a = np.array(polygons, dtype=float).reshape(m, -1, 2)
+    else:
+        a = np.empty((m, max(sizes), 2))
+        for j, q in enumerate(polygons):
+            n = len(q)
+            a[j, :n], a[j, n:] = q, q[n - 1]
+    # Components on (m, K) arrays: faster than einsum over a last axis of 2.
+    ax, ay = a[..., 0], a[..., 1]
+    dx, dy = np.roll(ax, -1, axis=1) - ax, np.roll(ay, -1, axis=1) - ay  # K-1 closes
+    rx, ry = p[0] - ax, p[1] - ay
+    length2 = dx * dx + dy * dy
+    valid = length2 > 0.0
+    safe2 = np.where(valid, length2, 1.0)
+    inside = np.all(dx * ry - dy * rx >= 0.0, axis=1)
+    t = np.clip((rx * dx + ry * dy) / safe2, 0.0, 1.0)
+    gx, gy = rx - t * dx, ry - t * dy  # p - nearest point of each edge
+    d2 = gx * gx + gy * gy
+    best = np.argmin(d2, axis=1)
+    rows = np.arange(m)
+    dist = np.sqrt(d2[rows, best])
+    outside = ~inside & (dist > 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        grad = np.stack([gx[rows, best], gy[rows, best]], axis=1) / dist[:, None]
+    signed = dist.copy()
+    if not outside.all():
+        # Inside or on the boundary: the deepest edge line (the first of equals), as
+        # geometry's, on the outward unit normals.
+        norm = np.sqrt(safe2)
+        nx, ny = dy / norm, -dx / norm
+        depth = np.where(valid, nx * rx + ny * ry, -np.inf)
+        deepest = np.argmax(depth, axis=1)
+        normal = np.stack([nx[rows, deepest], ny[rows, deepest]], axis=1)
+        grad[~outside] = normal[~outside]
+        signed[~outside] = np.minimum(depth[rows, deepest], 0.0)[~outside]
+    return signed, grad
+
+
 def obstacle_constraints(
     position: np.ndarray,
     obstacles: Sequence[np.ndarray],
@@ -173,11 +223,11 @@ def obstacle_constraints(
     p = np.asarray(position, dtype=float).reshape(2)
     rows: list[np.ndarray] = []
     bounds: list[float] = []
-    for polygon in obstacles:
-        signed, grad = point_polygon_distance_grad(p, polygon)
-        if signed <= reach:
-            rows.append(-grad)
-            bounds.append(gamma * (signed - distance))
+    if len(obstacles):
+        signed, grad = polygon_distance_grads(p, obstacles)
+        near = signed <= reach
+        rows.extend(-grad[near])
+        bounds.extend(gamma * (signed[near] - distance))
     if workspace is not None:
         xmin, xmax, ymin, ymax = (float(v) for v in workspace)
         if not (xmin < xmax and ymin < ymax):
@@ -259,6 +309,7 @@ def safe_velocity(
     workspace: Box | None = None,
     obstacle_distance: float | None = None,
     reach: float = np.inf,
+    obstacle_gamma: float | None = None,
 ) -> FilterResult:
     """The velocity closest to ``nominal`` that keeps this robot's half of every pair safe.
 
@@ -270,8 +321,10 @@ def safe_velocity(
     current centre velocities for the reciprocal split (:func:`pair_constraints`).
     obstacles (convex polygons (k, 2) m), workspace (walls (xmin, xmax, ymin, ymax) m): one
     row each within ``reach`` m (:func:`obstacle_constraints`), keeping the centre
-    ``obstacle_distance`` m from them (:func:`wall_distance`; required with either). With
-    neither, the rows and the result are exactly those of the robots alone.
+    ``obstacle_distance`` m from them (:func:`wall_distance`; required with either), at the
+    decay rate ``obstacle_gamma`` 1/s (None: ``gamma``; smaller leaves room for command
+    latency, covswarm.agent.brain.WALL_GAMMA_FRACTION). With neither, the rows and the
+    result are exactly those of the robots alone.
     Non-finite neighbours are ignored; a non-finite position, heading or nominal velocity
     gives 0. When the rows cannot all hold (``relaxed``: a pair already inside the safe
     distance, boxed in), every bound is raised to max(gamma h / 2, 0), which the zero
@@ -284,6 +337,8 @@ def safe_velocity(
     walled = len(obstacles) > 0 or workspace is not None
     if walled and not (obstacle_distance is not None and obstacle_distance >= 0.0):
         raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
+    if obstacle_gamma is not None and not obstacle_gamma > 0.0:
+        raise ValueError(f"need obstacle_gamma > 0, got {obstacle_gamma!r}")
     position = np.asarray(position, dtype=float).reshape(2)
     nominal = np.asarray(nominal, dtype=float).reshape(2)
     finite = np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))
@@ -304,8 +359,9 @@ def safe_velocity(
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
     relaxed = np.maximum(0.5 * gamma * h, 0.0)
     if walled:
+        wall_gamma = gamma if obstacle_gamma is None else obstacle_gamma
         A_o, b_o = obstacle_constraints(
-            position, obstacles, workspace, float(obstacle_distance), gamma, reach
+            position, obstacles, workspace, float(obstacle_distance), wall_gamma, reach
         )
         A, b = np.concatenate([A, A_o]), np.concatenate([b, b_o])
         relaxed = np.concatenate([relaxed, np.maximum(b_o, 0.0)])
