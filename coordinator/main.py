@@ -45,6 +45,10 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
 
 log = logging.getLogger("covswarm.coordinator")
 
+# The coordinator's log line when the run's outputs could not be written; the launcher
+# repeats it in its last line.
+OUTPUTS_NOT_WRITTEN = "run outputs not written in"
+
 
 def run_coordinator(config: CoordinatorConfig) -> None:
     """One coordinator run: wait for the team, broadcast, monitor, write the outputs."""
@@ -105,7 +109,11 @@ def run_coordinator(config: CoordinatorConfig) -> None:
         log.info("no samples recorded: no outputs written")
         return
     disk = None if recorder is None else recorder.disk
-    write_run_outputs(config.out, settings, core.observed, core.steering, disk)
+    try:
+        write_run_outputs(config.out, settings, core.observed, core.steering, disk)
+    except OSError as exc:  # a full disk: the mission is over, its records stay readable
+        log.error("%s %s: %s", OUTPUTS_NOT_WRITTEN, config.out, exc.strerror or exc)
+        raise SystemExit(1) from None
     log.info("wrote %s", config.out)
 
 

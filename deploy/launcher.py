@@ -28,6 +28,7 @@ import click
 from rich.console import Console
 
 from covswarm.coordinator.broadcastable import check_broadcastable
+from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
     RunConfig,
@@ -317,6 +318,10 @@ def run_swarm(run: RunConfig) -> None:
     elif not run.coordinator:
         console.log(f"the coordinator's host writes the summary; resources in {out_dir}")
     else:
-        console.log(f"[red]no summary written (see {log_dir / 'coordinator-0.log'})")
+        log = log_dir / "coordinator-0.log"
+        lines = log.read_text("utf-8", errors="replace").splitlines() if log.exists() else []
+        why = [line for line in lines if OUTPUTS_NOT_WRITTEN in line]
+        reason = f": {why[-1].split(OUTPUTS_NOT_WRITTEN, 1)[1].strip()}" if why else ""
+        console.log(f"[red]no summary written{reason} (see {log})")
         result.exit_code = result.exit_code or 1
     sys.exit(result.exit_code)
