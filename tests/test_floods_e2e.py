@@ -1,6 +1,7 @@
 """Floods cost a count, not the mission (issue 21): a hostile session on a running swarm's
 router puts garbage on a robot's command key and on the domain key and floods the steering
-service; the mission goes on and summary.json counts what was dropped or refused."""
+service; the mission goes on and summary.json counts what was dropped or refused, and the
+coordinator reports that another process publishes on its domain key."""
 
 from __future__ import annotations
 
@@ -46,4 +47,6 @@ def test_floods_are_counted_in_summary_json_and_the_mission_goes_on(tmp_path: Pa
     assert summary["steering_refused"]["rate-limited"] >= 10, summary["steering_refused"]
     domain_drops = summary["agent_stats"]["team"]["drop_undecodable"]["max"]
     assert domain_drops >= 50, summary["agent_stats"]["team"]
+    # The coordinator hears the garbage on its domain key too: someone else publishes there.
+    assert summary["foreign_domains"] >= 50
     assert summary["lost_processes"] == [] and summary["final_error"] < 0.05
