@@ -37,6 +37,7 @@ from typing import Any
 import click
 import numpy as np
 
+from covswarm.runtime.options import float_option
 from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
@@ -494,11 +495,11 @@ def live_table(rows: list[dict]) -> Any:
     show_default=True,
     help="Team sizes of the live runs.",
 )
-@click.option(
+@float_option(
     "--live-duration",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=20.0,
-    show_default=True,
     help="Mission length of each live run, s.",
 )
 @click.option(
@@ -508,11 +509,11 @@ def live_table(rows: list[dict]) -> Any:
     show_default=True,
     help="Brains per agent process and robots per robot process in the live runs.",
 )
-@click.option(
+@float_option(
     "--live-time-scale",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=1.0,
-    show_default=True,
     help="Mission seconds per wall second in the live runs (covswarm run --time-scale).",
 )
 def bench_command(

@@ -49,7 +49,17 @@ from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
-from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
+from covswarm.runtime.options import (
+    MAX_CLOCK_SKEW_OPTION,
+    ROUTER_HELP,
+    SWARM_OPTION,
+    TIME_SCALE_OPTION,
+    VERBOSE_OPTION,
+    connect_option,
+    float_option,
+    id_options,
+    id_selection,
+)
 from covswarm.sim_robot.config import RobotConfig
 from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate_one
 from covswarm.world.contact import stop_at_contact
@@ -252,12 +262,9 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 
 
 @click.command("robot")
-@click.option("--id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
-@click.option("--ids", help="Several robots in this process instead, e.g. 0-9 (one session).")
-@click.option(
-    "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
-)
-@click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
+@id_options("Several robots in this process instead, e.g. 0-9 (one session).")
+@connect_option(ROUTER_HELP)
+@SWARM_OPTION
 @click.option("--x", type=float, default=0.0, show_default=True, help="Initial x (m).")
 @click.option("--y", type=float, default=0.0, show_default=True, help="Initial y (m).")
 @click.option("--theta", type=float, default=0.0, show_default=True, help="Initial heading.")
@@ -269,20 +276,20 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 # Integration is exact over a step (constant wheels drive an arc), so stepping at the pose
 # rate loses nothing but up to one period of command latency, and on a machine hosting
 # hundreds of robots every saved tick is CPU the agents need.
-@click.option("--rate", type=click.FloatRange(min=1.0), default=20.0, show_default=True)
-@click.option("--pose-rate", type=click.FloatRange(min=0.1), default=20.0, show_default=True)
-@click.option("--cmd-timeout", type=click.FloatRange(min=0.01), default=0.5, show_default=True)
+@float_option("--rate", low=1.0, default=20.0)
+@float_option("--pose-rate", low=0.1, default=20.0)
+@float_option("--cmd-timeout", low=0.01, default=0.5)
 @TIME_SCALE_OPTION
 @MAX_CLOCK_SKEW_OPTION
-@click.option(
+@float_option(
     "--max-wheel-speed",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=MAX_WHEEL_SPEED,
-    show_default=True,
     help="Rim speed limit (m/s).",
 )
 @SECURE_OPTION
-@click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
+@VERBOSE_OPTION
 def robot_command(**options: Any) -> None:
     """Run one simulated Khepera IV, or several (pose publisher, wheel-command subscriber)."""
     run_robot_process(RobotConfig(**options))
