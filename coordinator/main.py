@@ -116,12 +116,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 
 
 @click.command("coordinator")
-@click.option(
-    "--scenario",
-    default="passage",
-    show_default=True,
-    help=SCENARIO_HELP,
-)
+@click.option("--scenario", default="passage", show_default=True, help=SCENARIO_HELP)
 @connect_option("Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable).")
 @click.option("--swarm", required=True, help="Swarm name (key prefix) shared by the run.")
 @agents_option("Team size to wait for [scenario].")

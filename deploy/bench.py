@@ -104,16 +104,27 @@ def two_hop(adjacency: list[set[int]], me: int) -> set[int]:
     return known
 
 
+def sampled_robots(layout: Layout, sample: int | None) -> tuple[list[set[int]], np.ndarray]:
+    """The layout's Voronoi adjacency, and the robots timed: ``sample`` of them drawn with the
+    layout's seed, or all where ``sample`` is None or not below N."""
+    adjacency = neighbors(layout.positions, layout.polygon)
+    n = len(layout.positions)
+    if sample is not None and sample < n:
+        return adjacency, np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    return adjacency, np.arange(n)
+
+
+def translating(layout: Layout) -> np.ndarray:
+    """Vertex velocities (m/s, shape (V, 2)) of the layout's polygon translating at (0.05, 0.02)."""
+    return np.tile([0.05, 0.02], (len(layout.polygon), 1))
+
+
 def time_local_steps(
     layout: Layout, sample: int | None, kappa: float = 1.0, density: Density | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Microseconds of each sampled robot's local step, and its two-hop neighbourhood size."""
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    adjacency, robots = sampled_robots(layout, sample)
+    velocity = translating(layout)
     times, sizes = [], []
     for me in robots:
         known = two_hop(adjacency, int(me))
@@ -136,11 +147,7 @@ def time_da_vs_d1(layout: Layout, sample: int | None, kappa: float = 1.0) -> dic
     field is not trivial). Returns the p50 microseconds of the TVD-DA step and the median of
     the per-robot ratio TVD-DA / TVD-D1.
     """
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    adjacency, robots = sampled_robots(layout, sample)
     centre = layout.polygon.mean(axis=0)
     turn = np.array([[0.0, -1.0], [1.0, 0.0]])
     velocity = [0.05, 0.02] + 0.01 * (layout.polygon - centre) @ (np.eye(2) + turn).T
@@ -166,12 +173,8 @@ def time_density_vs_uniform(
     """Microseconds of each sampled robot's local step with ``density`` and, interleaved on
     the same two-hop view, without (uniform), so that the machine's drift lands on both:
     (density times, uniform times)."""
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    adjacency, robots = sampled_robots(layout, sample)
+    velocity = translating(layout)
     spent: dict[str, list[float]] = {"density": [], "uniform": []}
     for me in robots:
         view = {j: layout.positions[j] for j in two_hop(adjacency, int(me))}
@@ -187,7 +190,7 @@ def time_density_vs_uniform(
 
 def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[str, float]:
     """Median milliseconds of one full-team step of each law."""
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    velocity = translating(layout)
     result = {}
     for name, law in (("tvd_c", tvd_c), ("tvd_d1", tvd_d1), ("tvd_da", tvd_da)):
         samples = []
@@ -208,12 +211,8 @@ def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -
     """
     from covswarm.tvd.safety import safe_velocity
 
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    adjacency, robots = sampled_robots(layout, sample)
+    velocity = translating(layout)
     # Robots 0.5 m apart on average: a safe distance of 0.3 m makes some rows active.
     safe = 0.6 * SPACING
     filters, ratios = [], []

@@ -59,12 +59,7 @@ from covswarm.runtime.options import (
 
 
 @click.command("run")
-@click.option(
-    "--scenario",
-    default="passage",
-    show_default=True,
-    help=SCENARIO_HELP,
-)
+@click.option("--scenario", default="passage", show_default=True, help=SCENARIO_HELP)
 @agents_option("Team size [scenario default].")
 @float_option("--kappa", low=0, low_open=True, help="Gain [scenario].")
 @switch_option("feedforward", "Agents use the dc/dt feedforward term (--no-feedforward: drop it).")
