@@ -131,3 +131,19 @@ class Latest:
     def snapshot(self) -> dict[int, protocol.Message]:
         with self.lock:
             return dict(self.values)
+
+
+def stop_children(children: list[subprocess.Popen]) -> list[int]:
+    """SIGTERM every child still running, then their exit codes (a child that does not exit
+    within 10 s is killed, and its code is the kill's)."""
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(signal.SIGTERM)
+    codes = []
+    for child in children:
+        try:
+            codes.append(child.wait(timeout=10))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            codes.append(child.wait())
+    return codes

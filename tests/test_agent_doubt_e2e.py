@@ -7,7 +7,6 @@ team still covers the real S, no robot leaves the workspace, and every forgery i
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -15,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import Latest, open_router
+from live_runs import Latest, open_router, stop_children
 
 from covswarm import protocol
 from covswarm.tvd.coverage import mass_centroid
@@ -110,16 +109,7 @@ def test_forged_domains_and_phantom_beacons_change_nothing_but_counts() -> None:
         # behind a refused one, still as a jump; never taken.
         assert all(s["drop_domain_seq_jump"] > 0 for s in stats), stats
     finally:
-        for child in children:
-            if child.poll() is None:
-                child.send_signal(signal.SIGTERM)
-        codes = []
-        for child in children:
-            try:
-                codes.append(child.wait(timeout=10))
-            except subprocess.TimeoutExpired:
-                child.kill()
-                codes.append(child.wait())
+        codes = stop_children(children)
         hostile.close()
         session.close()
     assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"

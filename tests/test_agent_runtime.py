@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -12,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import Latest, open_router
+from live_runs import Latest, open_router, stop_children
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -557,16 +556,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
             assert all(state.stats[f"drop_{r}"] == 0 for r in protocol.REASONS)
             assert set(state.neighbors) <= {0, 1, 2} - {state.id}
     finally:
-        for child in children:
-            if child.poll() is None:
-                child.send_signal(signal.SIGTERM)
-        codes = []
-        for child in children:
-            try:
-                codes.append(child.wait(timeout=10))
-            except subprocess.TimeoutExpired:
-                child.kill()
-                codes.append(child.wait())
+        codes = stop_children(children)
         session.close()
     assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"
 
