@@ -147,3 +147,12 @@ def stop_children(children: list[subprocess.Popen]) -> list[int]:
             child.kill()
             codes.append(child.wait())
     return codes
+
+
+def watch_team(session: object, swarm: str) -> tuple[Latest, Latest]:
+    """The newest Pose and AgentState of every robot of ``swarm``, subscribed on ``session``."""
+    poses = Latest(protocol.Pose)
+    states = Latest(protocol.AgentState)
+    session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
+    session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+    return poses, states

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import Latest, open_router, stop_children
+from live_runs import open_router, stop_children, watch_team
 
 from covswarm import protocol
 from covswarm.tvd.coverage import mass_centroid
@@ -49,10 +49,7 @@ def test_forged_domains_and_phantom_beacons_change_nothing_but_counts() -> None:
     hostile = zenoh.open(protocol.session_config([endpoint], None, "client"))
     children: list[subprocess.Popen] = []
     try:
-        poses = Latest(protocol.Pose)
-        states = Latest(protocol.AgentState)
-        session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
-        session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+        poses, states = watch_team(session, swarm)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         box = [str(v) for v in WORKSPACE]
         for rid, (x, y) in enumerate(STARTS):

@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import Latest, open_router, stop_children
+from live_runs import open_router, stop_children, watch_team
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -504,10 +504,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
     children: list[subprocess.Popen] = []
     session, endpoint = open_router()
     try:
-        poses = Latest(protocol.Pose)
-        states = Latest(protocol.AgentState)
-        session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
-        session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+        poses, states = watch_team(session, swarm)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         for rid, (x, y) in enumerate(starts):
             common = ["--id", str(rid), "--connect", endpoint, "--swarm", swarm]
