@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from live_runs import open_router, stop_children, watch_team
+from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.tvd.coverage import mass_centroid
@@ -30,15 +31,7 @@ STARTS = [(0.3, 0.3), (0.6, 0.4), (0.4, 0.7)]
 
 
 def domain(vertices: list, seq: int, state: str = "running") -> bytes:
-    return protocol.Domain(
-        seq=seq,
-        stamp=time.time(),
-        t=0.0,
-        state=state,
-        vertices=vertices,
-        velocities=[[0.0, 0.0]] * len(vertices),
-        kappa=1.0,
-    ).encode()
+    return domain_message(vertices, seq=seq, stamp=time.time(), state=state).encode()
 
 
 @pytest.mark.timeout(150)

@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from live_runs import open_router, stop_children, watch_team
+from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -38,15 +39,8 @@ def domain(
     seq: int = 1,
 ) -> protocol.Domain:
     vertices = SQUARE if vertices is None else vertices
-    return protocol.Domain(
-        seq=seq,
-        stamp=stamp,
-        t=0.0,
-        state=state,
-        vertices=vertices,
-        velocities=[list(velocity)] * len(vertices),
-        kappa=1.0,
-        tile_size=tile_size,
+    return domain_message(
+        vertices, seq=seq, stamp=stamp, state=state, velocity=velocity, tile_size=tile_size
     )
 
 
@@ -513,15 +507,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
             children.append(subprocess.Popen([COVSWARM, "agent", *common], cwd=REPO, env=env))
 
         def publish(state: str, seq: int) -> None:
-            message = protocol.Domain(
-                seq=seq,
-                stamp=time.time(),
-                t=0.0,
-                state=state,
-                vertices=SQUARE,
-                velocities=[[0.0, 0.0]] * 4,
-                kappa=1.0,
-            )
+            message = domain_message(SQUARE, seq=seq, stamp=time.time(), state=state)
             session.put(protocol.domain_key(swarm), message.encode())
 
         # Wait (domain "waiting") until every agent reports, i.e. sees its own pose.
