@@ -156,3 +156,14 @@ def watch_team(session: object, swarm: str) -> tuple[Latest, Latest]:
     session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
     session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
     return poses, states
+
+
+def stop_process(child: subprocess.Popen) -> None:
+    """SIGTERM ``child`` if it still runs; SIGKILL if it has not exited 10 s later."""
+    if child.poll() is None:
+        child.terminate()
+        try:
+            child.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
