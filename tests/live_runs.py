@@ -131,3 +131,39 @@ class Latest:
     def snapshot(self) -> dict[int, protocol.Message]:
         with self.lock:
             return dict(self.values)
+
+
+def stop_children(children: list[subprocess.Popen]) -> list[int]:
+    """SIGTERM every child still running, then their exit codes (a child that does not exit
+    within 10 s is killed, and its code is the kill's)."""
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(signal.SIGTERM)
+    codes = []
+    for child in children:
+        try:
+            codes.append(child.wait(timeout=10))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            codes.append(child.wait())
+    return codes
+
+
+def watch_team(session: object, swarm: str) -> tuple[Latest, Latest]:
+    """The newest Pose and AgentState of every robot of ``swarm``, subscribed on ``session``."""
+    poses = Latest(protocol.Pose)
+    states = Latest(protocol.AgentState)
+    session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
+    session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+    return poses, states
+
+
+def stop_process(child: subprocess.Popen) -> None:
+    """SIGTERM ``child`` if it still runs; SIGKILL if it has not exited 10 s later."""
+    if child.poll() is None:
+        child.terminate()
+        try:
+            child.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
