@@ -7,6 +7,7 @@ outlives the launcher, and how whatever a failed test left behind is killed, by 
 
 from __future__ import annotations
 
+import json
 import os
 import secrets
 import signal
@@ -167,3 +168,25 @@ def stop_process(child: subprocess.Popen) -> None:
         except subprocess.TimeoutExpired:
             child.kill()
             child.wait()
+
+
+def mission_started(run: subprocess.Popen, out: Path, timeout: float = 90.0) -> str:
+    """Wait until the ``covswarm run`` launched into ``out`` started its mission; its Zenoh
+    endpoint (launch.json). Fails with the launcher's log if it does not."""
+    log = out / "logs" / "coordinator-0.log"
+    started = wait_until(
+        lambda: run.poll() is None and log.exists() and "mission started" in log.read_text(),
+        timeout,
+    )
+    assert started, (out.parent / f"{out.name}.launcher.log").read_text()
+    return json.loads((out / "launch.json").read_text())["endpoint"]
+
+
+def steer_cli(endpoint: str, swarm: str, *args: str) -> subprocess.CompletedProcess:
+    """``covswarm steer`` on ``swarm`` through ``endpoint`` with ``args``; its result."""
+    return subprocess.run(
+        [*covswarm_argv(), "steer", "--connect", endpoint, "--swarm", swarm, *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )

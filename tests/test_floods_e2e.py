@@ -10,7 +10,7 @@ import time
 from pathlib import Path
 
 import pytest
-from live_runs import launch, new_swarm, wait_until
+from live_runs import launch, mission_started, new_swarm
 
 from covswarm import protocol
 
@@ -26,12 +26,7 @@ def test_floods_are_counted_in_summary_json_and_the_mission_goes_on(tmp_path: Pa
     swarm, out = new_swarm(), tmp_path / "flood"
     args = ("--scenario", "live", "--agents", "3", "--duration", "14")
     with launch(out, *args, swarm=swarm) as run:
-        log = out / "logs" / "coordinator-0.log"
-        assert wait_until(
-            lambda: run.poll() is None and log.exists() and "mission started" in log.read_text(),
-            90,
-        ), (tmp_path / "flood.launcher.log").read_text()
-        endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
+        endpoint = mission_started(run, out)
         with zenoh.open(protocol.session_config([endpoint])) as hostile:
             client = SteeringClient(hostile, swarm)
             replies = [client.translate(0.0, 0.0, duration=1.0) for _ in range(30)]
