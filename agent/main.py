@@ -291,8 +291,8 @@ def run_agents(
 @SECURE_OPTION
 @click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
 def agent_command(**options: Any) -> None:
-    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi,
-    TVD-D1)."""
+    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi;
+    TVD-DA by default, the paper's TVD-D1 with --law d1)."""
     run_agent_process(AgentProcessConfig(**options))
 
 
