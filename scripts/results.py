@@ -9,8 +9,8 @@ parser and run in-process (``simulate``, what ``covswarm sim`` runs, without the
 ``--compare`` runs without dc/dt too (the run's name gets ``-noff``). docs/results.json keeps
 each run's figures with its command, the date and the numpy/scipy versions; the tables
 between ``<!-- results: NAME -->`` and ``<!-- /results -->`` in docs/*.md are rendered from it
-(tests/test_paper_claims.py checks that the pages match the file and that the code still
-produces the file's figures).
+and the README (tests/test_paper_claims.py checks that the pages match the file and that the
+code still produces the file's figures).
 """
 
 from __future__ import annotations
@@ -183,7 +183,7 @@ def _laws(runs: dict) -> list[str]:
     }
     lines = [
         "| scenario | TVD-D1 (`d1`) | TVD-C (`c`, damped) | TVD-DA (`da`) | "
-        "without dc/dt (d1) | d1 / da |",
+        "without dc/dt (d1 and da) | d1 / da |",
         "|---|---|---|---|---|---|",
     ]
     for s, label in labels.items():
@@ -250,8 +250,9 @@ def render(text: str, results: dict) -> str:
 
 
 def pages() -> list[Path]:
-    """The documentation pages that hold a results block."""
-    return [p for p in sorted(DOCS.glob("*.md")) if BLOCK.search(p.read_text(encoding="utf-8"))]
+    """The documentation pages (and the README) that hold a results block."""
+    candidates = [ROOT / "README.md", *sorted(DOCS.glob("*.md"))]
+    return [p for p in candidates if BLOCK.search(p.read_text(encoding="utf-8"))]
 
 
 def main() -> None:
