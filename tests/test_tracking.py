@@ -330,8 +330,7 @@ def test_guard_and_fallback_rates_are_counted_and_bounded(law: str, damping: flo
     """summary.json's ``guards`` for every law on a short circle run (20 robots, 10 s): the
     default laws never fall back and rescale at most 1 % of rows; the paper's exact TVD-C
     (``--damping 0``) falls back to TVD-D1, and that is counted, not hidden (docs/results.md:
-    about 99 %
-    of the steps at 100 robots)."""
+    about 99 % of the steps at 100 robots)."""
     from covswarm.deploy.simulate import build_summary, simulate
     from covswarm.mission.scenarios import load_scenario
 
