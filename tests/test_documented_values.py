@@ -87,3 +87,14 @@ def test_the_docs_state_the_code_default(phrase: str, value: Callable, expected:
         f"no page says {phrase!r}: update this row"
     )
     assert value() == pytest.approx(expected), phrase
+
+
+@pytest.mark.parametrize("command", [[], ["agent"]], ids=["covswarm", "agent"])
+def test_help_names_the_default_law(command: list[str]) -> None:
+    """`covswarm --help` and `covswarm agent --help` name TVD-DA as the default law, which it
+    is (the paper's TVD-D1 only with --law d1)."""
+    from click.testing import CliRunner
+
+    said = " ".join(CliRunner().invoke(main, [*command, "--help"]).output.split())
+    assert "TVD-DA by default" in said or "default law TVD-DA" in said, said
+    assert option_default("agent", "law") == "da" and option_default("run", "law") == "da"
