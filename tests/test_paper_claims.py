@@ -165,6 +165,15 @@ def test_tvd_da_on_the_formation_is_as_many_times_better(sims: dict[str, dict]) 
     assert abs(ratio(sims) - ratio(RESULTS["runs"])) <= RATIO + 1e-9
 
 
+def test_without_feedforward_tvd_da_is_tvd_d1(sims: dict[str, dict]) -> None:
+    """The laws table has one "without dc/dt (d1 and da)" column: without dc/dt both laws
+    are (I + dc/dp) kappa (c - p), so their runs are the same run."""
+    for scenario in results_script.SCENARIOS:
+        d1, da = f"laws/{scenario}-d1-noff", f"laws/{scenario}-da-noff"
+        assert RESULTS["runs"][d1]["e_a"] == RESULTS["runs"][da]["e_a"], scenario
+        assert sims[d1]["e_a"] == pytest.approx(sims[da]["e_a"], rel=1e-9), scenario
+
+
 def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: dict[str, dict]) -> None:
     """The paper's exact TVD-C is tested by what is invariant about it, not by its figure:
     its solve falls back to TVD-D1 on almost every step (98.3 to 99.4 % across the three
