@@ -17,7 +17,10 @@ offset), not from when they arrived. The domain runs on the coordinator's missio
 seen from this host (its broadcasts' mission time against their receipt), and newer means
 a higher sequence number. Safety (covswarm.tvd.safety): the velocity is filtered so that
 this robot's half of every pair's barrier condition holds against every robot it knows
-within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY).
+within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY). Once
+it knows the world (:meth:`AgentBrain.set_world`, from the coordinator's World broadcast),
+also against the obstacles and workspace walls within SAFETY_RADIUS, and it refuses a domain
+that overlaps an obstacle.
 """
 
 from __future__ import annotations
@@ -27,16 +30,17 @@ import math
 import time
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
-from covswarm.agent.latency import ClockBound, CommandHistory, MissionClock
+from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
 from covswarm.agent.metrics import Counters, Percentiles, Rate
-from covswarm.agent.neighbourhood import (
-    Neighbourhood,
+from covswarm.agent.neighborhood import (
+    Neighborhood,
     cell_reach,
     clamp_position,
     tile_radius,
@@ -44,14 +48,17 @@ from covswarm.agent.neighbourhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import local_step
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, wheel_speeds
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
+    SAFETY_RADIUS,
     barrier_gain,
     body_safe_distance,
     safe_velocity,
+    wall_distance,
 )
+from covswarm.world.model import World
 
 DROP_REASONS = (
     *protocol.REASONS,
@@ -59,6 +66,12 @@ DROP_REASONS = (
     "wrong_id",  # key and message disagree about the robot id, or a malformed key
     "bad_domain",  # valid message, invalid polygon (non-convex, self-intersecting, ...)
     "old_domain",  # older than the domain already held (by sequence number)
+    "domain_outside_workspace",  # a vertex outside the workspace the agent knows
+    "domain_seq_jump",  # sequence number implausibly far ahead of the held domain's
+    "domain_in_obstacle",  # overlaps an obstacle of the world the agent knows
+    "bad_world",  # valid message, invalid geometry (a non-convex obstacle, ...)
+    "old_world",  # older than the world already held (by sequence number)
+    "world_seq_jump",  # sequence number implausibly far ahead of the held world's
 )
 # Largest fraction of the gap to the centroid one control period may close (sampled_gain).
 MAX_STEP_FRACTION = 0.8
@@ -76,14 +89,43 @@ MAX_PREDICTION = 1.0
 # unless the held one's coordinator has been silent this long (10 broadcast periods): then
 # it is a restarted coordinator, whose numbers start again.
 DOMAIN_RESTART_SILENCE = 0.5
-# m: robots within this distance of ours enter the safety filter (and their AgentStates are
-# followed even when they are not Voronoi neighbours: robots outside S, with empty cells,
-# have none). The safe distance (0.16 m) plus what two robots at the wheels' top speed
-# (0.8 m/s each) close in two 10 Hz periods (0.32 m). Farther is not safer, only dearer: at
-# 1 m, a 100-robot circle run (0.2 m spacing) followed ~75 states per agent, 436 messages/s,
-# missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the followed set is
-# about the two-hop set, which the coverage step follows anyway.
-SAFETY_RADIUS = 0.5
+# A domain numbered more than this above the held one, while the held one's coordinator
+# still talks (within DOMAIN_RESTART_SILENCE), is refused: the coordinator numbers its
+# broadcasts one by one at 20 Hz, so a real one advances by ~10 in that time. Without this
+# bound one forged Domain numbered 2^62 made every later real one "old" for as long as the
+# forger repeated it (issue 21: the team pulled 0.75 m in 8 s). The real coordinator's
+# stream stays followed; a forger must now track the real numbers (open mode cannot stop
+# that: only the access control of --secure does).
+MAX_DOMAIN_SEQ_JUMP = 1000
+# m: a domain vertex this far outside the workspace is still inside: the World message rounds
+# the workspace inward to the millimetre (covswarm.world.wire), and the coordinator lets S
+# leave it by 2e-4 m at most (covswarm.world.sweep).
+WORKSPACE_SLACK = 2e-3
+# m: a domain that reaches deeper than this into an obstacle is refused. A depth, not an
+# area: the wire rounds obstacles outward to the millimetre (up to sqrt(2) mm,
+# covswarm.world.wire) and the coordinator lets S come within 1e-4 m of one
+# (covswarm.world.sweep), so a legitimate S may overlap the agent's copy by a 1.5 mm sliver
+# along a whole edge, and more than a few square millimetres.
+DOMAIN_OBSTACLE_SLACK = 2e-3
+# s: the coordinator repeats its World every second (late joiners); a held world whose
+# sender has been silent this long may be replaced by a lower sequence number (a restarted
+# coordinator). A World is taken up to WORLD_MAX_AGE s after its stamp: it is static, and
+# one lost repeat must not leave a joiner without it.
+WORLD_RESTART_SILENCE = 5.0
+WORLD_MAX_AGE = 10.0
+# The decay rate of the obstacle and wall rows, as a fraction of the pairs' (barrier_gain's
+# 1 / period at 10 Hz). At the full rate a robot may close the whole gap to the wall's reach
+# in one period, so any command latency overshoots it: closed loop with an ideal unicycle
+# from four starts pulled into a block (tests/test_agent_world.py), the least clearance of
+# the body was 0.090 / 0.074 / 0.070 / 0.046 m with a command acting 0 / 0-20 / 0-40 /
+# 0-60 ms late (0.07 m is contact). At half, a period closes half the gap: 0.090 / 0.090 /
+# 0.089 / 0.085 m, and a command up to a period late still stops short. Robots near a wall
+# approach it more slowly; elsewhere nothing changes.
+WALL_GAMMA_FRACTION = 0.5
+# Unconfirmed beacon-only robots within SAFETY_RADIUS whose AgentStates are followed, the
+# nearest first: more robots than this cannot stand that close around one (hexagonal
+# packing at the safe distance gives 6 per ring), so more are forgeries.
+MAX_UNCONFIRMED_FOLLOWED = 8
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
 # last known position for the safety filter this long after it left the coverage step.
 OBSTACLE_MEMORY = 30.0
@@ -130,6 +172,9 @@ class AgentConfig:
     safety: bool = True
     safety_margin: float = DEFAULT_MARGIN
     safety_gamma: float = DEFAULT_GAMMA
+    # (xmin, xmax, ymin, ymax) m that every domain must lie in (the scenario's workspace;
+    # None: not known, no check). Also settable later: AgentBrain.set_workspace.
+    workspace: tuple[float, float, float, float] | None = None
 
 
 @dataclass(frozen=True)
@@ -204,6 +249,11 @@ def sampled_gain(kappa: float, period: float) -> float:
     return min(kappa, MAX_STEP_FRACTION / period)
 
 
+def same_world(a: protocol.World, b: protocol.World) -> bool:
+    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
+    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
+
+
 class AgentBrain:
     """Decision logic of one agent: feed it messages, ask it for actions. No I/O."""
 
@@ -226,7 +276,7 @@ class AgentBrain:
         self.history = CommandHistory(config.robot, config.cmd_timeout)
         self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
-        self.mission_clock = MissionClock()
+        self.mission_estimate = MissionTimeEstimate()
         self._domain_received = -math.inf
         # id -> (x, y, when it vanished, monotonic): robots heard first-hand within
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
@@ -235,7 +285,7 @@ class AgentBrain:
         self._near_first_hand: dict[int, tuple[float, float]] = {}
         self.domain: protocol.Domain | None = None
         self.density: Density | None = None  # the domain's density, validated (None: uniform)
-        self.neighbourhood = Neighbourhood(
+        self.neighborhood = Neighborhood(
             self.id, config.stale_timeout, config.beacon_timeout, config.linger
         )
         self.radius = 1
@@ -265,6 +315,88 @@ class AgentBrain:
         self._step_rate = Rate()
         self._rx_rate = Rate()
         self._rates = (0.0, 0.0)
+        self.workspace: tuple[float, float, float, float] | None = None
+        if config.workspace is not None:
+            self.set_workspace(config.workspace)
+        # The arena (covswarm.world.model): None until a World broadcast (or set_world).
+        self.world: World | None = None
+        self._world_message: protocol.World | None = None  # the message it came from
+        self._world_received = -math.inf
+
+    def set_workspace(self, box: tuple[float, float, float, float] | None) -> None:
+        """The box (xmin, xmax, ymin, ymax) m every domain must lie in from now on (None:
+        none): from the scenario (AgentConfig.workspace) or a world broadcast. A held
+        domain outside it is dropped too. ValueError for a box that is not finite with
+        xmin < xmax, ymin < ymax."""
+        if box is not None:
+            xmin, xmax, ymin, ymax = (float(v) for v in box)
+            if not (math.isfinite(xmin + xmax + ymin + ymax) and xmin < xmax and ymin < ymax):
+                raise ValueError(f"workspace {box}: need finite xmin < xmax, ymin < ymax")
+            box = (xmin, xmax, ymin, ymax)
+        self.workspace = box
+        if self.domain is not None and not self._inside_workspace(self.domain):
+            self.drops.drop("domain_outside_workspace", "held domain outside the new workspace")
+            self.domain = self.density = None
+
+    def set_world(self, world: World | None) -> None:
+        """The arena from now on (None: none known, the filter sees robots only): its
+        obstacles and workspace walls within SAFETY_RADIUS enter the safety filter every
+        step, a domain overlapping an obstacle is refused, and its workspace (if it has one)
+        replaces the one held (:meth:`set_workspace`). A held domain that now overlaps an
+        obstacle or leaves the workspace is dropped and counted."""
+        if world is not None and not isinstance(world, World):
+            raise TypeError(f"world must be a covswarm.world.model.World, got {world!r}")
+        self.world = world
+        if world is not None and world.workspace is not None:
+            self.set_workspace(world.workspace)
+        if self.domain is not None and self._in_obstacle(self.domain):
+            self.drops.drop("domain_in_obstacle", "held domain overlaps the new world's obstacles")
+            self.domain = self.density = None
+
+    def on_world(self, message: protocol.World, now: float) -> bool:
+        """Hold a newer World (the coordinator's, repeated every second) and steer by it
+        (:meth:`set_world`). A repeat of the held one only refreshes it. Doubted like a
+        domain: a lower or equal sequence number for a different world while the held one's
+        sender still talks (within WORLD_RESTART_SILENCE) is "old_world", one more than
+        MAX_DOMAIN_SEQ_JUMP above it "world_seq_jump", geometry the model refuses
+        "bad_world"; each dropped and counted."""
+        held = self._world_message
+        if held is not None and same_world(message, held):
+            self._world_received = now
+            return True
+        if held is not None and now - self._world_received < WORLD_RESTART_SILENCE:
+            if message.seq <= held.seq:
+                self.drops.drop("old_world", f"world seq {message.seq} <= {held.seq}")
+                return False
+            if message.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
+                self.drops.drop("world_seq_jump", f"world seq {message.seq} jumps from {held.seq}")
+                return False
+        try:
+            world = self.decoder.world_model(message)
+        except ValueError as exc:
+            self.drops.drop("bad_world", f"world: {exc}")
+            return False
+        self.set_world(world)
+        self._world_message, self._world_received = message, now
+        return True
+
+    def _in_obstacle(self, domain: protocol.Domain) -> bool:
+        """Whether ``domain`` (a valid convex polygon) overlaps one of the world's obstacles
+        deeper than DOMAIN_OBSTACLE_SLACK m (False without a world)."""
+        if self.world is None or not self.world.obstacles:
+            return False
+        return self.decoder.domain_penetration(domain, self.world) > DOMAIN_OBSTACLE_SLACK
+
+    def _inside_workspace(self, domain: protocol.Domain) -> bool:
+        """Whether every vertex of ``domain`` lies in the workspace (True if none known)."""
+        if self.workspace is None:
+            return True
+        xmin, xmax, ymin, ymax = self.workspace
+        eps = WORKSPACE_SLACK
+        return all(
+            xmin - eps <= x <= xmax + eps and ymin - eps <= y <= ymax + eps
+            for x, y in domain.vertices
+        )
 
     # --- input -------------------------------------------------------------------------
 
@@ -272,11 +404,14 @@ class AgentBrain:
         self, kind: str, payload: bytes, now: float, now_wall: float, key_id: int | None = None
     ) -> bool:
         """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
-        "domain"); ``key_id`` is the id in the key it arrived on. False if dropped."""
+        "domain" | "world"); ``key_id`` is the id in the key it arrived on. False if
+        dropped."""
         self.counters.received += 1
         try:
             message = self.decoder.decode(kind, payload)
-            max_age = self.config.beacon_timeout if kind == "beacon" else self.config.stale_timeout
+            max_age = {"beacon": self.config.beacon_timeout, "world": WORLD_MAX_AGE}.get(
+                kind, self.config.stale_timeout
+            )
             check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
             self.drops.drop(exc.reason, f"{kind}: {exc}")
@@ -303,52 +438,63 @@ class AgentBrain:
             self.pose, self.pose_received = pose, now
             self.pose_taken = self.robot_clock.to_local(pose.stamp)
         else:
-            self.neighbourhood.on_pose(pose, now)
+            self.neighborhood.on_pose(pose, now)
         return True
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
         if state.id == self.id:
             return False
-        self.neighbourhood.on_agent_state(state, now)
+        self.neighborhood.on_agent_state(state, now)
         return True
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> bool:
         if beacon.id == self.id:
             return False  # our own beacon, heard through our own tile subscription
-        self.neighbourhood.on_beacon(beacon, now)
+        self.neighborhood.on_beacon(beacon, now)
         return True
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> None:
         """Another robot's agent or robot token appeared or vanished (see
-        Neighbourhood.on_liveliness); a newcomer is owed an early beacon."""
-        if self.neighbourhood.on_liveliness(role, rid, alive):
+        Neighborhood.on_liveliness); a newcomer is owed an early beacon."""
+        if self.neighborhood.on_liveliness(role, rid, alive):
             self._beacon_due = True  # a newcomer: let it find us without waiting
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
         """Hold a newer domain: a higher sequence number than the held one (stamps come
         from the coordinator's clock and would drop a restarted coordinator on a host whose
         clock is behind), or any number once the held one's sender has been silent for
-        DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again)."""
+        DOMAIN_RESTART_SILENCE (a restarted coordinator numbers from 0 again).
+
+        Doubted: one numbered more than MAX_DOMAIN_SEQ_JUMP above a held one whose sender
+        still talks ("domain_seq_jump"), one with a vertex outside the workspace
+        ("domain_outside_workspace"), and one overlapping an obstacle of the world
+        ("domain_in_obstacle"), are dropped and counted."""
         held = self.domain
-        if (
-            held is not None
-            and domain.seq <= held.seq
-            and now - self._domain_received < DOMAIN_RESTART_SILENCE
-        ):
-            self.drops.drop("old_domain", f"domain seq {domain.seq} <= {held.seq}")
+        if held is not None and now - self._domain_received < DOMAIN_RESTART_SILENCE:
+            if domain.seq <= held.seq:
+                self.drops.drop("old_domain", f"domain seq {domain.seq} <= {held.seq}")
+                return False
+            if domain.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
+                self.drops.drop("domain_seq_jump", f"domain seq {domain.seq} jumps from {held.seq}")
+                return False
+        if not self._inside_workspace(domain):
+            self.drops.drop("domain_outside_workspace", f"domain {domain.vertices}")
             return False
         try:
             density = self.decoder.domain_geometry(domain)
         except ValueError as exc:
             self.drops.drop("bad_domain", f"domain: {exc}")
             return False
+        if self._in_obstacle(domain):
+            self.drops.drop("domain_in_obstacle", f"domain {domain.vertices}")
+            return False
         self.domain = domain
         self.density = density
         self._domain_received = now
         if domain.state == "running":
-            self.mission_clock.add(now, domain.t, domain.seq)
+            self.mission_estimate.add(now, domain.t, domain.seq)
         else:  # mission time stands still: no clock to follow until it runs
-            self.mission_clock.reset()
+            self.mission_estimate.reset()
         return True
 
     @property
@@ -392,9 +538,10 @@ class AgentBrain:
         beacon = self.beacon(now, now_wall)
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
-        wanted = self.neighbourhood.wanted_state_ids(now)
+        wanted = self.neighborhood.wanted_state_ids(now)
         if self.config.safety:
             wanted |= self.near_ids()
+        self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
         actions.append(FollowStates(frozenset(wanted)))
         actions.append(FollowTiles(frozenset(self.wanted_tiles())))
         if not self._alive and self.pose is not None:
@@ -406,6 +553,13 @@ class AgentBrain:
         """The last command, when the process stops: the robot stops at once rather than
         after its command timeout."""
         return SendCommand(self.command(Decision(0.0, 0.0, "stopped"), now_wall))
+
+    def hold(self, now_wall: float) -> SendCommand:
+        """A zero command for a control period this brain could not step in time (an
+        overloaded process, covswarm.agent.pack): its robot stops rather than run on the
+        last command, computed from inputs that are now a period old."""
+        self.velocity = (0.0, 0.0)
+        return SendCommand(self.command(Decision(0.0, 0.0, "late"), now_wall))
 
     # --- control -------------------------------------------------------------------------
 
@@ -422,7 +576,7 @@ class AgentBrain:
             self._step_rate.add(now, self.counters.steps),
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
         )
-        others = self.neighbourhood.candidates(now)
+        others = self.neighborhood.candidates(now)
         if not self.pose_fresh(now):
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
@@ -435,7 +589,7 @@ class AgentBrain:
         started = self._clock()
         assert self.pose is not None
         try:
-            relevant = self.neighbourhood.relevant(
+            relevant = self.neighborhood.relevant(
                 others, now, (self.pose.x, self.pose.y), self.reach
             )
             decision = self._control(relevant, now, now_wall)
@@ -460,7 +614,7 @@ class AgentBrain:
         assert self.pose is not None and self.domain is not None
         config = self.config
         pose = self.predicted_pose(now_wall + config.command_latency)
-        mission_t = self.mission_clock.mission_time(now)
+        mission_t = self.mission_estimate.mission_time(now)
         elapsed = 0.0 if mission_t is None else mission_t - self.domain.t
         elapsed += config.command_latency
         vertices, velocities = extrapolate_domain(
@@ -485,8 +639,8 @@ class AgentBrain:
         )
         self.counters.guarded += int(result.guarded and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
-        self.neighbourhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
-        if self.neighbourhood.unrequited(now):
+        self.neighborhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(others)
         if result.mass > 0.0:
@@ -513,7 +667,7 @@ class AgentBrain:
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
-        forward = 0.5 * (left + right)
+        forward, _ = twist_from_wheels(left, right, config.robot.wheel_separation)
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
         return Decision(left, right, "running", tuple(velocity.tolist()), achieved)
 
@@ -530,15 +684,25 @@ class AgentBrain:
 
     def near_ids(self) -> set[int]:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
-        AgentStates whether or not they are Voronoi neighbours)."""
+        AgentStates whether or not they are Voronoi neighbours), and those there known only
+        from beacons and left out for want of confirmation: a real one's AgentState then
+        confirms it (covswarm.agent.neighborhood.BEACON_CONFIRMATION)."""
         if self.pose is None:
             return set()
-        return set(self._near(self.neighbourhood.reckoned, self.pose.x, self.pose.y))
+        x, y = self.pose.x, self.pose.y
+        distance = {
+            rid: math.hypot(ux - x, uy - y)
+            for rid, (ux, uy) in self.neighborhood.unconfirmed.items()
+        }
+        # The nearest few only: forged ids must not cost a subscription each.
+        nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
+        unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
+        return set(self._near(self.neighborhood.reckoned, x, y)) | unconfirmed
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
         positions."""
-        reckoned = self.neighbourhood.reckoned
+        reckoned = self.neighborhood.reckoned
         return {
             rid: (rx, ry)
             for rid in ids
@@ -551,10 +715,11 @@ class AgentBrain:
     ) -> np.ndarray:
         """``velocity`` filtered by covswarm.tvd.safety against the robots near us: the
         candidates (dead-reckoned, with their reported velocities) and the obstacles we
-        stopped hearing from (at rest where last known)."""
+        stopped hearing from (at rest where last known); with a world, against its
+        obstacles and workspace walls near us too (a body radius plus the margin)."""
         config = self.config
         me = pose[:2]
-        reckoned = self.neighbourhood.reckoned
+        reckoned = self.neighborhood.reckoned
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
@@ -562,27 +727,47 @@ class AgentBrain:
         for rid, (x, y) in self._near_first_hand.items():
             if rid not in reckoned:
                 self.obstacles[rid] = (x, y, now)
-        self._near_first_hand = self._near(self.neighbourhood.first_hand, *me)
-        dead = self.neighbourhood.dead
+        self._near_first_hand = self._near(self.neighborhood.first_hand, *me)
+        dead = self.neighborhood.dead
         for rid in [
             r
             for r, (_, _, since) in self.obstacles.items()
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        rows = [(x, y, vx, vy) for x, y, vx, vy in reckoned.values()]
+        rows = list(reckoned.values())
         rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
         near = np.array(rows, dtype=float).reshape(-1, 4)
         near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
+        # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
+        # world, so the filter is then exactly the robots' alone). Those whose bounding box
+        # is that near are handed over and the filter keeps the ones within its reach: the
+        # same rows as World.nearby's, without computing every distance twice (~90 us).
+        gamma = barrier_gain(config.safety_gamma, self._period)
+        world = self.world
+        walls: dict[str, Any] = {}
+        if world is not None:
+            x, y = float(me[0]), float(me[1])
+            nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
+            walls = {
+                "obstacles": [world.obstacles[j].vertices for j in nearby],
+                "workspace": self.workspace,
+                "obstacle_distance": wall_distance(
+                    config.robot.body_diameter, config.safety_margin
+                ),
+                "reach": SAFETY_RADIUS,
+                "obstacle_gamma": WALL_GAMMA_FRACTION * gamma,
+            }
         result = safe_velocity(
             me,
             velocity,
             near[:, :2],
             body_safe_distance(config.robot.body_diameter, config.safety_margin),
-            barrier_gain(config.safety_gamma, self._period),
+            gamma,
             heading=float(pose[2]),
             velocity=np.array(self.velocity),
             neighbor_velocities=near[:, 2:],
+            **walls,
         )
         self.safety_active += result.active > 0
         self.safety_relaxed += result.relaxed
@@ -636,17 +821,20 @@ class AgentBrain:
             "wheel_max": round(self.wheel_max, 4),
             "saturated_s": round(self.saturated_s, 3),
             "missed_deadline": round(c.overruns / c.mission_steps, 4) if c.mission_steps else 0.0,
+            # fraction of the mission's periods held instead of stepped (Counters.late)
+            "late_held": round(c.late / (c.late + c.mission_steps), 4) if c.late else 0.0,
             "rx_total": c.received + c.coalesced,
             "coalesced": c.coalesced,
             **{f"drop_{reason}": n for reason, n in self.drops.counts.items()},
-            "stale_dropped": self.neighbourhood.stale_dropped,
+            "stale_dropped": self.neighborhood.stale_dropped,
+            "beacon_unconfirmed": self.neighborhood.unconfirmed_total,
             "step_errors": c.step_errors,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
-            "candidates": len(self.neighbourhood.reckoned),
+            "candidates": len(self.neighborhood.reckoned),
             "local_set": self._local,
-            "neighbors": len(self.neighbourhood.one_hop),
-            "state_subs": len(self.neighbourhood.wanted),
+            "neighbors": len(self.neighborhood.one_hop),
+            "state_subs": len(self.neighborhood.wanted),
             "tile_radius": self.radius,
         }
 
@@ -664,11 +852,11 @@ class AgentBrain:
             x=x,
             y=y,
             stamp=stamp,
-            neighbors=sorted(self.neighbourhood.one_hop),
+            neighbors=sorted(self.neighborhood.one_hop),
             stats=self.stats() if stats else None,
             vx=vx,
             vy=vy,
-            relay=self.neighbourhood.relay(),
+            relay=self.neighborhood.relay(),
         )
 
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
@@ -677,7 +865,7 @@ class AgentBrain:
         Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
         agent's liveliness token appeared (a newcomer, or a whole team starting, must find
         its neighbours, and they it, without waiting for the next routine beacon) or a
-        neighbour kept leaving us out of its neighbours (Neighbourhood.unrequited).
+        neighbour kept leaving us out of its neighbours (Neighborhood.unrequited).
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the
@@ -703,4 +891,5 @@ _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
     "state": AgentBrain.on_agent_state,
     "beacon": AgentBrain.on_beacon,
     "domain": AgentBrain.on_domain,
+    "world": AgentBrain.on_world,
 }

@@ -9,7 +9,7 @@ a click option in agent.main. No zenoh here: the launcher imports it to plan chi
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from covswarm.agent.brain import AgentConfig
@@ -50,6 +50,8 @@ class AgentProcessConfig:
     safety: bool = _BRAIN.safety
     safety_margin: float = _BRAIN.safety_margin
     body_diameter: float = KHEPERA_IV.body_diameter
+    # (xmin, xmax, ymin, ymax) m: a domain outside it is refused (None: no check)
+    workspace: tuple[float, float, float, float] | None = field(default=None, metadata={"nargs": 4})
     secure: Path | None = None
     verbose: bool = False
 
@@ -76,4 +78,5 @@ class AgentProcessConfig:
             projection_distance=self.projection_distance,
             safety=self.safety,
             safety_margin=self.safety_margin,
+            workspace=self.workspace,
         )

@@ -15,12 +15,15 @@ import numpy as np
 from covswarm import protocol
 from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.density import Density
+from covswarm.world.model import World
+from covswarm.world.wire import from_message
 
 MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
     "pose": protocol.Pose,
     "state": protocol.AgentState,
     "beacon": protocol.Beacon,
     "domain": protocol.Domain,
+    "world": protocol.World,
 }
 # Sized for a tick's worth of distinct payloads of a 100-brain process.
 DECODE_CACHE = 4096
@@ -32,6 +35,8 @@ class MessageDecoder:
     def __init__(self, cache_size: int = DECODE_CACHE) -> None:
         self._decode_bytes = lru_cache(maxsize=cache_size)(self._decode_uncached)
         self._geometry_of: tuple[protocol.Domain, Density | None] | None = None
+        self._world_of: tuple[protocol.World, World] | None = None
+        self._overlap_of: tuple[protocol.Domain, World, float] | None = None
 
     def decode(self, kind: str, payload: object) -> protocol.Message:
         """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
@@ -55,3 +60,43 @@ class MessageDecoder:
         density = None if domain.density is None else Density.from_dict(domain.density)
         self._geometry_of = (domain, density)
         return density
+
+    def world_model(self, message: protocol.World) -> World:
+        """The model World of a World message (covswarm.world.wire.from_message); ValueError
+        if its geometry is refused. The last one is remembered, as for domain_geometry: the
+        brains of a process receive the same decoded message every second."""
+        if self._world_of is not None and self._world_of[0] is message:
+            return self._world_of[1]
+        world = from_message(message)
+        self._world_of = (message, world)
+        return world
+
+    def domain_penetration(self, domain: protocol.Domain, world: World) -> float:
+        """How deep (m) the domain's polygon (valid, convex, either orientation) reaches into
+        the world's obstacles: the largest, over the obstacles, of the shortest translation
+        that separates S from it (0 when S touches none). For two convex polygons that is
+        the least overlap of their projections on the edge normals of both (the
+        separating-axis theorem). Only obstacles whose bounding box meets S's are looked
+        at; the last answer is remembered (the brains of a process hold the same world and
+        receive the same Domain, 20 times a second)."""
+        cached = self._overlap_of
+        if cached is not None and cached[0] is domain and cached[1] is world:
+            return cached[2]
+        polygon = np.array(domain.vertices, dtype=float)
+        low, high = polygon.min(axis=0), polygon.max(axis=0)
+        deepest = 0.0
+        for j in world.candidates((low[0], high[0], low[1], high[1])):
+            obstacle = world.obstacles[j].vertices
+            edges = np.concatenate(
+                [np.roll(polygon, -1, axis=0) - polygon, np.roll(obstacle, -1, axis=0) - obstacle]
+            )
+            # The edges' unit normals (either sign will do: both ends of each are compared).
+            normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)
+            normals /= np.linalg.norm(normals, axis=1)[:, None]
+            on_s, on_o = polygon @ normals.T, obstacle @ normals.T  # (k, axes), (m, axes)
+            overlap = np.minimum(
+                on_s.max(axis=0) - on_o.min(axis=0), on_o.max(axis=0) - on_s.min(axis=0)
+            )
+            deepest = max(deepest, float(overlap.min()))
+        self._overlap_of = (domain, world, deepest)
+        return deepest

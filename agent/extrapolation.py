@@ -23,7 +23,7 @@ def extrapolate_domain(
     Moves the vertices along their velocities for ``elapsed`` (never backwards), at most
     ``max_extrapolation`` s; beyond that the domain holds still (zero velocities). The
     agent measures ``elapsed`` on the coordinator's mission clock as seen from its own host
-    (covswarm.agent.latency.MissionClock), never by comparing two hosts' wall clocks.
+    (covswarm.agent.latency.MissionTimeEstimate), never by comparing two hosts' wall clocks.
     """
     vertices = np.array(domain.vertices, dtype=float)
     velocities = np.array(domain.velocities, dtype=float)

@@ -17,7 +17,7 @@ Three pure pieces (no I/O), used by the agent brain:
   round trip, so its lag is compensated as if it were transport delay (bounded by the
   prediction horizon). So the offset is *bounded from the data*, one-sided, and measured
   exactly for a sender that runs ahead; ``b`` is reported.
-- :class:`MissionClock`: the coordinator's mission time on *our* monotonic clock, from the
+- :class:`MissionTimeEstimate`: the coordinator's mission time on *our* monotonic clock, from the
   Domain broadcasts' mission time ``t`` and when we received them, never by comparing wall
   clocks across hosts: ``t - receipt`` over a window, its maximum (the broadcast that
   travelled fastest) is the offset between the two clocks, short by the minimal transit.
@@ -160,7 +160,7 @@ class ClockBound:
         return stamp + bound if bound < 0.0 else stamp
 
 
-class MissionClock:
+class MissionTimeEstimate:
     """The coordinator's mission time on our monotonic clock (module docstring)."""
 
     def __init__(self, window: float = CLOCK_WINDOW) -> None:

@@ -46,7 +46,9 @@ Neighbour discovery
 Bad input is dropped, counted per reason (``drop_<reason>`` in AgentState.stats) and
 logged rate-limited (protocol.inbound): undecodable or invalid payloads (ProtocolError
 reasons), a key and message that disagree about the id, a domain that is not a convex
-polygon or is older than the one held, and stamps outside the clock policy of
+polygon, is older than the one held, jumps implausibly far ahead of it
+(``domain_seq_jump``) or leaves ``--workspace`` (``domain_outside_workspace``), and
+stamps outside the clock policy of
 protocol.inbound (more than ``--max-clock-skew`` ahead of this clock, or older than the
 message's timeout plus that skew).
 
@@ -69,11 +71,11 @@ Zenoh session, each brain with its own keys, subscriptions, claim and token);
 ``--time-scale`` runs on mission time slower than real time (runtime.clock.scaled).
 
 Subscribers (liveliness included) use ring channels that the main loop polls once per
-tick (:class:`Inbox`), so no Python callback thread exists; all decoding and math happen in
-the main loop, and the brains of one process share the decoding of identical payloads
-(:class:`~covswarm.agent.decoding.MessageDecoder`). The decision logic
+tick, so no Python callback thread exists; all decoding and math happen in the main loop.
+A process subscribes once per key for all its brains that follow it and decodes each
+payload once (:class:`~covswarm.agent.pack.Pack`). The decision logic
 (:class:`~covswarm.agent.brain.AgentBrain`) is a sans-IO state machine, unit-tested without
-Zenoh; :class:`~covswarm.agent.link.AgentLink` carries out its actions.
+Zenoh; the pack carries out its actions over :class:`~covswarm.agent.link.ZenohBus`.
 """
 
 from __future__ import annotations
@@ -86,25 +88,26 @@ import click
 import zenoh
 
 from covswarm import protocol
-from covswarm.agent.brain import (
-    AGENT_PROJECTION_DISTANCE,
-    AgentBrain,
-    DeclareAlive,
-    SendCommand,
-)
+from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE, AgentBrain
 from covswarm.agent.config import AgentProcessConfig
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.link import AgentLink
+from covswarm.agent.link import ZenohBus
 from covswarm.agent.metrics import Counters
+from covswarm.agent.pack import Pack
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
-from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
 log = logging.getLogger("covswarm.agent")
+# A late brain's robot runs on its last command for at most this many control periods
+# before the brain stops it (covswarm.agent.pack): a brain stepping every other period of
+# an overloaded process keeps its robot moving, one that cannot step for longer stops it
+# before the robot's own command timeout (0.5 s) would, at 10 Hz.
+HOLD_AFTER_PERIODS = 3.0
 
 
 def run_agents(
@@ -119,9 +122,11 @@ def run_agents(
 
     Several brains may share this process and its one Zenoh session (``covswarm agent
     --ids``): one process costs ~80 MB and its own imports, one more brain almost nothing.
-    Each brain still has its own AgentLink (publishers, subscriptions), claim and
-    liveliness token and talks to the others only through Zenoh, exactly as if it ran
-    alone; the brains step one after the other in one loop at ``rate`` Hz of mission time.
+    Each brain has its own publishers, claim and liveliness token and talks to the others
+    only through Zenoh; the process subscribes once per key for all the brains that follow
+    it (covswarm.agent.pack.Pack: each brain gets exactly the keys it follows, as if it ran
+    alone), and the brains step one after the other in one loop at ``rate`` Hz of mission
+    time, each holding its robot when its turn comes after its period ended.
 
     Every id is claimed (runtime.claims.claim) before anything is published: an agent for
     an id that is already running refuses to start. A brain's liveliness token (what
@@ -135,45 +140,29 @@ def run_agents(
     wall_clock = scaled(time.time, time_scale)
     with zenoh.open(config) as session:
         claims: list[zenoh.LivelinessToken] = []
-        links: list[AgentLink] = []
         ticker = Ticker(rate, time_scale=time_scale, phase=phase)
+        pack: Pack | None = None
         try:
             for brain in brains:
                 claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
-                links.append(AgentLink(session, swarm, brain))
+            pack = Pack(ZenohBus(session), swarm, brains, hold_after=HOLD_AFTER_PERIODS / rate)
             while not stop.is_set():
                 ticker.wait(stop)
-                # The batch starts one brain later every tick: the brains at the end of a
-                # long batch step later in the period, and no robot should always be last.
-                links.append(links.pop(0))
-                for link in links:
-                    brain = link.brain
-                    # Each brain's own time: the last of a large batch steps tens of ms
-                    # after the first, and its neighbours are dead-reckoned to then.
-                    now, wall = ticker.now(), wall_clock()
-                    link.receive(now, wall)
-                    for action in brain.tick(now, wall):
-                        link.carry_out(action)
-                        # A missed deadline: this period's command went out after the
-                        # period ended (start-up, while processes are still launching,
-                        # aside).
-                        if isinstance(action, SendCommand):
-                            if brain.running and ticker.now() > ticker.deadline:
-                                brain.counters.overruns += 1
-                        elif isinstance(action, DeclareAlive):
-                            log.info("agent %d ready in swarm %s", brain.id, swarm)
+                pack.tick(ticker.now, wall_clock, ticker.deadline)
         finally:
-            for link in links:  # stop the robots at once rather than after their timeout
-                link.carry_out(link.brain.stop(wall_clock()))
-            for token in [*(link.token for link in links if link.token), *claims]:
+            if pack is not None:  # stop the robots at once rather than after their timeout
+                pack.stop(wall_clock())
+                for token in pack.tokens.values():
+                    token.undeclare()
+            for token in claims:
                 token.undeclare()
-        for link in links:
+        for brain in brains:
             log.info(
                 "agent %d stopping: %s, dropped %s, stats %s",
-                link.brain.id,
-                link.brain.counters,
-                link.brain.drops.summary(),
-                link.brain.stats(),
+                brain.id,
+                brain.counters,
+                brain.drops.summary(),
+                brain.stats(),
             )
         log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
     return [brain.counters for brain in brains]
@@ -223,7 +212,7 @@ def run_agents(
 @click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
-    default=0.8,
+    default=MAX_WHEEL_SPEED,
     show_default=True,
     help="Rim speed limit (m/s) the commands are saturated to.",
 )
@@ -288,6 +277,14 @@ def run_agents(
     show_default=True,
     help="This robot's body diameter, m (the safety filter's disks).",
 )
+@click.option(
+    "--workspace",
+    type=float,
+    nargs=4,
+    default=None,
+    metavar="XMIN XMAX YMIN YMAX",
+    help="The scenario's workspace, m: a domain outside it is refused [no check].",
+)
 @SECURE_OPTION
 @click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
 def agent_command(**options: Any) -> None:
@@ -305,11 +302,16 @@ def run_agent_process(config: AgentProcessConfig) -> None:
         raise click.BadParameter(str(exc), param_hint="--swarm") from exc
     robot_ids = id_selection(config.id, config.ids)
     try:
-        zenoh_config = session_config(list(config.connect), None, "client", secure=config.secure)
+        zenoh_config = session_config(
+            list(config.connect), None, "client", secure=config.secure, role="agent", id=robot_ids
+        )
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
-    brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]
+    try:
+        brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]
+    except ValueError as exc:  # an empty or non-finite --workspace
+        raise click.BadParameter(str(exc), param_hint="--workspace") from exc
     run_agents(
         brains, config.swarm, zenoh_config, config.rate, config.time_scale, config.tick_phase
     )

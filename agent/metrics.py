@@ -53,3 +53,6 @@ class Counters:
     guarded: int = 0  # mission steps whose velocity the control law's amplification guard cut
     # control periods of the mission whose command went out after the period had ended
     overruns: int = 0
+    # control periods of the mission a packed process could not step this brain in
+    # (its turn came after the period ended: it held its robot, covswarm.agent.pack)
+    late: int = 0

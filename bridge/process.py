@@ -1,6 +1,6 @@
 """``covswarm bridge ros2``: ROS 2 robots take simulated robots' places, over rmw_zenoh.
 
-The thin Zenoh shell around :class:`covswarm.bridge.link.RobotLink` (one per robot id) and
+The thin Zenoh shell around :class:`covswarm.bridge.brain.RobotBrain` (one per robot id) and
 :class:`covswarm.bridge.mission_view.MissionView`. One Zenoh session, a client of the router
 that both sides reach (``rmw_zenohd`` listens on tcp/7447), carries both worlds:
 
@@ -30,7 +30,7 @@ import zenoh
 
 from covswarm import protocol
 from covswarm.bridge import cdr
-from covswarm.bridge.link import STAMP_SOURCES, RobotLink
+from covswarm.bridge.brain import STAMP_SOURCES, RobotBrain
 from covswarm.bridge.mission_view import MissionView
 from covswarm.bridge.rmw_zenoh import (
     PUBLISHER,
@@ -133,25 +133,25 @@ def _encode_twist(options: Ros2Options, twist: tuple[float, float], wall: float)
 
 
 def run_bridge(
-    links: list[RobotLink], swarm: str, config: zenoh.Config, options: Ros2Options, rate: float
+    brains: list[RobotBrain], swarm: str, config: zenoh.Config, options: Ros2Options, rate: float
 ) -> None:
     """Run until SIGINT/SIGTERM; logs each robot's counters and drops at exit."""
     stop = StopFlag()
     with zenoh.open(config) as session:
-        claims = [claim_or_refuse(session, swarm, "robot", link.id) for link in links]
+        claims = [claim_or_refuse(session, swarm, "robot", brain.id) for brain in brains]
         node = Ros2Node(session, options)
         wires = []
-        for link in links:
+        for brain in brains:
             wires.append(
                 (
-                    link,
+                    brain,
                     session.declare_subscriber(
-                        protocol.cmd_key(swarm, link.id), zenoh.handlers.RingChannel(16)
+                        protocol.cmd_key(swarm, brain.id), zenoh.handlers.RingChannel(16)
                     ),
-                    node.publisher(robot_topic(options.cmd_topic, link.id), options.cmd_type),
-                    node.subscriber(robot_topic(options.pose_topic, link.id), options.pose_type),
+                    node.publisher(robot_topic(options.cmd_topic, brain.id), options.cmd_type),
+                    node.subscriber(robot_topic(options.pose_topic, brain.id), options.pose_type),
                     session.declare_publisher(
-                        protocol.pose_key(swarm, link.id),
+                        protocol.pose_key(swarm, brain.id),
                         congestion_control=zenoh.CongestionControl.DROP,
                     ),
                 )
@@ -160,61 +160,61 @@ def run_bridge(
         alive: dict[int, zenoh.LivelinessToken] = {}
         ticker = Ticker(rate)
         seq = 0
-        log.info("bridge for robots %s of swarm %s ready", [link.id for link in links], swarm)
+        log.info("bridge for robots %s of swarm %s ready", [brain.id for brain in brains], swarm)
         try:
             while not stop.is_set():
                 now = ticker.wait(stop)
                 wall = time.time()
-                for link, commands, cmd_vel, poses, pose_out in wires:
+                for brain, commands, cmd_vel, poses, pose_out in wires:
                     while (sample := commands.try_recv()) is not None:
-                        link.on_command(sample.payload.to_bytes(), now, wall)
-                    if (twist := link.twist(now)) is not None:
+                        brain.on_command(sample.payload.to_bytes(), now, wall)
+                    if (twist := brain.twist(now)) is not None:
                         cmd_vel.put(_encode_twist(options, twist, wall))
                     while (sample := poses.try_recv()) is not None:
                         attachment = sample.attachment
-                        link.on_pose(
+                        brain.on_pose(
                             sample.payload.to_bytes(),
                             None if attachment is None else attachment.to_bytes(),
                             now,
                             wall,
                         )
-                    if (pose := link.take_pose(seq)) is not None:
+                    if (pose := brain.take_pose(seq)) is not None:
                         pose_out.put(pose.encode())
-                    _hold_token(session, swarm, link, now, alive)
+                    _hold_token(session, swarm, brain, now, alive)
                 seq += 1
                 if view is not None:
                     view.tick(now, wall)
         finally:
-            for link, _, cmd_vel, _, _ in wires:
-                if link.commands:  # leave no robot driving on the last command
+            for brain, _, cmd_vel, _, _ in wires:
+                if brain.commands:  # leave no robot driving on the last command
                     cmd_vel.put(_encode_twist(options, (0.0, 0.0), time.time()))
             for token in [*alive.values(), *claims, *node.tokens]:
                 token.undeclare()
-    for link in links:
+    for brain in brains:
         log.info(
             "robot %d: %d commands, %d twists, %d stops, %d poses, dropped %s",
-            link.id, link.commands, link.twists, link.stops, link.poses, link.drops.summary(),
+            brain.id, brain.commands, brain.twists, brain.stops, brain.poses, brain.drops.summary(),
         )  # fmt: skip
 
 
 def _hold_token(
     session: zenoh.Session,
     swarm: str,
-    link: RobotLink,
+    brain: RobotBrain,
     now: float,
     alive: dict[int, zenoh.LivelinessToken],
 ) -> None:
     """The robot's covswarm liveliness token exists exactly while its pose is fresh."""
-    visible = link.visible(now)
-    if visible and link.id not in alive:
-        alive[link.id] = session.liveliness().declare_token(
-            protocol.alive_key(swarm, "robot", link.id)
+    visible = brain.visible(now)
+    if visible and brain.id not in alive:
+        alive[brain.id] = session.liveliness().declare_token(
+            protocol.alive_key(swarm, "robot", brain.id)
         )
-        log.info("robot %d visible", link.id)
-    elif not visible and link.id in alive:
-        alive.pop(link.id).undeclare()
+        log.info("robot %d visible", brain.id)
+    elif not visible and brain.id in alive:
+        alive.pop(brain.id).undeclare()
         log.warning(
-            "robot %d: no valid pose for %.1f s, token withdrawn", link.id, link.pose_timeout
+            "robot %d: no valid pose for %.1f s, token withdrawn", brain.id, brain.pose_timeout
         )
 
 
@@ -370,8 +370,8 @@ def ros2_command(
                 robot_topic(template, rid)
         node_token_key(domain_id, "0", 0, node_name)
         check_topic(state_namespace)
-        links = [
-            RobotLink(
+        brains = [
+            RobotBrain(
                 rid,
                 options.pose_type,
                 axle=axle,
@@ -383,7 +383,7 @@ def ros2_command(
             )
             for rid in robot_ids
         ]
-        config = session_config(list(connect), None, "client", secure=secure)
+        config = session_config(list(connect), None, "client", secure=secure, role="bridge")
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    run_bridge(links, swarm, config, options, rate)
+    run_bridge(brains, swarm, config, options, rate)

@@ -1,8 +1,11 @@
 """The console's picture of a running swarm: a sans-IO state model fed with decoded messages.
 
 console.server subscribes to the swarm's keys and feeds what arrives here (Domain, Status,
-Pose, liveliness changes, steering replies); :meth:`SwarmView.snapshot` turns it into the
-JSON document the page draws and ``GET /api/state`` returns. No zenoh, no clock of its own:
+Pose, World, liveliness changes, steering replies); :meth:`SwarmView.snapshot` turns it into
+the JSON document the page draws and ``GET /api/state`` returns, :meth:`SwarmView.world_document`
+the arena (workspace, obstacles) the page fetches from ``GET /api/world`` when the snapshot's
+world version changes (the arena is static and may hold a map's hundreds of pieces: it is not
+resent at the frame rate). No zenoh, no clock of its own:
 every method takes the time it happens at, so the model is unit-tested without a network.
 
 The Voronoi cells and every robot's distance to its cell's centroid are computed here from
@@ -44,6 +47,19 @@ def _round(value: float) -> float:
 def _points(array: np.ndarray) -> list[list[float]]:
     """(m, 2) array -> JSON list of [x, y] rounded to DIGITS."""
     return np.round(np.asarray(array, dtype=float), DIGITS).tolist()
+
+
+def polygon_centroid(vertices: np.ndarray) -> np.ndarray:
+    """Area centroid (2,) m of a simple polygon (k, 2) m (shoelace formula); the vertex mean
+    for a degenerate one (zero area)."""
+    x, y = vertices[:, 0], vertices[:, 1]
+    cross = x * np.roll(y, -1) - np.roll(x, -1) * y
+    twice_area = cross.sum()
+    if abs(twice_area) < 1e-12:
+        return vertices.mean(axis=0)
+    return np.array(
+        [((x + np.roll(x, -1)) * cross).sum(), ((y + np.roll(y, -1)) * cross).sum()]
+    ) / (3.0 * twice_area)
 
 
 def cells_and_errors(
@@ -90,6 +106,11 @@ class SwarmView:
         self.dropped: dict[str, int] = {}
         # (wire dict, Density, what the page draws of it): parsed once per change of density
         self._density_cache: tuple[Any, Any, dict[str, Any]] | None = None
+        self.world: dict[str, Any] | None = None  # world_document(), None before any World
+        self._world_content: tuple[Any, ...] | None = None  # what the version counts changes of
+        # The route of the newest accepted goto, drawn until another accepted request takes S
+        # elsewhere (see on_steering).
+        self.route: dict[str, Any] | None = None
 
     # -- inputs -----------------------------------------------------------------------------
 
@@ -121,13 +142,62 @@ class SwarmView:
             if role == "robot":
                 self.robots.pop(ident, None)
 
+    def on_world(self, world: Any) -> None:
+        """A World broadcast (protocol.World: workspace, obstacles, names). The coordinator
+        repeats it every second: the version goes up only when the arena changes, so the
+        page fetches it again only then."""
+        content = (world.workspace, world.obstacles, world.names)
+        if content == self._world_content:
+            return
+        self._world_content = content
+        version = 1 if self.world is None else self.world["version"] + 1
+        self.world = {
+            "version": version,
+            "workspace": None if world.workspace is None else [_round(v) for v in world.workspace],
+            "obstacles": [
+                {"name": name, "polygon": _points(np.asarray(polygon, dtype=float))}
+                for name, polygon in zip(world.names, world.obstacles, strict=True)
+            ],
+        }
+
     def on_dropped(self, reason: str) -> None:
         """Count one dropped input (malformed message, unusable geometry)."""
         self.dropped[reason] = self.dropped.get(reason, 0) + 1
 
     def on_steering(self, outcome: dict[str, Any]) -> None:
-        """Record one steering request's outcome (console.server's dict) for the page."""
+        """Record one steering request's outcome (console.server's dict) for the page.
+
+        An accepted goto with a route (outcome["route"]: its stops [x, y, scale], S's
+        centroid in m and its size relative to S when the route starts, SteerReply.route)
+        becomes the route drawn: {"goal": [x, y], "waypoints": [[x, y, scale], ...],
+        "shape": S's vertices relative to its centroid when the goto was accepted (m; the
+        page draws S at each stop as shape * scale; [] before any Domain), "wall": s,
+        "duration": s}. Any other accepted request ends it."""
         self.steering.append(dict(outcome))
+        if not outcome.get("accepted"):
+            return
+        request = outcome.get("request") or {}
+        route = outcome.get("route")
+        if request.get("kind") == "goto" and route:
+            shape = np.zeros((0, 2))
+            if self.domain is not None:
+                vertices = np.asarray(self.domain.vertices, dtype=float)
+                shape = vertices - polygon_centroid(vertices)
+            self.route = {
+                "goal": [_round(v) for v in request["goal"]],
+                "waypoints": [[_round(v) for v in stop] for stop in route],
+                "shape": _points(shape),
+                "wall": outcome.get("wall"),
+                "duration": outcome.get("duration"),
+            }
+        else:
+            self.route = None
+
+    def world_document(self) -> dict[str, Any] | None:
+        """The arena for the page, None before any World: {version, workspace ([xmin, xmax,
+        ymin, ymax] m or None), obstacles ([{name, polygon [[x, y], ...] CCW m}])}. Its size
+        is bounded by the World message's (protocol.World)."""
+        return self.world
 
     # -- output -----------------------------------------------------------------------------
 
@@ -172,7 +242,9 @@ class SwarmView:
         outcomes, newest last), dropped (per reason), density (None: uniform; else
         {floor, bumps: [{mean [x, y] m, precision [[a, b], [b, c]] 1/m^2, weight}]}: phi(q) =
         floor + sum weight exp(-1/2 (q - mean)^T precision (q - mean)) at the broadcast's t,
-        which the page shades inside S).
+        which the page shades inside S), world (None before any World, else {version,
+        obstacles (count)}: the page fetches ``world_document`` when the version changes),
+        route (the newest accepted goto's route, see ``on_steering``, or None).
         """
         robots = self.fresh_robots(now)
         domain = self.domain
@@ -226,4 +298,8 @@ class SwarmView:
             "steering": list(self.steering),
             "dropped": dict(self.dropped),
             "density": density_view,
+            "world": None
+            if self.world is None
+            else {"version": self.world["version"], "obstacles": len(self.world["obstacles"])},
+            "route": self.route,
         }

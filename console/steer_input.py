@@ -6,7 +6,10 @@ coordinator is asked, with a reason the page shows: a body that is not JSON or i
 NaN/Infinity (which Python's json would otherwise accept), unknown fields, wrong types or
 values (SteerRequest's own checks). Geometry (convexity, workspace, team size) is the
 coordinator's to judge: it answers with the reason, which the page shows too. A refused
-request never reaches the coordinator, so it cannot move S.
+request never reaches the coordinator, so it cannot move S. Every body that cannot be read
+is a BadSteerInput (the console answers 400), never an exception of the JSON parser: a
+nesting too deep for it (RecursionError), an integer past Python's digit limit
+(ValueError), bytes that are not UTF-8.
 """
 
 from __future__ import annotations
@@ -37,8 +40,8 @@ def parse_steer_body(body: bytes) -> SteerRequest:
         data = json.loads(body.decode("utf-8"), parse_constant=_no_constant)
     except BadSteerInput:
         raise
-    except (UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise BadSteerInput(f"not JSON: {exc}") from None
+    except (ValueError, RecursionError) as exc:  # JSON, UTF-8, digit limit, nesting depth
+        raise BadSteerInput(f"not JSON: {str(exc)[:200]}") from None
     return steer_request(data)
 
 

@@ -5,7 +5,8 @@ appeared or vanished), :meth:`~CoordinatorCore.on_pose` and
 :meth:`~CoordinatorCore.on_agent_state` (raw payloads), :meth:`~CoordinatorCore.on_steer`
 (a steering query's payload, answered at once with a :class:`ReplySteer`); once per
 broadcast period :meth:`~CoordinatorCore.tick` returns what to do, in order:
-:class:`MissionStarted` (once), :class:`PublishDomain`, :class:`PublishStatus` (every
+:class:`MissionStarted` (once), :class:`PublishDomain`, :class:`PublishWorld` (on the first
+tick, before the mission starts, then every WORLD_PERIOD), :class:`PublishStatus` (every
 STATUS_PERIOD) and :class:`Finished` (after DONE_HOLD s of "done", or when stopped before
 the start). No zenoh and no clock of its own: ``now`` is monotonic mission seconds (the
 shell's runtime.clock.scaled monotonic clock), ``wall`` seconds since the epoch (the run's
@@ -43,21 +44,31 @@ from covswarm.coordinator.monitor import (
     TeamChange,
     clip_sample_time,
     mean_pose_time,
-    team_of,
 )
 from covswarm.coordinator.steering import (
     Limits,
     MotionCheck,
     Steering,
     default_max_domain_speed,
+    world_check,
 )
+from covswarm.coordinator.team import Roster
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.crowding import crowding as estimate_crowding
 from covswarm.mission.scenarios import Scenario
-from covswarm.protocol import AgentState, Domain, Pose, ProtocolError, Status, parse_alive_key
+from covswarm.protocol import (
+    AgentState,
+    Domain,
+    Pose,
+    ProtocolError,
+    Status,
+    World,
+    parse_alive_key,
+)
 from covswarm.records.observations import timed_layers
 from covswarm.tvd.coverage import aggregate_error
 from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.world.wire import to_message
 
 if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only calls it
     from covswarm.records.recorder import RunRecorder
@@ -70,6 +81,7 @@ DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its 
 # its safety filter needs before its robot moves (coordinator.monitor.MissionPhase.settle).
 START_SETTLE = 1.5
 STATUS_PERIOD = 0.5  # s
+WORLD_PERIOD = 1.0  # s between World broadcasts: a late joiner has the arena within this
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
@@ -78,7 +90,7 @@ SAMPLE_SHARE = 0.05
 # every k-th tick instead of every tick (about 1 ms a tick at 100 robots: every tick).
 RECORD_SHARE = 0.05
 # Beacon tile side, in units of the mean spacing of the team in S(0): a converged cell's
-# reach (agent.neighbourhood.cell_reach) is about 2.1 spacings while the domain moves, so it
+# reach (agent.neighborhood.cell_reach) is about 2.1 spacings while the domain moves, so it
 # fits in an agent's 3 x 3 tiles, which hold ~56 robots whatever the team's size and
 # density (at 2 spacings the reach needs 5 x 5 tiles, at 3 they hold 81 robots).
 TILE_SPACINGS = 2.5
@@ -164,6 +176,12 @@ class Observed:
     clipped_samples: int = 0  # e_a samples not placed at their poses' time (clip_sample_time)
     started_wall: float | None = None
     team_changes: list[TeamChange] = field(default_factory=list)
+    # Who may be a team member (ids 0..N-1) and what came from any other id (issue 21);
+    # None only for an Observed built outside a core.
+    roster: Roster | None = None
+    # S at every recorded instant (the rows of domain.csv): mission time, vertices (k, 2).
+    domain_t: list[float] = field(default_factory=list)
+    domain_polygons: list[np.ndarray] = field(default_factory=list)
 
 
 # -- actions (what the shell carries out) --------------------------------------------------
@@ -174,6 +192,13 @@ class PublishDomain:
     """Put ``domain`` on the swarm's domain key."""
 
     domain: Domain
+
+
+@dataclass(frozen=True)
+class PublishWorld:
+    """Put ``world`` (the arena, protocol.World) on the swarm's world key."""
+
+    world: World
 
 
 @dataclass(frozen=True)
@@ -214,7 +239,15 @@ class Finished:
     started: bool
 
 
-Action = PublishDomain | PublishStatus | ReplySteer | JournalSteering | MissionStarted | Finished
+Action = (
+    PublishDomain
+    | PublishWorld
+    | PublishStatus
+    | ReplySteer
+    | JournalSteering
+    | MissionStarted
+    | Finished
+)
 
 
 def recording_counts() -> dict[str, float | int]:
@@ -248,11 +281,18 @@ class CoordinatorCore:
         slow sampling down too), ``cpu_clock`` a record (CPU: a busy machine that
         descheduled us is not recording's cost)."""
         self.settings = settings
-        self.observed = Observed()
+        self.roster = Roster.of_size(settings.agents)
+        self.observed = Observed(roster=self.roster)
         self.phase = MissionPhase(settings.duration, settle=START_SETTLE)
+        world = settings.scenario.world
+        # S never touches the arena: every steered motion is swept against it first.
+        checks = tuple(steer_checks)
+        if world.workspace is not None or world.obstacles:
+            checks = (world_check(world), *checks)
         self.steering = Steering(
-            settings.scenario.domain, settings.steering_limits(), checks=tuple(steer_checks)
+            settings.scenario.domain, settings.steering_limits(), checks=checks, world=world
         )
+        self._next_world: float | None = None
         self.recorder = recorder
         self._cost_clock = cost_clock
         self._cpu_clock = cpu_clock
@@ -303,6 +343,8 @@ class CoordinatorCore:
         except ValueError:
             obs.rejected += 1
             return
+        if not self.roster.admit_token(role, ident):  # not of the team: counted, not tracked
+            return
         # Tokens vanishing after "done" are processes shutting down, not failures.
         if self.phase.state == DONE and not alive:
             return
@@ -315,7 +357,7 @@ class CoordinatorCore:
     def _note_team_change(self, now: float, wall: float) -> None:
         """One TeamChange for every liveliness change since the last tick that changed the
         running team (robot and agent both alive), however many tokens it took."""
-        team = team_of(self.observed.liveness.alive)
+        team = self.roster.members(self.observed.liveness.alive)
         if self.phase.state == RUNNING and team != self._team:
             t = self.phase.mission_time(now)
             lost, joined = tuple(sorted(self._team - team)), tuple(sorted(team - self._team))
@@ -338,13 +380,21 @@ class CoordinatorCore:
         except ProtocolError:
             self.observed.rejected += 1
             return
+        if not self.roster.admit_state(state.id):
+            return
         if state.stats is not None:
             self.observed.agent_stats[state.id] = dict(state.stats)
 
-    def on_steer(self, payload: bytes, now: float, wall: float) -> list[Action]:
-        """Answer one steering request; an accepted one takes over S from ``now``."""
+    def on_steer(
+        self, payload: bytes, now: float, wall: float, requester: str | None = None
+    ) -> list[Action]:
+        """Answer one steering request; an accepted one takes over S from ``now``.
+
+        ``requester``: who sent it (coordinator.steering.requester_key), rate-limited per
+        requester; None: not rate-limited."""
         t = self.phase.mission_time(now)
-        reply = self.steering.handle(payload, t, wall, self.phase.state == RUNNING)
+        running = self.phase.state == RUNNING
+        reply = self.steering.handle(payload, t, wall, running, requester)
         record = self.steering.records[-1]
         if self.recorder is not None:
             self.recorder.steering(t, record.to_dict())
@@ -370,10 +420,12 @@ class CoordinatorCore:
             except ProtocolError:
                 obs.rejected += 1
                 continue
+            if not self.roster.admit_pose(pose.id):
+                continue
             obs.poses[pose.id] = (pose.x, pose.y)
             obs.pose_stamps[pose.id] = pose.stamp
         self._pose_payloads.clear()
-        team = team_of(obs.liveness.alive)
+        team = self.roster.members(obs.liveness.alive)
         return {i: xy for i, xy in obs.poses.items() if i in team}
 
     # -- the clock ------------------------------------------------------------------------
@@ -401,6 +453,9 @@ class CoordinatorCore:
         t = phase.mission_time(now)
         polygon, domain = self._domain(state, t)
         actions.append(PublishDomain(domain))
+        if self._next_world is None or now >= self._next_world:
+            actions.append(PublishWorld(self.world_message()))
+            self._next_world = now + WORLD_PERIOD
         self._ticks_to_sample -= 1
         if state == RUNNING and self._ticks_to_sample <= 0:
             began = self._cost_clock()
@@ -462,6 +517,10 @@ class CoordinatorCore:
         self._seq += 1
         return vertices, domain
 
+    def world_message(self) -> World:
+        """The arena as broadcast (seq 0: the world never changes during a run)."""
+        return to_message(self.settings.scenario.world, 0, self.stamp(self._wall))
+
     def _status(self, state: str, t: float) -> Status:
         live, record = self.observed.liveness, self.observed.record
         return Status(
@@ -518,7 +577,7 @@ class CoordinatorCore:
                 continue
             observations.append((pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta))
         layers, stale = timed_layers(
-            np.array(observations, dtype=float).reshape(-1, 6),
+            self.roster.admit_observations(np.array(observations, dtype=float).reshape(-1, 6)),
             t,
             self._last_record_t,
             self.stamp(self._wall),
@@ -536,6 +595,8 @@ class CoordinatorCore:
             recorder.trajectory_rows(times[order], ids[order].tolist(), poses)
         self._last_record_t = t
         recorder.domain(t, polygon)
+        self.observed.domain_t.append(t)
+        self.observed.domain_polygons.append(np.asarray(polygon, dtype=float))
         cost = self._cpu_clock() - began
         if recorder.cells_due(t) and (positions := self.alive_positions()):
             team = sorted(positions)

@@ -23,8 +23,10 @@ from covswarm.coordinator.core import (
     MissionStarted,
     PublishDomain,
     PublishStatus,
+    PublishWorld,
     ReplySteer,
 )
+from covswarm.coordinator.steering import requester_key
 from covswarm.protocol import (
     alive_key,
     alive_selector,
@@ -33,6 +35,7 @@ from covswarm.protocol import (
     domain_key,
     status_key,
     steer_key,
+    world_key,
 )
 from covswarm.runtime.clock import StopFlag, Ticker
 
@@ -74,6 +77,7 @@ class CoordinatorLink:
             steer_key(swarm), zenoh.handlers.FifoChannel(STEER_QUEUE)
         )
         self._status = session.declare_publisher(status_key(swarm))
+        self._world = session.declare_publisher(world_key(swarm))
 
     def receive(self, now: float) -> None:
         """Hand everything that arrived since the last tick to the core; answer steering."""
@@ -86,7 +90,8 @@ class CoordinatorLink:
             core.on_agent_state(sample.payload.to_bytes())
         while (query := self._steer.try_recv()) is not None:
             payload = b"" if query.payload is None else query.payload.to_bytes()
-            for action in core.on_steer(payload, now, time.time()):
+            requester = requester_key(query.source_info)
+            for action in core.on_steer(payload, now, time.time(), requester):
                 if isinstance(action, ReplySteer):
                     query.reply(query.key_expr, action.payload)
                     query.drop()  # the final answer: the client stops waiting
@@ -97,6 +102,8 @@ class CoordinatorLink:
         """Do what the core asked (see coordinator.core's actions); Finished is the loop's."""
         if isinstance(action, PublishDomain):
             self._domain.put(action.domain.encode())
+        elif isinstance(action, PublishWorld):
+            self._world.put(action.world.encode())
         elif isinstance(action, PublishStatus):
             self._status.put(action.status.encode())
         elif isinstance(action, JournalSteering):

@@ -22,6 +22,7 @@ from typing import Any
 import click
 import zenoh
 
+from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.config import MISSION_FILE, STEERING_JOURNAL, CoordinatorConfig
 from covswarm.coordinator.core import (
     TILE_SPACINGS,
@@ -31,17 +32,22 @@ from covswarm.coordinator.core import (
 )
 from covswarm.coordinator.link import CoordinatorLink
 from covswarm.coordinator.outputs import open_recorder, read_mission_start, write_run_outputs
-from covswarm.mission.scenarios import load_scenario
-from covswarm.protocol import alive_key, check_swarm
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP
+from covswarm.protocol import check_swarm
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.records.recorder import LiveViewError
-from covswarm.runtime.claims import token_exists
+from covswarm.runtime.claims import claim_exclusive
 from covswarm.runtime.clock import StopFlag, scaled
 from covswarm.runtime.options import TIME_SCALE_OPTION
 
 log = logging.getLogger("covswarm.coordinator")
+
+# The coordinator's log line when the run's outputs could not be written; the launcher
+# repeats it in its last line.
+OUTPUTS_NOT_WRITTEN = "run outputs not written in"
 
 
 def run_coordinator(config: CoordinatorConfig) -> None:
@@ -52,6 +58,10 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     settings = CoordinatorSettings.from_config(config, scenario)
+    try:
+        check_broadcastable(scenario, settings.kappa, settings.duration)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
     if settings.crowding.crowded:
         log.warning(settings.crowding.warning(settings.agents))
     mission_file = config.out / MISSION_FILE
@@ -62,8 +72,11 @@ def run_coordinator(config: CoordinatorConfig) -> None:
         except ValueError as exc:
             raise click.UsageError(f"--resume: {exc}") from None
     stop = StopFlag()
-    with zenoh.open(session_config(list(config.connect), secure=config.secure)) as session:
-        if token_exists(session, alive_key(config.swarm, "coordinator", 0)):
+    with zenoh.open(
+        session_config(list(config.connect), secure=config.secure, role="coordinator")
+    ) as session:
+        claim = claim_exclusive(session, config.swarm, "coordinator", 0)
+        if claim is None:
             raise click.ClickException(f"swarm {config.swarm!r} already has a coordinator")
         try:
             recorder = open_recorder(config, settings)
@@ -95,7 +108,12 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     if not core.observed.record.t:
         log.info("no samples recorded: no outputs written")
         return
-    write_run_outputs(config.out, settings, core.observed, core.steering)
+    disk = None if recorder is None else recorder.disk
+    try:
+        write_run_outputs(config.out, settings, core.observed, core.steering, disk)
+    except OSError as exc:  # a full disk: the mission is over, its records stay readable
+        log.error("%s %s: %s", OUTPUTS_NOT_WRITTEN, config.out, exc.strerror or exc)
+        raise SystemExit(1) from None
     log.info("wrote %s", config.out)
 
 
@@ -104,7 +122,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     "--scenario",
     default="passage",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option(
     "--connect",

@@ -19,11 +19,17 @@ from covswarm.coordinator.monitor import (
     losses_summary,
     team_changes_summary,
 )
-from covswarm.coordinator.physical import agent_wheel_figures, physical_summary
 from covswarm.coordinator.steering import Steering
 from covswarm.mission.crowding import Crowding
+from covswarm.mission.physical import agent_wheel_figures, physical_summary
 from covswarm.mission.report import neighbor_histogram, steady_state_mean, write_outputs
 from covswarm.mission.scenarios import Scenario
+from covswarm.mission.world_metrics import (
+    DOMAIN_FILE,
+    goal_times,
+    world_summary,
+    write_domain_csv,
+)
 from covswarm.records.recorder import LIVE_HOST, RunRecorder
 
 log = logging.getLogger("covswarm.coordinator")
@@ -51,7 +57,7 @@ def mission_summary(
     t: (T,) s; error: (T,) m, e_a at t; final_positions: (n, 2) m and final_polygon (k, 2)
     m at the last sample; trajectories: (T, n, 2) m (NaN where a robot is absent), robots
     ``ids`` (default 0..n-1); ``wheels``: the wheel-speed figures
-    (coordinator.physical.wheel_figures' keys, measured or reported by the agents).
+    (mission.physical.wheel_figures' keys, measured or reported by the agents).
     """
     return {
         "scenario": scenario.name,
@@ -71,10 +77,76 @@ def mission_summary(
     }
 
 
-def build_summary(
-    settings: CoordinatorSettings, observed: Observed, steering: Steering | None = None
+def run_goals(
+    t: np.ndarray,
+    polygons: list[np.ndarray],
+    scenario_goals: tuple[tuple[float, float], ...],
+    steering: Steering | None,
+) -> tuple[list[tuple[float, float]], list[float | None]]:
+    """The goals of a run and when S's centroid reached each (s, None if never): the
+    scenario's (its route's goals, in order, while its script moves S: until the first
+    accepted steering request) and every accepted goto's goal, from its acceptance until the
+    next accepted request (a goto pre-empted before arriving is not reached).
+    (covswarm.mission.world_metrics.goal_times in each window.)"""
+    accepted = [] if steering is None else [r for r in steering.records if r.accepted]
+    windows: list[tuple[float, float, list[tuple[float, float]]]] = []
+    first = accepted[0].t if accepted else math.inf
+    if scenario_goals:
+        windows.append((-math.inf, first, list(scenario_goals)))
+    for k, record in enumerate(accepted):
+        request = record.request or {}
+        if request.get("kind") == "goto":
+            until = accepted[k + 1].t if k + 1 < len(accepted) else math.inf
+            windows.append((record.t, until, [tuple(request["goal"])]))
+    goals: list[tuple[float, float]] = []
+    times: list[float | None] = []
+    for begin, end, wanted in windows:
+        rows = [i for i, when in enumerate(t) if begin <= when <= end]
+        goals += wanted
+        if rows:
+            times += goal_times(t[rows], [polygons[i] for i in rows], wanted)
+        else:
+            times += [None] * len(wanted)
+    return goals, times
+
+
+def arena_summary(
+    settings: CoordinatorSettings, observed: Observed, steering: Steering | None
 ) -> dict[str, Any]:
-    """summary.json of a distributed run: :func:`mission_summary` plus process figures."""
+    """summary.json's arena keys of a run (covswarm.mission.world_metrics.world_summary, as
+    ``covswarm sim`` writes them) over the e_a samples: robots' positions and S; goals from
+    the scenario and from accepted goto requests (:func:`run_goals`)."""
+    record = observed.record
+    t = np.array(record.t)
+    scenario = settings.scenario
+    summary = world_summary(
+        t,
+        record.trajectories(),
+        record.polygons,
+        0.5 * scenario.robot_diameter,
+        scenario.world,
+        ids=record.robot_ids(),
+    )
+    goals, times = run_goals(t, record.polygons, scenario.goals, steering)
+    summary.update(
+        goals=len(goals),
+        goals_reached=sum(when is not None for when in times),
+        goal_times=times,
+        goal_list=[list(goal) for goal in goals],
+    )
+    return summary
+
+
+def build_summary(
+    settings: CoordinatorSettings,
+    observed: Observed,
+    steering: Steering | None = None,
+    recorder_disk: dict[str, Any] | None = None,
+) -> dict[str, Any]:
+    """summary.json of a distributed run: :func:`mission_summary` plus process figures,
+    the arena's figures (:func:`arena_summary`), the ids that were not of the team
+    (coordinator.team.Roster) and, when recording, the recorder's disk state
+    (``RunRecorder.disk``)."""
     record = observed.record
     final = record.positions[-1]
     ids = sorted(final)
@@ -112,7 +184,10 @@ def build_summary(
         "error_samples_clipped": observed.clipped_samples,
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,
+        **arena_summary(settings, observed, steering),
+        **({} if observed.roster is None else {"unexpected": observed.roster.summary()}),
         **({} if steering is None else steering_summary(steering)),
+        **({} if recorder_disk is None else {"recorder_disk": dict(recorder_disk)}),
     }
 
 
@@ -121,19 +196,26 @@ def steering_summary(steering: Steering) -> dict[str, Any]:
     return {
         "steering": [record.to_dict() for record in steering.records],
         "steering_refused": dict(sorted(steering.refused.items())),
+        "steering_omitted": steering.records.omitted,
         "steering_largest_jump": steering.largest_jump,
         "max_domain_speed": steering.limits.max_speed,
     }
 
 
 def write_run_outputs(
-    out_dir: Path, settings: CoordinatorSettings, observed: Observed, steering: Steering | None
+    out_dir: Path,
+    settings: CoordinatorSettings,
+    observed: Observed,
+    steering: Steering | None,
+    recorder_disk: dict[str, Any] | None = None,
 ) -> None:
-    """summary.json, error.csv, error.png, trajectories.png through mission.report."""
+    """summary.json, error.csv, error.png, trajectories.png through mission.report, and
+    domain.csv: S at every recorded instant (those of trajectories.csv), or at the e_a
+    samples when nothing was recorded."""
     record = observed.record
     write_outputs(
         out_dir,
-        summary=build_summary(settings, observed, steering),
+        summary=build_summary(settings, observed, steering, recorder_disk),
         t=np.array(record.t),
         error=np.array(record.error),
         trajectories=record.trajectories(),
@@ -142,6 +224,12 @@ def write_run_outputs(
         workspace=settings.scenario.workspace,
         density=settings.scenario.density(record.t[-1]) if record.t else None,
     )
+    if observed.domain_t:
+        write_domain_csv(
+            out_dir / DOMAIN_FILE, np.array(observed.domain_t), observed.domain_polygons
+        )
+    else:
+        write_domain_csv(out_dir / DOMAIN_FILE, np.array(record.t), record.polygons)
 
 
 def open_recorder(config: CoordinatorConfig, settings: CoordinatorSettings) -> RunRecorder | None:

@@ -13,6 +13,8 @@ For planners and scripts (``covswarm steer`` is a thin wrapper around it)::
             print("refused:", reply.reason)
         steer.rotate(30.0)                                  # degrees, about S's centroid
         steer.polygon([(0, 0), (1, 0), (1, 1), (0, 1)])     # morph S into a unit square
+        reply = steer.goto(4.0, 1.5)                        # S planned through the arena
+        print(reply.route)                                  # its stops: (x, y, scale)
 
 Every call sends one SteerRequest as a Zenoh query on ``covswarm/<swarm>/steer`` and returns
 the coordinator's SteerReply; a new request pre-empts the motion in progress. Raises
@@ -94,6 +96,21 @@ class SteeringClient:
         points = [(float(x), float(y)) for x, y in vertices]
         return self.request(SteerRequest("polygon", polygon=points, duration=duration))
 
+    def goto(
+        self,
+        x: float,
+        y: float,
+        polygon: Sequence[Sequence[float]] | None = None,
+        speed: float | None = None,
+    ) -> SteerReply:
+        """Take S's centroid to (x, y) m through free space (the coordinator plans the route,
+        shrinking S for doors and growing it back), S shaped ``polygon`` there ((k, 2) m,
+        placed with its centroid on the goal; None: S's own shape). ``speed``: m/s of the
+        fastest vertex (None: the coordinator's limit). An accepted reply's ``route`` lists
+        the stops (x, y, scale); a refused one says why ("no-path: ...")."""
+        points = None if polygon is None else [(float(px), float(py)) for px, py in polygon]
+        return self.request(SteerRequest("goto", goal=(x, y), polygon=points, speed=speed))
+
 
 def _pair(text: str, option: str) -> tuple[float, float]:
     try:
@@ -121,7 +138,14 @@ NO_ANSWER_EXIT = 3  # no coordinator answered
 @click.option("--translate", "translate_", metavar="DX,DY", help="Move S by (DX, DY) m.")
 @click.option("--rotate", type=float, metavar="DEG", help="Turn S by DEG degrees (CCW).")
 @click.option("--scale", type=click.FloatRange(min=0, min_open=True), help="Scale S by F.")
-@click.option("--polygon", metavar='"X,Y;X,Y;..."', help="Morph S into this convex polygon.")
+@click.option(
+    "--polygon",
+    metavar='"X,Y;X,Y;..."',
+    help="Morph S into this convex polygon (with --goto: S's shape at the goal).",
+)
+@click.option(
+    "--goto", "goto", metavar="X,Y", help="Take S's centroid to (X, Y) m around the obstacles."
+)
 @click.option("--about", metavar="X,Y", help="Fixed point of --rotate/--scale [S's centroid].")
 @click.option(
     "--duration", type=click.FloatRange(min=0, min_open=True), help="Seconds the motion takes."
@@ -140,13 +164,16 @@ def steer_command(
     rotate: float | None,
     scale: float | None,
     polygon: str | None,
+    goto: str | None,
     about: str | None,
     duration: float | None,
     speed: float | None,
     timeout: float,
     secure: Any,
 ) -> None:
-    """Steer a running swarm: move, turn, scale or reshape S. Prints accepted or the refusal.
+    """Steer a running swarm: move, turn, scale or reshape S, or send it somewhere (--goto,
+    planned by the coordinator around the obstacles). Prints accepted (and a goto's route)
+    or the refusal.
 
     Exit status: 0 accepted, 1 refused, 3 no coordinator answered or no router let us in
     (2: bad options).
@@ -155,9 +182,14 @@ def steer_command(
 
     from covswarm.protocol.session import session_config
 
-    chosen = [o for o in (translate_, rotate, scale, polygon) if o is not None]
+    shape = None if goto is not None else polygon  # with --goto, --polygon is the goal's
+    chosen = [o for o in (translate_, rotate, scale, shape, goto) if o is not None]
     if len(chosen) != 1:
-        raise click.UsageError("give exactly one of --translate, --rotate, --scale, --polygon")
+        raise click.UsageError(
+            "give exactly one of --translate, --rotate, --scale, --polygon, --goto"
+        )
+    if goto is not None and duration is not None:
+        raise click.UsageError("--goto takes --speed, not --duration (its route is planned)")
     if about is not None and rotate is None and scale is None:
         raise click.UsageError("--about is the fixed point of --rotate or --scale only")
     try:
@@ -174,6 +206,13 @@ def steer_command(
             request = SteerRequest(
                 "scale", factor=scale, about=centre, duration=duration, speed=speed
             )
+        elif goto is not None:
+            request = SteerRequest(
+                "goto",
+                goal=_pair(goto, "--goto"),
+                polygon=None if polygon is None else _vertices(polygon),
+                speed=speed,
+            )
         else:
             request = SteerRequest(
                 "polygon", polygon=_vertices(polygon or ""), duration=duration, speed=speed
@@ -181,7 +220,7 @@ def steer_command(
     except ValueError as exc:  # ProtocolError included: NaN, too many vertices, ...
         raise click.UsageError(str(exc)) from None
     try:
-        config = session_config(list(connect), secure=secure)
+        config = session_config(list(connect), secure=secure, role="operator")
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:
@@ -200,3 +239,6 @@ def steer_command(
         raise SystemExit(REFUSED_EXIT)
     note = f" ({reply.reason})" if reply.reason else ""
     click.echo(f"accepted: {request.describe()}, {reply.duration:.2f} s{note}")
+    if reply.route is not None:
+        stops = " -> ".join(f"({x:.3f}, {y:.3f}) x{s:.2f}" for x, y, s in reply.route)
+        click.echo(f"route: {stops}")

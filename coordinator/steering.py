@@ -48,12 +48,23 @@ from typing import Any
 
 import numpy as np
 
-from covswarm.mission.crowding import robot_room
+from covswarm.mission.crowding import least_domain, robot_room
 from covswarm.protocol.messages import MAX_VERTICES, ProtocolError
-from covswarm.protocol.steering import MAX_DURATION, MAX_REASON, SteerReply, SteerRequest
-from covswarm.tvd.coverage import validate_polygon
+from covswarm.protocol.steering import (
+    MAX_DURATION,
+    MAX_FACTOR,
+    MAX_REASON,
+    MAX_ROUTE,
+    SteerReply,
+    SteerRequest,
+)
+from covswarm.tvd.coverage import signed_area, validate_polygon
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_MARGIN
+from covswarm.world.model import World
+from covswarm.world.planner import NoPath, plan_route
+from covswarm.world.route import RouteMotion
+from covswarm.world.sweep import first_contact
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 DomainAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
@@ -74,6 +85,9 @@ REFUSALS = (
     "too-small",  # less area per robot than MIN_ROOMS robot rooms
     "too-slow",  # the motion would take longer than protocol.steering.MAX_DURATION
     "not-running",  # before the mission starts or after it ended
+    "rate-limited",  # the requester's token bucket is empty (RequestLimiter)
+    "obstacle",  # S would touch an obstacle or leave the workspace during the motion
+    "no-path",  # goto: no route for S (covswarm.world.planner.NoPath's code and why)
 )
 # Least area of S per robot, in robot rooms (covswarm.mission.crowding.robot_room: hexagonal
 # packing at the safety filter's distance, the limit below which the crowding warning says a
@@ -82,12 +96,26 @@ REFUSALS = (
 MIN_ROOMS = 2.0
 FOLLOW_GAP = 0.14  # m (a Khepera IV's diameter): the gap the robots must still close
 WORKSPACE_SLACK = 1e-9  # m: vertices on the workspace's edge are inside
+# m: S within this of an obstacle touches it (the scenario's check at load,
+# covswarm.mission.scenarios.CONTACT_TOLERANCE).
+CONTACT_TOLERANCE = 1e-4
 _ROTATION_SAMPLES = 65  # instants at which a rotating motion is checked against the walls
 _MERGE_TOL = 1e-9  # coincident output vertices: distance below this x half the perimeter
 # m/s^2: the most a pre-empted S's fastest vertex is slowed by its brake (module docstring).
 # About what the quintic asks when starting a 0.5 m move at the default 0.52 m/s
 # (10 / sqrt(3) x 0.5 m / (1.8 s)^2 = 0.89 m/s^2): a brake is no harsher than a start.
 BRAKE_DECELERATION = 1.0
+# Steering requests per requester (RequestLimiter): a token bucket of STEER_BURST requests
+# refilled at STEER_RATE per second. An operator clicks a few times a second at most; a
+# flood (10 893 valid queries in 5 s, issue 21) costs a count, not the records or the disk.
+STEER_RATE = 2.0  # 1/s
+STEER_BURST = 10
+MAX_REQUESTERS = 64  # distinct requester keys tracked; the rest share one bucket
+UNKNOWN_REQUESTER = "(unknown)"
+# summary.json and the recorder keep the first and the last this many requests, and count
+# those omitted between (SteeringRecords).
+RECORDS_HEAD = 100
+RECORDS_TAIL = 100
 
 
 def default_max_domain_speed(robot_speed: float, kappa: float) -> float:
@@ -102,12 +130,6 @@ def smoothstep(u: float) -> tuple[float, float]:
     """Quintic progress s(u) and ds/du for u in [0, 1] (clamped outside)."""
     u = min(max(u, 0.0), 1.0)
     return u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 30.0 * u * u * (1.0 - u) ** 2
-
-
-def signed_area(polygon: np.ndarray) -> float:
-    """Shoelace area of (k, 2) vertices, positive when counter-clockwise (m^2)."""
-    x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
 def centroid(polygon: np.ndarray) -> np.ndarray:
@@ -306,12 +328,15 @@ class Limits:
     """Feasibility of steering requests.
 
     max_speed: fastest vertex, m/s; workspace: box S must stay in (None: anywhere);
-    min_area: least area of S, m^2 (team size x MIN_ROOMS robot rooms).
+    min_area: least area of S, m^2 (team size x MIN_ROOMS robot rooms); min_width: least
+    width a goto's route may shrink S to, m (a robot body with its clearance either side:
+    covswarm.mission.crowding.least_domain).
     """
 
     max_speed: float
     workspace: Box | None
     min_area: float
+    min_width: float = 0.0
 
     @classmethod
     def for_team(
@@ -322,7 +347,8 @@ class Limits:
         robot_diameter: float = KHEPERA_IV.body_diameter,
     ) -> Limits:
         room = robot_room(robot_diameter, DEFAULT_MARGIN)
-        return cls(max_speed, workspace, agents * MIN_ROOMS * room)
+        _, min_width = least_domain(agents, robot_diameter, DEFAULT_MARGIN)
+        return cls(max_speed, workspace, agents * MIN_ROOMS * room, min_width)
 
 
 class Refusal(ValueError):
@@ -378,11 +404,94 @@ def _check_inside(vertices: np.ndarray, limits: Limits, what: str) -> None:
         )
 
 
+def motion_speed(motion: DomainAt) -> float | None:
+    """A proven bound on every vertex's speed (m/s) over a planned motion, or None if its
+    kind has none (first_contact then samples the speeds)."""
+    if isinstance(motion, Hold):
+        return 0.0
+    if isinstance(motion, (Similarity, Morph)):
+        return PEAK_RATE * motion.peak_rate() / motion.span
+    if isinstance(motion, RouteMotion):
+        return motion.peak_speed()
+    return None
+
+
+def motion_span(motion: DomainAt, start: float) -> float:
+    """Seconds from ``start`` until a planned motion ends (S at rest at its target)."""
+    if isinstance(motion, RouteMotion):
+        return motion.end - start
+    return getattr(motion, "span", 0.0)
+
+
+def world_check(world: World, tolerance: float = CONTACT_TOLERANCE) -> MotionCheck:
+    """The MotionCheck that refuses ("obstacle") a motion whose S comes within
+    ``tolerance`` m of one of ``world``'s obstacles, or leaves its workspace, at any instant
+    from its start to its end: covswarm.world.sweep.first_contact over the whole motion,
+    with the motion's exact speed bound (motion_speed), so no instant is skipped."""
+
+    def check(motion: DomainAt, begin: float, end: float) -> None:
+        contact = first_contact(
+            motion, begin, end, world, tolerance=tolerance, speed=motion_speed(motion)
+        )
+        if contact is None:
+            return
+        what = (
+            "leave the workspace"
+            if contact.obstacle == "workspace"
+            else f"touch obstacle {contact.obstacle!r}"
+        )
+        raise Refusal("obstacle", f"S would {what} at t = {contact.time:.2f} s")
+
+    return check
+
+
+def plan_goto(
+    request: SteerRequest, t: float, current: np.ndarray, limits: Limits, world: World
+) -> tuple[RouteMotion, str, tuple[tuple[float, float, float], ...]]:
+    """A goto's route from S = ``current`` (k, 2, CCW) at mission time ``t`` through
+    ``world`` (covswarm.world.planner.plan_route): (motion, note, stops for the reply).
+    Refusal "no-path" (with the planner's code and why) when there is none."""
+    note = ""
+    speed = limits.max_speed if request.speed is None else request.speed
+    if speed > limits.max_speed:
+        note = f"speed clipped to {limits.max_speed:.3g} m/s"
+        speed = limits.max_speed
+    goal_polygon = None
+    if request.polygon is not None:
+        goal_polygon = check_target(
+            np.array(request.polygon), limits, signed_area(current), "goal polygon"
+        )
+    try:
+        route = plan_route(
+            world,
+            current,
+            request.goal,
+            goal_polygon=goal_polygon,
+            min_area=min(limits.min_area, signed_area(current)),
+            min_width=limits.min_width,
+            max_speed=speed,
+            t0=t,
+        )
+    except NoPath as exc:
+        raise Refusal("no-path", str(exc)) from None
+    except ValueError as exc:  # a goal or polygon the planner cannot take
+        raise Refusal("degenerate", str(exc)) from None
+    if route.duration > MAX_DURATION:
+        raise Refusal("too-slow", f"the route takes {route.duration:.3g} s (> {MAX_DURATION:g} s)")
+    stops = tuple(
+        (w.centroid[0], w.centroid[1], min(max(w.scale, 1e-9), MAX_FACTOR)) for w in route.waypoints
+    )
+    if len(stops) > MAX_ROUTE:  # the reply shows the first stops and the goal
+        stops = stops[: MAX_ROUTE - 1] + stops[-1:]
+    return route.motion, note, stops
+
+
 def plan(
     request: SteerRequest, t: float, current: np.ndarray, limits: Limits
 ) -> tuple[Hold | Similarity | Morph, str, float]:
-    """The motion that carries out ``request`` from S = ``current`` (k, 2, CCW) at mission
-    time ``t``: (motion, note, jump). Raises Refusal when it is infeasible.
+    """The motion that carries out ``request`` (any kind but goto: :func:`plan_goto`) from
+    S = ``current`` (k, 2, CCW) at mission time ``t``: (motion, note, jump). Raises Refusal
+    when it is infeasible.
 
     note: "" or why the duration differs from the one asked for; jump: how far S had to
     jump to fit the wire's vertex limit (simplify), 0 almost always.
@@ -454,30 +563,125 @@ class SteeringRecord:
         }
 
 
+def requester_key(source_info: Any) -> str:
+    """The requester a steering query came from, as a key for RequestLimiter: the Zenoh
+    source (session id and entity) when the querier attached one (``query.source_info``:
+    zenoh 1.x fills it only if the querier passes it), else UNKNOWN_REQUESTER. In open mode
+    a source can be forged like everything else: only secure mode ties it to a role."""
+    source = getattr(source_info, "source_id", None)
+    if source is None:
+        return UNKNOWN_REQUESTER
+    return f"{getattr(source, 'zid', '?')}/{getattr(source, 'eid', '?')}"
+
+
+class RequestLimiter:
+    """A token bucket per requester key: ``burst`` requests at once, ``rate`` per second
+    sustained. At most ``max_keys`` keys are tracked (a flood of forged sources must not
+    grow the table): beyond, new keys share one bucket. ``now``: monotonic or wall seconds,
+    one clock throughout (a clock stepping back refills nothing)."""
+
+    def __init__(
+        self, rate: float = STEER_RATE, burst: int = STEER_BURST, max_keys: int = MAX_REQUESTERS
+    ) -> None:
+        if not (rate > 0.0 and burst >= 1 and max_keys >= 1):
+            raise ValueError(f"RequestLimiter: rate {rate} > 0 and burst {burst} >= 1 needed")
+        self.rate, self.burst, self.max_keys = rate, burst, max_keys
+        self._buckets: dict[str, tuple[float, float]] = {}  # key -> (tokens, when)
+
+    def allow(self, key: str, now: float) -> bool:
+        """Take one token of ``key``'s bucket at ``now`` s; False when it is empty."""
+        if key not in self._buckets and len(self._buckets) >= self.max_keys:
+            self._forget_full(now)
+            if len(self._buckets) >= self.max_keys:
+                key = "(overflow)"
+        tokens, when = self._buckets.get(key, (float(self.burst), now))
+        tokens = min(float(self.burst), tokens + max(now - when, 0.0) * self.rate)
+        if tokens < 1.0:
+            self._buckets[key] = (tokens, max(now, when))
+            return False
+        self._buckets[key] = (tokens - 1.0, max(now, when))
+        return True
+
+    def _forget_full(self, now: float) -> None:
+        """Drop the buckets that have refilled (they are as good as new)."""
+        for key in [
+            k
+            for k, (tokens, when) in self._buckets.items()
+            if tokens + max(now - when, 0.0) * self.rate >= self.burst
+        ]:
+            del self._buckets[key]
+
+
+class SteeringRecords:
+    """The requests summary.json lists: the first ``head`` and the last ``tail`` kept,
+    ``omitted`` counts those between. Iterates in order; ``[-1]`` is the last appended."""
+
+    def __init__(self, head: int = RECORDS_HEAD, tail: int = RECORDS_TAIL) -> None:
+        from collections import deque
+
+        self.head: list[SteeringRecord] = []
+        self.tail: deque[SteeringRecord] = deque(maxlen=max(tail, 1))
+        self._head_size = head
+        self.omitted = 0
+
+    def append(self, record: SteeringRecord) -> None:
+        if len(self.head) < self._head_size:
+            self.head.append(record)
+            return
+        if len(self.tail) == self.tail.maxlen:
+            self.omitted += 1
+        self.tail.append(record)
+
+    def __len__(self) -> int:
+        return len(self.head) + len(self.tail)
+
+    def __iter__(self) -> Any:
+        yield from self.head
+        yield from self.tail
+
+    def __getitem__(self, index: int) -> SteeringRecord:
+        return list(self)[index] if index != -1 else (self.tail or self.head)[-1]
+
+
 @dataclass
 class Steering:
     """Who moves S: the scenario's script until the first accepted request, then steering.
 
-    ``script``: the scenario's S(t) (mission.scenarios.Scenario.domain).
+    ``script``: the scenario's S(t) (mission.scenarios.Scenario.domain); ``world``: the
+    arena a goto is planned through (None: the limits' workspace, no obstacles).
     """
 
     script: DomainAt
     limits: Limits
-    motion: Hold | Similarity | Morph | Brake | None = None
-    records: list[SteeringRecord] = field(default_factory=list)
+    motion: Hold | Similarity | Morph | RouteMotion | Brake | None = None
+    records: SteeringRecords = field(default_factory=SteeringRecords)
     refused: Counter = field(default_factory=Counter)  # refusals per code
     largest_jump: float = 0.0  # m, see simplify
     checks: tuple[MotionCheck, ...] = ()  # vetoes on a planned motion, in order
+    limiter: RequestLimiter = field(default_factory=RequestLimiter)
+    world: World | None = None
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
         return self.script(t) if self.motion is None else self.motion(t)
 
-    def handle(self, payload: Any, t: float, wall: float, running: bool) -> SteerReply:
+    def handle(
+        self, payload: Any, t: float, wall: float, running: bool, requester: str | None = None
+    ) -> SteerReply:
         """Decode, check and (if feasible) start one request at mission time ``t``.
 
         A refused request changes nothing but the records and the refusal counts.
+        ``requester`` (requester_key of the query; None: not rate-limited, as for a
+        journal's replay): one whose bucket is empty is refused ("rate-limited") before
+        the payload is even decoded.
         """
+        if requester is not None and not self.limiter.allow(requester, wall):
+            return self._refuse(
+                Refusal("rate-limited", f"more than {self.limiter.rate:g} requests/s"),
+                None,
+                t,
+                wall,
+            )
         try:
             request = SteerRequest.decode(payload)
         except ProtocolError as exc:
@@ -493,9 +697,16 @@ class Steering:
         if brake is not None:
             start, lead = brake.end, brake.end - t
             current, _ = brake.motion(brake.stop_time)  # where the brake stops S
+        stops = None
         try:
-            motion, note, jump = plan(request, start, np.asarray(current, dtype=float), self.limits)
-            span = lead + getattr(motion, "span", 0.0)
+            current = np.asarray(current, dtype=float)
+            if request.kind == "goto":
+                world = self.world if self.world is not None else World(self.limits.workspace)
+                motion, note, stops = plan_goto(request, start, current, self.limits, world)
+                jump = 0.0
+            else:
+                motion, note, jump = plan(request, start, current, self.limits)
+            span = lead + motion_span(motion, start)
             if span > MAX_DURATION:  # plan() checked the motion alone
                 raise Refusal(
                     "too-slow", f"braking {lead:.2g} s and the motion exceed {MAX_DURATION:g} s"
@@ -509,7 +720,7 @@ class Steering:
             note = "; ".join(filter(None, [f"braking {lead:.2g} s first", note]))
         self.motion = motion
         self.largest_jump = max(self.largest_jump, jump)
-        reply = SteerReply(True, note[:MAX_REASON], span)
+        reply = SteerReply(True, note[:MAX_REASON], span, stops)
         self.records.append(SteeringRecord(t, wall, request.to_dict(), True, note, span))
         return reply
 

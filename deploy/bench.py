@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import csv
 import json
+import math
 import time
 from collections import Counter
 from collections.abc import Callable
@@ -198,14 +199,36 @@ def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[s
     return result
 
 
-def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -> dict:
+def bench_world(layout: Layout, obstacles: int) -> Any:
+    """The layout's square as the workspace with ``obstacles`` boxes of 0.2 m x 0.2 m at
+    random (seeded by the layout): a covswarm.world.model.World."""
+    from covswarm.world.model import World
+
+    side = float(layout.polygon[:, 0].max())
+    rng = np.random.default_rng([layout.seed, obstacles])
+    corners = rng.uniform(0.0, side - 0.2, size=(obstacles, 2))
+    boxes = [[x, x + 0.2, y, y + 0.2] for x, y in corners]
+    return World.from_boxes_and_polygons((0.0, side, 0.0, side), boxes)
+
+
+def time_safety_filter(
+    layout: Layout, sample: int | None, kappa: float = 1.0, obstacles: int = 0
+) -> dict:
     """The barrier-certificate filter (covswarm.tvd.safety) against the local step it follows.
 
     For each sampled robot, interleaved: its local step, then the filter of that step's
     velocity against its two-hop neighbours (what an agent does every tick). Returns p50 and
     p99 microseconds of the filter and the median of the per-robot ratio filter / step.
+
+    With ``obstacles`` > 0 (bench_world), the filter is also timed as an agent that knows
+    the world runs it: the obstacles whose bounding box is within SAFETY_RADIUS (the filter
+    keeps those within it) and the workspace walls as rows (covswarm.agent.brain._safe),
+    interleaved with the robots-only filter;
+    adds its p50 and p99, the median per-robot added time, and the mean obstacles nearby.
     """
-    from covswarm.tvd.safety import safe_velocity
+    from covswarm.agent.brain import SAFETY_RADIUS, WALL_GAMMA_FRACTION
+    from covswarm.tvd.drive import KHEPERA_IV
+    from covswarm.tvd.safety import DEFAULT_GAMMA, safe_velocity, wall_distance
 
     adjacency = neighbors(layout.positions, layout.polygon)
     n = len(layout.positions)
@@ -215,7 +238,8 @@ def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -
     velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
     # Robots 0.5 m apart on average: a safe distance of 0.3 m makes some rows active.
     safe = 0.6 * SPACING
-    filters, ratios = [], []
+    world = bench_world(layout, obstacles) if obstacles > 0 else None
+    filters, ratios, walled, added, nearby = [], [], [], [], []
     for me in robots:
         known = two_hop(adjacency, int(me)) - {int(me)}
         view = {j: layout.positions[j] for j in known | {int(me)}}
@@ -229,17 +253,51 @@ def time_safety_filter(layout: Layout, sample: int | None, kappa: float = 1.0) -
         filter_us = (time.perf_counter() - start) * 1e6
         filters.append(filter_us)
         ratios.append(filter_us / step_us)
-    return {
+        if world is None:
+            continue
+        p = layout.positions[me]
+        start = time.perf_counter()
+        x, y = float(p[0]), float(p[1])
+        near = [world.obstacles[j].vertices for j in world.candidates((x, x, y, y), SAFETY_RADIUS)]
+        safe_velocity(
+            p,
+            step.velocity,
+            others,
+            safe,
+            obstacles=near,
+            workspace=world.workspace,
+            obstacle_distance=wall_distance(KHEPERA_IV.body_diameter),
+            reach=SAFETY_RADIUS,
+            obstacle_gamma=WALL_GAMMA_FRACTION * DEFAULT_GAMMA,
+        )
+        walled.append((time.perf_counter() - start) * 1e6)
+        added.append(walled[-1] - filter_us)
+        nearby.append(len(world.nearby(p, SAFETY_RADIUS)))  # untimed: within reach
+    result = {
         "safety_filter_p50_us": float(np.percentile(filters, 50)),
         "safety_filter_p99_us": float(np.percentile(filters, 99)),
         "safety_over_step": float(np.median(ratios)),
     }
+    if world is not None:
+        result |= {
+            "safety_walls_p50_us": float(np.percentile(walled, 50)),
+            "safety_walls_p99_us": float(np.percentile(walled, 99)),
+            "walls_added_p50_us": float(np.median(added)),
+            "obstacles_nearby_mean": float(np.mean(nearby)),
+        }
+    return result
 
 
 def run_bench(
-    sizes: tuple[int, ...], seeds: int, sample: int | None, repeats: int, progress=None
+    sizes: tuple[int, ...],
+    seeds: int,
+    sample: int | None,
+    repeats: int,
+    progress=None,
+    obstacles: int = 0,
 ) -> list[dict]:
-    """One row per (N, layout kind): per-agent and centralised figures pooled over seeds."""
+    """One row per (N, layout kind): per-agent and centralised figures pooled over seeds
+    (``obstacles``: see time_safety_filter)."""
     rows = []
     for n in sizes:
         for kind in ("random", "cvt"):
@@ -255,7 +313,7 @@ def run_bench(
                 weighted.append(time_density_vs_uniform(layout, sample, bench_density(side)))
                 histogram.update(len(a) for a in neighbors(layout.positions, layout.polygon))
                 central.append(time_centralized(layout, repeats))
-                safety.append(time_safety_filter(layout, sample))
+                safety.append(time_safety_filter(layout, sample, obstacles=obstacles))
                 laws.append(time_da_vs_d1(layout, sample))
                 if progress is not None:
                     progress(n, kind, seed)
@@ -289,6 +347,150 @@ def run_bench(
                 }
             )
     return rows
+
+
+# --- brain-tick: the end-to-end cost of one brain's control period in a packed process ---
+
+BRAIN_TICK_SIZES = (1, 50, 200, 500)  # brains per process
+BRAIN_TICK_TEAM = 500  # robots in the team the packs share (near-CVT, paper's density)
+BRAIN_TICK_WARM = 25  # periods before timing: the first beacons found every neighbour, and
+# the local sets shrank from the beacons' whole tiles to the two-hop sets (~16 robots)
+BRAIN_TICK_ROUNDS = 6  # control periods timed
+
+
+def brain_tick_domain(layout: Layout, t: float, seq: int) -> bytes:
+    """The coordinator's Domain at mission time ``t`` as on the wire: the layout's square,
+    running, moving at 2 cm/s, tile size 2.5 spacings (as the coordinator picks it)."""
+    from covswarm import protocol
+
+    velocity = [0.02, 0.01]
+    return protocol.Domain(
+        seq=seq,
+        stamp=BRAIN_TICK_WALL + t,
+        t=t,
+        state="running",
+        vertices=(layout.polygon + np.array(velocity) * t).tolist(),
+        velocities=[velocity] * len(layout.polygon),
+        kappa=1.0,
+        tile_size=2.5 * SPACING,
+    ).encode()
+
+
+BRAIN_TICK_WALL = 1.7e9  # s since the epoch at mission time 0 (a fixed, synthetic clock)
+
+
+def time_brain_ticks(
+    per_process: int,
+    layout: Layout,
+    warm: int = BRAIN_TICK_WARM,
+    rounds: int = BRAIN_TICK_ROUNDS,
+    rate: float = LIVE_RATE,
+) -> dict[str, float]:
+    """Amortised cost of one brain-tick in packed processes of ``per_process`` brains.
+
+    The whole team of ``layout`` runs sans-IO: its brains in packs of ``per_process``
+    (covswarm.agent.pack.Pack) over one in-memory bus (LocalBus), its robots as poses
+    re-published at their layout positions every period, the coordinator as a Domain every
+    period, all encoded as on the wire. What is timed is each pack's whole tick: draining
+    its subscriptions, handing payloads to the brains that follow them, decoding and
+    validating (shared per process), each brain's bookkeeping, local step, safety filter,
+    wheel speeds, AgentState (with relay) and beacons, encoding the command and the state,
+    and the in-memory put that stands in for Zenoh's. Not timed: Zenoh itself (a put costs
+    ~30 us of CPU in a live process), the robots, the coordinator. Returns wall and CPU
+    (process_time) microseconds per brain-tick, the mean of ``rounds`` periods, and the
+    messages each brain received per tick.
+    """
+    from covswarm import protocol
+    from covswarm.agent.brain import AgentBrain, AgentConfig
+    from covswarm.agent.decoding import MessageDecoder
+    from covswarm.agent.pack import LocalBus, Pack
+
+    swarm = "bench"
+    n = len(layout.positions)
+    bus = LocalBus()
+    config = AgentConfig()
+    packs = []
+    for first in range(0, n, per_process):
+        decoder = MessageDecoder()
+        ids = range(first, min(first + per_process, n))
+        packs.append(Pack(bus, swarm, [AgentBrain(i, config, decoder) for i in ids]))
+    poses = [
+        (protocol.pose_key(swarm, i), float(x), float(y))
+        for i, (x, y) in enumerate(layout.positions)
+    ]
+    period = 1.0 / rate
+    wall_s = cpu_s = 0.0
+    received = 0
+    for k in range(warm + rounds):
+        t = k * period
+        bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, k + 1))
+        for rid, (key, x, y) in enumerate(poses):
+            pose = protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=BRAIN_TICK_WALL + t, seq=k)
+            bus.put(key, pose.encode())
+        bus.sent.clear()
+        before = sum(b.counters.received for p in packs for b in p.brains.values())
+        wall0, cpu0 = time.perf_counter(), time.process_time()
+        for pack in packs:
+            pack.tick(lambda t=t: t, lambda t=t: BRAIN_TICK_WALL + t, math.inf)
+        if k >= warm:
+            wall_s += time.perf_counter() - wall0
+            cpu_s += time.process_time() - cpu0
+            received += sum(b.counters.received for p in packs for b in p.brains.values()) - before
+    ticks = rounds * n
+    return {
+        "brain_tick_us": wall_s / ticks * 1e6,
+        "brain_tick_cpu_us": cpu_s / ticks * 1e6,
+        "rx_per_brain_tick": received / ticks,
+        "subscriptions_per_brain": sum(p.subscriptions for p in packs) / n,
+    }
+
+
+def run_brain_ticks(
+    sizes: tuple[int, ...], team: int, sample: int | None, progress=None
+) -> list[dict]:
+    """One row per process size: the amortised brain-tick (time_brain_ticks) beside the
+    local step alone (time_local_steps' p50 on the same layout)."""
+    layout = make_layout(team, "cvt", 0)
+    step_us, _ = time_local_steps(layout, sample)
+    rows = []
+    for size in sizes:
+        row = time_brain_ticks(size, layout)
+        rows.append(
+            {
+                "agents": team,
+                "layout": "brain-tick",
+                "agents_per_process": size,
+                **row,
+                "local_step_p50_us": float(np.percentile(step_us, 50)),
+                "local_step_mean_us": float(np.mean(step_us)),
+            }
+        )
+        if progress is not None:
+            progress(size)
+    return rows
+
+
+def brain_tick_table(rows: list[dict]) -> Any:
+    from rich.table import Table
+
+    table = Table(title="covswarm bench --brain-tick: one brain's period, amortised per process")
+    for name in (
+        "team", "brains per process", "brain-tick us (wall)", "brain-tick us (CPU)",
+        "local step p50 us", "local step mean us", "rx per tick", "subscriptions per brain",
+    ):  # fmt: skip
+        table.add_column(name, justify="right")
+    for row in rows:
+        table.add_row(
+            str(row["agents"]),
+            str(row["agents_per_process"]),
+            f"{row['brain_tick_us']:.0f}",
+            f"{row['brain_tick_cpu_us']:.0f}",
+            f"{row['local_step_p50_us']:.0f}",
+            f"{row['local_step_mean_us']:.0f}",
+            f"{row['rx_per_brain_tick']:.1f}",
+            f"{row['subscriptions_per_brain']:.2f}",
+        )
+    return table
 
 
 def live_row(
@@ -486,6 +688,13 @@ def live_table(rows: list[dict]) -> Any:
 @click.option("--repeats", default=3, show_default=True, help="Full-team steps timed per layout.")
 @click.option("--out", type=click.Path(path_type=Path), default=None, help="Output folder.")
 @click.option(
+    "--obstacles",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Also time the safety filter with this many 0.2 m boxes in the square (per N).",
+)
+@click.option(
     "--live", is_flag=True, help="Also run the swarm for real (covswarm run) at --live-sizes."
 )
 @click.option(
@@ -509,6 +718,25 @@ def live_table(rows: list[dict]) -> Any:
     help="Brains per agent process and robots per robot process in the live runs.",
 )
 @click.option(
+    "--brain-tick",
+    is_flag=True,
+    help="Only time the end-to-end brain-tick of packed processes (sans-IO, no router) "
+    "at --brain-tick-sizes brains per process, beside the local step alone.",
+)
+@click.option(
+    "--brain-tick-sizes",
+    default=",".join(map(str, BRAIN_TICK_SIZES)),
+    show_default=True,
+    help="Brains per process for --brain-tick.",
+)
+@click.option(
+    "--brain-tick-team",
+    type=click.IntRange(min=2),
+    default=BRAIN_TICK_TEAM,
+    show_default=True,
+    help="Robots in the team the packs share for --brain-tick.",
+)
+@click.option(
     "--live-time-scale",
     type=click.FloatRange(min=0.0, min_open=True),
     default=1.0,
@@ -522,17 +750,42 @@ def bench_command(
     sample: int,
     repeats: int,
     out: Path | None,
+    obstacles: int,
     live: bool,
     live_sizes: str,
     live_duration: float,
     live_per_process: int,
     live_time_scale: float,
+    brain_tick: bool,
+    brain_tick_sizes: str,
+    brain_tick_team: int,
 ) -> None:
     """Measure per-agent compute vs team size against the centralised baseline (and, with
-    --live, what real distributed runs achieve)."""
+    --live, what real distributed runs achieve; with --brain-tick, only what one brain's
+    control period costs in packed processes)."""
     from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
+
+    if brain_tick:
+        out = out or Path("runs") / f"bench-brain-tick-{time.strftime('%Y%m%d-%H%M%S')}"
+        try:
+            per_process = tuple(int(s) for s in brain_tick_sizes.split(","))
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--brain-tick-sizes") from exc
+        if not per_process or min(per_process) < 1:
+            raise click.BadParameter("positive sizes", param_hint="--brain-tick-sizes")
+        tick_rows = run_brain_ticks(
+            per_process,
+            brain_tick_team,
+            min(sample, brain_tick_team),
+            progress=lambda size: Console().log(f"{size} brains per process: done"),
+        )
+        out.mkdir(parents=True, exist_ok=True)
+        (out / "bench.json").write_text(json.dumps(tick_rows, indent=2, sort_keys=True) + "\n")
+        Console().print(brain_tick_table(tick_rows))
+        Console().print(f"wrote {out}/bench.json")
+        return
 
     chosen = (
         tuple(int(s) for s in sizes.split(",")) if sizes else (QUICK_SIZES if quick else FULL_SIZES)
@@ -548,6 +801,7 @@ def bench_command(
             sample,
             repeats,
             progress=lambda n, kind, seed: bar.update(task, advance=1, description=f"N={n} {kind}"),
+            obstacles=obstacles,
         )
     live_rows: list[dict] = []
     if live:
@@ -589,6 +843,20 @@ def bench_command(
             f"{row['da_over_d1']:.2f}",
         )
     Console().print(table)
+    if obstacles:
+        walls = Table(title=f"safety filter with {obstacles} obstacles and the workspace walls")
+        for name in ("N", "layout", "obstacles near", "p50 us", "p99 us", "added p50 us"):
+            walls.add_column(name, justify="right")
+        for row in rows:
+            walls.add_row(
+                str(row["agents"]),
+                row["layout"],
+                f"{row['obstacles_nearby_mean']:.1f}",
+                f"{row['safety_walls_p50_us']:.0f}",
+                f"{row['safety_walls_p99_us']:.0f}",
+                f"{row['walls_added_p50_us']:.0f}",
+            )
+        Console().print(walls)
     if live_rows:
         Console().print(live_table(live_rows))
     Console().print(

@@ -4,14 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 
 from covswarm.coordinator.monitor import HEADLINE_STATS
-
-if TYPE_CHECKING:
-    from covswarm.deploy.supervisor import RunResult
+from covswarm.deploy.processes import RunResult
 
 
 @dataclass
@@ -76,7 +74,7 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
     table.add_row("e_a initial", fmt(summary.get("initial_error"), " m"))
     table.add_row("e_a steady state (2nd half)", fmt(summary.get("steady_state_error_mean"), " m"))
     table.add_row("e_a final", fmt(summary.get("final_error"), " m"))
-    # Physical figures (coordinator.physical): how close robots came, how hard wheels worked.
+    # Physical figures (mission.physical): how close robots came, how hard wheels worked.
     closest, diameter = summary.get("min_pairwise_distance"), summary.get("robot_diameter")
     if diameter is not None:
         table.add_row("closest robots", fmt(closest, " m"))

@@ -27,6 +27,8 @@ from typing import Any
 import click
 from rich.console import Console
 
+from covswarm.coordinator.broadcastable import check_broadcastable
+from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
     RunConfig,
@@ -39,12 +41,14 @@ from covswarm.deploy.plan import (
 from covswarm.deploy.router import free_port, zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, identity_name, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import TIME_SCALE_OPTION
+from covswarm.sim_robot.process import gather_drops
 
 
 @click.command("run")
@@ -52,7 +56,7 @@ from covswarm.runtime.options import TIME_SCALE_OPTION
     "--scenario",
     default="passage",
     show_default=True,
-    help="Built-in scenario (circle, passage) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
@@ -222,10 +226,26 @@ def run_swarm(run: RunConfig) -> None:
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
     duration = scenario.duration if run.duration is None else run.duration
+    try:
+        check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
     out_dir = run.out
     if out_dir is None:
         out_dir = Path("runs") / f"run-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
     run = replace(run, swarm=swarm, out=out_dir)
+    if run.secure is not None:
+        # Every child needs its own certificate: one missing would make that child exit and
+        # the launcher wait for its token forever, so all are checked before anything starts.
+        planned = plan_children(
+            run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids, per_process=packing
+        )
+        names = {identity_name(s.role, s.members if s.role != "coordinator" else None)
+                 for s in planned} | ({"console"} if run.console else set())  # fmt: skip
+        try:
+            require_identities(run.secure, sorted(names))
+        except ValueError as exc:
+            raise click.UsageError(str(exc)) from None
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     console = Console()
@@ -281,10 +301,27 @@ def run_swarm(run: RunConfig) -> None:
     summary_path = out_dir / "summary.json"
     if summary_path.exists():
         summary = json.loads(summary_path.read_text(encoding="utf-8"))
+        # Robots count what they drop per reason and say it once, at exit: a flood of forged
+        # or broken commands shows here, not only in their logs.
+        summary["robot_drops"] = {
+            rid: counts
+            for log in sorted(log_dir.glob("robot-*.log"))
+            for rid, counts in gather_drops(
+                log.read_text(encoding="utf-8", errors="replace")
+            ).items()
+        }
+        try:
+            summary_path.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
+        except OSError as exc:  # a full disk: the coordinator's summary stays as it was
+            console.log(f"[yellow]robot drops not added to {summary_path}: {exc.strerror}")
         console.print(summary_table(summary, result, out_dir))
     elif not run.coordinator:
         console.log(f"the coordinator's host writes the summary; resources in {out_dir}")
     else:
-        console.log(f"[red]no summary written (see {log_dir / 'coordinator-0.log'})")
+        log = log_dir / "coordinator-0.log"
+        lines = log.read_text("utf-8", errors="replace").splitlines() if log.exists() else []
+        why = [line for line in lines if OUTPUTS_NOT_WRITTEN in line]
+        reason = f": {why[-1].split(OUTPUTS_NOT_WRITTEN, 1)[1].strip()}" if why else ""
+        console.log(f"[red]no summary written{reason} (see {log})")
         result.exit_code = result.exit_code or 1
     sys.exit(result.exit_code)

@@ -206,6 +206,7 @@ def agent_config(
         prediction=run.prediction,
         safety=run.safety,
         body_diameter=scenario.robot_diameter,
+        workspace=scenario.workspace,
         secure=run.secure,
     )
 

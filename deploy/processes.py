@@ -14,7 +14,7 @@ import subprocess
 import time
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from covswarm.deploy.lifeline import PARENT_ENV
@@ -31,6 +31,16 @@ class Child:
     process: subprocess.Popen
     log_path: Path
     exit_code: int | None = None
+
+
+@dataclass
+class RunResult:
+    """How the children of a run ended and what they used (the summary table shows it)."""
+
+    exit_code: int
+    rss: dict[str, list[float]]  # role -> RSS (MB) of each child at the end of the mission
+    cpu: dict[str, list[float]]  # role -> CPU use of each child during the mission, % of a core
+    members: dict[str, list[int]] = field(default_factory=dict)  # role -> robots per child
 
 
 def spawn(spec: ChildSpec, log_dir: Path) -> Child:

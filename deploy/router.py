@@ -45,8 +45,9 @@ def zenoh_session(
     loopback port; the free port can be taken by someone else between probing and
     listening, so a failed listen is retried on a fresh port. It connects to the routers
     of ``peers`` (other hosts of the swarm; zenoh keeps retrying until they are up), which
-    then route between the hosts' processes. ``secure``: TLS and user/password
-    (protocol.security); the free loopback port is then a ``tls/`` endpoint.
+    then route between the hosts' processes. ``secure``: mutual TLS, and the
+    router enforces the access list of protocol.access (the client session joins as the
+    operator); the free loopback port is then a ``tls/`` endpoint.
     """
     import zenoh
 

@@ -4,7 +4,9 @@ Fixed-step over the whole team: at each step the domain S(t) comes from the scen
 centralised (TVD-C), one-hop (TVD-D1) or domain-motion feedforward (TVD-DA, the default) law
 gives every robot's velocity, and robots move as single integrators or as Khepera IV
 unicycles (wheel mapping + exact arc integration). Every guard and fallback the law takes is
-counted (``SimResult.guarded``, ``fallbacks``) and reported in summary.json.
+counted (``SimResult.guarded``, ``fallbacks``) and reported in summary.json. Obstacles and
+the workspace walls are solid: a robot driving into one stops at the contact
+(covswarm.world.contact), counted in ``SimResult.contact_stops``.
 Same seed, same options -> byte-identical summary.json and error.csv.
 """
 
@@ -12,7 +14,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
@@ -22,10 +24,10 @@ import click
 import numpy as np
 
 from covswarm.mission.crowding import Crowding, crowding
-from covswarm.mission.scenarios import Scenario, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
+from covswarm.tvd.control import LAWS, PRIORS
 
-LAWS = ("c", "d1", "da")
-PRIORS = ("affine", "zero")
 DYNAMICS = ("single", "unicycle")
 
 
@@ -44,6 +46,7 @@ class SimResult:
     wheels: np.ndarray | None = None  # (T, n, 2) rim speeds commanded (unicycle), NaN at the end
     safety_active: int = 0  # robot-steps on which the safety filter changed the velocity
     safety_relaxed: int = 0  # robot-steps on which it could not hold every pair (boxed in)
+    contact_stops: int = 0  # robot-steps on which an obstacle or wall stopped a robot
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -70,23 +73,28 @@ def simulate(
     """Run the scenario; None options take the scenario's defaults.
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
-    covswarm.tvd.control.team_step), damping None for covswarm.tvd.control.DAMPING, 0 for the
-    paper's exact TVD-C with its fallback to TVD-D1. safety: filter every robot's velocity
-    as the agents do (covswarm.tvd.safety, against the robots within the agents'
-    SAFETY_RADIUS, reciprocal split with the centres' last velocities, the scenario's
-    robot diameter), before the wheel mapping.
+    covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
+    0 for the paper's exact TVD-C with its fallback to TVD-D1, as in team_step. safety:
+    filter every robot's velocity as the agents do (covswarm.tvd.safety, against the robots
+    within its SAFETY_RADIUS, reciprocal split with the centres' last velocities, the
+    scenario's robot diameter), before the wheel mapping, with rows for the obstacles and
+    walls within that radius too. Obstacles and walls are solid for every robot, filtered
+    or not (covswarm.world.contact.stop_at_contacts on each step's move, the chord of a
+    unicycle's arc); a run that never touches one is exactly what it was without them.
     """
-    from covswarm.agent.brain import SAFETY_RADIUS
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
-    from covswarm.tvd.drive import integrate, wheel_speeds
+    from covswarm.tvd.drive import KHEPERA_IV, integrate, twist_from_wheels, wheel_speeds
     from covswarm.tvd.safety import (
         DEFAULT_GAMMA,
+        SAFETY_RADIUS,
         barrier_gain,
         body_safe_distance,
         team_safe_velocities,
+        wall_distance,
     )
+    from covswarm.world.contact import stop_at_contacts
 
     n = scenario.agents if agents is None else agents
     kappa = scenario.kappa if kappa is None else kappa
@@ -103,7 +111,6 @@ def simulate(
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
         raise ValueError(f"damping must be a finite number >= 0, not {damping!r}")
-    exact = damping == 0
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
@@ -117,7 +124,13 @@ def simulate(
     trajectories = np.empty((steps + 1, n, 2))
     heading_log = np.empty((steps + 1, n))
     polygons: list[np.ndarray] = []
-    guarded = fallbacks = safety_active = safety_relaxed = 0
+    guarded = fallbacks = safety_active = safety_relaxed = contact_stops = 0
+    world = scenario.world
+    walls = {
+        "nearby_obstacles": world.nearby,
+        "workspace": world.workspace,
+        "obstacle_distance": wall_distance(scenario.robot_diameter),
+    }
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
     safe_distance = body_safe_distance(scenario.robot_diameter)
     wheel_log = np.full((steps + 1, n, 2), np.nan) if dynamics == "unicycle" else None
@@ -132,7 +145,7 @@ def simulate(
             break
         step = control.team_step(
             law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
-            density=density, damping=None if exact else damping, prior=prior,
+            density=density, damping=damping, prior=prior,
         )  # fmt: skip
         velocity = step.velocity
         guarded += int(step.guarded.sum())
@@ -143,10 +156,11 @@ def simulate(
             velocity, active, relaxed = team_safe_velocities(
                 positions, velocity, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
                 SAFETY_RADIUS, headings=None if dynamics == "single" else headings,
-                velocities=centre_velocity,
+                velocities=centre_velocity, **walls,
             )  # fmt: skip
             safety_active += int(np.count_nonzero(active))
             safety_relaxed += int(np.count_nonzero(relaxed))
+        start = positions
         if dynamics == "single":
             positions = positions + dt * velocity
             centre_velocity = velocity
@@ -156,16 +170,22 @@ def simulate(
             )
             wheel_log[k] = wheels
             if safety:
-                centre_velocity = wheels.mean(axis=1, keepdims=True) * np.column_stack(
+                forward, _ = twist_from_wheels(
+                    wheels[:, 0], wheels[:, 1], KHEPERA_IV.wheel_separation
+                )
+                centre_velocity = forward[:, None] * np.column_stack(
                     [np.cos(headings), np.sin(headings)]
                 )
             poses = integrate(np.column_stack([positions, headings]), wheels, dt)
             positions, headings = poses[:, :2], poses[:, 2]
+        # A robot stopped by a wall still turns (a disk turning in place moves nothing).
+        positions, hit = stop_at_contacts(start, positions, 0.5 * scenario.robot_diameter, world)
+        contact_stops += int(np.count_nonzero(hit))
         if progress is not None:
             progress(k + 1, steps)
     return SimResult(
         t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log,
-        safety_active, safety_relaxed,
+        safety_active, safety_relaxed, contact_stops,
     )  # fmt: skip
 
 
@@ -198,14 +218,20 @@ def build_summary(
     prior: str = "affine",
     safety: bool = False,
     projection_distance: float | None = None,
+    goals: Sequence[Sequence[float]] = (),
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
-    every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s."""
+    every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
+
+    goals: [(x, y), ...] m, the places S's centroid should visit in order
+    (covswarm.mission.world_metrics: ``goals``, ``goals_reached``).
+    """
     # Deferred: coordinator.outputs pulls in matplotlib (mission.report), which simulate()
     # alone (covswarm bench, the tests) never needs.
     from covswarm.coordinator.outputs import mission_summary
-    from covswarm.coordinator.physical import wheel_figures
+    from covswarm.mission.physical import wheel_figures
     from covswarm.mission.report import steady_state_mean
+    from covswarm.mission.world_metrics import world_summary
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV
 
     n = int(result.positions.shape[0])
@@ -243,6 +269,16 @@ def build_summary(
             ),
             "steps": int(result.t.size - 1),
             "guards": guard_counts(result),
+            # Every step, not only the recorded ones: a touch between two frames still counts.
+            **world_summary(
+                result.t,
+                result.trajectories,
+                result.polygons,
+                0.5 * scenario.robot_diameter,
+                scenario.world,
+                goals,
+            ),
+            "contact_stops": result.contact_stops,
             "safety": {
                 "on": safety,
                 "active_robot_steps": result.safety_active,
@@ -265,7 +301,7 @@ def build_summary(
 
 
 def physical_line(summary: dict[str, Any]) -> str:
-    """The physical figures of summary.json (coordinator.physical) on one console line."""
+    """The physical figures of summary.json (mission.physical) on one console line."""
     closest = summary.get("min_pairwise_distance")
     line = (f"closest robots {closest:.3f} m" if closest is not None else "closest robots -") + (
         f"; {summary['close_approaches']} close approaches (< {summary['robot_diameter']:g} m),"
@@ -280,13 +316,26 @@ def physical_line(summary: dict[str, Any]) -> str:
     return line
 
 
+def world_line(summary: dict[str, Any]) -> str:
+    """The arena figures of summary.json (mission.world_metrics) on one console line."""
+    clearance = summary.get("min_obstacle_clearance")
+    line = (
+        f"{summary['obstacle_contacts']} obstacle contacts; closest to a wall "
+        + ("-" if clearance is None else f"{clearance:.3f} m")
+        + f"; S over obstacles up to {summary['domain_obstacle_overlap']:.4f} m^2"
+    )
+    if summary.get("goals"):
+        line += f"; goals reached {summary['goals_reached']} of {summary['goals']}"
+    return line
+
+
 @click.command("sim")
 @click.option(
     "--scenario",
     "scenario_name",
     default="circle",
     show_default=True,
-    help="Built-in scenario (circle, passage, formation) or a .toml file.",
+    help=SCENARIO_HELP,
 )
 @click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
 @click.option(
@@ -370,7 +419,9 @@ def sim_command(
         TimeRemainingColumn,
     )
 
+    from covswarm.coordinator.broadcastable import check_broadcastable
     from covswarm.mission.report import write_outputs
+    from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
 
     if compare and no_feedforward:
@@ -392,6 +443,10 @@ def sim_command(
         "safety": safety,
         "projection_distance": projection_distance,
     }
+    try:
+        check_broadcastable(scenario, options["kappa"], options["duration"])
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
     results: list[SimResult] = []
@@ -417,6 +472,7 @@ def sim_command(
 
     summary = build_summary(
         scenario, results[0], feedforward=runs[0], without=results[1] if compare else None,
+        goals=scenario.goals,
         **{k: v for k, v in options.items() if k != "agents"},
     )  # fmt: skip
     if (crowd := Crowding.from_dict(summary["crowding"])).crowded:
@@ -435,13 +491,18 @@ def sim_command(
         workspace=scenario.workspace,
         density=scenario.density(results[0].t[-1]),
     )
-    record_simulation(
+    stride = record_simulation(
         out_dir, t=results[0].t, error=results[0].error, trajectories=results[0].trajectories,
         headings=results[0].headings, polygons=results[0].polygons, dt=options["dt"],
         run_metadata={"source": "sim", "scenario": scenario.name, "feedforward": runs[0],
                       **options},
         workspace=scenario.workspace, obstacles=scenario.obstacles,
     )  # fmt: skip
+    # S at the instants of trajectories.csv, to check it against the map with other tools.
+    recorded = range(0, len(results[0].t), stride)
+    write_domain_csv(
+        out_dir / DOMAIN_FILE, results[0].t[recorded], [results[0].polygons[k] for k in recorded]
+    )
     console.print(f"steady-state mean e_a: {summary['steady_state_error_mean']:.4g} m", end="")
     if compare:
         console.print(
@@ -453,7 +514,8 @@ def sim_command(
         f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s (CPU {cpu:.1f} s)"
     )
     console.print(physical_line(summary))
+    console.print(world_line(summary))
     console.print(
         f"wrote {out_dir}/ (summary.json, error.csv, error.png, trajectories.png, run.mcap, "
-        "trajectories.csv)"
+        "trajectories.csv, domain.csv)"
     )

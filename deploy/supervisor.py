@@ -11,7 +11,15 @@ from typing import Any
 
 from covswarm.deploy.display import Progress, render
 from covswarm.deploy.plan import ChildSpec
-from covswarm.deploy.processes import Child, cpu_seconds, interrupts, rss_mb, spawn, stop_children
+from covswarm.deploy.processes import (
+    Child,
+    RunResult,
+    cpu_seconds,
+    interrupts,
+    rss_mb,
+    spawn,
+    stop_children,
+)
 
 TICK = 0.1  # s between launcher loop iterations (display, liveness, child polling)
 COORDINATOR_GRACE = 60.0  # s for an interrupted coordinator to write its outputs
@@ -55,14 +63,6 @@ class Startup:
     def done(self) -> bool:
         """Every child spawned, and every spawned child ready or gone."""
         return not self.pending and set(self.spawned) <= self.ready | self.exited
-
-
-@dataclass
-class RunResult:
-    exit_code: int
-    rss: dict[str, list[float]]  # role -> RSS (MB) of each child at the end of the mission
-    cpu: dict[str, list[float]]  # role -> CPU use of each child during the mission, % of a core
-    members: dict[str, list[int]] = field(default_factory=dict)  # role -> robots per child
 
 
 class Supervisor:

@@ -70,6 +70,19 @@ class Crowding:
         )
 
 
+# Least area of S per robot, in robot rooms: the steering's too-small rule
+# (covswarm.coordinator.steering.MIN_ROOMS, which the mission room cannot import).
+MIN_ROOMS = 2.0
+
+
+def least_domain(
+    agents: int, robot_diameter: float, margin: float = DEFAULT_MARGIN
+) -> tuple[float, float]:
+    """The smallest S a team may take: (area in m^2, MIN_ROOMS robot rooms per robot; width
+    in m, one body with ``margin`` either side)."""
+    return agents * MIN_ROOMS * robot_room(robot_diameter, margin), robot_diameter + 2 * margin
+
+
 def robot_room(diameter: float, margin: float) -> float:
     """Area (m^2) per robot of diameter ``diameter`` m kept ``margin`` m apart, packed
     hexagonally: sqrt(3)/2 (d + m)^2."""

@@ -13,6 +13,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from covswarm.mission.toml_text import toml_float, toml_list, toml_points
+from covswarm.tvd.coverage import signed_area
 from covswarm.tvd.density import Density
 
 # Samples per keyframe segment / over a rigid mission checked for convexity: linear
@@ -26,11 +27,6 @@ class DomainMotion(Protocol):
     def sample_times(self, duration: float) -> np.ndarray: ...
 
     def to_toml(self) -> str: ...
-
-
-def signed_area(polygon: np.ndarray) -> float:
-    x, y = polygon[:, 0], polygon[:, 1]
-    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
 def as_polygon(value: Any, what: str) -> np.ndarray:
@@ -230,3 +226,16 @@ class DensityPath:
         for bump, turn in zip(table["bumps"], self.turn_rates.tolist(), strict=True):
             bump["turn_rate"] = turn
         return table
+
+    def to_toml(self) -> str:
+        """The ``[density]`` table and its ``[[density.bumps]]`` as TOML text."""
+        table = self.to_table()
+        lines = [f"\n[density]\nfloor = {toml_float(table['floor'])}"]
+        for bump in table["bumps"]:
+            lines.append("\n[[density.bumps]]")
+            for key, value in bump.items():
+                text = toml_points(value) if key in ("cov", "cov_rate") else (
+                    toml_list(value) if isinstance(value, list) else toml_float(value)
+                )  # fmt: skip
+                lines.append(f"{key} = {text}")
+        return "\n".join(lines) + "\n"

@@ -1,6 +1,10 @@
-"""Scenario files: a Scenario from TOML.
+"""Scenario files: a Scenario from TOML, and any scenario by name or path (load_scenario).
 
-TOML format (every top-level key but ``name`` and ``[domain]`` has a default)::
+TOML format (every top-level key but ``name`` and ``[domain]`` has a default). The file must
+be a regular file of at most 1 MB. S must stay clear of every obstacle and inside the
+workspace for the whole duration: a file whose S touches one is refused with the mission time
+and the obstacle's name ("obstacle 2" for the second entry of ``obstacles``, "map piece 7"
+for a map's)::
 
     name = "zigzag"            # used in output folder names
     agents = 10                # default team size
@@ -8,8 +12,12 @@ TOML format (every top-level key but ``name`` and ``[domain]`` has a default)::
     duration = 40.0            # s
     dt = 0.02                  # default simulator step, s
     dynamics = "unicycle"      # "single" (integrator) or "unicycle" (Khepera IV wheels)
-    workspace = [-2.591, 2.591, -1.829, 1.829]        # xmin, xmax, ymin, ymax (plots)
-    obstacles = [[-0.3, 0.3, 0.45, 1.829]]            # rectangles xmin, xmax, ymin, ymax
+    workspace = [-2.591, 2.591, -1.829, 1.829]        # xmin, xmax, ymin, ymax: S stays in
+    obstacles = [[-0.3, 0.3, 0.45, 1.829],            # boxes xmin, xmax, ymin, ymax
+                 [[1.0, 1.0], [1.5, 1.0], [1.2, 1.4]]]  # or convex polygons [[x, y], ...]
+    map = "lab.yaml"           # optional: a ROS map_server / Nav2 map, relative to this
+                               # file; its occupied and unknown cells become obstacles
+                               # (covswarm.world.maps), its extent the default workspace
     robot_diameter = 0.14      # m: bodies start at least this far apart (and the
                                # summary's close approaches are closer than it)
 
@@ -41,8 +49,19 @@ A rigid motion (plus uniform scaling) of a base polygon instead::
 Vertex i of a rigid domain is ``o(t) + s(t) R(a(t)) q_i`` with o the origin's path, s the
 scale and a = rotation_rate t.
 
+A planned route (covswarm.world.planner): S goes from ``polygon`` to each goal in turn
+through free space, shrinking (never below the team's least S) where a door needs it and
+growing back at each goal; planned at load, deterministically::
+
+    [domain]
+    kind = "route"
+    polygon = [[-2.4, -0.8], [-1.2, -0.8], [-1.2, 0.8], [-2.4, 0.8]]  # S at t = 0
+    goals = [[1.8, 0.0], [-1.8, 0.0]]  # where S's centroid goes, visited in order
+    speed = 0.25               # m/s, the fastest vertex (default 0.25)
+    hold = 2.0                 # s at each goal (default 0)
+
 An optional density phi(q, t) = floor + sum_b w_b exp(-1/2 (q - mu_b)^T Sigma_b^-1 (q - mu_b))
-(agent/density.py; absent: uniform)::
+(tvd/density.py; absent: uniform)::
 
     [density]
     floor = 1.0                # > 0, plus the negative weights
@@ -58,108 +77,252 @@ An optional density phi(q, t) = floor + sum_b w_b exp(-1/2 (q - mu_b)^T Sigma_b^
 
 from __future__ import annotations
 
+import math
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from covswarm.mission.motion import DomainMotion, Keyframes, Rigid
-from covswarm.mission.scenarios import Box, Scenario, check_box
+from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
+from covswarm.mission.scenarios import BUILTINS, Box, Scenario, check_box
+from covswarm.world.maps import read_map, read_regular_file
+from covswarm.world.model import World, make_obstacle
 
 try:
     import tomllib
 except ModuleNotFoundError:  # Python 3.10
     import tomli as tomllib
 
+MAX_FILE_BYTES = 1 << 20  # a scenario file is text a person writes
+
+
+def load_scenario(name_or_path: str | Path) -> Scenario:
+    """A built-in scenario by name, or a scenario read from a .toml file.
+
+    Raises ValueError naming the file and the problem for anything malformed.
+    """
+    if str(name_or_path) in BUILTINS:
+        return BUILTINS[str(name_or_path)]()
+    path = Path(name_or_path)
+    if path.suffix != ".toml":
+        known = ", ".join(sorted(BUILTINS))
+        raise ValueError(
+            f"unknown scenario {str(name_or_path)!r}: use one of {known} or a .toml file"
+        )
+    return read_scenario_file(path)
+
 
 def read_scenario_file(path: Path) -> Scenario:
     """The scenario in the .toml file at ``path``; ValueError naming the file and the
     problem for anything malformed."""
+    path = Path(path)
+    raw = read_regular_file(path, MAX_FILE_BYTES)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
-    except OSError as exc:
-        raise ValueError(f"{path}: cannot read ({exc.strerror})") from None
+        data = tomllib.loads(raw.decode("utf-8"))
+    except UnicodeDecodeError:
+        raise ValueError(f"{path}: not UTF-8 text") from None
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML ({exc})") from None
     try:
-        return scenario_from_dict(data)
-    except (ValueError, TypeError, KeyError) as exc:
+        return scenario_from_dict(data, base=path.parent)
+    except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
         raise ValueError(f"{path}: {exc}") from None
 
 
 _TOP_KEYS = {
-    "name", "agents", "kappa", "duration", "dt", "dynamics", "workspace", "obstacles",
+    "name", "agents", "kappa", "duration", "dt", "dynamics", "workspace", "obstacles", "map",
     "robot_diameter",
     "initial", "domain", "density",
 }  # fmt: skip
 
 
-def scenario_from_dict(data: dict[str, Any]) -> Scenario:
-    """Build a Scenario from parsed TOML (see the module docstring for the keys)."""
+def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenario:
+    """Build a Scenario from parsed TOML (see the module docstring for the keys); ``base``:
+    the folder a ``map`` path is relative to (default: the current one)."""
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown keys {sorted(unknown)}")
     if "name" not in data or "domain" not in data:
         raise ValueError("'name' and a [domain] table are required")
-    initial = data.get("initial", {})
+    initial = _table(data.get("initial", {}), "[initial]")
     if set(initial) - {"box"}:
         raise ValueError(f"[initial]: unknown keys {sorted(set(initial) - {'box'})}")
-    options: dict[str, Any] = {
-        key: data[key]
-        for key in ("agents", "kappa", "duration", "dt", "dynamics", "robot_diameter")
-        if key in data
-    }
+    options: dict[str, Any] = {}
+    if "agents" in data:
+        agents = data["agents"]
+        if isinstance(agents, bool) or not isinstance(agents, int):
+            raise ValueError(f"agents must be an integer, not {agents!r}")
+        options["agents"] = agents
     for key in ("kappa", "duration", "dt", "robot_diameter"):
-        if key in options and isinstance(options[key], int):
-            options[key] = float(options[key])
+        if key in data:
+            options[key] = _number(data[key], key)
+    for key in ("name", "dynamics"):
+        if key in data and not isinstance(data[key], str):
+            raise ValueError(f"{key} must be a string, not {data[key]!r}")
+    if "dynamics" in data:
+        options["dynamics"] = data["dynamics"]
     if "density" in data:
-        from covswarm.mission.motion import DensityPath
-
-        options["density_path"] = DensityPath.from_table(data["density"])
+        options["density_path"] = _keyed("[density]", DensityPath.from_table, data["density"])
+    world = _world(data, base)
     return Scenario(
         name=data["name"],
-        motion=_motion_from_dict(data["domain"]),
-        workspace=_box(data["workspace"]) if "workspace" in data else None,
-        obstacles=tuple(_box(o) for o in data.get("obstacles", [])),
-        initial_box=_box(initial["box"]) if "box" in initial else None,
+        motion=_motion_from_dict(
+            _table(data["domain"], "[domain]"),
+            world,
+            (
+                options.get("agents", Scenario.agents),
+                options.get("robot_diameter", Scenario.robot_diameter),
+            ),
+        ),
+        initial_box=_keyed("[initial] box", _box, initial["box"]) if "box" in initial else None,
+        world=world,
         **options,
     )
+
+
+def _world(data: dict[str, Any], base: Path | None) -> World:
+    """The workspace, the ``obstacles`` entries and the ``map``'s pieces."""
+    workspace = _keyed("workspace", _box, data["workspace"]) if "workspace" in data else None
+    entries = data.get("obstacles", [])
+    if not isinstance(entries, list):
+        raise ValueError(f"obstacles must be a list of boxes and polygons, not {entries!r}")
+    obstacles = [
+        _keyed("obstacles", make_obstacle, f"obstacle {i + 1}", entry)
+        for i, entry in enumerate(entries)
+    ]
+    if "map" in data:
+        name = data["map"]
+        if not isinstance(name, str) or not name:
+            raise ValueError(f"map must be the path of a map's YAML file, not {name!r}")
+        path = Path(name) if base is None or Path(name).is_absolute() else base / name
+        grid = _keyed("map", read_map, path)
+        obstacles += grid.obstacles()
+        if workspace is None:
+            workspace = grid.extent
+    return World(workspace, tuple(obstacles))
+
+
+def _keyed(key: str, build: Callable[..., Any], *args: Any) -> Any:
+    """build(*args), its errors prefixed with the key they come from."""
+    try:
+        return build(*args)
+    except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
+        message = str(exc)
+        raise ValueError(message if message.startswith(key) else f"{key}: {message}") from None
+
+
+def _table(value: Any, key: str) -> dict[str, Any]:
+    if not isinstance(value, dict):
+        raise ValueError(f"{key} must be a table, not {value!r}")
+    return value
+
+
+def _number(value: Any, key: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{key} must be a number, not {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{key} must be finite, not {value!r}")
+    return float(value)
 
 
 def _box(value: Any) -> Box:
     if not isinstance(value, list) or len(value) != 4:
         raise ValueError(f"box {value!r}: need [xmin, xmax, ymin, ymax]")
-    box = tuple(float(v) for v in value)
-    check_box(box)
+    box = tuple(_number(v, "box") for v in value)
+    check_box(box)  # type: ignore[arg-type]
     return box  # type: ignore[return-value]
 
 
-def _motion_from_dict(domain: dict[str, Any]) -> DomainMotion:
+def _pair(value: Any, key: str) -> tuple[float, float]:
+    if not isinstance(value, list) or len(value) != 2:
+        raise ValueError(f"[domain] {key}: need [x, y], not {value!r}")
+    return (_number(value[0], f"[domain] {key}"), _number(value[1], f"[domain] {key}"))
+
+
+def _points(value: Any, key: str) -> list[list[float]]:
+    """A list of [x, y] number pairs (a polygon), every type error naming ``key``."""
+    if not isinstance(value, list):
+        raise ValueError(f"{key}: need a list of [x, y] points, not {value!r}")
+    return [list(_pair(p, key.removeprefix("[domain] "))) for p in value]
+
+
+def _keyframes(domain: dict[str, Any], world: World) -> DomainMotion:
+    expected = {"kind", "times", "vertices"}
+    _require_keys(domain, expected, expected)
+    times, vertices = domain["times"], domain["vertices"]
+    if not isinstance(times, list) or not isinstance(vertices, list):
+        raise ValueError("[domain] times and vertices must be lists")
+    return Keyframes(
+        times=[_number(t, "[domain] times") for t in times],
+        vertices=[_points(v, "[domain] vertices") for v in vertices],
+    )
+
+
+_RIGID_OPTIONAL = {"center", "radius", "period", "phase", "velocity", "rotation_rate", "scale_rate"}
+
+
+def _rigid(domain: dict[str, Any], world: World) -> DomainMotion:
+    _require_keys(domain, {"kind", "polygon"}, {"kind", "polygon"} | _RIGID_OPTIONAL)
+    values: dict[str, Any] = {}
+    for key in _RIGID_OPTIONAL & set(domain):
+        if key in ("center", "velocity"):
+            values[key] = _pair(domain[key], key)
+        elif key == "period":  # inf (no circling) is allowed here
+            value = domain[key]
+            if isinstance(value, bool) or not isinstance(value, (int, float)):
+                raise ValueError(f"[domain] period must be a number, not {value!r}")
+            values[key] = float(value)
+        else:
+            values[key] = _number(domain[key], f"[domain] {key}")
+    return Rigid(polygon=_points(domain["polygon"], "[domain] polygon"), **values)
+
+
+# [domain] kind -> its builder from the table and the world (a planned kind needs the world).
+MOTION_KINDS: dict[str, Callable[[dict[str, Any], World], DomainMotion]] = {
+    "keyframes": _keyframes,
+    "rigid": _rigid,
+}
+ROUTE_SPEED = 0.25  # m/s: a route's fastest vertex unless the file says ``speed``
+
+
+def _route(domain: dict[str, Any], world: World, team: tuple[int, float]) -> DomainMotion:
+    """S planned from ``polygon`` through ``goals`` (covswarm.world.planner.plan_tour), never
+    smaller than the team of ``team`` = (agents, robot diameter in m) may take."""
+    from covswarm.mission.crowding import least_domain
+    from covswarm.world.planner import plan_tour
+
+    _require_keys(
+        domain, {"kind", "polygon", "goals"}, {"kind", "polygon", "goals", "speed", "hold"}
+    )
+    goals = domain["goals"]
+    if not isinstance(goals, list) or not goals:
+        raise ValueError(f"[domain] goals: need a list of [x, y] points, not {goals!r}")
+    speed = _number(domain.get("speed", ROUTE_SPEED), "[domain] speed")
+    hold = _number(domain.get("hold", 0.0), "[domain] hold")
+    if speed <= 0.0 or hold < 0.0:
+        raise ValueError(f"[domain] speed must be > 0 and hold >= 0, not {speed!r}, {hold!r}")
+    min_area, min_width = least_domain(*team)
+    route = plan_tour(
+        world,
+        _points(domain["polygon"], "[domain] polygon"),
+        [_pair(g, "goals") for g in goals],
+        min_area=min_area,
+        min_width=min_width,
+        max_speed=speed,
+        hold=hold,
+    )
+    return route.motion
+
+
+def _motion_from_dict(
+    domain: dict[str, Any], world: World, team: tuple[int, float]
+) -> DomainMotion:
     kind = domain.get("kind")
-    if kind == "keyframes":
-        expected = {"kind", "times", "vertices"}
-        _require_keys(domain, expected, expected)
-        return Keyframes(times=domain["times"], vertices=domain["vertices"])
-    if kind == "rigid":
-        optional = {
-            "center",
-            "radius",
-            "period",
-            "phase",
-            "velocity",
-            "rotation_rate",
-            "scale_rate",
-        }
-        _require_keys(domain, {"kind", "polygon"}, {"kind", "polygon"} | optional)
-        values: dict[str, Any] = {}
-        for key in optional & set(domain):
-            if key in ("center", "velocity"):
-                pair = tuple(float(v) for v in domain[key])
-                if len(pair) != 2:
-                    raise ValueError(f"[domain] {key}: need [x, y]")
-                values[key] = pair
-            else:
-                values[key] = float(domain[key])
-        return Rigid(polygon=domain["polygon"], **values)
-    raise ValueError(f"[domain] kind must be 'keyframes' or 'rigid', not {kind!r}")
+    if kind == "route":
+        return _keyed("[domain] route", _route, domain, world, team)
+    if not isinstance(kind, str) or kind not in MOTION_KINDS:
+        kinds = " or ".join(repr(k) for k in [*MOTION_KINDS, "route"])
+        raise ValueError(f"[domain] kind must be {kinds}, not {kind!r}")
+    return MOTION_KINDS[kind](domain, world)
 
 
 def _require_keys(table: dict[str, Any], required: set[str], allowed: set[str]) -> None:

@@ -9,20 +9,33 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
-from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid, signed_area
-from covswarm.mission.toml_text import density_toml, toml_float, toml_list, toml_str
+from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
+from covswarm.mission.toml_text import toml_float, toml_list, toml_points, toml_str
+from covswarm.tvd.coverage import signed_area
 from covswarm.tvd.density import Density
+from covswarm.world.model import World, box_vertices
+from covswarm.world.sweep import SAMPLES, first_contact
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
+
+MAX_AGENTS = 100_000
+MAX_DURATION = 86_400.0  # s: a day; S's path is checked against the world over all of it
+CONTACT_TOLERANCE = 1e-4  # m: S within this of an obstacle touches it (world.sweep)
 
 
 @dataclass(frozen=True, eq=False)
 class Scenario:
-    """A mission: the moving domain, default run parameters and the map (for plots)."""
+    """A mission: the moving domain, default run parameters and the world it moves in.
+
+    ``world`` (covswarm.world.model.World): the workspace and every obstacle (boxes, convex
+    polygons, a map's pieces). Without it, the world is built from ``workspace`` and the
+    boxes ``obstacles``; with it, ``workspace`` is the world's and ``obstacles`` becomes the
+    world's axis-aligned boxes (what plots and recordings draw). S(t) must stay clear of the
+    obstacles and inside the workspace over [0, duration] (refused otherwise).
+    """
 
     name: str
     motion: DomainMotion
@@ -36,6 +49,7 @@ class Scenario:
     initial_box: Box | None = None  # None: uniform inside S(0)
     robot_diameter: float = 0.14  # m, the robots' bodies (Khepera IV): starts and metrics
     density_path: DensityPath | None = None  # None: uniform density
+    world: World | None = None  # None: built from workspace and obstacles
 
     def __post_init__(self) -> None:
         if not self.name or not isinstance(self.name, str):
@@ -44,22 +58,56 @@ class Scenario:
             raise ValueError(
                 f"scenario: dynamics must be single or unicycle, not {self.dynamics!r}"
             )
-        if not (isinstance(self.agents, int) and self.agents >= 1):
-            raise ValueError(f"scenario: agents must be a positive integer, not {self.agents!r}")
+        agents = self.agents
+        if isinstance(agents, bool) or not (isinstance(agents, int) and 1 <= agents <= MAX_AGENTS):
+            raise ValueError(
+                f"scenario: agents must be an integer from 1 to {MAX_AGENTS}, not {agents!r}"
+            )
         for key in ("kappa", "duration", "dt", "robot_diameter"):
             value = getattr(self, key)
-            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+            if isinstance(value, bool) or not (
+                isinstance(value, (int, float)) and math.isfinite(value) and value > 0
+            ):
                 raise ValueError(f"scenario: {key} must be a positive number, not {value!r}")
+        if self.duration > MAX_DURATION:
+            raise ValueError(
+                f"scenario: duration must be at most {MAX_DURATION:g} s, not {self.duration!r}"
+            )
+        if self.dt > self.duration:
+            raise ValueError(f"scenario: dt {self.dt!r} s is longer than the duration")
         for box in (self.workspace, self.initial_box, *self.obstacles):
             if box is not None:
                 check_box(box)
+        self._build_world()
         _check_motion(self.motion, self.duration)
+        _check_clear(self.motion, self.duration, self.world)
         if self.density_path is not None:
             for t in self.motion.sample_times(self.duration):
                 try:
                     self.density_path(float(t))
                 except ValueError as exc:
                     raise ValueError(f"density at t = {t:g} s: {exc}") from None
+
+    def _build_world(self) -> None:
+        boxes = tuple(tuple(float(v) for v in box) for box in self.obstacles)
+        world = self.world
+        if world is None:
+            world = World.from_boxes_and_polygons(self.workspace, boxes)
+        elif not isinstance(world, World):
+            raise ValueError(f"scenario: world must be a World, not {type(world).__name__}")
+        elif self.workspace is not None and tuple(self.workspace) != world.workspace:
+            raise ValueError("scenario: workspace differs from the world's")
+        own = tuple(o.box for o in world.obstacles if o.is_box)
+        if self.world is not None and boxes and boxes != own:
+            raise ValueError("scenario: give obstacles or a world, not both")
+        object.__setattr__(self, "world", world)
+        object.__setattr__(self, "workspace", world.workspace)
+        object.__setattr__(self, "obstacles", own)
+
+    @property
+    def goals(self) -> tuple[tuple[float, float], ...]:
+        """Where S's centroid is sent, in order (m): a planned route's goals, else none."""
+        return tuple(getattr(self.motion, "goals", ()))
 
     def density(self, t: float) -> Density | None:
         """phi at time t with its exact rates (covswarm.tvd.density.Density), None when uniform."""
@@ -113,8 +161,7 @@ class Scenario:
             xmin, xmax, ymin, ymax = self.initial_box
             area = (xmax - xmin) * (ymax - ymin)
         else:
-            x, y = self.domain(0.0)[0].T
-            area = 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
+            area = abs(signed_area(self.domain(0.0)[0]))
         fits = 2.0 * math.sqrt(START_PACKING * area / (math.pi * max(n, 1)))
         return min(self.robot_diameter, fits)
 
@@ -130,13 +177,16 @@ class Scenario:
         ]
         if self.workspace is not None:
             lines.append(f"workspace = {toml_list(self.workspace)}")
-        lines.append(f"obstacles = [{', '.join(toml_list(o) for o in self.obstacles)}]")
+        entries = [
+            toml_list(o.box) if o.is_box else toml_points(o.vertices) for o in self.world.obstacles
+        ]
+        lines.append(f"obstacles = [{', '.join(entries)}]")
         if self.robot_diameter != Scenario.robot_diameter:
             lines.append(f"robot_diameter = {toml_float(self.robot_diameter)}")
         if self.initial_box is not None:
             lines.append(f"\n[initial]\nbox = {toml_list(self.initial_box)}")
         text = "\n".join(lines) + "\n\n" + self.motion.to_toml()
-        return text if self.density_path is None else text + density_toml(self.density_path)
+        return text if self.density_path is None else text + self.density_path.to_toml()
 
 
 # Start positions: draws per robot before giving up, and the share of the start area the
@@ -146,10 +196,51 @@ START_PACKING = 0.4
 
 
 def check_box(box: Box) -> None:
-    if len(box) != 4 or not all(math.isfinite(v) for v in box):
-        raise ValueError(f"box {box!r}: need 4 finite numbers xmin, xmax, ymin, ymax")
-    if not (box[0] < box[1] and box[2] < box[3]):
-        raise ValueError(f"box {box!r}: need xmin < xmax and ymin < ymax")
+    """ValueError unless ``box`` is (xmin, xmax, ymin, ymax), finite, xmin < xmax, ymin < ymax."""
+    if len(box) != 4:
+        raise ValueError(f"box {box!r}: need 4 numbers xmin, xmax, ymin, ymax")
+    box_vertices(box)
+
+
+def _check_clear(motion: DomainMotion, duration: float, world: World) -> None:
+    """ValueError naming the mission time and the obstacle if S(t) touches an obstacle or
+    leaves the workspace for some t in [0, duration] (covswarm.world.sweep)."""
+    # With an exact speed bound, a few samples suffice: they only bound the swept box.
+    speed = _speed_bound(motion, duration)
+    contact = first_contact(
+        motion,
+        0.0,
+        duration,
+        world,
+        tolerance=CONTACT_TOLERANCE,
+        speed=speed,
+        samples=64 if speed is not None else SAMPLES,
+    )
+    if contact is None:
+        return
+    if contact.obstacle == "workspace":
+        raise ValueError(f"the domain S leaves the workspace at t = {contact.time:.3f} s")
+    raise ValueError(f"the domain S touches {contact.obstacle} at t = {contact.time:.3f} s")
+
+
+def _speed_bound(motion: DomainMotion, duration: float) -> float | None:
+    """A bound (m/s) on every vertex speed of S over [0, duration], exact for the motions of
+    covswarm.mission.motion (None: first_contact samples it)."""
+    if isinstance(motion, Keyframes):
+        if motion.times.size == 1:
+            return 0.0
+        steps = np.diff(motion.vertices, axis=0)  # (K - 1, k, 2)
+        speeds = np.linalg.norm(steps, axis=2) / np.diff(motion.times)[:, None]
+        return float(speeds.max())
+    if isinstance(motion, Rigid):
+        reach = float(np.linalg.norm(motion.polygon, axis=1).max())
+        scale = max(abs(1.0 + motion.scale_rate * t) for t in (0.0, duration))
+        return (
+            float(np.hypot(*motion.velocity))
+            + abs(motion.radius * 2.0 * math.pi / motion.period)
+            + reach * (abs(motion.scale_rate) + scale * abs(motion.rotation_rate))
+        )
+    return None
 
 
 def _check_motion(motion: DomainMotion, duration: float) -> None:
@@ -319,28 +410,67 @@ def pinwheel() -> Scenario:
     )
 
 
+# The warehouse: an 8 m x 5 m hall cut by a 0.2 m wall at x = 0 with a 1.1 m door, shelves
+# along the walls (boxes xmin, xmax, ymin, ymax, m).
+_HALL: Box = (-4.0, 4.0, -2.5, 2.5)
+_DOOR = (-0.2, 0.9)  # y extent of the door, m
+_WAREHOUSE = {
+    "wall south": (-0.1, 0.1, -2.5, _DOOR[0]),
+    "wall north": (-0.1, 0.1, _DOOR[1], 2.5),
+    "shelf 1": (-3.8, -1.4, 1.7, 2.2),
+    "shelf 2": (-3.8, -1.4, -2.3, -1.8),
+    "shelf 3": (1.0, 1.4, -2.3, -0.9),
+    "shelf 4": (2.2, 3.8, 1.8, 2.3),
+    "shelf 5": (2.4, 3.8, -2.3, -1.8),
+}
+
+
+def warehouse() -> Scenario:
+    """20 Khepera IV taken from one room of a warehouse to the other by the route planner.
+
+    S, a 2.4 m x 1.6 m rectangle, cannot pass the 1.1 m door: the planner
+    (covswarm.world.planner) shrinks it on the way to the door, never below the team's least
+    S (covswarm.mission.crowding.least_domain: 0.89 m^2, 0.18 m wide), takes it through and
+    grows it back at the goal beyond shelf 3. Fastest vertex 0.25 m/s; 10 s at the end for
+    the team to settle.
+    """
+    from covswarm.mission.crowding import least_domain
+    from covswarm.world.model import Obstacle
+    from covswarm.world.planner import plan_tour
+
+    world = World(_HALL, tuple(Obstacle(n, box_vertices(b)) for n, b in _WAREHOUSE.items()))
+    min_area, min_width = least_domain(20, Scenario.robot_diameter)
+    route = plan_tour(
+        world,
+        np.array(_rectangle(-3.7, -1.3, -1.1, 0.5)),
+        [(2.7, 0.1)],
+        min_area=min_area,
+        min_width=min_width,
+        max_speed=0.25,
+    )
+    return Scenario(
+        name="warehouse",
+        motion=route.motion,
+        agents=20,
+        kappa=2.0,
+        duration=math.ceil(route.motion.end) + 10.0,
+        dt=0.02,
+        dynamics="unicycle",
+        world=world,
+    )
+
+
 BUILTINS = {
     "circle": circle,
     "passage": passage,
     "formation": formation,
     "pinwheel": pinwheel,
     "live": live,
+    "warehouse": warehouse,
 }
-
-
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A built-in scenario by name, or a scenario read from a .toml file.
-
-    Raises ValueError naming the file and the problem for anything malformed.
-    """
-    if str(name_or_path) in BUILTINS:
-        return BUILTINS[str(name_or_path)]()
-    path = Path(name_or_path)
-    if path.suffix != ".toml":
-        known = ", ".join(sorted(BUILTINS))
-        raise ValueError(
-            f"unknown scenario {str(name_or_path)!r}: use one of {known} or a .toml file"
-        )
-    from covswarm.mission.scenario_files import read_scenario_file
-
-    return read_scenario_file(path)
+# The --scenario help of every command that takes one, built from BUILTINS so that it
+# names every built-in there is.
+SCENARIO_HELP = (
+    f"Built-in scenario ({', '.join(BUILTINS)}) or a .toml file (format: "
+    "covswarm.mission.scenario_files)."
+)

@@ -17,7 +17,6 @@ from covswarm.protocol.keys import (
     alive_key,
     alive_selector,
     all_agent_states_selector,
-    all_beacons_selector,
     all_cmds_selector,
     all_poses_selector,
     beacon_key,
@@ -35,14 +34,18 @@ from covswarm.protocol.keys import (
     status_key,
     steer_key,
     tile_of,
+    world_key,
 )
 from covswarm.protocol.messages import (
     DEFAULT_TILE_SIZE,
     MAX_COORD,
+    MAX_OBSTACLE_VERTICES,
+    MAX_OBSTACLES,
     MAX_PAYLOAD,
     MAX_RELAY,
     MAX_SPEED,
     MAX_VERTICES,
+    MAX_WORLD_PAYLOAD,
     REASONS,
     SCHEMA_VERSION,
     STATES,
@@ -54,6 +57,7 @@ from covswarm.protocol.messages import (
     ProtocolError,
     Status,
     WheelCommand,
+    World,
 )
 
 __all__ = [
@@ -62,8 +66,11 @@ __all__ = [
     "MAX_ID",
     "MAX_PAYLOAD",
     "MAX_RELAY",
+    "MAX_OBSTACLES",
+    "MAX_OBSTACLE_VERTICES",
     "MAX_SPEED",
     "MAX_VERTICES",
+    "MAX_WORLD_PAYLOAD",
     "PREFIX",
     "REASONS",
     "ROLES",
@@ -77,11 +84,11 @@ __all__ = [
     "ProtocolError",
     "Status",
     "WheelCommand",
+    "World",
     "agent_state_key",
     "alive_key",
     "alive_selector",
     "all_agent_states_selector",
-    "all_beacons_selector",
     "all_cmds_selector",
     "all_poses_selector",
     "beacon_key",
@@ -100,6 +107,7 @@ __all__ = [
     "status_key",
     "steer_key",
     "tile_of",
+    "world_key",
 ]
 
 

@@ -29,11 +29,13 @@ import math
 import time
 from collections.abc import Callable, Iterable
 
-from covswarm.protocol.messages import ProtocolError
+from covswarm.protocol.messages import REASONS, ProtocolError, WheelCommand
 
 MAX_CLOCK_SKEW = 0.5  # s; NTP keeps machines within milliseconds, one machine shares a clock
 LOG_INTERVAL = 10.0  # s between two drop summaries in the log
 STAMP_REASONS = ("stamp_future", "stamp_old")  # ProtocolError reasons of check_stamp
+# Why a robot (simulated or bridged) drops a wheel command: :func:`accept_command`.
+COMMAND_REASONS = (*REASONS, *STAMP_REASONS, "wrong_id")
 
 
 def check_stamp(stamp: float, now_wall: float, max_age: float, max_skew: float) -> None:
@@ -47,6 +49,35 @@ def check_stamp(stamp: float, now_wall: float, max_age: float, max_skew: float) 
         raise ProtocolError(
             f"stamp {now_wall - stamp:.3f} s old (limit {max_age + max_skew} s)", "stamp_old"
         )
+
+
+def accept_command(
+    payload: object,
+    robot_id: int,
+    now_wall: float,
+    max_age: float,
+    max_skew: float,
+    drops: DropLog,
+) -> WheelCommand | None:
+    """Decode a raw WheelCommand for robot ``robot_id`` and apply the clock policy.
+
+    ``now_wall``: the receiver's wall clock (s since the epoch); ``max_age``: its command
+    timeout (s); ``max_skew``: the clock disagreement tolerated (s). Returns the command, or
+    None after counting the drop in ``drops`` (a ProtocolError reason, a STAMP_REASONS one,
+    or "wrong_id" for a command addressed to another robot). Every robot process (the
+    simulated robot, the ROS 2 bridge) uses it, so a command one would drive on the other
+    would too.
+    """
+    try:
+        command = WheelCommand.decode(payload)
+        check_stamp(command.stamp, now_wall, max_age, max_skew)
+    except ProtocolError as exc:
+        drops.drop(exc.reason, f"command: {exc}")
+        return None
+    if command.id != robot_id:
+        drops.drop("wrong_id", f"command for robot {command.id}")
+        return None
+    return command
 
 
 class RateLimit:

@@ -98,6 +98,11 @@ def status_key(swarm: str) -> str:
     return f"{_base(swarm)}/status"
 
 
+def world_key(swarm: str) -> str:
+    """Coordinator -> World broadcast (the arena; repeated every second)."""
+    return f"{_base(swarm)}/world"
+
+
 def steer_key(swarm: str) -> str:
     """Client -> coordinator: SteerRequest queries, answered with a SteerReply."""
     return f"{_base(swarm)}/steer"
@@ -180,11 +185,6 @@ def all_cmds_selector(swarm: str) -> str:
 def all_agent_states_selector(swarm: str) -> str:
     """Every agent's state (coordinator / recorder only)."""
     return f"{_base(swarm)}/agent/*/state"
-
-
-def all_beacons_selector(swarm: str) -> str:
-    """Every beacon in every tile (monitoring only)."""
-    return f"{_base(swarm)}/beacon/*/*/*"
 
 
 # kind -> (words at positions 2 and 4) of "covswarm/<swarm>/<word>/<id>/<word>"

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import numbers
+import re
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
@@ -283,16 +284,17 @@ _TIME = _real(-MAX_TIME, MAX_TIME)
 M = TypeVar("M", bound="Message")
 
 
-def _unpack(payload: Any) -> Any:
-    """Bytes (or a zenoh ZBytes) -> msgpack object, ProtocolError on anything malformed."""
+def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
+    """Bytes (or a zenoh ZBytes) -> msgpack object, ProtocolError on anything malformed or
+    longer than ``limit`` bytes."""
     if isinstance(payload, (bytes, bytearray, memoryview)):
         data = bytes(payload)
     elif hasattr(payload, "to_bytes"):  # zenoh.ZBytes
         data = payload.to_bytes()
     else:
         raise ProtocolError(f"payload: expected bytes, got {type(payload).__name__}", "undecodable")
-    if len(data) > MAX_PAYLOAD:
-        raise ProtocolError(f"payload: {len(data)} bytes, limit {MAX_PAYLOAD}", "oversize")
+    if len(data) > limit:
+        raise ProtocolError(f"payload: {len(data)} bytes, limit {limit}", "oversize")
     try:
         return msgpack.unpackb(data, raw=False, strict_map_key=True)
     # msgpack signals malformed input with many exception types (ExtraData, FormatError,
@@ -336,6 +338,11 @@ class Message:
     def decode(cls: type[M], payload: Any) -> M:
         """Parse and validate a payload; raise ProtocolError with the reason."""
         raw = _unpack(payload)
+        return cls._from_map(raw)
+
+    @classmethod
+    def _from_map(cls: type[M], raw: Any) -> M:
+        """The message of an unpacked msgpack object (decode's second half)."""
         if not isinstance(raw, dict):
             raise ProtocolError(
                 f"{cls.__name__}: expected a map, got {type(raw).__name__}", "schema"
@@ -562,3 +569,273 @@ class Status(Message):
         "alive_agents": _int(0, MAX_ID + 1),
         "alive_robots": _int(0, MAX_ID + 1),
     }
+
+
+# World: the arena, sent by the coordinator at start and every WORLD_PERIOD s after.
+MAX_WORLD_PAYLOAD = 1 << 17  # bytes: 128 KiB; a 20 m x 20 m map at 5 cm is ~1.4 kB
+MAX_OBSTACLES = 4096
+MAX_OBSTACLE_VERTICES = 64
+MAX_NAME = 64  # characters of an obstacle's name
+MAX_NAME_NUMBER = 10**9  # numbers of numbered names ("map piece 7")
+MM = 1000.0  # wire coordinates of a World are whole millimetres
+_NUMBERED = re.compile(r"^(.*[^ ]) ([1-9][0-9]{0,8})$")  # "<prefix> <number>", no leading 0
+
+
+def _mm(value: Any, name: str) -> int:
+    """A coordinate in m (within MAX_COORD) -> whole millimetres (the World's resolution)."""
+    return round(_COORD(value, name) * MM)
+
+
+def _convex_mm(points: list[tuple[int, int]], name: str) -> None:
+    """ProtocolError unless ``points`` (whole mm) are a strictly convex CCW polygon.
+
+    Exact in integers: every corner turns left (cross product > 0, so no repeated or
+    collinear vertex and no clockwise corner), and the turns add up to one turn, not several
+    (a star whose corners all turn left winds twice: 4 pi).
+    """
+    k = len(points)
+    total = 0.0
+    for i in range(k):
+        (ax, ay), (bx, by), (cx, cy) = points[i - 2], points[i - 1], points[i]
+        ux, uy, wx, wy = bx - ax, by - ay, cx - bx, cy - by
+        cross = ux * wy - uy * wx
+        if cross <= 0:
+            what = "a clockwise or straight corner" if cross else "a straight or repeated corner"
+            raise ProtocolError(
+                f"{name}: not a convex counter-clockwise polygon ({what} at vertex {(i - 1) % k})"
+            )
+        total += math.atan2(cross, ux * wx + uy * wy)
+    if total > 3.0 * math.pi:
+        raise ProtocolError(f"{name}: self-intersecting outline (it winds more than once)")
+
+
+def _obstacles(value: Any, name: str) -> tuple[tuple[tuple[float, float], ...], ...]:
+    """Convex polygons in m, canonicalised to whole mm; each strictly convex CCW."""
+    items = _sequence(value, name)
+    if len(items) > MAX_OBSTACLES:
+        raise ProtocolError(f"{name}: {len(items)} obstacles, at most {MAX_OBSTACLES}")
+    check = _points(3, MAX_OBSTACLE_VERTICES, MAX_COORD)
+    out = []
+    for i, item in enumerate(items):
+        where = f"{name}[{i}]"
+        mm = [(round(x * MM), round(y * MM)) for x, y in check(item, where)]
+        _convex_mm(mm, where)
+        out.append(tuple((x / MM, y / MM) for x, y in mm))
+    return tuple(out)
+
+
+def _workspace(value: Any, name: str) -> tuple[float, float, float, float]:
+    """[xmin, xmax, ymin, ymax] in m, canonicalised to whole mm, non-empty."""
+    items = _sequence(value, name)
+    if len(items) != 4:
+        raise ProtocolError(f"{name}: expected [xmin, xmax, ymin, ymax], got {len(items)} values")
+    xmin, xmax, ymin, ymax = (_mm(v, f"{name}[{i}]") for i, v in enumerate(items))
+    if not (xmin < xmax and ymin < ymax):
+        raise ProtocolError(f"{name}: need xmin < xmax and ymin < ymax (mm: {items!r})")
+    return (xmin / MM, xmax / MM, ymin / MM, ymax / MM)
+
+
+def _names(value: Any, name: str) -> tuple[str, ...]:
+    items = _sequence(value, name)
+    if len(items) > MAX_OBSTACLES:
+        raise ProtocolError(f"{name}: {len(items)} names, at most {MAX_OBSTACLES}")
+    for i, item in enumerate(items):
+        if not isinstance(item, str) or not 1 <= len(item) <= MAX_NAME:
+            raise ProtocolError(f"{name}[{i}]: expected a name of 1..{MAX_NAME} characters")
+    return tuple(items)
+
+
+def default_names(count: int) -> tuple[str, ...]:
+    """The names of a World's obstacles when its payload has none: "obstacle 1", ..."""
+    return tuple(f"obstacle {i + 1}" for i in range(count))
+
+
+def _wire_int(value: Any, name: str, lo: int, hi: int) -> int:
+    """A plain msgpack int in [lo, hi] (no floats, no booleans)."""
+    if type(value) is not int:
+        raise ProtocolError(f"{name}: expected an int, got {type(value).__name__}")
+    if not lo <= value <= hi:
+        raise ProtocolError(f"{name}: {value} outside [{lo}, {hi}]")
+    return value
+
+
+_MAX_MM = round(MAX_COORD * MM)
+
+
+def _wire_obstacle(value: Any, name: str) -> tuple[tuple[int, int], ...]:
+    """One obstacle as sent: ints in mm, a box [x, y, w, h] (4) or a polygon x0, y0, dx1,
+    dy1, ... (6..2 MAX_OBSTACLE_VERTICES: each vertex relative to the one before)."""
+    if type(value) is not list:
+        raise ProtocolError(f"{name}: expected an array, got {type(value).__name__}")
+    n = len(value)
+    if n == 4:
+        x, y, w, h = (_wire_int(v, f"{name}[{i}]", -_MAX_MM, _MAX_MM) for i, v in enumerate(value))
+        if w <= 0 or h <= 0 or x + w > _MAX_MM or y + h > _MAX_MM:
+            raise ProtocolError(f"{name}: box [x, y, w, h] needs w, h > 0 within bounds")
+        return ((x, y), (x + w, y), (x + w, y + h), (x, y + h))
+    if n % 2 or not 6 <= n <= 2 * MAX_OBSTACLE_VERTICES:
+        raise ProtocolError(
+            f"{name}: {n} numbers: expected a box (4) or a polygon of "
+            f"3..{MAX_OBSTACLE_VERTICES} vertices (6..{2 * MAX_OBSTACLE_VERTICES})"
+        )
+    x = y = 0
+    out = []
+    for i in range(0, n, 2):
+        # The first pair is absolute, then deltas: each running sum must stay in bounds.
+        x += _wire_int(value[i], f"{name}[{i}]", -2 * _MAX_MM, 2 * _MAX_MM)
+        y += _wire_int(value[i + 1], f"{name}[{i + 1}]", -2 * _MAX_MM, 2 * _MAX_MM)
+        if not (-_MAX_MM <= x <= _MAX_MM and -_MAX_MM <= y <= _MAX_MM):
+            raise ProtocolError(f"{name}: vertex {i // 2} outside +-{MAX_COORD} m")
+        out.append((x, y))
+    return tuple(out)
+
+
+def _wire_names(value: Any, count: int) -> tuple[str, ...]:
+    """Names as sent: each entry a name or a run [prefix, first, n] of the n names
+    "prefix first" .. "prefix first+n-1"; they must name exactly ``count`` obstacles."""
+    if type(value) is not list:
+        raise ProtocolError(f"names: expected an array, got {type(value).__name__}")
+    if len(value) > count:
+        raise ProtocolError(f"names: {len(value)} entries for {count} obstacles")
+    out: list[str] = []
+    for i, entry in enumerate(value):
+        if isinstance(entry, str):
+            out.append(entry)
+            continue
+        if type(entry) is not list or len(entry) != 3 or not isinstance(entry[0], str):
+            raise ProtocolError(f"names[{i}]: expected a name or [prefix, first, count]")
+        prefix = entry[0]
+        first = _wire_int(entry[1], f"names[{i}].first", 1, MAX_NAME_NUMBER)
+        n = _wire_int(entry[2], f"names[{i}].count", 1, count - len(out))
+        if first + n - 1 > MAX_NAME_NUMBER or not 1 <= len(prefix) < MAX_NAME - 10:
+            raise ProtocolError(f"names[{i}]: prefix or numbers out of bounds")
+        out.extend(f"{prefix} {first + j}" for j in range(n))
+    if len(out) != count:
+        raise ProtocolError(f"names: {len(out)} names for {count} obstacles")
+    return tuple(out)
+
+
+def _name_runs(names: tuple[str, ...]) -> list[Any]:
+    """names -> the wire's entries: consecutive numbered names as runs (_wire_names)."""
+    out: list[Any] = []
+    for name in names:
+        match = _NUMBERED.match(name)
+        last = out[-1] if out else None
+        if match and isinstance(last, list) and last[0] == match[1]:
+            if int(match[2]) == last[1] + last[2]:
+                last[2] += 1
+                continue
+        if match and len(match[1]) < MAX_NAME - 10:
+            out.append([match[1], int(match[2]), 1])
+        else:
+            out.append(name)
+    # A run of one is longer than the name itself.
+    return [f"{e[0]} {e[1]}" if isinstance(e, list) and e[2] == 1 else e for e in out]
+
+
+@dataclass(frozen=True, slots=True)
+class World(Message):
+    """Coordinator -> all: the arena (workspace and convex obstacles), repeated every second
+    so a late joiner has it within one; ``seq`` grows when the world changes.
+
+    workspace: (xmin, xmax, ymin, ymax) m, or None; obstacles: convex CCW polygons, each a
+    tuple of (x, y) m; names: one per obstacle (None when constructing: "obstacle 1", ...).
+    Coordinates are whole millimetres (the constructor rounds to them):
+    covswarm.world.wire.to_message rounds a model World outward so the sent obstacles
+    contain the true ones. Every polygon is checked strictly convex counter-clockwise.
+
+    On the wire (small: a 20 m x 20 m map at 5 cm is ~1.4 kB, docs/world.md): ``workspace``
+    [xmin, xmax, ymin, ymax] and ``obstacles`` in integer mm, each obstacle a box
+    [x, y, w, h] or a polygon [x0, y0, dx1, dy1, ...] (vertices after the first relative
+    to the one before: small ints pack in 1-3 bytes); ``names`` optional (absent: the
+    defaults above), its entries a name or a run [prefix, first, count] of numbered names.
+    """
+
+    seq: int
+    stamp: float
+    obstacles: tuple[tuple[tuple[float, float], ...], ...]
+    workspace: tuple[float, float, float, float] | None = None
+    names: tuple[str, ...] | None = None
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "seq": _SEQ,
+        "stamp": _STAMP,
+        "obstacles": _obstacles,
+        "workspace": _optional(_workspace),
+        "names": _optional(_names),
+    }
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"workspace", "names"})
+
+    def _check_fields(self) -> None:
+        if self.names is None:
+            object.__setattr__(self, "names", default_names(len(self.obstacles)))
+        elif len(self.names) != len(self.obstacles):
+            raise ProtocolError(
+                f"World: {len(self.names)} names for {len(self.obstacles)} obstacles"
+            )
+
+    def encode(self) -> bytes:
+        """msgpack bytes in the compact form above; ProtocolError if over MAX_WORLD_PAYLOAD."""
+        wire: dict[str, Any] = {"v": SCHEMA_VERSION, "seq": self.seq, "stamp": self.stamp}
+        if self.workspace is not None:
+            wire["workspace"] = [round(v * MM) for v in self.workspace]
+        obstacles = []
+        for polygon in self.obstacles:
+            mm = [(round(x * MM), round(y * MM)) for x, y in polygon]
+            (x0, y0), (x1, y1) = mm[0], mm[2]
+            if mm == [(x0, y0), (x1, y0), (x1, y1), (x0, y1)]:
+                obstacles.append([x0, y0, x1 - x0, y1 - y0])
+                continue
+            flat = [x0, y0]
+            for (ax, ay), (bx, by) in zip(mm, mm[1:], strict=False):
+                flat += [bx - ax, by - ay]
+            obstacles.append(flat)
+        wire["obstacles"] = obstacles
+        if self.names != default_names(len(self.obstacles)):
+            wire["names"] = _name_runs(self.names)
+        data = msgpack.packb(wire, use_bin_type=True)
+        if len(data) > MAX_WORLD_PAYLOAD:
+            raise ProtocolError(f"World: {len(data)} bytes, limit {MAX_WORLD_PAYLOAD}", "oversize")
+        return data
+
+    @classmethod
+    def decode(cls, payload: Any) -> World:
+        """Parse and validate a payload (the compact form); ProtocolError with the reason."""
+        raw = _unpack(payload, MAX_WORLD_PAYLOAD)
+        if not isinstance(raw, dict):
+            raise ProtocolError(f"World: expected a map, got {type(raw).__name__}", "schema")
+        version = raw.pop("v", None)
+        if version != SCHEMA_VERSION or isinstance(version, bool):
+            raise ProtocolError(
+                f"World: schema version {version!r}, expected {SCHEMA_VERSION}", "version"
+            )
+        unknown = sorted(repr(name) for name in raw if name not in cls._SPEC)
+        if unknown:
+            raise ProtocolError(f"World: unknown fields {', '.join(unknown)}", "schema")
+        missing = [name for name in ("seq", "stamp", "obstacles") if name not in raw]
+        if missing:
+            raise ProtocolError(f"World: missing fields {missing}", "schema")
+        items = raw["obstacles"]
+        if type(items) is not list or len(items) > MAX_OBSTACLES:
+            raise ProtocolError(f"obstacles: expected an array of at most {MAX_OBSTACLES}")
+        polygons = []
+        for i, item in enumerate(items):
+            mm = _wire_obstacle(item, f"obstacles[{i}]")
+            _convex_mm(list(mm), f"obstacles[{i}]")
+            polygons.append(tuple((x / MM, y / MM) for x, y in mm))
+        workspace = raw.get("workspace")
+        if workspace is not None:
+            if type(workspace) is not list or len(workspace) != 4:
+                raise ProtocolError("workspace: expected [xmin, xmax, ymin, ymax] in mm")
+            workspace = [
+                _wire_int(v, f"workspace[{i}]", -_MAX_MM, _MAX_MM) / MM
+                for i, v in enumerate(workspace)
+            ]
+        names = raw.get("names")
+        return cls(
+            seq=raw["seq"],
+            stamp=raw["stamp"],
+            obstacles=tuple(polygons),
+            workspace=workspace,
+            names=None if names is None else _wire_names(names, len(polygons)),
+        )

@@ -1,152 +1,320 @@
-"""Secured mode: TLS on every link and user/password authentication at the router.
+"""Secured mode: mutual TLS on every link, one certificate per role, access control at the router.
 
 By default covswarm runs zero-configuration on plain TCP (loopback in ``covswarm run``).
-With ``--secure DIR`` every process encrypts its link with TLS, checks the router's
-certificate against a CA, and logs in with a user name and password; the router refuses a
-process that does not present valid credentials, so it can neither publish to nor
-subscribe on the swarm's keys. The folder holds:
+With ``--secure DIR`` every process encrypts its link with TLS and presents its own client
+certificate (mutual TLS), whose common name says who it is: ``coordinator``, ``agent-3``,
+``robot-3``, ``bridge``, ``console`` or ``operator``. The router refuses a process without
+a certificate signed by the swarm's CA, and its access-control list
+(:mod:`protocol.access`) lets each identity put, declare and query only the keys of its
+role and ids: agent 3 alone commands robot 3, only the coordinator publishes the Domain
+and answers steering requests, and so on. The folder holds:
 
-- ``ca.pem``: the CA certificate that signed the router's certificate (every process);
-- ``cert.pem`` and ``key.pem``: the router's certificate, whose subject alternative names
-  must include the host (name or IP) clients connect to, and its private key (router only);
-- ``credentials``: ``user:password`` lines. The router accepts every line; a client logs
-  in with the first line, so a machine's copy of the folder can hold only its own line
-  (and no ``key.pem``).
+- ``ca.pem``: the CA certificate (every machine);
+- ``identities.json``: every identity issued, with its role and ids (the router builds its
+  access-control list from it; not secret);
+- one sub-folder per identity, ``<name>/cert.pem`` and ``<name>/key.pem``; ``router/`` is
+  the router's (its certificate names 127.0.0.1 and localhost, plus ``--host`` names);
+- ``ca/ca.key``: the CA's private key, kept to issue more identities later. It never
+  leaves the machine that issues credentials.
 
-``covswarm credentials DIR`` (:func:`make_test_credentials`) writes a throw-away folder
-for one machine: a fresh CA, a router certificate for 127.0.0.1/localhost and one random
-password. It uses the ``openssl`` command-line tool.
+A machine receives only ``ca.pem`` and its own sub-folders (the router's machine also
+``identities.json``). ``covswarm credentials DIR`` (:func:`issue_credentials`) writes the
+folder with the ``openssl`` command-line tool.
 """
 
 from __future__ import annotations
 
+import ipaddress
 import json
 import os
-import secrets
+import re
 import shutil
 import subprocess
 import tempfile
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
 import click
 
-CA, CERT, KEY, CREDENTIALS = "ca.pem", "cert.pem", "key.pem", "credentials"
-CERT_DAYS = 30  # test credentials are throw-away
+from covswarm.protocol.keys import check_id, format_ids, parse_ids
+
+CA, CERT, KEY, IDENTITIES = "ca.pem", "cert.pem", "key.pem", "identities.json"
+CA_KEY = Path("ca") / "ca.key"
+ROUTER = "router"
+CERT_DAYS = 365
+# Roles with one identity per robot id, and roles with a single identity.
+ID_ROLES = ("agent", "robot")
+# ros2: the ROS 2 nodes (rmw_zenoh) a bridge talks to, when they share the swarm's router.
+SINGLE_ROLES = ("coordinator", "bridge", "console", "operator", "ros2")
+ROLES = (*ID_ROLES, *SINGLE_ROLES)
+_HOSTNAME_RE = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9.-]{0,251}[A-Za-z0-9])?$")
 
 
-def read_credentials(directory: Path) -> list[tuple[str, str]]:
-    """The ``user:password`` lines of ``directory/credentials``; ValueError if malformed."""
-    path = Path(directory) / CREDENTIALS
-    pairs = []
-    for number, line in enumerate(path.read_text().splitlines(), start=1):
-        if not line.strip():
-            continue
-        user, sep, password = line.partition(":")
-        if not (sep and user and password) or any(c.isspace() for c in user):
-            raise ValueError(f"{path}:{number}: expected 'user:password'")
-        pairs.append((user, password))
-    if not pairs:
-        raise ValueError(f"{path}: no 'user:password' line")
-    return pairs
+def identity_name(role: str, ids: int | Sequence[int] | None = None) -> str:
+    """The certificate common name (and sub-folder) of ``role`` with ``ids``.
 
-
-def apply_security(config: Any, directory: Path, mode: str) -> None:
-    """Insert the TLS and user/password keys for ``mode`` into a zenoh.Config.
-
-    A router needs ca.pem, cert.pem, key.pem and credentials (its dictionary); a client or
-    peer needs ca.pem and credentials (it logs in with the first line). Raises ValueError
-    naming a missing or malformed file, so a misconfigured process fails at start-up
-    instead of silently running unsecured.
+    ``agent``/``robot`` need ids: one id gives ``agent-3``; several (a process running
+    several brains) ``agent-0-4,10`` (:func:`protocol.keys.format_ids`). Other roles take
+    none. ValueError otherwise.
     """
+    if role not in ROLES:
+        raise ValueError(f"role must be one of {ROLES}, got {role!r}")
+    if role in SINGLE_ROLES:
+        if ids is not None:
+            raise ValueError(f"role {role!r} has no id, got {ids!r}")
+        return role
+    if ids is None:
+        raise ValueError(f"role {role!r} needs an id")
+    id_list = [ids] if isinstance(ids, int) else list(ids)
+    if not id_list:
+        raise ValueError(f"role {role!r} needs at least one id")
+    return f"{role}-{format_ids([check_id(i) for i in id_list])}"
+
+
+def read_identities(directory: Path) -> list[dict[str, Any]]:
+    """The identities of ``directory/identities.json``: dicts with name, role and ids."""
+    path = Path(directory) / IDENTITIES
+    try:
+        entries = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise ValueError(f"cannot read {path}: {exc}") from None
+    if not isinstance(entries, list):
+        raise ValueError(f"{path}: expected a list of identities")
+    for entry in entries:
+        if not (isinstance(entry, dict) and entry.get("role") in ROLES):
+            raise ValueError(f"{path}: malformed identity {entry!r}")
+        ids = entry.get("ids") or None
+        if identity_name(entry["role"], ids) != entry.get("name"):
+            raise ValueError(f"{path}: identity {entry!r} does not match its role and ids")
+    return entries
+
+
+def apply_security(
+    config: Any,
+    directory: Path,
+    mode: str,
+    role: str = "operator",
+    ids: int | Sequence[int] | None = None,
+) -> None:
+    """Insert the mutual-TLS keys (and the router's access control) into a zenoh.Config.
+
+    A router presents ``router/`` and enforces the access-control list built from
+    ``identities.json``; any other process presents the certificate of ``role`` and
+    ``ids`` (:func:`identity_name`). Raises ValueError naming a missing file, so a
+    misconfigured process fails at start-up instead of silently running unsecured.
+    """
+    from covswarm.protocol.access import access_control
+
     directory = Path(directory).resolve()
-    needed = (CA, CERT, KEY, CREDENTIALS) if mode == "router" else (CA, CREDENTIALS)
-    missing = [name for name in needed if not (directory / name).is_file()]
+    name = ROUTER if mode == "router" else identity_name(role, ids)
+    if mode != "router":
+        require_identities(directory, [name])  # names the command that issues it
+    needed = [CA, f"{name}/{CERT}", f"{name}/{KEY}"]
+    if mode == "router":
+        needed.append(IDENTITIES)
+    missing = [n for n in needed if not (directory / n).is_file()]
     if missing:
         raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}")
-    user, password = read_credentials(directory)[0]
 
     def put(key: str, value: object) -> None:
         config.insert_json5(key, json.dumps(value))
 
     put("transport/link/tls/root_ca_certificate", str(directory / CA))
+    put("transport/link/tls/enable_mtls", True)
+    # A certificate that expires closes the link instead of staying trusted until restart.
+    put("transport/link/tls/close_link_on_expiration", True)
+    side = "listen" if mode == "router" else "connect"
+    put(f"transport/link/tls/{side}_certificate", str(directory / name / CERT))
+    put(f"transport/link/tls/{side}_private_key", str(directory / name / KEY))
     if mode == "router":
-        put("transport/link/tls/listen_certificate", str(directory / CERT))
-        put("transport/link/tls/listen_private_key", str(directory / KEY))
-        put("transport/auth/usrpwd/dictionary_file", str(directory / CREDENTIALS))
-    else:
-        put("transport/auth/usrpwd/user", user)
-        put("transport/auth/usrpwd/password", password)
+        # The router also connects to other hosts' routers (--router-connect) with its own.
+        put("transport/link/tls/connect_certificate", str(directory / name / CERT))
+        put("transport/link/tls/connect_private_key", str(directory / name / KEY))
+        put("access_control", access_control(read_identities(directory)))
+
+
+def require_identities(directory: Path, names: Iterable[str]) -> None:
+    """ValueError naming the command that issues whichever of ``names`` (identity names,
+    e.g. ``agent-0-9``) ``directory`` lacks; for a launcher to check before it starts
+    processes that would each fail on its own."""
+    directory = Path(directory)
+    missing = [n for n in names if not (directory / n / CERT).is_file()]
+    if missing:
+        ids = sorted({n.partition("-")[2] for n in missing} - {""})
+        groups = [i for i in ids if not i.isdigit()]
+        single = [i for i in ids if i.isdigit()]
+        command = f"covswarm credentials {directory}"
+        command += "".join(f" --group {g}" for g in groups)
+        if single:
+            command += f" --ids {format_ids([int(i) for i in single])}"
+        raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}: {command}")
 
 
 def _openssl(*args: str) -> None:
     subprocess.run(["openssl", *args], check=True, capture_output=True, timeout=60)
 
 
-def make_test_credentials(directory: Path, user: str = "covswarm") -> Path:
-    """Write a throw-away secure folder for one machine and return its path.
+_EC = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes")
 
-    A fresh CA (whose key is discarded, so nothing else can ever be signed with it), a
-    router certificate for 127.0.0.1 and localhost signed by it, and ``user`` with a random
-    password. Private files are created readable by the owner only. Raises RuntimeError if
-    the ``openssl`` tool is missing.
+
+def _issue(directory: Path, name: str, alt_names: Sequence[str]) -> None:
+    """Key and certificate for ``name`` in ``directory/name/``, signed by the CA."""
+    folder = directory / name
+    folder.mkdir(mode=0o700, exist_ok=True)
+    with tempfile.TemporaryDirectory() as scratch:
+        extensions = Path(scratch) / "ext.cnf"
+        lines = [
+            "[ext]",
+            "basicConstraints=critical,CA:FALSE",
+            "keyUsage=critical,digitalSignature,keyEncipherment",
+            "extendedKeyUsage=serverAuth,clientAuth",
+        ]
+        if alt_names:
+            lines.append(f"subjectAltName={','.join(alt_names)}")
+        extensions.write_text("\n".join(lines) + "\n")
+        # umask: the key is created owner-only, never readable by others even for an instant.
+        old = os.umask(0o077)
+        try:
+            _openssl(
+                "req", "-x509", *_EC, "-keyout", str(folder / KEY), "-out", str(folder / CERT),
+                "-CA", str(directory / CA), "-CAkey", str(directory / CA_KEY),
+                "-days", str(CERT_DAYS), "-subj", f"/CN={name}",
+                "-config", str(extensions), "-extensions", "ext",
+            )  # fmt: skip
+        finally:
+            os.umask(old)
+
+
+def _router_alt_names(hosts: Iterable[str]) -> list[str]:
+    """subjectAltName entries of the router's certificate: loopback plus ``hosts``."""
+    names = []
+    for host in ["127.0.0.1", "localhost", *hosts]:
+        try:
+            names.append(f"IP:{ipaddress.ip_address(host)}")
+        except ValueError:
+            if not _HOSTNAME_RE.match(host):
+                raise ValueError(f"invalid router host {host!r}: a name or an IP") from None
+            names.append(f"DNS:{host}")
+    return list(dict.fromkeys(names))
+
+
+def issue_credentials(
+    directory: Path,
+    agents: Sequence[int] = (),
+    robots: Sequence[int] = (),
+    groups: Sequence[Sequence[int]] = (),
+    hosts: Sequence[str] = (),
+) -> Path:
+    """Write (or extend) a secure folder and return its path.
+
+    Creates the CA on first use (kept in ``ca/ca.key``, owner-only), the router's
+    certificate (127.0.0.1, localhost and ``hosts``), the coordinator, bridge, console and
+    operator, one agent per id of ``agents``, one robot per id of ``robots``, and one agent
+    and one robot per group of ``groups`` (a process running several brains or simulated
+    robots, ``--ids``, presents one certificate for them all).
+    Run again on the same folder, it adds identities signed by the same CA and keeps the
+    existing ones. Private files are owner-only. RuntimeError without ``openssl``.
     """
-    if not user or ":" in user or any(c.isspace() for c in user):
-        raise ValueError(f"user name must be non-empty without ':' or spaces, got {user!r}")
+    alt_names = _router_alt_names(hosts)  # bad input refused before anything is written
     if shutil.which("openssl") is None:
-        raise RuntimeError("make_test_credentials needs the 'openssl' command-line tool")
+        raise RuntimeError("covswarm credentials needs the 'openssl' command-line tool")
     directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
-    ec = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes")
-    with tempfile.TemporaryDirectory() as scratch:
-        ca_key, csr = Path(scratch) / "ca.key", Path(scratch) / "router.csr"
-        _openssl(
-            "req", "-x509", *ec, "-keyout", str(ca_key), "-out", str(directory / CA),
-            "-days", str(CERT_DAYS), "-subj", "/CN=covswarm test CA",
-            "-addext", "basicConstraints=critical,CA:TRUE",
-            "-addext", "keyUsage=critical,keyCertSign,cRLSign",
-        )  # fmt: skip
-        _openssl(
-            "req", *ec, "-keyout", str(directory / KEY), "-out", str(csr),
-            "-subj", "/CN=covswarm router",
-        )  # fmt: skip
-        extensions = Path(scratch) / "router.ext"
-        extensions.write_text(
-            "basicConstraints=critical,CA:FALSE\n"
-            "keyUsage=critical,digitalSignature,keyEncipherment\n"
-            "extendedKeyUsage=serverAuth,clientAuth\n"
-            "subjectAltName=IP:127.0.0.1,DNS:localhost\n"
-        )
-        _openssl(
-            "x509", "-req", "-in", str(csr), "-CA", str(directory / CA), "-CAkey", str(ca_key),
-            "-CAcreateserial", "-CAserial", str(Path(scratch) / "ca.srl"),
-            "-out", str(directory / CERT), "-days", str(CERT_DAYS), "-extfile", str(extensions),
-        )  # fmt: skip
-    (directory / KEY).chmod(0o600)
-    # Created owner-only before the password is written into it.
-    fd = os.open(directory / CREDENTIALS, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o600)
-    os.fchmod(fd, 0o600)
-    with os.fdopen(fd, "w") as out:
-        out.write(f"{user}:{secrets.token_urlsafe(18)}\n")
+    known = read_identities(directory) if (directory / IDENTITIES).exists() else []
+    if not (directory / CA_KEY).is_file():
+        if (directory / CA).exists():
+            raise ValueError(f"{directory} has a ca.pem but not its key {CA_KEY}: cannot issue")
+        (directory / CA_KEY.parent).mkdir(mode=0o700, exist_ok=True)
+        old = os.umask(0o077)
+        try:
+            _openssl(
+                "req", "-x509", *_EC, "-keyout", str(directory / CA_KEY),
+                "-out", str(directory / CA), "-days", str(CERT_DAYS),
+                "-subj", "/CN=covswarm CA",
+                "-addext", "basicConstraints=critical,CA:TRUE",
+                "-addext", "keyUsage=critical,keyCertSign,cRLSign",
+            )  # fmt: skip
+        finally:
+            os.umask(old)
+        (directory / CA).chmod(0o644)
+    wanted: list[tuple[str, list[int]]] = [(role, []) for role in SINGLE_ROLES]
+    wanted += [("agent", [i]) for i in agents] + [("robot", [i]) for i in robots]
+    wanted += [(role, sorted(set(group))) for group in groups for role in ID_ROLES]
+    names = {entry["name"] for entry in known}
+    if hosts or not (directory / ROUTER / CERT).is_file():
+        _issue(directory, ROUTER, alt_names)
+    for role, ids in wanted:
+        name = identity_name(role, ids or None)
+        if name in names:
+            continue
+        _issue(directory, name, ())
+        known.append({"name": name, "role": role, "ids": ids})
+        names.add(name)
+    (directory / IDENTITIES).write_text(json.dumps(known, indent=1) + "\n")
     return directory
+
+
+def make_test_credentials(directory: Path, ids: Sequence[int] = range(16)) -> Path:
+    """A secure folder for tests and one-machine runs: agents and robots ``ids``."""
+    return issue_credentials(directory, agents=ids, robots=ids)
 
 
 SECURE_OPTION = click.option(
     "--secure",
     type=click.Path(exists=True, file_okay=False, path_type=Path),
     default=None,
-    help="Secured mode: folder with ca.pem, credentials (and cert.pem, key.pem for the "
-    "router); endpoints must be tls/. See `covswarm credentials`.",
+    help="Secured mode: folder from `covswarm credentials` (ca.pem and this process's "
+    "certificate); endpoints must be tls/.",
 )
+
+
+def _id_list(ctx: click.Context, param: click.Parameter, value: str | None) -> list[int]:
+    try:
+        return [] if value is None else parse_ids(value)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from exc
 
 
 @click.command("credentials")
 @click.argument("directory", type=click.Path(file_okay=False, path_type=Path))
-@click.option("--user", default="covswarm", show_default=True, help="User name to create.")
-def credentials_command(directory: Path, user: str) -> None:
-    """Write throw-away TLS certificates and a password for `--secure` on this machine."""
+@click.option("--agents", type=click.IntRange(0), default=None, help="Ids 0..N-1 for both.")
+@click.option("--ids", callback=_id_list, help="Agent and robot ids, e.g. 0-9 or 0-4,10.")
+@click.option("--agent-ids", callback=_id_list, help="Agent ids only (default: --ids).")
+@click.option("--robot-ids", callback=_id_list, help="Robot ids only (default: --ids).")
+@click.option(
+    "--group",
+    "groups",
+    multiple=True,
+    help="One agent and one robot certificate for a process running several ids "
+    "(--ids), e.g. 0-49 (repeatable).",
+)
+@click.option(
+    "--host",
+    "hosts",
+    multiple=True,
+    help="Name or IP of the router's host as other machines reach it (repeatable).",
+)
+def credentials_command(
+    directory: Path,
+    agents: int | None,
+    ids: list[int],
+    agent_ids: list[int],
+    robot_ids: list[int],
+    groups: tuple[str, ...],
+    hosts: tuple[str, ...],
+) -> None:
+    """Issue a CA and one certificate per role for `--secure`: router, coordinator, bridge,
+    console, operator, one agent and one robot per id. Run again to add identities."""
+    if agents is not None and ids:
+        raise click.UsageError("give --agents N or --ids, not both")
+    both = list(range(agents)) if agents is not None else ids
     try:
-        make_test_credentials(directory, user)
+        group_ids = [parse_ids(group) for group in groups]
+        issue_credentials(directory, agent_ids or both, robot_ids or both, group_ids, hosts)
     except (RuntimeError, ValueError, subprocess.CalledProcessError) as exc:
         raise click.ClickException(str(exc)) from exc
-    click.echo(f"secure folder written to {directory} (use: covswarm run --secure {directory})")
+    click.echo(
+        f"credentials written to {directory}: give each machine {directory / CA} and its "
+        f"own sub-folders; keep {directory / CA_KEY} on this machine only"
+    )

@@ -2,17 +2,19 @@
 
 Explicit endpoints only: multicast scouting and gossip are off, so a process talks to the
 router it was told about and nothing else (runs on one machine never cross by discovery).
-Secured mode (TLS + user/password, ``secure=DIR``) is described in :mod:`protocol.security`.
+Secured mode (mutual TLS with one certificate per role and id, ``secure=DIR``) is described
+in :mod:`protocol.security`; the router's access control in :mod:`protocol.access`.
 """
 
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from pathlib import Path
 
 import zenoh
 
-from covswarm.protocol.security import apply_security
+from covswarm.protocol.security import apply_security, identity_name
 
 MODES = ("client", "peer", "router")
 RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router
@@ -25,14 +27,20 @@ def session_config(
     *,
     max_sessions: int | None = None,
     secure: Path | None = None,
+    role: str = "operator",
+    id: int | Sequence[int] | None = None,  # noqa: A002 (the robot id, as on the command line)
 ) -> zenoh.Config:
     """A zenoh.Config with explicit endpoints and no scouting.
 
     ``connect``/``listen`` are endpoint lists such as ``["tcp/127.0.0.1:7447"]``. A client
     must connect somewhere; a router must be told where to listen (zenoh's default would be
     every interface). ``max_sessions`` raises the router's client limit (default 1000).
-    ``secure`` is a secure folder (protocol.security): TLS and user/password, and then every
-    endpoint must be ``tls/...`` so that nothing of the swarm travels in clear.
+    ``secure`` is a secure folder (protocol.security): mutual TLS, and then every endpoint
+    must be ``tls/...`` so that nothing of the swarm travels in clear. The session presents
+    the certificate of ``role`` (coordinator, agent, robot, bridge, console, operator) and
+    ``id`` (agent and robot only: one id, or the ids of a process running several brains);
+    a router presents its own and enforces the access-control list. ``role``/``id`` are
+    ignored without ``secure``.
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -40,6 +48,8 @@ def session_config(
         raise ValueError("a client session needs at least one --connect endpoint")
     if mode == "router" and not listen:
         raise ValueError("a router session needs at least one listen endpoint")
+    if mode != "router":
+        identity_name(role, id)  # a wrong role fails in open mode too, not first on a lab
     if secure is not None:
         clear = [e for e in [*(connect or []), *(listen or [])] if not e.startswith("tls/")]
         if clear:
@@ -61,5 +71,5 @@ def session_config(
     if max_sessions is not None:
         config.insert_json5("transport/unicast/max_sessions", json.dumps(int(max_sessions)))
     if secure is not None:
-        apply_security(config, secure, mode)
+        apply_security(config, secure, mode, role, id)
     return config

@@ -13,10 +13,14 @@ absent means "as fast as the swarm can follow", see coordinator.steering):
 - ``rotate``: turn S by ``angle`` rad (counter-clockwise positive) about ``about``;
 - ``scale``: scale S by ``factor`` (> 0) about ``about``;
 - ``polygon``: morph S into the convex polygon ``polygon`` (any vertex count, either
-  orientation; convexity is checked by the coordinator, which can say why it refuses).
+  orientation; convexity is checked by the coordinator, which can say why it refuses);
+- ``goto``: take S's centroid to ``goal`` (x, y) m through free space, S shrinking for
+  doors and growing back (the coordinator plans the route: covswarm.world.planner), with
+  S's shape there ``polygon`` (optional; placed with its centroid on the goal). The reply
+  carries the planned ``route``. A goto takes a ``speed``, not a ``duration``.
 
 Fields a kind does not use must keep their neutral value (dx = dy = 0, angle = 0,
-factor = 1, polygon and about absent), so a request cannot mean two things.
+factor = 1, polygon, about and goal absent), so a request cannot mean two things.
 """
 
 from __future__ import annotations
@@ -36,13 +40,15 @@ from covswarm.protocol.messages import (
     _points,
     _positive,
     _real,
+    _sequence,
 )
 
-KINDS = ("translate", "rotate", "scale", "polygon")
+KINDS = ("translate", "rotate", "scale", "polygon", "goto")
 MAX_FACTOR = 100.0  # scale factors in (0, MAX_FACTOR]
 MAX_DURATION = 3600.0  # s
 MAX_STEER_SPEED = 100.0  # m/s (the coordinator clips to --max-domain-speed anyway)
 MAX_REASON = 300  # characters of a refusal reason
+MAX_ROUTE = 128  # waypoints in a SteerReply's route
 
 
 def _point(value: Any, name: str) -> tuple[float, float]:
@@ -67,13 +73,30 @@ def _text(max_len: int) -> Checker:
     return check
 
 
+def _route(value: Any, name: str) -> tuple[tuple[float, float, float], ...]:
+    """1..MAX_ROUTE stops [x, y, scale]: a point within MAX_COORD, a scale in (0, MAX_FACTOR]."""
+    items = _sequence(value, name)
+    if not 1 <= len(items) <= MAX_ROUTE:
+        raise ProtocolError(f"{name}: {len(items)} stops, expected 1..{MAX_ROUTE}")
+    scale = _positive(MAX_FACTOR)
+    out = []
+    for i, item in enumerate(items):
+        stop = _sequence(item, f"{name}[{i}]")
+        if len(stop) != 3:
+            raise ProtocolError(f"{name}[{i}]: expected [x, y, scale], got {len(stop)} values")
+        x, y = _point(stop[:2], f"{name}[{i}]")
+        out.append((x, y, scale(stop[2], f"{name}[{i}].scale")))
+    return tuple(out)
+
+
 @dataclass(frozen=True, slots=True)
 class SteerRequest(Message):
     """Client -> coordinator: move S (module docstring for the kinds).
 
     dx, dy: m (translate); angle: rad, CCW positive (rotate); factor: > 0 (scale);
-    polygon: (k, 2) target vertices, m (polygon); about: (x, y) m, the fixed point of a
-    rotation or scaling (None: S's centroid); duration: s the motion should take, or
+    polygon: (k, 2) target vertices, m (polygon; goto: S's shape at the goal, optional);
+    about: (x, y) m, the fixed point of a rotation or scaling (None: S's centroid); goal:
+    (x, y) m where S's centroid should end (goto); duration: s the motion should take, or
     speed: m/s of the fastest vertex (both None: the coordinator's fastest).
     """
 
@@ -86,6 +109,7 @@ class SteerRequest(Message):
     about: tuple[float, float] | None = None
     duration: float | None = None
     speed: float | None = None
+    goal: tuple[float, float] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "kind": _choice(KINDS),
@@ -97,8 +121,11 @@ class SteerRequest(Message):
         "about": _optional(_point),
         "duration": _optional(_positive(MAX_DURATION)),
         "speed": _optional(_positive(MAX_STEER_SPEED)),
+        "goal": _optional(_point),
     }
-    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"polygon", "about", "duration", "speed"})
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset(
+        {"polygon", "about", "duration", "speed", "goal"}
+    )
 
     def _check_fields(self) -> None:
         kind = self.kind
@@ -109,14 +136,20 @@ class SteerRequest(Message):
             unused.append("angle")
         if kind != "scale" and self.factor != 1.0:
             unused.append("factor")
-        if kind != "polygon" and self.polygon is not None:
+        if kind not in ("polygon", "goto") and self.polygon is not None:
             unused.append("polygon")
-        if kind in ("translate", "polygon") and self.about is not None:
+        if kind in ("translate", "polygon", "goto") and self.about is not None:
             unused.append("about")
+        if kind != "goto" and self.goal is not None:
+            unused.append("goal")
+        if kind == "goto" and self.duration is not None:
+            unused.append("duration (a goto takes a speed: its length is planned)")
         if unused:
             raise ProtocolError(f"SteerRequest: {kind} does not use {', '.join(unused)}")
         if kind == "polygon" and self.polygon is None:
             raise ProtocolError("SteerRequest: polygon needs its vertices", "schema")
+        if kind == "goto" and self.goal is None:
+            raise ProtocolError("SteerRequest: goto needs its goal", "schema")
         if self.duration is not None and self.speed is not None:
             raise ProtocolError("SteerRequest: give a duration or a speed, not both")
 
@@ -128,6 +161,10 @@ class SteerRequest(Message):
             what = f"rotate {self.angle:g} rad"
         elif self.kind == "scale":
             what = f"scale x{self.factor:g}"
+        elif self.kind == "goto":
+            what = f"goto ({self.goal[0]:g}, {self.goal[1]:g})"
+            if self.polygon is not None:
+                what += f" as a polygon of {len(self.polygon)} vertices"
         else:
             what = f"polygon of {len(self.polygon or ())} vertices"
         if self.about is not None:
@@ -147,7 +184,7 @@ class SteerRequest(Message):
                 continue
             if name == "polygon":
                 value = [list(p) for p in value]
-            elif name == "about":
+            elif name in ("about", "goal"):
                 value = list(value)
             out[name] = value
         return out
@@ -159,15 +196,24 @@ class SteerReply(Message):
 
     reason: "" or a note when accepted (e.g. the speed was clipped), "<code>: <why>" when
     refused (coordinator.steering.REFUSALS); duration: s until S arrives, including the
-    brake of a moving S it pre-empts (0 when refused).
+    brake of a moving S it pre-empts (0 when refused). route: an accepted goto's stops,
+    (x, y, scale) each: S's centroid (m) and its size relative to S when the route starts
+    (S stops at each; the first is where S starts, the last the goal), else absent.
     """
 
     accepted: bool
     reason: str
     duration: float
+    route: tuple[tuple[float, float, float], ...] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "accepted": _flag,
         "reason": _text(MAX_REASON),
         "duration": _real(0.0, MAX_DURATION),
+        "route": _optional(_route),
     }
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"route"})
+
+    def _check_fields(self) -> None:
+        if self.route is not None and not self.accepted:
+            raise ProtocolError("SteerReply: a refusal carries no route")

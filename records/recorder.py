@@ -8,15 +8,27 @@ start, never decreasing), so two runs line up in a viewer.
 
 The coordinator (``covswarm run``) and the simulator (``covswarm sim``) feed it; it owns no
 clock and no network of its own besides the optional server.
+
+A full disk stops the records, never the run (issue 21). foxglove's MCAP sink does not
+raise when a write fails (it prints an error per message and leaves a file cut mid-chunk),
+so the recorder checks the free space of the output folder itself, at most every
+SPACE_CHECK_PERIOD s of mission time and every SPACE_CHECK_WRITES writes, and stops writing
+files while MIN_FREE_BYTES are left: enough to finish the chunk in memory (at most
+MCAP_CHUNK_SIZE before compression), run.mcap's summary and footer, trajectories.csv's
+buffer and the coordinator's summary.json. An OSError while writing (another process
+filled the disk first) or a failing close stops the records the same way. Stopping logs
+one warning; ``disk`` says why and when, and counts the writes left out since.
 """
 
 from __future__ import annotations
 
 import json
+import logging
 import math
+import os
 import platform
 import time
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from importlib import metadata as package_metadata
 from pathlib import Path
 from types import TracebackType
@@ -30,6 +42,8 @@ from foxglove.mcap import MCAPWriteOptions
 from covswarm.records import scene
 from covswarm.records.live import LIVE_HOST
 from covswarm.records.trajectories import TRAJECTORIES_FILE, TrajectoryWriter
+
+log = logging.getLogger("covswarm.records")
 
 MCAP_FILE = "run.mcap"
 ROBOTS_TOPIC = "/robots"  # foxglove.SceneUpdate, one entity per robot, at the pose rate
@@ -45,6 +59,17 @@ ARENA_PERIOD = 1.0  # s: static, but repeated so that a live viewer joining late
 # Largest share of a core the recorded tessellation may take (about 4 ms at 100 robots,
 # 50 ms at 1000): beyond it cells are recorded less often, like the coordinator's e_a.
 CELL_SHARE = 0.02
+MCAP_CHUNK_SIZE = 256 * 1024  # bytes before compression (foxglove's default is 1 MiB)
+MIN_FREE_BYTES = 4 * MCAP_CHUNK_SIZE  # files stop being written below this (module notes)
+SPACE_CHECK_PERIOD = 0.1  # s of mission time between two free-space checks, at most
+SPACE_CHECK_WRITES = 32  # writes between two free-space checks, at most
+
+
+def free_bytes(path: Path) -> int:
+    """Bytes an unprivileged writer may still use on the file system of ``path``."""
+    stat = os.statvfs(path)
+    return stat.f_bavail * stat.f_frsize
+
 
 ERROR_SCHEMA = "covswarm.ErrorSample"  # names of the JSON channels' schemas
 AGENT_STATS_SCHEMA = "covswarm.AgentStats"
@@ -73,6 +98,7 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "wheel_max": ("number", "largest rim speed commanded, m/s"),
     "saturated_s": ("number", "time under a saturated wheel command, s"),
     "missed_deadline": ("number", "fraction of mission periods whose command went out late"),
+    "late_held": ("number", "fraction of mission periods skipped, the robot held, in a pack"),
     "rx_total": ("number", "messages received"),
     "coalesced": ("number", "messages superseded before they were read"),
     "stale_dropped": ("number", "neighbours dropped as stale"),
@@ -84,6 +110,7 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "neighbors": ("number", "Voronoi neighbours"),
     "state_subs": ("number", "AgentState subscriptions"),
     "tile_radius": ("number", "beacon tiles listened to around the agent's own"),
+    "beacon_unconfirmed": ("number", "beacon-only robots left out, never confirmed (total)"),
 }
 _STAT_PROPERTIES = {
     name: {"type": kind, "description": text} for name, (kind, text) in AGENT_STATS_FIELDS.items()
@@ -165,6 +192,7 @@ class RunRecorder:
         live_port: int | None = None,
         cell_share: float | None = CELL_SHARE,
         continued: bool = False,
+        free_space: Callable[[Path], int] = free_bytes,
     ) -> None:
         """out_dir: where run.mcap and trajectories.csv go (None: live only);
         run_metadata: scenario, law, kappa, seed, agents, ... (versions are added);
@@ -172,7 +200,8 @@ class RunRecorder:
         cell_share: record cells less often than CELL_PERIOD when they cost more than this
         share of a core (None: always CELL_PERIOD, deterministic); continued: a restarted
         coordinator's part of a run, written beside the earlier parts as run-<k>.mcap and
-        trajectories-<k>.csv (k = 1, 2, ...) instead of over them."""
+        trajectories-<k>.csv (k = 1, 2, ...) instead of over them; free_space: bytes left
+        on the output folder's file system (injected by tests)."""
         self.context = foxglove.Context()
         ctx = self.context
         self._robots = SceneUpdateChannel(ROBOTS_TOPIC, context=ctx)
@@ -207,26 +236,42 @@ class RunRecorder:
         self.mcap_path: Path | None = None
         self._writer = None
         self._trajectories: TrajectoryWriter | None = None
+        self._out: Path | None = None
+        self._free_space = free_space
+        self._next_check, self._writes = -math.inf, 0
+        # Why the files stopped (None: writing or never written), at which mission time,
+        # and the writes left out of them since.
+        self.disk: dict[str, Any] = {"stopped": None, "t": None, "writes_lost": 0}
         if out_dir is not None:
-            out = Path(out_dir)
+            out = self._out = Path(out_dir)
             out.mkdir(parents=True, exist_ok=True)
-            mcap_name, csv_name = record_names(out, continued)
-            self.mcap_path = out / mcap_name
-            # compression_threads=0: compress on the calling thread, so the recorder's cost
-            # shows up where it is paid and never competes with the swarm for the 2 cores.
-            self._writer = foxglove.open_mcap(
-                self.mcap_path,
-                allow_overwrite=True,
-                context=ctx,
-                writer_options=MCAPWriteOptions(compression_threads=0),
-            )
-            self._writer.write_metadata(METADATA_NAME, metadata_strings(self.metadata))
-            self._trajectories = TrajectoryWriter(out / csv_name)
+            if (free := free_space(out)) < MIN_FREE_BYTES:
+                self._stop(f"{free} bytes free in {out}, {MIN_FREE_BYTES} needed", None)
+            else:
+                self._open_files(out, continued)
         self.cell_share = cell_share
         self._last_ns = 0
         self._next_cells = 0.0
         self._next_arena = 0.0
         self.counts = {"poses": 0, "cells": 0, "errors": 0, "stats": 0, "steering": 0}
+
+    def _open_files(self, out: Path, continued: bool) -> None:
+        """run.mcap (or run-<k>.mcap) and trajectories.csv in ``out``."""
+        mcap_name, csv_name = record_names(out, continued)
+        self.mcap_path = out / mcap_name
+        # compression_threads=0: compress on the calling thread, so the recorder's cost
+        # shows up where it is paid and never competes with the swarm for the 2 cores.
+        self._writer = foxglove.open_mcap(
+            self.mcap_path,
+            allow_overwrite=True,
+            context=self.context,
+            writer_options=MCAPWriteOptions(compression_threads=0, chunk_size=MCAP_CHUNK_SIZE),
+        )
+        self._writer.write_metadata(METADATA_NAME, metadata_strings(self.metadata))
+        try:
+            self._trajectories = TrajectoryWriter(out / csv_name)
+        except OSError as exc:
+            self._stop(f"cannot write {csv_name}: {exc}", None)
 
     # -- channels -------------------------------------------------------------------------
 
@@ -251,7 +296,7 @@ class RunRecorder:
         them to trajectories.csv (False when the caller writes the rows in time order itself,
         see trajectory_rows).
         """
-        if not len(ids):
+        if not len(ids) or not self._writing(t):
             return
         log_time = self._log_time(t)
         self._robots.log(scene.robots_update(t, ids, poses, times), log_time=log_time)
@@ -269,10 +314,15 @@ class RunRecorder:
     ) -> None:
         """Rows of trajectories.csv: times (s, one or one per row), ids, poses (n, 3)."""
         if self._trajectories is not None:
-            self._trajectories.write(times, ids, poses)
+            try:
+                self._trajectories.write(times, ids, poses)
+            except OSError as exc:
+                self._stop(f"cannot write trajectories: {exc}", float(np.max(times)))
 
     def domain(self, t: float, vertices: np.ndarray) -> None:
         """S(t): (k, 2) vertices, m."""
+        if not self._writing(t):
+            return
         self._domain.log(scene.domain_update(t, vertices), log_time=self._log_time(t))
 
     def cells_due(self, t: float) -> bool:
@@ -286,6 +336,8 @@ class RunRecorder:
         """
         from covswarm.tvd.coverage import cells
 
+        if not self._writing(t):
+            return
         began = time.thread_time()
         pieces = cells(np.asarray(positions, dtype=float), np.asarray(polygon, dtype=float))
         self._cells.log(scene.cells_update(t, ids, pieces), log_time=self._log_time(t))
@@ -296,12 +348,16 @@ class RunRecorder:
 
     def error(self, t: float, e_a: float, robots: int) -> None:
         """One e_a(t) sample (m) over ``robots`` robots."""
+        if not self._writing(t):
+            return
         value = float(e_a) if math.isfinite(e_a) else None
         self._error.log({"e_a": value, "robots": int(robots)}, log_time=self._log_time(t))
         self.counts["errors"] += 1
 
     def agent_stats(self, t: float, stats: Mapping[int, Mapping[str, float]]) -> None:
         """The latest stats of every agent (AgentState.stats), with the team mean of each."""
+        if not self._writing(t):
+            return
         agents = [{"id": int(i), **_finite(stats[i])} for i in sorted(stats)]
         names = sorted({k for entry in agents for k in entry if k != "id"})
         mean = {}
@@ -317,13 +373,69 @@ class RunRecorder:
 
         Logged at max(t, the last log time) so the file stays ordered; the payload keeps t.
         """
+        if not self._writing(t):
+            return
         self._steering.log({"t": float(t), **event}, log_time=self._log_time(t))
         self.counts["steering"] += 1
 
     def note(self, name: str, values: Mapping[str, Any]) -> None:
         """An extra MCAP metadata record (e.g. what recording cost), if writing a file."""
-        if self._writer is not None:
+        if self._writer is not None and self._writing(None):
             self._writer.write_metadata(name, metadata_strings(values))
+
+    # -- the disk -------------------------------------------------------------------------
+
+    @property
+    def recording(self) -> bool:
+        """Whether anything is still written: a file, or the live view."""
+        return self._writer is not None or self._trajectories is not None or self.server is not None
+
+    def _writing(self, t: float | None) -> bool:
+        """Whether to write a message at mission time ``t`` (None: now): checks the free
+        space when due, stops the files below MIN_FREE_BYTES, counts what is left out."""
+        if self._out is not None and (self._writer is not None or self._trajectories is not None):
+            self._writes += 1
+            due = self._writes >= SPACE_CHECK_WRITES or (t is not None and t >= self._next_check)
+            if due:
+                self._writes = 0
+                self._next_check = -math.inf if t is None else t + SPACE_CHECK_PERIOD
+                try:
+                    free = self._free_space(self._out)
+                except OSError as exc:
+                    free, why = 0, f"cannot read the free space: {exc}"
+                else:
+                    why = f"{free} bytes left in {self._out} (< {MIN_FREE_BYTES})"
+                if free < MIN_FREE_BYTES:
+                    self._stop(why, t)
+        if self.disk["stopped"] is not None:
+            self.disk["writes_lost"] += 1
+        return self.recording
+
+    def _stop(self, why: str, t: float | None) -> None:
+        """Stop writing files (the live view goes on): close them while there is room."""
+        if self.disk["stopped"] is not None:
+            return
+        self.disk.update(stopped=why, t=t)
+        log.warning(
+            "recording stopped%s: %s; the mission goes on, what was written stays readable",
+            "" if t is None else f" at t = {t:.2f} s",
+            why,
+        )
+        self._close_files()
+
+    def _close_files(self) -> None:
+        """Finish run.mcap and trajectories.csv; a failure (a disk filled by someone
+        else) is recorded in ``disk``, never raised."""
+        writer, trajectories = self._writer, self._trajectories
+        self._writer = self._trajectories = None
+        for what, close in (("run.mcap", writer), ("trajectories", trajectories)):
+            if close is None:
+                continue
+            try:
+                close.close()
+            except (OSError, RuntimeError) as exc:  # foxglove raises RuntimeError on I/O
+                self.disk.setdefault("close_errors", []).append(f"{what}: {exc}")
+                log.warning("closing %s failed: %s", what, exc)
 
     # -- lifetime -------------------------------------------------------------------------
 
@@ -332,13 +444,9 @@ class RunRecorder:
         return None if self.server is None else self.server.port
 
     def close(self) -> None:
-        """Finish run.mcap (summary, statistics) and trajectories.csv; stop the server."""
-        if self._writer is not None:
-            self._writer.close()
-            self._writer = None
-        if self._trajectories is not None:
-            self._trajectories.close()
-            self._trajectories = None
+        """Finish run.mcap (summary, statistics) and trajectories.csv; stop the server.
+        Never raises for a full disk (see ``disk``)."""
+        self._close_files()
         if self.server is not None:
             self.server.stop()
             self.server = None

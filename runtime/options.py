@@ -48,7 +48,8 @@ def config_argv(config: Any) -> list[str]:
     Written: every field without a default; every bool, as ``--name`` or ``--no-name``
     (its option is a ``--name/--no-name`` pair), so a command line says how the child runs
     whatever its defaults; every other field that differs from its default and is not
-    None. A tuple is its option repeated; floats are written with repr, exact both ways.
+    None. A tuple is its option repeated (one option of several values where the field's
+    metadata has ``nargs``); floats are written with repr, exact both ways.
     """
     if not dataclasses.is_dataclass(config):
         raise TypeError(f"not a config dataclass: {config!r}")
@@ -63,6 +64,9 @@ def config_argv(config: Any) -> list[str]:
             spec.default is dataclasses.MISSING and spec.default_factory is dataclasses.MISSING
         )
         if value is None or (not required and value == spec.default):
+            continue
+        if spec.metadata.get("nargs"):  # one option of several values (--workspace a b c d)
+            argv += [flag, *(repr(float(item)) for item in value)]
             continue
         for item in value if isinstance(value, tuple) else (value,):
             argv += [flag, repr(item) if isinstance(item, float) else str(item)]

@@ -23,7 +23,7 @@ import click
 import numpy as np
 
 from covswarm.deploy.simulate import simulate
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.tvd import control, coverage
 
 

@@ -6,7 +6,7 @@ Full-team simulations of single integrators (every built-in's own team, gain, st
 start; the passage's unicycles are run as single integrators here, to compare laws, not
 robots), with dense J = dc/dp, dc/dt and the guess v at each step; second-half mean e_a of:
 
-- ``lloyd``: kappa (c - p) + v + (I + J) rho (the issue's first form, Lloyd's feedback);
+- ``lloyd``: kappa (c - p) + v + (I + J) rho (Lloyd's plain feedback beside the one-hop correction);
 - ``da``: v + (I + J)(kappa (c - p) + rho) (covswarm.tvd.control.tvd_da's form, v = S's
   affine field);
 - ``da+sweep``: one more Neumann term, v + (I + J + J^2)(kappa (c - p) + rho), which needs
@@ -21,7 +21,7 @@ from __future__ import annotations
 import click
 import numpy as np
 
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.tvd import control, coverage
 
 

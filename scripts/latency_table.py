@@ -43,9 +43,9 @@ def replica_once(agents: int, delay: float, loss: float, extra: list[str]) -> di
     """One case in deploy.netsim; the summary.json keys the table reads."""
     from covswarm.agent.brain import AgentConfig
     from covswarm.coordinator.monitor import agent_figures
-    from covswarm.coordinator.physical import physical_summary
     from covswarm.deploy.netsim import run_netsim, steady_state
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.physical import physical_summary
+    from covswarm.mission.scenario_files import load_scenario
 
     unknown = set(extra) - {"--no-safety", "--no-prediction"}
     if unknown:

@@ -18,7 +18,7 @@ import click
 
 from covswarm.agent.brain import AgentConfig
 from covswarm.deploy.netsim import run_netsim, steady_state
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 
 @click.command()

@@ -84,7 +84,7 @@ def figures_of(options: dict) -> dict:
     """One run reduced to the figures its summary.json reports."""
     from covswarm.deploy.simulate import simulate
     from covswarm.mission.report import neighbor_histogram, steady_state_mean
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     options = dict(options)
     result = simulate(load_scenario(options.pop("scenario")), **options)

@@ -28,7 +28,7 @@ import click
 
 from covswarm.deploy.plan import covswarm_argv, initial_poses
 from covswarm.deploy.router import free_port
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 HERE = Path(__file__).resolve().parent
 ROUTER = """

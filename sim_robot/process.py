@@ -14,7 +14,11 @@ from the last valid command and stops its wheels when no valid command arrived f
 Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
 than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` plus that
 skew) are dropped, counted per reason and logged rate-limited (protocol.inbound); they
-never reach the wheels.
+never reach the wheels. Given a world (``RobotSim(world=...)``), its obstacles and workspace
+walls are solid: a robot driving into one stops at the contact (covswarm.world.contact).
+The process subscribes to the coordinator's World broadcast (``covswarm/<swarm>/world``) and
+gives the newest world to all its robots (:class:`WorldHeld`); until one arrives, the floor
+is open.
 
 ``covswarm robot --ids 0-9 --pose x,y,theta ...`` simulates several robots in one process
 (one Zenoh session; each robot keeps its own keys, claim and token), which is how one
@@ -37,19 +41,32 @@ import numpy as np
 import zenoh
 
 from covswarm import protocol
-from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
+from covswarm.protocol.inbound import (
+    COMMAND_REASONS,
+    MAX_CLOCK_SKEW,
+    DropLog,
+    RateLimit,
+    accept_command,
+)
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
 from covswarm.sim_robot.config import RobotConfig
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, integrate_one
+from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate_one
+from covswarm.world.contact import stop_at_contact
+from covswarm.world.model import World
+from covswarm.world.wire import from_message
 
 log = logging.getLogger("covswarm.robot")
 
-# Why a command was dropped: protocol reasons, the clock policy, or addressed to another id.
-DROP_REASONS = (*protocol.REASONS, *STAMP_REASONS, "wrong_id")
+# Why a World broadcast was dropped: protocol reasons, geometry the model refuses, or not
+# newer than the held one (by sequence number) while its sender still talks.
+WORLD_DROP_REASONS = (*protocol.REASONS, "bad_world", "old_world")
+# s: silence of the held world's sender after which any sequence number is taken (a
+# restarted coordinator numbers from 0 again); it repeats its World every second.
+WORLD_RESTART_SILENCE = 5.0
 
 
 @dataclass
@@ -58,12 +75,15 @@ class RobotCounters:
 
     commands: int = 0  # valid commands applied
     timeouts: int = 0  # times the wheels were stopped for lack of commands
+    contact_stops: int = 0  # steps on which an obstacle or wall stopped the body
 
 
 class RobotSim:
     """Pure state of one simulated robot: pose, wheels, command timeout. No I/O.
 
-    Times are monotonic seconds supplied by the caller, so tests drive the clock.
+    Times are monotonic seconds supplied by the caller, so tests drive the clock. world: the
+    arena whose obstacles and walls stop the body (a disk of ``robot.body_diameter``), None
+    for an open floor.
     """
 
     def __init__(
@@ -75,6 +95,7 @@ class RobotSim:
         cmd_timeout: float = 0.5,
         max_clock_skew: float = MAX_CLOCK_SKEW,
         now: float = 0.0,
+        world: World | None = None,
     ) -> None:
         if not (cmd_timeout > 0 and np.isfinite(cmd_timeout)):
             raise ValueError(f"cmd_timeout must be positive, got {cmd_timeout!r}")
@@ -85,23 +106,20 @@ class RobotSim:
         self.cmd_timeout = cmd_timeout
         self.max_clock_skew = max_clock_skew
         self.pose = np.array(pose, dtype=float)
+        self.world = world
         self.wheels = np.zeros(2)
         self.counters = RobotCounters()
-        self.drops = DropLog(log, f"robot {self.id}", DROP_REASONS)
+        self.drops = DropLog(log, f"robot {self.id}", COMMAND_REASONS)
         self._last_command: float | None = None
         self._last_step = now
 
     def on_command(self, payload: object, now: float, now_wall: float) -> bool:
         """Apply a raw WheelCommand payload received at ``now`` (monotonic) and ``now_wall``
         (s since the epoch); False if it was dropped."""
-        try:
-            command = protocol.WheelCommand.decode(payload)
-            check_stamp(command.stamp, now_wall, self.cmd_timeout, self.max_clock_skew)
-        except protocol.ProtocolError as exc:
-            self.drops.drop(exc.reason, f"command: {exc}")
-            return False
-        if command.id != self.id:
-            self.drops.drop("wrong_id", f"command for robot {command.id}")
+        command = accept_command(
+            payload, self.id, now_wall, self.cmd_timeout, self.max_clock_skew, self.drops
+        )
+        if command is None:
             return False
         # The old command drives until now, the new one from now on (not back to the last
         # step: a command must not act before it arrived, which agents predicting their
@@ -117,7 +135,9 @@ class RobotSim:
         """Drive from the previous step to ``now``; returns the new pose (x, y, heading).
 
         The elapsed time is capped at ``cmd_timeout``: after a stall (an overloaded machine,
-        SIGSTOP) the robot must not jump by what it would have driven meanwhile.
+        SIGSTOP) the robot must not jump by what it would have driven meanwhile. In a world,
+        the move (the chord of the arc) stops at the first contact with an obstacle or wall;
+        the heading turns all the same (a disk turning in place moves nothing).
         """
         commanded = self._last_command is not None and now - self._last_command <= self.cmd_timeout
         if not commanded and self.wheels.any():
@@ -126,15 +146,106 @@ class RobotSim:
         dt = min(max(now - self._last_step, 0.0), self.cmd_timeout)
         self._last_step = now
         if dt > 0.0:
-            self.pose = np.array(
+            pose = np.array(
                 integrate_one(*self.pose.tolist(), *self.wheels.tolist(), dt, self.robot)
             )
+            if self.world is not None:
+                radius = 0.5 * self.robot.body_diameter
+                pose[:2], hit = stop_at_contact(self.pose[:2], pose[:2], radius, self.world)
+                self.counters.contact_stops += hit
+            self.pose = pose
         return self.pose
 
     def pose_message(self, stamp: float, seq: int) -> protocol.Pose:
         """The current pose as a wire message (ProtocolError if it left the sane bounds)."""
         x, y, theta = (float(v) for v in self.pose)
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
+
+
+def same_world(a: protocol.World, b: protocol.World) -> bool:
+    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
+    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
+
+
+class WorldHeld:
+    """The newest World a robot process heard, as a model (covswarm.world.model.World).
+
+    Sans-IO: feed it raw payloads with the monotonic time of receipt. A repeat of the held
+    message refreshes it; a different one is taken if its sequence number is higher, or
+    any once the held one's sender has been silent for WORLD_RESTART_SILENCE. Malformed
+    payloads and refused geometry are dropped and counted (``drops``), never raised.
+    """
+
+    def __init__(self) -> None:
+        self.world: World | None = None
+        self.drops = DropLog(log, "robot world", WORLD_DROP_REASONS)
+        self._message: protocol.World | None = None
+        self._received = -np.inf
+
+    def on_payload(self, payload: object, now: float) -> bool:
+        """Take a World payload received at ``now``; True if it is (or repeats) the held one."""
+        try:
+            message = protocol.World.decode(payload)
+        except protocol.ProtocolError as exc:
+            self.drops.drop(exc.reason, f"world: {exc}")
+            return False
+        held = self._message
+        if held is not None and same_world(message, held):
+            self._received = now
+            return True
+        if held is not None and message.seq <= held.seq:
+            if now - self._received < WORLD_RESTART_SILENCE:
+                self.drops.drop("old_world", f"world seq {message.seq} <= {held.seq}")
+                return False
+        try:
+            self.world = from_message(message)
+        except ValueError as exc:
+            self.drops.drop("bad_world", f"world: {exc}")
+            return False
+        self._message, self._received = message, now
+        return True
+
+
+def drops_line(sims: list[RobotSim]) -> str | None:
+    """One log line with every robot's non-zero drop counts per reason, as JSON after a
+    fixed prefix (``robot drops {"3": {"undecodable": 2}}``), for the launcher's log and
+    whoever gathers it into summary.json; None when nothing was dropped."""
+    import json
+
+    counts = {
+        str(sim.id): {reason: n for reason, n in sorted(sim.drops.counts.items()) if n}
+        for sim in sims
+        if sim.drops.total
+    }
+    return None if not counts else DROPS_PREFIX + json.dumps(counts, separators=(",", ":"))
+
+
+DROPS_PREFIX = "robot drops "
+
+
+def gather_drops(log_text: str) -> dict[str, dict[str, int]]:
+    """Per robot id and reason, the drop counts of every :func:`drops_line` in a robot
+    process's log (the launcher puts them in summary.json); malformed lines are skipped."""
+    import json
+
+    gathered: dict[str, dict[str, int]] = {}
+    for line in log_text.splitlines():
+        _, found, rest = line.partition(DROPS_PREFIX)
+        if not found:
+            continue
+        try:
+            counts = json.loads(rest)
+        except ValueError:
+            continue
+        if not isinstance(counts, dict):
+            continue
+        for rid, reasons in counts.items():
+            if isinstance(reasons, dict):
+                mine = gathered.setdefault(str(rid), {})
+                for reason, n in reasons.items():
+                    if isinstance(n, int):
+                        mine[str(reason)] = mine.get(str(reason), 0) + n
+    return gathered
 
 
 def run_robots(
@@ -173,6 +284,11 @@ def run_robots(
                     protocol.cmd_key(swarm, sim.id), zenoh.handlers.RingChannel(16)
                 )
                 links.append((sim, publisher, commands))
+            # The arena, repeated every second by the coordinator: the newest is enough.
+            held = WorldHeld()
+            worlds = session.declare_subscriber(
+                protocol.world_key(swarm), zenoh.handlers.RingChannel(2)
+            )
             for sim in sims:
                 tokens.append(
                     session.liveliness().declare_token(protocol.alive_key(swarm, "robot", sim.id))
@@ -188,6 +304,10 @@ def run_robots(
                 publish = now >= next_pose
                 if publish:
                     next_pose = max(next_pose + pose_period, now)
+                while (sample := worlds.try_recv()) is not None:
+                    if held.on_payload(sample.payload.to_bytes(), now):
+                        for sim in sims:
+                            sim.world = held.world
                 for sim, publisher, commands in links:
                     while (sample := commands.try_recv()) is not None:
                         sim.on_command(sample.payload.to_bytes(), now, wall)
@@ -205,6 +325,9 @@ def run_robots(
                 token.undeclare()
         for sim in sims:
             log.info("robot %d stopping: %s, dropped %s", sim.id, sim.counters, sim.drops.summary())
+        if (line := drops_line(sims)) is not None:  # a flood shows without --verbose
+            log.warning("%s", line)
+        log.info("world: %s, dropped %s", "held" if held.world else "none", held.drops.summary())
         log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
     return [sim.counters for sim in sims]
 
@@ -247,7 +370,7 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 @click.option(
     "--max-wheel-speed",
     type=click.FloatRange(min=0.0, min_open=True),
-    default=0.8,
+    default=MAX_WHEEL_SPEED,
     show_default=True,
     help="Rim speed limit (m/s).",
 )
@@ -284,7 +407,9 @@ def run_robot_process(config: RobotConfig) -> None:
             )
             for i, pose in zip(robot_ids, initial, strict=True)
         ]
-        session = session_config(list(config.connect), None, "client", secure=config.secure)
+        session = session_config(
+            list(config.connect), None, "client", secure=config.secure, role="robot", id=robot_ids
+        )
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
     run_robots(sims, config.swarm, session, config.rate, config.pose_rate, config.time_scale)

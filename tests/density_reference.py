@@ -20,12 +20,12 @@ import numpy as np
 
 from covswarm.tvd.coverage import (
     CellBatch,
+    CoverageDomain,
     as_complex,
     as_vectors,
     cross,
     nearest_point_derivatives,
 )
-from covswarm.tvd.coverage import Domain as CoverageDomain
 from covswarm.tvd.density import Density
 
 TRIANGLE_ORDER = 8
@@ -179,7 +179,7 @@ def _edges(batch: CellBatch, pieces: np.ndarray) -> tuple[np.ndarray, np.ndarray
 
 
 def weigh(density: Density, batch: CellBatch) -> CellBatch:
-    """``batch`` with m_i = int phi and c_i = int q phi / m_i (eq. eqcenterOfMass).
+    """``batch`` with m_i = int phi and c_i = int q phi / m_i (eqs. (2), (3), Section 2.2).
 
     Empty cells keep mass 0 and the nearest point of S as their centroid.
     """
@@ -204,7 +204,7 @@ def weigh(density: Density, batch: CellBatch) -> CellBatch:
 def jacobian_blocks(
     density: Density, batch: CellBatch, points: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """dc/dp blocks of a weighed batch, eqs. (dcidpj) and (dcidpi) with phi.
+    """dc/dp blocks of a weighed batch, eqs. (6) and (7) (Section 2.3) with phi.
 
     off (K, L, 2, 2): -int_{dV_ij} (q - c_i)(q - p_j)^T phi / (m_i |p_i - p_j|) for the
     edge on line l shared with robot j = labels[k, l], zero elsewhere; diagonal (K, 2, 2):
@@ -232,7 +232,7 @@ def jacobian_blocks(
 def centroid_rates(
     density: Density, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
 ) -> np.ndarray:
-    """dc_i/dt of Proposition 1 (eq. dcidt2) for a weighed batch, (K,) complex: both terms.
+    """dc_i/dt of Proposition 1 (Section 3, eq. (9)) for a weighed batch, (K,) complex: both terms.
 
     (1/m_i) int_{V_i} (q - c_i) dphi/dt + (1/m_i) int_{dS_i} (q - c_i) phi nu, with nu the
     outward normal speed of S, linear along each edge of S. An empty cell gets the velocity

@@ -11,12 +11,15 @@ import os
 import secrets
 import signal
 import subprocess
+import threading
 import time
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
+from covswarm import protocol
 from covswarm.deploy.plan import covswarm_argv
+from covswarm.deploy.router import free_port
 
 # A stand-alone Zenoh router: ``python -c ROUTER ENDPOINT`` prints "ready", runs until SIGTERM.
 ROUTER = """
@@ -83,3 +86,48 @@ def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subproce
 def new_swarm() -> str:
     """A swarm name of its own for one test run."""
     return f"e2e-{secrets.token_hex(4)}"
+
+
+def open_router(scheme: str = "tcp", secure: Path | None = None) -> tuple[object, str]:
+    """A router-mode Zenoh session on a free loopback port: (session, endpoint).
+
+    ``scheme``: "tcp", or "tls" with ``secure`` (a covswarm secure folder). Tried five times:
+    the port can be taken between probing and binding."""
+    import zenoh
+
+    from covswarm.protocol import session_config
+
+    for attempt in range(5):
+        endpoint = f"{scheme}/127.0.0.1:{free_port()}"
+        try:
+            return zenoh.open(session_config(None, [endpoint], "router", secure=secure)), endpoint
+        except zenoh.ZError:
+            if attempt == 4:
+                raise
+    raise AssertionError("unreachable")
+
+
+def alive_tokens(session: object, selector: str) -> list[str]:
+    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
+    replies = session.liveliness().get(selector, timeout=1.0)
+    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
+
+
+class Latest:
+    """Newest decoded message per key, filled from Zenoh callbacks."""
+
+    def __init__(self, cls: type[protocol.Message]) -> None:
+        self.cls = cls
+        self.lock = threading.Lock()
+        self.values: dict[int, protocol.Message] = {}
+
+    def __call__(self, sample: object) -> None:
+        message = self.cls.decode(sample.payload.to_bytes())
+        if getattr(message, "stats", True) is None:
+            return  # agents send their stats about once a second: keep the last that had them
+        with self.lock:
+            self.values[message.id] = message
+
+    def snapshot(self) -> dict[int, protocol.Message]:
+        with self.lock:
+            return dict(self.values)

@@ -331,6 +331,13 @@ def fd_jacobian(
     return J
 
 
+def random_cov(rng: np.random.Generator, sigma: float) -> np.ndarray:
+    """A random SPD 2x2 with determinant sigma^4 (geometric-mean deviation sigma)."""
+    a = rng.normal(size=(2, 2))
+    m = a @ a.T + 0.3 * np.eye(2)
+    return m / np.sqrt(np.linalg.det(m)) * sigma**2
+
+
 def rot(theta: float) -> np.ndarray:
     return np.array([[np.cos(theta), -np.sin(theta)], [np.sin(theta), np.cos(theta)]])
 

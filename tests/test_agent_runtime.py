@@ -5,23 +5,22 @@ from __future__ import annotations
 import math
 import os
 import signal
-import socket
 import subprocess
 import sys
-import threading
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
+from live_runs import Latest, open_router
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
-from covswarm.agent import link, neighbourhood
+from covswarm.agent import neighborhood
 from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.extrapolation import extrapolate_domain
-from covswarm.agent.neighbourhood import cell_reach, tile_radius
+from covswarm.agent.neighborhood import cell_reach, tile_radius
 
 WALL = 1.7e9
 SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
@@ -105,13 +104,13 @@ def test_running_drives_toward_centroid() -> None:
 
 
 @pytest.mark.parametrize("state", ["waiting", "done"])
-def test_waiting_and_done_give_zero_but_learn_neighbours(state: str) -> None:
+def test_waiting_and_done_give_zero_but_learn_neighbors(state: str) -> None:
     brain = brain_at(0.5, 0.5)
     brain.on_domain(domain(state), now=0.0)
     brain.on_pose(pose(1, 1.5, 0.5), now=0.0)
     decision = brain.step(0.1, WALL)
     assert (decision.left, decision.right, decision.reason) == (0.0, 0.0, state)
-    assert brain.neighbourhood.one_hop == {1}
+    assert brain.neighborhood.one_hop == {1}
 
 
 def test_two_hop_bookkeeping() -> None:
@@ -123,39 +122,39 @@ def test_two_hop_bookkeeping() -> None:
         now=0.0,
     )
     brain.step(0.1, WALL)
-    assert brain.neighbourhood.one_hop == {1}
-    assert brain.neighbourhood.two_hop(0.1) == {1, 7, 9}
-    assert brain.neighbourhood.wanted_state_ids(0.1) == {1, 7, 9}
+    assert brain.neighborhood.one_hop == {1}
+    assert brain.neighborhood.two_hop(0.1) == {1, 7, 9}
+    assert brain.neighborhood.wanted_state_ids(0.1) == {1, 7, 9}
     # Robot 1 reports new neighbours: 7 and 9 linger for ``linger`` s, then go.
     brain.on_agent_state(
         protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0], stats={}), now=0.5
     )
-    assert brain.neighbourhood.wanted_state_ids(0.5) == {1, 7, 9}
-    assert brain.neighbourhood.wanted_state_ids(1.2) == {1}
+    assert brain.neighborhood.wanted_state_ids(0.5) == {1, 7, 9}
+    assert brain.neighborhood.wanted_state_ids(1.2) == {1}
     # A stale neighbour list no longer extends the set.
     brain.on_agent_state(
         protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0, 4], stats={}), now=1.3
     )
-    assert brain.neighbourhood.two_hop(1.4) == {1, 4}
-    assert brain.neighbourhood.two_hop(3.0) == {1}
+    assert brain.neighborhood.two_hop(1.4) == {1, 4}
+    assert brain.neighborhood.two_hop(3.0) == {1}
 
 
-def test_neighbour_states_are_dead_reckoned() -> None:
+def test_neighbor_states_are_dead_reckoned() -> None:
     """A state's position moves on with its reported velocity, for at most the limit."""
     brain = brain_at(0.5, 1.0)
     brain.on_agent_state(
         protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=[0], vx=0.2, vy=-0.1),
         now=0.0,
     )
-    assert brain.neighbourhood.candidates(0.1)[1] == pytest.approx([1.52, 0.99])
-    limit = neighbourhood.DEAD_RECKONING_LIMIT
+    assert brain.neighborhood.candidates(0.1)[1] == pytest.approx([1.52, 0.99])
+    limit = neighborhood.DEAD_RECKONING_LIMIT
     reckoned = [1.5 + 0.2 * limit, 1.0 - 0.1 * limit]
-    assert brain.neighbourhood.candidates(0.9)[1] == pytest.approx(reckoned)
+    assert brain.neighborhood.candidates(0.9)[1] == pytest.approx(reckoned)
     # A state without a velocity (an older agent) holds its position.
     brain.on_agent_state(
         protocol.AgentState(id=2, x=0.5, y=0.5, stamp=WALL, neighbors=[0]), now=0.0
     )
-    assert brain.neighbourhood.candidates(0.1)[2] == pytest.approx([0.5, 0.5])
+    assert brain.neighborhood.candidates(0.1)[2] == pytest.approx([0.5, 0.5])
 
 
 def test_own_state_reports_the_predicted_position_and_velocity() -> None:
@@ -178,12 +177,12 @@ def test_stale_poses_are_dropped() -> None:
     brain = brain_at(0.5, 1.0, stale_timeout=1.0, beacon_timeout=3.0)
     brain.on_domain(domain(), now=0.0)
     brain.on_pose(pose(1, 1.5, 1.0), now=0.0)
-    assert set(brain.neighbourhood.candidates(0.5)) == {1}
+    assert set(brain.neighborhood.candidates(0.5)) == {1}
     brain.on_pose(pose(0, 0.5, 1.0), now=2.0)  # our own pose stays fresh
-    assert brain.neighbourhood.candidates(2.0) == {}
-    assert brain.neighbourhood.stale_dropped == 1
+    assert brain.neighborhood.candidates(2.0) == {}
+    assert brain.neighborhood.stale_dropped == 1
     brain.step(2.0, WALL)
-    assert brain.neighbourhood.one_hop == frozenset()
+    assert brain.neighborhood.one_hop == frozenset()
 
 
 def test_far_candidates_are_left_out_of_the_local_diagram() -> None:
@@ -252,7 +251,7 @@ def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
         for i, (x, y) in enumerate(points):
             if protocol.tile_of(x, y, 1.0) in tiles:
                 brain.on_beacon(protocol.Beacon(id=i, x=x, y=y, stamp=WALL), now)
-        for i in brain.neighbourhood.wanted_state_ids(now):
+        for i in brain.neighborhood.wanted_state_ids(now):
             relay = [(j, *points[j], 0.0, 0.0) for j in sorted(truth[i])] if relayed else None
             state = protocol.AgentState(
                 id=i, x=points[i][0], y=points[i][1], stamp=WALL, neighbors=truth[i], relay=relay
@@ -260,13 +259,13 @@ def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
             brain.on_agent_state(state, now)
         decision = brain.step(now, WALL)
     expected = tvd_da(points, np.array(square), np.tile([0.05, -0.02], (4, 1)), kappa=1.0)
-    assert brain.neighbourhood.one_hop == truth[me]
+    assert brain.neighborhood.one_hop == truth[me]
     assert brain.stats()["local_set"] < 30  # not the whole team of 100
     assert decision.velocity == pytest.approx(tuple(expected[me]), abs=1e-9)
     if relayed:
         # The relays cover the outer ring: only the one-hop neighbours are subscribed
         # (past the linger of the first steps' larger sets).
-        assert brain.neighbourhood.wanted_state_ids(10.0) == set(truth[me])
+        assert brain.neighborhood.wanted_state_ids(10.0) == set(truth[me])
         # Our own state relays our neighbours as we used them.
         relay = brain.agent_state(WALL).relay
         assert [entry[0] for entry in relay] == sorted(truth[me])
@@ -276,18 +275,18 @@ def test_local_view_matches_the_full_team_law(relayed: bool) -> None:
 
 def test_two_hop_robots_without_a_relay_get_a_subscription() -> None:
     brain = brain_at(0.0, 0.0, linger=0.0)
-    brain.neighbourhood.one_hop = frozenset({1})
+    brain.neighborhood.one_hop = frozenset({1})
     relay = ((0, 0.0, 0.0, 0.0, 0.0), (2, 1.0, 1.0, 0.0, 0.0))
     state = protocol.AgentState(id=1, x=0.5, y=0.0, stamp=WALL, neighbors=(0, 2, 3), relay=relay)
     brain.on_agent_state(state, now=0.0)
-    assert brain.neighbourhood.wanted_state_ids(0.1) == {1, 3}  # 2 is relayed, 3 is not (yet)
+    assert brain.neighborhood.wanted_state_ids(0.1) == {1, 3}  # 2 is relayed, 3 is not (yet)
     bare = protocol.AgentState(id=1, x=0.5, y=0.0, stamp=WALL, neighbors=(0, 2, 3))
     brain.on_agent_state(bare, now=0.2)  # a sender without relays: all of its neighbours
-    assert brain.neighbourhood.wanted_state_ids(0.3) == {1, 2, 3}
+    assert brain.neighborhood.wanted_state_ids(0.3) == {1, 2, 3}
 
 
 @pytest.mark.parametrize("listed_back", [False, True])
-def test_a_neighbour_that_leaves_us_out_gets_an_early_beacon(listed_back: bool) -> None:
+def test_a_neighbor_that_leaves_us_out_gets_an_early_beacon(listed_back: bool) -> None:
     brain = AgentBrain(0, AgentConfig(beacon_period=10.0, stale_timeout=10.0))
     brain.on_pose(pose(0, 0.5, 1.0), now=0.0)
     brain.on_domain(domain(), now=0.0)
@@ -296,10 +295,10 @@ def test_a_neighbour_that_leaves_us_out_gets_an_early_beacon(listed_back: bool) 
     state = protocol.AgentState(id=1, x=1.5, y=1.0, stamp=WALL, neighbors=theirs)
     brain.on_agent_state(state, now=0.0)
     brain.step(1.0, WALL)
-    assert brain.neighbourhood.one_hop == {1}
+    assert brain.neighborhood.one_hop == {1}
     assert brain.beacon(1.0, WALL) is None  # within the grace: a relay may still tell it
-    brain.step(1.0 + neighbourhood.ASYMMETRY_GRACE, WALL)
-    early = brain.beacon(1.0 + neighbourhood.ASYMMETRY_GRACE, WALL)
+    brain.step(1.0 + neighborhood.ASYMMETRY_GRACE, WALL)
+    early = brain.beacon(1.0 + neighborhood.ASYMMETRY_GRACE, WALL)
     assert (early is None) == listed_back
 
 
@@ -310,28 +309,28 @@ def test_relayed_positions_rank_below_direct_ones() -> None:
         protocol.AgentState(id=1, x=0.5, y=0.0, stamp=WALL, neighbors=(0, 2, 3), relay=relay),
         now=0.0,
     )
-    seen = brain.neighbourhood.candidates(0.1)
+    seen = brain.neighborhood.candidates(0.1)
     assert 0 not in seen  # our own position relayed back to us is ignored
     assert seen[2] == pytest.approx((1.0 + 0.1 * 0.1, 1.0))  # dead-reckoned
     brain.on_agent_state(protocol.AgentState(id=2, x=1.5, y=1.0, stamp=WALL, neighbors=()), 0.0)
-    assert brain.neighbourhood.candidates(0.1)[2] == pytest.approx((1.5, 1.0))  # its own state wins
+    assert brain.neighborhood.candidates(0.1)[2] == pytest.approx((1.5, 1.0))  # its own state wins
     brain.on_liveliness("agent", 3, alive=False)
-    assert 3 not in brain.neighbourhood.candidates(0.1)
-    assert 2 not in brain.neighbourhood.candidates(1.5)  # the relay went stale with the state
+    assert 3 not in brain.neighborhood.candidates(0.1)
+    assert 2 not in brain.neighborhood.candidates(1.5)  # the relay went stale with the state
 
 
 def test_beacon_candidates_until_pose_arrives() -> None:
     brain = brain_at(0.5, 1.0, stale_timeout=1.0, beacon_timeout=3.0)
     brain.on_beacon(protocol.Beacon(id=3, x=1.2, y=1.0, stamp=WALL), now=0.0)
-    assert brain.neighbourhood.candidates(0.1)[3] == pytest.approx([1.2, 1.0])
+    assert brain.neighborhood.candidates(0.1)[3] == pytest.approx([1.2, 1.0])
     brain.on_pose(pose(3, 1.4, 1.0), now=0.2)
-    assert brain.neighbourhood.candidates(0.3)[3] == pytest.approx([1.4, 1.0])
+    assert brain.neighborhood.candidates(0.3)[3] == pytest.approx([1.4, 1.0])
     # Pose stale (> 1 s): the beacon is older than the pose, so it no longer counts...
-    assert 3 not in brain.neighbourhood.candidates(2.0)
+    assert 3 not in brain.neighborhood.candidates(2.0)
     # ... until a newer one arrives, which counts until beacon_timeout (3 s).
     brain.on_beacon(protocol.Beacon(id=3, x=1.3, y=1.0, stamp=WALL), now=2.1)
-    assert brain.neighbourhood.candidates(2.2)[3] == pytest.approx([1.3, 1.0])
-    assert 3 not in brain.neighbourhood.candidates(5.2)
+    assert brain.neighborhood.candidates(2.2)[3] == pytest.approx([1.3, 1.0])
+    assert 3 not in brain.neighborhood.candidates(5.2)
     assert not brain.on_beacon(protocol.Beacon(id=0, x=0.0, y=0.0, stamp=WALL), now=0.0)
 
 
@@ -385,7 +384,7 @@ def test_bad_payloads_are_counted_not_raised() -> None:
     assert brain.drops.counts["wrong_id"] == 1
     assert brain.stats()["drop_wrong_id"] == 1
     assert brain.receive("pose", pose(5, 1.0, 1.0).encode(), now=0.0, now_wall=WALL, key_id=5)
-    assert 5 in brain.neighbourhood.poses
+    assert 5 in brain.neighborhood.poses
 
 
 def test_failing_math_stops_the_robot(monkeypatch: pytest.MonkeyPatch) -> None:
@@ -433,48 +432,6 @@ def test_beacon_period_and_agent_state() -> None:
     assert protocol.AgentState.decode(slim.encode()) == slim
 
 
-class _Sample:
-    def __init__(self, key: str, payload: bytes) -> None:
-        self.key_expr = key
-        self.payload = self
-        self._payload = payload
-
-    def to_bytes(self) -> bytes:
-        return self._payload
-
-
-class _Ring:
-    """Stands in for a ring-channel subscriber: try_recv pops the oldest sample."""
-
-    def __init__(self, *samples: _Sample) -> None:
-        self.samples = list(samples)
-
-    def try_recv(self) -> _Sample | None:
-        return self.samples.pop(0) if self.samples else None
-
-
-def test_inbox_keeps_newest_per_key() -> None:
-    ids = {"t/7": 7, "t/8": 8}
-
-    def parse(key: str, kind: str) -> int:
-        if key not in ids:
-            raise ValueError(key)
-        return ids[key]
-
-    inbox = link.Inbox(parse)
-    inbox.add("pose", _Ring(_Sample("p/3", b"1"), _Sample("p/3", b"2")), key_id=3)
-    tile = _Ring(_Sample("t/7", b"3"), _Sample("t/8", b"4"), _Sample("t/7", b"5"))
-    inbox.add("beacon", tile, wildcard=True)
-    tile.samples.append(_Sample("t/bad", b"6"))
-    removed = _Ring(_Sample("c", b"4"))
-    inbox.add("state", removed, key_id=4)
-    inbox.remove(removed)
-    items, coalesced, malformed = inbox.drain()
-    assert sorted(items) == [("beacon", 7, b"5"), ("beacon", 8, b"4"), ("pose", 3, b"2")]
-    assert (coalesced, malformed) == (2, 1)
-    assert inbox.drain() == ([], 0, 0)
-
-
 def test_brains_of_a_process_share_decoding() -> None:
     payload = pose(3, 1.0, 1.0).encode()
     decoder = MessageDecoder()
@@ -495,49 +452,16 @@ REPO = Path(__file__).resolve().parent.parent
 COVSWARM = str(Path(sys.executable).with_name("covswarm"))
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
-class Latest:
-    """Newest decoded message per key, filled from Zenoh callbacks."""
-
-    def __init__(self, cls: type[protocol.Message]) -> None:
-        self.cls = cls
-        self.lock = threading.Lock()
-        self.values: dict[int, protocol.Message] = {}
-
-    def __call__(self, sample: object) -> None:
-        message = self.cls.decode(sample.payload.to_bytes())
-        if getattr(message, "stats", True) is None:
-            return  # agents send their stats about once a second: keep the last that had them
-        with self.lock:
-            self.values[message.id] = message
-
-    def snapshot(self) -> dict[int, protocol.Message]:
-        with self.lock:
-            return dict(self.values)
-
-
 @pytest.mark.e2e
 @pytest.mark.timeout(120)
 def test_three_robots_and_agents_over_zenoh() -> None:
-    zenoh = pytest.importorskip("zenoh")
+    pytest.importorskip("zenoh")
     from covswarm.tvd.coverage import mass_centroid
 
     swarm = protocol.new_swarm_name()
     starts = [(0.3, 0.3), (0.6, 0.4), (0.4, 0.7)]
     children: list[subprocess.Popen] = []
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    session, endpoint = open_router()
     try:
         poses = Latest(protocol.Pose)
         states = Latest(protocol.AgentState)

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import logging
-import socket
 import subprocess
 import sys
 import time
@@ -11,11 +10,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from live_runs import alive_tokens, open_router, wait_until
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
 from covswarm.agent.brain import AgentBrain, AgentConfig
-from covswarm.protocol.inbound import DropLog, check_stamp
+from covswarm.protocol.inbound import COMMAND_REASONS, DropLog, accept_command, check_stamp
 from covswarm.sim_robot.process import RobotSim
 
 WALL = 1.7e9
@@ -58,6 +58,18 @@ def test_stamp_policy_edges() -> None:
     with pytest.raises(protocol.ProtocolError, match="old") as old:
         check_stamp(WALL - 1.51, WALL, max_age=1.0, max_skew=0.5)
     assert old.value.reason == "stamp_old"
+
+
+def test_accept_command_counts_each_reason_and_returns_valid_commands() -> None:
+    drops = DropLog(logging.getLogger("test"), "robot 1", COMMAND_REASONS)
+    accepted = accept_command(command(WALL), 1, WALL, 0.5, 0.5, drops)
+    assert accepted is not None and (accepted.left, accepted.right) == (0.2, 0.2)
+    assert accept_command(command(WALL), 2, WALL, 0.5, 0.5, drops) is None  # not ours
+    assert accept_command(command(WALL - 1.01), 1, WALL, 0.5, 0.5, drops) is None
+    assert accept_command(command(WALL + 0.51), 1, WALL, 0.5, 0.5, drops) is None
+    assert accept_command(b"\xc1", 1, WALL, 0.5, 0.5, drops) is None
+    nonzero = {reason: n for reason, n in drops.counts.items() if n}
+    assert nonzero == {"wrong_id": 1, "stamp_old": 1, "stamp_future": 1, "undecodable": 1}
 
 
 def test_a_domain_from_the_future_cannot_pin_the_agent() -> None:
@@ -148,30 +160,11 @@ def test_failing_control_step_logs_once_per_interval(
 # --- over Zenoh ---------------------------------------------------------------------------
 
 
-def alive_tokens(session: object, selector: str) -> list[str]:
-    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
-    replies = session.liveliness().get(selector, timeout=1.0)
-    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 @pytest.fixture
 def router() -> Iterator[tuple[object, str]]:
     """A router-mode session on a free loopback port: (session, endpoint)."""
-    zenoh = pytest.importorskip("zenoh")
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tcp/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(protocol.session_config(None, [endpoint], "router"))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    pytest.importorskip("zenoh")
+    session, endpoint = open_router()
     yield session, endpoint
     session.close()
 
@@ -226,3 +219,71 @@ def test_second_robot_or_agent_process_with_the_same_id_is_refused(router: tuple
             p.terminate()
         for p in first:
             p.wait(timeout=30)
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.e2e
+def test_exclusive_claims_started_together_leave_exactly_one(router: tuple) -> None:
+    """Five sessions claim the coordinator's id at the same instant, ten times over: each
+    time exactly one wins (claim alone may let all back off), and a later claimant loses
+    to the running winner."""
+    import threading
+
+    import zenoh
+
+    from covswarm.runtime.claims import claim_exclusive
+
+    _, endpoint = router
+    sessions = [zenoh.open(protocol.session_config([endpoint])) for _ in range(5)]
+    try:
+        for _ in range(10):
+            swarm = protocol.new_swarm_name()
+            tokens: list = [None] * len(sessions)
+            start = threading.Barrier(len(sessions))
+
+            def contend(k: int, swarm: str = swarm, start=start, tokens=tokens) -> None:
+                start.wait()
+                tokens[k] = claim_exclusive(sessions[k], swarm, "coordinator", 0)
+
+            threads = [threading.Thread(target=contend, args=(k,)) for k in range(5)]
+            for thread in threads:
+                thread.start()
+            for thread in threads:
+                thread.join()
+            winners = [t for t in tokens if t is not None]
+            assert len(winners) == 1, tokens
+            assert claim_exclusive(sessions[0], swarm, "coordinator", 0) is None
+            winners[0].undeclare()
+    finally:
+        for session in sessions:
+            session.close()
+
+
+@pytest.mark.timeout(120)
+@pytest.mark.e2e
+def test_two_coordinators_started_together_leave_exactly_one_running(
+    router: tuple, tmp_path: Path
+) -> None:
+    _, endpoint = router
+    swarm = protocol.new_swarm_name()
+    coordinators = [
+        subprocess.Popen(
+            [COVSWARM, "coordinator", "--scenario", "passage", "--connect", endpoint,
+             "--swarm", swarm, "--out", str(tmp_path / f"c{k}")],
+            cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        )
+        for k in range(2)
+    ]  # fmt: skip
+    try:
+        assert wait_until(lambda: any(c.poll() is not None for c in coordinators), 60.0)
+        time.sleep(3.0)  # the survivor is past its claim: it stays
+        alive = [c for c in coordinators if c.poll() is None]
+        assert len(alive) == 1
+        [loser] = [c for c in coordinators if c.poll() is not None]
+        assert loser.returncode != 0
+        assert "already has a coordinator" in loser.stderr.read()
+    finally:
+        for c in coordinators:
+            if c.poll() is None:
+                c.kill()
+            c.wait()

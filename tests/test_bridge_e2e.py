@@ -31,7 +31,7 @@ from covswarm import protocol
 from covswarm.bridge import cdr, rmw_zenoh
 from covswarm.deploy.plan import covswarm_argv, initial_poses
 from covswarm.deploy.router import free_port
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import session_config
 
 pytestmark = pytest.mark.e2e

@@ -21,7 +21,7 @@ from covswarm.deploy.plan import (
     plan_children,
     robot_config,
 )
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.runtime.options import config_argv
 from covswarm.sim_robot.config import RobotConfig
 from covswarm.sim_robot.process import robot_command

@@ -169,6 +169,10 @@ def post_json(url: str, body: bytes) -> tuple[int, dict]:
         return error.code, json.loads(error.read())
 
 
+# The page has drawn the coordinator's world (it then fits the arena in the view, once).
+WORLD_DRAWN = "window.covswarm.world() !== null && window.covswarm.view().ready"
+
+
 def centroid(polygon: np.ndarray) -> np.ndarray:
     x, y = polygon[:, 0], polygon[:, 1]
     cross = x * np.roll(y, -1) - np.roll(x, -1) * y
@@ -183,14 +187,19 @@ def test_page_shows_the_live_swarm_and_api_state_has_its_shape(swarm_run, browse
         page = browser.new_page(viewport={"width": 1100, "height": 700})
         page.goto(url)
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        page.wait_for_function(WORLD_DRAWN, timeout=5000)  # the view is set: on the arena
         assert page.inner_text("#alive-robots") == str(TEAM)
         assert page.inner_text("#alive-agents") == str(TEAM)
         assert page.inner_text("#state") == "running"
-        # The view opens centred on S.
+        # The view opens on the arena (the coordinator's World): the whole workspace in
+        # view, centred, and S in it.
         state = page.evaluate("window.covswarm.state()")
         view = page.evaluate("window.covswarm.view()")
-        c = centroid(np.array(state["polygon"]))
-        assert np.hypot(view["cx"] - c[0], view["cy"] - c[1]) < 0.5
+        xmin, xmax, ymin, ymax = page.evaluate("window.covswarm.world().workspace")
+        assert (view["cx"], view["cy"]) == pytest.approx(((xmin + xmax) / 2, (ymin + ymax) / 2))
+        for x, y in [(xmin, ymin), (xmax, ymax), *state["polygon"]]:
+            px, py = page.evaluate(f"window.covswarm.clientXY({x}, {y})")
+            assert 0 <= px <= 1100 - 320 and 0 <= py <= 700, (x, y)  # the map, left of the aside
         # State frames reach the page at >= 10 Hz.
         first = page.evaluate("window.covswarm.hooks.frames")
         time.sleep(3.0)
@@ -217,14 +226,18 @@ def test_dragging_S_moves_the_coordinators_S_and_then_the_robots(
     swarm_run, browser, watch: DomainWatch
 ) -> None:
     with console(*swarm_run) as url:
+        # S first to the left room (a goto, planned around the obstacles, wherever the script
+        # has taken S), where 0.4 m down is free space.
+        goto(url, LEFT_ROOM + [0.0, 0.4])
         page = browser.new_page(viewport={"width": 1100, "height": 700})
         page.goto(url)
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        page.wait_for_function(WORLD_DRAWN, timeout=5000)  # the view is set: on the arena
         before = centroid(watch.latest())
         robots_before = watch.robots_mean()
         handles = page.evaluate("window.covswarm.handles()")
         x, y = page.evaluate(f"window.covswarm.clientXY({handles['c'][0]}, {handles['c'][1]})")
-        drop = 0.4  # m, down: passage's script moves S along x only
+        drop = 0.4  # m, down: free space below S (which holds still at the goto's goal)
         scale = page.evaluate("window.covswarm.view()")["scale"]
         page.mouse.move(x, y)
         page.mouse.down()
@@ -249,6 +262,21 @@ def test_dragging_S_moves_the_coordinators_S_and_then_the_robots(
         page.close()
 
 
+# The middle of the passage arena's left room (x from the wall at -2.591 m to the obstacles
+# at -0.3 m), m.
+LEFT_ROOM = np.array([-1.45, 0.0])
+
+
+def goto(url: str, goal: np.ndarray) -> None:
+    """Take S's centroid to ``goal`` by a goto (POST /api/steer) and wait until it is there."""
+    status, reply = post_json(
+        url.rstrip("/") + "/api/steer",
+        json.dumps({"kind": "goto", "goal": [float(v) for v in goal]}).encode(),
+    )
+    assert status == 200 and reply["accepted"], reply
+    time.sleep(reply["duration"] + 0.5)
+
+
 def same_polygon(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
     """Every vertex of each polygon is within ``tol`` of a vertex of the other."""
     d = np.linalg.norm(np.asarray(a)[:, None, :] - np.asarray(b)[None, :, :], axis=2)
@@ -261,18 +289,13 @@ def test_rotate_scale_and_vertex_handles_steer_what_was_dragged(
     from shapely.geometry import Polygon
 
     with console(*swarm_run) as url:
-        # S back to the workspace's middle first: the module's earlier tests leave it near an
-        # edge, where a quarter turn would be refused as leaving the workspace.
-        dx, dy = -centroid(watch.latest())
-        status, reply = post_json(
-            url.rstrip("/") + "/api/steer",
-            json.dumps({"kind": "translate", "dx": float(dx), "dy": float(dy)}).encode(),
-        )
-        assert status == 200 and reply["accepted"], reply
-        time.sleep(reply["duration"] + 0.5)
+        # S to the middle of the left room first, where a quarter turn and a scaling by 1.25
+        # stay clear of the walls and obstacles (the coordinator refuses what would not).
+        goto(url, LEFT_ROOM)
         page = browser.new_page(viewport={"width": 1100, "height": 700})
         page.goto(url)
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        page.wait_for_function(WORLD_DRAWN, timeout=5000)  # the view is set: on the arena
 
         def gesture(start, end) -> tuple[dict, dict]:
             page.evaluate("window.covswarm.hooks.lastReply = null")
@@ -381,6 +404,7 @@ def test_a_console_off_the_default_address_needs_its_token(swarm_run, browser) -
         page.goto(url)
         assert "token" not in page.url
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        page.wait_for_function(WORLD_DRAWN, timeout=5000)  # the view is set: on the arena
         page.close()
 
 
@@ -390,7 +414,7 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
     import zenoh
 
     from covswarm.protocol import Domain, domain_key
-    from covswarm.protocol.security import make_test_credentials, read_credentials
+    from covswarm.protocol.security import make_test_credentials
     from covswarm.protocol.session import session_config
 
     require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
@@ -402,7 +426,8 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
     square = ((0.0, 0.0), (1.0, 0.0), (1.0, 1.0), (0.0, 1.0))
     with (
         zenoh.open(session_config(None, [endpoint], "router", secure=secure)),
-        zenoh.open(session_config([endpoint], secure=secure)) as member,
+        # The Domain is the coordinator's to publish (protocol.access): the test acts as it.
+        zenoh.open(session_config([endpoint], secure=secure, role="coordinator")) as member,
         console(endpoint, swarm, "--secure", str(secure)) as url,
     ):
         domain = Domain(seq=0, stamp=time.time(), t=1.0, state="running", vertices=square,
@@ -417,11 +442,7 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
         status, reply = post_json(url + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')
         assert status == 504 and "no coordinator" in reply["reason"]
 
-        user, _ = read_credentials(secure)[0]
-        wrong = tmp_path / "wrong"
-        wrong.mkdir()
-        shutil.copy(secure / "ca.pem", wrong / "ca.pem")
-        (wrong / "credentials").write_text(f"{user}:not-the-password\n")
+        wrong = make_test_credentials(tmp_path / "wrong", ids=[])  # another lab's CA
         for extra in (["--secure", str(wrong)], []):
             outsider = subprocess.run(
                 [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm,
@@ -470,6 +491,7 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
         page.wait_for_function("document.getElementById('state').textContent === 'running'")
         # The formation's bump is shaded inside S: more orange at its mean than far from it.
         page.wait_for_function("window.covswarm.hooks.shaded > 0", timeout=10000)
+        page.wait_for_function(WORLD_DRAWN, timeout=5000)
         state = page.evaluate("window.covswarm.state()")
         (bump,) = state["density"]["bumps"]
         polygon = np.array(state["polygon"])

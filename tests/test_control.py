@@ -91,7 +91,7 @@ def test_tvd_c_dense_solve(feedforward: bool) -> None:
     solved = 0
     for _ in range(25):
         positions, polygon, V, kappa = random_case(rng)
-        got = control.tvd_c(positions, polygon, V, kappa, feedforward=feedforward, damping=None)
+        got = control.tvd_c(positions, polygon, V, kappa, feedforward=feedforward, damping=0.0)
         assert got.shape == positions.shape and np.all(np.isfinite(got))
         sol, r, cond = c_reference(positions, polygon, V, kappa, feedforward)
         rmax = np.max(np.linalg.norm(r, axis=1))
@@ -112,7 +112,7 @@ def test_feedforward_false_drops_rate() -> None:
     a = control.tvd_d1(positions, polygon, V, kappa, feedforward=False)
     b = control.tvd_d1(positions, polygon, np.zeros_like(V), kappa, feedforward=True)
     np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * kappa * scale_of(polygon))
-    for damping in (None, control.DAMPING):
+    for damping in (0.0, control.DAMPING):
         a = control.tvd_c(positions, polygon, V, kappa, feedforward=False, damping=damping)
         b = control.tvd_c(positions, polygon, 0 * V, kappa, feedforward=True, damping=damping)
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12 * kappa * scale_of(polygon))
@@ -235,8 +235,8 @@ def test_local_velocity_dominated_robot_outside_s() -> None:
     np.testing.assert_allclose(team[1], [0.0, 5.5], atol=1e-12)
     alone = control.local_velocity(1, {1: p[1]}, SQUARE, V, 1.0)
     np.testing.assert_allclose(alone, team[1], atol=1e-12)
-    planar_neighbours = {0}  # the only other robot borders robot 1's region in the plane
-    view = {j: p[j] for j in planar_neighbours | {1}}
+    planar_neighbors = {0}  # the only other robot borders robot 1's region in the plane
+    view = {j: p[j] for j in planar_neighbors | {1}}
     np.testing.assert_allclose(control.local_velocity(1, view, SQUARE, V, 1.0), team[1], atol=1e-9)
 
 

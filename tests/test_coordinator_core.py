@@ -24,7 +24,7 @@ from covswarm.coordinator.core import (
     ReplySteer,
 )
 from covswarm.coordinator.steering import Refusal
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import AgentState, Pose, alive_key, pose_key
 from covswarm.protocol.steering import SteerReply, SteerRequest
 

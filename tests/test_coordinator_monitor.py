@@ -121,7 +121,7 @@ def test_the_mission_waits_for_the_team_to_settle() -> None:
 def test_summary_has_the_sim_keys_and_process_figures() -> None:
     from covswarm.coordinator.core import CoordinatorSettings, Observed
     from covswarm.coordinator.outputs import build_summary
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     scenario = load_scenario("passage")
     settings = CoordinatorSettings(
@@ -161,7 +161,7 @@ def test_summary_has_the_sim_keys_and_process_figures() -> None:
 
 def test_the_swarm_tile_size_follows_the_team_spacing() -> None:
     from covswarm.coordinator.core import TILE_SPACINGS, swarm_tile_size
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     circle = load_scenario("circle")  # a 2 m square
     assert swarm_tile_size(circle, 100) == pytest.approx(TILE_SPACINGS * 0.2)

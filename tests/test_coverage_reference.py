@@ -41,6 +41,16 @@ def test_random_configurations(seed: int) -> None:
         check_against_reference(positions, polygon)
 
 
+def test_signed_area_is_shapely_area_with_the_orientation_sign() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(50):
+        polygon = random_convex_polygon(rng)
+        expected = Polygon(polygon).area
+        assert coverage.signed_area(polygon) == pytest.approx(expected, rel=1e-9)
+        cw = as_cw(polygon, shift=int(rng.integers(len(polygon))))
+        assert coverage.signed_area(cw) == pytest.approx(-expected, rel=1e-9)
+
+
 @pytest.mark.parametrize("n", [1, 2, 3, 5, 60])
 def test_cw_input_gives_ccw_cells(n: int) -> None:
     rng = np.random.default_rng(n)

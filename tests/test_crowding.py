@@ -13,7 +13,8 @@ from scipy.integrate import dblquad
 
 from covswarm.deploy.simulate import build_summary, simulate
 from covswarm.mission.crowding import crowding, robot_room, smallest_cell_area
-from covswarm.mission.scenarios import BUILTINS, load_scenario
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import BUILTINS
 from covswarm.tvd.density import Density
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -16,6 +16,7 @@ from reference import (
     fd_valid,
     motion,
     random_convex_polygon,
+    random_cov,
     random_robots,
     reference_cells,
     scale_of,
@@ -25,19 +26,11 @@ from scipy import integrate
 from scipy.special import erf
 
 from covswarm.mission.motion import DensityPath
-from covswarm.mission.scenario_files import scenario_from_dict
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario, scenario_from_dict
 from covswarm.tvd import control, coverage
 from covswarm.tvd.density import Density
 
 TOL = 1e-5
-
-
-def random_cov(rng: np.random.Generator, sigma: float) -> np.ndarray:
-    """A random SPD 2x2 with determinant sigma^4 (geometric-mean deviation sigma)."""
-    a = rng.normal(size=(2, 2))
-    m = a @ a.T + 0.3 * np.eye(2)
-    return m / np.sqrt(np.linalg.det(m)) * sigma**2
 
 
 def random_density(rng: np.random.Generator, polygon: np.ndarray) -> Density:
@@ -191,7 +184,7 @@ def test_exact_tvd_c_with_density_takes_the_branch_its_rule_names(branch: str) -
     amplification = np.linalg.norm(expected, axis=1).max() / largest
     limit = 2.0 * amplification if branch == "solve" else 0.5 * amplification
     args = (positions, polygon, velocity, 1.5)
-    step = control.team_step("c", *args, density=density, max_amplification=limit, damping=None)
+    step = control.team_step("c", *args, density=density, max_amplification=limit, damping=0.0)
     assert step.fallback == (branch == "fallback")
     if branch == "solve":
         np.testing.assert_allclose(step.velocity, expected, rtol=0, atol=1e-9 * largest)
@@ -200,7 +193,7 @@ def test_exact_tvd_c_with_density_takes_the_branch_its_rule_names(branch: str) -
         np.testing.assert_allclose(step.velocity, d1.velocity, rtol=0, atol=1e-12 * largest)
     # With the shipped limit the flag follows the same rule (this layout is far from the edge).
     assert abs(amplification / control.MAX_AMPLIFICATION - 1.0) > 0.05
-    shipped = control.team_step("c", *args, density=density, damping=None)
+    shipped = control.team_step("c", *args, density=density, damping=0.0)
     assert shipped.fallback == (amplification > control.MAX_AMPLIFICATION)
 
 

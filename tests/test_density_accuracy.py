@@ -21,6 +21,7 @@ from reference import (
     fd_valid,
     motion,
     random_convex_polygon,
+    random_cov,
     random_robots,
     reference_cells,
     scale_of,
@@ -35,13 +36,6 @@ from covswarm.tvd import coverage
 from covswarm.tvd.density import Density
 
 CONTRACT = 1e-6
-
-
-def random_cov(rng: np.random.Generator, sigma: float) -> np.ndarray:
-    """A random SPD 2x2 with determinant sigma^4 (geometric-mean deviation sigma)."""
-    a = rng.normal(size=(2, 2))
-    m = a @ a.T + 0.3 * np.eye(2)
-    return m / np.sqrt(np.linalg.det(m)) * sigma**2
 
 
 def layout(seed: int, robots: int) -> tuple[np.ndarray, np.ndarray, float]:

@@ -13,7 +13,7 @@ from live_runs import launch, new_swarm, swarm_pids, wait_until
 
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import steady_state_mean
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 pytestmark = pytest.mark.e2e
 

@@ -189,7 +189,7 @@ def test_rigid_motion_of_everything_is_consistent() -> None:
 
 def test_jacobian_known_closed_form() -> None:
     """Two robots at height 0.3 in the unit square, bisector x = 0.4; by hand from
-    eqs. (dcidpj)/(dcidpi): dc_i/dp_k = +-(1/(m_i d)) int_0^1 (q - c_i)(q - p_k)^T dy."""
+    eqs. (6)/(7) (Section 2.3): dc_i/dp_k = +-(1/(m_i d)) int_0^1 (q - c_i)(q - p_k)^T dy."""
     square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
     p = np.array([[0.2, 0.3], [0.6, 0.3]])
     J = coverage.centroid_jacobian(p, square)

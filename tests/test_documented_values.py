@@ -16,14 +16,14 @@ from pathlib import Path
 import click
 import pytest
 
-from covswarm.agent import brain, neighbourhood
+from covswarm.agent import brain, neighborhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator import core as coordinator_core
 from covswarm.deploy.cli import main
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import messages
 from covswarm.protocol.session import session_config
-from covswarm.tvd import control, coverage, drive
+from covswarm.tvd import control, coverage, drive, safety
 
 DOCS = {
     page.name: re.sub(r"\s+", " ", page.read_text(encoding="utf-8"))
@@ -51,7 +51,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("a 5 cm projection distance in the agents", lambda: brain.AGENT_PROJECTION_DISTANCE, 0.05),
     ("`--stale-timeout` (relays carry", lambda: AgentConfig().stale_timeout, 1.0),
     ("obstacle where it was last known for 30 s", lambda: brain.OBSTACLE_MEMORY, 30.0),
-    ("one row per robot it knows within 0.5 m", lambda: brain.SAFETY_RADIUS, 0.5),
+    ("one row per robot it knows within 0.5 m", lambda: safety.SAFETY_RADIUS, 0.5),
     ("liveliness token for 1.5 s", lambda: coordinator_core.START_SETTLE, 1.5),
     ("the last has been silent for 0.5 s", lambda: brain.DOMAIN_RESTART_SILENCE, 0.5),
     ("wheel radius 21 mm", lambda: drive.KHEPERA_IV.wheel_radius, 0.021),
@@ -59,7 +59,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("top rim speed `--max-wheel-speed` 0.8 m/s",
      lambda: option_default("robot", "max_wheel_speed"), 0.8),
     ("`--cmd-timeout` (0.5 s)", lambda: option_default("robot", "cmd_timeout"), 0.5),
-    ("at most 0.5 s ahead per hop", lambda: neighbourhood.DEAD_RECKONING_LIMIT, 0.5),
+    ("at most 0.5 s ahead per hop", lambda: neighborhood.DEAD_RECKONING_LIMIT, 0.5),
     ("linger 0.5 s", lambda: option_default("agent", "linger"), 0.5),
     ("linger 0.5 s", lambda: AgentConfig().linger, 0.5),
     ("publishes a Beacon every 10 s", lambda: AgentConfig().beacon_period, 10.0),

@@ -9,7 +9,6 @@ from covswarm.tvd.drive import (
     DEFAULT_PROJECTION_DISTANCE,
     KHEPERA_IV,
     DiffDrive,
-    achieved_velocity,
     integrate,
     integrate_one,
     wheel_speeds,
@@ -123,21 +122,6 @@ def test_wheels_clamped_each_and_nan_stops() -> None:
     np.testing.assert_allclose(out, [[KHEPERA_IV.max_wheel_speed, 0.0, 0.0], [0.0, 0.0, 0.0]])
     with pytest.raises(ValueError):
         integrate(np.zeros((2, 3)), np.zeros((1, 2)), 0.1)
-
-
-def test_achieved_velocity_inverts_the_wheel_mapping() -> None:
-    rng = np.random.default_rng(7)
-    headings = rng.uniform(-np.pi, np.pi, 200)
-    slow = rng.uniform(-0.1, 0.1, (200, 2))  # within the wheels' reach
-    wheels = wheel_speeds(headings, slow)
-    assert np.abs(wheels).max() < KHEPERA_IV.max_wheel_speed
-    assert achieved_velocity(headings, wheels) == pytest.approx(slow, abs=1e-12)
-    # Saturated: the same direction, scaled down to what the wheels can do.
-    fast = 5.0 * slow / np.linalg.norm(slow, axis=1)[:, None]  # 5 m/s: every wheel saturates
-    got = achieved_velocity(headings, wheel_speeds(headings, fast))
-    ratio = np.linalg.norm(got, axis=1) / np.linalg.norm(fast, axis=1)
-    assert np.all(ratio < 1.0)
-    assert got == pytest.approx(ratio[:, None] * fast, abs=1e-12)
 
 
 def test_integrate_one_is_integrate_for_one_robot() -> None:

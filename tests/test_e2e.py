@@ -23,7 +23,7 @@ from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE
 from covswarm.deploy.router import free_port
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import steady_state_mean
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 pytestmark = pytest.mark.e2e
 
@@ -40,6 +40,7 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     summary = json.loads((out / "summary.json").read_text())
     assert summary["agents"] == 4 and summary["law"] == "d1" and summary["feedforward"] is True
     assert summary["lost_processes"] == []
+    assert summary["robot_drops"] == {}  # gathered from the robots' logs: nothing dropped
     assert summary["alive_at_end"] == {"agents": 4, "robots": 4}
     # Robots left still (a broken controller) stay near the random start's ~0.3-0.4 m and
     # fall behind once the domain moves (t > 5 s); the controller gets to ~0.01 m.

@@ -29,7 +29,7 @@ from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import RECOVERY_FLOOR, reconvergence, team_of
 from covswarm.deploy.plan import RunConfig, covswarm_argv, plan_children
 from covswarm.deploy.router import free_port
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 WALL = 1.7e9
 
@@ -101,21 +101,21 @@ def _brain_with_team() -> AgentBrain:
 
 def test_a_teammate_whose_token_vanishes_leaves_the_diagram_at_once() -> None:
     brain = _brain_with_team()
-    assert set(brain.neighbourhood.candidates(0.1)) == {1, 2}
+    assert set(brain.neighborhood.candidates(0.1)) == {1, 2}
     brain.on_liveliness("agent", 1, alive=False)  # robot 1 keeps publishing its pose
     brain.on_pose(protocol.Pose(id=1, x=1.0, y=0.0, theta=0.0, stamp=WALL, seq=1), 0.2)
-    assert set(brain.neighbourhood.candidates(0.2)) == {2}
+    assert set(brain.neighborhood.candidates(0.2)) == {2}
     # A brain for 1 again (its token, or its first AgentState) brings robot 1 back.
     brain.on_liveliness("agent", 1, alive=True)
-    assert set(brain.neighbourhood.candidates(0.3)) == {1, 2}
+    assert set(brain.neighborhood.candidates(0.3)) == {1, 2}
     brain.on_liveliness("robot", 2, alive=False)
     brain.on_agent_state(
         protocol.AgentState(id=2, x=2.0, y=0.0, stamp=WALL, neighbors=[], stats={}), 0.4
     )
     # a brain's state does not revive its robot
-    assert set(brain.neighbourhood.candidates(0.4)) == {1}
+    assert set(brain.neighborhood.candidates(0.4)) == {1}
     brain.on_liveliness("agent", 0, alive=False)  # our own token: ignored
-    assert 0 not in brain.neighbourhood.dead
+    assert 0 not in brain.neighborhood.dead
 
 
 def test_an_agent_without_a_fresh_own_pose_goes_quiet() -> None:
@@ -182,7 +182,7 @@ class Watch:
             ids = list(self.poses)
         return float(np.mean([self.displacement(i, start, end) for i in ids])) / (end - start)
 
-    def last_neighbour_mention(self, dead: int) -> float:
+    def last_neighbor_mention(self, dead: int) -> float:
         """Wall time of the last AgentState (of another agent) that listed ``dead``."""
         with self._lock:
             return max((w for w, i, nb in self.states if i != dead and dead in nb), default=0.0)
@@ -290,8 +290,8 @@ def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
             late = [c for c in watch.cmds[1] if killed_robot + 1.2 < c[0] < killed_robot + 4.0]
             assert late and all(left == 0.0 and right == 0.0 for _, left, right in late)
             # The others dropped both from their neighbourhoods (liveliness: at once).
-            assert watch.last_neighbour_mention(3) < killed_brain + 0.5
-            assert watch.last_neighbour_mention(1) < killed_robot + 0.5
+            assert watch.last_neighbor_mention(3) < killed_brain + 0.5
+            assert watch.last_neighbor_mention(1) < killed_robot + 0.5
     summary = json.loads((out / "summary.json").read_text())
     changes = [(c["lost"], c["joined"]) for c in summary["team_changes"]]
     assert changes == [([3], []), ([1], []), ([], [5])], summary["team_changes"]

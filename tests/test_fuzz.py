@@ -109,10 +109,10 @@ def wire_maps(draw: st.DrawFn, kind: str) -> dict:
         d = {"id": draw(ids), "x": draw(coords), "y": draw(coords), "theta": draw(finite)}
         d |= {"seq": draw(st.integers(0, 2**40))}
     elif kind == "state":
-        neighbours = st.lists(st.integers(0, 20), max_size=8, unique=True)
+        neighbors = st.lists(st.integers(0, 20), max_size=8, unique=True)
         stats = st.dictionaries(st.text(min_size=1, max_size=8), finite, max_size=4)
         d = {"id": draw(ids), "x": draw(coords), "y": draw(coords)}
-        d |= {"neighbors": draw(neighbours), "stats": draw(stats)}
+        d |= {"neighbors": draw(neighbors), "stats": draw(stats)}
     elif kind == "beacon":
         d = {"id": draw(ids), "x": draw(coords), "y": draw(coords)}
     else:
@@ -152,7 +152,7 @@ KINDS = ("pose", "state", "beacon", "domain")
 
 @st.composite
 def inputs(draw: st.DrawFn) -> tuple[str, bytes, int | None]:
-    """(kind, payload, id in the key) as AgentLink hands them to AgentBrain.receive."""
+    """(kind, payload, id in the key) as a Pack hands them to AgentBrain.receive."""
     kind = draw(st.sampled_from(KINDS))
     source = draw(st.sampled_from(["map", "map", "map", "bytes", "big"]))
     if source == "bytes":

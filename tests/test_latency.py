@@ -7,7 +7,7 @@ import math
 import numpy as np
 import pytest
 
-from covswarm.agent.latency import ClockBound, CommandHistory, MissionClock
+from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
 from covswarm.tvd.drive import KHEPERA_IV
 
 
@@ -77,8 +77,8 @@ def test_clock_bound_corrects_a_sender_ahead_and_bounds_one_behind() -> None:
             assert bound.to_local(999.75) == 999.75  # indistinguishable from delay
 
 
-def test_mission_clock_from_receipts_and_restart() -> None:
-    clock = MissionClock()
+def test_mission_time_estimate_from_receipts_and_restart() -> None:
+    clock = MissionTimeEstimate()
     assert clock.mission_time(5.0) is None
     rng = np.random.default_rng(1)
     # Mission time = our monotonic - 40 s; broadcasts at 20 Hz, some 0.2 s late.

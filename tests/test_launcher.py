@@ -22,7 +22,7 @@ from covswarm.deploy.plan import (
 from covswarm.deploy.processes import cpu_seconds, rss_mb
 from covswarm.deploy.router import free_port
 from covswarm.deploy.supervisor import Startup
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 
 def _plan(feedforward: bool = True) -> list[ChildSpec]:

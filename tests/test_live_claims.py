@@ -149,12 +149,12 @@ def test_messages_per_agent_do_not_grow_with_the_team(runs: dict[int, dict]) -> 
     assert rx[large] <= RATIO * rx[small], rx
 
 
-def test_agents_subscribe_to_their_neighbours_states_only(runs: dict[int, dict]) -> None:
+def test_agents_subscribe_to_their_neighbors_states_only(runs: dict[int, dict]) -> None:
     """docs/index.md: an agent subscribes to its one-hop neighbours' AgentStates (plus, briefly, a
     two-hop robot no relay carries yet, and 0.5 s of linger), not to the team's."""
     team = runs[SIZES[1]]["summary"]["agent_stats"]["team"]
-    subscriptions, neighbours = team["state_subs"], team["neighbors"]
-    assert subscriptions["mean"] <= neighbours["mean"] + 2.0, (subscriptions, neighbours)
+    subscriptions, neighbors = team["state_subs"], team["neighbors"]
+    assert subscriptions["mean"] <= neighbors["mean"] + 2.0, (subscriptions, neighbors)
     assert subscriptions["max"] <= 12 < SIZES[1] - 1, subscriptions
 
 

@@ -6,9 +6,9 @@ from __future__ import annotations
 import pytest
 
 from covswarm.agent.brain import AgentConfig
-from covswarm.coordinator.physical import physical_summary
 from covswarm.deploy.netsim import run_netsim, steady_state
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.physical import physical_summary
+from covswarm.mission.scenario_files import load_scenario
 
 AGENTS, DURATION = 6, 30.0
 
@@ -45,4 +45,4 @@ def test_compensated_agents_keep_the_undelayed_error(undelayed: float, impairmen
 
 def test_without_prediction_a_late_pose_breaks_the_team(undelayed: float) -> None:
     error, _ = passage(pose_delay=0.3, prediction=False)
-    assert error > 10 * undelayed  # what the issue measured: robots random-walk away
+    assert error > 10 * undelayed  # measured without prediction: robots random-walk away

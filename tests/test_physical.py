@@ -1,11 +1,11 @@
-"""Physical figures of a run (coordinator/physical.py) against brute-force references."""
+"""Physical figures of a run (mission/physical.py) against brute-force references."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from covswarm.coordinator.physical import physical_summary, proximity, wheel_figures
+from covswarm.mission.physical import physical_summary, proximity, wheel_figures
 
 
 def brute_force(t: np.ndarray, traj: np.ndarray, diameter: float) -> tuple[float, int, float]:
@@ -66,7 +66,7 @@ def test_wheel_figures() -> None:
 
 def test_sim_summary_reports_physical_figures(tmp_path) -> None:
     from covswarm.deploy.simulate import build_summary, simulate
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     scenario = load_scenario("passage")
     options = dict(law="da", kappa=scenario.kappa, dt=0.05, duration=2.0, seed=0)

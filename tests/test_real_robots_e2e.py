@@ -17,7 +17,7 @@ from live_runs import launch, new_swarm, swarm_pids, wait_until
 
 from covswarm import protocol
 
-# The issue's mission for the delay tests: the passage with 10 robots, the 10 brains in one
+# The mission of the delay tests: the passage with 10 robots, the 10 brains in one
 # agent process, for as long as S moves (41 s: S reaches the goal box). Its second half then
 # holds the tracking of the moving S. After S stops, the team leaves an unstable CVT of the
 # still box (one or two robots out by up to 0.05 m for a few seconds) at a time set by
@@ -103,9 +103,9 @@ def undelayed(tmp_path_factory: pytest.TempPathFactory) -> float:
 def test_late_and_lost_poses_keep_the_undelayed_error(
     tmp_path: Path, undelayed: float, delay: float, loss: float
 ) -> None:
-    """The issue's target: with 0.15 s of pose delay and 30 % loss, or 0.3 s of delay, the
-    team converges and its steady-state e_a stays within 1.5x the undelayed runs' (before
-    the agents predicted their pose, the team flew apart: e_a 12.3 m and 9.9 m). Measured
+    """The target: with 0.15 s of pose delay and 30 % loss, or 0.3 s of delay, the
+    team converges and its steady-state e_a stays within 1.5x the undelayed runs' (without
+    the agents' pose prediction the team flies apart: e_a 12.3 m and 9.9 m). Measured
     1.16x and 1.06x over the scenario's 45 s (docs/real-robots.md); at 45 s against a
     single undelayed run that went low (0.0098 m), 1.55x once in CI, which is why the
     reference is now a mean of two and the mission ends when S stops."""
@@ -123,7 +123,7 @@ def test_late_and_lost_poses_keep_the_undelayed_error(
 
 
 @pytest.mark.e2e
-def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbours(tmp_path: Path) -> None:
+def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbors(tmp_path: Path) -> None:
     """Agent 2 is SIGSTOPped for 5 s mid-mission, then SIGCONTed. Its robot stops within the
     command timeout; within 2.5 s no other agent lists it as a Voronoi neighbour (its states
     stopped: stale after --stale-timeout, and relays carry only first-hand positions); after

@@ -23,7 +23,7 @@ from mcap.reader import make_reader
 from mcap.records import Schema
 
 from covswarm.deploy.simulate import sim_command, simulate
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.records.recorder import (
     CELL_PERIOD,
     METADATA_NAME,
@@ -373,7 +373,7 @@ def test_run_refuses_a_live_view_it_cannot_serve(tmp_path: Path) -> None:
 
     from covswarm.deploy.launcher import run_command
     from covswarm.deploy.plan import RunConfig, coordinator_config
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
     from covswarm.runtime.options import config_argv
 
     with socket.socket() as taken:

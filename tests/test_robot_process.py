@@ -132,3 +132,25 @@ def test_robot_process_does_not_import_scipy() -> None:
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_drops_per_reason_are_one_line_at_exit() -> None:
+    import json
+
+    from covswarm.sim_robot.process import drops_line, gather_drops
+
+    quiet, noisy = RobotSim(1, (0.0, 0.0, 0.0)), RobotSim(3, (0.0, 0.0, 0.0))
+    assert drops_line([quiet, noisy]) is None
+    for _ in range(500):  # a flood of garbage and of commands for robot 1 on robot 3's key
+        assert not noisy.on_command(b"\xc1", 0.0, STAMP)
+        assert not noisy.on_command(command(0.1, 0.1, robot_id=1), 0.0, STAMP)
+    assert not noisy.on_command(command(0.1, 0.1, robot_id=3), 0.0, STAMP + 10.0)  # old
+    line = drops_line([quiet, noisy])
+    assert line is not None and line.startswith("robot drops ")
+    counts = json.loads(line.removeprefix("robot drops "))
+    assert counts == {"3": {"undecodable": 500, "wrong_id": 500, "stamp_old": 1}}
+    # What the launcher gathers into summary.json from a robot process's log, other lines
+    # and a torn last line left out; two processes' lines add up per robot.
+    log = f'INFO starting\nWARNING {line}\nWARNING {line}\nrobot drops {{"3": {{"und\n'
+    assert gather_drops(log) == {"3": {"undecodable": 1000, "wrong_id": 1000, "stamp_old": 2}}
+    assert gather_drops("nothing dropped\n") == {}

@@ -26,7 +26,7 @@ from covswarm.deploy.plan import (
     plan_children,
 )
 from covswarm.deploy.router import local_endpoint
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol.keys import format_ids, parse_ids
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import id_selection

@@ -10,8 +10,8 @@ import pytest
 import shapely
 
 from covswarm.mission.motion import Keyframes, Rigid
-from covswarm.mission.scenario_files import scenario_from_dict
-from covswarm.mission.scenarios import BUILTINS, Scenario, load_scenario
+from covswarm.mission.scenario_files import load_scenario, scenario_from_dict
+from covswarm.mission.scenarios import BUILTINS, Scenario
 from covswarm.tvd.coverage import validate_polygon
 
 RIGID_TOML = """
@@ -22,7 +22,7 @@ duration = 12
 dt = 0.05
 dynamics = "unicycle"
 workspace = [-3.0, 3.0, -3.0, 3.0]
-obstacles = [[0.0, 0.5, 0.0, 0.5]]
+obstacles = [[2.5, 2.9, 2.5, 2.9]]  # clear of S at every instant
 
 [initial]
 box = [-0.5, 0.5, -0.5, 0.5]
@@ -138,7 +138,7 @@ def test_rigid_toml_fields(rigid_file: Path) -> None:
     scenario = load_scenario(rigid_file)
     assert (scenario.name, scenario.agents, scenario.kappa) == ("spin", 7, 1.5)
     assert (scenario.duration, scenario.dt, scenario.dynamics) == (12.0, 0.05, "unicycle")
-    assert scenario.obstacles == ((0.0, 0.5, 0.0, 0.5),)
+    assert scenario.obstacles == ((2.5, 2.9, 2.5, 2.9),)
     # Clockwise circling (negative period): the origin starts at phase 0.5 on the circle.
     motion = scenario.motion
     assert isinstance(motion, Rigid)

@@ -1,10 +1,11 @@
-"""Secured mode on loopback: TLS router with user/password; who may join and who may not."""
+"""Secured mode on loopback: mutual-TLS router; who may join and who may not.
+
+What each role may do once joined is tested in tests/test_secure_roles.py."""
 
 from __future__ import annotations
 
 import json
 import shutil
-import socket
 import subprocess
 import sys
 import time
@@ -12,9 +13,10 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+from live_runs import alive_tokens, open_router
 
 from covswarm import protocol
-from covswarm.protocol.security import make_test_credentials, read_credentials
+from covswarm.protocol.security import make_test_credentials, read_identities
 from covswarm.protocol.session import session_config
 
 zenoh = pytest.importorskip("zenoh")
@@ -32,43 +34,26 @@ COVSWARM = str(Path(sys.executable).with_name("covswarm"))
 
 @pytest.fixture(scope="module")
 def secure(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    """A fresh CA, router certificate and password (one per test module and run)."""
+    """A fresh CA and certificates for every role, ids 0-15 (one per test module and run)."""
     return make_test_credentials(tmp_path_factory.mktemp("secure"))
-
-
-def alive_tokens(session: object, selector: str) -> list[str]:
-    """Keys of the liveliness tokens matching ``selector`` (error replies left out)."""
-    replies = session.liveliness().get(selector, timeout=1.0)
-    return [str(reply.ok.key_expr) for reply in replies if reply.ok is not None]
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 @pytest.fixture
 def router(secure: Path) -> Iterator[tuple[zenoh.Session, str]]:
     """A secured router-mode session on a free loopback port: (session, tls endpoint)."""
-    for attempt in range(5):  # the port can be taken between probing and binding
-        endpoint = f"tls/127.0.0.1:{free_port()}"
-        try:
-            session = zenoh.open(session_config(None, [endpoint], "router", secure=secure))
-            break
-        except zenoh.ZError:
-            if attempt == 4:
-                raise
+    session, endpoint = open_router("tls", secure)
     yield session, endpoint
     session.close()
 
 
 def test_secure_folder_is_complete_and_private(secure: Path) -> None:
-    assert {p.name for p in secure.iterdir()} == {"ca.pem", "cert.pem", "key.pem", "credentials"}
-    assert (secure / "key.pem").stat().st_mode & 0o077 == 0
-    assert (secure / "credentials").stat().st_mode & 0o077 == 0
-    [(user, password)] = read_credentials(secure)
-    assert user == "covswarm" and len(password) >= 20
+    names = {entry["name"] for entry in read_identities(secure)}
+    assert {"coordinator", "bridge", "console", "operator", "agent-15", "robot-0"} <= names
+    assert len(names) == 5 + 2 * 16
+    for name in [*names, "router"]:
+        assert {p.name for p in (secure / name).iterdir()} == {"cert.pem", "key.pem"}
+        assert (secure / name / "key.pem").stat().st_mode & 0o077 == 0
+    assert (secure / "ca" / "ca.key").stat().st_mode & 0o077 == 0
 
 
 def test_secured_mode_refuses_clear_endpoints_and_incomplete_folders(
@@ -77,13 +62,14 @@ def test_secured_mode_refuses_clear_endpoints_and_incomplete_folders(
     with pytest.raises(ValueError, match="needs tls/ endpoints"):
         session_config(["tcp/127.0.0.1:7447"], secure=secure)
     (tmp_path / "ca.pem").write_text("")
-    with pytest.raises(ValueError, match="lacks credentials"):
+    with pytest.raises(ValueError, match="lacks operator: covswarm credentials"):
         session_config(["tls/127.0.0.1:7447"], secure=tmp_path)
-    with pytest.raises(ValueError, match="lacks cert.pem, key.pem, credentials"):
+    with pytest.raises(ValueError, match="lacks router/cert.pem, router/key.pem, identities"):
         session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
-    (tmp_path / "credentials").write_text("no-colon-here\n")
-    with pytest.raises(ValueError, match="expected 'user:password'"):
-        session_config(["tls/127.0.0.1:7447"], secure=tmp_path)
+    shutil.copytree(secure / "router", tmp_path / "router")
+    (tmp_path / "identities.json").write_text('[{"name": "agent-1", "role": "agent"}]')
+    with pytest.raises(ValueError, match="needs an id"):
+        session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
 
 
 @pytest.mark.timeout(120)
@@ -94,26 +80,22 @@ def test_only_clients_with_credentials_join(router: tuple, secure: Path, tmp_pat
     received: list[bytes] = []
     session.declare_subscriber(key, lambda sample: received.append(sample.payload.to_bytes()))
 
-    with zenoh.open(session_config([endpoint], secure=secure)) as member:
+    with zenoh.open(session_config([endpoint], secure=secure, role="coordinator")) as member:
         member.put(key, b"from a member")
         deadline = time.monotonic() + 10.0
         while not received and time.monotonic() < deadline:
             time.sleep(0.05)
     assert received == [b"from a member"]
 
-    user, _ = read_credentials(secure)[0]
-    wrong = tmp_path / "wrong"
-    wrong.mkdir()
-    shutil.copy(secure / "ca.pem", wrong / "ca.pem")
-    (wrong / "credentials").write_text(f"{user}:not-the-password\n")
-    no_credentials = session_config([endpoint])  # TLS with the right CA, but no login
+    other_lab = make_test_credentials(tmp_path / "other-lab", ids=[0])  # another CA
+    no_credentials = session_config([endpoint])  # TLS with the right CA, but no certificate
     no_credentials.insert_json5(
         "transport/link/tls/root_ca_certificate", json.dumps(str(secure / "ca.pem"))
     )
     plain_tcp = session_config([endpoint.replace("tls/", "tcp/")])  # no TLS at all
     outsiders = {
-        "wrong password": session_config([endpoint], secure=wrong),
-        "no credentials": no_credentials,
+        "another CA's certificate": session_config([endpoint], secure=other_lab),
+        "no certificate": no_credentials,
         "plain tcp": plain_tcp,
     }
     for name, config in outsiders.items():

@@ -13,7 +13,7 @@ from click.testing import CliRunner
 from covswarm.deploy.cli import main
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import neighbor_histogram, steady_state_mean, write_outputs
-from covswarm.mission.scenarios import load_scenario
+from covswarm.mission.scenario_files import load_scenario
 
 OUTPUTS = ("summary.json", "error.csv", "error.png", "trajectories.png")
 

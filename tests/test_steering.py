@@ -22,13 +22,12 @@ from covswarm.coordinator.steering import (
     brake_span,
     centroid,
     default_max_domain_speed,
-    signed_area,
     simplify,
     smoothstep,
     support_pairs,
 )
 from covswarm.protocol.steering import SteerRequest
-from covswarm.tvd.coverage import validate_polygon
+from covswarm.tvd.coverage import signed_area, validate_polygon
 
 SQUARE = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
 WORKSPACE = (-3.0, 3.0, -2.0, 2.0)

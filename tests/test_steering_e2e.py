@@ -118,7 +118,8 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
             time.sleep(0.5)
             np.testing.assert_array_equal(watcher.vertices(), moved)  # S did not move
 
-            accepted = steer_cli(endpoint, swarm, "--rotate", "20", "--duration", "3")
+            # (A 20 degree turn here would now be refused: S's corner would touch obstacle 2.)
+            accepted = steer_cli(endpoint, swarm, "--scale", "0.9", "--duration", "3")
             assert accepted.returncode == 0 and accepted.stdout.startswith("accepted"), (
                 accepted.stdout + accepted.stderr
             )
@@ -132,7 +133,7 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
     assert [(r["request"]["kind"], r["accepted"]) for r in records] == [
         ("translate", True),
         ("polygon", False),
-        ("rotate", True),
+        ("scale", True),
     ]
     assert records[1]["reason"].startswith("non-convex")
     assert summary["steering_refused"] == {"non-convex": 1}

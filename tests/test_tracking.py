@@ -296,7 +296,7 @@ def test_scaling_stability_edge() -> None:
 
 def steady(law: str, scenario_name: str, **options) -> float:
     from covswarm.deploy.simulate import simulate
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     result = simulate(load_scenario(scenario_name), law=law, **options)
     return float(np.mean(result.error[len(result.error) // 2 :])), result
@@ -332,7 +332,7 @@ def test_guard_and_fallback_rates_are_counted_and_bounded(law: str, damping: flo
     (``--damping 0``) falls back to TVD-D1, and that is counted, not hidden (docs/results.md:
     about 99 % of the steps at 100 robots)."""
     from covswarm.deploy.simulate import build_summary, simulate
-    from covswarm.mission.scenarios import load_scenario
+    from covswarm.mission.scenario_files import load_scenario
 
     scenario = load_scenario("circle")
     options = {"agents": 20, "duration": 10.0, "dt": 0.05, "seed": 0, "dynamics": "single"}

@@ -2,8 +2,8 @@
 
 With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
 
-- TVD-D1 (eq. TVD-D1): pdot = (I + J) r, the one-term Neumann truncation, whose row i needs
-  only robot i's cell and its neighbours' cells.
+- TVD-D1 (eq. (5), Section 2.3): pdot = (I + J) r, the one-term Neumann truncation, whose
+  row i needs only robot i's cell and its neighbours' cells.
 - TVD-DA (domain-motion feedforward, docs/tracking.md): with v(q) = A q + b the affine field
   fitted (least squares) to S's vertex velocities (near a density's bumps, blended with the
   bumps' own motion: ``motion_field``),
@@ -14,11 +14,11 @@ With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
   similarity (translation, rotation, uniform scaling) with uniform density, v(p) solves
   (I - J) x = dc/dt exactly, so rho = 0 and the feedforward is TVD-C's; the one-hop
   correction (I + J) rho carries whatever the affine guess misses (non-affine vertex motion,
-  a moving density, shear). Same information as a TVD-D1 step. The issue's first form kept
-  Lloyd's feedback kappa (c - p) outside (I + J); the Neumann factor on the feedback too
-  halves the decay time of the slow modes and measured 1.4 to 9 times lower errors
-  (docs/tracking.md).
-- TVD-C (eq. TVD-C): the exact law pdot = (I - J)^-1 r is kept as ``damping=None``; by
+  a moving density, shear). Same information as a TVD-D1 step. The feedback kappa (c - p)
+  goes inside (I + J) too, rather than beside it as Lloyd's plain feedback: the Neumann
+  factor halves the decay time of the slow modes, 1.4 to 9 times lower errors measured
+  (docs/tracking.md; scripts/da_variants.py "lloyd").
+- TVD-C (eq. (4), Section 2.3): the exact law pdot = (I - J)^-1 r is kept as ``damping=0``; by
   default the feedback stays outside the inverse and only the feedforward is solved, damped
   (Tikhonov / Levenberg-Marquardt) toward a prior x0: pdot = kappa (c - p) + x with
   x = argmin |(I - J) x - dc/dt|^2 + damping^2 |x - x0|^2. I - J is near singular close to a
@@ -68,8 +68,8 @@ import scipy.sparse.linalg
 
 from covswarm.tvd.coverage import (
     CellBatch,
+    CoverageDomain,
     DensityModel,
-    Domain,
     as_complex,
     as_vectors,
     build_cells,
@@ -154,7 +154,7 @@ def affine_field(polygon: np.ndarray, polygon_velocity: np.ndarray) -> AffineFie
     return _fit(make_domain(polygon, polygon_velocity))
 
 
-def _fit(domain: Domain) -> AffineField:
+def _fit(domain: CoverageDomain) -> AffineField:
     """Least squares about the vertices' mean q0: the centred design [q - q0, 1] has its
     last column orthogonal to the others, so b0 = mean velocity and A^T = (Q^T Q)^-1 Q^T V
     (2 x 2, written out: this runs in every robot's step)."""
@@ -191,7 +191,9 @@ def motion_field(
     return as_vectors(_motion_field(make_domain(polygon, polygon_velocity), points, density))
 
 
-def _motion_field(domain: Domain, points: np.ndarray, density: DensityModel | None) -> np.ndarray:
+def _motion_field(
+    domain: CoverageDomain, points: np.ndarray, density: DensityModel | None
+) -> np.ndarray:
     """``motion_field`` of a validated domain, (P,) complex."""
     field = _fit(domain)
     guess = field(points)
@@ -218,7 +220,7 @@ def _check_law(law: str) -> None:
 def _targets(
     batch: CellBatch,
     points: np.ndarray,
-    domain: Domain,
+    domain: CoverageDomain,
     feedforward: bool,
     density: DensityModel | None,
 ) -> tuple[np.ndarray, np.ndarray | None]:
@@ -238,7 +240,7 @@ def _targets(
     return target, rate
 
 
-def _whole_domain(domain: Domain, density: DensityModel | None) -> tuple[complex, complex]:
+def _whole_domain(domain: CoverageDomain, density: DensityModel | None) -> tuple[complex, complex]:
     """Centroid of all of S and its rate: the cell of a robot alone in S."""
     alone = domain.vertices.mean(axis=0, keepdims=True)
     cell = _weigh(build_cells(alone, np.array([0]), np.full((1, 1), -1), domain), density)
@@ -304,7 +306,7 @@ def _team_cells(
     polygon_velocity: np.ndarray,
     kappa: float,
     density: DensityModel | None,
-) -> tuple[np.ndarray, Domain, CellBatch]:
+) -> tuple[np.ndarray, CoverageDomain, CellBatch]:
     _check_kappa(kappa)
     return tessellate(positions, polygon, polygon_velocity, density)
 
@@ -318,20 +320,20 @@ def team_step(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
-    damping: float | None = DAMPING,
+    damping: float = DAMPING,
     prior: str = "affine",
 ) -> TeamStep:
     """One full-team step of ``law`` ("c", "d1" or "da"), with its guard counts.
 
     positions: (n, 2) m; polygon, polygon_velocity: (k, 2) m and m/s; kappa 1/s.
-    ``damping`` and ``prior`` apply to "c" only (damping None: the exact TVD-C with its
+    ``damping`` and ``prior`` apply to "c" only (damping 0: the exact TVD-C with its
     fallback).
     """
     _check_law(law)
     if prior not in PRIORS:
         raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
-    if damping is not None and not (math.isfinite(damping) and damping > 0.0):
-        raise ValueError(f"damping must be a positive finite number or None, got {damping!r}")
+    if not (math.isfinite(damping) and damping >= 0.0):
+        raise ValueError(f"damping must be a finite number >= 0, got {damping!r}")
     points, domain, batch = _team_cells(positions, polygon, polygon_velocity, kappa, density)
     target, rate = _targets(batch, points, domain, feedforward, density)
     feedback = kappa * (target - as_complex(points))
@@ -340,7 +342,7 @@ def team_step(
         return _team_d1(batch, points, references, max_amplification, density)
     if law == "da":
         return _team_da(batch, points, domain, feedback, rate, max_amplification, density)
-    if damping is None:
+    if damping == 0.0:
         return _team_c_exact(batch, points, feedback, rate, max_amplification, density)
     field = as_complex(_fit(domain)(points)) if prior == "affine" else None
     return _team_c_damped(batch, points, feedback, rate, max_amplification, density, damping, field)
@@ -368,7 +370,7 @@ def _team_d1(
 def _team_da(
     batch: CellBatch,
     points: np.ndarray,
-    domain: Domain,
+    domain: CoverageDomain,
     feedback: np.ndarray,
     rate: np.ndarray | None,
     max_amplification: float,
@@ -541,14 +543,14 @@ def tvd_c(
     feedforward: bool = True,
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
-    damping: float | None = DAMPING,
+    damping: float = DAMPING,
     prior: str = "affine",
 ) -> np.ndarray:
     """TVD-C velocities for the whole team (module notes).
 
     Default: kappa (c - p) + x, x = argmin |(I - dc/dp) x - dc/dt|^2 + damping^2 |x - x0|^2,
     x0 the affine field v(p) (``prior="affine"``) or 0 (``prior="zero"``).
-    ``damping=None``: the paper's exact (I - dc/dp)^-1 (kappa (c - p) + dc/dt), falling back
+    ``damping=0``: the paper's exact (I - dc/dp)^-1 (kappa (c - p) + dc/dt), falling back
     to the guarded TVD-D1 velocities when I - dc/dp is numerically singular or the solution
     amplifies a robot's speed beyond ``max_amplification`` times max |r|.
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2).

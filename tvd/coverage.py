@@ -4,9 +4,9 @@ Implements Sections 2-4 of Xu & Diaz-Mercado, "Multi-Agent Control Using Coverag
 Time-Varying Domains", for uniform density phi = 1 over a convex polygon S(t):
 
 - mass m_i and centroid c_i of each cell V_i (Section 4.2, sums wrapping around the cell);
-- dc/dp, the blocks of eqs. (dcidpj) / (dcidpi) in the closed form of the Lemma "Analytic
-  Partial Derivatives";
-- dc/dt of Proposition 1 (eq. dcidt2): the boundary term, in closed form for a boundary
+- dc/dp, the blocks of eqs. (6) / (7) (Section 2.3) in the closed form of Lemma 3
+  ("Analytic Partial Derivatives", Section 4.3);
+- dc/dt of Proposition 1 (Section 3, eq. (9)): the boundary term, in closed form for a boundary
   velocity that varies linearly along each edge of S, which is exact for translation,
   scaling and rotation (the paper's form with one normal speed per edge is the special
   case of an edge that does not rotate).
@@ -65,7 +65,7 @@ MAX_POLYGON_VERTICES = 1024
 
 
 @dataclass(frozen=True)
-class Domain:
+class CoverageDomain:
     """A validated subdomain S: counter-clockwise vertices and matching vertex velocities.
 
     vertices: (k, 2) counter-clockwise; velocities: (k, 2); size: half the perimeter of S,
@@ -150,7 +150,7 @@ class DensityModel(Protocol):
     ) -> np.ndarray: ...
 
     def boundary_rates(
-        self, batch: CellBatch, points: np.ndarray, domain: Domain
+        self, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
     ) -> np.ndarray: ...
 
 
@@ -180,7 +180,7 @@ def cell_jacobian_blocks(
 
 
 def cell_rates(
-    batch: CellBatch, points: np.ndarray, domain: Domain, density: DensityModel | None
+    batch: CellBatch, points: np.ndarray, domain: CoverageDomain, density: DensityModel | None
 ) -> np.ndarray:
     """dc/dt of Proposition 1, (K,) complex: ``boundary_rates`` for phi = 1, else both of its
     terms."""
@@ -210,13 +210,13 @@ def validate_positions(positions: np.ndarray) -> np.ndarray:
     return points
 
 
-def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None) -> Domain:
+def make_domain(polygon: np.ndarray, polygon_velocity: np.ndarray | None = None) -> CoverageDomain:
     """Validate S (``polygon: (k, 2)``) and its vertex velocities; orient both CCW.
 
     ``polygon_velocity: (k, 2)`` defaults to a still domain. Raises ValueError (see
     ``validate_polygon``).
     """
-    vertices = np.array(polygon, dtype=np.float64)  # a copy: the Domain is immutable
+    vertices = np.array(polygon, dtype=np.float64)  # a copy: the CoverageDomain is immutable
     if vertices.ndim != 2 or vertices.shape[1] != 2:
         raise ValueError(f"polygon must have shape (k, 2), got {vertices.shape}")
     k = vertices.shape[0]
@@ -282,8 +282,8 @@ def _derive(
     size: float,
     edges: np.ndarray,
     lengths: np.ndarray,
-) -> Domain:
-    """The Domain of valid CCW ``vertices`` and ``velocities`` (k, 2), with its derived
+) -> CoverageDomain:
+    """The CoverageDomain of valid CCW ``vertices`` and ``velocities`` (k, 2), with its derived
     arrays; ``edges`` (k,) complex, ``lengths`` (k,) their lengths."""
     z = vertices.view(np.complex128)[:, 0]
     u = velocities.view(np.complex128)[:, 0]
@@ -292,7 +292,7 @@ def _derive(
     end_speed = (normal.conj() * _following(u)).real
     # nu(q) = nu_start + (nu_end - nu_start) (q - vertex) . edge / |edge|^2 along edge l.
     gradient = ((end_speed - start_speed) / (lengths * lengths)) * edges
-    return Domain(
+    return CoverageDomain(
         vertices=vertices,
         velocities=velocities,
         size=size,
@@ -319,13 +319,20 @@ def _crossing_edges(vertices: np.ndarray) -> tuple[int, int] | None:
     return (int(hits[0][0]), int(hits[0][1])) if len(hits) else None
 
 
+def signed_area(polygon: np.ndarray) -> float:
+    """Shoelace area of a polygon's ``(k, 2)`` vertices (m^2), positive when they run
+    counter-clockwise: the mass of S for phi = 1 (Section 4.2's sum over its edges)."""
+    x, y = polygon[:, 0], polygon[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
+
+
 def cross(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     """z-component of the cross product of stacked 2-vectors: (..., 2) x (..., 2) -> (...)."""
     return a[..., 0] * b[..., 1] - a[..., 1] * b[..., 0]
 
 
 def build_cells(
-    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: Domain
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
 ) -> CellBatch:
     """The clipped Voronoi cells of ``owners: (K,)`` among ``points: (n, 2)``.
 
@@ -399,7 +406,7 @@ def as_vectors(numbers: np.ndarray) -> np.ndarray:
     return numbers.view(np.float64).reshape(*numbers.shape, 2)
 
 
-def cell_neighbors(points: np.ndarray, owner: int, domain: Domain) -> np.ndarray:
+def cell_neighbors(points: np.ndarray, owner: int, domain: CoverageDomain) -> np.ndarray:
     """Robots whose bisector may bound the cell of ``owner`` among ``points: (n, 2)``, (m,).
 
     A superset of its Voronoi neighbours in S, for deciding whose cells to build next: the
@@ -441,7 +448,9 @@ class _Lines(NamedTuple):
     present: np.ndarray
 
 
-def _clip(points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: Domain) -> _Lines:
+def _clip(
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+) -> _Lines:
     """Each candidate line's piece inside all the other half-planes: see ``build_cells``."""
     tol = domain.tol
     count = len(owners)
@@ -571,7 +580,7 @@ TEAM_CANDIDATES = 16
 BATCH_CELLS = 512
 
 
-def team_cells(points: np.ndarray, domain: Domain) -> CellBatch:
+def team_cells(points: np.ndarray, domain: CoverageDomain) -> CellBatch:
     """Every robot's cell, ``points: (n, 2)``; owners are 0..n-1 in order."""
     n = len(points)
     everyone = np.arange(n)
@@ -636,7 +645,7 @@ def _replace(batch: CellBatch, rows: np.ndarray, rebuilt: CellBatch) -> CellBatc
     return CellBatch(**fields)
 
 
-def nearest_point(domain: Domain, point: np.ndarray) -> tuple[np.ndarray, int, float]:
+def nearest_point(domain: CoverageDomain, point: np.ndarray) -> tuple[np.ndarray, int, float]:
     """Nearest point of S to ``point: (2,)``.
 
     Returns (q (2,), edge l, sigma): q = S_l + sigma (S_{l+1} - S_l); l = -1 when the point is
@@ -655,7 +664,7 @@ def nearest_point(domain: Domain, point: np.ndarray) -> tuple[np.ndarray, int, f
 
 
 def nearest_point_derivatives(
-    domain: Domain, point: np.ndarray
+    domain: CoverageDomain, point: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The nearest point q of S to ``point: (2,)`` and (q, dq/dp (2, 2), dq/dt (2,)).
 
@@ -683,9 +692,9 @@ def nearest_point_derivatives(
 def jacobian_blocks(batch: CellBatch, points: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Closed-form blocks of dc/dp for the batch's rows (non-empty cells).
 
-    Returns off: (K, L, 2, 2), dc_i/dp_j by eq. (dcidpj) for the edge shared with robot
-    labels[k, l] (zero where there is none), and diagonal: (K, 2, 2), dc_i/dp_i by eq.
-    (dcidpi). Empty cells get zero blocks.
+    Returns off: (K, L, 2, 2), dc_i/dp_j by eq. (6) (Section 2.3) for the edge shared
+    with robot labels[k, l] (zero where there is none), and diagonal: (K, 2, 2), dc_i/dp_i
+    by eq. (7). Empty cells get zero blocks.
 
     Along a shared edge from v1 to v2 (d = v2 - v1) the Lemma's integral of
     (q - c)(q - a)^T ds is |d| [u w^T + (u d^T + d w^T) / 2 + d d^T / 3] with u = v1 - c,
@@ -726,8 +735,8 @@ def jacobian_times(
     """(dc/dp r)_i = sum_j dc_i/dp_j r_j for the batch's rows, (K,), without the blocks.
 
     own: (K,) r_i; others: (K, L) r_j of the robot each line comes from (read only on shared
-    edges); vectors as complex numbers. The closed form of ``jacobian_blocks`` (eqs. dcidpj,
-    dcidpi) applied to vectors: with the bracket's u w^T + ... written as
+    edges); vectors as complex numbers. The closed form of ``jacobian_blocks`` (eqs. (6),
+    (7)) applied to vectors: with the bracket's u w^T + ... written as
     u (A . v) + d (B . v), each shared edge adds |d| / (m_i |p_i - p_j|)
     [u (A . (r_i - r_j)) + d (B . (r_i - r_j)) - (u + d / 2) ((p_i - p_j) . r_j)],
     A = w + d / 2, B = w / 2 + d / 3. TVD-D1 needs only this product, at a fraction of the
@@ -765,7 +774,7 @@ def _outer(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     return a[..., :, None] * b[..., None, :]
 
 
-def boundary_rates(batch: CellBatch, points: np.ndarray, domain: Domain) -> np.ndarray:
+def boundary_rates(batch: CellBatch, points: np.ndarray, domain: CoverageDomain) -> np.ndarray:
     """dc_i/dt of Proposition 1 for the batch's cells, (K,) complex.
 
     The boundary term: on a cell edge lying on edge l of S the outward normal speed nu is
@@ -801,7 +810,7 @@ def tessellate(
     polygon: np.ndarray,
     polygon_velocity: np.ndarray | None = None,
     density: DensityModel | None = None,
-) -> tuple[np.ndarray, Domain, CellBatch]:
+) -> tuple[np.ndarray, CoverageDomain, CellBatch]:
     """Validate the inputs and build every robot's cell: (points, domain, cells).
 
     With a density the cells' masses and centroids are those of phi.
@@ -853,7 +862,7 @@ def neighbors(
 def centroid_jacobian(
     positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> np.ndarray:
-    """dc/dp, eqs. (dcidpj)/(dcidpi): closed form for uniform density, else quadrature.
+    """dc/dp, eqs. (6)/(7) (Section 2.3): closed form for uniform density, else quadrature.
 
     positions: (n, 2); polygon: (k, 2). Returns a dense (2n, 2n) array ordered
     [x0, y0, x1, y1, ...]. The row of an empty cell is the derivative of the nearest point
@@ -878,7 +887,7 @@ def centroid_rate(
     polygon_velocity: np.ndarray,
     density: DensityModel | None = None,
 ) -> np.ndarray:
-    """dc/dt of Proposition 1 (eq. dcidt2): the boundary term, plus the dphi/dt term.
+    """dc/dt of Proposition 1 (Section 3, eq. (9)): the boundary term, plus the dphi/dt term.
 
     positions: (n, 2); polygon, polygon_velocity: (k, 2). Returns (n, 2). For an empty cell
     it is the velocity of the nearest point of S.

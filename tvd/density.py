@@ -26,7 +26,7 @@ exp (and, for the zeroth, Owen's T function of the bivariate normal law):
 - m_i = int phi and c_i = int q phi / m_i;
 - the density term of Proposition 1, int (q - c_i) dphi/dt, from the moments up to order 3
   (dphi/dt is g times a quadratic in y);
-- dc/dp (eqs. dcidpj, dcidpi) and the boundary term of Proposition 1: along an edge, a
+- dc/dp (eqs. (6), (7) of Section 2.3) and the boundary term of Proposition 1: along an edge, a
   polynomial of degree <= 2 times a one-dimensional Gaussian (erf and exp again; the
   outward speed of a boundary point varies linearly along its edge of S, as in
   covswarm.tvd.coverage.boundary_rates).
@@ -67,18 +67,9 @@ from typing import Any
 import numpy as np
 from scipy.special import erf, erfc, owens_t
 
-from covswarm.tvd.coverage import CellBatch, as_complex
-from covswarm.tvd.coverage import Domain as CoverageDomain
+from covswarm.tvd.coverage import CellBatch, CoverageDomain, as_complex
 from covswarm.tvd.coverage import boundary_rates as uniform_boundary_rates
 
-# Gauss-Legendre points per direction of the collapsed triangle rule (exact to degree
-# 2 TRIANGLE_ORDER - 2) and per edge (exact to degree 2 EDGE_ORDER - 1).
-TRIANGLE_ORDER = 8
-EDGE_ORDER = 8
-# Largest piece of a subdivided triangle or edge, in standard deviations of the narrowest
-# bump, and the cap on pieces per side (the cost grows as its square).
-RESOLUTION = 4.0
-MAX_SUBDIVISION = 8
 MAX_BUMPS = 16
 # Relative asymmetry of a covariance (or its rate) accepted as rounding.
 SYMMETRY_TOL = 1e-9
@@ -827,7 +818,7 @@ def _area_centroid(batch: CellBatch) -> tuple[np.ndarray, np.ndarray]:
 
 
 def weigh(density: Density, batch: CellBatch) -> CellBatch:
-    """``batch`` with m_i = int phi and c_i = int q phi / m_i (eq. eqcenterOfMass).
+    """``batch`` with m_i = int phi and c_i = int q phi / m_i (eqs. (2), (3), Section 2.2).
 
     Empty cells keep mass 0 and the nearest point of S as their centroid.
     """
@@ -877,7 +868,7 @@ def _outer_blocks(plain: np.ndarray, twisted: np.ndarray) -> np.ndarray:
 def jacobian_blocks(
     density: Density, batch: CellBatch, points: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
-    """dc/dp blocks of a weighed batch, eqs. (dcidpj) and (dcidpi) with phi.
+    """dc/dp blocks of a weighed batch, eqs. (6) and (7) (Section 2.3) with phi.
 
     off (K, L, 2, 2): -int_{dV_ij} (q - c_i)(q - p_j)^T phi / (m_i |p_i - p_j|) for the
     edge on line l shared with robot j = labels[k, l], zero elsewhere; diagonal (K, 2, 2):
@@ -954,7 +945,7 @@ def _jacobian_sums(
 def centroid_rates(
     density: Density, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
 ) -> np.ndarray:
-    """dc_i/dt of Proposition 1 (eq. dcidt2) for a weighed batch, (K,) complex: both terms.
+    """dc_i/dt of Proposition 1 (Section 3, eq. (9)) for a weighed batch, (K,) complex: both terms.
 
     (1/m_i) int_{V_i} (q - c_i) dphi/dt + (1/m_i) int_{dS_i} (q - c_i) phi nu, with nu the
     outward normal speed of S, linear along each edge of S. An empty cell gets the velocity

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 
 DEFAULT_PROJECTION_DISTANCE = 0.03  # m; see the module docstring for how it was chosen
+MAX_WHEEL_SPEED = 0.8  # m/s rim speed; the Khepera IV is quoted 0.8-1.0 m/s
 
 
 @dataclass(frozen=True)
@@ -39,7 +40,7 @@ class DiffDrive:
     wheel_radius: float = 0.021
     wheel_separation: float = 0.1054
     body_diameter: float = 0.14
-    max_wheel_speed: float = 0.8  # rim speed; the Khepera IV is quoted 0.8-1.0 m/s
+    max_wheel_speed: float = MAX_WHEEL_SPEED
 
 
 KHEPERA_IV = DiffDrive()
@@ -80,25 +81,17 @@ def wheel_speeds(
     return wheels * scale[:, None]
 
 
-def achieved_velocity(
-    headings: np.ndarray,
-    wheels: np.ndarray,
-    robot: DiffDrive = KHEPERA_IV,
-    projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
-) -> np.ndarray:
-    """Planar velocity (n, 2) of the tracked point that rim speeds ``wheels`` (n, 2) give.
+def twist_from_wheels(
+    left: float | np.ndarray, right: float | np.ndarray, wheel_separation: float
+) -> tuple[float | np.ndarray, float | np.ndarray]:
+    """Differential-drive kinematics: rim speeds (m/s) -> (v m/s, omega rad/s).
 
-    The inverse of ``wheel_speeds``: the commanded velocity where no wheel saturated, that
-    velocity scaled down to what the wheels can do where one did. What neighbours should
-    dead-reckon with, rather than a command the robot cannot follow.
+    v = (left + right) / 2 along the heading, omega = (right - left) / wheel_separation
+    (wheel_separation in m). Floats or arrays of one shape; arithmetic only, so the robot
+    side (``integrate``, ``integrate_one``), an agent's report of its centre velocity and the
+    ROS 2 bridge's Twist all use the same figures.
     """
-    headings = np.asarray(headings, dtype=float).reshape(-1)
-    wheels = np.asarray(wheels, dtype=float).reshape(-1, 2)
-    v = 0.5 * (wheels[:, 0] + wheels[:, 1])
-    w = (wheels[:, 1] - wheels[:, 0]) / robot.wheel_separation
-    cos, sin = np.cos(headings), np.sin(headings)
-    turn = w * projection_distance
-    return np.stack([v * cos - turn * sin, v * sin + turn * cos], axis=1)
+    return 0.5 * (left + right), (right - left) / wheel_separation
 
 
 def integrate(
@@ -116,8 +109,7 @@ def integrate(
         raise ValueError(f"{poses.shape[0]} poses but {wheels.shape[0]} wheel commands")
     wheels = np.where(np.isfinite(wheels), wheels, 0.0)
     wheels = np.clip(wheels, -robot.max_wheel_speed, robot.max_wheel_speed)
-    v = 0.5 * (wheels[:, 0] + wheels[:, 1])
-    w = (wheels[:, 1] - wheels[:, 0]) / robot.wheel_separation
+    v, w = twist_from_wheels(wheels[:, 0], wheels[:, 1], robot.wheel_separation)
     heading = poses[:, 2]
     turn = w * dt
     # Chord of the arc: length v dt sin(turn/2)/(turn/2), direction heading + turn/2.
@@ -142,8 +134,8 @@ def integrate_one(
     limit = robot.max_wheel_speed
     left = min(max(left, -limit), limit) if math.isfinite(left) else 0.0
     right = min(max(right, -limit), limit) if math.isfinite(right) else 0.0
-    v = 0.5 * (left + right)
-    turn = (right - left) / robot.wheel_separation * dt
+    v, w = twist_from_wheels(left, right, robot.wheel_separation)
+    turn = w * dt
     half = 0.5 * turn
     chord = v * dt * (math.sin(half) / half if half != 0.0 else 1.0)
     mid = heading + half

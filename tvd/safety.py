@@ -33,6 +33,19 @@ so dp/dt = e e^T u and a row a . dp/dt <= b is the row (a . e) e^T u <= b on u: 
 the body centre, and every row then limits only the forward speed (turning in place never
 moves the centre), so the QP keeps the turn and clamps the speed to an interval.
 
+Static obstacles and walls (:func:`obstacle_constraints`): for a convex obstacle O (a polygon)
+the robot keeps h_O(p) = dist(p, O) - r - margin >= 0, r its body radius, with the row
+
+    grad h_O(p) . u >= -gamma h_O(p),   i.e.   -grad h_O . u <= gamma h_O,
+
+the robot taking the whole condition (an obstacle does not move, nobody shares it); each
+wall of the rectangular workspace is a half-plane with h = (distance to the wall) - r -
+margin. grad h_O is the unit vector from O's nearest point to p (the outward edge normal
+inside O: covswarm.tvd.geometry.point_polygon_distance_grad). dist(p, O) is convex in p,
+so h_O(p + s u) >= h_O + s grad h_O . u >= (1 - gamma s) h_O: the sampled guarantee below
+holds for obstacles too, and exactly for walls (h affine). u = 0 meets every obstacle row
+while h_O >= 0, so obstacles never make the QP infeasible for a robot that is clear of them.
+
 Linear class-K function (gamma h, not the Robotarium's gamma h^3) on purpose: with velocities
 held over a sampling period T (zero-order hold, the agents' control period),
 h(t + s) = h + 2 s d.(u_i - u_j) + s^2 |u_i - u_j|^2 >= (1 - gamma s) h, so for gamma T <= 1
@@ -44,9 +57,13 @@ Pure numpy, no I/O. Distances in m, velocities in m/s, gamma in 1/s.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
+
+# (xmin, xmax, ymin, ymax) m: a rectangular workspace, the robots' centres inside.
+Box = tuple[float, float, float, float]
 
 # 1/s: the barrier's decay rate. gamma T <= 1 is what keeps the guarantee at a sampling
 # period T (module docstring): this is the largest for the agents' 10 Hz, and an agent
@@ -59,6 +76,14 @@ DEFAULT_GAMMA = 10.0
 # between two commands instead of the straight line of the rows).
 DEFAULT_MARGIN = 0.02
 FEASIBILITY_TOL = 1e-9  # m^2/s: slack allowed on a row when checking a candidate
+# m: robots within this distance of a robot enter its safety filter (an agent also follows
+# their AgentStates when they are not Voronoi neighbours: robots outside S, with empty
+# cells, have none). The safe distance (0.16 m) plus what two robots at the wheels' top
+# speed (0.8 m/s each) close in two 10 Hz periods (0.32 m). Farther is not safer, only
+# dearer: at 1 m, a 100-robot circle run (0.2 m spacing) followed ~75 states per agent,
+# 436 messages/s, missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the
+# followed set is about the two-hop set, which the coverage step follows anyway.
+SAFETY_RADIUS = 0.5
 
 
 @dataclass(frozen=True)
@@ -80,6 +105,12 @@ def body_safe_distance(body_diameter: float, margin: float = DEFAULT_MARGIN) -> 
     """Safe distance between two robots' centres: a body diameter (two radii) plus
     ``margin``, m."""
     return body_diameter + margin
+
+
+def wall_distance(body_diameter: float, margin: float = DEFAULT_MARGIN) -> float:
+    """Distance kept between a robot's centre and an obstacle or wall: a body radius plus
+    ``margin``, m (the same margin as between two robots)."""
+    return 0.5 * body_diameter + margin
 
 
 def barrier_gain(gamma: float, period: float) -> float:
@@ -119,6 +150,95 @@ def pair_constraints(
         share = np.maximum(b, 0.0)
         b = b + np.clip(np.einsum("ij,ij->i", A, mean), -share, share)
     return A, b
+
+
+def polygon_distance_grads(
+    point: np.ndarray, polygons: Sequence[np.ndarray]
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`covswarm.tvd.geometry.point_polygon_distance_grad` of ``point`` (2,) m to each
+    of m convex CCW polygons (k_j, 2) m at once: (signed distances (m,) m, gradients (m, 2)).
+
+    One numpy pass over the polygons padded to the most vertices K (a short one repeats its
+    last vertex: zero-length edges, which the nearest point ignores by ties and the depth by
+    a mask), instead of a call per polygon, whose overhead dominated an agent's filter near
+    a map's many pieces. The same formulas edge by edge (equal to rounding).
+    """
+    p = np.asarray(point, dtype=float).reshape(2)
+    m = len(polygons)
+    sizes = {len(q) for q in polygons}
+    if len(sizes) == 1:  # all boxes, say: no padding
+        a = np.array(polygons, dtype=float).reshape(m, -1, 2)
+    else:
+        a = np.empty((m, max(sizes), 2))
+        for j, q in enumerate(polygons):
+            n = len(q)
+            a[j, :n], a[j, n:] = q, q[n - 1]
+    # Components on (m, K) arrays: faster than einsum over a last axis of 2.
+    ax, ay = a[..., 0], a[..., 1]
+    dx, dy = np.roll(ax, -1, axis=1) - ax, np.roll(ay, -1, axis=1) - ay  # K-1 closes
+    rx, ry = p[0] - ax, p[1] - ay
+    length2 = dx * dx + dy * dy
+    valid = length2 > 0.0
+    safe2 = np.where(valid, length2, 1.0)
+    inside = np.all(dx * ry - dy * rx >= 0.0, axis=1)
+    t = np.clip((rx * dx + ry * dy) / safe2, 0.0, 1.0)
+    gx, gy = rx - t * dx, ry - t * dy  # p - nearest point of each edge
+    d2 = gx * gx + gy * gy
+    best = np.argmin(d2, axis=1)
+    rows = np.arange(m)
+    dist = np.sqrt(d2[rows, best])
+    outside = ~inside & (dist > 0.0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        grad = np.stack([gx[rows, best], gy[rows, best]], axis=1) / dist[:, None]
+    signed = dist.copy()
+    if not outside.all():
+        # Inside or on the boundary: the deepest edge line (the first of equals), as
+        # geometry's, on the outward unit normals.
+        norm = np.sqrt(safe2)
+        nx, ny = dy / norm, -dx / norm
+        depth = np.where(valid, nx * rx + ny * ry, -np.inf)
+        deepest = np.argmax(depth, axis=1)
+        normal = np.stack([nx[rows, deepest], ny[rows, deepest]], axis=1)
+        grad[~outside] = normal[~outside]
+        signed[~outside] = np.minimum(depth[rows, deepest], 0.0)[~outside]
+    return signed, grad
+
+
+def obstacle_constraints(
+    position: np.ndarray,
+    obstacles: Sequence[np.ndarray],
+    workspace: Box | None,
+    distance: float,
+    gamma: float,
+    reach: float = np.inf,
+) -> tuple[np.ndarray, np.ndarray]:
+    """This robot's barrier rows for static obstacles and walls: (A (m, 2), b (m,)), A u <= b.
+
+    position: (2,) m, the robot's centre; obstacles: convex polygons (k, 2) m, CCW;
+    workspace: the walls (xmin, xmax, ymin, ymax) m, or None; distance: m kept between the
+    centre and an obstacle (:func:`wall_distance`); reach: m, obstacles and walls farther
+    than this from the centre get no row. Per obstacle or wall, h = dist - ``distance`` and
+    the row -grad h . u <= gamma h (module docstring), the whole condition.
+    """
+    p = np.asarray(position, dtype=float).reshape(2)
+    rows: list[np.ndarray] = []
+    bounds: list[float] = []
+    if len(obstacles):
+        signed, grad = polygon_distance_grads(p, obstacles)
+        near = signed <= reach
+        rows.extend(-grad[near])
+        bounds.extend(gamma * (signed[near] - distance))
+    if workspace is not None:
+        xmin, xmax, ymin, ymax = (float(v) for v in workspace)
+        if not (xmin < xmax and ymin < ymax):
+            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax), got {workspace!r}")
+        # Inward normals of the left, right, bottom and top walls, and each wall's distance.
+        inward = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        gaps = np.array([p[0] - xmin, xmax - p[0], p[1] - ymin, ymax - p[1]])
+        near = gaps <= reach
+        rows.extend(-inward[near])
+        bounds.extend(gamma * (gaps[near] - distance))
+    return np.array(rows, dtype=float).reshape(-1, 2), np.array(bounds, dtype=float)
 
 
 def unicycle_rows(A: np.ndarray, heading: float) -> np.ndarray:
@@ -185,6 +305,11 @@ def safe_velocity(
     heading: float | None = None,
     velocity: np.ndarray | None = None,
     neighbor_velocities: np.ndarray | None = None,
+    obstacles: Sequence[np.ndarray] = (),
+    workspace: Box | None = None,
+    obstacle_distance: float | None = None,
+    reach: float = np.inf,
+    obstacle_gamma: float | None = None,
 ) -> FilterResult:
     """The velocity closest to ``nominal`` that keeps this robot's half of every pair safe.
 
@@ -194,14 +319,26 @@ def safe_velocity(
     heading: rad, for a differential-drive robot whose steered point moves with ``nominal``
     (:func:`unicycle_rows`; None: a single integrator). velocity, neighbor_velocities: the
     current centre velocities for the reciprocal split (:func:`pair_constraints`).
+    obstacles (convex polygons (k, 2) m), workspace (walls (xmin, xmax, ymin, ymax) m): one
+    row each within ``reach`` m (:func:`obstacle_constraints`), keeping the centre
+    ``obstacle_distance`` m from them (:func:`wall_distance`; required with either), at the
+    decay rate ``obstacle_gamma`` 1/s (None: ``gamma``; smaller leaves room for command
+    latency, covswarm.agent.brain.WALL_GAMMA_FRACTION). With neither, the rows and the
+    result are exactly those of the robots alone.
     Non-finite neighbours are ignored; a non-finite position, heading or nominal velocity
     gives 0. When the rows cannot all hold (``relaxed``: a pair already inside the safe
     distance, boxed in), every bound is raised to max(gamma h / 2, 0), which the zero
     velocity meets: the robot closes on no one that way, but the pair's guarantee is gone
-    until it is apart again. Callers count these.
+    until it is apart again; an obstacle's or wall's bound is raised to max(gamma h, 0)
+    likewise. Callers count these.
     """
     if safe_distance < 0.0 or gamma <= 0.0:
         raise ValueError(f"need safe_distance >= 0 and gamma > 0, got {safe_distance}, {gamma}")
+    walled = len(obstacles) > 0 or workspace is not None
+    if walled and not (obstacle_distance is not None and obstacle_distance >= 0.0):
+        raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
+    if obstacle_gamma is not None and not obstacle_gamma > 0.0:
+        raise ValueError(f"need obstacle_gamma > 0, got {obstacle_gamma!r}")
     position = np.asarray(position, dtype=float).reshape(2)
     nominal = np.asarray(nominal, dtype=float).reshape(2)
     finite = np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))
@@ -218,6 +355,16 @@ def safe_velocity(
     A, b = pair_constraints(
         position, neighbors[keep], safe_distance, gamma, velocity, neighbor_velocities
     )
+    offset = position - neighbors[keep]
+    h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
+    relaxed = np.maximum(0.5 * gamma * h, 0.0)
+    if walled:
+        wall_gamma = gamma if obstacle_gamma is None else obstacle_gamma
+        A_o, b_o = obstacle_constraints(
+            position, obstacles, workspace, float(obstacle_distance), wall_gamma, reach
+        )
+        A, b = np.concatenate([A, A_o]), np.concatenate([b, b_o])
+        relaxed = np.concatenate([relaxed, np.maximum(b_o, 0.0)])
     if heading is not None:
         A = unicycle_rows(A, heading)
     try:
@@ -225,9 +372,7 @@ def safe_velocity(
         return FilterResult(velocity, active, False)
     except ValueError:
         pass
-    offset = position - neighbors[keep]
-    h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
-    velocity, active = closest_feasible(nominal, A, np.maximum(0.5 * gamma * h, 0.0))
+    velocity, active = closest_feasible(nominal, A, relaxed)
     return FilterResult(velocity, active, True)
 
 
@@ -240,14 +385,20 @@ def team_safe_velocities(
     *,
     headings: np.ndarray | None = None,
     velocities: np.ndarray | None = None,
+    nearby_obstacles: Callable[[np.ndarray, float], Sequence[np.ndarray]] | None = None,
+    workspace: Box | None = None,
+    obstacle_distance: float | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every robot's :func:`safe_velocity` against the others within ``radius`` m, as each
     agent filters its own (the in-process simulator's team at once).
 
     positions: (n, 2) m; nominal: (n, 2) m/s; headings: (n,) rad for differential-drive
     robots (None: single integrators); velocities: (n, 2) m/s, the centres' current ones for
-    the reciprocal split (None: the Robotarium's). Returns (velocities (n, 2), active (n,)
-    rows tight per robot, relaxed (n,) bool).
+    the reciprocal split (None: the Robotarium's). nearby_obstacles(point (2,), radius): the
+    obstacles (convex polygons) within radius m of a point, say
+    covswarm.world.model.World.nearby; workspace, obstacle_distance: as in
+    :func:`safe_velocity`; each robot gets rows for those within ``radius``. Returns
+    (velocities (n, 2), active (n,) rows tight per robot, relaxed (n,) bool).
     """
     from scipy.spatial import cKDTree
 
@@ -268,6 +419,10 @@ def team_safe_velocities(
             heading=None if headings is None else float(headings[i]),
             velocity=None if velocities is None else velocities[i],
             neighbor_velocities=None if velocities is None else velocities[others],
+            obstacles=() if nearby_obstacles is None else nearby_obstacles(positions[i], radius),
+            workspace=workspace,
+            obstacle_distance=obstacle_distance,
+            reach=radius,
         )
         out[i], active[i], relaxed[i] = result.velocity, result.active, result.relaxed
     return out, active, relaxed

@@ -1,6 +1,9 @@
-// covswarm operator console: draws the state frames the server pushes over /ws and turns
-// drags on S into steering requests (POST /api/steer). Plain JS and a canvas, no library:
-// the console must work offline. World units are metres (y up); screen units CSS pixels.
+// covswarm operator console: draws the state frames the server pushes over /ws and the arena
+// (GET /api/world: workspace, obstacles), turns drags on S into steering requests and clicks
+// in "Go to" mode into goto requests (POST /api/steer). A drag whose S would touch an
+// obstacle or leave the workspace is drawn red and refused here (the coordinator checks every
+// request again). Plain JS and a canvas, no library: the console must work offline. World
+// units are metres (y up); screen units CSS pixels.
 "use strict";
 (() => {
   const map = document.getElementById("map");
@@ -13,11 +16,15 @@
   const KEEP = 0.3; // following S: re-centre once its centroid is this share of the view off centre
 
   let state = null; // latest frame from the server
-  const view = { cx: 0, cy: 0, scale: 100, ready: false }; // centre (m), px per m
+  let world = null; // the arena (GET /api/world), null before the coordinator sends one
+  let worldFetching = false;
+  let gotoMode = false; // "Go to": the next click on the map sends S's centroid there
+  let pointer = null; // last pointer position on the map (px), for the goto preview
+  const view = { cx: 0, cy: 0, scale: 100, ready: false, moved: false }; // centre (m), px per m; moved: by the operator
   const follow = document.getElementById("follow"); // keep S in view (a manual pan stops it)
   let drag = null; // the gesture in progress
   let pending = null; // {polygon} previewed while the request is in flight
-  const hooks = { frames: 0, shaded: 0, lastRequest: null, lastReply: null, roundTripMs: null }; // read by the browser tests
+  const hooks = { frames: 0, shaded: 0, lastRequest: null, lastReply: null, roundTripMs: null, dragContact: null }; // read by the browser tests
 
   // -- geometry (arrays of [x, y]) ---------------------------------------------------------
   const sub = (a, b) => [a[0] - b[0], a[1] - b[1]];
@@ -80,6 +87,66 @@
   });
   const scaled = (poly, c, f) => poly.map((p) => [c[0] + f * (p[0] - c[0]), c[1] + f * (p[1] - c[1])]);
 
+  // Convex hull (Andrew's monotone chain), CCW.
+  function hull(points) {
+    const p = points.slice().sort((a, b) => a[0] - b[0] || a[1] - b[1]);
+    if (p.length < 3) return p;
+    const half = (list) => {
+      const out = [];
+      for (const q of list) {
+        while (out.length >= 2 && cross(sub(out[out.length - 1], out[out.length - 2]), sub(q, out[out.length - 1])) <= 0) out.pop();
+        out.push(q);
+      }
+      out.pop();
+      return out;
+    };
+    return half(p).concat(half(p.slice().reverse()));
+  }
+
+  // Whether two convex polygons overlap or touch (separating axis theorem: convex shapes are
+  // apart exactly when some edge normal of one of them separates their projections).
+  function touches(a, b) {
+    for (const poly of [a, b]) {
+      for (let i = 0; i < poly.length; i++) {
+        const e = sub(poly[(i + 1) % poly.length], poly[i]), n = [-e[1], e[0]];
+        const pa = a.map((p) => p[0] * n[0] + p[1] * n[1]), pb = b.map((p) => p[0] * n[0] + p[1] * n[1]);
+        if (Math.max(...pa) < Math.min(...pb) || Math.max(...pb) < Math.min(...pa)) return false;
+      }
+    }
+    return true;
+  }
+
+  // What a convex S touches, as covswarm.world.model.World.contact says it: the first
+  // obstacle (in the world's order) it overlaps or touches, else "workspace" if a vertex is
+  // outside the workspace box, else null.
+  function contact(poly) {
+    if (!world) return null;
+    for (const o of world.obstacles) if (touches(poly, o.polygon)) return o.name;
+    const w = world.workspace;
+    if (w && poly.some(([x, y]) => x < w[0] || x > w[1] || y < w[2] || y > w[3])) return "workspace";
+    return null;
+  }
+
+  // What S touches on its way from the drag's start to its ghost. A translation sweeps
+  // exactly the hull of S's start and end; a scaling about a point inside S and a vertex
+  // moved along a line stay within that hull too (so the check is exact or errs on the safe
+  // side). A rotation is checked as the hulls of S at steps of at most 5 degrees, which
+  // miss the arcs' bulge by under r (1 - cos 2.5 deg) ~ 1 mm per metre of S's radius.
+  function sweepContact(d) {
+    if (d.mode === "rotate") {
+      const steps = Math.max(1, Math.ceil(Math.abs(d.angle) / (Math.PI / 36)));
+      let before = d.poly;
+      for (let k = 1; k <= steps; k++) {
+        const next = rotated(d.poly, d.c, (d.angle * k) / steps);
+        const hit = contact(hull(before.concat(next)));
+        if (hit) return hit;
+        before = next;
+      }
+      return null;
+    }
+    return contact(hull(d.poly.concat(d.ghost)));
+  }
+
   // -- view --------------------------------------------------------------------------------
   function size() {
     const r = map.getBoundingClientRect();
@@ -108,12 +175,25 @@
     return true;
   }
 
+  // The arena in view (once, when it arrives), S kept in view by following it.
+  function fitWorld() {
+    const w = world && world.workspace;
+    if (view.moved) return;
+    if (!w) { centreOnS(); return; }
+    const [sw, sh] = size();
+    view.cx = (w[0] + w[1]) / 2;
+    view.cy = (w[2] + w[3]) / 2;
+    view.scale = 0.95 * Math.min(sw / (w[1] - w[0]), sh / (w[3] - w[2]));
+    view.ready = true;
+  }
+
   // Following S: pan (zoom unchanged) when S's centroid drifts KEEP of the view off centre.
   function keepSInView() {
     const poly = state && state.polygon;
     if (!follow.checked || drag || !poly || poly.length < 3) return;
     const [w, h] = size(), [x, y] = toScreen(centroid(poly));
-    if (Math.abs(x - w / 2) > KEEP * w || Math.abs(y - h / 2) > KEEP * h) {
+    const keep = world && world.workspace ? 0.45 : KEEP; // the arena in view: only when S leaves it
+    if (Math.abs(x - w / 2) > keep * w || Math.abs(y - h / 2) > keep * h) {
       [view.cx, view.cy] = centroid(poly);
     }
   }
@@ -160,6 +240,69 @@
     ctx.fillStyle = "#999";
     ctx.font = "11px system-ui, sans-serif";
     ctx.fillText(`grid ${step} m`, 8, h - 8);
+  }
+
+  // The workspace (outside it shaded), the obstacles (filled; named when they fit on screen;
+  // the map's pieces are obstacles too: the occupancy image itself is not on the wire).
+  function drawArena(w, h) {
+    const box = world && world.workspace;
+    if (box) {
+      const [x0, y0] = toScreen([box[0], box[3]]), [x1, y1] = toScreen([box[1], box[2]]);
+      ctx.fillStyle = "#eceff1";
+      ctx.fillRect(0, 0, w, h);
+      ctx.clearRect(x0, y0, x1 - x0, y1 - y0);
+    }
+    grid(w, h);
+    if (!world) return;
+    if (box) {
+      const [x0, y0] = toScreen([box[0], box[3]]), [x1, y1] = toScreen([box[1], box[2]]);
+      ctx.lineWidth = 2;
+      ctx.strokeStyle = "#455a64";
+      ctx.strokeRect(x0, y0, x1 - x0, y1 - y0);
+    }
+    ctx.lineWidth = 1;
+    ctx.fillStyle = "#9aa5ad";
+    ctx.strokeStyle = "#4f5b62";
+    for (const o of world.obstacles) { path(o.polygon); ctx.fill(); ctx.stroke(); }
+    if (world.obstacles.length <= 60) {
+      ctx.fillStyle = "#1f2a30";
+      ctx.font = "11px system-ui, sans-serif";
+      ctx.textAlign = "center";
+      for (const o of world.obstacles) {
+        const xs = o.polygon.map((p) => toScreen(p)[0]), ys = o.polygon.map((p) => toScreen(p)[1]);
+        const [cx, cy] = toScreen(centroid(o.polygon));
+        if (Math.max(...xs) - Math.min(...xs) > ctx.measureText(o.name).width + 4 && Math.max(...ys) - Math.min(...ys) > 14) {
+          ctx.fillText(o.name, cx, cy + 4);
+        }
+      }
+      ctx.textAlign = "start";
+    }
+    document.body.dataset.obstaclesDrawn = String(world.obstacles.length);
+  }
+
+  // The newest accepted goto's route: S's centroid's stops joined, a dot at each, and S's
+  // outline there (its shape at the start scaled by the stop's scale: S shrinks for doors).
+  function drawRoute(route) {
+    if (route.shape && route.shape.length >= 3) {
+      ctx.setLineDash([2, 4]);
+      ctx.lineWidth = 1;
+      ctx.strokeStyle = "rgba(142, 68, 173, 0.6)";
+      for (const [x, y, s] of route.waypoints) { path(route.shape.map((p) => [x + s * p[0], y + s * p[1]])); ctx.stroke(); }
+      ctx.setLineDash([]);
+    }
+    const points = route.waypoints.map(toScreen);
+    ctx.beginPath();
+    points.forEach(([x, y], i) => (i ? ctx.lineTo(x, y) : ctx.moveTo(x, y)));
+    ctx.lineWidth = 2;
+    ctx.strokeStyle = "#8e44ad";
+    ctx.stroke();
+    ctx.fillStyle = "#8e44ad";
+    for (const [x, y] of points) { ctx.beginPath(); ctx.arc(x, y, 4, 0, 2 * Math.PI); ctx.fill(); }
+    const [gx, gy] = toScreen(route.goal);
+    ctx.beginPath();
+    ctx.moveTo(gx - 7, gy - 7); ctx.lineTo(gx + 7, gy + 7); ctx.moveTo(gx - 7, gy + 7); ctx.lineTo(gx + 7, gy - 7);
+    ctx.stroke();
+    document.body.dataset.routePoints = String(points.length);
   }
 
   function errorColour(e) {
@@ -214,7 +357,7 @@
     }
     ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
     ctx.clearRect(0, 0, w, h);
-    grid(w, h);
+    drawArena(w, h);
     if (!state) return;
     const poly = state.polygon;
     const robots = state.robots || [];
@@ -249,13 +392,24 @@
         ctx.fillText(String(r.id), x + radius + 2, y - radius - 2);
       }
     }
-    if (poly.length >= 3) drawHandles(poly);
-    const preview = (drag && drag.ghost) || (pending && pending.polygon);
+    if (state.route) drawRoute(state.route);
+    else delete document.body.dataset.routePoints;
+    if (poly.length >= 3 && !gotoMode) drawHandles(poly);
+    let preview = (drag && drag.ghost) || (pending && pending.polygon), blocked = Boolean(drag && drag.hit);
+    if (!preview && gotoMode && pointer && poly.length >= 3) {
+      const c = centroid(poly), goal = toWorld(pointer);
+      preview = poly.map((p) => [p[0] + goal[0] - c[0], p[1] + goal[1] - c[1]]);
+      blocked = Boolean(contact(preview)); // S would not fit there (the planner refuses it)
+    }
     if (preview) {
       path(preview);
+      if (blocked) {
+        ctx.fillStyle = "rgba(192, 57, 43, 0.25)";
+        ctx.fill();
+      }
       ctx.setLineDash([7, 5]);
       ctx.lineWidth = 2;
-      ctx.strokeStyle = drag && drag.clamped ? "#c0392b" : "#e67e22";
+      ctx.strokeStyle = blocked || (drag && drag.clamped) ? "#c0392b" : "#e67e22";
       ctx.stroke();
       ctx.setLineDash([]);
     }
@@ -367,7 +521,9 @@
     hooks.lastReply = reply;
     if (reply.accepted) {
       const note = reply.reason ? ` (${reply.reason})` : "";
-      showResult("accepted", `accepted ${request.kind}: S moves for ${Number(reply.duration).toFixed(1)} s${note}`);
+      const via = reply.route ? ` via ${reply.route.length} waypoints` : "";
+      showResult("accepted", `accepted ${request.kind}: S moves for ${Number(reply.duration).toFixed(1)} s${via}${note}`);
+      if (request.kind === "goto" && reply.route && state) state.route = { goal: request.goal, waypoints: reply.route, shape: [] };
     } else {
       showResult("refused", `refused: ${reply.reason}`);
     }
@@ -375,8 +531,29 @@
     return reply;
   }
 
+  const r = (v) => Math.round(v * 1e5) / 1e5; // 10 µm: no noise digits on the wire
+
+  // A drag whose S would touch something is not sent: the page says why, as the
+  // coordinator would (its refusal reason "obstacle: ...").
+  function refuseHere(req, hit) {
+    // Worded as the coordinator's refusal (coordinator.steering), without its time.
+    const reason = hit === "workspace" ? "obstacle: S would leave the workspace" : `obstacle: S would touch obstacle '${hit}'`;
+    hooks.lastRequest = req;
+    hooks.lastReply = { accepted: false, reason, local: true };
+    showResult("refused", `refused: ${reason} (checked by the console, not sent)`);
+  }
+
+  function setGoto(on) {
+    gotoMode = on;
+    const button = document.getElementById("goto");
+    button.classList.toggle("active", on);
+    button.setAttribute("aria-pressed", String(on));
+    map.style.cursor = on ? "crosshair" : "default";
+    showResult("idle", on ? "Go to: click where S's centroid should go (Esc: cancel)" : "drag S to steer the swarm");
+    draw();
+  }
+
   function request(d) {
-    const r = (v) => Math.round(v * 1e5) / 1e5; // 10 µm: no noise digits on the wire
     if (d.mode === "translate") return { kind: "translate", dx: r(d.delta[0]), dy: r(d.delta[1]) };
     if (d.mode === "rotate") return { kind: "rotate", angle: r(d.angle), about: d.c.map(r) };
     if (d.mode === "scale") return { kind: "scale", factor: r(d.factor), about: d.c.map(r) };
@@ -411,7 +588,7 @@
     if (norm(sub(s, d.start)) >= CLICK_PX) d.moved = true;
     const m = toWorld(s);
     if (d.mode === "pan") {
-      if (d.moved) follow.checked = false;
+      if (d.moved) { follow.checked = false; view.moved = true; }
       view.cx = d.view.cx - (s[0] - d.start[0]) / view.scale;
       view.cy = d.view.cy + (s[1] - d.start[1]) / view.scale;
     } else if (d.mode === "translate") {
@@ -437,21 +614,41 @@
         if (!d.ghost) d.ghost = d.poly;
       }
     }
+    if (d.mode !== "pan" && d.ghost) {
+      d.hit = sweepContact(d);
+      hooks.dragContact = d.hit;
+      if (d.hit) showResult("refused", `S would touch ${d.hit === "workspace" ? "the workspace's wall" : d.hit}: release refuses`);
+      else if (d.moved) showResult("pending", "release to send");
+    }
   }
 
   map.addEventListener("pointerdown", (event) => {
     if (event.button !== 0) return;
     map.setPointerCapture(event.pointerId);
+    if (gotoMode) {
+      drag = { mode: "goto", start: local(event), moved: false };
+      return;
+    }
     drag = startDrag(event);
     map.style.cursor = drag.mode === "pan" ? "grabbing" : "move";
   });
 
   map.addEventListener("pointermove", (event) => {
+    pointer = local(event);
+    if (drag && drag.mode === "goto") {
+      if (norm(sub(pointer, drag.start)) >= CLICK_PX) drag.moved = true;
+      return;
+    }
     if (drag) {
       moveDrag(drag, local(event));
       draw();
       return;
     }
+    const here = toWorld(pointer);
+    const over = world && world.obstacles.find((o) => inside(o.polygon, here));
+    map.title = over ? over.name : "";
+    document.getElementById("hover").textContent = over ? over.name : "–";
+    if (gotoMode) { draw(); return; }
     if (!state || !state.polygon || state.polygon.length < 3) return;
     const s = local(event), poly = state.polygon, hd = handles(poly);
     map.style.cursor = poly.some((p) => near(s, p)) || near(s, hd.rotate) || near(s, hd.scale)
@@ -463,19 +660,34 @@
     drag = null;
     map.style.cursor = "default";
     if (!d) return;
+    if (d.mode === "goto") {
+      if (!d.moved) {
+        const goal = toWorld(local(event));
+        setGoto(false);
+        steer({ kind: "goto", goal: goal.map(r) }, null);
+      }
+      return;
+    }
     moveDrag(d, local(event));
-    if (d.mode !== "pan" && d.moved && d.ghost) steer(request(d), d.ghost);
+    if (d.mode !== "pan" && d.moved && d.ghost) {
+      if (d.hit) refuseHere(request(d), d.hit);
+      else steer(request(d), d.ghost);
+    }
     draw();
   });
 
   map.addEventListener("pointercancel", () => { drag = null; draw(); });
   window.addEventListener("keydown", (event) => {
-    if (event.key === "Escape" && drag) { drag = null; draw(); }
+    if (event.key === "Escape" && drag) { drag = null; showResult("idle", "cancelled"); draw(); }
+    else if (event.key === "Escape" && gotoMode) setGoto(false);
+    else if ((event.key === "g" || event.key === "G") && !drag && !(event.target instanceof HTMLInputElement)) setGoto(!gotoMode);
   });
-  map.addEventListener("dblclick", () => { centreOnS(); follow.checked = true; draw(); });
+  document.getElementById("goto").addEventListener("click", () => setGoto(!gotoMode));
+  map.addEventListener("dblclick", () => { if (!gotoMode) { centreOnS(); follow.checked = true; draw(); } });
   map.addEventListener("wheel", (event) => {
     event.preventDefault();
     const s = local(event), before = toWorld(s);
+    view.moved = true;
     view.scale = Math.min(5000, Math.max(2, view.scale * Math.exp(-event.deltaY * 0.0015)));
     const after = toWorld(s);
     view.cx += before[0] - after[0];
@@ -485,6 +697,24 @@
   window.addEventListener("resize", draw);
 
   // -- state stream ------------------------------------------------------------------------
+  // The arena is fetched when the frame's world version differs from the one drawn.
+  async function fetchWorld() {
+    worldFetching = true;
+    try {
+      const response = await fetch("/api/world", { credentials: "same-origin" });
+      if (response.ok) {
+        const first = world === null;
+        world = await response.json();
+        if (first) fitWorld();
+        draw();
+      }
+    } catch (err) {
+      // the next frame asks again
+    } finally {
+      worldFetching = false;
+    }
+  }
+
   function connect() {
     const scheme = location.protocol === "https:" ? "wss:" : "ws:";
     const ws = new WebSocket(`${scheme}//${location.host}/ws`);
@@ -492,7 +722,9 @@
     ws.onmessage = (event) => {
       state = JSON.parse(event.data);
       hooks.frames += 1;
-      if (!view.ready) centreOnS();
+      // Opens on the arena when there is one (fetched first: the view does not jump), else on S.
+      if (!view.ready && (!state.world || world)) centreOnS();
+      if (state.world && (!world || world.version !== state.world.version) && !worldFetching) fetchWorld();
       keepSInView();
       panels();
       draw();
@@ -516,6 +748,10 @@
     handles: () => (state && state.polygon.length >= 3 ? handles(state.polygon) : null),
     steer,
     isConvex,
+    touches,
+    contact,
+    world: () => world,
+    gotoMode: () => gotoMode,
   };
   draw();
   connect();

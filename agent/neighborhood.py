@@ -23,6 +23,19 @@ LOCAL_MARGIN = 1.25  # local diagram radius, in units of the cell reach (see rel
 # early beacon (no relay told it about us; a common neighbour's usually does in a tick).
 ASYMMETRY_GRACE = 0.3
 FORGET_PERIOD = 1.0  # s between two sweeps of records older than every timeout
+# s: a robot known only from its beacon (no pose or AgentState of its own heard since, no
+# live liveliness token of its agent) whose AgentState we asked for (subscribed: it is a
+# Voronoi neighbour or within the safety radius, see ask()) and did not receive within this
+# long is no candidate. A real robot answers within a control period or two; a phantom
+# (forged beacons: 36 in a 0.12 m ring around each robot held a team of 6 still for the
+# 25 s beacon timeout, issue 21) never does, and then leaves the diagram and the safety
+# filter. Counting from the request, not the beacon, keeps the robots that did not matter
+# to us (never asked for) as candidates, and is independent of how often the step runs.
+BEACON_CONFIRMATION = 1.0
+# s: a robot left out so gets another chance with a beacon received this long after we
+# first asked for it (the agents' routine beacon period): a real robot whose states were
+# lost may come back. Forged beacons repeated with the same ids cost at most 1 s in 10.
+CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
@@ -79,7 +92,7 @@ def linger(since: dict[int, float], current: Iterable[int], now: float, period: 
     return set(since)
 
 
-class Neighbourhood:
+class Neighborhood:
     """The other robots one agent knows of, by how it heard of them.
 
     Times are monotonic seconds of receipt. ``stale_timeout`` bounds a robot's own pose or
@@ -88,9 +101,15 @@ class Neighbourhood:
     """
 
     def __init__(
-        self, me: int, stale_timeout: float, beacon_timeout: float, linger_period: float
+        self,
+        me: int,
+        stale_timeout: float,
+        beacon_timeout: float,
+        linger_period: float,
+        confirmation: float = BEACON_CONFIRMATION,
     ) -> None:
         self.me = me
+        self.confirmation = confirmation
         self.stale_timeout = stale_timeout
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
@@ -110,6 +129,14 @@ class Neighbourhood:
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
         # no team member (a stopped robot without brain, or a brain without robot).
         self.dead: dict[int, set[str]] = {}
+        self.tokens: set[int] = set()  # ids whose agent liveliness token we saw appear
+        # id -> when we first asked for the AgentState of a robot known only from beacons
+        # (ask()); the candidates of the last step known only from beacons; those left out
+        # of it for want of confirmation (id -> x, y), and how many were so left out in all
+        self.asked: dict[int, float] = {}
+        self.beacon_only: set[int] = set()
+        self.unconfirmed: dict[int, tuple[float, float]] = {}
+        self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
         self.wanted: dict[int, float] = {}  # id -> last time it was in the two-hop set
         self._unrequited: dict[int, float] = {}  # neighbour id -> since when it omits us
@@ -121,11 +148,13 @@ class Neighbourhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         self.poses[pose.id] = Track(pose.x, pose.y, now)
         self._heard[pose.id] = now
+        self.asked.pop(pose.id, None)
         self._revive(pose.id, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
         self._heard[state.id] = now
+        self.asked.pop(state.id, None)
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
         if state.relay is None:
@@ -135,6 +164,9 @@ class Neighbourhood:
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
+        asked = self.asked.get(beacon.id)
+        if asked is not None and now - asked >= CONFIRMATION_RETRY:
+            del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
         self._revive(beacon.id, "agent")
 
     def on_liveliness(self, role: str, rid: int, alive: bool) -> bool:
@@ -150,7 +182,11 @@ class Neighbourhood:
             return False
         if not alive:
             self.dead.setdefault(rid, set()).add(role)
+            if role == "agent":
+                self.tokens.discard(rid)
             return False
+        if role == "agent":
+            self.tokens.add(rid)
         self._revive(rid, role)
         return role == "agent" and rid not in self.reckoned
 
@@ -207,11 +243,21 @@ class Neighbourhood:
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         # A beacon only while it is the newest news of its robot: one that went stale after
         # we heard its state must not bring back where it was seconds ago.
+        # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
+        beacon_only, unconfirmed = set(), {}
         for rid, track in self.beacons.items():
             if track.received >= oldest and rid not in reckoned and rid not in dead:
                 if self._heard.get(rid, -math.inf) < track.received:
-                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                    asked = self.asked.get(rid, now)
+                    if rid not in self.tokens and now - asked > self.confirmation:
+                        unconfirmed[rid] = (track.x, track.y)
+                    else:
+                        reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                        beacon_only.add(rid)
+        self.beacon_only = beacon_only
+        self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
+        self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
         if now - self._last_forget >= FORGET_PERIOD:
@@ -230,12 +276,21 @@ class Neighbourhood:
         ):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
+        for rid in [rid for rid in self.asked if rid not in self.beacons]:
+            del self.asked[rid]
         for sets in (self.neighbor_sets, self.relays):
             for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]
         old = now - 2.0 * self.beacon_timeout
         for rid in [rid for rid, t in self._heard.items() if t < old]:
             del self._heard[rid]
+
+    def ask(self, followed: Iterable[int], now: float) -> None:
+        """The AgentStates of ``followed`` are subscribed to from ``now`` on: the robots
+        among them known only from beacons start their BEACON_CONFIRMATION."""
+        for rid in followed:
+            if rid in self.beacon_only or rid in self.unconfirmed:
+                self.asked.setdefault(rid, now)
 
     def relevant(
         self,

@@ -1,8 +1,9 @@
-"""One ROS 2 robot standing in for one covswarm robot: the bridge's state machine, no I/O.
+"""One ROS 2 robot standing in for one covswarm robot: the bridge's sans-IO state machine
+(its brain, as agent.brain is the agent's; bridge.process is the Zenoh shell).
 
 covswarm -> ROS 2: an agent's WheelCommand (rim speeds of a differential drive, m/s)
 becomes a Twist (v, omega) for the robot's ``cmd_vel``. When no valid command arrived for
-``cmd_timeout`` the link asks for a zero Twist, repeated every ``stop_period`` for
+``cmd_timeout`` the brain asks for a zero Twist, repeated every ``stop_period`` for
 ``stop_hold`` seconds (one lost sample must not leave a robot driving), then stays quiet so
 that a teleop node can take over between missions.
 
@@ -26,24 +27,22 @@ import math
 from covswarm import protocol
 from covswarm.bridge import cdr
 from covswarm.bridge.rmw_zenoh import decode_attachment
-from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, check_stamp
-from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.protocol.inbound import (
+    COMMAND_REASONS,
+    MAX_CLOCK_SKEW,
+    DropLog,
+    accept_command,
+    check_stamp,
+)
+from covswarm.tvd.drive import KHEPERA_IV, twist_from_wheels
 
 log = logging.getLogger("covswarm.bridge")
 
-DROP_REASONS = (*protocol.REASONS, *STAMP_REASONS, "wrong_id", "attachment")
+DROP_REASONS = (*COMMAND_REASONS, "attachment")
 STAMP_SOURCES = ("message", "receive")
 
 
-def twist_from_wheels(left: float, right: float, axle: float) -> tuple[float, float]:
-    """Differential-drive kinematics: rim speeds (m/s) -> (v m/s, omega rad/s).
-
-    v = (left + right) / 2, omega = (right - left) / axle, ``axle`` the wheel separation (m).
-    """
-    return 0.5 * (left + right), (right - left) / axle
-
-
-class RobotLink:
+class RobotBrain:
     """The bridge's view of one robot: its last command, its newest pose, its drops."""
 
     def __init__(
@@ -98,14 +97,10 @@ class RobotLink:
     # covswarm -> ROS 2 ------------------------------------------------------------------
     def on_command(self, payload: bytes, now: float, now_wall: float) -> bool:
         """Take a raw WheelCommand payload; False if it was dropped."""
-        try:
-            command = protocol.WheelCommand.decode(payload)
-            check_stamp(command.stamp, now_wall, self.cmd_timeout, self.max_clock_skew)
-        except protocol.ProtocolError as exc:
-            self.drops.drop(exc.reason, f"command: {exc}")
-            return False
-        if command.id != self.id:
-            self.drops.drop("wrong_id", f"command for robot {command.id}")
+        command = accept_command(
+            payload, self.id, now_wall, self.cmd_timeout, self.max_clock_skew, self.drops
+        )
+        if command is None:
             return False
         self._twist = twist_from_wheels(command.left, command.right, self.axle)
         self._last_command = now

@@ -13,11 +13,11 @@ from click.testing import CliRunner
 
 from covswarm import protocol
 from covswarm.bridge import cdr
-from covswarm.bridge.link import RobotLink, twist_from_wheels
+from covswarm.bridge.brain import RobotBrain
 from covswarm.bridge.mission_view import MissionView
 from covswarm.bridge.process import bridge_group
 from covswarm.bridge.rmw_zenoh import encode_attachment
-from covswarm.tvd.drive import DiffDrive, integrate
+from covswarm.tvd.drive import DiffDrive, integrate, twist_from_wheels
 
 WALL = 1_700_000_000.0
 
@@ -53,23 +53,25 @@ def test_twist_drives_a_unicycle_like_the_wheels_drive_the_robot_model(axle: flo
 
 
 def test_a_command_is_sent_once_then_the_timeout_sends_zero_twists_for_a_while() -> None:
-    link = RobotLink(3, cdr.POSE_STAMPED, axle=0.1, cmd_timeout=0.5, stop_hold=1.0, stop_period=0.1)
-    assert link.twist(0.0) is None  # never commanded: nothing to say
-    assert link.on_command(command(3, 0.1, 0.3), 0.0, WALL)
-    assert link.twist(0.01) == pytest.approx((0.2, 2.0))
-    assert link.twist(0.02) is None and link.twist(0.5) is None
-    sent = [(t, link.twist(t)) for t in np.arange(0.51, 2.0, 0.02)]
+    brain = RobotBrain(
+        3, cdr.POSE_STAMPED, axle=0.1, cmd_timeout=0.5, stop_hold=1.0, stop_period=0.1
+    )
+    assert brain.twist(0.0) is None  # never commanded: nothing to say
+    assert brain.on_command(command(3, 0.1, 0.3), 0.0, WALL)
+    assert brain.twist(0.01) == pytest.approx((0.2, 2.0))
+    assert brain.twist(0.02) is None and brain.twist(0.5) is None
+    sent = [(t, brain.twist(t)) for t in np.arange(0.51, 2.0, 0.02)]
     zeros = [t for t, twist in sent if twist is not None]
     assert all(twist in (None, (0.0, 0.0)) for _, twist in sent)
     assert zeros[0] == pytest.approx(0.51) and zeros[-1] <= 0.51 + 1.0
     assert 9 <= len(zeros) <= 11  # every 0.1 s for 1 s
-    assert link.stops == 1
-    assert link.on_command(command(3, 0.2, 0.2, WALL + 2.0), 2.0, WALL + 2.0)
-    assert link.twist(2.0) == (0.2, 0.0)
+    assert brain.stops == 1
+    assert brain.on_command(command(3, 0.2, 0.2, WALL + 2.0), 2.0, WALL + 2.0)
+    assert brain.twist(2.0) == (0.2, 0.0)
 
 
 def test_bad_commands_are_dropped_and_counted_and_never_sent() -> None:
-    link = RobotLink(1, cdr.POSE_STAMPED, max_clock_skew=0.5, cmd_timeout=0.5)
+    brain = RobotBrain(1, cdr.POSE_STAMPED, max_clock_skew=0.5, cmd_timeout=0.5)
     nan = msgpack.packb(
         {"v": 1, "id": 1, "left": math.nan, "right": 0.0, "stamp": WALL, "seq": 1,
          "pose_stamp": WALL}
@@ -82,37 +84,37 @@ def test_bad_commands_are_dropped_and_counted_and_never_sent() -> None:
         "stamp_future": command(1, 0.1, 0.1, WALL + 5.0),
     }
     for payload in bad.values():
-        assert not link.on_command(payload, 0.0, WALL)
-    assert link.twist(0.0) is None and link.commands == 0
-    assert {r: n for r, n in link.drops.counts.items() if n} == dict.fromkeys(bad, 1)
+        assert not brain.on_command(payload, 0.0, WALL)
+    assert brain.twist(0.0) is None and brain.commands == 0
+    assert {r: n for r, n in brain.drops.counts.items() if n} == dict.fromkeys(bad, 1)
 
 
 def test_poses_become_covswarm_poses_with_the_message_stamp() -> None:
-    link = RobotLink(4, cdr.POSE_STAMPED, pose_max_age=0.5, pose_timeout=1.0)
-    assert not link.visible(0.0) and link.take_pose(0) is None
+    brain = RobotBrain(4, cdr.POSE_STAMPED, pose_max_age=0.5, pose_timeout=1.0)
+    assert not brain.visible(0.0) and brain.take_pose(0) is None
     payload = cdr.encode_pose_stamped(1.0, -0.5, 0.25, WALL - 0.1, "map")
-    assert link.on_pose(payload, encode_attachment(1, int(WALL * 1e9), bytes(16)), 10.0, WALL)
-    pose = link.take_pose(7)
+    assert brain.on_pose(payload, encode_attachment(1, int(WALL * 1e9), bytes(16)), 10.0, WALL)
+    pose = brain.take_pose(7)
     assert (pose.id, pose.x, pose.y, pose.seq) == (4, 1.0, -0.5, 7)
     assert pose.theta == pytest.approx(0.25) and pose.stamp == pytest.approx(WALL - 0.1)
-    assert link.take_pose(8) is None  # forwarded once
-    assert link.visible(10.9) and not link.visible(11.1)
+    assert brain.take_pose(8) is None  # forwarded once
+    assert brain.visible(10.9) and not brain.visible(11.1)
 
 
 def test_a_pose_without_a_stamp_takes_the_attachment_or_the_time_of_receipt() -> None:
-    link = RobotLink(0, cdr.POSE_2D)
+    brain = RobotBrain(0, cdr.POSE_2D)
     attachment = encode_attachment(1, int((WALL - 0.2) * 1e9), bytes(16))
-    assert link.on_pose(cdr.encode_pose2d(0.1, 0.2, 0.3), attachment, 0.0, WALL)
-    assert link.take_pose(0).stamp == pytest.approx(WALL - 0.2)
-    assert link.on_pose(cdr.encode_pose2d(0.1, 0.2, 0.3), None, 0.0, WALL)
-    assert link.take_pose(0).stamp == WALL
-    receive = RobotLink(0, cdr.POSE_STAMPED, stamp_source="receive")
+    assert brain.on_pose(cdr.encode_pose2d(0.1, 0.2, 0.3), attachment, 0.0, WALL)
+    assert brain.take_pose(0).stamp == pytest.approx(WALL - 0.2)
+    assert brain.on_pose(cdr.encode_pose2d(0.1, 0.2, 0.3), None, 0.0, WALL)
+    assert brain.take_pose(0).stamp == WALL
+    receive = RobotBrain(0, cdr.POSE_STAMPED, stamp_source="receive")
     old = cdr.encode_pose_stamped(0.0, 0.0, 0.0, 1000.0, "map")  # a clock of its own
     assert receive.on_pose(old, None, 0.0, WALL) and receive.take_pose(0).stamp == WALL
 
 
 def test_bad_poses_are_dropped_with_their_reason() -> None:
-    link = RobotLink(2, cdr.ODOMETRY, pose_max_age=0.5, max_clock_skew=0.5)
+    brain = RobotBrain(2, cdr.ODOMETRY, pose_max_age=0.5, max_clock_skew=0.5)
     good = cdr.encode_odometry(1.0, 1.0, 0.0, WALL, "odom")
     bad = {
         "stamp_old": (cdr.encode_odometry(1.0, 1.0, 0.0, WALL - 2.0, "odom"), None),
@@ -122,19 +124,19 @@ def test_bad_poses_are_dropped_with_their_reason() -> None:
         "value": (cdr.encode_odometry(1e6, 0.0, 0.0, WALL, "odom"), None),  # beyond MAX_COORD
     }
     for payload, attachment in bad.values():
-        assert not link.on_pose(payload, attachment, 0.0, WALL)
-    assert link.take_pose(0) is None and not link.visible(0.0)
-    assert {r: n for r, n in link.drops.counts.items() if n} == dict.fromkeys(bad, 1)
-    assert link.on_pose(good, None, 0.0, WALL) and link.poses == 1
+        assert not brain.on_pose(payload, attachment, 0.0, WALL)
+    assert brain.take_pose(0) is None and not brain.visible(0.0)
+    assert {r: n for r, n in brain.drops.counts.items() if n} == dict.fromkeys(bad, 1)
+    assert brain.on_pose(good, None, 0.0, WALL) and brain.poses == 1
 
 
 def test_invalid_settings_are_refused() -> None:
     for kwargs in ({"axle": 0.0}, {"axle": math.nan}, {"cmd_timeout": -1.0},
                    {"stamp_source": "gps"}):  # fmt: skip
         with pytest.raises(ValueError):
-            RobotLink(0, cdr.POSE_STAMPED, **kwargs)
+            RobotBrain(0, cdr.POSE_STAMPED, **kwargs)
     with pytest.raises(ValueError):
-        RobotLink(0, cdr.TWIST)
+        RobotBrain(0, cdr.TWIST)
 
 
 def test_mission_view_keeps_the_newest_domain_error_and_fresh_poses() -> None:

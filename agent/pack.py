@@ -1,0 +1,499 @@
+"""A packed agent process: many brains that hear once (issue 24), sans-IO.
+
+The brains of one process (``covswarm agent --ids``) share one subscription per key: the
+domain is subscribed once for all of them, each AgentState, pose and beacon tile once per
+process with the set of brains that follow it (its reference count: the subscription is
+undeclared when the last one stops following). Each sample is drained once per control
+tick and its payload handed to every brain that follows the key, as the same ``bytes``
+object, so the shared :class:`~covswarm.agent.decoding.MessageDecoder` decodes and
+validates it once (its hash is cached in the object). A brain still receives only the keys
+it follows itself, newest payload per key, in a canonical order (kind, id, key): what it
+would receive in a process of its own (tests/test_pack.py).
+
+Overload (issue 24, item 4): a brain whose turn comes after the end of the period it was
+to step for does not step on that period's inputs as if they were fresh: it skips the
+period, and the next tick starts with it. Its robot runs on the command of its last step
+(as at a lower rate: the gain is sampled for the period actually held,
+covswarm.agent.brain.sampled_gain) until that step is ``hold_after`` s old (three periods in
+``covswarm agent``); then the brain commands (0, 0) once (:meth:`AgentBrain.hold`: the
+robot stops rather than overshoot). A process that cannot hold K steps per period thus
+steps its brains in turn at the rate it can hold, and each brain's ``rate_hz`` and
+``late_held`` (the fraction of the mission's periods skipped) stats say so.
+
+The bus (:class:`Bus`) is Zenoh in a live process (:class:`covswarm.agent.link.ZenohBus`)
+and :class:`LocalBus`, an in-memory router, in tests and ``covswarm bench --brain-tick``.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any, Protocol
+
+import numpy as np
+
+from covswarm import protocol
+from covswarm.agent.brain import (
+    Action,
+    AgentBrain,
+    DeclareAlive,
+    FollowStates,
+    FollowTiles,
+    PublishBeacon,
+    PublishState,
+    SendCommand,
+)
+from covswarm.agent.decoding import DECODE_CACHE
+from covswarm.agent.faults import InboxItem, PoseImpairment
+
+log = logging.getLogger("covswarm.agent")
+
+# Samples kept per subscriber between two ticks: only the newest per key is used, but a
+# beacon tile carries one key per robot in it.
+RING_PER_KEY = 4
+RING_PER_TILE = 256
+# The domain's ring, every sample of which is handed on in order (not only the newest): a
+# forger that puts right after each real broadcast must not make it vanish by coalescing
+# (issue 21: the agents then never saw a running domain); which to believe is the brain's
+# to judge. 16 holds 8 ticks' worth of a 20 Hz coordinator at 10 Hz plus forgeries; only a
+# flood beyond it can push the real ones out.
+DOMAIN_RING = 16
+# The order in which a brain gets a tick's payloads (then by id and key): the world (the
+# domain is judged against it), the domain and its own pose first, as a process of its own
+# drained its subscribers.
+KIND_ORDER = {"world": 0, "domain": 1, "pose": 2, "state": 3, "beacon": 4}
+
+
+# brain -> {(key, id in it): (kind, id, payload)}: the newest payload per key for a brain
+_Queues = dict[int, dict[tuple[str, int | None], InboxItem]]
+
+
+class Payload(Protocol):
+    def to_bytes(self) -> bytes: ...
+
+
+class Sample(Protocol):
+    key_expr: Any  # str(key_expr) is the key
+    payload: Payload
+
+
+class Source(Protocol):
+    def try_recv(self) -> Any: ...
+
+
+class Bus(Protocol):
+    """What a packed process needs of its middleware (Zenoh, or :class:`LocalBus`)."""
+
+    def subscribe(self, key: str, capacity: int) -> Source:
+        """A ring of ``capacity`` samples on ``key`` (a ``*`` chunk matches any)."""
+
+    def unsubscribe(self, source: Source) -> None: ...
+
+    def publisher(self, key: str) -> Callable[[bytes], None]: ...
+
+    def put(self, key: str, payload: bytes) -> None: ...
+
+    def declare_token(self, key: str) -> Any:
+        """A liveliness token that lives while referenced."""
+
+    def liveliness(self, selector: str) -> Source:
+        """Token changes matching ``selector``: ``try_recv() -> (key, alive) | None``."""
+
+
+@dataclass
+class _Subscription:
+    kind: str
+    key_id: int | None  # the id in its key; None for the domain and wildcard tiles
+    wildcard: bool
+    source: Source
+    followers: set[int] = field(default_factory=set)
+
+
+class Pack:
+    """The brains of one process over one bus: one subscription per key, payloads handed
+    to every brain that follows the key.
+
+    ``drain()`` once per control tick; then each brain's ``receive()`` (its own pose is
+    drained again just before, so the last of a batch controls from its robot's newest
+    pose), ``brain.tick()`` and ``carry_out()``; :meth:`tick` does all that with the
+    overload rule of the module docstring.
+    """
+
+    def __init__(
+        self, bus: Bus, swarm: str, brains: list[AgentBrain], hold_after: float = 0.3
+    ) -> None:
+        if len({brain.id for brain in brains}) != len(brains):
+            raise ValueError("a packed process cannot host one id twice")
+        if not hold_after > 0.0:
+            raise ValueError(f"hold_after must be positive, got {hold_after!r}")
+        self.hold_after = hold_after
+        self._stepped: dict[int, float] = {}  # brain -> clock of its last turn
+        self.bus, self.swarm = bus, swarm
+        self.brains = {brain.id: brain for brain in brains}
+        self.order = [brain.id for brain in brains]  # stepping order, rotated every tick
+        self.tokens: dict[int, Any] = {}
+        self._subs: dict[str, _Subscription] = {}
+        self._follows: dict[int, dict[str, frozenset]] = {
+            bid: {"state": frozenset(), "beacon": frozenset()} for bid in self.brains
+        }
+        # brain -> {(key, id): (kind, id, payload)}: newest per key since its last turn
+        self._pending: _Queues = {bid: {} for bid in self.brains}
+        # the same, taken out of a ring between two drains: theirs from the next drain on
+        self._later: _Queues = {bid: {} for bid in self.brains}
+        self._changes: dict[int, list[tuple[str, int, bool]]] = {bid: [] for bid in self.brains}
+        self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
+        self._every = 0  # samples queued one by one (the domain's), numbering their slots
+        self._held: set[int] = set()  # brains whose last command was a hold
+        self._cmd = {bid: bus.publisher(protocol.cmd_key(swarm, bid)) for bid in self.brains}
+        self._state = {
+            bid: bus.publisher(protocol.agent_state_key(swarm, bid)) for bid in self.brains
+        }
+        self._own_pose = {bid: protocol.pose_key(swarm, bid) for bid in self.brains}
+        self._follow(set(self.brains), protocol.world_key(swarm), "world", None, False)
+        self._follow(set(self.brains), protocol.domain_key(swarm), "domain", None, False)
+        for bid, key in self._own_pose.items():
+            self._follow({bid}, key, "pose", bid, False)
+        # Token changes of every agent and robot (rare): a dead teammate leaves the
+        # diagrams at once instead of after the staleness timeouts.
+        self._liveliness = bus.liveliness(protocol.alive_selector(swarm))
+        self._impairment = {
+            bid: PoseImpairment(
+                brain.config.pose_loss,
+                brain.config.pose_delay,
+                np.random.default_rng([brain.config.pose_seed, bid]),
+            )
+            for bid, brain in self.brains.items()
+            if brain.config.pose_loss > 0.0 or brain.config.pose_delay > 0.0
+        }
+
+    # --- subscriptions -------------------------------------------------------------------
+
+    @property
+    def subscriptions(self) -> int:
+        """Subscriptions this process holds (liveliness aside)."""
+        return len(self._subs)
+
+    def followers(self, key: str) -> frozenset[int]:
+        """The brains that follow ``key`` (its reference count is their number)."""
+        sub = self._subs.get(key)
+        return frozenset(sub.followers) if sub is not None else frozenset()
+
+    def _follow(
+        self, brains: set[int], key: str, kind: str, key_id: int | None, wildcard: bool
+    ) -> None:
+        sub = self._subs.get(key)
+        if sub is None:
+            capacity = RING_PER_TILE if wildcard else RING_PER_KEY
+            capacity = DOMAIN_RING if kind == "domain" else capacity
+            sub = _Subscription(kind, key_id, wildcard, self.bus.subscribe(key, capacity))
+            self._subs[key] = sub
+        else:
+            # What arrived before these brains followed the key is not theirs (a subscriber
+            # of their own would not have had it): the followers so far get it, with the
+            # next drain (as from their own rings), the newcomers do not.
+            self._drain_subscription(key, sub, self._later)
+        sub.followers |= brains
+
+    def _unfollow(self, bid: int, key: str) -> None:
+        sub = self._subs[key]
+        sub.followers.discard(bid)
+        if not sub.followers:
+            del self._subs[key]
+            self.bus.unsubscribe(sub.source)
+        # Unread payloads of an undeclared subscriber are lost to a process of its own too.
+        pending = self._pending[bid]
+        for item in [item for item in pending if item[0] == key]:
+            del pending[item]
+
+    def follow(self, bid: int, kind: str, wanted: frozenset) -> None:
+        """Brain ``bid`` follows exactly ``wanted``: robot ids (kind "state") or tiles
+        ("beacon")."""
+        follows = self._follows[bid]
+        held = follows[kind]
+        if wanted == held:
+            return  # the usual tick: nothing changed
+        for item in held - wanted:
+            self._unfollow(bid, self._key(kind, item))
+        for item in wanted - held:
+            wildcard = kind == "beacon"
+            self._follow({bid}, self._key(kind, item), kind, None if wildcard else item, wildcard)
+        follows[kind] = wanted
+
+    def _key(self, kind: str, item: Any) -> str:
+        if kind == "state":
+            return protocol.agent_state_key(self.swarm, item)
+        return protocol.beacon_tile_selector(self.swarm, *item)
+
+    # --- input ---------------------------------------------------------------------------
+
+    def drain(self) -> None:
+        """Take everything that arrived since the last drain, once for the whole process,
+        and queue each payload for every brain that follows its key."""
+        for bid, later in self._later.items():
+            if later:
+                pending = self._pending[bid]
+                self.brains[bid].counters.coalesced += len(later.keys() & pending.keys())
+                pending.update(later)
+                later.clear()
+        for key, sub in self._subs.items():
+            self._drain_subscription(key, sub, self._pending)
+        while (change := self._liveliness.try_recv()) is not None:
+            try:
+                role, rid = protocol.parse_alive_key(change[0], self.swarm)
+            except ValueError:
+                continue  # not a key of ours; nothing to count it against
+            for changes in self._changes.values():
+                changes.append((role, rid, change[1]))
+
+    def _drain_subscription(self, key: str, sub: _Subscription, queues: _Queues) -> None:
+        """Queue what ``sub`` holds for its followers in ``queues``: its newest sample (one
+        key), or the newest per key in it (a beacon tile)."""
+        if not sub.wildcard:
+            self._drain_key(key, sub, queues)
+            return
+        latest: dict[str, bytes] = {}
+        coalesced = 0
+        while (sample := sub.source.try_recv()) is not None:
+            skey = str(sample.key_expr)
+            coalesced += skey in latest
+            latest[skey] = sample.payload.to_bytes()
+        if not latest:
+            return
+        malformed = 0
+        items = []
+        for skey, payload in latest.items():
+            if (rid := self._key_id(skey)) is None:
+                malformed += 1
+            else:
+                items.append(((key, rid), (sub.kind, rid, payload)))
+        for bid in sub.followers:
+            brain = self.brains[bid]
+            pending = queues[bid]
+            for slot, item in items:
+                brain.counters.coalesced += slot in pending
+                pending[slot] = item
+            brain.counters.coalesced += coalesced
+            for _ in range(malformed):
+                brain.drops.drop("wrong_id", "a beacon on a malformed key")
+
+    def _drain_key(self, key: str, sub: _Subscription, queues: _Queues) -> None:
+        if sub.kind == "domain":
+            self._drain_every(key, sub, queues)
+            return
+        last = None
+        coalesced = 0
+        while (sample := sub.source.try_recv()) is not None:
+            coalesced += last is not None
+            last = sample
+        if last is None:
+            return
+        slot = (key, sub.key_id)
+        item = (sub.kind, sub.key_id, last.payload.to_bytes())
+        for bid in sub.followers:
+            pending = queues[bid]
+            self.brains[bid].counters.coalesced += coalesced + (slot in pending)
+            pending[slot] = item
+
+    def _drain_every(self, key: str, sub: _Subscription, queues: _Queues) -> None:
+        """Queue every sample ``sub`` holds, in arrival order, each in a slot of its own
+        (the slots sort in arrival order: same kind and id, increasing numbers)."""
+        while (sample := sub.source.try_recv()) is not None:
+            self._every += 1
+            slot = (f"{key}#{self._every:012d}", sub.key_id)
+            item = (sub.kind, sub.key_id, sample.payload.to_bytes())
+            for bid in sub.followers:
+                queues[bid][slot] = item
+
+    def _key_id(self, key: str) -> int | None:
+        if key not in self._ids:
+            if len(self._ids) >= DECODE_CACHE:  # bounded: tiles see robots come and go
+                self._ids.clear()
+            try:
+                self._ids[key] = protocol.parse_id(key, self.swarm, "beacon")
+            except ValueError:
+                self._ids[key] = None
+        return self._ids[key]
+
+    def receive(self, bid: int, now: float, wall: float) -> None:
+        """Hand brain ``bid`` everything queued for it since its last turn, its own newest
+        pose included, then the token changes (after the data: a last message from a
+        process that has just died must not revive it)."""
+        key = self._own_pose[bid]
+        self._drain_key(key, self._subs[key], self._pending)
+        brain = self.brains[bid]
+        pending = self._pending[bid]
+        items = [pending[slot] for slot in sorted(pending, key=_slot_order(pending))]
+        pending.clear()
+        impairment = self._impairment.get(bid)
+        if impairment is not None:
+            items = impairment.filter(items, now)
+        for kind, key_id, payload in items:
+            brain.receive(kind, payload, now, wall, key_id)
+        changes = self._changes[bid]
+        for role, rid, alive in changes:
+            brain.on_liveliness(role, rid, alive)
+        changes.clear()
+
+    # --- output --------------------------------------------------------------------------
+
+    def carry_out(self, bid: int, action: Action) -> None:
+        """Do what brain ``bid`` asked (see covswarm.agent.brain's actions)."""
+        if isinstance(action, SendCommand):
+            self._cmd[bid](action.command.encode())
+        elif isinstance(action, PublishState):
+            self._state[bid](action.state.encode())
+        elif isinstance(action, PublishBeacon):
+            self.bus.put(protocol.beacon_key(self.swarm, *action.tile, bid), action.beacon.encode())
+        elif isinstance(action, FollowStates):
+            self.follow(bid, "state", action.ids)
+        elif isinstance(action, FollowTiles):
+            self.follow(bid, "beacon", action.tiles)
+        elif isinstance(action, DeclareAlive):
+            # Tokens must stay referenced: zenoh undeclares a token when it is collected.
+            self.tokens[bid] = self.bus.declare_token(protocol.alive_key(self.swarm, "agent", bid))
+            log.info("agent %d ready in swarm %s", bid, self.swarm)
+        else:
+            raise TypeError(f"unknown action {action!r}")
+
+    # --- the tick ------------------------------------------------------------------------
+
+    def tick(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
+        """One control period of the whole process: :meth:`drain`, then :meth:`step`."""
+        self.drain()
+        return self.step(clock, wall, deadline)
+
+    def step(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
+        """Each brain's turn of one period, in order; the number of brains that stepped.
+
+        ``clock``: the ticker's (monotonic, mission-scaled) clock, read for each brain when
+        its turn comes (the last of a large batch dead-reckons its neighbours to its own
+        time); ``wall``: seconds since the epoch, likewise; ``deadline``: the end of this
+        period on ``clock``. A brain whose turn comes after the deadline holds (module
+        docstring); the next tick starts with the first that held, or one brain later
+        when all stepped, so no robot is always last.
+        """
+        stepped = 0
+        for bid in self.order:
+            brain = self.brains[bid]
+            now = clock()
+            if now > deadline:
+                self._hold(brain, now, wall())
+                continue
+            self._held.discard(bid)
+            self._stepped[bid] = now
+            self.receive(bid, now, wall())
+            for action in brain.tick(now, wall()):
+                self.carry_out(bid, action)
+                # A missed deadline: this period's command went out after the period ended
+                # (start-up, while processes are still launching, aside).
+                if isinstance(action, SendCommand) and brain.running and clock() > deadline:
+                    brain.counters.overruns += 1
+            stepped += 1
+        shift = stepped if 0 < stepped < len(self.order) else 1
+        self.order = self.order[shift:] + self.order[:shift]
+        return stepped
+
+    def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
+        """Brain's period is over before its turn: it skips this period (its robot runs on
+        the command of its last step, as at a lower rate), and once that step is more than
+        ``hold_after`` s old, stops its robot (once) rather than let it run on a command
+        computed from inputs that old."""
+        if not brain.running:
+            return  # before the mission the robots stand still anyway
+        brain.counters.late += 1
+        if brain.id in self._held or now - self._stepped.get(brain.id, now) <= self.hold_after:
+            return
+        self._held.add(brain.id)
+        self.carry_out(brain.id, brain.hold(wall))
+
+    def stop(self, wall: float) -> None:
+        """Stop every robot at once (rather than after their command timeout)."""
+        for bid, brain in self.brains.items():
+            self.carry_out(bid, brain.stop(wall))
+
+
+def _slot_order(
+    pending: dict[tuple[str, int | None], InboxItem],
+) -> Callable[[tuple[str, int | None]], tuple[int, int, str]]:
+    def order(slot: tuple[str, int | None]) -> tuple[int, int, str]:
+        kind, rid, _ = pending[slot]
+        return KIND_ORDER[kind], -1 if rid is None else rid, slot[0]
+
+    return order
+
+
+class _Ring:
+    """A ring of samples as :class:`LocalBus` delivers them (newest kept)."""
+
+    def __init__(self, capacity: int) -> None:
+        self.samples: deque = deque(maxlen=capacity)
+
+    def try_recv(self) -> Any:
+        return self.samples.popleft() if self.samples else None
+
+
+@dataclass(frozen=True)
+class _Bytes:
+    data: bytes
+
+    def to_bytes(self) -> bytes:
+        return self.data
+
+
+@dataclass(frozen=True)
+class LocalSample:
+    key_expr: str
+    payload: _Bytes
+
+
+class LocalBus:
+    """An in-memory bus with Zenoh's semantics for what a pack uses: exact keys, a ``*``
+    last chunk, rings that keep the newest samples, liveliness tokens as (key, alive)
+    changes. Subscribers see what is put after they subscribe; ``sent`` records every
+    put, in order (key, payload)."""
+
+    def __init__(self) -> None:
+        self._exact: dict[str, list[_Ring]] = {}
+        self._tiles: dict[str, list[_Ring]] = {}  # selector without its "*"
+        self._alive: list[_Ring] = []
+        self.sent: list[tuple[str, bytes]] = []
+
+    def subscribe(self, key: str, capacity: int) -> _Ring:
+        ring = _Ring(capacity)
+        if key.endswith("/*"):
+            self._tiles.setdefault(key[:-1], []).append(ring)
+        else:
+            self._exact.setdefault(key, []).append(ring)
+        return ring
+
+    def unsubscribe(self, source: Source) -> None:
+        for table in (self._exact, self._tiles):
+            for key, rings in list(table.items()):
+                if source in rings:
+                    rings.remove(source)
+                    if not rings:
+                        del table[key]
+                    return
+
+    def put(self, key: str, payload: bytes) -> None:
+        self.sent.append((key, payload))
+        sample = LocalSample(key, _Bytes(payload))
+        for ring in self._exact.get(key, ()):
+            ring.samples.append(sample)
+        for ring in self._tiles.get(key[: key.rfind("/") + 1], ()):
+            ring.samples.append(sample)
+
+    def publisher(self, key: str) -> Callable[[bytes], None]:
+        return lambda payload: self.put(key, payload)
+
+    def declare_token(self, key: str) -> str:
+        for ring in self._alive:
+            ring.samples.append((key, True))
+        return key
+
+    def liveliness(self, selector: str) -> _Ring:
+        ring = _Ring(8192)
+        self._alive.append(ring)
+        return ring

@@ -1,0 +1,98 @@
+"""The console answers every unreadable steering body with 400 (issue 21, item 4), never
+500 and never a traceback, and logs refused requests rate-limited. aiohttp's test server
+on loopback; the Zenoh feed is replaced by a bare SwarmView (no subscription is needed to
+refuse a body)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import logging
+from typing import Any
+
+import pytest
+from aiohttp.test_utils import TestClient, TestServer
+
+from covswarm.console.model import SwarmView
+from covswarm.console.server import Console
+from covswarm.console.steer_input import MAX_BODY, BadSteerInput, parse_steer_body
+
+
+class StillFeed:
+    """A feed that hears nothing: the console's view stays empty."""
+
+    def __init__(self) -> None:
+        self.view = SwarmView("test")
+
+    def drain(self, now: float) -> None:
+        pass
+
+
+def never_steer(request: Any) -> Any:
+    raise AssertionError(f"an unreadable body reached the coordinator: {request}")
+
+
+UNREADABLE = {
+    "deeply nested": b"[" * 16_000 + b"]" * 16_000,
+    "nested objects": b'{"a":' * 5_000 + b"1" + b"}" * 5_000,
+    "nested past the size limit": b"[" * 100_000 + b"]" * 100_000,
+    "5000 digits": b'{"kind": "translate", "dx": ' + b"7" * 5000 + b"}",
+    "5000 digits alone": b"9" * 5000,
+    "invalid UTF-8": b'{"kind": "translate", "dx": "\xff\xfe"}',
+    "lone surrogate": b'{"kind": "translate\\ud800"}',
+    "a list": b"[1, 2, 3]",
+    "a string": b'"translate"',
+    "null": b"null",
+    "a number": b"1e999",
+    "empty": b"",
+    "truncated": b'{"kind": "transl',
+    "nested field": b'{"kind": "polygon", "polygon": ' + b"[" * 5000 + b"]" * 5000 + b"}",
+    "object as polygon": b'{"kind": "polygon", "polygon": {"a": 1}}',
+    "huge float": b'{"kind": "translate", "dx": 1e999}',
+}
+
+
+@pytest.mark.parametrize("name", sorted(UNREADABLE))
+def test_parse_refuses_with_a_sentence(name: str) -> None:
+    body = UNREADABLE[name]
+    if len(body) > MAX_BODY:
+        pytest.skip("larger than the console reads (413 before parsing, tested below)")
+    with pytest.raises(BadSteerInput):
+        parse_steer_body(body)
+
+
+async def _post_all(bodies: dict[str, bytes]) -> dict[str, tuple[int, str]]:
+    console = Console(StillFeed(), never_steer, token=None)
+    answers = {}
+    async with TestClient(TestServer(console.app, host="127.0.0.1")) as client:
+        for name, body in bodies.items():
+            response = await client.post(
+                "/api/steer",
+                data=body,
+                headers={"Content-Type": "application/json", "Host": "127.0.0.1"},
+            )
+            answers[name] = (response.status, await response.text())
+    return answers
+
+
+def test_every_unreadable_body_gets_400_without_a_traceback(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    with caplog.at_level(logging.WARNING, logger="covswarm.console"):
+        answers = asyncio.run(_post_all(UNREADABLE))
+    for name, (status, text) in answers.items():
+        too_big = len(UNREADABLE[name]) > MAX_BODY
+        assert status == (413 if too_big else 400), (name, status, text[:300])
+        assert "Traceback" not in text and 'File "' not in text, name
+        if not too_big:
+            answer = json.loads(text)
+            assert answer["accepted"] is False and answer["reason"].startswith("malformed")
+
+
+def test_a_flood_of_refused_posts_logs_a_few_lines(caplog: pytest.LogCaptureFixture) -> None:
+    bodies = {f"bad {k}": b"[1]" for k in range(300)}
+    with caplog.at_level(logging.WARNING, logger="covswarm.console"):
+        answers = asyncio.run(_post_all(bodies))
+    assert {status for status, _ in answers.values()} == {400}
+    refused = [r for r in caplog.records if "steering refused" in r.getMessage()]
+    assert 1 <= len(refused) <= 3

@@ -1,0 +1,320 @@
+"""A packed agent process (covswarm.agent.pack): one subscription per key, each brain's
+inputs as in a process of its own, and a late brain holding its robot. Sans-IO, over the
+in-memory LocalBus."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from covswarm import protocol
+from covswarm.agent.brain import AgentBrain, AgentConfig
+from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.pack import LocalBus, Pack
+from covswarm.deploy.bench import bench_command
+from covswarm.tvd.coverage import aggregate_error
+
+SWARM = "t"
+WALL = 1.7e9
+SIDE = 2.0
+TILE = 0.6
+
+
+def square(offset: float) -> list[list[float]]:
+    return [[offset, 0.0], [offset + SIDE, 0.0], [offset + SIDE, SIDE], [offset, SIDE]]
+
+
+class World:
+    """Robots, a coordinator and packed brains on one LocalBus, stepped on a fake clock.
+
+    The robots sit still but for the commands they get (unicycle, integrated over each
+    period); the domain translates along x at ``speed`` m/s. ``packing``: the ids of each
+    process.
+    """
+
+    def __init__(
+        self,
+        packing: list[list[int]],
+        positions: np.ndarray,
+        speed: float = 0.05,
+        config: AgentConfig | None = None,
+        hold_after: float = 0.3,
+    ) -> None:
+        self.bus = LocalBus()
+        self.positions = positions.astype(float).copy()
+        self.headings = np.zeros(len(positions))
+        self.speed = speed
+        config = config or AgentConfig(safety=True)
+        self.packs = []
+        self.received: dict[int, list] = {}
+        for ids in packing:
+            decoder = MessageDecoder()
+            brains = [AgentBrain(i, config, decoder, clock=lambda: 0.0) for i in ids]
+            for brain in brains:
+                self._record(brain)
+            self.packs.append(Pack(self.bus, SWARM, brains, hold_after))
+        self.round = 0
+        self.sent_commands: list[protocol.WheelCommand] = []
+
+    def _record(self, brain: AgentBrain) -> None:
+        log = self.received[brain.id] = []
+        receive = brain.receive
+
+        def recording(kind, payload, now, now_wall, key_id=None):  # type: ignore[no-untyped-def]
+            log.append((self.round, kind, key_id, payload))
+            return receive(kind, payload, now, now_wall, key_id)
+
+        brain.receive = recording  # type: ignore[method-assign]
+
+    def publish(self, t: float) -> None:
+        """The coordinator's domain and every robot's pose at mission time ``t``."""
+        offset = self.speed * t
+        self.bus.put(
+            protocol.domain_key(SWARM),
+            protocol.Domain(
+                seq=self.round + 1,
+                stamp=WALL + t,
+                t=t,
+                state="running",
+                vertices=square(offset),
+                velocities=[[self.speed, 0.0]] * 4,
+                kappa=1.0,
+                tile_size=TILE,
+            ).encode(),
+        )
+        for rid, ((x, y), theta) in enumerate(zip(self.positions, self.headings, strict=True)):
+            self.bus.put(
+                protocol.pose_key(SWARM, rid),
+                protocol.Pose(
+                    id=rid, x=x, y=y, theta=theta, stamp=WALL + t, seq=self.round
+                ).encode(),
+            )
+
+    def run(
+        self,
+        rounds: int,
+        period: float = 0.1,
+        cost: float = 0.0,
+        separately: bool = False,
+        order: list[int] | None = None,
+    ) -> list[float]:
+        """``rounds`` control periods; e_a after each. ``cost``: s of the fake clock each
+        brain's turn takes (an injected delay: a starved process); ``separately``: every
+        pack drains before any steps (processes of their own see the same traffic);
+        ``order``: the packs' stepping order (a subscription declared before a teammate
+        publishes gets its message, after it does not, packed or not)."""
+        errors = []
+        for _ in range(rounds):
+            t = self.round * period
+            self.publish(t)
+            clock = [t]
+            if separately:
+                for pack in self.packs:
+                    pack.drain()
+            for pack in [self.packs[i] for i in order or range(len(self.packs))]:
+                if not separately:
+                    pack.drain()
+                self._step(pack, clock, t + period, cost)
+            self._move(period)
+            self.round += 1
+            errors.append(self.error(self.round * period))
+        return errors
+
+    @staticmethod
+    def _step(pack: Pack, clock: list[float], deadline: float, cost: float) -> None:
+        """pack.step with each brain's tick advancing the fake clock by ``cost`` s."""
+        originals = {bid: brain.tick for bid, brain in pack.brains.items()}
+
+        def costly(bid: int):  # type: ignore[no-untyped-def]
+            def tick(now: float, now_wall: float):  # type: ignore[no-untyped-def]
+                clock[0] += cost
+                return originals[bid](now, now_wall)
+
+            return tick
+
+        for bid, brain in pack.brains.items():
+            brain.tick = costly(bid)  # type: ignore[method-assign]
+        try:
+            pack.step(lambda: clock[0], lambda: WALL + clock[0], deadline)
+        finally:
+            for bid, brain in pack.brains.items():
+                brain.tick = originals[bid]  # type: ignore[method-assign]
+
+    def _move(self, period: float) -> None:
+        """Each robot integrates its newest command over the period (differential drive)."""
+        latest: dict[int, protocol.WheelCommand] = {}
+        for key, payload in self.bus.sent:
+            if key.endswith("/cmd"):
+                command = protocol.WheelCommand.decode(payload)
+                latest[command.id] = command
+        self.sent_commands.extend(latest.values())
+        self.bus.sent.clear()
+        axle = AgentConfig().robot.wheel_separation
+        for rid, command in latest.items():
+            forward = 0.5 * (command.left + command.right)
+            turn = (command.right - command.left) / axle
+            theta = self.headings[rid]
+            self.positions[rid] += forward * period * np.array([math.cos(theta), math.sin(theta)])
+            self.headings[rid] = theta + turn * period
+        self.commands = latest
+
+    def error(self, t: float) -> float:
+        return aggregate_error(self.positions, np.array(square(self.speed * t)))
+
+
+def layout(n: int, seed: int) -> np.ndarray:
+    return np.random.default_rng(seed).uniform(0.2, SIDE - 0.2, (n, 2))
+
+
+def test_packed_brains_get_and_do_what_lone_brains_do() -> None:
+    n = 14
+    positions = layout(n, 3)
+    packed = World([list(range(n))], positions)
+    alone = World([[i] for i in range(n)], positions)
+    commands_packed, commands_alone = [], []
+    for _ in range(25):
+        order = list(packed.packs[0].order)
+        packed.run(1, separately=False)
+        alone.run(1, separately=True, order=order)
+        commands_packed.append({i: c.encode() for i, c in packed.commands.items()})
+        commands_alone.append({i: c.encode() for i, c in alone.commands.items()})
+    # Same messages in ...
+    for rid in range(n):
+        assert packed.received[rid] == alone.received[rid], rid
+        assert {kind for _, kind, _, _ in packed.received[rid]} == {
+            "domain",
+            "pose",
+            "state",
+            "beacon",
+        }
+    # ... same commands out, and they move the robots.
+    assert commands_packed == commands_alone
+    assert np.abs(packed.positions - positions).max() > 0.01
+    # One subscription per key for the process, against one per brain and key alone.
+    pack = packed.packs[0]
+    assert pack.followers(protocol.domain_key(SWARM)) == frozenset(range(n))
+    alone_subs = sum(p.subscriptions for p in alone.packs)
+    assert pack.subscriptions < alone_subs / 2
+    for rid in range(n):  # the reference count is exactly the brains that follow the key
+        key = protocol.agent_state_key(SWARM, rid)
+        following = {p.order[0] for p in alone.packs if p.followers(key) == frozenset(p.order)}
+        assert pack.followers(key) == following
+
+
+def test_a_subscription_lives_while_a_brain_follows_it() -> None:
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1)])
+    key = protocol.agent_state_key(SWARM, 5)
+    pack.follow(0, "state", frozenset({5}))
+    pack.follow(1, "state", frozenset({5, 6}))
+    assert pack.followers(key) == {0, 1}
+    state = protocol.AgentState(id=5, x=1.0, y=1.0, stamp=WALL, neighbors=[])
+    bus.put(key, state.encode())
+    pack.drain()
+    pack.follow(0, "state", frozenset())  # 0 stops following before its turn: not for it
+    assert pack.followers(key) == {1}
+    seen = []
+    for brain in pack.brains.values():
+        brain.receive = lambda kind, payload, now, wall, key_id=None, b=brain.id: seen.append(  # type: ignore[method-assign]
+            (b, kind, key_id)
+        )
+    pack.receive(0, 0.0, WALL)
+    pack.receive(1, 0.0, WALL)
+    assert seen == [(1, "state", 5)]
+    pack.follow(1, "state", frozenset())
+    assert pack.followers(key) == frozenset() and key not in bus._exact
+    with pytest.raises(ValueError, match="twice"):
+        Pack(bus, SWARM, [AgentBrain(2), AgentBrain(2)])
+
+
+def test_a_late_brain_skips_its_period_then_holds_its_robot() -> None:
+    n = 6
+    world = World([list(range(n))], layout(n, 5), speed=0.0)
+    world.run(3)  # warm: every brain steps, robots move
+    pack = world.packs[0]
+    assert all(b.counters.late == 0 for b in pack.brains.values())
+    first = list(pack.order)
+    # Each turn costs 0.04 s of a 0.1 s period: three brains step, three skip the period,
+    # their robots on the command of their last step 0.1 s ago (no new one, no stop).
+    world.run(1, cost=0.04)
+    late = first[3:]
+    assert [pack.brains[b].counters.late for b in first] == [0, 0, 0, 1, 1, 1]
+    assert pack.order[0] == late[0]  # the next tick starts with them
+    assert sorted(world.commands) == sorted(first[:3])
+    # At 0.15 s a turn, one brain steps per period: the others' last steps grow older than
+    # hold_after (0.3 s) and they stop their robots, once per stretch without a step.
+    steps = {bid: pack.brains[bid].counters.steps for bid in first}
+    world.sent_commands.clear()
+    world.run(8, cost=0.15)
+    for bid in first:
+        mine = [c for c in world.sent_commands if c.id == bid]
+        zeros = [c for c in mine if (c.left, c.right) == (0.0, 0.0)]
+        stepped = pack.brains[bid].counters.steps - steps[bid]
+        assert 1 <= len(zeros) <= stepped + 1 and len(mine) == stepped + len(zeros), bid
+    stats = pack.brains[late[0]].stats()
+    assert 0.5 < stats["late_held"] < 1.0
+    with pytest.raises(ValueError, match="hold_after"):
+        Pack(LocalBus(), SWARM, [AgentBrain(9)], hold_after=0.0)
+
+
+@pytest.mark.parametrize("cost", [0.0, 0.01, 0.03, 0.3])
+def test_a_starved_process_slows_down_and_stays_together(cost: float) -> None:
+    """Turns that cost ``cost`` s each (an injected delay: at 0.03 s three of the twelve
+    brains step per 0.1 s period, at 0.3 s one) slow the team down but never spread it
+    apart: e_a stays within the unstarved run's transient over a team standing still
+    (1.33x, the robots turning from random headings), ends no worse than it started, and
+    converges when a brain still steps every other period."""
+    n = 12
+    world = World([list(range(n))], layout(n, 7), speed=0.05)
+    still = np.array([world.error((k + 1) * 0.1) for k in range(60)])
+    errors = np.array(world.run(60, cost=cost))
+    assert np.all(errors <= 1.35 * still)
+    assert errors[-1] <= 1.15 * still[0]
+    if cost <= 0.01:
+        assert errors[-1] < 0.15
+    late = sum(b.counters.late for b in world.packs[0].brains.values())
+    assert (late > 0) == (cost * n > 0.1)
+
+
+def test_bench_brain_tick_reports_every_process_size(tmp_path: Path) -> None:
+    out = tmp_path / "bt"
+    argv = ["--brain-tick", "--brain-tick-sizes", "1,15", "--brain-tick-team", "30"]
+    result = CliRunner().invoke(bench_command, [*argv, "--sample", "5", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    alone, packed = json.loads((out / "bench.json").read_text())
+    assert (alone["agents_per_process"], packed["agents_per_process"]) == (1, 15)
+    for row in (alone, packed):
+        assert row["layout"] == "brain-tick" and row["agents"] == 30
+        assert 10.0 < row["brain_tick_cpu_us"] < 1e6 and 10.0 < row["local_step_p50_us"] < 1e6
+        assert row["rx_per_brain_tick"] >= 2.0  # at least its pose and the domain
+    # A process of 15 brains subscribes once per key: fewer subscriptions per brain.
+    assert packed["subscriptions_per_brain"] < alone["subscriptions_per_brain"] / 2
+    bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-sizes", "0"])
+    assert bad.exit_code != 0 and "positive sizes" in bad.output
+
+
+def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() -> None:
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1), AgentBrain(2)])
+    pack.follow(0, "beacon", frozenset({(0, 0)}))
+    pack.follow(1, "beacon", frozenset({(0, 0), (1, 0)}))
+    beacon = protocol.Beacon(id=7, x=0.1, y=0.1, stamp=WALL)
+    bus.put(protocol.beacon_key(SWARM, 0, 0, 7), beacon.encode())
+    bus.put(protocol.beacon_key(SWARM, 0, 0, 7), beacon.encode())  # coalesced
+    bus.put(protocol.beacon_tile_selector(SWARM, 0, 0)[:-1] + "x", b"junk")
+    pack.drain()
+    seen: dict[int, list] = {0: [], 1: [], 2: []}
+    for bid, brain in pack.brains.items():
+        brain.receive = lambda kind, payload, now, wall, key_id=None, b=bid: seen[b].append(  # type: ignore[method-assign]
+            (kind, key_id)
+        )
+        pack.receive(bid, 0.0, WALL)
+    assert seen == {0: [("beacon", 7)], 1: [("beacon", 7)], 2: []}
+    for bid, brain in pack.brains.items():
+        assert brain.drops.counts["wrong_id"] == (bid < 2)
+        assert brain.counters.coalesced == (bid < 2)

@@ -1,0 +1,490 @@
+"""Secured mode, role by role: each process has its own certificate and the router lets it
+put, declare and query only what its role and ids may (protocol.access).
+
+The e2e tests run a real router process on loopback with the issued credentials and try
+each forgery of issue 21 from a hostile session holding another role's certificate: the
+router refuses it, and a legitimate message sent after it arrives (so "nothing received"
+is not a dead link).
+"""
+
+from __future__ import annotations
+
+import shutil
+import socket
+import subprocess
+import sys
+import threading
+import time
+from collections.abc import Iterator
+from contextlib import contextmanager
+from pathlib import Path
+
+import pytest
+from live_runs import wait_until
+
+from covswarm import protocol
+from covswarm.deploy.plan import covswarm_argv
+from covswarm.protocol.access import access_control
+from covswarm.protocol.security import (
+    identity_name,
+    issue_credentials,
+    read_identities,
+    require_identities,
+)
+from covswarm.protocol.session import session_config
+
+zenoh = pytest.importorskip("zenoh")
+
+ROUTER = """
+import signal, sys, zenoh
+from pathlib import Path
+from covswarm.protocol import session_config
+peers = sys.argv[3:]  # other hosts' routers
+with zenoh.open(session_config(peers, [sys.argv[1]], mode="router", secure=Path(sys.argv[2]))):
+    print("ready", flush=True)
+    signal.pause()  # until SIGTERM
+"""
+AGENTS, ROBOTS = [0, 1, 2], [0, 1, 2, 30]
+SETTLE = 0.5  # s for declarations to reach the router before a put or a query
+
+
+@pytest.fixture(scope="module", autouse=True)
+def openssl(require) -> None:
+    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
+
+
+@pytest.fixture(scope="module")
+def creds(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return issue_credentials(
+        tmp_path_factory.mktemp("secure"), agents=AGENTS, robots=ROBOTS, groups=[[5, 6, 7]]
+    )
+
+
+def _free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@contextmanager
+def secured_router(creds: Path, *peers: str) -> Iterator[str]:
+    """A secured router in its own process: its tls endpoint (stopped by pid at the end)."""
+    for _ in range(5):  # the port can be taken between probing and binding
+        endpoint = f"tls/127.0.0.1:{_free_port()}"
+        router = subprocess.Popen(
+            [sys.executable, "-c", ROUTER, endpoint, str(creds), *peers],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.PIPE,
+            text=True,
+        )
+        if router.stdout.readline().strip() == "ready":
+            break
+        router.wait(timeout=30)
+    else:
+        pytest.fail(f"the secured router did not start: {router.stderr.read()[-2000:]}")
+    try:
+        yield endpoint
+    finally:
+        router.terminate()
+        router.wait(timeout=30)
+
+
+@pytest.fixture(scope="module")
+def endpoint(creds: Path) -> Iterator[str]:
+    with secured_router(creds) as endpoint:
+        yield endpoint
+
+
+def join(endpoint: str, creds: Path, role: str, id: int | list[int] | None = None):  # noqa: A002
+    return zenoh.open(session_config([endpoint], secure=creds, role=role, id=id))
+
+
+class Inbox:
+    """Samples received by a subscriber: (key, payload) pairs, and a way to wait for one."""
+
+    def __init__(self, session, selector: str) -> None:
+        self.items: list[tuple[str, bytes]] = []
+        self._arrived = threading.Condition()
+        self.subscriber = session.declare_subscriber(selector, self._on)
+
+    def _on(self, sample) -> None:
+        with self._arrived:
+            self.items.append((str(sample.key_expr), sample.payload.to_bytes()))
+            self._arrived.notify_all()
+
+    def wait_for(self, payload: bytes, timeout: float = 5.0) -> bool:
+        with self._arrived:
+            return self._arrived.wait_for(
+                lambda: any(p == payload for _, p in self.items), timeout=timeout
+            )
+
+
+# ---- credentials and the access-control list, without a router ----
+
+
+def test_credentials_give_each_identity_its_own_certificate(creds: Path) -> None:
+    names = {entry["name"] for entry in read_identities(creds)}
+    expected = {"coordinator", "bridge", "console", "operator", "ros2", "agent-5-7", "robot-5-7"}
+    expected |= {f"agent-{i}" for i in AGENTS} | {f"robot-{i}" for i in ROBOTS}
+    assert names == expected
+    for name in [*names, "router"]:
+        assert (creds / name / "key.pem").stat().st_mode & 0o077 == 0
+        subject = subprocess.run(
+            ["openssl", "x509", "-noout", "-subject", "-in", str(creds / name / "cert.pem")],
+            capture_output=True, text=True, check=True,
+        ).stdout  # fmt: skip
+        assert subject.strip().endswith(f"CN = {name}"), subject
+        verified = subprocess.run(
+            ["openssl", "verify", "-CAfile", str(creds / "ca.pem"), str(creds / name / "cert.pem")],
+            capture_output=True, text=True,
+        )  # fmt: skip
+        assert verified.returncode == 0, verified.stderr
+    assert (creds / "ca" / "ca.key").stat().st_mode & 0o077 == 0
+
+
+def test_issuing_again_adds_identities_signed_by_the_same_ca(tmp_path: Path) -> None:
+    folder = issue_credentials(tmp_path / "lab", agents=[0], robots=[0], hosts=["10.0.0.7"])
+    router = str(folder / "router" / "cert.pem")
+    names = subprocess.run(
+        ["openssl", "x509", "-noout", "-ext", "subjectAltName", "-in", router],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    assert "IP Address:127.0.0.1" in names and "IP Address:10.0.0.7" in names
+    assert "DNS:localhost" in names
+    with pytest.raises(ValueError, match="invalid router host"):
+        issue_credentials(folder, hosts=["bad host;rm"])
+    ca, first = (folder / "ca.pem").read_bytes(), (folder / "agent-0" / "cert.pem").read_bytes()
+    issue_credentials(folder, agents=[0, 9], robots=[])
+    assert (folder / "ca.pem").read_bytes() == ca  # same CA
+    assert (folder / "agent-0" / "cert.pem").read_bytes() == first  # kept, not re-issued
+    names = [entry["name"] for entry in read_identities(folder)]
+    assert sorted(names) == sorted(
+        ["coordinator", "bridge", "console", "operator", "ros2", "agent-0", "robot-0", "agent-9"]
+    )
+    (folder / "ca" / "ca.key").unlink()  # a machine's copy cannot issue
+    with pytest.raises(ValueError, match="cannot issue"):
+        issue_credentials(folder, agents=[3])
+
+
+def test_identity_names_and_bad_roles() -> None:
+    assert identity_name("agent", 3) == "agent-3"
+    assert identity_name("robot", [0, 1, 2, 4]) == "robot-0-2,4"
+    assert identity_name("coordinator") == "coordinator"
+    bad = [("agent", None), ("operator", 1), ("admin", None), ("robot", []), ("robot", [-1])]
+    for role, ids in [*bad, ("agent", True), ("agent", 70000)]:
+        with pytest.raises(ValueError):
+            identity_name(role, ids)
+    with pytest.raises(ValueError, match="needs an id"):
+        session_config(["tcp/127.0.0.1:7447"], role="agent")  # caught in open mode too
+
+
+def test_a_machine_without_its_certificate_is_told_how_to_issue_it(creds: Path) -> None:
+    with pytest.raises(ValueError, match=r"lacks agent-9: covswarm credentials .* --ids 9$"):
+        session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=9)
+    with pytest.raises(ValueError, match=r"--group 0-49"):
+        session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=range(50))
+
+
+def test_a_launcher_learns_every_missing_identity_at_once(creds: Path) -> None:
+    require_identities(creds, ["coordinator", "agent-0", "robot-5-7"])
+    with pytest.raises(ValueError) as missing:
+        require_identities(creds, ["agent-0", "agent-8-9", "robot-8-9", "robot-11", "agent-12"])
+    assert "lacks agent-8-9, robot-8-9, robot-11, agent-12" in str(missing.value)
+    assert str(missing.value).endswith(f"covswarm credentials {creds} --group 8-9 --ids 11-12")
+
+
+def _allowed(acl: dict, subject: str, flow: str, message: str, key: str) -> bool:
+    """Brute-force reading of the list: does any rule of ``subject``'s policy allow it?"""
+    rules = {rule["id"]: rule for rule in acl["rules"]}
+    [policy] = [p for p in acl["policies"] if subject in p["subjects"]]
+    return any(
+        flow in rules[r]["flows"]
+        and message in rules[r]["messages"]
+        and any(zenoh.KeyExpr(k).intersects(zenoh.KeyExpr(key)) for k in rules[r]["key_exprs"])
+        for r in policy["rules"]
+    )
+
+
+def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
+    acl = access_control(read_identities(creds))
+    assert acl["default_permission"] == "deny"
+    swarm = protocol.new_swarm_name()
+    owners: dict[str, set[str]] = {
+        protocol.domain_key(swarm): {"coordinator"},
+        protocol.status_key(swarm): {"coordinator"},
+    }
+    for i in range(8):
+        agent = {f"agent-{i}"} if i in AGENTS else {"agent-5-7"} if i >= 5 else set()
+        robot = {f"robot-{i}"} if i in ROBOTS else {"robot-5-7"} if i >= 5 else set()
+        owners[protocol.cmd_key(swarm, i)] = agent
+        owners[protocol.agent_state_key(swarm, i)] = agent
+        owners[protocol.beacon_key(swarm, -3, 7, i)] = agent
+        owners[protocol.pose_key(swarm, i)] = robot | {"bridge"}
+    tokens: dict[str, set[str]] = {protocol.alive_key(swarm, "coordinator", 0): {"coordinator"}}
+    for i in range(8):
+        for role, owner in [("agent", owners[protocol.cmd_key(swarm, i)])]:
+            tokens[protocol.alive_key(swarm, role, i)] = owner
+            tokens[protocol.claim_key(swarm, role, i, "ab12")] = owner
+        robot = owners[protocol.pose_key(swarm, i)]
+        tokens[protocol.alive_key(swarm, "robot", i)] = robot
+        tokens[protocol.claim_key(swarm, "robot", i, "ab12")] = robot
+    subjects = [s["id"] for s in acl["subjects"] if s["id"] not in ("router", "ros2")]
+    ros2 = ["0/robot_0/cmd_vel/geometry_msgs::msg::dds_::Twist_/RIHS01_x", "@ros2_lv/0/a"]
+    assert _allowed(acl, "router", "ingress", "put", protocol.cmd_key(swarm, 0))  # a relay
+    for subject in subjects:
+        for key, who in owners.items():
+            assert _allowed(acl, subject, "ingress", "put", key) == (subject in who), (subject, key)
+            assert _allowed(acl, subject, "egress", "put", key)  # everyone may read
+            assert _allowed(acl, subject, "ingress", "declare_subscriber", key)
+        for key, who in tokens.items():
+            ok = _allowed(acl, subject, "ingress", "liveliness_token", key)
+            assert ok == (subject in who), (subject, key)
+        steer = protocol.steer_key(swarm)
+        assert _allowed(acl, subject, "ingress", "declare_queryable", steer) == (
+            subject == "coordinator"
+        )
+        assert _allowed(acl, subject, "ingress", "query", steer) == (
+            subject in ("coordinator", "console", "operator")
+        )
+        assert not _allowed(acl, subject, "ingress", "put", "@/router/x")  # nothing outside
+        for key in ros2:  # the bridge speaks ROS 2 on its session too
+            assert _allowed(acl, subject, "ingress", "put", key) == (subject == "bridge")
+    # ROS 2 nodes on the same router: their keys, nothing of covswarm (not even to read).
+    for key in ros2:
+        assert _allowed(acl, "ros2", "ingress", "put", key)
+        assert _allowed(acl, "ros2", "egress", "put", key)
+    for key in [*owners, *tokens]:
+        for flow, message in [
+            ("ingress", "put"),
+            ("egress", "put"),
+            ("ingress", "liveliness_token"),
+        ]:
+            assert not _allowed(acl, "ros2", flow, message, key)
+
+
+def test_the_ros2_domains_are_the_bridges() -> None:
+    from covswarm.bridge.rmw_zenoh import MAX_DOMAIN_ID
+    from covswarm.protocol.access import ROS2_DOMAINS
+
+    assert ROS2_DOMAINS == range(MAX_DOMAIN_ID + 1)
+
+
+# ---- forgeries against a real router ----
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_only_agent_i_commands_robot_i(endpoint: str, creds: Path) -> None:
+    swarm = protocol.new_swarm_name()
+    forgeries = {
+        protocol.cmd_key(swarm, 0): [("operator", None), ("agent", 1), ("robot", 0)],
+        protocol.agent_state_key(swarm, 0): [("agent", 1), ("coordinator", None)],
+        protocol.beacon_key(swarm, 0, 0, 0): [("agent", 1), ("bridge", None)],
+    }  # fmt: skip
+    with join(endpoint, creds, "robot", 0) as robot:
+        inboxes = {key: Inbox(robot, key) for key in forgeries}
+        for key, hostiles in forgeries.items():
+            for role, i in hostiles:
+                with join(endpoint, creds, role, i) as hostile:
+                    time.sleep(SETTLE)
+                    hostile.put(key, b"forged")
+        with join(endpoint, creds, "agent", 0) as agent:  # the owner, after the forgeries
+            time.sleep(SETTLE)
+            for key in forgeries:
+                agent.put(key, b"legitimate")
+            for key, inbox in inboxes.items():
+                assert inbox.wait_for(b"legitimate"), key
+        time.sleep(SETTLE)
+    for key, inbox in inboxes.items():
+        assert [p for _, p in inbox.items] == [b"legitimate"], key
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_only_the_coordinator_publishes_the_domain_and_status(endpoint: str, creds: Path) -> None:
+    swarm = protocol.new_swarm_name()
+    keys = [protocol.domain_key(swarm), protocol.status_key(swarm)]
+    with join(endpoint, creds, "agent", 2) as agent:
+        inboxes = [Inbox(agent, key) for key in keys]
+        for role, i in [("agent", 0), ("operator", None), ("console", None), ("bridge", None)]:
+            with join(endpoint, creds, role, i) as hostile:
+                time.sleep(SETTLE)
+                for key in keys:
+                    hostile.put(key, b"forged")
+        with join(endpoint, creds, "coordinator") as coordinator:
+            time.sleep(SETTLE)
+            for key in keys:
+                coordinator.put(key, b"legitimate")
+            for inbox in inboxes:
+                assert inbox.wait_for(b"legitimate")
+        time.sleep(SETTLE)
+    for inbox in inboxes:
+        assert [p for _, p in inbox.items] == [b"legitimate"]
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_a_fake_steering_service_gets_no_queries(endpoint: str, creds: Path) -> None:
+    swarm = protocol.new_swarm_name()
+    key = protocol.steer_key(swarm)
+    asked: dict[str, int] = {"coordinator": 0, "fake": 0}
+
+    def answer(name: str):
+        def reply(query) -> None:
+            asked[name] += 1
+            query.reply(key, name.encode())
+
+        return reply
+
+    with (
+        join(endpoint, creds, "coordinator") as coordinator,
+        join(endpoint, creds, "operator") as fake,
+        join(endpoint, creds, "agent", 1) as agent,
+    ):
+        coordinator.declare_queryable(key, answer("coordinator"))
+        fake.declare_queryable(key, answer("fake"))
+        time.sleep(SETTLE)
+        for role in ("operator", "console"):
+            with join(endpoint, creds, role) as client:
+                time.sleep(SETTLE)
+                replies = [r.ok.payload.to_bytes() for r in client.get(key, timeout=3.0) if r.ok]
+                assert replies == [b"coordinator"], role
+        assert [r for r in agent.get(key, timeout=1.0) if r.ok] == []  # agents may not ask
+    assert asked == {"coordinator": 2, "fake": 0}
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_squatted_claims_and_liveliness_tokens_are_refused(endpoint: str, creds: Path) -> None:
+    from covswarm.runtime.claims import claim
+
+    swarm = protocol.new_swarm_name()
+    squats = [
+        protocol.claim_key(swarm, "robot", 30, "squat"),
+        protocol.alive_key(swarm, "robot", 30),
+        protocol.alive_key(swarm, "agent", 0),
+        protocol.alive_key(swarm, "coordinator", 0),
+        protocol.claim_key(swarm, "coordinator", 0, "squat"),
+    ]
+    everything = f"covswarm/{swarm}/**"
+    with join(endpoint, creds, "agent", 1) as squatter, join(endpoint, creds, "console") as seer:
+        held = [squatter.liveliness().declare_token(k) for k in squats]
+        own = squatter.liveliness().declare_token(protocol.alive_key(swarm, "agent", 1))
+        time.sleep(SETTLE)
+        alive = [str(r.ok.key_expr) for r in seer.liveliness().get(everything, timeout=2.0) if r.ok]
+        assert alive == [protocol.alive_key(swarm, "agent", 1)]  # its own token, nothing else
+        with join(endpoint, creds, "robot", 30) as robot:
+            token = claim(robot, swarm, "robot", 30)
+            assert token is not None  # `covswarm robot --id 30` would start
+            token.undeclare()
+        del held, own
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_a_process_of_several_ids_holds_one_group_certificate(endpoint: str, creds: Path) -> None:
+    swarm = protocol.new_swarm_name()
+    with join(endpoint, creds, "robot", [5, 6, 7]) as robot:
+        inbox = Inbox(robot, protocol.all_cmds_selector(swarm))
+        with join(endpoint, creds, "agent", [5, 6, 7]) as brains:
+            time.sleep(SETTLE)
+            brains.put(protocol.cmd_key(swarm, 1), b"not mine")
+            for i in (5, 6, 7):
+                brains.put(protocol.cmd_key(swarm, i), f"cmd {i}".encode())
+            assert inbox.wait_for(b"cmd 7")
+            time.sleep(SETTLE)
+    assert sorted(p for _, p in inbox.items) == [b"cmd 5", b"cmd 6", b"cmd 7"]
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_routers_of_two_hosts_relay_only_what_their_clients_may_send(creds: Path) -> None:
+    """Host B's router connects to host A's with the router certificate: agent 0 on B
+    commands robot 0 on A, an operator on B cannot (B refuses it at the entry)."""
+    swarm = protocol.new_swarm_name()
+    key = protocol.cmd_key(swarm, 0)
+    with secured_router(creds) as host_a, secured_router(creds, host_a) as host_b:
+        with join(host_a, creds, "robot", 0) as robot:
+            inbox = Inbox(robot, key)
+            with (
+                join(host_b, creds, "operator") as hostile,
+                join(host_b, creds, "agent", 0) as agent,
+            ):
+                # The routers link up in the background: resend until one arrives.
+                assert wait_until(lambda: agent.put(key, b"legitimate") or bool(inbox.items), 15)
+                hostile.put(key, b"forged")
+                agent.put(key, b"after")
+                assert inbox.wait_for(b"after")
+                time.sleep(SETTLE)
+    assert set(p for _, p in inbox.items) == {b"legitimate", b"after"}
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(90)
+def test_forged_commands_do_not_move_a_secured_robot(endpoint: str, creds: Path) -> None:
+    """Issue 21's probe against a real `covswarm robot --id 0 --secure`: valid
+    WheelCommands from an operator and from agent 1 at 50 Hz leave it where it is; the same
+    commands from agent 0 move it (so the robot was listening)."""
+    from covswarm.deploy.plan import covswarm_argv
+
+    swarm = protocol.new_swarm_name()
+    argv = [*covswarm_argv(), "robot", "--id", "0", "--connect", endpoint, "--swarm", swarm]
+    robot = subprocess.Popen(
+        [*argv, "--secure", str(creds)], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE
+    )
+    poses: list[protocol.Pose] = []
+    try:
+        with join(endpoint, creds, "console") as watcher:
+            watcher.declare_subscriber(
+                protocol.pose_key(swarm, 0),
+                lambda s: poses.append(protocol.Pose.decode(s.payload.to_bytes())),
+            )
+            assert wait_until(lambda: len(poses) > 3, 30), "the secured robot sent no pose"
+
+            def drive(role: str, i: int | None, seconds: float) -> None:
+                with join(endpoint, creds, role, i) as sender:
+                    time.sleep(SETTLE)
+                    end, seq = time.monotonic() + seconds, 0
+                    while time.monotonic() < end:
+                        seq += 1
+                        command = protocol.WheelCommand(
+                            id=0, left=0.2, right=0.2, stamp=time.time(), seq=seq,
+                            pose_stamp=poses[-1].stamp,
+                        )  # fmt: skip
+                        sender.put(protocol.cmd_key(swarm, 0), command.encode())
+                        time.sleep(0.02)
+
+            start = poses[-1]
+            drive("operator", None, 1.5)
+            drive("agent", 1, 1.5)
+            time.sleep(SETTLE)
+            still = poses[-1]
+            assert still.seq > start.seq  # poses kept coming while it was attacked
+            assert (still.x, still.y) == (start.x, start.y)
+            drive("agent", 0, 1.0)
+            time.sleep(SETTLE)
+            moved = poses[-1]
+            assert abs(moved.x - still.x) + abs(moved.y - still.y) > 0.05
+    finally:
+        robot.terminate()
+        robot.wait(timeout=30)
+    assert robot.returncode in (0, -15), robot.stderr.read()[-2000:]
+
+
+@pytest.mark.e2e
+def test_covswarm_run_refuses_before_starting_when_a_certificate_is_missing(
+    creds: Path, tmp_path: Path
+) -> None:
+    """A packed run needs group certificates (agent-0-1, ...) the folder lacks: the launcher
+    says so and exits 2 before any router or child starts, instead of waiting for tokens
+    that children without certificates never declare."""
+    started = time.monotonic()
+    done = subprocess.run(
+        [*covswarm_argv(), "run", "--secure", str(creds),
+         "--agents", "4", "--agents-per-process", "2", "--out", str(tmp_path / "run")],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert done.returncode == 2, done.stderr
+    assert "lacks agent-0-1" in done.stderr and "--group 0-1" in done.stderr
+    assert time.monotonic() - started < 30
+    assert not (tmp_path / "run" / "logs").exists()

@@ -1,0 +1,1 @@
+"""The arena: workspace, obstacles, occupancy maps, S against obstacles (sweep), routes."""

@@ -1,0 +1,623 @@
+"""Routes for S through free space: translate with clearance, shrink through doors, grow back.
+
+The planner searches over the centroid c and the scale s of S(c, s) = c + s (P - c_P), the
+current polygon P scaled about its centroid (no rotation: S keeps its orientation; a door
+that only a turned S could pass is not found). Scales run geometrically from 1 down to
+s_min = max(sqrt(min_area / area(P)), min_width / width(P)), the least S the team may
+take, so the plan never asks for an S the steering would call too small.
+
+Certified grid. The plane is cut into square cells of side h, centred so that P's centroid
+is a cell centre. A cell is *free at scale s* when S(p, s) lies in the workspace and meets
+no obstacle for every centroid p anywhere in the cell's square, not only at its centre:
+obstacles are rasterised conservatively (every cell an obstacle touches is occupied) and
+each level's footprint is S's shape grown by a whole cell, {d : (d + [-h, h]^2) meets
+s Q}, so occupied cell j blocks cell i when x_j - x_i is in it (a correlation, done by FFT).
+Scaling about the centroid nests the S (s < s' gives S(c, s) inside S(c, s')), so a cell
+free at s is free at every smaller scale and one number per cell, its *capacity* (the
+largest free scale), says it all. Moves between neighbouring free cells (8 directions) at a
+scale both allow, and scale changes in place, keep S in free space by construction. The
+price is a margin of one to two cells: a way narrower than S plus that is not found at a
+cell, so the cell (by default a tenth of the least S's width, CELLS_PER_WIDTH) is halved up
+to REFINE times before the planner refuses.
+
+Search. Dijkstra over the cells free at s_min, a step costing its length times
+1 + SMALL_COST (1 - s) / (1 - s_min) for the scale s it is taken at (the smaller of the two
+capacities): S keeps its size where it can, and no path is longer than (1 + SMALL_COST)
+times the shortest (on the grid). Along the path S takes the largest scale that is within
+every cell's capacity and changes by at most 1 / (S's radius) per metre (the vertices move
+no faster than the centroid to shrink), so it shrinks gradually ahead of a door and grows
+after it, shrinking in place before a step into a narrower cell and growing after one
+into a wider (so every step is certified).
+
+Shortcuts and verification. Runs of that path are replaced by straight segments (centroid
+and scale both linear in the progress) where the grid allows them, and the path of the
+resulting :class:`~covswarm.world.route.RouteMotion` is verified end to end with
+covswarm.world.sweep.first_contact (a shortcut that touches is split at the middle of the
+run it replaced, and verified again); a route that fails verification is never returned.
+S stops (zero velocity and acceleration) at every waypoint: the route's segments are
+chained quintics.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from scipy import fft, ndimage
+from scipy.sparse import coo_matrix
+from scipy.sparse.csgraph import dijkstra
+
+from covswarm.tvd.geometry import area, validate_convex
+from covswarm.world.model import World
+from covswarm.world.route import PEAK_RATE, RouteMotion, centroid, merge_coincident, width
+from covswarm.world.sweep import first_contact
+
+# Least ratio between consecutive scale levels (geometric ladder from 1 to s_min).
+LEVEL_RATIO = 0.85
+# Extra cost per metre of a step taken at the smallest scale (module docstring, "Search").
+SMALL_COST = 0.1
+# Default grid: a tenth of the smallest allowed S's width, but no more than MAX_CELLS cells.
+CELLS_PER_WIDTH = 10
+MAX_CELLS = 250_000
+MIN_CELL = 0.01  # m: never finer
+# Times the cell is halved when no route is found (the grid's conservative margin is a cell
+# or two: a way tighter than that needs a finer grid before the planner refuses).
+REFINE = 2
+# m: the grid keeps S this far from obstacles and walls, above first_contact's tolerance, so
+# a certified step is never a touch.
+CLEARANCE = 1e-3
+# Instants first_contact samples for a route's swept box (its speed bound is exact).
+_SWEEP_SAMPLES = 16
+# Samples per cell along a shortcut checked on the grid.
+_SHORTCUT_SAMPLES = 4
+NOPATH_CODES = (
+    "outside-workspace",  # the goal (or S there) leaves the workspace
+    "goal-blocked",  # S at the goal would overlap an obstacle
+    "start-blocked",  # S already touches an obstacle
+    "enclosed",  # no opening at all joins the start and the goal
+    "too-narrow",  # every way is narrower than the least S the team can take
+    "too-small",  # the goal polygon is below the team's least area or width
+    "unverified",  # the grid's route failed the exact check (a planner fault)
+)
+
+
+class NoPath(ValueError):
+    """No route: ``code`` (one of NOPATH_CODES) and why, in words."""
+
+    def __init__(self, code: str, why: str) -> None:
+        super().__init__(f"{code}: {why}")
+        self.code = code
+        self.why = why
+
+
+@dataclass(frozen=True)
+class Waypoint:
+    """S = centroid + scale (P - c_P) at a stop of the route (centroid (2,), m); a route
+    to a goal polygon of its own shape ends by taking that shape at the last stop."""
+
+    centroid: tuple[float, float]
+    scale: float
+
+
+@dataclass(frozen=True, eq=False)
+class Route:
+    """A planned route: its stops, the motion (exact vertex velocities), duration (s, from
+    the motion's t0 to the last arrival and hold) and length (m, of the centroid's path)."""
+
+    waypoints: tuple[Waypoint, ...]
+    motion: RouteMotion
+    duration: float
+    length: float
+    resolution: float  # m, the grid it was planned on (a tour: its legs' coarsest)
+
+
+@dataclass(frozen=True, eq=False)
+class _Grid:
+    """Cells of side h; cell (i, j) is centred at origin + h (i, j). cap: (nx, ny) int, the
+    index in ``scales`` of the largest scale free there, -1 where none is."""
+
+    origin: np.ndarray
+    h: float
+    scales: np.ndarray
+    cap: np.ndarray
+    open: np.ndarray  # (nx, ny) bool: cells no obstacle meets (where a point could go)
+
+    def cell(self, point: np.ndarray) -> tuple[int, int]:
+        i, j = np.rint((np.asarray(point) - self.origin) / self.h).astype(int)
+        return int(i), int(j)
+
+    def centre(self, cell: tuple[int, int]) -> np.ndarray:
+        return self.origin + self.h * np.array(cell, dtype=float)
+
+    def capacity(self, cells: np.ndarray) -> np.ndarray:
+        """Largest free scale (0 where blocked or off the grid) of cells (n, 2) int."""
+        nx, ny = self.cap.shape
+        inside = (cells[:, 0] >= 0) & (cells[:, 0] < nx) & (cells[:, 1] >= 0) & (cells[:, 1] < ny)
+        out = np.zeros(len(cells))
+        c = cells[inside]
+        level = self.cap[c[:, 0], c[:, 1]]
+        out[inside] = np.where(level >= 0, self.scales[np.maximum(level, 0)], 0.0)
+        return out
+
+
+def plan_route(
+    world: World,
+    polygon: np.ndarray,
+    goal: tuple[float, float] | np.ndarray,
+    *,
+    goal_polygon: np.ndarray | None = None,
+    min_area: float,
+    min_width: float,
+    max_speed: float,
+    t0: float = 0.0,
+    hold: float = 0.0,
+    resolution: float | None = None,
+) -> Route:
+    """A route for S from ``polygon`` (k, 2, convex, m) to the goal, or NoPath.
+
+    goal: where S's centroid ends (m). goal_polygon: S's shape there (translated so that
+    its centroid is the goal); default ``polygon``'s own shape and size. min_area (m^2),
+    min_width (m): the least S the team can take (the steering's too-small area; a robot
+    body's width with its clearance). max_speed: fastest vertex (m/s). t0: mission time the
+    motion starts (s); hold: s to rest at the goal. resolution: grid cell (m), default from
+    S's size (CELLS_PER_WIDTH). Raises ValueError for malformed input.
+    """
+    start = validate_convex(polygon)
+    target = np.asarray(goal, dtype=float).reshape(-1)
+    if target.shape != (2,) or not np.all(np.isfinite(target)):
+        raise ValueError(f"goal must be a finite point [x, y], got {goal!r}")
+    for name, value in (("min_area", min_area), ("min_width", min_width)):
+        if not (math.isfinite(value) and value >= 0.0):
+            raise ValueError(f"{name} must be finite and >= 0, got {value!r}")
+    if not (math.isfinite(max_speed) and max_speed > 0.0):
+        raise ValueError(f"max_speed must be positive, got {max_speed!r}")
+    c0 = centroid(start)
+    shape = start - c0  # Q: S(c, s) = c + s Q
+    s_min = max(math.sqrt(min_area / area(start)), min_width / width(start))
+    # An S already at or below the limit may keep its size but not shrink.
+    scales = _levels(min(s_min, 1.0))
+    final = _goal_polygon(world, shape, target, goal_polygon, min_area, min_width)
+    touched = world.contact(start)
+    if touched is not None:
+        raise NoPath("start-blocked", f"S already touches {touched}")
+    if resolution is not None and not (math.isfinite(resolution) and resolution > 0.0):
+        raise ValueError(f"resolution must be positive, got {resolution!r}")
+    tries = [resolution] if resolution is not None else _cells(world, start, final, scales)
+    for k, h in enumerate(tries):
+        grid = _certify(world, shape, c0, final, scales, h)
+        try:
+            cells = _search(grid, c0, target)
+            break
+        except NoPath:
+            if k == len(tries) - 1:
+                raise
+    rate = 1.0 / float(np.linalg.norm(shape, axis=1).max())
+    states = _states(grid, cells, c0, target, rate)
+    polygons, kept, length = _shortcut(world, grid, shape, states, final)
+    holds = [0.0] * (len(polygons) - 1) + [hold]
+    motion = RouteMotion.timed(polygons, max_speed, holds, t0)  # the path verified above
+    waypoints = [
+        Waypoint((float(c[0]), float(c[1])), float(s)) for c, s in (states[k] for k in kept)
+    ]
+    if goal_polygon is None and waypoints[-1].scale != 1.0:  # grown back at the goal
+        waypoints.append(Waypoint(waypoints[-1].centroid, 1.0))
+    return Route(tuple(waypoints), motion, motion.end - t0, length, h)
+
+
+def plan_tour(
+    world: World,
+    polygon: np.ndarray,
+    goals: list[tuple[float, float]],
+    *,
+    min_area: float,
+    min_width: float,
+    max_speed: float,
+    hold: float = 0.0,
+    speed: float | None = None,
+) -> Route:
+    """One route visiting ``goals`` in order from ``polygon`` at t = 0, resting ``hold`` s at
+    each, S back to ``polygon``'s shape and size at every goal (plan_route for each leg).
+    speed: the scenario file's fastest-vertex speed, recorded for to_toml (defaults to
+    max_speed)."""
+    if not goals:
+        raise ValueError("route: need at least one goal")
+    current = validate_convex(polygon)
+    polygons: list[np.ndarray] = [current]
+    spans: list[float] = []
+    holds: list[float] = [0.0]
+    waypoints: list[Waypoint] = []
+    length, t, cell = 0.0, 0.0, 0.0
+    for k, goal in enumerate(goals):
+        try:
+            leg = plan_route(
+                world, current, goal, min_area=min_area, min_width=min_width,
+                max_speed=max_speed, t0=t, hold=hold,
+            )  # fmt: skip
+        except NoPath as exc:
+            raise NoPath(exc.code, f"goal {k + 1} {list(goal)}: {exc.why}") from None
+        polygons += list(leg.motion.polygons[1:])
+        spans += list(leg.motion.spans)
+        holds[-1] += leg.motion.holds[0]
+        holds += list(leg.motion.holds[1:])
+        waypoints += list(leg.waypoints if not waypoints else leg.waypoints[1:])
+        length += leg.length
+        cell = max(cell, leg.resolution)
+        t = leg.motion.end
+        current = leg.motion.polygons[-1]
+    motion = RouteMotion(
+        tuple(polygons),
+        tuple(spans),
+        tuple(holds),
+        0.0,
+        goals=tuple((float(x), float(y)) for x, y in goals),
+        speed=max_speed if speed is None else speed,
+        hold=hold,
+    )
+    return Route(tuple(waypoints), motion, motion.end, length, cell)
+
+
+def _levels(s_min: float) -> np.ndarray:
+    """Scales from 1 down to s_min, geometric, consecutive ratio at least LEVEL_RATIO."""
+    if s_min >= 1.0:
+        return np.array([1.0])
+    n = math.ceil(math.log(s_min) / math.log(LEVEL_RATIO))
+    return s_min ** (np.arange(n + 1) / n)
+
+
+def _goal_polygon(
+    world: World,
+    shape: np.ndarray,
+    goal: np.ndarray,
+    goal_polygon: np.ndarray | None,
+    min_area: float,
+    min_width: float,
+) -> np.ndarray:
+    """S at the goal (k, 2) CCW, or NoPath when it is outside, blocked or too small."""
+    if world.workspace is not None:
+        xmin, xmax, ymin, ymax = world.workspace
+        if not (xmin <= goal[0] <= xmax and ymin <= goal[1] <= ymax):
+            raise NoPath(
+                "outside-workspace",
+                f"the goal {goal.tolist()} is outside the workspace {list(world.workspace)}",
+            )
+    if goal_polygon is None:
+        final = goal + shape
+    else:
+        given = validate_convex(goal_polygon)
+        final = given - centroid(given) + goal
+        if area(final) < min_area or width(final) < min_width:
+            raise NoPath(
+                "too-small",
+                f"the goal polygon has {area(final):.3g} m^2 and is {width(final):.3g} m wide; "
+                f"the team needs {min_area:.3g} m^2 and {min_width:.3g} m",
+            )
+    touched = world.contact(final)
+    if touched == "workspace":
+        raise NoPath("outside-workspace", "S at the goal would leave the workspace")
+    if touched is not None:
+        raise NoPath("goal-blocked", f"S at the goal would overlap {touched}")
+    return final
+
+
+def _cells(world: World, start: np.ndarray, final: np.ndarray, scales: np.ndarray) -> list[float]:
+    """Cell sides (m) to try in turn: CELLS_PER_WIDTH across the smallest S, then halved
+    REFINE times while no route is found, never finer than _finest."""
+    finest = _finest(world, start, final)
+    cells = [max(scales[-1] * width(start) / CELLS_PER_WIDTH, finest)]
+    while len(cells) <= REFINE and cells[-1] > finest:
+        cells.append(max(cells[-1] / 2.0, finest))
+    return cells
+
+
+def _finest(world: World, start: np.ndarray, final: np.ndarray) -> float:
+    """The finest cell (m): MIN_CELL, or coarser to stay within MAX_CELLS cells."""
+    low, high = _extent(world, start, final)
+    return max(MIN_CELL, math.sqrt(float(np.prod(high - low)) / MAX_CELLS))
+
+
+def _extent(world: World, start: np.ndarray, final: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The box the centroids may roam (low (2,), high (2,)): the workspace, or without one
+    everything (obstacles, S now and at the goal) padded by S's size to go round it."""
+    if world.workspace is not None:
+        xmin, xmax, ymin, ymax = world.workspace
+        return np.array([xmin, ymin]), np.array([xmax, ymax])
+    points = [start, final] + [o.vertices for o in world.obstacles]
+    stacked = np.concatenate(points)
+    pad = float(np.ptp(start, axis=0).max())
+    return stacked.min(axis=0) - pad, stacked.max(axis=0) + pad
+
+
+def _certify(
+    world: World,
+    shape: np.ndarray,
+    c0: np.ndarray,
+    final: np.ndarray,
+    scales: np.ndarray,
+    h: float,
+) -> _Grid:
+    """The certified grid (module docstring): each cell's largest free scale."""
+    low, high = _extent(world, c0 + shape, final)
+    lo = np.floor((low - c0) / h).astype(int)
+    hi = np.ceil((high - c0) / h).astype(int)
+    origin = c0 + h * lo
+    nx, ny = (hi - lo + 1).tolist()
+    # Footprint offsets: S at scale 1 grown by a cell, in whole cells either side.
+    reach = np.ceil(np.abs(shape).max(axis=0) / h).astype(int) + 1
+    ax, ay = reach.tolist()
+    occupied = _rasterise(world, origin - h * reach, h, (nx + 2 * ax, ny + 2 * ay))
+    size = (fft.next_fast_len(nx + 4 * ax, real=True), fft.next_fast_len(ny + 4 * ay, real=True))
+    occupied_hat = fft.rfft2(occupied, s=size)
+    du, dv = np.meshgrid(np.arange(-ax, ax + 1), np.arange(-ay, ay + 1), indexing="ij")
+    offsets = h * np.stack([du.ravel(), dv.ravel()], axis=1)
+    xs = origin[0] + h * np.arange(nx)
+    ys = origin[1] + h * np.arange(ny)
+    free_count = np.zeros((nx, ny), dtype=int)
+    for s in scales:
+        footprint = _meets_squares(s * shape, offsets, h + CLEARANCE).reshape(
+            2 * ax + 1, 2 * ay + 1
+        )
+        # blocked[i] = OR_d occupied[i + d] footprint[d]: a convolution with the flipped
+        # footprint, its "valid" part.
+        kernel = footprint[::-1, ::-1].astype(float)
+        full = fft.irfft2(occupied_hat * fft.rfft2(kernel, s=size), s=size)
+        blocked = full[2 * ax : 2 * ax + nx, 2 * ay : 2 * ay + ny] > 0.5
+        free = ~blocked
+        if world.workspace is not None:
+            xmin, xmax, ymin, ymax = world.workspace
+            qlow, qhigh = s * shape.min(axis=0), s * shape.max(axis=0)
+            half = 0.5 * h + CLEARANCE
+            fx = (xs - half + qlow[0] >= xmin) & (xs + half + qhigh[0] <= xmax)
+            fy = (ys - half + qlow[1] >= ymin) & (ys + half + qhigh[1] <= ymax)
+            free &= fx[:, None] & fy[None, :]
+        free_count += free
+    cap = np.where(free_count > 0, len(scales) - free_count, -1)
+    cap[tuple(-lo)] = 0  # S's own cell: S(c0, 1) is free (checked exactly), the route's start
+    # Where a point could be: no obstacle in the cell, its centre in the workspace.
+    open_ = occupied[ax : ax + nx, ay : ay + ny] == 0.0
+    if world.workspace is not None:
+        xmin, xmax, ymin, ymax = world.workspace
+        open_ &= ((xs >= xmin) & (xs <= xmax))[:, None] & ((ys >= ymin) & (ys <= ymax))[None, :]
+    return _Grid(origin, h, scales, cap, open_)
+
+
+def _meets_squares(polygon: np.ndarray, centres: np.ndarray, half: float) -> np.ndarray:
+    """(n,) bool: whether the square of half-side ``half`` about each of ``centres`` (n, 2)
+    meets the convex CCW ``polygon`` (closed sets: touching counts). Separating axes: the
+    two coordinate axes and the polygon's edge normals."""
+    low, high = polygon.min(axis=0), polygon.max(axis=0)
+    meets = np.all((centres + half >= low) & (centres - half <= high), axis=1)
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    normals = np.stack([edges[:, 1], -edges[:, 0]], axis=1)  # outward for CCW
+    reach = half * np.abs(normals).sum(axis=1)  # the square's support along each normal
+    offset = np.einsum("kj,kj->k", normals, polygon)
+    return meets & np.all(centres @ normals.T - reach <= offset, axis=1)
+
+
+def _rasterise(world: World, origin: np.ndarray, h: float, shape: tuple[int, int]) -> np.ndarray:
+    """(nx, ny) float 0/1: the cells (centred at origin + h (i, j)) that an obstacle meets."""
+    out = np.zeros(shape)
+    for obstacle in world.obstacles:
+        v = obstacle.vertices
+        lo = np.maximum(np.floor((v.min(axis=0) - origin) / h - 0.5).astype(int), 0)
+        hi = np.minimum(
+            np.ceil((v.max(axis=0) - origin) / h + 0.5).astype(int), np.array(shape) - 1
+        )
+        if np.any(hi < lo):
+            continue
+        ii, jj = np.meshgrid(
+            np.arange(lo[0], hi[0] + 1), np.arange(lo[1], hi[1] + 1), indexing="ij"
+        )
+        centres = origin + h * np.stack([ii.ravel(), jj.ravel()], axis=1)
+        hit = _meets_squares(v, centres, 0.5 * h)
+        out[ii.ravel()[hit], jj.ravel()[hit]] = 1.0
+    return out
+
+
+def _search(grid: _Grid, c0: np.ndarray, goal: np.ndarray) -> list[tuple[int, int]]:
+    """The cheapest chain of cells from S's cell to the goal's (module docstring, "Search"),
+    or NoPath saying whether no opening or only too narrow ones join them."""
+    cap = grid.cap
+    start, end = grid.cell(c0), grid.cell(goal)
+    nx, ny = cap.shape
+    if not (0 <= end[0] < nx and 0 <= end[1] < ny) or cap[end] < 0:
+        _refuse(grid, start, end, "S at the goal is hemmed in closer than the grid can certify")
+    free = cap >= 0
+    index = -np.ones(cap.shape, dtype=int)
+    index[free] = np.arange(int(free.sum()))
+    scale = np.where(free, grid.scales[np.maximum(cap, 0)], 0.0)
+    s_min = grid.scales[-1]
+    rows, cols, costs = [], [], []
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        a = (slice(0, nx - di), slice(max(-dj, 0), ny - max(dj, 0)))
+        b = (slice(di, nx), slice(max(dj, 0), ny - max(-dj, 0)))
+        both = free[a] & free[b]
+        step = grid.h * math.hypot(di, dj)
+        s = np.minimum(scale[a], scale[b])[both]
+        small = (1.0 - s) / (1.0 - s_min) if s_min < 1.0 else 0.0 * s
+        rows.append(index[a][both])
+        cols.append(index[b][both])
+        costs.append(step * (1.0 + SMALL_COST * small))
+    n = int(free.sum())
+    graph = coo_matrix(
+        (np.concatenate(costs), (np.concatenate(rows), np.concatenate(cols))), shape=(n, n)
+    ).tocsr()
+    _, previous = dijkstra(graph, directed=False, indices=index[start], return_predecessors=True)
+    node = index[end]
+    if node != index[start] and previous[node] < 0:
+        _refuse(grid, start, end, "")
+    flat = np.argwhere(free)
+    chain = [node]
+    while chain[-1] != index[start]:
+        chain.append(previous[chain[-1]])
+    return [tuple(flat[k].tolist()) for k in reversed(chain)]
+
+
+def _refuse(grid: _Grid, start: tuple[int, int], end: tuple[int, int], why: str) -> None:
+    """NoPath: "enclosed" when even a point could not get from S's cell to the goal's
+    through cells no obstacle meets, else "too-narrow" (a way exists, too narrow for S);
+    ``why``: what else to say (may be empty)."""
+    nx, ny = grid.cap.shape
+    if not (0 <= end[0] < nx and 0 <= end[1] < ny):
+        raise NoPath("outside-workspace", "the goal is off the planning grid")
+    labels, _ = ndimage.label(grid.open, structure=np.ones((3, 3), dtype=bool))
+    if labels[start] == 0 or labels[start] != labels[end]:
+        raise NoPath("enclosed", "the goal is enclosed: no opening joins it to S")
+    raise NoPath(
+        "too-narrow",
+        why
+        or "every way to the goal is narrower than the team can pass: S would have to "
+        f"shrink below its least size (scale {grid.scales[-1]:.3g} of S now, the team's "
+        f"least area or a robot's width with its clearance; grid {grid.h:.3g} m)",
+    )
+
+
+def _states(
+    grid: _Grid, cells: list[tuple[int, int]], c0: np.ndarray, goal: np.ndarray, rate: float
+) -> list[tuple[np.ndarray, float]]:
+    """The grid path as (centroid (2,), scale) states, then on to the goal itself (inside the
+    goal cell's square, so at the same scale).
+
+    Scale profile: the largest s_k <= each cell's capacity that changes by at most ``rate``
+    per metre of path (1 / the farthest vertex's distance from the centroid: the vertices
+    move no faster than the centroid to shrink), so S shrinks gradually ahead of a door and
+    grows after it; two passes of a 1-D distance transform. Between cells S shrinks in
+    place before a step and grows after it, so each step is taken at a scale both cells
+    allow (certified)."""
+    centres = [c0] + [grid.centre(c) for c in cells[1:]]
+    caps = np.array([grid.scales[grid.cap[c]] for c in cells])
+    steps = [float(np.linalg.norm(b - a)) for a, b in zip(centres[:-1], centres[1:], strict=True)]
+    profile = caps.copy()
+    for k in range(1, len(profile)):
+        profile[k] = min(profile[k], profile[k - 1] + rate * steps[k - 1])
+    for k in range(len(profile) - 2, -1, -1):
+        profile[k] = min(profile[k], profile[k + 1] + rate * steps[k])
+    states: list[tuple[np.ndarray, float]] = [(c0.copy(), 1.0)]
+    if profile[0] < 1.0:
+        states.append((c0.copy(), float(profile[0])))
+    for k in range(len(cells) - 1):
+        here, there = float(profile[k]), float(profile[k + 1])
+        move = min(here, there)
+        if move < here:  # shrink in place, then step
+            states.append((centres[k], move))
+        states.append((centres[k + 1], move))
+        if there > move:  # step, then grow in place
+            states.append((centres[k + 1], there))
+    if np.any(states[-1][0] != goal):
+        states.append((goal.copy(), states[-1][1]))
+    return states
+
+
+def _segment_fits(grid: _Grid, a: tuple[np.ndarray, float], b: tuple[np.ndarray, float]) -> bool:
+    """Whether the straight segment from state a to state b (centroid and scale linear)
+    stays within the cells' capacities at _SHORTCUT_SAMPLES samples per cell crossed."""
+    (ca, sa), (cb, sb) = a, b
+    count = int(math.ceil(float(np.linalg.norm(cb - ca)) / grid.h * _SHORTCUT_SAMPLES)) + 2
+    tau = np.linspace(0.0, 1.0, count)
+    points = ca + tau[:, None] * (cb - ca)
+    scales = sa + tau * (sb - sa)
+    cells = np.rint((points - grid.origin) / grid.h).astype(int)
+    return bool(np.all(grid.capacity(cells) >= scales - 1e-12))
+
+
+def _shortcut(
+    world: World,
+    grid: _Grid,
+    shape: np.ndarray,
+    states: list[tuple[np.ndarray, float]],
+    final: np.ndarray,
+) -> tuple[list[np.ndarray], list[int], float]:
+    """Straight segments over runs of ``states`` (greedy: the furthest state the grid
+    allows, by doubling then bisection; then stops whose neighbours see each other are
+    dropped), each verified with first_contact; a failed one
+    is split at the middle state of the run it replaced. Returns the route's polygons
+    (the kept states' S, then ``final``), the kept state indices and the centroid path
+    length (m)."""
+    last = len(states) - 1
+    kept = [0]
+    while kept[-1] < last:
+        i = kept[-1]
+        good, step = i + 1, 1
+        while good + step <= last and _segment_fits(grid, states[i], states[good + step]):
+            good += step
+            step *= 2
+        low, high = good, min(good + step, last + 1)
+        while high - low > 1:
+            middle = (low + high) // 2
+            if _segment_fits(grid, states[i], states[middle]):
+                low = middle
+            else:
+                high = middle
+        kept.append(low)
+    # The greedy pass keeps a stop wherever the farthest reachable state happened to be;
+    # drop every stop whose neighbours see each other (S stops at each one).
+    k = 1
+    while k < len(kept) - 1:
+        if _segment_fits(grid, states[kept[k - 1]], states[kept[k + 1]]):
+            del kept[k]
+            k = max(k - 1, 1)
+        else:
+            k += 1
+
+    def polygon(k: int) -> np.ndarray:
+        centre, scale = states[k]
+        return centre + scale * shape
+
+    # Verify the whole route; a segment that touches is split at the middle state of the
+    # run it replaced (a single grid step is certified: touching there is a fault).
+    while True:
+        stops = [(k, polygon(k)) for k in kept] + [(None, final)]
+        stops = [stops[0]] + [
+            (k, p) for (_, q), (k, p) in zip(stops[:-1], stops[1:], strict=True)
+            if len(p) != len(q) or not np.allclose(p, q, rtol=0.0, atol=1e-12)
+        ]  # fmt: skip
+        polygons = [p for _, p in stops]
+        if len(polygons) == 1:
+            break
+        contact = _first_contact(polygons, world)
+        if contact is None:
+            break
+        segment, touched = contact
+        a, b = stops[segment][0], stops[segment + 1][0]
+        if b is None:
+            raise NoPath(
+                "goal-blocked",
+                f"S cannot take the goal polygon there: it would touch {touched}",
+            )
+        if b == a + 1:
+            raise NoPath("unverified", f"the grid's step {a} -> {b} touches {touched}")
+        kept.insert(kept.index(b), (a + b) // 2)
+    length = sum(
+        float(np.linalg.norm(states[b][0] - states[a][0]))
+        for a, b in zip(kept[:-1], kept[1:], strict=True)
+    )
+    return polygons, kept, length
+
+
+def _first_contact(polygons: list[np.ndarray], world: World) -> tuple[int, str] | None:
+    """The first segment of the route through ``polygons`` along which S touches something,
+    and what it touches; None when S stays clear (covswarm.world.sweep.first_contact).
+
+    It checks the route's path rather than its timing: the same polygons swept at unit
+    fastest-vertex speed (each segment linear in its progress, with the route's pairing), so
+    the speed bound is exact everywhere instead of the quintic's peak: the same set of S,
+    found in fewer steps.
+    """
+    path = RouteMotion.timed(polygons, 1.0)
+    lengths = np.array(path.spans) / PEAK_RATE  # max |B_j - A_j| per segment, m
+    starts = np.concatenate([[0.0], np.cumsum(lengths)])
+
+    def along(t: float) -> tuple[np.ndarray, np.ndarray]:
+        i = min(int(np.searchsorted(starts, t, side="right")) - 1, len(lengths) - 1)
+        a, b = path.segment(i)
+        u = min(max((t - starts[i]) / lengths[i], 0.0), 1.0)
+        vertices, velocities = (1.0 - u) * a + u * b, (b - a) / lengths[i]
+        if len(a) == len(path.polygons[i]) == len(path.polygons[i + 1]):
+            return vertices, velocities  # paired vertex for vertex: none coincide
+        return merge_coincident(vertices, velocities)
+
+    contact = first_contact(along, 0.0, float(starts[-1]), world, speed=1.0, samples=_SWEEP_SAMPLES)
+    if contact is None:
+        return None
+    segment = min(int(np.searchsorted(starts, contact.time, side="right")) - 1, len(lengths) - 1)
+    return segment, contact.obstacle
