@@ -267,8 +267,8 @@ def run_agents(
 @SECURE_OPTION
 @VERBOSE_OPTION
 def agent_command(**options: Any) -> None:
-    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi,
-    TVD-D1)."""
+    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi;
+    TVD-DA by default, the paper's TVD-D1 with --law d1)."""
     run_agent_process(AgentProcessConfig(**options))
 
 
