@@ -68,6 +68,7 @@ from covswarm.protocol import (
 from covswarm.records.observations import timed_layers
 from covswarm.tvd.coverage import aggregate_error
 from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.world.map_image import map_image
 from covswarm.world.wire import to_message
 
 if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only calls it
@@ -517,6 +518,20 @@ class CoordinatorCore:
         self._seq += 1
         return vertices, domain
 
+    @cached_property
+    def map_payload(self) -> bytes | None:
+        """The answer to a query for the map's picture (protocol.world_map_key): an encoded
+        protocol.MapImage of the scenario's occupancy map (world.map_image, built on the
+        first query), None when the scenario has no map or its picture cannot be sent."""
+        grid = self.settings.scenario.map
+        if grid is None:
+            return None
+        try:
+            return map_image(grid, seq=0).encode()  # seq of world_message's World
+        except ValueError as exc:
+            log.warning("the map's picture cannot be sent: %s", exc)
+            return None
+
     def world_message(self) -> World:
         """The arena as broadcast (seq 0: the world never changes during a run)."""
         return to_message(self.settings.scenario.world, 0, self.stamp(self._wall))
@@ -530,6 +545,7 @@ class CoordinatorCore:
             error=record.error[-1] if record.error else None,
             alive_agents=live.count("agent"),
             alive_robots=live.count("robot"),
+            route=self.steering.active_route(t) if state == RUNNING else None,
         )
 
     def _sample(self, t: float, polygon: np.ndarray) -> None:

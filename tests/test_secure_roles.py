@@ -212,6 +212,8 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
     owners: dict[str, set[str]] = {
         protocol.domain_key(swarm): {"coordinator"},
         protocol.status_key(swarm): {"coordinator"},
+        protocol.world_key(swarm): {"coordinator"},
+        protocol.world_map_key(swarm): set(),  # a queryable's key: nobody puts there
     }
     for i in range(8):
         agent = {f"agent-{i}"} if i in AGENTS else {"agent-5-7"} if i >= 5 else set()
@@ -245,6 +247,16 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
         )
         assert _allowed(acl, subject, "ingress", "query", steer) == (
             subject in ("coordinator", "console", "operator")
+        )
+        # The map's picture: only the coordinator answers, consoles and operators ask.
+        world_map = protocol.world_map_key(swarm)
+        for message in ("declare_queryable", "reply"):
+            assert _allowed(acl, subject, "ingress", message, world_map) == (
+                subject == "coordinator"
+            ), (subject, message)
+        assert _allowed(acl, subject, "egress", "query", world_map) == (subject == "coordinator")
+        assert _allowed(acl, subject, "ingress", "query", world_map) == (
+            subject in ("console", "operator")
         )
         assert not _allowed(acl, subject, "ingress", "put", "@/router/x")  # nothing outside
         for key in ros2:  # the bridge speaks ROS 2 on its session too
