@@ -315,7 +315,7 @@ def test_only_agent_i_commands_robot_i(endpoint: str, creds: Path) -> None:
 @pytest.mark.timeout(60)
 def test_only_the_coordinator_publishes_the_domain_and_status(endpoint: str, creds: Path) -> None:
     swarm = protocol.new_swarm_name()
-    keys = [protocol.domain_key(swarm), protocol.status_key(swarm)]
+    keys = [protocol.domain_key(swarm), protocol.status_key(swarm), protocol.world_key(swarm)]
     with join(endpoint, creds, "agent", 2) as agent:
         inboxes = [Inbox(agent, key) for key in keys]
         for role, i in [("agent", 0), ("operator", None), ("console", None), ("bridge", None)]:
@@ -336,9 +336,11 @@ def test_only_the_coordinator_publishes_the_domain_and_status(endpoint: str, cre
 
 @pytest.mark.e2e
 @pytest.mark.timeout(60)
-def test_a_fake_steering_service_gets_no_queries(endpoint: str, creds: Path) -> None:
+@pytest.mark.parametrize("service", [protocol.steer_key, protocol.world_map_key])
+def test_a_fake_steering_service_gets_no_queries(endpoint: str, creds: Path, service) -> None:
+    """Steering, and the map's picture: only the coordinator is asked."""
     swarm = protocol.new_swarm_name()
-    key = protocol.steer_key(swarm)
+    key = service(swarm)
     asked: dict[str, int] = {"coordinator": 0, "fake": 0}
 
     def answer(name: str):
