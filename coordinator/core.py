@@ -397,8 +397,11 @@ class CoordinatorCore:
         running = self.phase.state == RUNNING
         reply = self.steering.handle(payload, t, wall, running, requester)
         record = self.steering.records[-1]
-        if self.recorder is not None:
-            self.recorder.steering(t, record.to_dict())
+        if self.recorder is not None:  # a goto's route too, for Foxglove and replays
+            event = record.to_dict()
+            if reply.route is not None:
+                event["route"] = [list(stop) for stop in reply.route]
+            self.recorder.steering(t, event)
         actions: list[Action] = []
         if reply.accepted:
             log.info("steering at t = %.2f s: %s", t, record.request)

@@ -133,3 +133,26 @@ def test_a_resumed_coordinator_tells_the_replayed_route() -> None:
     run_until_started(resumed)
     resumed.steering.replay(journal)
     assert resumed.steering.active_route(now + 1.0) == reply.route
+
+
+class SteeringLog:
+    """Stands in for the run recorder's steering channel (records.recorder.RunRecorder)."""
+
+    def __init__(self) -> None:
+        self.events: list[tuple[float, dict]] = []
+
+    def steering(self, t: float, event: dict) -> None:
+        self.events.append((t, event))
+
+
+def test_the_recorded_steering_event_of_a_goto_has_its_route() -> None:
+    core = make_core()
+    now = run_until_started(core) + 0.5
+    core.recorder = log = SteeringLog()
+    reply = steer(core, SteerRequest("goto", goal=(2.0, 0.3)), now, who="a")
+    refused = steer(core, SteerRequest("translate", dx=0.0, dy=5.0), now + 0.1, who="b")
+    assert reply.accepted and not refused.accepted
+    (_, goto), (_, translate) = log.events
+    assert goto["route"] == [list(stop) for stop in reply.route]
+    assert goto["accepted"] and goto["duration"] == reply.duration
+    assert "route" not in translate
