@@ -80,7 +80,9 @@ class CoordinatorLink:
         )
         self._status = session.declare_publisher(status_key(swarm))
         self._world = session.declare_publisher(world_key(swarm))
-        # The map's picture, asked for by consoles once per World (a few queries a run).
+        # The map's picture, asked for by consoles once per World (a few queries a run);
+        # built now, not on the tick of the first query (a large map takes a moment).
+        _ = core.map_payload
         self._map = session.declare_queryable(
             world_map_key(swarm), zenoh.handlers.FifoChannel(MAP_QUEUE)
         )
