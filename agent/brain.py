@@ -353,6 +353,19 @@ class AgentBrain:
             self.drops.drop("domain_in_obstacle", "held domain overlaps the new world's obstacles")
             self.domain = self.density = None
 
+    def _follows_sequence(self, kind: str, seq: int, held: int) -> bool:
+        """Whether a ``kind`` ("domain" or "world") numbered ``seq`` may replace the held
+        one numbered ``held`` whose sender still talks: not if it is not newer
+        ("old_<kind>") or jumps more than MAX_DOMAIN_SEQ_JUMP ahead ("<kind>_seq_jump");
+        each dropped and counted."""
+        if seq <= held:
+            self.drops.drop(f"old_{kind}", f"{kind} seq {seq} <= {held}")
+            return False
+        if seq - held > MAX_DOMAIN_SEQ_JUMP:
+            self.drops.drop(f"{kind}_seq_jump", f"{kind} seq {seq} jumps from {held}")
+            return False
+        return True
+
     def on_world(self, message: protocol.World, now: float) -> bool:
         """Hold a newer World (the coordinator's, repeated every second) and steer by it
         (:meth:`set_world`). A repeat of the held one only refreshes it. Doubted like a
@@ -365,11 +378,7 @@ class AgentBrain:
             self._world_received = now
             return True
         if held is not None and now - self._world_received < WORLD_RESTART_SILENCE:
-            if message.seq <= held.seq:
-                self.drops.drop("old_world", f"world seq {message.seq} <= {held.seq}")
-                return False
-            if message.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
-                self.drops.drop("world_seq_jump", f"world seq {message.seq} jumps from {held.seq}")
+            if not self._follows_sequence("world", message.seq, held.seq):
                 return False
         try:
             world = self.decoder.world_model(message)
@@ -471,11 +480,7 @@ class AgentBrain:
         ("domain_in_obstacle"), are dropped and counted."""
         held = self.domain
         if held is not None and now - self._domain_received < DOMAIN_RESTART_SILENCE:
-            if domain.seq <= held.seq:
-                self.drops.drop("old_domain", f"domain seq {domain.seq} <= {held.seq}")
-                return False
-            if domain.seq - held.seq > MAX_DOMAIN_SEQ_JUMP:
-                self.drops.drop("domain_seq_jump", f"domain seq {domain.seq} jumps from {held.seq}")
+            if not self._follows_sequence("domain", domain.seq, held.seq):
                 return False
         if not self._inside_workspace(domain):
             self.drops.drop("domain_outside_workspace", f"domain {domain.vertices}")

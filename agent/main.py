@@ -98,7 +98,21 @@ from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
-from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
+from covswarm.runtime.options import (
+    MAX_CLOCK_SKEW_OPTION,
+    ROUTER_HELP,
+    SWARM_OPTION,
+    TIME_SCALE_OPTION,
+    VERBOSE_OPTION,
+    connect_option,
+    float_option,
+    id_options,
+    id_selection,
+    law_option,
+    pose_delay_option,
+    pose_loss_option,
+    switch_option,
+)
 from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
@@ -169,112 +183,77 @@ def run_agents(
 
 
 @click.command("agent")
-@click.option("--id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
-@click.option("--ids", help="Several brains in this process instead, e.g. 0-9 (one session).")
-@click.option(
-    "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
-)
-@click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
-@click.option("--rate", type=click.FloatRange(min=0.5), default=10.0, show_default=True)
-@click.option(
+@id_options("Several brains in this process instead, e.g. 0-9 (one session).")
+@connect_option(ROUTER_HELP)
+@SWARM_OPTION
+@float_option("--rate", low=0.5, default=10.0)
+@float_option(
     "--tick-phase",
-    type=click.FloatRange(0.0, 1.0, max_open=True),
-    default=None,
+    low=0.0,
+    high=1.0,
+    high_open=True,
     help="Start the control periods at this fraction of a period of the machine's "
     "monotonic clock (default: one period after start).",
 )
 @TIME_SCALE_OPTION
-@click.option(
-    "--kappa",
-    type=click.FloatRange(min=0.0, min_open=True),
-    default=None,
-    help="Gain; default: the kappa broadcast with the domain.",
+@float_option(
+    "--kappa", low=0.0, low_open=True, help="Gain; default: the kappa broadcast with the domain."
 )
-@click.option(
-    "--feedforward/--no-feedforward",
-    default=True,
-    help="Use the dc/dt term (--no-feedforward: drop it, an ablation).",
-)
-@click.option(
-    "--law",
-    type=click.Choice(("da", "d1")),
-    default="da",
-    show_default=True,
-    help="da: domain-motion feedforward (docs/tracking.md); d1: the paper's TVD-D1.",
-)
-@click.option("--stale-timeout", type=click.FloatRange(min=0.01), default=1.0, show_default=True)
-@click.option("--beacon-period", type=click.FloatRange(min=0.05), default=10.0, show_default=True)
-@click.option("--beacon-timeout", type=click.FloatRange(min=0.1), default=25.0, show_default=True)
+@switch_option("feedforward", "Use the dc/dt term (--no-feedforward: drop it, an ablation).")
+@law_option("da: domain-motion feedforward (docs/tracking.md); d1: the paper's TVD-D1.")
+@float_option("--stale-timeout", low=0.01, default=1.0)
+@float_option("--beacon-period", low=0.05, default=10.0)
+@float_option("--beacon-timeout", low=0.1, default=25.0)
 @click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
-@click.option("--max-extrapolation", type=click.FloatRange(min=0.0), default=1.0, show_default=True)
-@click.option("--linger", type=click.FloatRange(min=0.0), default=0.5, show_default=True)
+@float_option("--max-extrapolation", low=0.0, default=1.0)
+@float_option("--linger", low=0.0, default=0.5)
 @MAX_CLOCK_SKEW_OPTION
-@click.option(
+@float_option(
     "--max-wheel-speed",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=MAX_WHEEL_SPEED,
-    show_default=True,
     help="Rim speed limit (m/s) the commands are saturated to.",
 )
-@click.option(
-    "--pose-loss",
-    type=click.FloatRange(0.0, 1.0, max_open=True),
-    default=0.0,
-    show_default=True,
-    help="Fault injection: drop this fraction of received poses.",
-)
-@click.option(
-    "--pose-delay",
-    type=click.FloatRange(min=0.0),
-    default=0.0,
-    show_default=True,
-    help="Fault injection: deliver received poses this many s late.",
-)
+@pose_loss_option("Fault injection: drop this fraction of received poses.")
+@pose_delay_option("Fault injection: deliver received poses this many s late.")
 @click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
-@click.option(
-    "--prediction/--no-prediction",
-    default=True,
-    help="--no-prediction: control from the last pose as received, not predicted to the "
-    "command's time.",
+@switch_option(
+    "prediction",
+    "--no-prediction: control from the last pose as received, not predicted to the command's time.",
 )
-@click.option(
+@float_option(
     "--cmd-timeout",
-    type=click.FloatRange(min=0.01),
+    low=0.01,
     default=0.5,
-    show_default=True,
     help="The robot's command timeout, s (what the prediction assumes it does meanwhile).",
 )
-@click.option(
+@float_option(
     "--command-latency",
-    type=click.FloatRange(0.0, 0.5),
+    low=0.0,
+    high=0.5,
     default=0.0,
-    show_default=True,
     help="Known time from a command's stamp to the wheels acting on it, s.",
 )
-@click.option(
+@float_option(
     "--projection-distance",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=AGENT_PROJECTION_DISTANCE,
-    show_default=True,
     help="Near-identity mapping's point ahead of the axle, m (covswarm.agent.brain).",
 )
-@click.option(
-    "--safety/--no-safety",
-    default=True,
-    help="Collision-avoidance filter (--no-safety: none, to compare).",
-)
-@click.option(
+@switch_option("safety", "Collision-avoidance filter (--no-safety: none, to compare).")
+@float_option(
     "--safety-margin",
-    type=click.FloatRange(min=0.0),
+    low=0.0,
     default=DEFAULT_MARGIN,
-    show_default=True,
     help="Distance kept between two robots' bodies, m.",
 )
-@click.option(
+@float_option(
     "--body-diameter",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=KHEPERA_IV.body_diameter,
-    show_default=True,
     help="This robot's body diameter, m (the safety filter's disks).",
 )
 @click.option(
@@ -286,10 +265,10 @@ def run_agents(
     help="The scenario's workspace, m: a domain outside it is refused [no check].",
 )
 @SECURE_OPTION
-@click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
+@VERBOSE_OPTION
 def agent_command(**options: Any) -> None:
-    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi,
-    TVD-D1)."""
+    """Run the coverage-control brain of one robot, or of several (local two-hop Voronoi;
+    TVD-DA by default, the paper's TVD-D1 with --law d1)."""
     run_agent_process(AgentProcessConfig(**options))
 
 

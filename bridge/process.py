@@ -50,7 +50,7 @@ from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker
-from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION
+from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, connect_option, float_option
 from covswarm.tvd.drive import KHEPERA_IV
 
 log = logging.getLogger("covswarm.bridge")
@@ -267,52 +267,43 @@ def bridge_group() -> None:
 
 @bridge_group.command("ros2")
 @click.option("--ids", required=True, help="Robot ids this bridge drives, e.g. 0-9.")
-@click.option(
-    "--connect", multiple=True, required=True, help="Zenoh router, e.g. tcp/127.0.0.1:7447."
-)
+@connect_option("Zenoh router, e.g. tcp/127.0.0.1:7447.")
 @click.option("--swarm", required=True, help="Swarm (run) name, as given to covswarm run.")
 @click.option("--domain-id", type=int, default=0, show_default=True, help="ROS_DOMAIN_ID.")
 @click.option("--cmd-topic", default="/robot{id}/cmd_vel", show_default=True)
 @_type_option(cdr.COMMAND_TYPES, "--cmd-type", "Twist", "Message type of the command topic.")
 @click.option("--pose-topic", default="/robot{id}/pose", show_default=True)
 @_type_option(cdr.POSE_TYPES, "--pose-type", "PoseStamped", "Message type of the pose topic.")
-@click.option(
+@float_option(
     "--axle",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=KHEPERA_IV.wheel_separation,
-    show_default=True,
     help="Wheel separation (m) that turns the agents' rim speeds into v and omega.",
 )
 @click.option("--frame", default="map", show_default=True, help="frame_id of --publish-state.")
 @click.option("--publish-state", is_flag=True, help="Publish S(t), poses and e_a to ROS 2.")
 @click.option("--state-namespace", default="/covswarm", show_default=True)
 @click.option("--node-name", default="covswarm_bridge", show_default=True)
-@click.option(
+@float_option(
     "--rate",
-    type=click.FloatRange(min=1.0),
+    low=1.0,
     default=50.0,
-    show_default=True,
     help="Loop rate (Hz): commands and poses are forwarded at the next tick.",
 )
-@click.option(
+@float_option(
     "--cmd-timeout",
-    type=click.FloatRange(min=0.01),
+    low=0.01,
     default=0.5,
-    show_default=True,
     help="No command for this long (s): the robot gets a zero Twist.",
 )
-@click.option(
-    "--pose-max-age",
-    type=click.FloatRange(min=0.01),
-    default=0.5,
-    show_default=True,
-    help="Drop poses stamped longer ago than this (s).",
+@float_option(
+    "--pose-max-age", low=0.01, default=0.5, help="Drop poses stamped longer ago than this (s)."
 )
-@click.option(
+@float_option(
     "--pose-timeout",
-    type=click.FloatRange(min=0.01),
+    low=0.01,
     default=1.0,
-    show_default=True,
     help="Withdraw a robot's liveliness token after this long (s) without a pose.",
 )
 @click.option("--pose-stamp", type=click.Choice(STAMP_SOURCES), default="message",

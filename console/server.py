@@ -44,6 +44,7 @@ from covswarm.console.model import SwarmView
 from covswarm.console.steer_input import MAX_BODY, BadSteerInput, parse_steer_body
 from covswarm.protocol.inbound import RateLimit
 from covswarm.protocol.security import SECURE_OPTION
+from covswarm.runtime.options import connect_option, float_option
 from covswarm.runtime.ratelog import RateLog
 
 log = logging.getLogger("covswarm.console")
@@ -409,12 +410,7 @@ async def serve(console: Console, host: str, port: int, announce: Callable[[int]
 
 
 @click.command("console")
-@click.option(
-    "--connect",
-    multiple=True,
-    required=True,
-    help="Zenoh endpoint of the swarm's router, e.g. tcp/127.0.0.1:7447 (repeatable).",
-)
+@connect_option("Zenoh endpoint of the swarm's router, e.g. tcp/127.0.0.1:7447 (repeatable).")
 @click.option("--swarm", required=True, help="Swarm name (key prefix) of the run to watch.")
 @click.option(
     "--host",
@@ -429,18 +425,18 @@ async def serve(console: Console, host: str, port: int, announce: Callable[[int]
     show_default=True,
     help="TCP port (0: any free one).",
 )
-@click.option(
+@float_option(
     "--rate",
-    type=click.FloatRange(min=1.0, max=60.0),
+    low=1.0,
+    high=60.0,
     default=DEFAULT_RATE,
-    show_default=True,
     help="State frames per second pushed to the page.",
 )
-@click.option(
+@float_option(
     "--steer-timeout",
-    type=click.FloatRange(min=0.1, max=60.0),
+    low=0.1,
+    high=60.0,
     default=2.0,
-    show_default=True,
     help="Seconds to wait for the coordinator's answer to a steering request.",
 )
 @SECURE_OPTION

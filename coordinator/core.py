@@ -66,6 +66,7 @@ from covswarm.protocol import (
     parse_alive_key,
 )
 from covswarm.records.observations import timed_layers
+from covswarm.runtime.ratelog import RateLog
 from covswarm.tvd.coverage import aggregate_error
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.world.map_image import map_image
@@ -75,6 +76,10 @@ if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only ca
     from covswarm.records.recorder import RunRecorder
 
 log = logging.getLogger("covswarm.coordinator")
+
+# Own Domains remembered to recognise them when they come back (2.5 s at 20 Hz: far longer
+# than a loopback or LAN round trip).
+OWN_DOMAINS_KEPT = 50
 
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
 # s the whole team holds its tokens before the mission starts: every agent has then had its
@@ -175,6 +180,9 @@ class Observed:
     agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
     rejected: int = 0  # messages dropped as malformed (ProtocolError)
     clipped_samples: int = 0  # e_a samples not placed at their poses' time (clip_sample_time)
+    # Domains heard on the swarm's domain key that this coordinator did not publish: a
+    # second coordinator or a forger (issue 21), counted and reported.
+    foreign_domains: int = 0
     started_wall: float | None = None
     team_changes: list[TeamChange] = field(default_factory=list)
     # Who may be a team member (ids 0..N-1) and what came from any other id (issue 21);
@@ -299,6 +307,10 @@ class CoordinatorCore:
         self._cpu_clock = cpu_clock
         n = settings.agents
         self._seq = 0
+        # (seq, stamp) of the Domains published lately: hearing one of them is hearing
+        # ourselves; any other Domain on the key is someone else's.
+        self._published: deque[tuple[int, float]] = deque(maxlen=OWN_DOMAINS_KEPT)
+        self._ratelog = RateLog(log)
         # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
         # only the ones present when e_a is sampled are ever read.
         self._pose_payloads: dict[str, bytes] = {}
@@ -373,6 +385,26 @@ class CoordinatorCore:
             if len(self._pose_backlog) == self._pose_backlog.maxlen:
                 self.recording["backlog_overflow"] += 1
             self._pose_backlog.append((key, payload))
+
+    def on_domain_heard(self, payload: bytes) -> None:
+        """A payload on the swarm's domain key: one of ours coming back, or a Domain some
+        other process publishes (a second coordinator, a forger), which is counted in
+        summary.json and logged (rate-limited): the agents may be following it."""
+        try:
+            domain = Domain.decode(payload)
+        except ProtocolError:
+            domain = None
+        if domain is not None and (domain.seq, domain.stamp) in self._published:
+            return
+        self.observed.foreign_domains += 1
+        self._ratelog.log(
+            logging.ERROR,
+            "foreign domain",
+            "another process publishes on swarm %s's domain key (%d so far): a second "
+            "coordinator or a forger; agents may follow it (secure mode prevents this)",
+            self.settings.swarm,
+            self.observed.foreign_domains,
+        )
 
     def on_agent_state(self, payload: bytes) -> None:
         """An agent's AgentState payload: its stats (about once a second) are kept."""
@@ -519,6 +551,7 @@ class CoordinatorCore:
             tile_size=self.settings.tile_size,
         )
         self._seq += 1
+        self._published.append((domain.seq, domain.stamp))
         return vertices, domain
 
     @cached_property

@@ -73,6 +73,11 @@ class CoordinatorLink:
             all_agent_states_selector(swarm), zenoh.handlers.RingChannel(ring)
         )
         self._domain = session.declare_publisher(domain_key(swarm))
+        # Our own Domains come back on it (the core recognises them); any other is a second
+        # coordinator's or a forger's.
+        self._heard = session.declare_subscriber(
+            domain_key(swarm), zenoh.handlers.RingChannel(ring)
+        )
         # Steering requests (coordinator.steering): drained every tick, so a request is
         # answered and acted on within one broadcast period.
         self._steer = session.declare_queryable(
@@ -96,6 +101,8 @@ class CoordinatorLink:
             core.on_pose(str(sample.key_expr), sample.payload.to_bytes())
         while (sample := self._states.try_recv()) is not None:
             core.on_agent_state(sample.payload.to_bytes())
+        while (sample := self._heard.try_recv()) is not None:
+            core.on_domain_heard(sample.payload.to_bytes())
         while (query := self._steer.try_recv()) is not None:
             payload = b"" if query.payload is None else query.payload.to_bytes()
             requester = requester_key(query.source_info)

@@ -16,7 +16,6 @@ from __future__ import annotations
 
 import logging
 import time
-from pathlib import Path
 from typing import Any
 
 import click
@@ -41,7 +40,15 @@ from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.records.recorder import LiveViewError
 from covswarm.runtime.claims import claim_exclusive
 from covswarm.runtime.clock import StopFlag, scaled
-from covswarm.runtime.options import TIME_SCALE_OPTION
+from covswarm.runtime.options import (
+    TIME_SCALE_OPTION,
+    agents_option,
+    connect_option,
+    float_option,
+    law_option,
+    out_option,
+    switch_option,
+)
 
 log = logging.getLogger("covswarm.coordinator")
 
@@ -118,78 +125,40 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 
 
 @click.command("coordinator")
-@click.option(
-    "--scenario",
-    default="passage",
-    show_default=True,
-    help=SCENARIO_HELP,
-)
-@click.option(
-    "--connect",
-    multiple=True,
-    required=True,
-    help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable).",
-)
+@click.option("--scenario", default="passage", show_default=True, help=SCENARIO_HELP)
+@connect_option("Zenoh endpoint, e.g. tcp/127.0.0.1:7447 (repeatable).")
 @click.option("--swarm", required=True, help="Swarm name (key prefix) shared by the run.")
-@click.option("--agents", type=click.IntRange(min=1), help="Team size to wait for [scenario].")
-@click.option(
-    "--duration", type=click.FloatRange(min=0, min_open=True), help="Mission length, s [scenario]."
+@agents_option("Team size to wait for [scenario].")
+@float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario].")
+@float_option("--rate", low=0, low_open=True, default=20.0, help="Domain broadcasts per second.")
+@float_option(
+    "--sample-rate", low=0, low_open=True, default=10.0, help="e_a samples per second (at most)."
 )
-@click.option(
-    "--rate",
-    type=click.FloatRange(min=0, min_open=True),
-    default=20.0,
-    show_default=True,
-    help="Domain broadcasts per second.",
-)
-@click.option(
-    "--sample-rate",
-    type=click.FloatRange(min=0, min_open=True),
-    default=10.0,
-    show_default=True,
-    help="e_a samples per second (at most).",
-)
-@click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
-@click.option(
+@float_option("--kappa", low=0, low_open=True, help="Gain [scenario].")
+@float_option(
     "--tile-size",
-    type=click.FloatRange(min=0, min_open=True),
+    low=0,
+    low_open=True,
     help=f"Beacon tile side broadcast to every agent, m [{TILE_SPACINGS:g} x the team's mean "
     "spacing in S(0)].",
 )
-@click.option(
-    "--feedforward/--no-feedforward",
-    default=True,
-    help="How the agents run (recorded in summary.json).",
-)
-@click.option(
-    "--law",
-    type=click.Choice(("da", "d1")),
-    default="da",
-    show_default=True,
-    help="The agents' control law (recorded in summary.json).",
-)
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    required=True,
-    help="Output folder.",
-)
-@click.option(
-    "--resume/--no-resume",
+@switch_option("feedforward", "How the agents run (recorded in summary.json).")
+@law_option("The agents' control law (recorded in summary.json).")
+@out_option(required=True, help="Output folder.")
+@switch_option(
+    "resume",
+    f"Continue the mission recorded in OUT/{MISSION_FILE} (a restarted coordinator).",
     default=False,
-    help=f"Continue the mission recorded in OUT/{MISSION_FILE} (a restarted coordinator).",
 )
-@click.option(
+@float_option(
     "--max-domain-speed",
-    type=click.FloatRange(min=0, min_open=True),
+    low=0,
+    low_open=True,
     help="Fastest a steered vertex of S may move, m/s [robots' top speed less kappa x "
     "one body diameter, at least a quarter of it].",
 )
-@click.option(
-    "--record/--no-record",
-    default=True,
-    show_default=True,
-    help="Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).",
+@switch_option(
+    "record", "Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).", show_default=True
 )
 @FOXGLOVE_OPTION
 @click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")

@@ -181,6 +181,7 @@ def build_summary(
         "agent_stats": agent_figures(observed.agent_stats),
         "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
+        "foreign_domains": observed.foreign_domains,
         "error_samples_clipped": observed.clipped_samples,
         "tile_size": settings.tile_size,
         "started_wall": observed.started_wall,

@@ -63,7 +63,14 @@ from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_MARGIN
 from covswarm.world.model import World
 from covswarm.world.planner import NoPath, plan_route
-from covswarm.world.route import RouteMotion
+from covswarm.world.route import (
+    PEAK_RATE,
+    RouteMotion,
+    centroid,
+    merge_coincident,
+    smoothstep,
+    support_pairs,
+)
 from covswarm.world.sweep import first_contact
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
@@ -73,7 +80,6 @@ DomainAt = Callable[[float], tuple[np.ndarray, np.ndarray]]
 # (e.g. S would sweep an obstacle). Steering.checks holds them.
 MotionCheck = Callable[[DomainAt, float, float], None]
 
-PEAK_RATE = 15.0 / 8.0  # max over u of d/du of the quintic smoothstep
 # Refusal codes (the first word of a refused SteerReply's reason), counted per code.
 REFUSALS = (
     "undecodable",  # the payload is not a valid SteerRequest (oversize, schema, types, ...)
@@ -100,7 +106,6 @@ WORKSPACE_SLACK = 1e-9  # m: vertices on the workspace's edge are inside
 # covswarm.mission.scenarios.CONTACT_TOLERANCE).
 CONTACT_TOLERANCE = 1e-4
 _ROTATION_SAMPLES = 65  # instants at which a rotating motion is checked against the walls
-_MERGE_TOL = 1e-9  # coincident output vertices: distance below this x half the perimeter
 # m/s^2: the most a pre-empted S's fastest vertex is slowed by its brake (module docstring).
 # About what the quintic asks when starting a 0.5 m move at the default 0.52 m/s
 # (10 / sqrt(3) x 0.5 m / (1.8 s)^2 = 0.89 m/s^2): a brake is no harsher than a start.
@@ -124,21 +129,6 @@ def default_max_domain_speed(robot_speed: float, kappa: float) -> float:
     a quarter of the top speed (the circle scenario's 0.19 m/s at kappa = 8, 0.8 m/s robots).
     """
     return max(robot_speed - kappa * FOLLOW_GAP, 0.25 * robot_speed)
-
-
-def smoothstep(u: float) -> tuple[float, float]:
-    """Quintic progress s(u) and ds/du for u in [0, 1] (clamped outside)."""
-    u = min(max(u, 0.0), 1.0)
-    return u * u * u * (10.0 + u * (-15.0 + 6.0 * u)), 30.0 * u * u * (1.0 - u) ** 2
-
-
-def centroid(polygon: np.ndarray) -> np.ndarray:
-    """Area centroid (2,) of a simple polygon (k, 2)."""
-    x, y = polygon[:, 0], polygon[:, 1]
-    xn, yn = np.roll(x, -1), np.roll(y, -1)
-    cross = x * yn - xn * y
-    area = 0.5 * cross.sum()
-    return np.array([((x + xn) * cross).sum(), ((y + yn) * cross).sum()]) / (6.0 * area)
 
 
 @dataclass(frozen=True, eq=False)
@@ -255,48 +245,6 @@ def brake_span(speed: float) -> float:
     """Seconds a brake takes from a fastest vertex speed ``speed`` (m/s) at
     BRAKE_DECELERATION (the brake's tau'' = -2 / T at its start)."""
     return 2.0 * speed / BRAKE_DECELERATION
-
-
-def support_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Vertex pairs (i, j) of the Minkowski combinations (1 - s) A + s B, 0 < s < 1.
-
-    a: (n, 2), b: (m, 2) convex CCW polygons. For each direction strictly between
-    consecutive (merged) outward edge normals of A and B, in CCW order, the indices of
-    the vertices of A and of B furthest along it: (p, 2) int, p <= n + m.
-    """
-    angles = np.concatenate([_normal_angles(a), _normal_angles(b)])
-    angles = np.sort(np.mod(angles, 2.0 * math.pi))
-    keep = np.concatenate([[True], np.diff(angles) > 1e-12])
-    if angles[-1] - angles[0] > 2.0 * math.pi - 1e-12:  # the last wraps onto the first
-        keep[-1] = False
-    angles = angles[keep]
-    following = np.concatenate([angles[1:], angles[:1] + 2.0 * math.pi])
-    middle = 0.5 * (angles + following)
-    directions = np.stack([np.cos(middle), np.sin(middle)], axis=1)  # (p, 2)
-    pairs = np.stack([np.argmax(directions @ a.T, axis=1), np.argmax(directions @ b.T, axis=1)], 1)
-    repeated = np.all(pairs == np.roll(pairs, 1, axis=0), axis=1)
-    return pairs[~repeated] if not repeated.all() else pairs[:1]
-
-
-def _normal_angles(polygon: np.ndarray) -> np.ndarray:
-    """Angles (k,) of the outward normals of a CCW polygon's edges (edge turned -90 deg)."""
-    edges = np.roll(polygon, -1, axis=0) - polygon
-    return np.arctan2(-edges[:, 0], edges[:, 1])
-
-
-def merge_coincident(vertices: np.ndarray, velocities: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Drop vertices that coincide with the previous one (a Minkowski combination at s near
-    0 or 1 has edges of length s |e|): a polygon validator refuses zero-length edges. The
-    dropped vertex's velocity differs from the kept one's by at most s'(t) |e|, which is
-    vanishing where the edge is (s' = 30 u^2 at s = 10 u^3)."""
-    size = 0.5 * float(np.linalg.norm(np.roll(vertices, -1, axis=0) - vertices, axis=1).sum())
-    step = np.linalg.norm(vertices - np.roll(vertices, 1, axis=0), axis=1)
-    keep = step > _MERGE_TOL * size
-    if keep.all():
-        return vertices, velocities
-    if not keep.any():
-        keep[0] = True
-    return vertices[keep], velocities[keep]
 
 
 def simplify(polygon: np.ndarray, count: int) -> tuple[np.ndarray, float]:

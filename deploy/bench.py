@@ -38,6 +38,7 @@ from typing import Any
 import click
 import numpy as np
 
+from covswarm.runtime.options import float_option
 from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
@@ -104,16 +105,27 @@ def two_hop(adjacency: list[set[int]], me: int) -> set[int]:
     return known
 
 
+def sampled_robots(layout: Layout, sample: int | None) -> tuple[list[set[int]], np.ndarray]:
+    """The layout's Voronoi adjacency, and the robots timed: ``sample`` of them drawn with the
+    layout's seed, or all where ``sample`` is None or not below N."""
+    adjacency = neighbors(layout.positions, layout.polygon)
+    n = len(layout.positions)
+    if sample is not None and sample < n:
+        return adjacency, np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    return adjacency, np.arange(n)
+
+
+def translating(layout: Layout) -> np.ndarray:
+    """Vertex velocities (m/s, shape (V, 2)) of the layout's polygon translating at (0.05, 0.02)."""
+    return np.tile([0.05, 0.02], (len(layout.polygon), 1))
+
+
 def time_local_steps(
     layout: Layout, sample: int | None, kappa: float = 1.0, density: Density | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
     """Microseconds of each sampled robot's local step, and its two-hop neighbourhood size."""
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    adjacency, robots = sampled_robots(layout, sample)
+    velocity = translating(layout)
     times, sizes = [], []
     for me in robots:
         known = two_hop(adjacency, int(me))
@@ -136,11 +148,7 @@ def time_da_vs_d1(layout: Layout, sample: int | None, kappa: float = 1.0) -> dic
     field is not trivial). Returns the p50 microseconds of the TVD-DA step and the median of
     the per-robot ratio TVD-DA / TVD-D1.
     """
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
+    adjacency, robots = sampled_robots(layout, sample)
     centre = layout.polygon.mean(axis=0)
     turn = np.array([[0.0, -1.0], [1.0, 0.0]])
     velocity = [0.05, 0.02] + 0.01 * (layout.polygon - centre) @ (np.eye(2) + turn).T
@@ -166,12 +174,8 @@ def time_density_vs_uniform(
     """Microseconds of each sampled robot's local step with ``density`` and, interleaved on
     the same two-hop view, without (uniform), so that the machine's drift lands on both:
     (density times, uniform times)."""
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    adjacency, robots = sampled_robots(layout, sample)
+    velocity = translating(layout)
     spent: dict[str, list[float]] = {"density": [], "uniform": []}
     for me in robots:
         view = {j: layout.positions[j] for j in two_hop(adjacency, int(me))}
@@ -187,7 +191,7 @@ def time_density_vs_uniform(
 
 def time_centralized(layout: Layout, repeats: int, kappa: float = 1.0) -> dict[str, float]:
     """Median milliseconds of one full-team step of each law."""
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    velocity = translating(layout)
     result = {}
     for name, law in (("tvd_c", tvd_c), ("tvd_d1", tvd_d1), ("tvd_da", tvd_da)):
         samples = []
@@ -230,12 +234,8 @@ def time_safety_filter(
     from covswarm.tvd.drive import KHEPERA_IV
     from covswarm.tvd.safety import DEFAULT_GAMMA, safe_velocity, wall_distance
 
-    adjacency = neighbors(layout.positions, layout.polygon)
-    n = len(layout.positions)
-    robots = np.arange(n)
-    if sample is not None and sample < n:
-        robots = np.random.default_rng(layout.seed).choice(n, size=sample, replace=False)
-    velocity = np.tile([0.05, 0.02], (len(layout.polygon), 1))
+    adjacency, robots = sampled_robots(layout, sample)
+    velocity = translating(layout)
     # Robots 0.5 m apart on average: a safe distance of 0.3 m makes some rows active.
     safe = 0.6 * SPACING
     world = bench_world(layout, obstacles) if obstacles > 0 else None
@@ -703,11 +703,11 @@ def live_table(rows: list[dict]) -> Any:
     show_default=True,
     help="Team sizes of the live runs.",
 )
-@click.option(
+@float_option(
     "--live-duration",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=20.0,
-    show_default=True,
     help="Mission length of each live run, s.",
 )
 @click.option(
@@ -736,11 +736,11 @@ def live_table(rows: list[dict]) -> Any:
     show_default=True,
     help="Robots in the team the packs share for --brain-tick.",
 )
-@click.option(
+@float_option(
     "--live-time-scale",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=1.0,
-    show_default=True,
     help="Mission seconds per wall second in the live runs (covswarm run --time-scale).",
 )
 def bench_command(

@@ -46,5 +46,6 @@ class LazyGroup(click.Group):
 @click.group(cls=LazyGroup)
 @click.version_option(package_name="covswarm")
 def main() -> None:
-    """Steer a robot swarm by moving the region it covers (TVD-C / TVD-D1 coverage control)."""
+    """Steer a robot swarm by moving the region it covers: coverage control over a time-varying
+    domain (default law TVD-DA; the paper's TVD-D1 and TVD-C with --law)."""
     lifeline.hold()

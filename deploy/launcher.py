@@ -47,61 +47,41 @@ from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION, identity_name, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
-from covswarm.runtime.options import TIME_SCALE_OPTION
+from covswarm.runtime.options import (
+    TIME_SCALE_OPTION,
+    agents_option,
+    float_option,
+    law_option,
+    out_option,
+    pose_delay_option,
+    pose_loss_option,
+    switch_option,
+)
 from covswarm.sim_robot.process import gather_drops
 
 
 @click.command("run")
-@click.option(
-    "--scenario",
-    default="passage",
-    show_default=True,
-    help=SCENARIO_HELP,
+@click.option("--scenario", default="passage", show_default=True, help=SCENARIO_HELP)
+@agents_option("Team size [scenario default].")
+@float_option("--kappa", low=0, low_open=True, help="Gain [scenario].")
+@switch_option("feedforward", "Agents use the dc/dt feedforward term (--no-feedforward: drop it).")
+@law_option(
+    "The agents' control law: da, domain-motion feedforward (docs/tracking.md); d1, the "
+    "paper's TVD-D1."
 )
-@click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
-@click.option("--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario].")
-@click.option(
-    "--feedforward/--no-feedforward",
-    default=True,
-    help="Agents use the dc/dt feedforward term (--no-feedforward: drop it).",
-)
-@click.option(
-    "--law",
-    type=click.Choice(("da", "d1")),
-    default="da",
-    show_default=True,
-    help="The agents' control law: da, domain-motion feedforward (docs/tracking.md); d1, the "
-    "paper's TVD-D1.",
-)
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Mission length, s [scenario default].",
-)
+@float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario default].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Initial poses.")
-@click.option(
-    "--out",
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Output folder [runs/run-<scenario>-<timestamp>].",
-)
-@click.option(
-    "--rate",
-    type=click.FloatRange(min=0.5),
-    default=10.0,
-    show_default=True,
-    help="Control rate of every agent, Hz.",
-)
+@out_option(help="Output folder [runs/run-<scenario>-<timestamp>].")
+@float_option("--rate", low=0.5, default=10.0, help="Control rate of every agent, Hz.")
 @click.option("--swarm", help="Swarm name (key prefix) [random, unique per run].")
 @click.option("--connect", help="Join this Zenoh endpoint instead of an embedded router.")
 @click.option(
     "--ids",
     help="Only these robot ids (and their agents) on this host, e.g. 0-49 [all]; needs --swarm.",
 )
-@click.option(
-    "--coordinator/--no-coordinator",
-    default=True,
-    help="--no-coordinator: the coordinator runs on another host: end when it says done; "
-    "needs --swarm.",
+@switch_option(
+    "coordinator",
+    "--no-coordinator: the coordinator runs on another host: end when it says done; needs --swarm.",
 )
 @click.option(
     "--router-listen",
@@ -130,45 +110,22 @@ from covswarm.sim_robot.process import gather_drops
     "core of at most 50 brains; docs/scaling.md).",
 )
 @TIME_SCALE_OPTION
-@click.option(
-    "--pose-loss",
-    type=click.FloatRange(0.0, 1.0, max_open=True),
-    default=0.0,
-    show_default=True,
-    help="Fault injection: every agent drops this fraction of received poses (seeded).",
+@pose_loss_option("Fault injection: every agent drops this fraction of received poses (seeded).")
+@pose_delay_option("Fault injection: every agent receives poses this many s late.")
+@switch_option("safety", "Agents filter for collisions (--no-safety: they run without the filter).")
+@switch_option(
+    "prediction",
+    "--no-prediction: agents control from poses as received, not predicted to the command's time.",
 )
-@click.option(
-    "--pose-delay",
-    type=click.FloatRange(min=0.0),
-    default=0.0,
-    show_default=True,
-    help="Fault injection: every agent receives poses this many s late.",
-)
-@click.option(
-    "--safety/--no-safety",
-    default=True,
-    help="Agents filter for collisions (--no-safety: they run without the filter).",
-)
-@click.option(
-    "--prediction/--no-prediction",
-    default=True,
-    help="--no-prediction: agents control from poses as received, not predicted to the "
-    "command's time.",
-)
-@click.option(
+@float_option(
     "--startup-timeout",
-    type=click.FloatRange(min=0, min_open=True),
+    low=0,
+    low_open=True,
     default=300.0,
-    show_default=True,
     help="Give up if the team is not up after this many s.",
 )
 @FOXGLOVE_OPTION
-@click.option(
-    "--record/--no-record",
-    default=True,
-    show_default=True,
-    help="The coordinator writes run.mcap and trajectories.csv.",
-)
+@switch_option("record", "The coordinator writes run.mcap and trajectories.csv.", show_default=True)
 @click.option(
     "--console",
     is_flag=True,
@@ -181,9 +138,10 @@ from covswarm.sim_robot.process import gather_drops
     show_default=True,
     help="Port of --console (0: a free one).",
 )
-@click.option(
+@float_option(
     "--max-domain-speed",
-    type=click.FloatRange(min=0, min_open=True),
+    low=0,
+    low_open=True,
     help="Fastest a steered vertex of S may move, m/s [the coordinator's default].",
 )
 @SECURE_OPTION

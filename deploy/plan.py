@@ -12,6 +12,7 @@ import sys
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -139,26 +140,26 @@ class RunConfig:
     secure: Path | None = None
 
 
+# Options of a run that its coordinator and agents take as they are, under the same name.
+_EVERY_CHILD = ("feedforward", "law", "time_scale", "secure")
+
+
+def _passed_on(run: RunConfig, *names: str) -> dict[str, Any]:
+    """``run``'s fields ``names``, as keyword arguments of a child's config of the same names."""
+    return {name: getattr(run, name) for name in names}
+
+
 def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> CoordinatorConfig:
     """The coordinator of ``run``: the team, the mission, where its outputs and records go."""
     if run.swarm is None or run.out is None:
         raise ValueError("a planned run needs its swarm and output folder")
     return CoordinatorConfig(
-        swarm=run.swarm,
-        out=run.out,
-        scenario=run.scenario,
         connect=(endpoint,),
         agents=team_size(run, scenario),
         duration=scenario.duration if run.duration is None else run.duration,
         kappa=scenario.kappa if run.kappa is None else run.kappa,
-        feedforward=run.feedforward,
-        law=run.law,
-        max_domain_speed=run.max_domain_speed,
-        record=run.record,
-        foxglove=run.foxglove,
-        seed=run.seed,
-        time_scale=run.time_scale,
-        secure=run.secure,
+        **_passed_on(run, "swarm", "out", "scenario", "max_domain_speed", "record", "foxglove"),
+        **_passed_on(run, "seed", *_EVERY_CHILD),
     )
 
 
@@ -193,21 +194,13 @@ def agent_config(
         connect=(endpoint,),
         id=group[0] if one else None,
         ids=None if one else format_ids(list(group)),
-        swarm=run.swarm,
-        rate=run.rate,
         tick_phase=phase,
-        time_scale=run.time_scale,
         kappa=scenario.kappa if run.kappa is None else run.kappa,
-        feedforward=run.feedforward,
-        law=run.law,
-        pose_loss=run.pose_loss,
-        pose_delay=run.pose_delay,
         pose_seed=run.seed,
-        prediction=run.prediction,
-        safety=run.safety,
         body_diameter=scenario.robot_diameter,
         workspace=scenario.workspace,
-        secure=run.secure,
+        **_passed_on(run, "swarm", "rate", "pose_loss", "pose_delay", "prediction", "safety"),
+        **_passed_on(run, *_EVERY_CHILD),
     )
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
+from covswarm.runtime.options import agents_option, float_option, law_option, out_option
 from covswarm.tvd.control import LAWS, PRIORS
 
 DYNAMICS = ("single", "unicycle")
@@ -337,18 +338,14 @@ def world_line(summary: dict[str, Any]) -> str:
     show_default=True,
     help=SCENARIO_HELP,
 )
-@click.option("--agents", type=click.IntRange(min=1), help="Team size [scenario default].")
-@click.option(
-    "--law",
-    type=click.Choice(LAWS),
-    default="da",
-    show_default=True,
-    help="da: domain-motion feedforward (docs/tracking.md), c: centralised TVD-C, "
-    "d1: one-hop TVD-D1.",
+@agents_option("Team size [scenario default].")
+@law_option(
+    "da: domain-motion feedforward (docs/tracking.md), c: centralised TVD-C, d1: one-hop TVD-D1.",
+    LAWS,
 )
-@click.option(
+@float_option(
     "--damping",
-    type=click.FloatRange(min=0),
+    low=0,
     help="TVD-C's feedforward damping [covswarm.tvd.control.DAMPING]; 0: the paper's exact "
     "TVD-C, falling back to TVD-D1 when unusable.",
 )
@@ -360,29 +357,17 @@ def world_line(summary: dict[str, Any]) -> str:
     help="What TVD-C's damped feedforward is pulled toward: S's affine field, or zero.",
 )
 @click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt feedforward term.")
-@click.option(
-    "--kappa", type=click.FloatRange(min=0, min_open=True), help="Gain [scenario default]."
-)
-@click.option(
-    "--dt", type=click.FloatRange(min=0, min_open=True), help="Step, s [scenario default]."
-)
-@click.option(
-    "--duration",
-    type=click.FloatRange(min=0, min_open=True),
-    help="Mission length, s [scenario default].",
-)
+@float_option("--kappa", low=0, low_open=True, help="Gain [scenario default].")
+@float_option("--dt", low=0, low_open=True, help="Step, s [scenario default].")
+@float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario default].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Initial positions/headings.")
 @click.option("--dynamics", type=click.Choice(DYNAMICS), help="Robot model [scenario default].")
-@click.option(
-    "--out",
-    "out_dir",
-    type=click.Path(file_okay=False, path_type=Path),
-    help="Output folder [runs/sim-<scenario>-<timestamp>].",
-)
+@out_option("out_dir", help="Output folder [runs/sim-<scenario>-<timestamp>].")
 @click.option("--compare", is_flag=True, help="Also run without feedforward and compare.")
-@click.option(
+@float_option(
     "--projection-distance",
-    type=click.FloatRange(min=0, min_open=True),
+    low=0,
+    low_open=True,
     help="Unicycles: the wheel mapping's projection distance, m [covswarm.tvd.drive's 0.03; "
     "the agents of covswarm run use 0.05].",
 )

@@ -77,14 +77,13 @@ An optional density phi(q, t) = floor + sum_b w_b exp(-1/2 (q - mu_b)^T Sigma_b^
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
 from covswarm.mission.scenarios import BUILTINS, Box, Scenario, check_box
-from covswarm.world.maps import OccupancyMap, read_map, read_regular_file
+from covswarm.world.maps import OccupancyMap, finite_number, read_map, read_regular_file
 from covswarm.world.model import World, make_obstacle
 
 try:
@@ -154,7 +153,7 @@ def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenar
         options["agents"] = agents
     for key in ("kappa", "duration", "dt", "robot_diameter"):
         if key in data:
-            options[key] = _number(data[key], key)
+            options[key] = finite_number(data[key], key)
     for key in ("name", "dynamics"):
         if key in data and not isinstance(data[key], str):
             raise ValueError(f"{key} must be a string, not {data[key]!r}")
@@ -218,18 +217,10 @@ def _table(value: Any, key: str) -> dict[str, Any]:
     return value
 
 
-def _number(value: Any, key: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"{key} must be a number, not {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{key} must be finite, not {value!r}")
-    return float(value)
-
-
 def _box(value: Any) -> Box:
     if not isinstance(value, list) or len(value) != 4:
         raise ValueError(f"box {value!r}: need [xmin, xmax, ymin, ymax]")
-    box = tuple(_number(v, "box") for v in value)
+    box = tuple(finite_number(v, "box") for v in value)
     check_box(box)  # type: ignore[arg-type]
     return box  # type: ignore[return-value]
 
@@ -237,7 +228,7 @@ def _box(value: Any) -> Box:
 def _pair(value: Any, key: str) -> tuple[float, float]:
     if not isinstance(value, list) or len(value) != 2:
         raise ValueError(f"[domain] {key}: need [x, y], not {value!r}")
-    return (_number(value[0], f"[domain] {key}"), _number(value[1], f"[domain] {key}"))
+    return (finite_number(value[0], f"[domain] {key}"), finite_number(value[1], f"[domain] {key}"))
 
 
 def _points(value: Any, key: str) -> list[list[float]]:
@@ -254,7 +245,7 @@ def _keyframes(domain: dict[str, Any], world: World) -> DomainMotion:
     if not isinstance(times, list) or not isinstance(vertices, list):
         raise ValueError("[domain] times and vertices must be lists")
     return Keyframes(
-        times=[_number(t, "[domain] times") for t in times],
+        times=[finite_number(t, "[domain] times") for t in times],
         vertices=[_points(v, "[domain] vertices") for v in vertices],
     )
 
@@ -274,7 +265,7 @@ def _rigid(domain: dict[str, Any], world: World) -> DomainMotion:
                 raise ValueError(f"[domain] period must be a number, not {value!r}")
             values[key] = float(value)
         else:
-            values[key] = _number(domain[key], f"[domain] {key}")
+            values[key] = finite_number(domain[key], f"[domain] {key}")
     return Rigid(polygon=_points(domain["polygon"], "[domain] polygon"), **values)
 
 
@@ -298,8 +289,8 @@ def _route(domain: dict[str, Any], world: World, team: tuple[int, float]) -> Dom
     goals = domain["goals"]
     if not isinstance(goals, list) or not goals:
         raise ValueError(f"[domain] goals: need a list of [x, y] points, not {goals!r}")
-    speed = _number(domain.get("speed", ROUTE_SPEED), "[domain] speed")
-    hold = _number(domain.get("hold", 0.0), "[domain] hold")
+    speed = finite_number(domain.get("speed", ROUTE_SPEED), "[domain] speed")
+    hold = finite_number(domain.get("hold", 0.0), "[domain] hold")
     if speed <= 0.0 or hold < 0.0:
         raise ValueError(f"[domain] speed must be > 0 and hold >= 0, not {speed!r}, {hold!r}")
     min_area, min_width = least_domain(*team)

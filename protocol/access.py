@@ -45,16 +45,8 @@ ALL_MESSAGES = (
     "declare_liveliness_subscriber",
     "liveliness_query",
 )
-READ_MESSAGES = (
-    "put",
-    "delete",
-    "reply",
-    "declare_subscriber",
-    "declare_queryable",
-    "liveliness_token",
-    "declare_liveliness_subscriber",
-    "liveliness_query",
-)
+# A reader may do everything but send queries.
+READ_MESSAGES = tuple(message for message in ALL_MESSAGES if message != "query")
 
 
 def _rule(rule_id: str, flows: Sequence[str], messages: Sequence[str], keys: Sequence[str]):

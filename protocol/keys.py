@@ -179,21 +179,27 @@ def alive_selector(swarm: str, role: str | None = None) -> str:
 
 def all_poses_selector(swarm: str) -> str:
     """Every robot's pose (coordinator / recorder only: agents subscribe per id)."""
-    return f"{_base(swarm)}/robot/*/pose"
+    return _every_id(swarm, "pose")
 
 
 def all_cmds_selector(swarm: str) -> str:
     """Every wheel command (monitoring only)."""
-    return f"{_base(swarm)}/robot/*/cmd"
+    return _every_id(swarm, "cmd")
 
 
 def all_agent_states_selector(swarm: str) -> str:
     """Every agent's state (coordinator / recorder only)."""
-    return f"{_base(swarm)}/agent/*/state"
+    return _every_id(swarm, "state")
 
 
 # kind -> (words at positions 2 and 4) of "covswarm/<swarm>/<word>/<id>/<word>"
 _ID_KEYS = {"pose": ("robot", "pose"), "cmd": ("robot", "cmd"), "state": ("agent", "state")}
+
+
+def _every_id(swarm: str, kind: str) -> str:
+    """The selector of ``kind``'s key (an _ID_KEYS kind) for every robot id."""
+    group, leaf = _ID_KEYS[kind]
+    return f"{_base(swarm)}/{group}/*/{leaf}"
 
 
 def _parse_int_chunk(chunk: str) -> int:

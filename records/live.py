@@ -24,10 +24,16 @@ FOXGLOVE_OPTION = click.option(
 
 
 def port_is_free(port: int, host: str = LIVE_HOST) -> bool:
-    """Whether a TCP server could bind ``host:port`` now (0: any free port, always True)."""
+    """Whether a TCP server could bind ``host:port`` now (0: any free port, always True).
+
+    The probe sets SO_REUSEADDR as the servers do (tokio under foxglove-sdk, aiohttp): a
+    connection the last run's server closed lingers in TIME-WAIT on that port for up to a
+    minute, which a plain bind counts as "in use" though nothing listens; with the option
+    only a live socket bound to the port (a listener) refuses it, on Linux."""
     if port == 0:
         return True
     with socket.socket() as probe:
+        probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         try:
             probe.bind((host, port))
         except OSError:

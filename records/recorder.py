@@ -82,11 +82,57 @@ _ERROR_SCHEMA = {
         "robots": {"type": "integer", "description": "robots in the sample"},
     },
 }
+# The stats an agent reports (agent.brain.AgentBrain.stats; records may not import agent),
+# declared so that a viewer's path editor types /agents/stats.mean.rate_hz and the rest.
+# Counters of dropped messages (drop_<reason>) vary with what arrived: additionalProperties.
+AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
+    "rate_hz": ("number", "control rate held, Hz"),
+    "step_us_p50": ("number", "control step wall time, median, microseconds"),
+    "step_us_p99": ("number", "control step wall time, 99th percentile, microseconds"),
+    "rx_per_s": ("number", "messages received per second"),
+    "pose_age_ms_p50": ("number", "pose-to-command latency, median, ms"),
+    "pose_age_ms_p99": ("number", "pose-to-command latency, 99th percentile, ms"),
+    "robot_clock_bound_ms": ("number", "agent clock minus its robot's is at most this, ms"),
+    "safety_active": ("number", "robot-steps the safety filter changed the velocity"),
+    "safety_relaxed": ("number", "robot-steps the safety filter could not hold every pair"),
+    "wheel_max": ("number", "largest rim speed commanded, m/s"),
+    "saturated_s": ("number", "time under a saturated wheel command, s"),
+    "missed_deadline": ("number", "fraction of mission periods whose command went out late"),
+    "late_held": ("number", "fraction of mission periods skipped, the robot held, in a pack"),
+    "rx_total": ("number", "messages received"),
+    "coalesced": ("number", "messages superseded before they were read"),
+    "stale_dropped": ("number", "neighbours dropped as stale"),
+    "step_errors": ("number", "control steps that raised"),
+    "mission_steps": ("number", "control steps while the mission ran"),
+    "guarded": ("number", "steps the amplification guard rescaled"),
+    "candidates": ("number", "robots known (dead-reckoned)"),
+    "local_set": ("number", "robots in the local Voronoi diagram"),
+    "neighbors": ("number", "Voronoi neighbours"),
+    "state_subs": ("number", "AgentState subscriptions"),
+    "tile_radius": ("number", "beacon tiles listened to around the agent's own"),
+    "beacon_unconfirmed": ("number", "beacon-only robots left out, never confirmed (total)"),
+}
+_STAT_PROPERTIES = {
+    name: {"type": kind, "description": text} for name, (kind, text) in AGENT_STATS_FIELDS.items()
+}
+_DROP_COUNTER = {"type": "number", "description": "drop_<reason>: messages refused, per reason"}
 _STATS_SCHEMA = {
     "type": "object",
     "properties": {
-        "agents": {"type": "array", "items": {"type": "object"}},
-        "mean": {"type": "object"},
+        "agents": {
+            "type": "array",
+            "items": {
+                "type": "object",
+                "properties": {"id": {"type": "integer"}, **_STAT_PROPERTIES},
+                "additionalProperties": _DROP_COUNTER,
+            },
+        },
+        "mean": {
+            "type": "object",
+            "description": "team mean of each stat",
+            "properties": _STAT_PROPERTIES,
+            "additionalProperties": _DROP_COUNTER,
+        },
     },
 }
 _STEERING_SCHEMA = {"type": "object", "properties": {"t": {"type": "number"}}}

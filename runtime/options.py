@@ -3,12 +3,14 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import click
 
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
-from covswarm.protocol.keys import parse_ids
+from covswarm.protocol.keys import MAX_ID, parse_ids
 
 MAX_CLOCK_SKEW_OPTION = click.option(
     "--max-clock-skew",
@@ -27,6 +29,86 @@ TIME_SCALE_OPTION = click.option(
     help="Mission seconds per wall second (< 1: slower than real time, for big simulations); "
     "the same for every process of a run.",
 )
+
+
+Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
+
+
+def float_option(
+    *decls: str,
+    help: str | None = None,
+    default: float | None = None,
+    low: float | None = None,
+    low_open: bool = False,
+    high: float | None = None,
+    high_open: bool = False,
+    **extra: Any,
+) -> Decorator:
+    """A float option in [low, high] (an end left open where asked; None: unbounded), its
+    default shown in --help where it has one. ``extra`` goes to ``click.option`` as is."""
+    return click.option(
+        *decls,
+        type=click.FloatRange(low, high, min_open=low_open, max_open=high_open),
+        default=default,
+        show_default=default is not None,
+        help=help,
+        **extra,
+    )
+
+
+def switch_option(name: str, help: str, *, default: bool = True, **extra: Any) -> Decorator:
+    """A ``--name/--no-name`` pair (``config_argv`` writes every bool field that way)."""
+    return click.option(f"--{name}/--no-{name}", default=default, help=help, **extra)
+
+
+def connect_option(help: str) -> Decorator:
+    """``--connect``: the Zenoh endpoints a process joins, required and repeatable."""
+    return click.option("--connect", multiple=True, required=True, help=help)
+
+
+def id_options(ids_help: str) -> Decorator:
+    """``--id N`` or ``--ids 0-9`` (one of the two: :func:`id_selection`)."""
+    robot_id = click.option("--id", type=click.IntRange(0, MAX_ID), help="Robot id.")
+    ids = click.option("--ids", help=ids_help)
+    return lambda command: robot_id(ids(command))
+
+
+ROUTER_HELP = "Router endpoint, e.g. tcp/127.0.0.1:7447."
+
+# The agent and robot processes' own: `covswarm run` names its swarm itself.
+SWARM_OPTION = click.option(
+    "--swarm", default="default", show_default=True, help="Swarm (run) name."
+)
+
+VERBOSE_OPTION = switch_option("verbose", "Log at INFO level.", default=False)
+
+
+def pose_loss_option(help: str) -> Decorator:
+    """``--pose-loss``: fault injection, a fraction in [0, 1) of received poses dropped."""
+    return float_option("--pose-loss", low=0.0, high=1.0, high_open=True, default=0.0, help=help)
+
+
+def pose_delay_option(help: str) -> Decorator:
+    """``--pose-delay``: fault injection, received poses delivered this many s late."""
+    return float_option("--pose-delay", low=0.0, default=0.0, help=help)
+
+
+def agents_option(help: str) -> Decorator:
+    """``--agents``: the team size, at least one."""
+    return click.option("--agents", type=click.IntRange(min=1), help=help)
+
+
+def law_option(help: str, choices: tuple[str, ...] = ("da", "d1")) -> Decorator:
+    """``--law``: the agents' control law (covswarm.tvd.control), da by default."""
+    return click.option(
+        "--law", type=click.Choice(choices), default="da", show_default=True, help=help
+    )
+
+
+def out_option(*decls: str, help: str, **extra: Any) -> Decorator:
+    """``--out`` (or ``decls``): an output folder, as a Path."""
+    kind = click.Path(file_okay=False, path_type=Path)
+    return click.option("--out", *decls, type=kind, help=help, **extra)
 
 
 def id_selection(robot_id: int | None, ids: str | None) -> list[int]:

@@ -50,9 +50,9 @@ from covswarm.protocol.inbound import (
 )
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
+from covswarm.runtime import options
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
-from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, TIME_SCALE_OPTION, id_selection
 from covswarm.sim_robot.config import RobotConfig
 from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate_one
 from covswarm.world.contact import stop_at_contact
@@ -345,12 +345,9 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 
 
 @click.command("robot")
-@click.option("--id", type=click.IntRange(0, protocol.MAX_ID), help="Robot id.")
-@click.option("--ids", help="Several robots in this process instead, e.g. 0-9 (one session).")
-@click.option(
-    "--connect", multiple=True, required=True, help="Router endpoint, e.g. tcp/127.0.0.1:7447."
-)
-@click.option("--swarm", default="default", show_default=True, help="Swarm (run) name.")
+@options.id_options("Several robots in this process instead, e.g. 0-9 (one session).")
+@options.connect_option(options.ROUTER_HELP)
+@options.SWARM_OPTION
 @click.option("--x", type=float, default=0.0, show_default=True, help="Initial x (m).")
 @click.option("--y", type=float, default=0.0, show_default=True, help="Initial y (m).")
 @click.option("--theta", type=float, default=0.0, show_default=True, help="Initial heading.")
@@ -362,20 +359,20 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 # Integration is exact over a step (constant wheels drive an arc), so stepping at the pose
 # rate loses nothing but up to one period of command latency, and on a machine hosting
 # hundreds of robots every saved tick is CPU the agents need.
-@click.option("--rate", type=click.FloatRange(min=1.0), default=20.0, show_default=True)
-@click.option("--pose-rate", type=click.FloatRange(min=0.1), default=20.0, show_default=True)
-@click.option("--cmd-timeout", type=click.FloatRange(min=0.01), default=0.5, show_default=True)
-@TIME_SCALE_OPTION
-@MAX_CLOCK_SKEW_OPTION
-@click.option(
+@options.float_option("--rate", low=1.0, default=20.0)
+@options.float_option("--pose-rate", low=0.1, default=20.0)
+@options.float_option("--cmd-timeout", low=0.01, default=0.5)
+@options.TIME_SCALE_OPTION
+@options.MAX_CLOCK_SKEW_OPTION
+@options.float_option(
     "--max-wheel-speed",
-    type=click.FloatRange(min=0.0, min_open=True),
+    low=0.0,
+    low_open=True,
     default=MAX_WHEEL_SPEED,
-    show_default=True,
     help="Rim speed limit (m/s).",
 )
 @SECURE_OPTION
-@click.option("--verbose/--no-verbose", default=False, help="Log at INFO level.")
+@options.VERBOSE_OPTION
 def robot_command(**options: Any) -> None:
     """Run one simulated Khepera IV, or several (pose publisher, wheel-command subscriber)."""
     run_robot_process(RobotConfig(**options))
@@ -384,7 +381,7 @@ def robot_command(**options: Any) -> None:
 def run_robot_process(config: RobotConfig) -> None:
     """The robot process ``config`` describes: its robots until SIGINT/SIGTERM."""
     logging.basicConfig(level=logging.INFO if config.verbose else logging.WARNING)
-    robot_ids = id_selection(config.id, config.ids)
+    robot_ids = options.id_selection(config.id, config.ids)
     if config.id is not None and config.pose:
         raise click.UsageError("--pose goes with --ids; one robot takes --x/--y/--theta")
     if config.pose and len(config.pose) != len(robot_ids):

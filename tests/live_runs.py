@@ -7,6 +7,7 @@ outlives the launcher, and how whatever a failed test left behind is killed, by 
 
 from __future__ import annotations
 
+import json
 import os
 import secrets
 import signal
@@ -131,3 +132,61 @@ class Latest:
     def snapshot(self) -> dict[int, protocol.Message]:
         with self.lock:
             return dict(self.values)
+
+
+def stop_children(children: list[subprocess.Popen]) -> list[int]:
+    """SIGTERM every child still running, then their exit codes (a child that does not exit
+    within 10 s is killed, and its code is the kill's)."""
+    for child in children:
+        if child.poll() is None:
+            child.send_signal(signal.SIGTERM)
+    codes = []
+    for child in children:
+        try:
+            codes.append(child.wait(timeout=10))
+        except subprocess.TimeoutExpired:
+            child.kill()
+            codes.append(child.wait())
+    return codes
+
+
+def watch_team(session: object, swarm: str) -> tuple[Latest, Latest]:
+    """The newest Pose and AgentState of every robot of ``swarm``, subscribed on ``session``."""
+    poses = Latest(protocol.Pose)
+    states = Latest(protocol.AgentState)
+    session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
+    session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+    return poses, states
+
+
+def stop_process(child: subprocess.Popen) -> None:
+    """SIGTERM ``child`` if it still runs; SIGKILL if it has not exited 10 s later."""
+    if child.poll() is None:
+        child.terminate()
+        try:
+            child.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            child.kill()
+            child.wait()
+
+
+def mission_started(run: subprocess.Popen, out: Path, timeout: float = 90.0) -> str:
+    """Wait until the ``covswarm run`` launched into ``out`` started its mission; its Zenoh
+    endpoint (launch.json). Fails with the launcher's log if it does not."""
+    log = out / "logs" / "coordinator-0.log"
+    started = wait_until(
+        lambda: run.poll() is None and log.exists() and "mission started" in log.read_text(),
+        timeout,
+    )
+    assert started, (out.parent / f"{out.name}.launcher.log").read_text()
+    return json.loads((out / "launch.json").read_text())["endpoint"]
+
+
+def steer_cli(endpoint: str, swarm: str, *args: str) -> subprocess.CompletedProcess:
+    """``covswarm steer`` on ``swarm`` through ``endpoint`` with ``args``; its result."""
+    return subprocess.run(
+        [*covswarm_argv(), "steer", "--connect", endpoint, "--swarm", swarm, *args],
+        capture_output=True,
+        text=True,
+        timeout=60,
+    )

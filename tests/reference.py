@@ -25,6 +25,7 @@ from collections.abc import Callable
 
 import numpy as np
 import shapely
+from scipy.optimize import linprog, minimize
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import nearest_points
 
@@ -399,3 +400,24 @@ def two_hop(nbrs: list[set[int]], i: int) -> set[int]:
         two |= set(nbrs[j])
     two.add(i)
     return two
+
+
+def dense_qp(nominal: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+    """Reference for the safety filter: SLSQP on min |u - nominal|^2, A u <= b from a HiGHS
+    feasible point; None when HiGHS finds the rows infeasible. Rows are normalised to unit
+    |a| (the same set), which SLSQP needs at 10 m scales."""
+    norm = np.linalg.norm(A, axis=1)
+    A, b = A / norm[:, None], b / norm
+    feasible = linprog(np.zeros(2), A_ub=A, b_ub=b, bounds=[(None, None)] * 2, method="highs")
+    if feasible.status == 2:
+        return None
+    result = minimize(
+        lambda u: np.sum((u - nominal) ** 2),
+        feasible.x,
+        jac=lambda u: 2.0 * (u - nominal),
+        constraints=[{"type": "ineq", "fun": lambda u: b - A @ u, "jac": lambda u: -A}],
+        method="SLSQP",
+        options={"ftol": 1e-12, "maxiter": 500},
+    )
+    assert result.success, result.message
+    return result.x

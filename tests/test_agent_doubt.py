@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -22,15 +23,7 @@ OUTSIDE = [[2.5, 0.0], [3.3, 0.0], [3.3, 1.0], [2.5, 1.0]]  # the probe's x = 3.
 
 
 def domain(vertices: list, seq: int) -> protocol.Domain:
-    return protocol.Domain(
-        seq=seq,
-        stamp=WALL,
-        t=0.0,
-        state="running",
-        vertices=vertices,
-        velocities=[[0.0, 0.0]] * len(vertices),
-        kappa=1.0,
-    )
+    return domain_message(vertices, seq=seq, stamp=WALL)
 
 
 class Brain(AgentBrain):

@@ -7,7 +7,6 @@ team still covers the real S, no robot leaves the workspace, and every forgery i
 from __future__ import annotations
 
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -15,7 +14,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import Latest, open_router
+from live_runs import open_router, stop_children, watch_team
+from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.tvd.coverage import mass_centroid
@@ -31,15 +31,7 @@ STARTS = [(0.3, 0.3), (0.6, 0.4), (0.4, 0.7)]
 
 
 def domain(vertices: list, seq: int, state: str = "running") -> bytes:
-    return protocol.Domain(
-        seq=seq,
-        stamp=time.time(),
-        t=0.0,
-        state=state,
-        vertices=vertices,
-        velocities=[[0.0, 0.0]] * len(vertices),
-        kappa=1.0,
-    ).encode()
+    return domain_message(vertices, seq=seq, stamp=time.time(), state=state).encode()
 
 
 @pytest.mark.timeout(150)
@@ -50,10 +42,7 @@ def test_forged_domains_and_phantom_beacons_change_nothing_but_counts() -> None:
     hostile = zenoh.open(protocol.session_config([endpoint], None, "client"))
     children: list[subprocess.Popen] = []
     try:
-        poses = Latest(protocol.Pose)
-        states = Latest(protocol.AgentState)
-        session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
-        session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+        poses, states = watch_team(session, swarm)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         box = [str(v) for v in WORKSPACE]
         for rid, (x, y) in enumerate(STARTS):
@@ -110,16 +99,7 @@ def test_forged_domains_and_phantom_beacons_change_nothing_but_counts() -> None:
         # behind a refused one, still as a jump; never taken.
         assert all(s["drop_domain_seq_jump"] > 0 for s in stats), stats
     finally:
-        for child in children:
-            if child.poll() is None:
-                child.send_signal(signal.SIGTERM)
-        codes = []
-        for child in children:
-            try:
-                codes.append(child.wait(timeout=10))
-            except subprocess.TimeoutExpired:
-                child.kill()
-                codes.append(child.wait())
+        codes = stop_children(children)
         hostile.close()
         session.close()
     assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import subprocess
 import sys
 import time
@@ -12,7 +11,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import Latest, open_router
+from live_runs import open_router, stop_children, watch_team
+from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -39,15 +39,8 @@ def domain(
     seq: int = 1,
 ) -> protocol.Domain:
     vertices = SQUARE if vertices is None else vertices
-    return protocol.Domain(
-        seq=seq,
-        stamp=stamp,
-        t=0.0,
-        state=state,
-        vertices=vertices,
-        velocities=[list(velocity)] * len(vertices),
-        kappa=1.0,
-        tile_size=tile_size,
+    return domain_message(
+        vertices, seq=seq, stamp=stamp, state=state, velocity=velocity, tile_size=tile_size
     )
 
 
@@ -463,10 +456,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
     children: list[subprocess.Popen] = []
     session, endpoint = open_router()
     try:
-        poses = Latest(protocol.Pose)
-        states = Latest(protocol.AgentState)
-        session.declare_subscriber(protocol.all_poses_selector(swarm), poses)
-        session.declare_subscriber(protocol.all_agent_states_selector(swarm), states)
+        poses, states = watch_team(session, swarm)
         env = {**os.environ, "PYTHONUNBUFFERED": "1"}
         for rid, (x, y) in enumerate(starts):
             common = ["--id", str(rid), "--connect", endpoint, "--swarm", swarm]
@@ -475,15 +465,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
             children.append(subprocess.Popen([COVSWARM, "agent", *common], cwd=REPO, env=env))
 
         def publish(state: str, seq: int) -> None:
-            message = protocol.Domain(
-                seq=seq,
-                stamp=time.time(),
-                t=0.0,
-                state=state,
-                vertices=SQUARE,
-                velocities=[[0.0, 0.0]] * 4,
-                kappa=1.0,
-            )
+            message = domain_message(SQUARE, seq=seq, stamp=time.time(), state=state)
             session.put(protocol.domain_key(swarm), message.encode())
 
         # Wait (domain "waiting") until every agent reports, i.e. sees its own pose.
@@ -515,16 +497,7 @@ def test_three_robots_and_agents_over_zenoh() -> None:
             assert all(state.stats[f"drop_{r}"] == 0 for r in protocol.REASONS)
             assert set(state.neighbors) <= {0, 1, 2} - {state.id}
     finally:
-        for child in children:
-            if child.poll() is None:
-                child.send_signal(signal.SIGTERM)
-        codes = []
-        for child in children:
-            try:
-                codes.append(child.wait(timeout=10))
-            except subprocess.TimeoutExpired:
-                child.kill()
-                codes.append(child.wait())
+        codes = stop_children(children)
         session.close()
     assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"
 

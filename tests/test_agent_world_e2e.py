@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import math
 import os
-import signal
 import socket
 import subprocess
 import threading
@@ -20,6 +19,7 @@ import time
 import numpy as np
 import pytest
 import shapely
+from live_runs import stop_children
 
 from covswarm import protocol
 from covswarm.deploy.plan import covswarm_argv
@@ -161,15 +161,6 @@ def test_a_robot_started_within_a_walls_reach_never_touches_it() -> None:
         assert stats["safety_active"] > 0
         assert all(stats[f"drop_{r}"] == 0 for r in ("bad_world", "old_world", "undecodable"))
     finally:
-        for child in children:
-            if child.poll() is None:
-                child.send_signal(signal.SIGTERM)
-        codes = []
-        for child in children:
-            try:
-                codes.append(child.wait(timeout=10))
-            except subprocess.TimeoutExpired:
-                child.kill()
-                codes.append(child.wait())
+        codes = stop_children(children)
         session.close()
     assert codes == [0] * len(children), "children must exit cleanly on SIGTERM"

@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from live_runs import alive_tokens, open_router, wait_until
+from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
@@ -29,15 +30,7 @@ def pose(rid: int, stamp: float) -> bytes:
 
 
 def domain(stamp: float, seq: int = 0) -> bytes:
-    return protocol.Domain(
-        seq=seq,
-        stamp=stamp,
-        t=0.0,
-        state="running",
-        vertices=SQUARE,
-        velocities=[[0.0, 0.0]] * 4,
-        kappa=1.0,
-    ).encode()
+    return domain_message(SQUARE, seq=seq, stamp=stamp).encode()
 
 
 def command(stamp: float) -> bytes:

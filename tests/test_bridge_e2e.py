@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import zenoh
-from live_runs import swarm_pids, wait_until
+from live_runs import stop_process, swarm_pids, wait_until
 from rosbags.typesys import Stores, get_typestore
 
 from covswarm import protocol
@@ -109,13 +109,7 @@ def process(argv: list[str], log: Path | None = None, **kwargs) -> Iterator[subp
     try:
         yield child
     finally:
-        if child.poll() is None:
-            child.terminate()
-            try:
-                child.wait(timeout=10)
-            except subprocess.TimeoutExpired:
-                child.kill()
-                child.wait()
+        stop_process(child)
         if log:
             out.close()
 

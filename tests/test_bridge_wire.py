@@ -274,12 +274,17 @@ def test_any_bytes_decode_to_a_finite_pose_or_a_protocol_error(
     payload: bytes, pose_type: str
 ) -> None:
     for candidate in (payload, HEADER + payload):
-        try:
-            pose = cdr.decode_pose(candidate, pose_type)
-        except ProtocolError as exc:
-            assert exc.reason in ("undecodable", "oversize", "nonfinite", "value")
-            continue
-        assert all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta))
+        assert_finite_pose_or_refused(candidate, pose_type)
+
+
+def assert_finite_pose_or_refused(payload: bytes, pose_type: str) -> None:
+    """``payload`` decodes to a finite pose, or is refused with a ProtocolError's reason."""
+    try:
+        pose = cdr.decode_pose(payload, pose_type)
+    except ProtocolError as exc:
+        assert exc.reason in ("undecodable", "oversize", "nonfinite", "value")
+        return
+    assert all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta))
 
 
 VALID_POSES = {
@@ -302,9 +307,4 @@ def test_corrupted_poses_decode_to_a_finite_pose_or_a_protocol_error(
     good = VALID_POSES[pose_type]
     at = int(where * (len(good) - 1))
     payload = good[:at] + junk + (b"" if cut else good[at + len(junk) :])
-    try:
-        pose = cdr.decode_pose(payload, pose_type)
-    except ProtocolError as exc:
-        assert exc.reason in ("undecodable", "oversize", "nonfinite", "value")
-        return
-    assert all(math.isfinite(v) for v in (pose.x, pose.y, pose.theta))
+    assert_finite_pose_or_refused(payload, pose_type)

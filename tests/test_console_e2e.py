@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import launch, new_swarm, swarm_pids, wait_until
+from live_runs import launch, new_swarm, stop_process, swarm_pids, wait_until
 from playwright.sync_api import sync_playwright
 
 from covswarm.deploy.plan import covswarm_argv
@@ -84,12 +84,7 @@ def console(endpoint: str, swarm: str, *args: str) -> Iterator[str]:
         assert "http://" in line, f"console printed {line!r}"
         yield line[line.index("http://") :].strip()
     finally:
-        process.terminate()
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
+        stop_process(process)
 
 
 @pytest.fixture(scope="module")

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import dataclasses
+import logging
+
 import numpy as np
 import pytest
 from shapely.geometry import LineString, Point, Polygon
@@ -289,3 +292,19 @@ def test_a_steering_check_vetoes_a_planned_motion() -> None:
     )
     begin, end = seen[-1]
     assert begin >= 1.0 and end > begin
+
+
+def test_domains_of_another_publisher_are_counted_not_its_own(caplog) -> None:
+    """The coordinator hears its own Domains come back (ignored) and counts any other on
+    the key: a second coordinator's, a forger's, or garbage (issue 21)."""
+    core = make_core()
+    own = [of(PublishDomain, core.tick(0.05 * k, WALL0 + 0.05 * k))[0].domain for k in range(5)]
+    for domain in own:
+        core.on_domain_heard(domain.encode())
+    assert core.observed.foreign_domains == 0
+    impostor = dataclasses.replace(own[-1], stamp=own[-1].stamp + 1e-3)
+    with caplog.at_level(logging.ERROR, logger="covswarm.coordinator"):
+        core.on_domain_heard(impostor.encode())
+        core.on_domain_heard(b"\xc1garbage")
+    assert core.observed.foreign_domains == 2
+    assert "another process publishes" in caplog.text

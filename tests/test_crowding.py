@@ -61,7 +61,7 @@ def test_estimate_is_within_a_third_of_a_converged_cvt(name: str, agents: int) -
 
 
 def test_which_missions_are_crowded() -> None:
-    # The README: the built-in formation with 100 Khepera IV is over-packed; formation-100
+    # docs/density.md: the built-in formation with 100 Khepera IV is over-packed; formation-100
     # and the 100-robot circle are not.
     assert crowding(load_scenario("formation"), 100, 40.0).crowded
     assert not crowding(load_scenario("formation"), 20, 40.0).crowded

@@ -1,6 +1,6 @@
 """The accuracy contract of covswarm.tvd.density's closed forms, for any cell size.
 
-Contract (tvd/density.py docstring, README): masses within 1e-6 relative and centroids
+Contract (tvd/density.py docstring, docs/density.md): masses within 1e-6 relative and centroids
 within 1e-6 of the cell size of an independent reference, dc/dp and dc/dt within 1e-6 of
 central finite differences, from bumps 500 times narrower than a cell to 1e4 times wider.
 References: scipy dblquad over fans of triangles of shapely-clipped cells; the first

@@ -30,7 +30,7 @@ pytestmark = pytest.mark.e2e
 
 def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "run"
-    # TVD-D1: the law the README's "within 20 %" of the simulation was measured with.
+    # TVD-D1: the law docs/results.md's "within 20 %" of the simulation was measured with.
     with launch(out, "--agents", "4", "--scenario", "passage", "--duration", "15", "--law", "d1",
                 "--no-safety", "--no-prediction", swarm=swarm) as launcher:  # fmt: skip
         assert wait_until(lambda: len(swarm_pids(swarm)) >= 1 + 1 + 4 + 4, timeout=60)
@@ -55,7 +55,7 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     rows = (out / "error.csv").read_text().splitlines()
     assert rows[0] == "t,e_a" and len(rows) > 100
     assert swarm_pids(swarm) == set()
-    # README: the distributed run's steady-state e_a is within 20 % of the in-process
+    # docs/results.md: the distributed run's steady-state e_a is within 20 % of the in-process
     # simulation of the same robots (same seed, law, unicycle model, projection distance and
     # safety filter; the simulator needs no pose prediction: it holds each velocity for
     # 20 ms from the exact pose, where a pose predicted to the command's time then held for
@@ -113,7 +113,7 @@ def test_run_joins_an_existing_router(tmp_path: Path) -> None:
     )
     try:
         assert router.stdout.readline().strip() == "ready"
-        # Two runs share the router: each swarm name keeps them apart (README, "<swarm>").
+        # Two runs share the router: each swarm name keeps them apart (docs/protocol.md, "<swarm>").
         # Teams of 2 and 3: a run that saw the other's robot 2 or its states would say so.
         outs = {2: tmp_path / "joined-2", 3: tmp_path / "joined-3"}
         common = ("--duration", "4", "--connect", endpoint)

@@ -45,6 +45,18 @@ bad_numbers = st.sampled_from(
     [math.nan, math.inf, -math.inf, 1e300, -1e300, 2**64 - 1, -(2**63), 1e12, -1.0, 0.0]
 )
 wrong_types = st.sampled_from([None, True, "x", b"\x00", [], {}, [1.0, 2.0], {"a": 1}])
+SPOILS = ("number", "type", "drop")
+
+
+def spoil(draw: st.DrawFn, d: dict, field: str, how: str) -> None:
+    """Corrupt ``d[field]`` in place as ``how`` (one of SPOILS) says: a bad number, a value of
+    the wrong type, or the field dropped."""
+    if how == "number":
+        d[field] = draw(bad_numbers)
+    elif how == "type":
+        d[field] = draw(wrong_types)
+    else:
+        del d[field]
 
 
 @st.composite
@@ -126,12 +138,8 @@ def wire_maps(draw: st.DrawFn, kind: str) -> dict:
     for _ in range(draw(st.integers(0, 2))):  # corruptions
         field = draw(st.sampled_from(sorted(d)))
         how = draw(st.sampled_from(["number", "type", "drop", "extra", "vertices"]))
-        if how == "number":
-            d[field] = draw(bad_numbers)
-        elif how == "type":
-            d[field] = draw(wrong_types)
-        elif how == "drop":
-            del d[field]
+        if how in SPOILS:
+            spoil(draw, d, field, how)
         elif how == "extra":
             d["zz"] = draw(st.one_of(bad_numbers, wrong_types))
         else:
@@ -299,12 +307,8 @@ def commands(draw: st.DrawFn) -> bytes:
     }
     how = draw(st.sampled_from(["valid", "valid", "number", "type", "drop", "extra", "bytes"]))
     field = draw(st.sampled_from(sorted(d)))
-    if how == "number":
-        d[field] = draw(bad_numbers)
-    elif how == "type":
-        d[field] = draw(wrong_types)
-    elif how == "drop":
-        del d[field]
+    if how in SPOILS:
+        spoil(draw, d, field, how)
     elif how == "extra":
         d["zz"] = 1
     elif how == "bytes":

@@ -127,33 +127,32 @@ def test_no_import_cycle_inside_a_room() -> None:
             visit(name)
 
 
-def test_math_library_loads_no_io() -> None:
+IO_LIBRARIES = ("zenoh", "click", "matplotlib")  # what a sans-IO module must not load
+
+
+def assert_loads_none(modules: str, forbidden: tuple[str, ...]) -> None:
+    """Importing ``modules`` (comma-separated) in a fresh interpreter loads none of
+    ``forbidden``."""
     code = (
         "import sys\n"
-        "import covswarm.tvd.coverage, covswarm.tvd.control, covswarm.tvd.density\n"
-        "import covswarm.tvd.drive, covswarm.tvd.safety\n"
-        "bad = [m for m in ('zenoh', 'click', 'matplotlib', 'msgpack', 'aiohttp', 'rich',\n"
-        "       'foxglove', 'mcap', 'covswarm.protocol') if m in sys.modules]\n"
+        f"import {modules}\n"
+        f"bad = [m for m in {forbidden!r} if m in sys.modules]\n"
         "assert not bad, bad\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_math_library_loads_no_io() -> None:
+    assert_loads_none(
+        "covswarm.tvd.coverage, covswarm.tvd.control, covswarm.tvd.density, "
+        "covswarm.tvd.drive, covswarm.tvd.safety",
+        (*IO_LIBRARIES, "msgpack", "aiohttp", "rich", "foxglove", "mcap", "covswarm.protocol"),
+    )
 
 
 def test_agent_brain_is_sans_io() -> None:
-    code = (
-        "import sys\n"
-        "import covswarm.agent.brain\n"
-        "bad = [m for m in ('zenoh', 'click', 'matplotlib') if m in sys.modules]\n"
-        "assert not bad, bad\n"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    assert_loads_none("covswarm.agent.brain", IO_LIBRARIES)
 
 
 def test_coordinator_core_is_sans_io() -> None:
-    code = (
-        "import sys\n"
-        "import covswarm.coordinator.core\n"
-        "bad = [m for m in ('zenoh', 'click', 'matplotlib') if m in sys.modules]\n"
-        "assert not bad, bad\n"
-    )
-    subprocess.run([sys.executable, "-c", code], check=True)
+    assert_loads_none("covswarm.coordinator.core", IO_LIBRARIES)

@@ -1,9 +1,9 @@
-"""README claims that only real processes can show, from two short ``covswarm run``s.
+"""Documented claims that only real processes can show, from two short ``covswarm run``s.
 
 The circle scenario's motion (a square whose centre circles, radius 1.5 m, period 50 s)
 with 10 and then 40 robots at the same density (a 2 m square for 10, a 4 m one for 40), 8 s
-of mission each, 20 brains or robots per process as the README's live bench packs them, over
-loopback Zenoh:
+of mission each, 20 brains or robots per process as the live bench packs them
+(docs/scaling.md), over loopback Zenoh:
 
 - "What an agent receives per second depends on how many robots are next to it, not on the
   team size": the mean messages received per agent per second (``rx_per_s`` in the agents'
@@ -150,7 +150,7 @@ def test_messages_per_agent_do_not_grow_with_the_team(runs: dict[int, dict]) -> 
 
 
 def test_agents_subscribe_to_their_neighbors_states_only(runs: dict[int, dict]) -> None:
-    """README: an agent subscribes to its one-hop neighbours' AgentStates (plus, briefly, a
+    """docs/index.md: an agent subscribes to its one-hop neighbours' AgentStates (plus, briefly, a
     two-hop robot no relay carries yet, and 0.5 s of linger), not to the team's."""
     team = runs[SIZES[1]]["summary"]["agent_stats"]["team"]
     subscriptions, neighbors = team["state_subs"], team["neighbors"]
@@ -159,7 +159,7 @@ def test_agents_subscribe_to_their_neighbors_states_only(runs: dict[int, dict]) 
 
 
 def test_no_thread_per_subscriber(runs: dict[int, dict]) -> None:
-    """README: subscribers are ring channels the agent polls once per tick, no thread per
+    """docs/index.md: subscribers are ring channels the agent polls once per tick, no thread per
     subscriber: an agent process has fewer threads than subscriptions, and no more with more
     of them."""
     per_process = {}

@@ -245,7 +245,7 @@ def test_a_goal_polygon_of_another_shape_is_reached() -> None:
 
 
 def test_plan_time_script_reports_json() -> None:
-    """scripts/plan_time.py (the README's plan-time figures) runs and finds its routes."""
+    """scripts/plan_time.py (the plan-time figures of docs/world.md) runs and finds its routes."""
     import json
     import subprocess
     import sys

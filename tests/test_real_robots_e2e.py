@@ -106,7 +106,7 @@ def test_late_and_lost_poses_keep_the_undelayed_error(
     """The target: with 0.15 s of pose delay and 30 % loss, or 0.3 s of delay, the
     team converges and its steady-state e_a stays within 1.5x the undelayed runs' (without
     the agents' pose prediction the team flies apart: e_a 12.3 m and 9.9 m). Measured
-    1.16x and 1.06x over the scenario's 45 s (README, "Real robots"); at 45 s against a
+    1.16x and 1.06x over the scenario's 45 s (docs/real-robots.md); at 45 s against a
     single undelayed run that went low (0.0098 m), 1.55x once in CI, which is why the
     reference is now a mean of two and the mission ends when S stops."""
     summary = run(

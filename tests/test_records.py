@@ -395,3 +395,91 @@ def test_run_refuses_a_live_view_it_cannot_serve(tmp_path: Path) -> None:
     RECORDING = {"--seed", "--foxglove", "--record", "--no-record"}
     assert recording_args(3, None, True) == ["--record", "--seed", "3"]
     assert recording_args(3, 0, False) == ["--no-record", "--foxglove", "0", "--seed", "3"]
+
+
+def test_a_port_in_time_wait_is_free_and_a_listening_one_is_not() -> None:
+    """The live view's port check after a viewed run: the server closed its viewer's
+    connection first, so that connection sits in TIME-WAIT on the port for up to a minute.
+    A second ``--foxglove`` run must start at once (the servers bind with SO_REUSEADDR)."""
+    import socket
+
+    from covswarm.records.live import port_is_free
+
+    with socket.socket() as listener:
+        # as the servers bind (tokio under foxglove-sdk, asyncio under the console); Linux
+        # lets a bind reuse a TIME-WAIT port only if both sides set the option
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("127.0.0.1", 0))
+        listener.listen()
+        port = listener.getsockname()[1]
+        assert not port_is_free(port)  # a listener: in use
+        client = socket.create_connection(("127.0.0.1", port))
+        server_side, _ = listener.accept()
+        server_side.close()  # the server closes first: its end goes to TIME-WAIT
+        assert client.recv(1) == b""  # the client saw the close ...
+        client.close()  # ... and answers it, so the server's end completes to TIME-WAIT
+    deadline = time.monotonic() + 5
+    while not in_time_wait(port) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert in_time_wait(port), "no TIME-WAIT socket: the test did not set up its case"
+    assert port_is_free(port)
+    with socket.socket() as plain:  # what the check did before: refused for up to a minute
+        with pytest.raises(OSError):
+            plain.bind(("127.0.0.1", port))
+    server = __import__("foxglove").start_server(name="again", host="127.0.0.1", port=port)
+    server.stop()  # and the SDK's server binds it too
+
+
+def in_time_wait(port: int) -> bool:
+    """Whether /proc/net/tcp lists a socket on local port ``port`` in TIME-WAIT (state 06)."""
+    rows = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    return any(row.split()[1].endswith(f":{port:04X}") and row.split()[3] == "06" for row in rows)
+
+
+def test_clients_offering_only_the_old_subprotocol_are_refused() -> None:
+    """foxglove-sdk 0.30 speaks foxglove.sdk.v1 only and has no option to accept the older
+    foxglove.websocket.v1 (docs/records.md says which viewers connect): a client offering
+    only the old name gets HTTP 400, one offering both gets the new one. If a later SDK
+    accepts the old name, this fails and the docs should say so."""
+    import websockets
+
+    recorder = RunRecorder(None, run_metadata={"scenario": "unit"}, live_port=0)
+    url = f"ws://127.0.0.1:{recorder.live_port}"
+
+    async def handshake(offered: list[str]) -> str:
+        try:
+            async with websockets.connect(url, subprotocols=offered) as ws:
+                return str(ws.subprotocol)
+        except websockets.InvalidStatus as exc:
+            return f"HTTP {exc.response.status_code}"
+
+    try:
+        assert asyncio.run(handshake(["foxglove.websocket.v1"])) == "HTTP 400"
+        both = ["foxglove.websocket.v1", "foxglove.sdk.v1"]
+        assert asyncio.run(handshake(both)) == "foxglove.sdk.v1"
+    finally:
+        recorder.close()
+
+
+def test_the_stats_schema_declares_every_stat_an_agent_reports() -> None:
+    """/agents/stats declares its fields, so a viewer's plot path /agents/stats.mean.rate_hz
+    has a type: every stat of AgentBrain.stats() (but the per-reason drop counters, which
+    additionalProperties types), for the team mean and for each agent."""
+    from covswarm.agent.brain import AgentBrain
+    from covswarm.records import recorder as rec
+    from covswarm.records.layout import STATS_PATHS
+
+    schema = json.loads(rec.json_schema(rec.AGENT_STATS_SCHEMA, rec._STATS_SCHEMA).data)
+    mean = schema["properties"]["mean"]
+    each = schema["properties"]["agents"]["items"]
+    reported = {k for k in AgentBrain(0).stats() if not k.startswith("drop_")}
+    assert reported == set(mean["properties"]), reported ^ set(mean["properties"])
+    assert set(each["properties"]) == reported | {"id"}
+    for fields in (mean["properties"], each["properties"]):
+        assert all(field["type"] in ("number", "integer") for field in fields.values())
+    for obj in (mean, each):
+        assert obj["additionalProperties"]["type"] == "number"  # drop_<reason>
+    for path in STATS_PATHS:  # the layouts' plot paths resolve to a declared number
+        topic, field, stat = path.split(".")
+        assert topic == rec.AGENT_STATS_TOPIC and field == "mean"
+        assert mean["properties"][stat]["type"] == "number"

@@ -155,3 +155,42 @@ def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
         for e in update.entities
     }
     assert recorded == {(round(t, 4), int(i)) for t, i in rows[:, :2]}
+
+
+def port_states(port: int) -> list[str]:
+    """TCP states (hex, /proc/net/tcp: 06 TIME-WAIT, 0A LISTEN) of sockets on local ``port``."""
+    rows = Path("/proc/net/tcp").read_text().splitlines()[1:]
+    return [r.split()[3] for r in rows if r.split()[1].endswith(f":{port:04X}")]
+
+
+def leave_in_time_wait(port: int) -> None:
+    """What a viewed run leaves behind: a server on ``port`` (SO_REUSEADDR, as tokio binds)
+    closed its viewer's connection first, so the server's end sits in TIME-WAIT."""
+    import socket
+
+    with socket.socket() as listener:
+        listener.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        listener.bind(("127.0.0.1", port))
+        listener.listen()
+        with socket.create_connection(("127.0.0.1", port)) as viewer:
+            server_side, _ = listener.accept()
+            server_side.close()
+            assert viewer.recv(1) == b""
+    deadline = time.monotonic() + 5
+    while "06" not in port_states(port) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert "06" in port_states(port), port_states(port)
+
+
+def test_a_live_run_starts_while_its_port_is_in_time_wait(tmp_path: Path) -> None:
+    """Issue 23, 5a: after a viewed run the server's side of the viewer's connection can sit
+    in TIME-WAIT on the port for up to a minute (seen with the Foxglove app; the coordinator's
+    own shutdown here leaves none, so the test makes one). ``covswarm run --foxglove PORT``
+    starts at once and serves, instead of refusing the port as "already in use"."""
+    port = free_port()
+    leave_in_time_wait(port)
+    args = ("--scenario", "passage", "--agents", "2", "--duration", "2", "--foxglove", str(port))
+    with launch(tmp_path / "run", *args, swarm=new_swarm()) as process:
+        channel, _ = asyncio.run(first_robots_message(port, timeout=90))
+        assert process.wait(timeout=180) == 0, (tmp_path / "run.launcher.log").read_text()
+    assert channel["topic"] == "/robots"

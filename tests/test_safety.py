@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.optimize import linprog, minimize
+from reference import dense_qp
 
 from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE, KHEPERA_IV, integrate, wheel_speeds
 from covswarm.tvd.safety import (
@@ -17,26 +17,6 @@ from covswarm.tvd.safety import (
     team_safe_velocities,
     unicycle_rows,
 )
-
-
-def dense_qp(nominal: np.ndarray, A: np.ndarray, b: np.ndarray) -> np.ndarray | None:
-    """Reference: SLSQP on min |u - nominal|^2, A u <= b; None when HiGHS finds the rows
-    infeasible. Rows are normalised to unit |a| (same set), which SLSQP needs at 10 m scales."""
-    norm = np.linalg.norm(A, axis=1)
-    A, b = A / norm[:, None], b / norm
-    feasible = linprog(np.zeros(2), A_ub=A, b_ub=b, bounds=[(None, None)] * 2, method="highs")
-    if feasible.status == 2:
-        return None
-    result = minimize(
-        lambda u: np.sum((u - nominal) ** 2),
-        feasible.x,
-        jac=lambda u: 2.0 * (u - nominal),
-        constraints=[{"type": "ineq", "fun": lambda u: b - A @ u, "jac": lambda u: -A}],
-        method="SLSQP",
-        options={"ftol": 1e-12, "maxiter": 500},
-    )
-    assert result.success, result.message
-    return result.x
 
 
 @pytest.mark.parametrize("seed", range(40))

@@ -192,7 +192,7 @@ def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> No
         assert launcher.wait(timeout=120) == 0, (out.parent / "packed.launcher.log").read_text()
     assert json.loads((out / "launch.json").read_text())["agents_per_process"] == 3
     said = " ".join((out.parent / "packed.launcher.log").read_text().split())
-    assert "(team of 6), 3 per process;" in said  # README: the packing is logged
+    assert "(team of 6), 3 per process;" in said  # docs/scaling.md: the packing is logged
     logs = sorted(p.name for p in (out / "logs").iterdir())
     assert logs == ["agent-0-2.log", "agent-3-5.log", "coordinator-0.log", "robot-0-2.log",
                     "robot-3-5.log"]  # fmt: skip

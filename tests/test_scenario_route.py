@@ -138,3 +138,16 @@ def test_sim_runs_the_warehouse(tmp_path: Path) -> None:
     summary = json.loads((out / "summary.json").read_text())
     assert summary["domain_obstacle_overlap"] == 0.0
     assert summary["obstacle_contacts"] == 0
+
+
+def test_sim_gets_through_the_wall_mission_by_route(tmp_path: Path) -> None:
+    """Issue 20's check: the mission refused at load as keyframes gets through as a route,
+    the whole mission simulated: no contact, S never over the wall, the goal reached."""
+    out = tmp_path / "run"
+    args = ["sim", "--scenario", str(DATA / "through_the_wall_route.toml"), "--out", str(out)]
+    result = CliRunner().invoke(main, args, catch_exceptions=False)
+    assert result.exit_code == 0, result.output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["obstacle_contacts"] == 0 and summary["domain_obstacle_overlap"] == 0.0
+    assert summary["goals"] == 1 and summary["goals_reached"] == 1
+    assert summary["final_error"] < 0.02

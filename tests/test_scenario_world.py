@@ -5,11 +5,11 @@ from __future__ import annotations
 
 import os
 import re
-import threading
 from pathlib import Path
 
 import numpy as np
 import pytest
+from hang_checks import value_errors_within
 from PIL import Image
 from shapely.geometry import Polygon
 
@@ -166,17 +166,7 @@ def test_type_errors_get_a_sentence_naming_the_key(case: str, tmp_path: Path) ->
 def test_fifo_device_and_oversize_files_are_refused_without_hanging(tmp_path: Path) -> None:
     fifo = tmp_path / "pipe.toml"
     os.mkfifo(fifo)
-    errors: list[BaseException] = []
-
-    def load() -> None:
-        try:
-            load_scenario(fifo)
-        except ValueError as exc:
-            errors.append(exc)
-
-    worker = threading.Thread(target=load, daemon=True)
-    worker.start()
-    worker.join(5.0)
+    errors = value_errors_within(load_scenario, fifo)
     assert errors and "not a regular file" in str(errors[0])
     big = tmp_path / "big.toml"
     big.write_text(text() + "#" * (1 << 20))

@@ -197,7 +197,7 @@ def test_safety_keeps_squeezed_robots_apart_in_the_simulator(tmp_path: Path) -> 
 
 
 def test_safety_holds_a_crowded_team_apart_at_a_cost_in_coverage() -> None:
-    """README, "Safety filter": the formation with 40 robots is crowded under its bump;
+    """docs/real-robots.md, "Safety filter": the formation with 40 robots is crowded under its bump;
     without the filter bodies overlap (closest 0.095 m), with it the closest pair stays
     above a diameter and e_a pays for it (0.016 m -> 0.044 m). On the passage the filter
     never acts (robots at least 0.187 m apart): the run is the unfiltered one exactly."""

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import launch, new_swarm, swarm_pids, wait_until
+from live_runs import launch, mission_started, new_swarm, steer_cli, swarm_pids, wait_until
 
 from covswarm.deploy.plan import covswarm_argv
 from covswarm.deploy.router import free_port
@@ -60,15 +60,6 @@ class Watcher:
         return np.array([self.poses[i] for i in sorted(self.poses)])
 
 
-def steer_cli(endpoint: str, swarm: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [*covswarm_argv(), "steer", "--connect", endpoint, "--swarm", swarm, *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
 def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
     tmp_path: Path,
 ) -> None:
@@ -78,12 +69,7 @@ def test_steering_moves_s_the_robots_follow_and_bad_polygons_are_refused(
     swarm, out = new_swarm(), tmp_path / "live"
     args = ("--scenario", "live", "--agents", "3", "--duration", "60", "--max-domain-speed", "0.4")
     with launch(out, *args, swarm=swarm) as run:
-        log = out / "logs" / "coordinator-0.log"
-        assert wait_until(
-            lambda: run.poll() is None and log.exists() and "mission started" in log.read_text(),
-            90,
-        ), (tmp_path / "live.launcher.log").read_text()
-        endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
+        endpoint = mission_started(run, out)
         watcher = Watcher(endpoint, swarm)
         try:
             assert wait_until(lambda: watcher.poll() is not None and len(watcher.poses) == 3, 20)

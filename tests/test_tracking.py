@@ -305,7 +305,7 @@ def steady(law: str, scenario_name: str, **options) -> float:
 # Short runs of the built-in scenarios (coarse steps, small teams), second-half mean e_a:
 # TVD-DA against TVD-D1. Measured factors (d1 / da): circle 140, passage 9, formation 3.7,
 # pinwheel (turning, orbiting, shrinking) 12;
-# the full runs are in the README. The bump of ``formation`` moves differently from S, which
+# the full runs are in docs/results.md. The bump of ``formation`` moves differently from S, which
 # only the blended field and the one-hop residual follow, hence the smaller margin there.
 @pytest.mark.parametrize(
     "scenario_name, options, factor",
@@ -329,8 +329,8 @@ def test_da_beats_d1_on_short_runs(scenario_name: str, options: dict, factor: fl
 def test_guard_and_fallback_rates_are_counted_and_bounded(law: str, damping: float | None) -> None:
     """summary.json's ``guards`` for every law on a short circle run (20 robots, 10 s): the
     default laws never fall back and rescale at most 1 % of rows; the paper's exact TVD-C
-    (``--damping 0``) falls back to TVD-D1, and that is counted, not hidden (README: 98.8 %
-    of the steps at 100 robots)."""
+    (``--damping 0``) falls back to TVD-D1, and that is counted, not hidden (docs/results.md:
+    about 99 % of the steps at 100 robots)."""
     from covswarm.deploy.simulate import build_summary, simulate
     from covswarm.mission.scenario_files import load_scenario
 

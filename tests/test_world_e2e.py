@@ -13,14 +13,11 @@ import json
 import math
 import re
 import signal
-import subprocess
 from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import launch, new_swarm, swarm_pids, wait_until
-
-from covswarm.deploy.plan import covswarm_argv
+from live_runs import launch, mission_started, new_swarm, steer_cli, swarm_pids, wait_until
 
 pytestmark = pytest.mark.e2e
 
@@ -80,26 +77,12 @@ class Watcher:
         return aggregate_error(robots, np.array(self.domain.vertices))
 
 
-def steer_cli(endpoint: str, swarm: str, *args: str) -> subprocess.CompletedProcess:
-    return subprocess.run(
-        [*covswarm_argv(), "steer", "--connect", endpoint, "--swarm", swarm, *args],
-        capture_output=True,
-        text=True,
-        timeout=60,
-    )
-
-
 def test_warehouse_world_goto_and_a_wall(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "warehouse"
     args = ("--scenario", "warehouse", "--agents", "6", "--agents-per-process", "3",
             "--duration", "120")  # fmt: skip
     with launch(out, *args, swarm=swarm) as run:
-        log = out / "logs" / "coordinator-0.log"
-        assert wait_until(
-            lambda: run.poll() is None and log.exists() and "mission started" in log.read_text(),
-            90,
-        ), (tmp_path / "warehouse.launcher.log").read_text()
-        endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
+        endpoint = mission_started(run, out)
         watcher = Watcher(endpoint, swarm)  # joins after the start
         try:
             assert wait_until(lambda: watcher.poll() or watcher.world is not None, 3.0)

@@ -157,16 +157,16 @@ def _metadata(data: Any) -> dict[str, Any]:
     image = data["image"]
     if not isinstance(image, str) or not image:
         raise ValueError(f"image must be a file name, not {image!r}")
-    resolution = _number(data["resolution"], "resolution")
+    resolution = finite_number(data["resolution"], "resolution")
     if resolution <= 0.0:
         raise ValueError(f"resolution must be > 0 m per pixel, not {resolution!r}")
     origin = data["origin"]
     if not isinstance(origin, list) or len(origin) != 3:
         raise ValueError(f"origin must be [x, y, yaw], not {origin!r}")
-    x, y, yaw = (_number(v, "origin") for v in origin)
+    x, y, yaw = (finite_number(v, "origin") for v in origin)
     if yaw != 0.0:
         raise ValueError(f"origin yaw {yaw!r} is not supported: rotate the image instead")
-    occupied, free = (_number(data[k], k) for k in ("occupied_thresh", "free_thresh"))
+    occupied, free = (finite_number(data[k], k) for k in ("occupied_thresh", "free_thresh"))
     for key, value in (("occupied_thresh", occupied), ("free_thresh", free)):
         if not 0.0 <= value <= 1.0:
             raise ValueError(f"{key} must be in [0, 1], not {value!r}")
@@ -189,7 +189,9 @@ def _metadata(data: Any) -> dict[str, Any]:
     }
 
 
-def _number(value: Any, key: str) -> float:
+def finite_number(value: Any, key: str) -> float:
+    """``value`` as a float when it is a finite int or float (not a bool), else ValueError
+    naming ``key`` (a file's field)."""
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError(f"{key} must be a number, not {value!r}")
     if not math.isfinite(value):

@@ -3,10 +3,10 @@
 A route visits polygons S_0, S_1, ..., S_n. Segment i carries S_i to S_{i+1} in ``spans[i]``
 seconds along the Minkowski interpolation V(s) = (1 - s) A + s B with the quintic
 smoothstep progress s(u) = 10u^3 - 15u^4 + 6u^5, u = (t - t_i) / T_i (the same time scaling
-as covswarm.coordinator.steering, whose copy the world room cannot import: the coordinator
-sits above it). s' = s'' = 0 at both ends, so S stops at every waypoint with zero velocity
-and acceleration and the chained motion is C2; the vertex velocities dV/dt = (B - A) s'(u)/T
-are exact, as the agents' feedforward (paper Eq. 9's boundary integral) needs.
+as covswarm.coordinator.steering, which imports it from here). s' = s'' = 0 at both ends, so
+S stops at every waypoint with zero velocity and acceleration and the chained motion is C2;
+the vertex velocities dV/dt = (B - A) s'(u)/T are exact, as the agents' feedforward (paper
+Eq. 9's boundary integral) needs.
 
 Pairing. When A and B have the same edge directions in the same order (a homothet of one
 another: the planner's translate-and-scale waypoints) vertex i of A moves to vertex i of B
@@ -75,17 +75,34 @@ def pairing(a: np.ndarray, b: np.ndarray) -> np.ndarray:
         turn = np.mod(_edge_angles(b) - _edge_angles(a) + math.pi, 2.0 * math.pi) - math.pi
         if np.all(np.abs(turn) < 1e-9):
             return np.stack([np.arange(len(a)), np.arange(len(a))], axis=1)
-    normals = [np.mod(_edge_angles(p) - 0.5 * math.pi, 2.0 * math.pi) for p in (a, b)]
-    angles = np.sort(np.concatenate(normals))
+    return support_pairs(a, b)
+
+
+def support_pairs(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Vertex pairs (i, j) of the Minkowski combinations (1 - s) A + s B, 0 < s < 1.
+
+    a: (n, 2), b: (m, 2) convex CCW polygons. For each direction strictly between
+    consecutive (merged) outward edge normals of A and B, in CCW order, the indices of
+    the vertices of A and of B furthest along it: (p, 2) int, p <= n + m.
+    """
+    angles = np.concatenate([_normal_angles(a), _normal_angles(b)])
+    angles = np.sort(np.mod(angles, 2.0 * math.pi))
     keep = np.concatenate([[True], np.diff(angles) > 1e-12])
-    if angles[-1] - angles[0] > 2.0 * math.pi - 1e-12:
+    if angles[-1] - angles[0] > 2.0 * math.pi - 1e-12:  # the last wraps onto the first
         keep[-1] = False
     angles = angles[keep]
-    middle = 0.5 * (angles + np.concatenate([angles[1:], angles[:1] + 2.0 * math.pi]))
-    directions = np.stack([np.cos(middle), np.sin(middle)], axis=1)
+    following = np.concatenate([angles[1:], angles[:1] + 2.0 * math.pi])
+    middle = 0.5 * (angles + following)
+    directions = np.stack([np.cos(middle), np.sin(middle)], axis=1)  # (p, 2)
     pairs = np.stack([np.argmax(directions @ a.T, axis=1), np.argmax(directions @ b.T, axis=1)], 1)
     repeated = np.all(pairs == np.roll(pairs, 1, axis=0), axis=1)
     return pairs[~repeated] if not repeated.all() else pairs[:1]
+
+
+def _normal_angles(polygon: np.ndarray) -> np.ndarray:
+    """Angles (k,) of the outward normals of a CCW polygon's edges (edge turned -90 deg)."""
+    edges = np.roll(polygon, -1, axis=0) - polygon
+    return np.arctan2(-edges[:, 0], edges[:, 1])
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,0 +1,75 @@
+"""The shared command-line option factories (covswarm.runtime.options), through click."""
+
+from __future__ import annotations
+
+import click
+import pytest
+from click.testing import CliRunner
+
+from covswarm.runtime.options import (
+    float_option,
+    id_options,
+    id_selection,
+    law_option,
+    switch_option,
+)
+
+
+@click.command()
+@float_option("--gain", low=0.0, low_open=True, high=2.0, default=1.0, help="A gain.")
+@float_option("--phase", low=0.0, high=1.0, high_open=True)
+@switch_option("fast", "Go fast.")
+@law_option("The law.")
+@id_options("Several ids.")
+def probe(**options: object) -> None:
+    click.echo(repr(sorted(options.items())))
+
+
+def run(*args: str) -> click.testing.Result:
+    return CliRunner().invoke(probe, list(args))
+
+
+def test_defaults_and_values_parse() -> None:
+    done = run()
+    assert done.exit_code == 0, done.output
+    defaults = [("fast", True), ("gain", 1.0), ("id", None), ("ids", None), ("law", "da")]
+    assert done.output.strip() == repr([*defaults, ("phase", None)])
+    done = run("--gain", "2", "--phase", "0", "--no-fast", "--law", "d1", "--id", "7")
+    assert done.exit_code == 0, done.output
+    assert "('fast', False)" in done.output and "('gain', 2.0)" in done.output
+    assert "('phase', 0.0)" in done.output and "('law', 'd1')" in done.output
+    assert "('id', 7)" in done.output
+
+
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("--gain", "0"),  # open low end
+        ("--gain", "2.01"),
+        ("--phase", "1"),  # open high end
+        ("--phase", "-0.1"),
+        ("--law", "c"),  # not among the choices
+        ("--id", "-1"),
+        ("--id", "65536"),
+    ],
+)
+def test_out_of_range_values_are_refused(args: tuple[str, str]) -> None:
+    done = run(*args)
+    assert done.exit_code == 2 and "Invalid value" in done.output, done.output
+
+
+def test_help_shows_defaults_only_where_there_are_some() -> None:
+    text = run("--help").output
+    assert "[default: 1.0; 0.0<x<=2.0]" in text
+    assert "--phase FLOAT RANGE" in text and "default: None" not in text
+
+
+def test_id_selection_needs_exactly_one() -> None:
+    assert id_selection(3, None) == [3]
+    assert id_selection(None, "0-2") == [0, 1, 2]
+    with pytest.raises(click.UsageError):
+        id_selection(None, None)
+    with pytest.raises(click.UsageError):
+        id_selection(1, "0-2")
+    with pytest.raises(click.BadParameter):
+        id_selection(None, "2-0")
