@@ -28,6 +28,9 @@ ERROR_WINDOW = 60.0  # s of mission time of e_a history sent to the page
 POSE_TIMEOUT = 2.0  # s without a pose from a robot before it is no longer drawn
 DIGITS = 4  # decimals of metres and radians in the JSON (0.1 mm): smaller frames
 STEERING_LOG = 20  # steering outcomes kept for the page
+# Route-less Statuses (sent every 0.5 s) before a route drawn from this console's own reply
+# is dropped: one may have been sent before the goto was accepted and arrive after the reply.
+ROUTE_GRACE = 2
 
 
 @dataclass(frozen=True)
@@ -108,9 +111,14 @@ class SwarmView:
         self._density_cache: tuple[Any, Any, dict[str, Any]] | None = None
         self.world: dict[str, Any] | None = None  # world_document(), None before any World
         self._world_content: tuple[Any, ...] | None = None  # what the version counts changes of
-        # The route of the newest accepted goto, drawn until another accepted request takes S
-        # elsewhere (see on_steering).
+        # The route S follows (see on_status and on_steering), drawn while it runs.
         self.route: dict[str, Any] | None = None
+        # Route-less Statuses a route from this console's own reply outlives (ROUTE_GRACE,
+        # then 0 once a Status confirmed it).
+        self._route_grace = 0
+        self.arena_version = 0  # counts changes of the arena (World content), 0 before one
+        self.map_png: bytes | None = None  # the map's picture (a PNG) for the page, or None
+        self._map_answered = 0  # the arena version whose map query was answered
 
     # -- inputs -----------------------------------------------------------------------------
 
@@ -119,8 +127,12 @@ class SwarmView:
         self.domain = domain
 
     def on_status(self, status: Status) -> None:
-        """A Status broadcast: e_a joins the history while the mission runs."""
+        """A Status broadcast: e_a joins the history while the mission runs, and its route
+        (the goto S follows, whoever sent it) becomes the route drawn; a Status without
+        one ends it (after ROUTE_GRACE of them for a route this console's own steering
+        reply drew before any Status told it: an older Status may arrive after the reply)."""
         self.status = status
+        self._status_route(status.route)
         if self.errors and status.t < self.errors[-1][0]:
             self.errors.clear()  # mission time went back: a new mission (or coordinator)
         if status.state == "running" and status.error is not None:
@@ -150,9 +162,12 @@ class SwarmView:
         if content == self._world_content:
             return
         self._world_content = content
+        self.arena_version += 1
+        self.map_png = None  # a new arena: its map is asked for again (map_wanted)
         version = 1 if self.world is None else self.world["version"] + 1
         self.world = {
             "version": version,
+            "map": None,
             "workspace": None if world.workspace is None else [_round(v) for v in world.workspace],
             "obstacles": [
                 {"name": name, "polygon": _points(np.asarray(polygon, dtype=float))}
@@ -167,36 +182,89 @@ class SwarmView:
     def on_steering(self, outcome: dict[str, Any]) -> None:
         """Record one steering request's outcome (console.server's dict) for the page.
 
-        An accepted goto with a route (outcome["route"]: its stops [x, y, scale], S's
-        centroid in m and its size relative to S when the route starts, SteerReply.route)
-        becomes the route drawn: {"goal": [x, y], "waypoints": [[x, y, scale], ...],
-        "shape": S's vertices relative to its centroid when the goto was accepted (m; the
-        page draws S at each stop as shape * scale; [] before any Domain), "wall": s,
-        "duration": s}. Any other accepted request ends it."""
+        An accepted goto with a route (outcome["route"]: its stops [x, y, scale] or [x, y,
+        scale, angle], S's centroid in m, its size relative to S when the route starts and
+        its rotation since, SteerReply.route) becomes the route drawn at once: {"goal":
+        [x, y], "waypoints": the stops, "shape": S's vertices relative to its centroid when
+        the goto was accepted (m; the page draws S at each stop as shape scaled and rotated;
+        [] before any Domain), "wall": s, "duration": s}. Any other accepted request ends
+        it. The coordinator's Statuses then tell it (on_status: the route of a goto sent by
+        any client is drawn the same way, its wall and duration None)."""
         self.steering.append(dict(outcome))
         if not outcome.get("accepted"):
             return
         request = outcome.get("request") or {}
         route = outcome.get("route")
         if request.get("kind") == "goto" and route:
-            shape = np.zeros((0, 2))
-            if self.domain is not None:
-                vertices = np.asarray(self.domain.vertices, dtype=float)
-                shape = vertices - polygon_centroid(vertices)
             self.route = {
                 "goal": [_round(v) for v in request["goal"]],
                 "waypoints": [[_round(v) for v in stop] for stop in route],
-                "shape": _points(shape),
+                "shape": self._shape(),
                 "wall": outcome.get("wall"),
                 "duration": outcome.get("duration"),
             }
+            self._route_grace = ROUTE_GRACE
         else:
             self.route = None
 
+    def _status_route(self, stops: Any) -> None:
+        if stops is None:
+            if self.route is not None:
+                self._route_grace -= 1
+                if self._route_grace <= 0:
+                    self.route = None
+            return
+        waypoints = [[_round(v) for v in stop] for stop in stops]
+        self._route_grace = 0  # told by the coordinator: gone with the first Status without
+        if self.route is not None and self.route["waypoints"] == waypoints:
+            return
+        self.route = {
+            "goal": waypoints[-1][:2],
+            "waypoints": waypoints,
+            "shape": self._shape(),
+            "wall": None,
+            "duration": None,
+        }
+
+    def _shape(self) -> list[list[float]]:
+        """S's vertices relative to its centroid now (m), [] before any Domain."""
+        if self.domain is None:
+            return []
+        vertices = np.asarray(self.domain.vertices, dtype=float)
+        return _points(vertices - polygon_centroid(vertices))
+
+    def on_map(self, arena_version: int, image: Any) -> None:
+        """The coordinator's answer to the map query made for ``arena_version``: a
+        protocol.MapImage (drawn under the obstacles) or None (the scenario has no map).
+        An answer for an older arena is ignored. The world document's version goes up
+        with a picture, so the page fetches it again."""
+        if arena_version != self.arena_version or self.world is None:
+            return
+        self._map_answered = arena_version
+        if image is None:
+            return
+        self.map_png = image.png
+        self.world["map"] = {
+            "origin": [_round(v) for v in image.origin],
+            "resolution": image.resolution,
+            "width": image.width,
+            "height": image.height,
+        }
+        self.world["version"] += 1
+
+    def map_wanted(self) -> int | None:
+        """The arena version whose map picture to ask the coordinator for, None when there
+        is no arena yet or its map query was answered."""
+        if self.arena_version == 0 or self._map_answered == self.arena_version:
+            return None
+        return self.arena_version
+
     def world_document(self) -> dict[str, Any] | None:
         """The arena for the page, None before any World: {version, workspace ([xmin, xmax,
-        ymin, ymax] m or None), obstacles ([{name, polygon [[x, y], ...] CCW m}])}. Its size
-        is bounded by the World message's (protocol.World)."""
+        ymin, ymax] m or None), obstacles ([{name, polygon [[x, y], ...] CCW m}]), map (None,
+        or the picture's {origin [x, y] m of its lower-left corner, resolution m per pixel,
+        width, height} pixels: the page draws ``map_png`` there, row 0 at the top)}. Its
+        size is bounded by the World message's (protocol.World)."""
         return self.world
 
     # -- output -----------------------------------------------------------------------------

@@ -12,7 +12,9 @@ Origin).
 
 Routes: ``/`` the page, ``/static/*`` its assets, ``/ws`` the state stream,
 ``/api/state`` the state as JSON, ``/api/world`` the arena as JSON (404 before the
-coordinator has sent one), ``/api/steer`` steering (JSON body, answer ``{accepted, reason,
+coordinator has sent one), ``/api/map.png`` the map's picture (protocol.MapImage, asked of
+the coordinator once per arena; 404 without one; placed by the arena's ``map`` entry),
+``/api/steer`` steering (JSON body, answer ``{accepted, reason,
 duration, route}``, route an accepted goto's stops [x m, y m, scale of S] or null).
 """
 
@@ -51,6 +53,8 @@ STATIC = Path(__file__).with_name("static")
 DEFAULT_PORT = 7480
 DEFAULT_RATE = 15.0  # Hz of state frames to the page (>= 10 for smooth motion)
 STATE_PATHS = ("/ws", "/api/steer")  # requests that can steer or stream: Origin checked
+MAP_TIMEOUT = 3.0  # s a query for the map's picture waits for the coordinator
+MAP_RETRY = 5.0  # s before asking again when no coordinator answered
 
 
 class SwarmFeed:
@@ -68,6 +72,7 @@ class SwarmFeed:
         )
 
         self.swarm, self.view = swarm, view
+        self._session = session
         self._delete = zenoh.SampleKind.DELETE
         # Latest-wins streams in rings (drained every frame); liveliness in a FIFO, since a
         # lost change would leave a dead process counted alive.
@@ -119,6 +124,23 @@ class SwarmFeed:
             except ProtocolError as exc:
                 view.on_dropped(exc.reason)
 
+    def fetch_map(self) -> tuple[bool, Any, str | None]:
+        """Ask the coordinator for the map's picture (blocking: run it in a worker thread,
+        at most MAP_TIMEOUT s). Returns (answered, protocol.MapImage or None, why dropped):
+        not answered: nobody replied, ask again later; answered with None: the scenario has
+        no map, or the picture did not decode (the ProtocolError's reason, to count)."""
+        from covswarm.protocol import MapImage, ProtocolError, world_map_key
+
+        replies = self._session.get(world_map_key(self.swarm), timeout=MAP_TIMEOUT)
+        for reply in replies:
+            if reply.ok is None:  # the coordinator's "no map"
+                return True, None, None
+            try:
+                return True, MapImage.decode(reply.ok.payload.to_bytes()), None
+            except ProtocolError as exc:
+                return True, None, exc.reason
+        return False, None, None
+
 
 class Console:
     """The web app around one SwarmFeed: page, state stream, state API, steering."""
@@ -147,11 +169,14 @@ class Console:
         self.refused_requests = 0
         self._refusal_log = RateLimit()
         self._steer_log = RateLog(log)  # refused steering: a flood of POSTs logs a few lines
+        self._map_task: asyncio.Task[None] | None = None  # a map query in flight
+        self._map_next = 0.0  # monotonic s before which no map query is made
         self.app = web.Application(middlewares=[self._guard], client_max_size=MAX_BODY)
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/ws", self._stream)
         self.app.router.add_get("/api/state", self._state)
         self.app.router.add_get("/api/world", self._world)
+        self.app.router.add_get("/api/map.png", self._map)
         self.app.router.add_post("/api/steer", self._steer_request)
         self.app.router.add_static("/static", STATIC, show_index=False, follow_symlinks=False)
         self.app.on_startup.append(self._start_pump)
@@ -207,11 +232,37 @@ class Console:
                     self._changed.notify_all()
             else:
                 self.feed.drain(time.monotonic())
+            self._ask_for_map()
             next_at += self.period
             delay = next_at - time.monotonic()
             if delay < -self.period:
                 next_at = time.monotonic()  # overloaded: restart the schedule, no burst
             await asyncio.sleep(max(0.0, delay))
+
+    def _ask_for_map(self) -> None:
+        """Once per arena (World content), ask the coordinator for its map's picture in a
+        worker thread; again after MAP_RETRY s if nobody answered."""
+        wanted = self.view.map_wanted()
+        if wanted is None or self._map_task is not None or time.monotonic() < self._map_next:
+            return
+
+        async def ask() -> None:
+            try:
+                loop = asyncio.get_running_loop()
+                answered, image, dropped = await loop.run_in_executor(None, self.feed.fetch_map)
+            except Exception as exc:  # a closed session: the console goes on without a map
+                log.warning("cannot ask for the map's picture: %s", exc)
+                answered, image, dropped = False, None, None
+            finally:
+                self._map_task = None
+            if dropped is not None:
+                self.view.on_dropped(dropped)
+            if answered:
+                self.view.on_map(wanted, image)
+            else:
+                self._map_next = time.monotonic() + MAP_RETRY
+
+        self._map_task = asyncio.create_task(ask())
 
     async def _start_pump(self, app: web.Application) -> None:
         self._pump_task = asyncio.create_task(self._pump())
@@ -244,6 +295,14 @@ class Console:
             text=self._world_json[1],
             content_type="application/json",
             headers={"Cache-Control": "no-store"},
+        )
+
+    async def _map(self, request: web.Request) -> web.Response:
+        png = self.view.map_png
+        if png is None:
+            return web.json_response({"error": "no map picture from the coordinator"}, status=404)
+        return web.Response(
+            body=png, content_type="image/png", headers={"Cache-Control": "no-store"}
         )
 
     async def _feed_client(self, ws: web.WebSocketResponse) -> None:

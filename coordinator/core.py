@@ -69,6 +69,7 @@ from covswarm.records.observations import timed_layers
 from covswarm.runtime.ratelog import RateLog
 from covswarm.tvd.coverage import aggregate_error
 from covswarm.tvd.drive import KHEPERA_IV
+from covswarm.world.map_image import map_image
 from covswarm.world.wire import to_message
 
 if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only calls it
@@ -428,8 +429,11 @@ class CoordinatorCore:
         running = self.phase.state == RUNNING
         reply = self.steering.handle(payload, t, wall, running, requester)
         record = self.steering.records[-1]
-        if self.recorder is not None:
-            self.recorder.steering(t, record.to_dict())
+        if self.recorder is not None:  # a goto's route too, for Foxglove and replays
+            event = record.to_dict()
+            if reply.route is not None:
+                event["route"] = [list(stop) for stop in reply.route]
+            self.recorder.steering(t, event)
         actions: list[Action] = []
         if reply.accepted:
             log.info("steering at t = %.2f s: %s", t, record.request)
@@ -550,6 +554,20 @@ class CoordinatorCore:
         self._published.append((domain.seq, domain.stamp))
         return vertices, domain
 
+    @cached_property
+    def map_payload(self) -> bytes | None:
+        """The answer to a query for the map's picture (protocol.world_map_key): an encoded
+        protocol.MapImage of the scenario's occupancy map (world.map_image, built on the
+        first query), None when the scenario has no map or its picture cannot be sent."""
+        grid = self.settings.scenario.map
+        if grid is None:
+            return None
+        try:
+            return map_image(grid, seq=0).encode()  # seq of world_message's World
+        except ValueError as exc:
+            log.warning("the map's picture cannot be sent: %s", exc)
+            return None
+
     def world_message(self) -> World:
         """The arena as broadcast (seq 0: the world never changes during a run)."""
         return to_message(self.settings.scenario.world, 0, self.stamp(self._wall))
@@ -563,6 +581,7 @@ class CoordinatorCore:
             error=record.error[-1] if record.error else None,
             alive_agents=live.count("agent"),
             alive_robots=live.count("robot"),
+            route=self.steering.active_route(t) if state == RUNNING else None,
         )
 
     def _sample(self, t: float, polygon: np.ndarray) -> None:

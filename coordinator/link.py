@@ -36,12 +36,14 @@ from covswarm.protocol import (
     status_key,
     steer_key,
     world_key,
+    world_map_key,
 )
 from covswarm.runtime.clock import StopFlag, Ticker
 
 log = logging.getLogger("covswarm.coordinator")
 
 STEER_QUEUE = 64  # steering queries held between two ticks
+MAP_QUEUE = 16  # map picture queries held between two ticks
 
 
 class CoordinatorLink:
@@ -83,6 +85,12 @@ class CoordinatorLink:
         )
         self._status = session.declare_publisher(status_key(swarm))
         self._world = session.declare_publisher(world_key(swarm))
+        # The map's picture, asked for by consoles once per World (a few queries a run);
+        # built now, not on the tick of the first query (a large map takes a moment).
+        _ = core.map_payload
+        self._map = session.declare_queryable(
+            world_map_key(swarm), zenoh.handlers.FifoChannel(MAP_QUEUE)
+        )
 
     def receive(self, now: float) -> None:
         """Hand everything that arrived since the last tick to the core; answer steering."""
@@ -104,6 +112,13 @@ class CoordinatorLink:
                     query.drop()  # the final answer: the client stops waiting
                 else:
                     self.carry_out(action)
+        while (query := self._map.try_recv()) is not None:
+            payload = core.map_payload
+            if payload is None:  # an answer all the same: the console need not ask again
+                query.reply_err(b"no map")
+            else:
+                query.reply(query.key_expr, payload)
+            query.drop()
 
     def carry_out(self, action: Action) -> None:
         """Do what the core asked (see coordinator.core's actions); Finished is the loop's."""

@@ -608,6 +608,10 @@ class Steering:
     checks: tuple[MotionCheck, ...] = ()  # vetoes on a planned motion, in order
     limiter: RequestLimiter = field(default_factory=RequestLimiter)
     world: World | None = None
+    # The stops of the accepted goto S follows (its reply's route) and the mission time S
+    # arrives; None once another request is accepted (see active_route).
+    route: tuple[tuple[float, ...], ...] | None = None
+    route_end: float = 0.0
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
@@ -667,10 +671,17 @@ class Steering:
             motion = replace(brake, then=motion)
             note = "; ".join(filter(None, [f"braking {lead:.2g} s first", note]))
         self.motion = motion
+        self.route, self.route_end = stops, t + span
         self.largest_jump = max(self.largest_jump, jump)
         reply = SteerReply(True, note[:MAX_REASON], span, stops)
         self.records.append(SteeringRecord(t, wall, request.to_dict(), True, note, span))
         return reply
+
+    def active_route(self, t: float) -> tuple[tuple[float, ...], ...] | None:
+        """The stops of the goto S follows at mission time ``t`` (whoever asked for it), None
+        when S follows no route: no goto accepted, another request accepted since, or S
+        arrived."""
+        return self.route if self.route is not None and t < self.route_end else None
 
     def _brake_at(self, t: float, velocity: np.ndarray) -> Brake | None:
         """How S comes to rest before a request at ``t`` takes over: the brake in progress (a

@@ -83,7 +83,7 @@ from typing import Any
 
 from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
 from covswarm.mission.scenarios import BUILTINS, Box, Scenario, check_box
-from covswarm.world.maps import finite_number, read_map, read_regular_file
+from covswarm.world.maps import OccupancyMap, finite_number, read_map, read_regular_file
 from covswarm.world.model import World, make_obstacle
 
 try:
@@ -161,7 +161,7 @@ def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenar
         options["dynamics"] = data["dynamics"]
     if "density" in data:
         options["density_path"] = _keyed("[density]", DensityPath.from_table, data["density"])
-    world = _world(data, base)
+    world, grid = _world(data, base)
     return Scenario(
         name=data["name"],
         motion=_motion_from_dict(
@@ -174,12 +174,13 @@ def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenar
         ),
         initial_box=_keyed("[initial] box", _box, initial["box"]) if "box" in initial else None,
         world=world,
+        map=grid,
         **options,
     )
 
 
-def _world(data: dict[str, Any], base: Path | None) -> World:
-    """The workspace, the ``obstacles`` entries and the ``map``'s pieces."""
+def _world(data: dict[str, Any], base: Path | None) -> tuple[World, OccupancyMap | None]:
+    """The workspace, the ``obstacles`` entries and the ``map``'s pieces; the map (or None)."""
     workspace = _keyed("workspace", _box, data["workspace"]) if "workspace" in data else None
     entries = data.get("obstacles", [])
     if not isinstance(entries, list):
@@ -188,6 +189,7 @@ def _world(data: dict[str, Any], base: Path | None) -> World:
         _keyed("obstacles", make_obstacle, f"obstacle {i + 1}", entry)
         for i, entry in enumerate(entries)
     ]
+    grid = None
     if "map" in data:
         name = data["map"]
         if not isinstance(name, str) or not name:
@@ -197,7 +199,7 @@ def _world(data: dict[str, Any], base: Path | None) -> World:
         obstacles += grid.obstacles()
         if workspace is None:
             workspace = grid.extent
-    return World(workspace, tuple(obstacles))
+    return World(workspace, tuple(obstacles)), grid
 
 
 def _keyed(key: str, build: Callable[..., Any], *args: Any) -> Any:

@@ -16,6 +16,7 @@ from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
 from covswarm.mission.toml_text import toml_float, toml_list, toml_points, toml_str
 from covswarm.tvd.coverage import signed_area
 from covswarm.tvd.density import Density
+from covswarm.world.maps import OccupancyMap
 from covswarm.world.model import World, box_vertices
 from covswarm.world.sweep import SAMPLES, first_contact
 
@@ -50,6 +51,9 @@ class Scenario:
     robot_diameter: float = 0.14  # m, the robots' bodies (Khepera IV): starts and metrics
     density_path: DensityPath | None = None  # None: uniform density
     world: World | None = None  # None: built from workspace and obstacles
+    # The occupancy map the world's pieces came from (a scenario file's ``map``), kept for
+    # its picture (covswarm.world.map_image, drawn by the console); None: no map.
+    map: OccupancyMap | None = None
 
     def __post_init__(self) -> None:
         if not self.name or not isinstance(self.name, str):

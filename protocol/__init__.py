@@ -35,6 +35,7 @@ from covswarm.protocol.keys import (
     steer_key,
     tile_of,
     world_key,
+    world_map_key,
 )
 from covswarm.protocol.messages import (
     DEFAULT_TILE_SIZE,
@@ -52,6 +53,7 @@ from covswarm.protocol.messages import (
     AgentState,
     Beacon,
     Domain,
+    MapImage,
     Message,
     Pose,
     ProtocolError,
@@ -79,6 +81,7 @@ __all__ = [
     "AgentState",
     "Beacon",
     "Domain",
+    "MapImage",
     "Message",
     "Pose",
     "ProtocolError",
@@ -108,6 +111,7 @@ __all__ = [
     "steer_key",
     "tile_of",
     "world_key",
+    "world_map_key",
 ]
 
 

@@ -92,7 +92,7 @@ def access_control(identities: Sequence[dict[str, Any]]) -> dict[str, Any]:
     Rules are per identity (N agents: N subjects and N policies); the router's cost of
     that is measured in docs/security.md.
     """
-    steer = f"{SWARM}/steer"
+    steer, world_map = f"{SWARM}/steer", f"{SWARM}/world/map"
     rules = [
         _rule(READ, ["egress"], READ_MESSAGES, [f"{SWARM}/**"]),
         _rule(
@@ -104,10 +104,14 @@ def access_control(identities: Sequence[dict[str, Any]]) -> dict[str, Any]:
         _rule("steer/ask", ["ingress"], ["query"], [steer]),
         _rule("steer/answer", ["ingress"], ["declare_queryable", "reply"], [steer]),
         _rule("steer/serve", ["egress"], ["query"], [steer]),
+        # The map's picture (protocol.MapImage): asked by consoles, answered by the coordinator.
+        _rule("map/ask", ["ingress"], ["query"], [world_map]),
+        _rule("map/answer", ["ingress"], ["declare_queryable", "reply"], [world_map]),
+        _rule("map/serve", ["egress"], ["query"], [world_map]),
     ]
     coordinator = _writer(
         "coordinator",
-        [f"{SWARM}/domain", f"{SWARM}/status"],
+        [f"{SWARM}/domain", f"{SWARM}/status", f"{SWARM}/world"],
         [f"{SWARM}/alive/coordinator/0", f"{SWARM}/claim/coordinator/0/*"],
     )
     ros2 = ["@ros2_lv/**", *(f"{domain}/**" for domain in ROS2_DOMAINS)]
@@ -118,12 +122,19 @@ def access_control(identities: Sequence[dict[str, Any]]) -> dict[str, Any]:
     rules += coordinator + bridge
     base = [READ, "subscribe"]
     by_role = {
-        "coordinator": [*base, "steer/ask", "steer/answer", "steer/serve"]
+        "coordinator": [
+            *base,
+            "steer/ask",
+            "steer/answer",
+            "steer/serve",
+            "map/answer",
+            "map/serve",
+        ]
         + [r["id"] for r in coordinator],
         "bridge": [*base, "ros2"] + [r["id"] for r in bridge],
         "ros2": ["ros2"],  # ROS 2 nodes: their own keys only, nothing of covswarm
-        "console": [*base, "steer/ask"],
-        "operator": [*base, "steer/ask"],
+        "console": [*base, "steer/ask", "map/ask"],
+        "operator": [*base, "steer/ask", "map/ask"],
     }
     rules.append(_rule("relay", ["ingress", "egress"], ALL_MESSAGES, ["**"]))
     subjects = [{"id": "router", "cert_common_names": ["router"]}]

@@ -103,6 +103,11 @@ def world_key(swarm: str) -> str:
     return f"{_base(swarm)}/world"
 
 
+def world_map_key(swarm: str) -> str:
+    """Console -> coordinator: a query for the occupancy map's picture (a MapImage)."""
+    return f"{_base(swarm)}/world/map"
+
+
 def steer_key(swarm: str) -> str:
     """Client -> coordinator: SteerRequest queries, answered with a SteerReply."""
     return f"{_base(swarm)}/steer"

@@ -10,8 +10,8 @@ a version mismatch between processes; the one exception is an optional field, li
 ``_OPTIONAL``, which is left out of the payload when None and reads back as None when absent:
 Domain's ``density`` joined version 1 that way, so uniform missions send the same bytes as
 before and a peer that does not know densities refuses a Domain carrying one; Domain's
-``tile_size`` and AgentState's ``stats`` (sent once a second), ``vx``/``vy`` and ``relay``
-work the same way), exact types
+``tile_size``, AgentState's ``stats`` (sent once a second), ``vx``/``vy`` and ``relay``, and
+Status's ``route`` work the same way), exact types
 (bool is not a number), finite numbers, ids in 0..MAX_ID, vertex counts in 3..MAX_VERTICES
 and magnitudes within sane bounds. Ints are accepted where floats are expected (other
 languages' encoders drop ``.0``). Geometry (convexity) is not checked here: that is
@@ -550,9 +550,43 @@ class Beacon(Message):
     }
 
 
+MAX_STOPS = 128  # stops of a route in a Status (protocol.steering.MAX_ROUTE in a reply)
+MAX_STOP_SCALE = 100.0  # a stop's scale of S (protocol.steering.MAX_FACTOR)
+
+
+def _stops(value: Any, name: str) -> tuple[tuple[float, ...], ...]:
+    """1..MAX_STOPS stops [x, y, scale] or [x, y, scale, angle]: S's centroid (m, within
+    MAX_COORD), its size relative to S when the route starts (0, MAX_STOP_SCALE] and, when
+    given, its rotation from then (rad, within MAX_ANGLE)."""
+    items = _sequence(value, name)
+    if not 1 <= len(items) <= MAX_STOPS:
+        raise ProtocolError(f"{name}: {len(items)} stops, expected 1..{MAX_STOPS}")
+    coord, scale, angle = _COORD, _positive(MAX_STOP_SCALE), _real(-MAX_ANGLE, MAX_ANGLE)
+    out = []
+    for i, item in enumerate(items):
+        stop = _sequence(item, f"{name}[{i}]")
+        if len(stop) not in (3, 4):
+            raise ProtocolError(
+                f"{name}[{i}]: expected [x, y, scale] or [x, y, scale, angle], "
+                f"got {len(stop)} values"
+            )
+        checked = (
+            coord(stop[0], f"{name}[{i}].x"),
+            coord(stop[1], f"{name}[{i}].y"),
+            scale(stop[2], f"{name}[{i}].scale"),
+        )
+        if len(stop) == 4:
+            checked += (angle(stop[3], f"{name}[{i}].angle"),)
+        out.append(checked)
+    return tuple(out)
+
+
 @dataclass(frozen=True, slots=True)
 class Status(Message):
-    """Coordinator -> all: mission state, aggregate error (None until known), live counts."""
+    """Coordinator -> all: mission state, aggregate error (None until known), live counts,
+    and the route S follows: the stops of the accepted goto being carried out (whoever
+    sent it; SteerReply.route's stops, 3 or 4 numbers each), absent otherwise (optional,
+    so a Status without a route is the same bytes as before)."""
 
     stamp: float
     t: float
@@ -560,6 +594,7 @@ class Status(Message):
     error: float | None
     alive_agents: int
     alive_robots: int
+    route: tuple[tuple[float, ...], ...] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "stamp": _STAMP,
@@ -568,7 +603,9 @@ class Status(Message):
         "error": _optional(_real(0.0, MAX_COORD * MAX_ID)),
         "alive_agents": _int(0, MAX_ID + 1),
         "alive_robots": _int(0, MAX_ID + 1),
+        "route": _optional(_stops),
     }
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"route"})
 
 
 # World: the arena, sent by the coordinator at start and every WORLD_PERIOD s after.
@@ -839,3 +876,92 @@ class World(Message):
             workspace=workspace,
             names=None if names is None else _wire_names(names, len(polygons)),
         )
+
+
+# MapImage: the occupancy map as a picture, the coordinator's answer to a query on
+# protocol.keys.world_map_key (asked once per World by a console).
+MAX_MAP_SIDE = 1024  # pixels a side: a larger map is sent downsampled (world.map_image)
+MAX_MAP_PNG = 1 << 18  # bytes of PNG: a 1-bit 1024 x 1024 image is at most ~130 kB
+MAX_MAP_PAYLOAD = MAX_MAP_PNG + 256
+MAX_MAP_RESOLUTION = 100.0  # m per pixel
+PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+
+
+def png_size(data: bytes) -> tuple[int, int]:
+    """(width, height) in pixels from a PNG's header (its first chunk, IHDR); ProtocolError
+    if ``data`` does not start like a PNG. The pixels are not decoded: the browser does."""
+    if len(data) < 33 or data[:8] != PNG_SIGNATURE or data[12:16] != b"IHDR":
+        raise ProtocolError("png: not a PNG (no signature and IHDR header)")
+    if int.from_bytes(data[8:12], "big") != 13:
+        raise ProtocolError("png: malformed IHDR header")
+    return int.from_bytes(data[16:20], "big"), int.from_bytes(data[20:24], "big")
+
+
+def _png(value: Any, name: str) -> bytes:
+    if not isinstance(value, (bytes, bytearray)):
+        raise ProtocolError(f"{name}: expected bytes, got {type(value).__name__}")
+    if len(value) > MAX_MAP_PNG:
+        raise ProtocolError(f"{name}: {len(value)} bytes, at most {MAX_MAP_PNG}", "oversize")
+    png_size(bytes(value))
+    return bytes(value)
+
+
+def _origin(value: Any, name: str) -> tuple[float, float]:
+    items = _sequence(value, name)
+    if len(items) != 2:
+        raise ProtocolError(f"{name}: expected [x, y], got {len(items)} values")
+    return (_COORD(items[0], f"{name}[0]"), _COORD(items[1], f"{name}[1]"))
+
+
+@dataclass(frozen=True, slots=True)
+class MapImage(Message):
+    """Coordinator -> a console that asked: the scenario's occupancy map as a PNG to draw
+    under the obstacles (the obstacles themselves are the World's).
+
+    seq: the World's seq it belongs to; origin: (x, y) m, the world position of the
+    lower-left corner of the lower-left pixel; resolution: m per pixel (> 0); width,
+    height: pixels, each in 1..MAX_MAP_SIDE, as the PNG's header says; png: the image
+    (row 0 is the TOP of the map, the largest y, as map_server's), at most MAX_MAP_PNG
+    bytes. The map must lie within +-MAX_COORD.
+    """
+
+    seq: int
+    origin: tuple[float, float]
+    resolution: float
+    width: int
+    height: int
+    png: bytes
+
+    _SPEC: ClassVar[dict[str, Checker]] = {
+        "seq": _SEQ,
+        "origin": _origin,
+        "resolution": _positive(MAX_MAP_RESOLUTION),
+        "width": _int(1, MAX_MAP_SIDE),
+        "height": _int(1, MAX_MAP_SIDE),
+        "png": _png,
+    }
+
+    def _check_fields(self) -> None:
+        size = png_size(self.png)
+        if size != (self.width, self.height):
+            raise ProtocolError(
+                f"MapImage: the PNG is {size[0]} x {size[1]} pixels, "
+                f"the message says {self.width} x {self.height}"
+            )
+        x0, y0 = self.origin
+        x1, y1 = x0 + self.width * self.resolution, y0 + self.height * self.resolution
+        if max(abs(x1), abs(y1)) > MAX_COORD:
+            raise ProtocolError(
+                f"MapImage: the map reaches ({x1:g}, {y1:g}), beyond +-{MAX_COORD:g} m"
+            )
+
+    @property
+    def extent(self) -> tuple[float, float, float, float]:
+        """(xmin, xmax, ymin, ymax) m of the whole image."""
+        x0, y0 = self.origin
+        return (x0, x0 + self.width * self.resolution, y0, y0 + self.height * self.resolution)
+
+    @classmethod
+    def decode(cls, payload: Any) -> MapImage:
+        """Parse and validate a payload of at most MAX_MAP_PAYLOAD bytes."""
+        return cls._from_map(_unpack(payload, MAX_MAP_PAYLOAD))

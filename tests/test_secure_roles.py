@@ -212,6 +212,8 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
     owners: dict[str, set[str]] = {
         protocol.domain_key(swarm): {"coordinator"},
         protocol.status_key(swarm): {"coordinator"},
+        protocol.world_key(swarm): {"coordinator"},
+        protocol.world_map_key(swarm): set(),  # a queryable's key: nobody puts there
     }
     for i in range(8):
         agent = {f"agent-{i}"} if i in AGENTS else {"agent-5-7"} if i >= 5 else set()
@@ -245,6 +247,16 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
         )
         assert _allowed(acl, subject, "ingress", "query", steer) == (
             subject in ("coordinator", "console", "operator")
+        )
+        # The map's picture: only the coordinator answers, consoles and operators ask.
+        world_map = protocol.world_map_key(swarm)
+        for message in ("declare_queryable", "reply"):
+            assert _allowed(acl, subject, "ingress", message, world_map) == (
+                subject == "coordinator"
+            ), (subject, message)
+        assert _allowed(acl, subject, "egress", "query", world_map) == (subject == "coordinator")
+        assert _allowed(acl, subject, "ingress", "query", world_map) == (
+            subject in ("console", "operator")
         )
         assert not _allowed(acl, subject, "ingress", "put", "@/router/x")  # nothing outside
         for key in ros2:  # the bridge speaks ROS 2 on its session too
@@ -303,7 +315,7 @@ def test_only_agent_i_commands_robot_i(endpoint: str, creds: Path) -> None:
 @pytest.mark.timeout(60)
 def test_only_the_coordinator_publishes_the_domain_and_status(endpoint: str, creds: Path) -> None:
     swarm = protocol.new_swarm_name()
-    keys = [protocol.domain_key(swarm), protocol.status_key(swarm)]
+    keys = [protocol.domain_key(swarm), protocol.status_key(swarm), protocol.world_key(swarm)]
     with join(endpoint, creds, "agent", 2) as agent:
         inboxes = [Inbox(agent, key) for key in keys]
         for role, i in [("agent", 0), ("operator", None), ("console", None), ("bridge", None)]:
@@ -324,9 +336,11 @@ def test_only_the_coordinator_publishes_the_domain_and_status(endpoint: str, cre
 
 @pytest.mark.e2e
 @pytest.mark.timeout(60)
-def test_a_fake_steering_service_gets_no_queries(endpoint: str, creds: Path) -> None:
+@pytest.mark.parametrize("service", [protocol.steer_key, protocol.world_map_key])
+def test_a_fake_steering_service_gets_no_queries(endpoint: str, creds: Path, service) -> None:
+    """Steering, and the map's picture: only the coordinator is asked."""
     swarm = protocol.new_swarm_name()
-    key = protocol.steer_key(swarm)
+    key = service(swarm)
     asked: dict[str, int] = {"coordinator": 0, "fake": 0}
 
     def answer(name: str):

@@ -1,5 +1,5 @@
 // covswarm operator console: draws the state frames the server pushes over /ws and the arena
-// (GET /api/world: workspace, obstacles), turns drags on S into steering requests and clicks
+// (GET /api/world: workspace, obstacles, and the map's picture, GET /api/map.png), turns drags on S into steering requests and clicks
 // in "Go to" mode into goto requests (POST /api/steer). A drag whose S would touch an
 // obstacle or leave the workspace is drawn red and refused here (the coordinator checks every
 // request again). Plain JS and a canvas, no library: the console must work offline. World
@@ -18,6 +18,7 @@
   let state = null; // latest frame from the server
   let world = null; // the arena (GET /api/world), null before the coordinator sends one
   let worldFetching = false;
+  let mapPicture = null; // the map's picture (GET /api/map.png) once loaded, for world.map
   let gotoMode = false; // "Go to": the next click on the map sends S's centroid there
   let pointer = null; // last pointer position on the map (px), for the goto preview
   const view = { cx: 0, cy: 0, scale: 100, ready: false, moved: false }; // centre (m), px per m; moved: by the operator
@@ -242,8 +243,23 @@
     ctx.fillText(`grid ${step} m`, 8, h - 8);
   }
 
-  // The workspace (outside it shaded), the obstacles (filled; named when they fit on screen;
-  // the map's pieces are obstacles too: the occupancy image itself is not on the wire).
+  // The map's picture (world.map: origin = its lower-left corner, m; resolution, m per
+  // pixel; row 0 of the image is the top, the largest y), pixels kept sharp.
+  function drawMapPicture() {
+    const m = world && world.map;
+    if (!m || !mapPicture || mapPicture.version !== world.version) return false;
+    const [x0, y0] = toScreen([m.origin[0], m.origin[1] + m.height * m.resolution]);
+    const side = m.resolution * view.scale;
+    ctx.save();
+    ctx.imageSmoothingEnabled = false;
+    ctx.globalAlpha = 0.8;
+    ctx.drawImage(mapPicture.image, x0, y0, m.width * side, m.height * side);
+    ctx.restore();
+    return true;
+  }
+
+  // The workspace (outside it shaded), the map's picture, the obstacles (filled, lighter
+  // over a map's picture so that it shows through; named when they fit on screen).
   function drawArena(w, h) {
     const box = world && world.workspace;
     if (box) {
@@ -252,6 +268,9 @@
       ctx.fillRect(0, 0, w, h);
       ctx.clearRect(x0, y0, x1 - x0, y1 - y0);
     }
+    const pictured = drawMapPicture();
+    if (pictured) document.body.dataset.mapDrawn = String(world.version);
+    else delete document.body.dataset.mapDrawn;
     grid(w, h);
     if (!world) return;
     if (box) {
@@ -261,7 +280,7 @@
       ctx.strokeRect(x0, y0, x1 - x0, y1 - y0);
     }
     ctx.lineWidth = 1;
-    ctx.fillStyle = "#9aa5ad";
+    ctx.fillStyle = pictured ? "rgba(154, 165, 173, 0.45)" : "#9aa5ad";
     ctx.strokeStyle = "#4f5b62";
     for (const o of world.obstacles) { path(o.polygon); ctx.fill(); ctx.stroke(); }
     if (world.obstacles.length <= 60) {
@@ -280,14 +299,19 @@
     document.body.dataset.obstaclesDrawn = String(world.obstacles.length);
   }
 
-  // The newest accepted goto's route: S's centroid's stops joined, a dot at each, and S's
-  // outline there (its shape at the start scaled by the stop's scale: S shrinks for doors).
+  // The route S follows (a goto from this page or any other client): S's centroid's stops
+  // joined, a dot at each, and S's outline there (its shape at the start scaled by the
+  // stop's scale, S shrinks for doors, and turned by its angle when the stop has one).
   function drawRoute(route) {
     if (route.shape && route.shape.length >= 3) {
       ctx.setLineDash([2, 4]);
       ctx.lineWidth = 1;
       ctx.strokeStyle = "rgba(142, 68, 173, 0.6)";
-      for (const [x, y, s] of route.waypoints) { path(route.shape.map((p) => [x + s * p[0], y + s * p[1]])); ctx.stroke(); }
+      for (const [x, y, s, a = 0] of route.waypoints) {
+        const k = Math.cos(a), n = Math.sin(a);
+        path(route.shape.map((p) => [x + s * (k * p[0] - n * p[1]), y + s * (n * p[0] + k * p[1])]));
+        ctx.stroke();
+      }
       ctx.setLineDash([]);
     }
     const points = route.waypoints.map(toScreen);
@@ -706,6 +730,7 @@
         const first = world === null;
         world = await response.json();
         if (first) fitWorld();
+        if (world.map) loadMapPicture(world.version);
         draw();
       }
     } catch (err) {
@@ -713,6 +738,15 @@
     } finally {
       worldFetching = false;
     }
+  }
+
+  // The map's picture of arena document ``version`` (the URL names it: no stale cache).
+  function loadMapPicture(version) {
+    const image = new Image();
+    image.onload = () => {
+      if (world && world.version === version) { mapPicture = { image, version }; draw(); }
+    };
+    image.src = `/api/map.png?v=${version}`;
   }
 
   function connect() {
