@@ -19,27 +19,17 @@ import time
 import urllib.error
 import urllib.request
 from collections.abc import Iterator
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import launch, new_swarm, stop_process, swarm_pids, wait_until
-from playwright.sync_api import sync_playwright
+from browser_pages import console
+from live_runs import launch, new_swarm, swarm_pids, wait_until
 
 from covswarm.deploy.plan import covswarm_argv
 
 pytestmark = pytest.mark.e2e
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
 TEAM = 3
 
 
@@ -69,33 +59,6 @@ def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, s
         log.close()
         for pid in swarm_pids(swarm):
             os.kill(pid, signal.SIGKILL)
-
-
-@contextmanager
-def console(endpoint: str, swarm: str, *args: str) -> Iterator[str]:
-    """``covswarm console`` on a free port; yields the URL it printed."""
-    process = subprocess.Popen(
-        [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm, "--port", "0",
-         *args],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True,
-    )  # fmt: skip
-    try:
-        line = process.stdout.readline()
-        assert "http://" in line, f"console printed {line!r}"
-        yield line[line.index("http://") :].strip()
-    finally:
-        stop_process(process)
-
-
-@pytest.fixture(scope="module")
-def browser(require) -> Iterator[object]:
-    require(
-        Path(CHROMIUM).exists(), f"needs Debian's chromium at {CHROMIUM} (apt-get install chromium)"
-    )
-    with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield chromium
-        chromium.close()
 
 
 class DomainWatch:

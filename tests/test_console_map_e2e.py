@@ -17,8 +17,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from browser_pages import COLOUR, console, open_page
 from live_runs import swarm_pids, wait_until
-from test_console_world_e2e import COLOUR, browser, console, open_page  # noqa: F401 (fixture)
 
 from covswarm.deploy.plan import covswarm_argv
 

@@ -21,13 +21,12 @@ import threading
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 
 import numpy as np
 import pytest
 from aiohttp import web
+from browser_pages import COLOUR, VIEWPORT, console, open_page
 from live_runs import swarm_pids, wait_until
-from playwright.sync_api import sync_playwright
 from shapely.geometry import MultiPoint, Polygon
 
 from covswarm.console.model import SwarmView
@@ -37,28 +36,7 @@ from covswarm.protocol import Domain, World
 
 pytestmark = pytest.mark.e2e
 
-CHROMIUM = "/usr/bin/chromium"
-CHROMIUM_ARGS = [
-    "--no-sandbox",
-    "--disable-gpu",
-    "--disable-background-networking",
-    "--disable-component-update",
-    "--disable-sync",
-    "--no-first-run",
-]
-VIEWPORT = {"width": 1100, "height": 700}
 TEAM = 3
-
-
-@pytest.fixture(scope="module")
-def browser(require) -> Iterator[object]:
-    require(
-        Path(CHROMIUM).exists(), f"needs Debian's chromium at {CHROMIUM} (apt-get install chromium)"
-    )
-    with sync_playwright() as p:
-        chromium = p.chromium.launch(executable_path=CHROMIUM, args=CHROMIUM_ARGS)
-        yield chromium
-        chromium.close()
 
 
 # -- the page's contact check, against references -------------------------------------------
@@ -185,26 +163,6 @@ def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, s
             os.kill(pid, signal.SIGKILL)
 
 
-@contextmanager
-def console(endpoint: str, swarm: str) -> Iterator[str]:
-    """``covswarm console`` on a free port; yields the URL it printed."""
-    process = subprocess.Popen(
-        [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm, "--port", "0"],
-        stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, stdin=subprocess.DEVNULL, text=True,
-    )  # fmt: skip
-    try:
-        line = process.stdout.readline()
-        assert "http://" in line, f"console printed {line!r}"
-        yield line[line.index("http://") :].strip()
-    finally:
-        process.terminate()
-        try:
-            process.wait(timeout=10)
-        except subprocess.TimeoutExpired:
-            process.kill()
-            process.wait()
-
-
 class DomainWatch:
     """The test's own Zenoh client: every Domain broadcast (arrival wall time, S)."""
 
@@ -242,28 +200,6 @@ def watch(swarm_run: tuple[str, str]) -> Iterator[DomainWatch]:
 
 def centroid(polygon: np.ndarray) -> np.ndarray:
     return np.array(Polygon(polygon).centroid.coords[0])
-
-
-# Mean colour (r, g, b, 0-255) of a 9 x 9 pixel patch of the map around a world point.
-COLOUR = """([x, y]) => {
-  const map = document.getElementById("map"), box = map.getBoundingClientRect();
-  const [cx, cy] = window.covswarm.clientXY(x, y), dpr = window.devicePixelRatio || 1;
-  const px = Math.round((cx - box.left) * dpr) - 4, py = Math.round((cy - box.top) * dpr) - 4;
-  const data = map.getContext("2d").getImageData(px, py, 9, 9).data, sum = [0, 0, 0];
-  for (let i = 0; i < data.length; i += 4) for (let c = 0; c < 3; c++) sum[c] += data[i + c];
-  return sum.map((s) => s / (data.length / 4));
-}"""
-
-
-def open_page(browser, url: str):
-    page = browser.new_page(viewport=VIEWPORT)
-    page.goto(url)
-    page.wait_for_function(
-        "window.covswarm.world() !== null && window.covswarm.state() !== null"
-        " && window.covswarm.state().polygon.length >= 3",
-        timeout=20000,
-    )
-    return page
 
 
 def test_the_arena_is_drawn_and_a_drag_into_an_obstacle_turns_red_and_is_refused(

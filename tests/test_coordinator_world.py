@@ -5,63 +5,21 @@ requester's rate limit, and summary.json's arena keys and domain.csv."""
 from __future__ import annotations
 
 import json
-from functools import cache
 from pathlib import Path
 
 import numpy as np
 import pytest
+from warehouse_core import SWARM, WALL0, join, make_core, run_until_started, steer, warehouse
 
 from covswarm.coordinator.core import (
     WAITING,
     WORLD_PERIOD,
-    CoordinatorCore,
-    CoordinatorSettings,
     PublishWorld,
-    ReplySteer,
 )
 from covswarm.coordinator.outputs import build_summary, run_goals, write_run_outputs
-from covswarm.mission.scenario_files import load_scenario
-from covswarm.mission.scenarios import Scenario
-from covswarm.protocol import AgentState, Pose, World, alive_key, pose_key
-from covswarm.protocol.steering import SteerReply, SteerRequest
+from covswarm.protocol import AgentState, Pose, World, pose_key
+from covswarm.protocol.steering import SteerRequest
 from covswarm.world.wire import from_message
-
-SWARM = "world-test"
-WALL0 = 1.7e9
-
-
-@cache
-def warehouse() -> Scenario:
-    return load_scenario("warehouse")
-
-
-def make_core(agents: int = 3, duration: float = 60.0) -> CoordinatorCore:
-    settings = CoordinatorSettings(
-        scenario=warehouse(), swarm=SWARM, agents=agents, duration=duration, kappa=2.0,
-        rate=20.0, sample_rate=10.0, feedforward=True, tile_size=0.5,
-    )  # fmt: skip
-    return CoordinatorCore(settings, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0)
-
-
-def join(core: CoordinatorCore, ids, now: float = 0.0) -> None:
-    for i in ids:
-        for role in ("robot", "agent"):
-            core.on_liveliness(alive_key(SWARM, role, i), True, now, WALL0 + now)
-
-
-def run_until_started(core: CoordinatorCore) -> float:
-    join(core, range(core.settings.agents))
-    now = 0.0
-    while core.phase.state == WAITING:
-        core.tick(now, WALL0 + now)
-        now = round(now + 0.05, 10)
-    return now - 0.05
-
-
-def steer(core: CoordinatorCore, request: SteerRequest, now: float, who: str | None = None):
-    (reply,) = [a for a in core.on_steer(request.encode(), now, WALL0 + now, who) if
-                isinstance(a, ReplySteer)]  # fmt: skip
-    return SteerReply.decode(reply.payload)
 
 
 def test_the_world_is_broadcast_before_the_start_and_every_second() -> None:

@@ -10,7 +10,7 @@ import random
 
 import msgpack
 import pytest
-from test_coordinator_world import make_core, run_until_started, steer
+from warehouse_core import make_core, run_until_started, steer
 
 from covswarm.coordinator.core import PublishStatus
 from covswarm.protocol import MAX_PAYLOAD, ProtocolError, Status
