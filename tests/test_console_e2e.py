@@ -9,10 +9,8 @@ own (the Domain broadcasts), what the robots do from their poses.
 from __future__ import annotations
 
 import json
-import os
 import secrets
 import shutil
-import signal
 import socket
 import subprocess
 import time
@@ -24,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from browser_pages import console
-from live_runs import launch, new_swarm, swarm_pids, wait_until
+from live_runs import launch, mission_started, new_swarm, wait_until
 
 from covswarm.deploy.plan import covswarm_argv
 
@@ -36,29 +34,10 @@ TEAM = 3
 @pytest.fixture(scope="module")
 def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """(endpoint, swarm) of a running mission; everything of it killed at the end."""
-    swarm = f"e2e-{secrets.token_hex(4)}"
-    out = tmp_path_factory.mktemp("console") / "run"
-    log = (out.parent / "launcher.log").open("wb")
-    launcher = subprocess.Popen(
-        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm,
-         "--agents", str(TEAM), "--scenario", "passage", "--duration", "300"],
-        stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
-    try:
-        coordinator_log = out / "logs" / "coordinator-0.log"
-        started = wait_until(
-            lambda: coordinator_log.exists() and "mission started" in coordinator_log.read_text(),
-            timeout=90,
-        )
-        assert started, (out.parent / "launcher.log").read_text()
-        endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
-        yield endpoint, swarm
-    finally:
-        launcher.kill()
-        launcher.wait()
-        log.close()
-        for pid in swarm_pids(swarm):
-            os.kill(pid, signal.SIGKILL)
+    swarm, out = new_swarm(), tmp_path_factory.mktemp("console") / "run"
+    args = ("--agents", str(TEAM), "--scenario", "passage", "--duration", "300")
+    with launch(out, *args, swarm=swarm) as run:
+        yield mission_started(run, out), swarm
 
 
 class DomainWatch:

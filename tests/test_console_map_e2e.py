@@ -6,11 +6,7 @@ steer --goto``, real processes over Zenoh on loopback, no mocks.
 
 from __future__ import annotations
 
-import json
-import os
 import re
-import secrets
-import signal
 import subprocess
 from collections.abc import Iterator
 from pathlib import Path
@@ -18,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from browser_pages import COLOUR, console, open_page
-from live_runs import swarm_pids, wait_until
+from live_runs import launch, mission_started, new_swarm
 
 from covswarm.deploy.plan import covswarm_argv
 
@@ -36,28 +32,10 @@ GOAL = (2.6, -0.6)  # in the right room: the route shrinks S through the door
 @pytest.fixture(scope="module")
 def lab_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """(endpoint, swarm) of a running lab-route mission; everything of it killed at the end."""
-    swarm = f"e2e-{secrets.token_hex(4)}"
-    out = tmp_path_factory.mktemp("console-map") / "run"
-    log = (out.parent / "launcher.log").open("wb")
-    launcher = subprocess.Popen(
-        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm,
-         "--agents", str(TEAM), "--scenario", str(LAB), "--duration", "300"],
-        stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
-    try:
-        coordinator_log = out / "logs" / "coordinator-0.log"
-        started = wait_until(
-            lambda: coordinator_log.exists() and "mission started" in coordinator_log.read_text(),
-            timeout=90,
-        )
-        assert started, (out.parent / "launcher.log").read_text()
-        yield json.loads((out / "launch.json").read_text())["endpoint"], swarm
-    finally:
-        launcher.kill()
-        launcher.wait()
-        log.close()
-        for pid in swarm_pids(swarm):
-            os.kill(pid, signal.SIGKILL)
+    swarm, out = new_swarm(), tmp_path_factory.mktemp("console-map") / "run"
+    args = ("--agents", str(TEAM), "--scenario", str(LAB), "--duration", "300")
+    with launch(out, *args, swarm=swarm) as run:
+        yield mission_started(run, out), swarm
 
 
 def test_the_map_picture_and_another_clients_route_are_drawn(lab_run, browser) -> None:  # noqa: F811

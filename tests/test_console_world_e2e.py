@@ -11,12 +11,7 @@ Zenoh session reading the coordinator's Domain broadcasts.
 from __future__ import annotations
 
 import asyncio
-import json
-import os
 import queue
-import secrets
-import signal
-import subprocess
 import threading
 import time
 from collections.abc import Iterator
@@ -26,12 +21,11 @@ import numpy as np
 import pytest
 from aiohttp import web
 from browser_pages import COLOUR, VIEWPORT, console, open_page
-from live_runs import swarm_pids, wait_until
+from live_runs import launch, mission_started, new_swarm, wait_until
 from shapely.geometry import MultiPoint, Polygon
 
 from covswarm.console.model import SwarmView
 from covswarm.console.server import Console
-from covswarm.deploy.plan import covswarm_argv
 from covswarm.protocol import Domain, World
 
 pytestmark = pytest.mark.e2e
@@ -139,28 +133,10 @@ def test_the_pages_contact_check_agrees_with_shapely_and_the_world_model(browser
 @pytest.fixture(scope="module")
 def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """(endpoint, swarm) of a running ``live`` mission; everything of it killed at the end."""
-    swarm = f"e2e-{secrets.token_hex(4)}"
-    out = tmp_path_factory.mktemp("console-world") / "run"
-    log = (out.parent / "launcher.log").open("wb")
-    launcher = subprocess.Popen(
-        [*covswarm_argv(), "run", "--out", str(out), "--swarm", swarm,
-         "--agents", str(TEAM), "--scenario", "live", "--duration", "300"],
-        stdout=log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
-    )  # fmt: skip
-    try:
-        coordinator_log = out / "logs" / "coordinator-0.log"
-        started = wait_until(
-            lambda: coordinator_log.exists() and "mission started" in coordinator_log.read_text(),
-            timeout=90,
-        )
-        assert started, (out.parent / "launcher.log").read_text()
-        yield json.loads((out / "launch.json").read_text())["endpoint"], swarm
-    finally:
-        launcher.kill()
-        launcher.wait()
-        log.close()
-        for pid in swarm_pids(swarm):
-            os.kill(pid, signal.SIGKILL)
+    swarm, out = new_swarm(), tmp_path_factory.mktemp("console-world") / "run"
+    args = ("--agents", str(TEAM), "--scenario", "live", "--duration", "300")
+    with launch(out, *args, swarm=swarm) as run:
+        yield mission_started(run, out), swarm
 
 
 class DomainWatch:
