@@ -327,6 +327,7 @@ class CoordinatorCore:
         self._next_status: float | None = None
         self._done_since: float | None = None
         self._wall = 0.0  # the latest wall time handed in (stamps between ticks)
+        self._now = 0.0  # the latest clock handed in (what arrives between ticks)
         self._team: frozenset[int] = frozenset()  # the team at the last tick
 
     # -- inputs ---------------------------------------------------------------------------
@@ -356,7 +357,8 @@ class CoordinatorCore:
         except ValueError:
             obs.rejected += 1
             return
-        if not self.roster.admit_token(role, ident):  # not of the team: counted, not tracked
+        if not self.roster.admit_token(role, ident, alive):  # not of the team: counted
+            self._enter_newcomers(now, wall)
             return
         # Tokens vanishing after "done" are processes shutting down, not failures.
         if self.phase.state == DONE and not alive:
@@ -366,6 +368,12 @@ class CoordinatorCore:
         if event is not None and not alive:
             when = "before the start" if t is None else f"at t = {t:.1f} s"
             log.warning("%s %d lost its liveliness token %s", role, ident, when)
+
+    def _enter_newcomers(self, now: float, wall: float) -> None:
+        """Enter the tokens of newcomers the roster just admitted in the liveness."""
+        for role, ident in self.roster.take_admitted():
+            self.observed.liveness.update(role, ident, True, wall, self._mission_t(now))
+            log.warning("%s %d joined the team (a newcomer)", role, ident)
 
     def _note_team_change(self, now: float, wall: float) -> None:
         """One TeamChange for every liveliness change since the last tick that changed the
@@ -413,6 +421,8 @@ class CoordinatorCore:
         except ProtocolError:
             self.observed.rejected += 1
             return
+        self.roster.vouch(state.id, state.neighbors)
+        self._enter_newcomers(self._now, self._wall)
         if not self.roster.admit_state(state.id):
             return
         if state.stats is not None:
@@ -472,7 +482,7 @@ class CoordinatorCore:
         ``stopping``: the operator interrupted; the mission ends now (done if running).
         """
         settings, phase = self.settings, self.phase
-        self._wall = wall
+        self._wall, self._now = wall, now
         self._note_team_change(now, wall)
         if stopping:
             phase.stop(now)

@@ -6,9 +6,14 @@ and 2930 phantom ids ended in trajectories.csv, ``team_changes`` and ``lost_proc
 The launcher knows the team: ids 0..N-1 (``covswarm run --agents N``; every host of a
 multi-host run uses the same N). :class:`Roster` admits only those ids, and of poses only
 those of a robot whose agent has held a token at some point (before that it is no team
-member yet; recording starts when the team is up, so a real robot is never cut). Anything
-else is *unexpected*: counted per kind and reported (the first ids seen, and how many
-distinct), never recorded as a team member.
+member yet; recording starts when the team is up, so a real robot is never cut). A robot
+that joins later under another id (a newcomer: ``covswarm robot`` and ``covswarm agent``
+started by hand) is admitted once its robot and its agent both hold their tokens and an
+agent of the team names it as a Voronoi neighbour in its AgentState: the team's own
+brains have found it where it says it is, which forged tokens, poses and states alone do
+not achieve. Anything else is *unexpected*: counted per kind
+and reported (the first ids seen, and how many distinct), never recorded as a team
+member.
 
 In open mode an attacker can still forge an expected id; only secure mode's access
 control (issue 21, item 1) stops that.
@@ -36,7 +41,14 @@ class Roster:
             raise ValueError("Roster: the expected team is empty")
         self.counts: dict[str, int] = dict.fromkeys(KINDS, 0)
         self._ids: dict[int, None] = {}  # distinct unexpected ids, in order of arrival
-        self.confirmed: set[int] = set()  # expected ids whose agent has held a token
+        self.confirmed: set[int] = set()  # admitted ids whose agent has held a token
+        self.newcomers: set[int] = set()  # ids beyond the expected ones, admitted later
+        # Unexpected ids: the roles whose token each holds now, and whether an agent of the
+        # team named it as a neighbour; and what each was counted as (undone when admitted).
+        self._held: dict[int, set[str]] = {}
+        self._vouched: set[int] = set()
+        self._counted: dict[int, list[str]] = {}
+        self._promoted: list[tuple[str, int]] = []
 
     @classmethod
     def of_size(cls, agents: int) -> Roster:
@@ -49,18 +61,48 @@ class Roster:
         self.counts[kind] = self.counts.get(kind, 0) + 1
         if rid not in self._ids and len(self._ids) < MAX_TRACKED_IDS:
             self._ids[rid] = None
+        if rid in self._held and kind != "pose":
+            self._counted.setdefault(rid, []).append(kind)
         return False
 
-    def admit_token(self, role: str, rid: int) -> bool:
-        """Whether a liveliness change of ``role``'s token for ``rid`` concerns the team
-        (call before Liveness.update: a refused one changes no count, no team and no
-        lost-process record). An agent token's appearance confirms its robot's poses."""
-        if rid not in self.expected:
+    @property
+    def admitted(self) -> frozenset[int]:
+        """The ids that may be team members: the expected ones and admitted newcomers."""
+        return self.expected | self.newcomers
+
+    def admit_token(self, role: str, rid: int, alive: bool = True) -> bool:
+        """Whether a liveliness change of ``role``'s token for ``rid`` (appeared when
+        ``alive``) concerns the team (call before Liveness.update: a refused one changes no
+        count, no team and no lost-process record). An agent token's appearance confirms
+        its robot's poses. A newcomer admitted by it: :meth:`take_admitted`."""
+        if rid not in self.admitted:
+            if len(self._held) < MAX_TRACKED_IDS or rid in self._held:
+                held = self._held.setdefault(rid, set())
+                (held.add if alive else held.discard)(role)
             kind = f"token_{role}" if f"token_{role}" in self.counts else "token_other"
-            return self._unexpected(kind, rid)
-        if role == "agent":
+            self._unexpected(kind, rid)
+            self._admit_newcomer(rid)
+            return False
+        if role == "agent" and alive:
             self.confirmed.add(rid)
         return True
+
+    def _admit_newcomer(self, rid: int) -> None:
+        if {"agent", "robot"} <= self._held.get(rid, set()) and rid in self._vouched:
+            self.newcomers.add(rid)
+            self.confirmed.add(rid)
+            for kind in self._counted.pop(rid, []):  # not unexpected after all
+                self.counts[kind] -= 1
+            self._ids.pop(rid, None)
+            self._held.pop(rid)
+            self._vouched.discard(rid)
+            self._promoted += [("robot", rid), ("agent", rid)]
+
+    def take_admitted(self) -> list[tuple[str, int]]:
+        """The (role, id) tokens, alive now, of the newcomers admitted since the last call:
+        the caller enters them in its Liveness (their tokens were refused until then)."""
+        promoted, self._promoted = self._promoted, []
+        return promoted
 
     def admit_pose(self, rid: int) -> bool:
         """Whether a pose of robot ``rid`` may enter e_a and the records: an expected id
@@ -70,8 +112,18 @@ class Roster:
         return self._unexpected("pose", rid)
 
     def admit_state(self, rid: int) -> bool:
-        """Whether an AgentState (its stats) of ``rid`` counts: an expected id."""
-        return rid in self.expected or self._unexpected("state", rid)
+        """Whether an AgentState (its stats) of ``rid`` counts: an admitted id."""
+        return rid in self.admitted or self._unexpected("state", rid)
+
+    def vouch(self, rid: int, neighbors: Iterable[int]) -> None:
+        """Agent ``rid``'s AgentState names ``neighbors``: if ``rid`` is admitted, each of
+        them that holds tokens is vouched for (see :meth:`admit_token`)."""
+        if rid not in self.admitted:
+            return
+        for other in neighbors:
+            if other in self._held:
+                self._vouched.add(other)
+                self._admit_newcomer(other)
 
     def admit_observations(self, observations: np.ndarray) -> np.ndarray:
         """The rows of ``observations`` ((n, k) array, robot id in column 0: the
@@ -81,9 +133,9 @@ class Roster:
         return rows[keep]
 
     def members(self, alive: Mapping[str, set[int]]) -> frozenset[int]:
-        """The team now: expected ids whose robot and agent both hold a token
+        """The team now: admitted ids whose robot and agent both hold a token
         (monitor.team_of, restricted to the roster)."""
-        return frozenset(alive.get("robot", set()) & alive.get("agent", set()) & self.expected)
+        return frozenset(alive.get("robot", set()) & alive.get("agent", set()) & self.admitted)
 
     @property
     def total(self) -> int:

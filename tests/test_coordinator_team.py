@@ -69,3 +69,31 @@ def test_distinct_ids_are_bounded_and_bad_rosters_refused() -> None:
         Roster([])
     with pytest.raises(ValueError, match="Roster"):
         Roster.of_size(0)
+
+
+def test_a_newcomer_is_admitted_once_its_tokens_are_held_and_the_team_names_it() -> None:
+    """A robot joining under an id beyond the team (``covswarm robot`` and ``covswarm
+    agent`` started by hand) becomes a member when both its tokens are held and an agent
+    of the team names it as a neighbour; tokens, poses and its own states alone do not."""
+    roster, liveness = Roster.of_size(2), Liveness()
+    feed_tokens(roster, liveness, [(r, i, True) for i in range(2) for r in ("agent", "robot")])
+    assert not roster.admit_token("robot", 7) and not roster.admit_state(7)
+    roster.vouch(0, [1, 7])  # named, but its agent holds no token yet
+    assert not roster.take_admitted() and not roster.admit_pose(7)
+    assert not roster.admit_token("robot", 8) and not roster.admit_token("agent", 8)
+    roster.vouch(8, [8])  # a phantom vouching for itself
+    roster.vouch(9, [8])  # or for another, from an id that is no member
+    assert not roster.take_admitted()
+    assert not roster.admit_token("agent", 7)  # both tokens, and named before: admitted
+    admitted = roster.take_admitted()
+    assert sorted(admitted) == [("agent", 7), ("robot", 7)] and not roster.take_admitted()
+    for role, rid in admitted:
+        liveness.update(role, rid, True, WALL, 1.0)
+    assert roster.members(liveness.alive) == frozenset({0, 1, 7})
+    assert roster.admit_pose(7) and roster.admit_state(7) and roster.admit_token("robot", 7)
+    summary = roster.summary()
+    assert summary["first_ids"] == [8]
+    assert summary["counts"] == {"token_agent": 1, "token_robot": 1, "pose": 1}
+    # A member once, it is one for good: its robot's loss is a lost process.
+    feed_tokens(roster, liveness, [("robot", 7, False)])
+    assert [e["id"] for e in losses_summary(liveness.events)] == [7]
