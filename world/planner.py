@@ -72,8 +72,8 @@ CLEARANCE = 1e-3
 _SWEEP_SAMPLES = 16
 # Samples per cell along a shortcut checked on the grid.
 _SHORTCUT_SAMPLES = 4
-# S turns (module docstring, "Turning") when the route that keeps its orientation needs it
-# smaller than ROTATE_BELOW of its size, or finds no way at all; by steps of 180 degrees /
+# S turns (module docstring, "Turning") when no way keeping its orientation lets it stay
+# larger than ROTATE_BELOW of its size, or there is no such way at all; by steps of 180 degrees /
 # TURNS_PER_HALF, a step in place costing ROTATE_COST times the farthest vertex's arc (m).
 ROTATE_BELOW = 0.5
 TURNS_PER_HALF = 4
@@ -219,7 +219,9 @@ def plan_route(
                 raise
             refusal = exc
     best = fixed
-    if rotate and (fixed is None or min(scale for _, scale, _ in fixed[0]) < ROTATE_BELOW):
+    if rotate and (
+        fixed is None or fixed[1].scales[_bottleneck(fixed[1], c0, target)] < ROTATE_BELOW
+    ):
         turn = math.pi / TURNS_PER_HALF  # S turns where that lets it stay larger
         period = math.pi if _symmetric(shape) else 2.0 * math.pi
         for h in tries if fixed is None else [fixed[1].h]:
@@ -523,9 +525,10 @@ def _rasterise(world: World, origin: np.ndarray, h: float, shape: tuple[int, int
 
 
 def _bottleneck(grid: _Grid, c0: np.ndarray, goal: np.ndarray) -> int:
-    """The least level index (largest scale) at which S, turning where it must, joins its
-    cell to the goal's through cells and turns free at that scale (bisection: a way free
-    at one scale is free at every smaller one); NoPath when none does."""
+    """The least level index (largest scale) at which S, turning where it must (if the grid
+    has turning layers), joins its cell to the goal's through cells and turns free at that
+    scale (bisection: a way free at one scale is free at every smaller one); NoPath when
+    none does."""
     start, end = grid.cell(c0), grid.cell(goal)
     _, nx, ny = grid.cap.shape
     if not (0 <= end[0] < nx and 0 <= end[1] < ny):
@@ -540,15 +543,13 @@ def _bottleneck(grid: _Grid, c0: np.ndarray, goal: np.ndarray) -> int:
             labels[o], count = ndimage.label(free[o], structure=eight)
             labels[o][free[o]] += offset
             offset += count
-        rows, cols = [], []
-        for o in range(n):
+        rows, cols = [np.zeros(0, dtype=int)], [np.zeros(0, dtype=int)]
+        for o in range(n if len(grid.cap) > 1 else 0):  # none without turns
             turns = free[o] & free[(o + 1) % n] & free[n + o]
             rows.append(labels[o][turns])
             cols.append(labels[(o + 1) % n][turns])
-        graph = coo_matrix(
-            (np.ones(sum(len(r) for r in rows)), (np.concatenate(rows), np.concatenate(cols))),
-            shape=(offset + 1, offset + 1),
-        )
+        rows, cols = np.concatenate(rows), np.concatenate(cols)
+        graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(offset + 1, offset + 1))
         _, component = connected_components(graph, directed=False)
         a, b = labels[(0, *start)], labels[(0, *end)]
         return a > 0 and b > 0 and component[a] == component[b]
