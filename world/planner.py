@@ -209,34 +209,34 @@ def plan_route(
         raise ValueError(f"resolution must be positive, got {resolution!r}")
     tries = [resolution] if resolution is not None else _cells(world, start, final, scales)
     rate = 1.0 / float(np.linalg.norm(shape, axis=1).max())
-    fixed = refusal = None
-    for h in tries:  # S keeps its orientation
+    turn = math.pi / TURNS_PER_HALF  # S turns where that lets it stay larger
+    period = math.pi if _symmetric(shape) else 2.0 * math.pi
+    best = refusal = None
+    # Each grid in turn: S keeping its orientation, then turning if that found no way or
+    # none keeping S above ROTATE_BELOW (before a finer grid: a turn may spare it).
+    for h in tries:
+        fixed = None
         try:
             fixed = _plan_at(world, shape, c0, target, final, scales, h, rate, turn=None)
-            break
         except NoPath as exc:
             if exc.code != "too-narrow":
                 raise
             refusal = exc
-    best = fixed
-    if rotate and (
-        fixed is None or fixed[1].scales[_bottleneck(fixed[1], c0, target)] < ROTATE_BELOW
-    ):
-        turn = math.pi / TURNS_PER_HALF  # S turns where that lets it stay larger
-        period = math.pi if _symmetric(shape) else 2.0 * math.pi
-        for h in tries if fixed is None else [fixed[1].h]:
+        best = fixed
+        if rotate and (fixed is None or fixed[2] < ROTATE_BELOW):
             try:
                 turning = _plan_at(world, shape, c0, target, final, scales, h, rate, turn, period)
+                least = min(scale for _, scale, _ in turning[0])
+                if fixed is None or least > min(scale for _, scale, _ in fixed[0]) + 1e-9:
+                    best = turning
             except NoPath:
-                continue
-            least = min(scale for _, scale, _ in turning[0])
-            if fixed is None or least > min(scale for _, scale, _ in fixed[0]) + 1e-9:
-                best = turning
+                pass
+        if best is not None:
             break
     if best is None:
         assert refusal is not None
         raise refusal
-    states, grid = best
+    states, grid, _ = best
     polygons, turns, kept, length = _shortcut(world, grid, shape, states, final)
     holds = [0.0] * (len(polygons) - 1) + [hold]
     # The path verified above.
@@ -261,11 +261,13 @@ def _plan_at(
     rate: float,
     turn: float | None,
     period: float = 2.0 * math.pi,
-) -> tuple[list[State], _Grid]:
+) -> tuple[list[State], _Grid, float]:
     """The grid path's states on a grid of cell h (m): S keeping its orientation (turn None)
-    or turning by steps of ``turn`` rad (orientations k turn, k < period / turn). NoPath."""
+    or turning by steps of ``turn`` rad (orientations k turn, k < period / turn), the grid
+    and the largest scale at which any way joins S to the goal there. NoPath."""
     if turn is None:
         grid = _certify(world, [shape], c0, final, scales, h)
+        level = _bottleneck(grid, c0, target)  # NoPath before a search through it all
         cells = _search(grid, c0, target, len(scales) - 1, 0.0)
     else:
         count = round(period / turn)
@@ -276,7 +278,7 @@ def _plan_at(
         level = _bottleneck(grid, c0, target)
         radius = float(np.linalg.norm(shape, axis=1).max())
         cells = _search(grid, c0, target, level, ROTATE_COST * radius * turn)
-    return _states(grid, cells, c0, target, rate, turn or 0.0), grid
+    return _states(grid, cells, c0, target, rate, turn or 0.0), grid, float(scales[level])
 
 
 def plan_tour(
