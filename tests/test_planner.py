@@ -257,7 +257,7 @@ def test_plan_time_script_reports_json() -> None:
     )
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
-    for family in ("random", "doors"):
+    for family in ("random", "doors", "turns"):  # turns: S must turn at each door
         assert report[family]["routes"] == 1
         assert report[family]["p50_ms"] > 0.0
 
@@ -480,3 +480,20 @@ def test_a_gap_narrower_than_the_least_s_upright_is_refused() -> None:
         plan_route(world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED)
     assert caught.value.code == "too-narrow"
     assert not turning_reference(boxes, polygon, goal)
+
+
+def test_an_asymmetric_s_turns_through_the_corridor_and_back() -> None:
+    """A thin trapezoid (no central symmetry: 8 orientations over a whole turn) passes the
+    0.8 m corridor turned, and ends as it started, vertex for vertex."""
+    workspace = (-3.0, 3.0, -4.0, 4.0)
+    boxes = [[-3.0, -0.4, -1.0, 1.0], [0.4, 3.0, -1.0, 1.0]]
+    world = World.from_boxes_and_polygons(workspace, boxes)
+    trapezoid = np.array([[-1.2, -0.3], [1.2, -0.2], [1.2, 0.2], [-1.2, 0.3]])
+    shape = trapezoid - np.array(shapely.Polygon(trapezoid).centroid.coords[0])
+    polygon, goal = shape + [-1.5, -2.8], np.array([1.5, 2.8])
+    route = plan_route(
+        world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
+    )
+    check_turning_route(route, world, boxes, shape + goal)
+    assert any(route.motion.turns) and all(w.scale == 1.0 for w in route.waypoints)
+    np.testing.assert_allclose(route.motion(route.motion.end)[0], shape + goal, atol=1e-9)

@@ -1,8 +1,8 @@
 """Routes for S through free space: translate with clearance, shrink through doors, grow back.
 
 The planner searches over the centroid c and the scale s of S(c, s) = c + s (P - c_P), the
-current polygon P scaled about its centroid (no rotation: S keeps its orientation; a door
-that only a turned S could pass is not found). Scales run geometrically from 1 down to
+current polygon P scaled about its centroid, and where that helps over S's orientation too
+("Turning" below). Scales run geometrically from 1 down to
 s_min = max(sqrt(min_area / area(P)), min_width / width(P)), the least S the team may
 take, so the plan never asks for an S the steering would call too small.
 
@@ -36,6 +36,23 @@ covswarm.world.sweep.first_contact (a shortcut that touches is split at the midd
 run it replaced, and verified again); a route that fails verification is never returned.
 S stops (zero velocity and acceleration) at every waypoint: the route's segments are
 chained quintics.
+
+Turning. When no way keeping S's orientation lets it stay above ROTATE_BELOW of its size
+(the largest scale at which the fixed grid joins S to the goal), or there is none, the
+same grid is certified for S turned by k 45 degrees (TURNS_PER_HALF per half turn: 4
+orientations for a centrally symmetric S, for which a half turn changes nothing, else 8),
+and for the set S sweeps turning from one to the next about its centroid: the convex hull
+of _TURN_SAMPLES + 1 turned copies pushed out by 1 / cos(half the angle between them),
+which holds every arc a vertex describes (so the sweep is certified, not sampled), and
+which nests under scaling like S. The search first finds the largest scale at which any
+way joins S to the goal (bisection over the levels; labels of each orientation's free
+cells joined where a turn is free), then runs Dijkstra over the cells free at that scale
+in every orientation, a turn in place between neighbouring orientations costing
+ROTATE_COST times the farthest vertex's arc, so S turns only where it needs to. The
+route ends as S was (orientation 0) and is used when S stays larger along it than along
+the fixed-orientation route. Turns are in place (shortcuts join turns in one place, never
+a turn with a move) and verified, like every segment, with first_contact on the actual
+turning motion (RouteMotion's turns: angle, scale and centroid on one quintic).
 """
 
 from __future__ import annotations
