@@ -497,3 +497,22 @@ def test_an_asymmetric_s_turns_through_the_corridor_and_back() -> None:
     check_turning_route(route, world, boxes, shape + goal)
     assert any(route.motion.turns) and all(w.scale == 1.0 for w in route.waypoints)
     np.testing.assert_allclose(route.motion(route.motion.end)[0], shape + goal, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_turn_sweep_holds_s_at_every_angle_of_the_turn(seed: int) -> None:
+    """_turn_hull (the certified sweep of a 45 degree turn) contains S turned by every
+    angle in between (shapely at 1000 angles), random convex S."""
+    from covswarm.world.planner import _turn_hull
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1.0, 1.0, (12, 2)) * [1.5, 0.4]
+    hull = shapely.MultiPoint(points).convex_hull
+    q = np.array(hull.exterior.coords[:-1]) - np.array(hull.centroid.coords[0])
+    start = rng.uniform(0.0, 2.0 * math.pi)
+    sweep = shapely.Polygon(_turn_hull(q, start, math.pi / 4))
+    assert sweep.is_valid and sweep.exterior.is_ccw
+    for a in np.linspace(start, start + math.pi / 4, 1000):
+        c, s = math.cos(a), math.sin(a)
+        turned = shapely.Polygon(q @ np.array([[c, -s], [s, c]]).T)
+        assert sweep.buffer(1e-12).contains(turned)
