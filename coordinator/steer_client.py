@@ -240,8 +240,13 @@ def steer_command(
     note = f" ({reply.reason})" if reply.reason else ""
     click.echo(f"accepted: {request.describe()}, {reply.duration:.2f} s{note}")
     if reply.route is not None:
-        stops = " -> ".join(
-            f"({x:.3f}, {y:.3f}) x{s:.2f}" + "".join(f" {math.degrees(a):+.0f} deg" for a in turn)
-            for x, y, s, *turn in reply.route
-        )
-        click.echo(f"route: {stops}")
+        click.echo(f"route: {describe_route(reply.route)}")
+
+
+def describe_route(route: Sequence[Sequence[float]]) -> str:
+    """A goto's stops (SteerReply.route) in one line: "(x, y) xscale", and the angle S is
+    turned by in degrees where a stop carries one."""
+    return " -> ".join(
+        f"({x:.3f}, {y:.3f}) x{s:.2f}" + "".join(f" {math.degrees(a):+.0f} deg" for a in turn)
+        for x, y, s, *turn in route
+    )
