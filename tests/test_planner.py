@@ -478,7 +478,7 @@ def test_a_gap_narrower_than_the_least_s_upright_is_refused() -> None:
     polygon, goal = STICK + [0.0, -1.6], np.array([0.0, 1.6])
     with pytest.raises(NoPath) as caught:
         plan_route(world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED)
-    assert caught.value.code == "too-narrow"
+    assert caught.value.code == "too-narrow" and "turning S opens none" in caught.value.why
     assert not turning_reference(boxes, polygon, goal)
 
 

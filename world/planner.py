@@ -252,6 +252,8 @@ def plan_route(
             break
     if best is None:
         assert refusal is not None
+        if rotate:
+            raise NoPath(refusal.code, f"{refusal.why}; turning S opens none either")
         raise refusal
     states, grid, _ = best
     polygons, turns, kept, length = _shortcut(world, grid, shape, states, final)
