@@ -235,12 +235,11 @@ def plan_route(
         fixed = None
         try:
             fixed = _plan_at(world, shape, c0, target, final, scales, h, rate, turn=None)
-        except NoPath as exc:
-            if exc.code != "too-narrow":
-                raise
+        except NoPath as exc:  # a finer grid may find one (an opening under a cell)
             refusal = exc
         best = fixed
-        if rotate and (fixed is None or fixed[2] < ROTATE_BELOW):
+        narrow = fixed is None and refusal is not None and refusal.code == "too-narrow"
+        if rotate and (narrow or (fixed is not None and fixed[2] < ROTATE_BELOW)):
             try:
                 turning = _plan_at(world, shape, c0, target, final, scales, h, rate, turn, period)
                 least = min(scale for _, scale, _ in turning[0])
@@ -252,7 +251,7 @@ def plan_route(
             break
     if best is None:
         assert refusal is not None
-        if rotate:
+        if rotate and refusal.code == "too-narrow":
             raise NoPath(refusal.code, f"{refusal.why}; turning S opens none either")
         raise refusal
     states, grid, _ = best
