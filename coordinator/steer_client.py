@@ -107,7 +107,7 @@ class SteeringClient:
         shrinking S for doors and growing it back), S shaped ``polygon`` there ((k, 2) m,
         placed with its centroid on the goal; None: S's own shape). ``speed``: m/s of the
         fastest vertex (None: the coordinator's limit). An accepted reply's ``route`` lists
-        the stops (x, y, scale); a refused one says why ("no-path: ...")."""
+        the stops (x, y, scale[, angle]); a refused one says why ("no-path: ...")."""
         points = None if polygon is None else [(float(px), float(py)) for px, py in polygon]
         return self.request(SteerRequest("goto", goal=(x, y), polygon=points, speed=speed))
 
@@ -240,5 +240,13 @@ def steer_command(
     note = f" ({reply.reason})" if reply.reason else ""
     click.echo(f"accepted: {request.describe()}, {reply.duration:.2f} s{note}")
     if reply.route is not None:
-        stops = " -> ".join(f"({x:.3f}, {y:.3f}) x{s:.2f}" for x, y, s in reply.route)
-        click.echo(f"route: {stops}")
+        click.echo(f"route: {describe_route(reply.route)}")
+
+
+def describe_route(route: Sequence[Sequence[float]]) -> str:
+    """A goto's stops (SteerReply.route) in one line: "(x, y) xscale", and the angle S is
+    turned by in degrees where a stop carries one."""
+    return " -> ".join(
+        f"({x:.3f}, {y:.3f}) x{s:.2f}" + "".join(f" {math.degrees(a):+.0f} deg" for a in turn)
+        for x, y, s, *turn in route
+    )

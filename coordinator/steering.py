@@ -395,7 +395,7 @@ def world_check(world: World, tolerance: float = CONTACT_TOLERANCE) -> MotionChe
 
 def plan_goto(
     request: SteerRequest, t: float, current: np.ndarray, limits: Limits, world: World
-) -> tuple[RouteMotion, str, tuple[tuple[float, float, float], ...]]:
+) -> tuple[RouteMotion, str, tuple[tuple[float, ...], ...]]:
     """A goto's route from S = ``current`` (k, 2, CCW) at mission time ``t`` through
     ``world`` (covswarm.world.planner.plan_route): (motion, note, stops for the reply).
     Refusal "no-path" (with the planner's code and why) when there is none."""
@@ -426,8 +426,11 @@ def plan_goto(
         raise Refusal("degenerate", str(exc)) from None
     if route.duration > MAX_DURATION:
         raise Refusal("too-slow", f"the route takes {route.duration:.3g} s (> {MAX_DURATION:g} s)")
+    # (x, y, scale), and the angle S is turned by where it is (SteerReply.route).
     stops = tuple(
-        (w.centroid[0], w.centroid[1], min(max(w.scale, 1e-9), MAX_FACTOR)) for w in route.waypoints
+        (w.centroid[0], w.centroid[1], min(max(w.scale, 1e-9), MAX_FACTOR))
+        + ((w.angle,) if w.angle != 0.0 else ())
+        for w in route.waypoints
     )
     if len(stops) > MAX_ROUTE:  # the reply shows the first stops and the goal
         stops = stops[: MAX_ROUTE - 1] + stops[-1:]

@@ -73,19 +73,27 @@ def _text(max_len: int) -> Checker:
     return check
 
 
-def _route(value: Any, name: str) -> tuple[tuple[float, float, float], ...]:
-    """1..MAX_ROUTE stops [x, y, scale]: a point within MAX_COORD, a scale in (0, MAX_FACTOR]."""
+def _route(value: Any, name: str) -> tuple[tuple[float, ...], ...]:
+    """1..MAX_ROUTE stops [x, y, scale] or [x, y, scale, angle]: a point within MAX_COORD, a
+    scale in (0, MAX_FACTOR], an angle (rad, CCW; absent: 0) within MAX_ANGLE."""
     items = _sequence(value, name)
     if not 1 <= len(items) <= MAX_ROUTE:
         raise ProtocolError(f"{name}: {len(items)} stops, expected 1..{MAX_ROUTE}")
     scale = _positive(MAX_FACTOR)
+    turn = _real(-MAX_ANGLE, MAX_ANGLE)
     out = []
     for i, item in enumerate(items):
         stop = _sequence(item, f"{name}[{i}]")
-        if len(stop) != 3:
-            raise ProtocolError(f"{name}[{i}]: expected [x, y, scale], got {len(stop)} values")
+        if len(stop) not in (3, 4):
+            raise ProtocolError(
+                f"{name}[{i}]: expected [x, y, scale] or [x, y, scale, angle], "
+                f"got {len(stop)} values"
+            )
         x, y = _point(stop[:2], f"{name}[{i}]")
-        out.append((x, y, scale(stop[2], f"{name}[{i}].scale")))
+        entry = (x, y, scale(stop[2], f"{name}[{i}].scale"))
+        if len(stop) == 4:
+            entry += (turn(stop[3], f"{name}[{i}].angle"),)
+        out.append(entry)
     return tuple(out)
 
 
@@ -198,13 +206,16 @@ class SteerReply(Message):
     refused (coordinator.steering.REFUSALS); duration: s until S arrives, including the
     brake of a moving S it pre-empts (0 when refused). route: an accepted goto's stops,
     (x, y, scale) each: S's centroid (m) and its size relative to S when the route starts
-    (S stops at each; the first is where S starts, the last the goal), else absent.
+    (S stops at each; the first is where S starts, the last the goal), with a 4th value,
+    the angle (rad, CCW) S is turned by about its centroid, at stops where it is turned
+    (optional: absent means 0, so older readers of (x, y, scale) stay right elsewhere),
+    else absent.
     """
 
     accepted: bool
     reason: str
     duration: float
-    route: tuple[tuple[float, float, float], ...] | None = None
+    route: tuple[tuple[float, ...], ...] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "accepted": _flag,

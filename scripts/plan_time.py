@@ -6,7 +6,9 @@ into obstacles as a map file would be (covswarm.world.maps: merged rectangles):
 - ``random``: outer walls and 40 random blocks (0.3 m to 2 m a side); S a 1.6 m x 1.2 m
   rectangle, sent from a random free spot in the left quarter to one in the right quarter;
 - ``doors``: three walls across the map, each with a 1.1 m door at a random height; S a
-  2.4 m x 1.6 m rectangle that must shrink through every door.
+  2.4 m x 1.6 m rectangle that must shrink through every door;
+- ``turns``: the same walls with 0.9 m doors; S a 0.6 m x 2.4 m rectangle standing
+  upright, which the team cannot shrink below 1.9 m high: it must turn to pass each door.
 
 The team is 20 Khepera IV (its least S from covswarm.mission.crowding.least_domain); the
 fastest vertex 0.25 m/s. Prints one JSON object: per family the plan times' p50, p95 and
@@ -34,6 +36,8 @@ RESOLUTION = 0.05  # m per pixel
 SIDE = 20.0  # m
 PIXELS = round(SIDE / RESOLUTION)
 SPEED = 0.25  # m/s
+DOORS = {"doors": 1.1, "turns": 0.9}  # m
+SHAPES = {"random": (1.6, 1.2), "doors": (2.4, 1.6), "turns": (0.6, 2.4)}  # S, m x m
 
 
 def _rectangle(width: float, height: float) -> np.ndarray:
@@ -53,7 +57,7 @@ def _grid(rng: np.random.Generator, family: str) -> np.ndarray:
             i, j = rng.integers(0, PIXELS - h), rng.integers(0, PIXELS - w)
             occupied[i : i + h, j : j + w] = True
     else:
-        thick, door = round(0.2 / RESOLUTION), round(1.1 / RESOLUTION)
+        thick, door = round(0.2 / RESOLUTION), round(DOORS[family] / RESOLUTION)
         for x in (5.0, 10.0, 15.0):
             j = round(x / RESOLUTION)
             start = rng.integers(border + 10, PIXELS - border - door - 10)
@@ -74,10 +78,10 @@ def _free_spot(
 
 def measure(family: str, maps: int, seed: int) -> dict:
     min_area, min_width = least_domain(20, 0.14)
-    shape = _rectangle(1.6, 1.2) if family == "random" else _rectangle(2.4, 1.6)
+    shape = _rectangle(*SHAPES[family])
     times, cpu, pieces, found, refused = [], [], [], 0, {}
     for k in range(maps):
-        rng = np.random.default_rng([seed, k, family == "doors"])
+        rng = np.random.default_rng([seed, k, list(SHAPES).index(family)])
         grid = OccupancyMap(Path(f"<{family} {k}>"), _grid(rng, family), RESOLUTION, (0.0, 0.0))
         world = World(grid.extent, grid.obstacles())
         pieces.append(len(world.obstacles))
@@ -115,7 +119,7 @@ def main() -> None:
     args = parser.parse_args()
     result = {
         "map": f"{SIDE:g} m x {SIDE:g} m at {RESOLUTION:g} m",
-        **{family: measure(family, args.maps, args.seed) for family in ("random", "doors")},
+        **{family: measure(family, args.maps, args.seed) for family in SHAPES},
     }
     print(json.dumps(result, indent=2))
 

@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import shapely
 from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import dijkstra
+from scipy.sparse.csgraph import connected_components, dijkstra
 
 from covswarm.world.model import World
 from covswarm.world.planner import NoPath, plan_route
@@ -257,7 +257,7 @@ def test_plan_time_script_reports_json() -> None:
     )
     assert result.returncode == 0, result.stderr
     report = json.loads(result.stdout)
-    for family in ("random", "doors"):
+    for family in ("random", "doors", "turns"):  # turns: S must turn at each door
         assert report[family]["routes"] == 1
         assert report[family]["p50_ms"] > 0.0
 
@@ -287,3 +287,232 @@ def test_the_least_width_limits_a_long_thin_s(door: float, passes: bool) -> None
         vertices = route.motion(t)[0]
         assert shapely.Polygon(vertices).distance(obstacles) > 0.0
         assert np.ptp(vertices[:, 1]) >= MIN_WIDTH - 1e-9
+
+
+# --- S turning where that helps -------------------------------------------------------------
+
+THIN = np.array([[-1.2, -0.3], [1.2, -0.3], [1.2, 0.3], [-1.2, 0.3]])  # 2.4 m x 0.6 m
+
+
+def check_turning_route(route, world: World, boxes: list[list[float]], polygon) -> None:
+    """shapely at dense instants: clear of every obstacle, every vertex inside the
+    workspace, never below the least area; S at the goal is ``polygon``'s set."""
+    obstacles = shapely.union_all([shapely.box(b[0], b[2], b[1], b[3]) for b in boxes])
+    xmin, xmax, ymin, ymax = world.workspace
+    motion = route.motion
+    for t in np.linspace(motion.t0, motion.end, 3000):
+        vertices, _ = motion(t)
+        s = shapely.Polygon(vertices)
+        assert s.is_valid and abs(s.convex_hull.area - s.area) < 1e-9
+        assert s.distance(obstacles) > 0.0, f"S touches an obstacle at t = {t}"
+        assert vertices[:, 0].min() >= xmin - 1e-9 and vertices[:, 0].max() <= xmax + 1e-9
+        assert vertices[:, 1].min() >= ymin - 1e-9 and vertices[:, 1].max() <= ymax + 1e-9
+        assert s.area >= MIN_AREA - 1e-9
+    final = shapely.Polygon(motion(motion.end + 1.0)[0])
+    assert final.symmetric_difference(shapely.Polygon(polygon)).area < 1e-9
+
+
+def test_a_long_thin_s_turns_to_pass_a_corridor_at_full_size() -> None:
+    """S 2.4 m x 0.6 m lying across a 0.8 m wide corridor running north: kept as it is, it
+    would have to shrink to 0.8 m wide, below the team's least S (1.2 m x 0.3 m); turned a
+    quarter it passes at full size, and turns back at the goal."""
+    workspace = (-3.0, 3.0, -4.0, 4.0)
+    boxes = [[-3.0, -0.4, -1.0, 1.0], [0.4, 3.0, -1.0, 1.0]]
+    world = World.from_boxes_and_polygons(workspace, boxes)
+    polygon, goal = THIN + [-1.5, -2.8], np.array([1.5, 2.8])
+    kwargs = {"min_area": MIN_AREA, "min_width": MIN_WIDTH, "max_speed": SPEED}
+    with pytest.raises(NoPath) as caught:
+        plan_route(world, polygon, goal, rotate=False, **kwargs)
+    assert caught.value.code == "too-narrow"
+    route = plan_route(world, polygon, goal, **kwargs)
+    check_turning_route(route, world, boxes, THIN + goal)
+    assert all(w.scale == 1.0 for w in route.waypoints)  # never shrinks
+    assert any(abs(abs(w.angle) - math.pi / 2) < 1e-12 for w in route.waypoints)
+    assert any(route.motion.turns)
+    # Through the corridor S is upright: its x extent is 0.6 m.
+    for t in np.linspace(route.motion.t0, route.motion.end, 400):
+        vertices = route.motion(t)[0]
+        if abs(vertices.mean(axis=0)[1]) < 0.5:
+            assert np.ptp(vertices[:, 0]) == pytest.approx(0.6)
+
+
+def test_s_does_not_turn_where_that_does_not_help() -> None:
+    """The door of test_a_door_narrower_than_s_is_passed_by_shrinking: S 1.2 m x 0.8 m is
+    passed shrunk (turned, it would be 1.2 m high), no turn."""
+    world, _ = door_world(0.65)
+    route = plan_route(
+        world, RECT + [-2.0, 0.0], (2.0, 0.0), min_area=MIN_AREA, min_width=MIN_WIDTH,
+        max_speed=SPEED,
+    )  # fmt: skip
+    assert not any(route.motion.turns) and all(w.angle == 0.0 for w in route.waypoints)
+
+
+TURN_STEP = 0.1  # m: the turning reference's grid (coarser: 4 orientations and their sweeps)
+TURN_LEVELS = 6
+SMALL_WORKSPACE = (-2.5, 2.5, -2.5, 2.5)
+STICK = np.array([[-0.8, -0.2], [0.8, -0.2], [0.8, 0.2], [-0.8, 0.2]])  # 1.6 m x 0.4 m
+TURN_CELL = 0.1 * 0.75 * 0.4  # the planner's default cell for STICK (least scale 0.75)
+
+
+def turning_reference(boxes: list[list[float]], polygon, goal, grow: float = 0.0) -> bool:
+    """Whether the brute-force search over centroids (TURN_STEP grid) x TURN_LEVELS scales x
+    4 orientations (0, 45, 90, 135 degrees; STICK is symmetric) joins S to the goal: states
+    free by shapely, moves to the 8 neighbours, to the next scale in place, and to the next
+    orientation in place when S is free at 46 angles between the two (every degree).
+    grow: obstacles grown and the workspace shrunk (m); S then starts and ends at its
+    least size."""
+    c0 = polygon.mean(axis=0)
+    shape = polygon - c0
+    s_min = max(math.sqrt(MIN_AREA / shapely.Polygon(polygon).area), MIN_WIDTH / 0.4)
+    scales = s_min ** (np.arange(TURN_LEVELS) / (TURN_LEVELS - 1))
+    xmin, xmax, ymin, ymax = SMALL_WORKSPACE
+    ii = np.arange(
+        math.floor((xmin - c0[0]) / TURN_STEP), math.ceil((xmax - c0[0]) / TURN_STEP) + 1
+    )
+    jj = np.arange(
+        math.floor((ymin - c0[1]) / TURN_STEP), math.ceil((ymax - c0[1]) / TURN_STEP) + 1
+    )
+    gi, gj = np.meshgrid(ii, jj, indexing="ij")
+    centres = c0 + TURN_STEP * np.stack([gi.ravel(), gj.ravel()], axis=1)
+    obstacles = shapely.union_all(
+        [shapely.box(b[0] - grow, b[2] - grow, b[1] + grow, b[3] + grow) for b in boxes]
+    )
+    shapely.prepare(obstacles)
+
+    def free_at(s: float, angle: float) -> np.ndarray:
+        c, n = math.cos(angle), math.sin(angle)
+        q = s * shape @ np.array([[c, -n], [n, c]]).T
+        coords = centres[:, None, :] + q[None, :, :]
+        inside = (
+            (coords[..., 0].min(axis=1) >= xmin + grow)
+            & (coords[..., 0].max(axis=1) <= xmax - grow)
+            & (coords[..., 1].min(axis=1) >= ymin + grow)
+            & (coords[..., 1].max(axis=1) <= ymax - grow)
+        )
+        return inside & ~shapely.intersects(shapely.polygons(coords), obstacles)
+
+    angles = np.arange(4) * math.pi / 4
+    free = np.array([[free_at(s, a) for a in angles] for s in scales])  # (levels, 4, cells)
+    sweep = np.ones((len(scales), 4, len(centres)), dtype=bool)
+    for li, s in enumerate(scales):
+        for o, a in enumerate(angles):
+            for b in np.linspace(a, a + math.pi / 4, 46)[1:-1]:
+                sweep[li, o] &= free_at(s, b)
+    shape3 = (len(scales), 4, *gi.shape)
+    free, sweep = free.reshape(shape3), sweep.reshape(shape3)
+    index = -np.ones(shape3, dtype=int)
+    index[free] = np.arange(int(free.sum()))
+    rows, cols = [], []
+    nl, _, nx, ny = shape3
+    for di, dj in ((1, 0), (0, 1), (1, 1), (1, -1)):
+        a = index[:, :, : nx - di, max(-dj, 0) : ny - max(dj, 0)]
+        b = index[:, :, di:, max(dj, 0) : ny - max(-dj, 0)]
+        rows.append(a[(a >= 0) & (b >= 0)])
+        cols.append(b[(a >= 0) & (b >= 0)])
+    a, b = index[:-1], index[1:]
+    rows.append(a[(a >= 0) & (b >= 0)])
+    cols.append(b[(a >= 0) & (b >= 0)])
+    for o in range(4):
+        a, b = index[:, o], index[:, (o + 1) % 4]
+        both = (a >= 0) & (b >= 0) & sweep[:, o]
+        rows.append(a[both])
+        cols.append(b[both])
+    n = int(free.sum())
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    graph = coo_matrix((np.ones(len(rows)), (rows, cols)), shape=(n, n))
+    _, component = connected_components(graph, directed=False)
+    level = 0 if grow == 0.0 else nl - 1
+    offset = np.rint((goal - c0) / TURN_STEP).astype(int)
+    start, end = (
+        index[level, 0, -ii[0], -jj[0]],
+        index[level, 0, offset[0] - ii[0], offset[1] - jj[0]],
+    )
+    return bool(start >= 0 and end >= 0 and component[start] == component[end])
+
+
+def turning_case(seed: int) -> tuple[list[list[float]], np.ndarray, np.ndarray]:
+    """A wall across the map at y = 0 with one gap (0.25 m to 1.4 m wide: STICK's least S
+    lying is 1.2 m long, upright 0.3 m; centred on the reference's grid, which can then
+    centre S in it), a few random blocks; S from the south to the north."""
+    rng = np.random.default_rng(seed)
+    gap, x = rng.uniform(0.25, 1.4), TURN_STEP * round(rng.uniform(-1.2, 1.2) / TURN_STEP)
+    boxes = [[-2.5, x - gap / 2, -0.15, 0.15], [x + gap / 2, 2.5, -0.15, 0.15]]
+    for _ in range(rng.integers(0, 3)):
+        cx, cy = rng.uniform([-2.0, -2.0], [2.0, 2.0])
+        if abs(cy) < 0.8:
+            continue
+        boxes.append([cx - 0.2, cx + 0.2, cy - 0.2, cy + 0.2])
+    start = TURN_STEP * np.round(np.array([rng.uniform(-1.2, 1.2), -1.6]) / TURN_STEP)
+    goal = start + TURN_STEP * np.round(
+        (np.array([rng.uniform(-1.2, 1.2), 1.6]) - start) / TURN_STEP
+    )
+    return boxes, STICK + start, goal
+
+
+@pytest.mark.parametrize("seed", range(10))
+def test_turning_routes_against_the_brute_force_reference(seed: int) -> None:
+    boxes, polygon, goal = turning_case(seed)
+    world = World.from_boxes_and_polygons(SMALL_WORKSPACE, boxes)
+    try:
+        route = plan_route(
+            world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
+        )
+    except NoPath as exc:
+        route, refusal = None, exc
+    if route is None:
+        # Refused: the reference finds nothing either once obstacles grow by the planner's
+        # conservative margin (two cells); goal or start blocked are exact.
+        if refusal.code in ("goal-blocked", "start-blocked"):
+            assert not turning_reference(boxes, polygon, goal)
+        else:
+            assert not turning_reference(boxes, polygon, goal, grow=2.0 * TURN_CELL), refusal
+        return
+    assert turning_reference(boxes, polygon, goal), "a route the reference says cannot exist"
+    check_turning_route(route, world, boxes, STICK + goal)
+
+
+def test_a_gap_narrower_than_the_least_s_upright_is_refused() -> None:
+    """A 0.28 m gap: STICK's least S is 0.3 m wide even turned upright."""
+    boxes = [[-2.5, -0.14, -0.15, 0.15], [0.14, 2.5, -0.15, 0.15]]
+    world = World.from_boxes_and_polygons(SMALL_WORKSPACE, boxes)
+    polygon, goal = STICK + [0.0, -1.6], np.array([0.0, 1.6])
+    with pytest.raises(NoPath) as caught:
+        plan_route(world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED)
+    assert caught.value.code == "too-narrow" and "turning S opens none" in caught.value.why
+    assert not turning_reference(boxes, polygon, goal)
+
+
+def test_an_asymmetric_s_turns_through_the_corridor_and_back() -> None:
+    """A thin trapezoid (no central symmetry: 8 orientations over a whole turn) passes the
+    0.8 m corridor turned, and ends as it started, vertex for vertex."""
+    workspace = (-3.0, 3.0, -4.0, 4.0)
+    boxes = [[-3.0, -0.4, -1.0, 1.0], [0.4, 3.0, -1.0, 1.0]]
+    world = World.from_boxes_and_polygons(workspace, boxes)
+    trapezoid = np.array([[-1.2, -0.3], [1.2, -0.2], [1.2, 0.2], [-1.2, 0.3]])
+    shape = trapezoid - np.array(shapely.Polygon(trapezoid).centroid.coords[0])
+    polygon, goal = shape + [-1.5, -2.8], np.array([1.5, 2.8])
+    route = plan_route(
+        world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
+    )
+    check_turning_route(route, world, boxes, shape + goal)
+    assert any(route.motion.turns) and all(w.scale == 1.0 for w in route.waypoints)
+    np.testing.assert_allclose(route.motion(route.motion.end)[0], shape + goal, atol=1e-9)
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_the_turn_sweep_holds_s_at_every_angle_of_the_turn(seed: int) -> None:
+    """_turn_hull (the certified sweep of a 45 degree turn) contains S turned by every
+    angle in between (shapely at 1000 angles), random convex S."""
+    from covswarm.world.planner import _turn_hull
+
+    rng = np.random.default_rng(seed)
+    points = rng.uniform(-1.0, 1.0, (12, 2)) * [1.5, 0.4]
+    hull = shapely.MultiPoint(points).convex_hull
+    q = np.array(hull.exterior.coords[:-1]) - np.array(hull.centroid.coords[0])
+    start = rng.uniform(0.0, 2.0 * math.pi)
+    sweep = shapely.Polygon(_turn_hull(q, start, math.pi / 4))
+    assert sweep.is_valid and sweep.exterior.is_ccw
+    for a in np.linspace(start, start + math.pi / 4, 1000):
+        c, s = math.cos(a), math.sin(a)
+        turned = shapely.Polygon(q @ np.array([[c, -s], [s, c]]).T)
+        assert sweep.buffer(1e-12).contains(turned)

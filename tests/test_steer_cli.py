@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 from types import SimpleNamespace
 
 import pytest
@@ -69,3 +70,12 @@ def test_the_client_sends_a_goto_and_returns_its_route() -> None:
     assert request.polygon == ((0.0, 0.0), (1.0, 0.0), (0.0, 1.0))
     SteeringClient(session, "s1").goto(1.0, 1.0, speed=0.2)
     assert session.sent[-1][1] == SteerRequest("goto", goal=(1.0, 1.0), speed=0.2)
+
+
+def test_a_routes_stops_print_with_their_angle_where_s_is_turned() -> None:
+    from covswarm.coordinator.steer_client import describe_route
+
+    route = ((-1.5, -2.8, 1.0), (-1.47, -2.8, 1.0, -math.pi / 2), (1.5, 2.8, 0.5))
+    assert describe_route(route) == (
+        "(-1.500, -2.800) x1.00 -> (-1.470, -2.800) x1.00 -90 deg -> (1.500, 2.800) x0.50"
+    )

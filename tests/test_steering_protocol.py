@@ -105,3 +105,13 @@ def test_unknown_fields_versions_and_garbage_are_refused() -> None:
 def test_requests_describe_themselves_for_logs() -> None:
     assert REQUESTS[1].describe() == "translate (1, 0) m in 4 s"
     assert REQUESTS[4].to_dict()["polygon"] == [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]
+
+
+def test_a_route_stop_may_carry_the_angle_s_is_turned_by() -> None:
+    """SteerReply.route: (x, y, scale) or (x, y, scale, angle) per stop, strictly decoded."""
+    route = ((0.0, 0.0, 1.0), (1.0, 0.0, 1.0, -1.5707963267948966), (2.0, 0.5, 1.0))
+    reply = SteerReply(True, "", 12.5, route)
+    assert SteerReply.decode(reply.encode()).route == route
+    for bad in ((1.0, 0.0), (1.0, 0.0, 1.0, 0.0, 2.0), (1.0, 0.0, 1.0, float("nan"))):
+        with pytest.raises(ProtocolError, match=r"route\[0\]"):
+            SteerReply(True, "", 12.5, (bad,))

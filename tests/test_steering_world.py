@@ -309,3 +309,27 @@ def test_a_replayed_journal_repeats_a_goto_exactly() -> None:
     assert again.replay(lines) == 2
     for t in np.linspace(0.0, 60.0, 300):
         np.testing.assert_array_equal(again.domain(float(t))[0], steer.domain(float(t))[0])
+
+
+def test_goto_turns_a_long_s_through_a_corridor_and_the_reply_says_by_how_much() -> None:
+    """S 0.6 m x 2.2 m upright, a 0.8 m corridor running east: its least S (scale 0.48)
+    is still 1.05 m high, so S turns a quarter to pass at full size; the stops where it is
+    turned carry the angle (SteerReply.route's optional 4th value)."""
+    corridor = World(
+        WORKSPACE,
+        (
+            Obstacle("south", box_vertices((-0.5, 0.5, -2.0, -0.4))),
+            Obstacle("north", box_vertices((-0.5, 0.5, 0.4, 2.0))),
+        ),
+    )  # fmt: skip
+    tall = np.array([[-0.3, -1.1], [0.3, -1.1], [0.3, 1.1], [-0.3, 1.1]])
+    steer = steering(corridor, tall + [-1.8, 0.0])
+    reply = send(steer, SteerRequest("goto", goal=(1.8, 0.0)), 0.0)
+    assert reply.accepted, reply.reason
+    assert all(stop[2] == 1.0 for stop in reply.route)
+    turned = [stop for stop in reply.route if len(stop) == 4]
+    assert turned and any(abs(abs(stop[3]) - math.pi / 2) < 1e-9 for stop in turned)
+    assert SteerReply.decode(reply.encode()) == reply
+    end = steer.domain(reply.duration + 0.01)[0]
+    assert Polygon(end).symmetric_difference(Polygon(tall + [1.8, 0.0])).area < 1e-9
+    dense_check(steer, corridor, reply, 0.0, n=3000)

@@ -15,9 +15,20 @@ goal polygon of another shape) the vertices are pairs of support points (a_i, b_
 B for each direction between consecutive merged edge normals, which is the Minkowski
 combination (1 - s) A + s B, convex for every s.
 
+Rotation. A segment with a turn phi != 0 (``turns[i]``, rad, counter-clockwise) carries a
+polygon A to B = c_B + k R(phi) (A - c_A), a similarity of it (c the area centroids, k > 0
+the scale, R(phi) the rotation), along V(s) = c_A + s (c_B - c_A) + sigma(s) R(s phi) Q with
+Q = A - c_A and sigma(s) = 1 - s + s k: centroid, scale and angle all follow the same
+quintic progress s(u), and every V(s) is a similarity of A, hence convex. Its exact vertex
+velocities are dV/dt = (s'(u) / T) [(c_B - c_A) + (k - 1) R(s phi) Q + sigma phi J R(s phi) Q]
+(J the rotation by 90 degrees). With phi = 0 this is the paired interpolation above.
+
 Speed. The fastest vertex of segment i peaks at (15/8) max_j |B_j - A_j| / T_i, so
 :meth:`RouteMotion.timed` picks T_i to put that at the speed limit (the convention of
-coordinator.steering's PEAK_RATE and default_max_domain_speed).
+coordinator.steering's PEAK_RATE and default_max_domain_speed). A turning segment's |dV/ds|
+is at most |c_B - c_A| + (|k - 1| + max(1, k) |phi|) |Q_j| (the triangle inequality on the
+velocity above), its ``reach``; T_i puts (15/8) reach / T_i at the limit, so the limit is a
+bound there, not reached exactly.
 """
 
 from __future__ import annotations
@@ -114,6 +125,9 @@ class RouteMotion:
     after arriving at polygons[i]; t0: mission time the route starts (s). Before t0 + holds[0]
     and after the last arrival S stands still. goals, speed, hold: the scenario-file form of
     the route (``[domain] kind = "route"``) that :meth:`to_toml` writes, when it has one.
+    turns: n angles (rad, CCW), S turning by turns[i] about its centroid on segment i
+    (module docstring, "Rotation"; polygons[i + 1] must then be a similarity of
+    polygons[i], vertex for vertex); default none turns.
     """
 
     polygons: tuple[np.ndarray, ...]
@@ -123,6 +137,7 @@ class RouteMotion:
     goals: tuple[tuple[float, float], ...] = ()
     speed: float | None = None
     hold: float = 0.0
+    turns: tuple[float, ...] = ()
     starts: np.ndarray = field(init=False, repr=False)  # (n,) segment start times, s
     _pairs: tuple[np.ndarray, ...] = field(init=False, repr=False)
 
@@ -146,12 +161,21 @@ class RouteMotion:
             raise ValueError("route: spans must be positive and finite")
         if not (np.all(np.isfinite(holds)) and np.all(holds >= 0.0)) or not math.isfinite(self.t0):
             raise ValueError("route: holds must be finite and >= 0, t0 finite")
+        turns = np.zeros(len(spans)) if len(self.turns) == 0 else np.array(self.turns, float)
+        if turns.shape != spans.shape or not np.all(np.isfinite(turns)):
+            raise ValueError(f"route: need {len(spans)} finite turns, got {self.turns!r}")
+        for i in np.flatnonzero(turns):
+            _similarity(polygons[i], polygons[i + 1], float(turns[i]), i)
+        object.__setattr__(self, "turns", tuple(turns.tolist()))
         starts = self.t0 + np.cumsum(holds[:-1]) + np.concatenate([[0.0], np.cumsum(spans[:-1])])
         object.__setattr__(self, "polygons", tuple(polygons))
         object.__setattr__(self, "spans", tuple(spans.tolist()))
         object.__setattr__(self, "holds", tuple(holds.tolist()))
         object.__setattr__(self, "starts", starts)
-        pairs = tuple(pairing(a, b) for a, b in zip(polygons[:-1], polygons[1:], strict=True))
+        pairs = tuple(
+            pairing(a, b) if turn == 0.0 else np.stack([np.arange(len(a))] * 2, axis=1)
+            for a, b, turn in zip(polygons[:-1], polygons[1:], turns, strict=True)
+        )
         object.__setattr__(self, "_pairs", pairs)
 
     @classmethod
@@ -161,26 +185,32 @@ class RouteMotion:
         max_speed: float,
         holds: list[float] | None = None,
         t0: float = 0.0,
+        turns: list[float] | None = None,
         **form: Any,
     ) -> RouteMotion:
         """The route through ``polygons`` with each segment as short as the speed limit
-        ``max_speed`` (fastest vertex, m/s) allows; consecutive equal polygons are merged."""
+        ``max_speed`` (fastest vertex, m/s) allows; consecutive equal polygons are merged
+        (unless S turns between them). turns: per segment, rad (default none)."""
         if not (math.isfinite(max_speed) and max_speed > 0.0):
             raise ValueError(f"route: max_speed must be positive, got {max_speed!r}")
         polygons = [validate_convex(p) for p in polygons]
         holds = [0.0] * len(polygons) if holds is None else list(holds)
-        kept, kept_holds, spans = [polygons[0]], [holds[0]], []
-        for polygon, rest in zip(polygons[1:], holds[1:], strict=True):
-            a = kept[-1]
-            pairs = pairing(a, polygon)
-            reach = float(np.linalg.norm(polygon[pairs[:, 1]] - a[pairs[:, 0]], axis=1).max())
+        turns = [0.0] * (len(polygons) - 1) if turns is None else list(turns)
+        if len(turns) != len(polygons) - 1:
+            raise ValueError(f"route: {len(polygons)} polygons need {len(polygons) - 1} turns")
+        kept, kept_holds, spans, kept_turns = [polygons[0]], [holds[0]], [], []
+        for polygon, rest, turn in zip(polygons[1:], holds[1:], turns, strict=True):
+            reach = _reach(kept[-1], polygon, float(turn), len(kept) - 1)
             if reach <= 1e-12:  # the same polygon: one waypoint, the rests add up
                 kept_holds[-1] += rest
                 continue
             kept.append(polygon)
             kept_holds.append(rest)
+            kept_turns.append(float(turn))
             spans.append(PEAK_RATE * reach / max_speed)
-        return cls(tuple(kept), tuple(spans), tuple(kept_holds), t0, **form)
+        return cls(
+            tuple(kept), tuple(spans), tuple(kept_holds), t0, turns=tuple(kept_turns), **form
+        )
 
     @property
     def end(self) -> float:
@@ -193,9 +223,26 @@ class RouteMotion:
         return self.starts + np.array(self.spans)
 
     def segment(self, i: int) -> tuple[np.ndarray, np.ndarray]:
-        """Segment i's paired vertices (p, 2) at its start A and end B: V = (1 - s) A + s B."""
+        """Segment i's paired vertices (p, 2) at its start A and end B: V = (1 - s) A + s B
+        when it does not turn (turns[i] == 0)."""
         pairs = self._pairs[i]
         return self.polygons[i][pairs[:, 0]], self.polygons[i + 1][pairs[:, 1]]
+
+    def along(self, i: int, s: float) -> tuple[np.ndarray, np.ndarray]:
+        """Segment i at progress s in [0, 1]: its vertices V(s) (p, 2, m) and dV/ds (p, 2, m)
+        (module docstring: paired interpolation, or "Rotation" when it turns)."""
+        a, b = self.segment(i)
+        turn = self.turns[i]
+        if turn == 0.0:
+            return (1.0 - s) * a + s * b, b - a
+        ca, cb = centroid(a), centroid(b)
+        k = _similarity(a, b, turn, i)
+        rotated = (a - ca) @ _rotation(s * turn).T  # R(s phi) Q
+        sigma = 1.0 - s + s * k
+        normal = np.stack([-rotated[:, 1], rotated[:, 0]], axis=1)  # J R(s phi) Q
+        return ca + s * (cb - ca) + sigma * rotated, (cb - ca) + (k - 1.0) * rotated + (
+            sigma * turn
+        ) * normal
 
     def __call__(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         t = float(t)
@@ -207,22 +254,26 @@ class RouteMotion:
         if u >= 1.0:
             return self.polygons[i + 1].copy(), np.zeros_like(self.polygons[i + 1])
         s, ds_du = smoothstep(u)
-        a, b = self.segment(i)
-        vertices = (1.0 - s) * a + s * b
-        velocities = (b - a) * (ds_du / span)
-        if len(a) == len(self.polygons[i]) == len(self.polygons[i + 1]):
+        vertices, rate = self.along(i, s)
+        velocities = rate * (ds_du / span)
+        if len(vertices) == len(self.polygons[i]) == len(self.polygons[i + 1]):
             return vertices, velocities  # paired vertex for vertex: none coincide
         return merge_coincident(vertices, velocities)
 
     def peak_speed(self) -> float:
-        """Fastest vertex speed over the route (m/s): (15/8) max |B_j - A_j| / T_i."""
+        """Fastest vertex speed over the route (m/s): (15/8) max |B_j - A_j| / T_i; a bound
+        on turning segments (module docstring, "Speed")."""
         peaks = [
-            PEAK_RATE * float(np.linalg.norm(b[p[:, 1]] - a[p[:, 0]], axis=1).max()) / span
-            for a, b, p, span in zip(
-                self.polygons[:-1], self.polygons[1:], self._pairs, self.spans, strict=True
+            PEAK_RATE * _reach(a, b, turn, i) / span
+            for i, (a, b, turn, span) in enumerate(
+                zip(self.polygons[:-1], self.polygons[1:], self.turns, self.spans, strict=True)
             )
         ]
         return max(peaks, default=0.0)
+
+    def reach(self, i: int) -> float:
+        """A bound (m) on every vertex's |dV/ds| over segment i (module docstring, "Speed")."""
+        return _reach(self.polygons[i], self.polygons[i + 1], self.turns[i], i)
 
     def sample_times(self, duration: float) -> np.ndarray:
         fractions = np.linspace(0.0, 1.0, _SAMPLES + 1)
@@ -242,6 +293,40 @@ class RouteMotion:
         if self.hold:
             lines.append(f"hold = {self.hold!r}")
         return "\n".join(lines) + "\n"
+
+
+def _rotation(angle: float) -> np.ndarray:
+    """(2, 2) the rotation by ``angle`` rad, CCW."""
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+def _similarity(a: np.ndarray, b: np.ndarray, turn: float, i: int) -> float:
+    """The scale k of b = c_b + k R(turn) (a - c_a) (a, b (n, 2), vertex for vertex);
+    ValueError naming segment i when b is no such image of a."""
+    if len(a) != len(b):
+        raise ValueError(f"route: segment {i} turns, so its ends need the same vertex count")
+    qa, qb = a - centroid(a), b - centroid(b)
+    k = math.sqrt(float((qb**2).sum()) / float((qa**2).sum()))
+    residual = float(np.abs(k * qa @ _rotation(turn).T - qb).max())
+    if residual > 1e-9 * max(1.0, float(np.abs(qb).max())):
+        raise ValueError(
+            f"route: segment {i} turns by {turn!r} rad, but its end is not its start turned "
+            "by that and scaled (vertex for vertex)"
+        )
+    return k
+
+
+def _reach(a: np.ndarray, b: np.ndarray, turn: float, i: int) -> float:
+    """A bound (m) on every vertex's |dV/ds| from a to b turning by ``turn`` rad (exact,
+    max |B_j - A_j|, when it does not turn; module docstring, "Speed")."""
+    if turn == 0.0:
+        pairs = pairing(a, b)
+        return float(np.linalg.norm(b[pairs[:, 1]] - a[pairs[:, 0]], axis=1).max())
+    k = _similarity(a, b, turn, i)
+    radius = float(np.linalg.norm(a - centroid(a), axis=1).max())
+    shift = float(np.linalg.norm(centroid(b) - centroid(a)))
+    return shift + (abs(k - 1.0) + max(1.0, k) * abs(turn)) * radius
 
 
 def _points(points: np.ndarray) -> str:
