@@ -52,11 +52,10 @@ UNREADABLE = {
 }
 
 
-@pytest.mark.parametrize("name", sorted(UNREADABLE))
+# Bodies larger than the console reads never reach the parser (413, tested below).
+@pytest.mark.parametrize("name", sorted(n for n, b in UNREADABLE.items() if len(b) <= MAX_BODY))
 def test_parse_refuses_with_a_sentence(name: str) -> None:
     body = UNREADABLE[name]
-    if len(body) > MAX_BODY:
-        pytest.skip("larger than the console reads (413 before parsing, tested below)")
     with pytest.raises(BadSteerInput):
         parse_steer_body(body)
 
