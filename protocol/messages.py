@@ -554,31 +554,36 @@ MAX_STOPS = 128  # stops of a route in a Status (protocol.steering.MAX_ROUTE in 
 MAX_STOP_SCALE = 100.0  # a stop's scale of S (protocol.steering.MAX_FACTOR)
 
 
-def _stops(value: Any, name: str) -> tuple[tuple[float, ...], ...]:
-    """1..MAX_STOPS stops [x, y, scale] or [x, y, scale, angle]: S's centroid (m, within
-    MAX_COORD), its size relative to S when the route starts (0, MAX_STOP_SCALE] and, when
-    given, its rotation from then (rad, within MAX_ANGLE)."""
-    items = _sequence(value, name)
-    if not 1 <= len(items) <= MAX_STOPS:
-        raise ProtocolError(f"{name}: {len(items)} stops, expected 1..{MAX_STOPS}")
-    coord, scale, angle = _COORD, _positive(MAX_STOP_SCALE), _real(-MAX_ANGLE, MAX_ANGLE)
-    out = []
-    for i, item in enumerate(items):
-        stop = _sequence(item, f"{name}[{i}]")
-        if len(stop) not in (3, 4):
-            raise ProtocolError(
-                f"{name}[{i}]: expected [x, y, scale] or [x, y, scale, angle], "
-                f"got {len(stop)} values"
+def route_stops(max_stops: int, max_scale: float) -> Checker:
+    """Checker of 1..``max_stops`` route stops [x, y, scale] or [x, y, scale, angle]: S's
+    centroid (m, within MAX_COORD), its size relative to S when the route starts (0,
+    ``max_scale``] and, when given, its rotation from then (rad, CCW, within MAX_ANGLE;
+    absent: 0). The Status's route and the steering reply's."""
+    coord, scale, angle = _COORD, _positive(max_scale), _real(-MAX_ANGLE, MAX_ANGLE)
+
+    def check(value: Any, name: str) -> tuple[tuple[float, ...], ...]:
+        items = _sequence(value, name)
+        if not 1 <= len(items) <= max_stops:
+            raise ProtocolError(f"{name}: {len(items)} stops, expected 1..{max_stops}")
+        out = []
+        for i, item in enumerate(items):
+            stop = _sequence(item, f"{name}[{i}]")
+            if len(stop) not in (3, 4):
+                raise ProtocolError(
+                    f"{name}[{i}]: expected [x, y, scale] or [x, y, scale, angle], "
+                    f"got {len(stop)} values"
+                )
+            checked = (
+                coord(stop[0], f"{name}[{i}].x"),
+                coord(stop[1], f"{name}[{i}].y"),
+                scale(stop[2], f"{name}[{i}].scale"),
             )
-        checked = (
-            coord(stop[0], f"{name}[{i}].x"),
-            coord(stop[1], f"{name}[{i}].y"),
-            scale(stop[2], f"{name}[{i}].scale"),
-        )
-        if len(stop) == 4:
-            checked += (angle(stop[3], f"{name}[{i}].angle"),)
-        out.append(checked)
-    return tuple(out)
+            if len(stop) == 4:
+                checked += (angle(stop[3], f"{name}[{i}].angle"),)
+            out.append(checked)
+        return tuple(out)
+
+    return check
 
 
 @dataclass(frozen=True, slots=True)
@@ -603,7 +608,7 @@ class Status(Message):
         "error": _optional(_real(0.0, MAX_COORD * MAX_ID)),
         "alive_agents": _int(0, MAX_ID + 1),
         "alive_robots": _int(0, MAX_ID + 1),
-        "route": _optional(_stops),
+        "route": _optional(route_stops(MAX_STOPS, MAX_STOP_SCALE)),
     }
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"route"})
 

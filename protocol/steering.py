@@ -40,7 +40,7 @@ from covswarm.protocol.messages import (
     _points,
     _positive,
     _real,
-    _sequence,
+    route_stops,
 )
 
 KINDS = ("translate", "rotate", "scale", "polygon", "goto")
@@ -71,30 +71,6 @@ def _text(max_len: int) -> Checker:
         return value
 
     return check
-
-
-def _route(value: Any, name: str) -> tuple[tuple[float, ...], ...]:
-    """1..MAX_ROUTE stops [x, y, scale] or [x, y, scale, angle]: a point within MAX_COORD, a
-    scale in (0, MAX_FACTOR], an angle (rad, CCW; absent: 0) within MAX_ANGLE."""
-    items = _sequence(value, name)
-    if not 1 <= len(items) <= MAX_ROUTE:
-        raise ProtocolError(f"{name}: {len(items)} stops, expected 1..{MAX_ROUTE}")
-    scale = _positive(MAX_FACTOR)
-    turn = _real(-MAX_ANGLE, MAX_ANGLE)
-    out = []
-    for i, item in enumerate(items):
-        stop = _sequence(item, f"{name}[{i}]")
-        if len(stop) not in (3, 4):
-            raise ProtocolError(
-                f"{name}[{i}]: expected [x, y, scale] or [x, y, scale, angle], "
-                f"got {len(stop)} values"
-            )
-        x, y = _point(stop[:2], f"{name}[{i}]")
-        entry = (x, y, scale(stop[2], f"{name}[{i}].scale"))
-        if len(stop) == 4:
-            entry += (turn(stop[3], f"{name}[{i}].angle"),)
-        out.append(entry)
-    return tuple(out)
 
 
 @dataclass(frozen=True, slots=True)
@@ -221,7 +197,7 @@ class SteerReply(Message):
         "accepted": _flag,
         "reason": _text(MAX_REASON),
         "duration": _real(0.0, MAX_DURATION),
-        "route": _optional(_route),
+        "route": _optional(route_stops(MAX_ROUTE, MAX_FACTOR)),
     }
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"route"})
 

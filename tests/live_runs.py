@@ -190,3 +190,12 @@ def steer_cli(endpoint: str, swarm: str, *args: str) -> subprocess.CompletedProc
         text=True,
         timeout=60,
     )
+
+
+@contextmanager
+def running_swarm(folder: Path, *args: str) -> Iterator[tuple[str, str]]:
+    """(endpoint, swarm) of a ``covswarm run`` with ``args`` writing into ``folder``/run,
+    once its mission started; everything of it killed at the end."""
+    swarm, out = new_swarm(), folder / "run"
+    with launch(out, *args, swarm=swarm) as run:
+        yield mission_started(run, out), swarm

@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from browser_pages import console
-from live_runs import launch, mission_started, new_swarm, wait_until
+from live_runs import launch, new_swarm, running_swarm, wait_until
 
 from covswarm.deploy.plan import covswarm_argv
 
@@ -34,10 +34,11 @@ TEAM = 3
 @pytest.fixture(scope="module")
 def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """(endpoint, swarm) of a running mission; everything of it killed at the end."""
-    swarm, out = new_swarm(), tmp_path_factory.mktemp("console") / "run"
-    args = ("--agents", str(TEAM), "--scenario", "passage", "--duration", "300")
-    with launch(out, *args, swarm=swarm) as run:
-        yield mission_started(run, out), swarm
+    folder = tmp_path_factory.mktemp("console")
+    with running_swarm(
+        folder, "--agents", str(TEAM), "--scenario", "passage", "--duration", "300"
+    ) as found:
+        yield found
 
 
 class DomainWatch:

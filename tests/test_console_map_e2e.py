@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from browser_pages import COLOUR, console, open_page
-from live_runs import launch, mission_started, new_swarm
+from live_runs import running_swarm
 
 from covswarm.deploy.plan import covswarm_argv
 
@@ -32,10 +32,11 @@ GOAL = (2.6, -0.6)  # in the right room: the route shrinks S through the door
 @pytest.fixture(scope="module")
 def lab_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """(endpoint, swarm) of a running lab-route mission; everything of it killed at the end."""
-    swarm, out = new_swarm(), tmp_path_factory.mktemp("console-map") / "run"
-    args = ("--agents", str(TEAM), "--scenario", str(LAB), "--duration", "300")
-    with launch(out, *args, swarm=swarm) as run:
-        yield mission_started(run, out), swarm
+    folder = tmp_path_factory.mktemp("console-map")
+    with running_swarm(
+        folder, "--agents", str(TEAM), "--scenario", str(LAB), "--duration", "300"
+    ) as found:
+        yield found
 
 
 def test_the_map_picture_and_another_clients_route_are_drawn(lab_run, browser) -> None:  # noqa: F811

@@ -21,7 +21,7 @@ import numpy as np
 import pytest
 from aiohttp import web
 from browser_pages import COLOUR, VIEWPORT, console, open_page
-from live_runs import launch, mission_started, new_swarm, wait_until
+from live_runs import running_swarm, wait_until
 from shapely.geometry import MultiPoint, Polygon
 
 from covswarm.console.model import SwarmView
@@ -133,10 +133,11 @@ def test_the_pages_contact_check_agrees_with_shapely_and_the_world_model(browser
 @pytest.fixture(scope="module")
 def swarm_run(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[str, str]]:
     """(endpoint, swarm) of a running ``live`` mission; everything of it killed at the end."""
-    swarm, out = new_swarm(), tmp_path_factory.mktemp("console-world") / "run"
-    args = ("--agents", str(TEAM), "--scenario", "live", "--duration", "300")
-    with launch(out, *args, swarm=swarm) as run:
-        yield mission_started(run, out), swarm
+    folder = tmp_path_factory.mktemp("console-world")
+    with running_swarm(
+        folder, "--agents", str(TEAM), "--scenario", "live", "--duration", "300"
+    ) as found:
+        yield found
 
 
 class DomainWatch:

@@ -136,16 +136,21 @@ def random_case(seed: int) -> tuple[list[list[float]], np.ndarray, np.ndarray]:
     return boxes, RECT + start, goal
 
 
+def plan_or_refusal(world: World, polygon: np.ndarray, goal: np.ndarray) -> tuple:
+    """(the route, None) or (None, the NoPath) of the test team's limits."""
+    try:
+        return plan_route(
+            world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
+        ), None
+    except NoPath as exc:
+        return None, exc
+
+
 @pytest.mark.parametrize("seed", range(16))
 def test_random_maps_against_the_brute_force_reference(seed: int) -> None:
     boxes, polygon, goal = random_case(seed)
     world = World.from_boxes_and_polygons(WORKSPACE, boxes)
-    try:
-        route = plan_route(
-            world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
-        )
-    except NoPath as exc:
-        route, refusal = None, exc
+    route, refusal = plan_or_refusal(world, polygon, goal)
     exact = reference(WORKSPACE, boxes, polygon, goal)
     with_slack = reference(WORKSPACE, boxes, polygon, goal, grow=SLACK)
     if route is None:
@@ -453,12 +458,7 @@ def turning_case(seed: int) -> tuple[list[list[float]], np.ndarray, np.ndarray]:
 def test_turning_routes_against_the_brute_force_reference(seed: int) -> None:
     boxes, polygon, goal = turning_case(seed)
     world = World.from_boxes_and_polygons(SMALL_WORKSPACE, boxes)
-    try:
-        route = plan_route(
-            world, polygon, goal, min_area=MIN_AREA, min_width=MIN_WIDTH, max_speed=SPEED
-        )
-    except NoPath as exc:
-        route, refusal = None, exc
+    route, refusal = plan_or_refusal(world, polygon, goal)
     if route is None:
         # Refused: the reference finds nothing either once obstacles grow by the planner's
         # conservative margin (two cells); goal or start blocked are exact.
