@@ -249,11 +249,6 @@ def sampled_gain(kappa: float, period: float) -> float:
     return min(kappa, MAX_STEP_FRACTION / period)
 
 
-def same_world(a: protocol.World, b: protocol.World) -> bool:
-    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
-    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
-
-
 class AgentBrain:
     """Decision logic of one agent: feed it messages, ask it for actions. No I/O."""
 
@@ -374,7 +369,7 @@ class AgentBrain:
         MAX_DOMAIN_SEQ_JUMP above it "world_seq_jump", geometry the model refuses
         "bad_world"; each dropped and counted."""
         held = self._world_message
-        if held is not None and same_world(message, held):
+        if held is not None and message.same_world(held):
             self._world_received = now
             return True
         if held is not None and now - self._world_received < WORLD_RESTART_SILENCE:

@@ -816,6 +816,13 @@ class World(Message):
                 f"World: {len(self.names)} names for {len(self.obstacles)} obstacles"
             )
 
+    def same_world(self, other: World) -> bool:
+        """Whether ``other`` is the same world (the coordinator's repeats differ in the stamp
+        only)."""
+        return (self.seq, self.workspace, self.names, self.obstacles) == (
+            other.seq, other.workspace, other.names, other.obstacles
+        )  # fmt: skip
+
     def encode(self) -> bytes:
         """msgpack bytes in the compact form above; ProtocolError if over MAX_WORLD_PAYLOAD."""
         wire: dict[str, Any] = {"v": SCHEMA_VERSION, "seq": self.seq, "stamp": self.stamp}

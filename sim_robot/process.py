@@ -31,6 +31,7 @@ starts hundreds of these.
 
 from __future__ import annotations
 
+import json
 import logging
 import time
 from dataclasses import dataclass
@@ -162,11 +163,6 @@ class RobotSim:
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
 
 
-def same_world(a: protocol.World, b: protocol.World) -> bool:
-    """Whether two World messages are the same world (its repeats differ in the stamp only)."""
-    return (a.seq, a.workspace, a.names, a.obstacles) == (b.seq, b.workspace, b.names, b.obstacles)
-
-
 class WorldHeld:
     """The newest World a robot process heard, as a model (covswarm.world.model.World).
 
@@ -190,7 +186,7 @@ class WorldHeld:
             self.drops.drop(exc.reason, f"world: {exc}")
             return False
         held = self._message
-        if held is not None and same_world(message, held):
+        if held is not None and message.same_world(held):
             self._received = now
             return True
         if held is not None and message.seq <= held.seq:
@@ -210,7 +206,6 @@ def drops_line(sims: list[RobotSim]) -> str | None:
     """One log line with every robot's non-zero drop counts per reason, as JSON after a
     fixed prefix (``robot drops {"3": {"undecodable": 2}}``), for the launcher's log and
     whoever gathers it into summary.json; None when nothing was dropped."""
-    import json
 
     counts = {
         str(sim.id): {reason: n for reason, n in sorted(sim.drops.counts.items()) if n}
@@ -226,7 +221,6 @@ DROPS_PREFIX = "robot drops "
 def gather_drops(log_text: str) -> dict[str, dict[str, int]]:
     """Per robot id and reason, the drop counts of every :func:`drops_line` in a robot
     process's log (the launcher puts them in summary.json); malformed lines are skipped."""
-    import json
 
     gathered: dict[str, dict[str, int]] = {}
     for line in log_text.splitlines():
