@@ -59,7 +59,7 @@ one point; that happened in the ``circle`` scenario.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Mapping
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -210,6 +210,13 @@ def _motion_field(
 def _check_kappa(kappa: float) -> None:
     if not (math.isfinite(kappa) and kappa > 0.0):
         raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
+
+
+def _check_local_law(law: str) -> None:
+    if law not in ("d1", "da"):
+        raise ValueError(
+            f"a local step's law must be 'd1' or 'da' (TVD-C is centralised), got {law!r}"
+        )
 
 
 def _check_law(law: str) -> None:
@@ -593,10 +600,7 @@ def local_step(
     """
     check_density(density)
     _check_kappa(kappa)
-    if law not in ("d1", "da"):
-        raise ValueError(
-            f"a local step's law must be 'd1' or 'da' (TVD-C is centralised), got {law!r}"
-        )
+    _check_local_law(law)
     if me not in positions:
         raise ValueError(f"positions must include the robot itself ({me!r})")
     ids = _ordered_ids(positions)
@@ -648,6 +652,58 @@ def local_step(
         guarded=bool(guarded[0]),
         area=float(cells.mass[0]),
     )
+
+
+@dataclass(frozen=True)
+class LocalView:
+    """One robot's inputs to ``local_step``.
+
+    me: its id; positions: {id: (2,) m} including ``me`` (its two-hop neighbourhood);
+    polygon, polygon_velocity: (M, 2) m and m/s, S as this robot holds it; kappa: 1/s;
+    density: the density snapshot it holds (None: uniform).
+    """
+
+    me: Hashable
+    positions: Mapping[Hashable, np.ndarray]
+    polygon: np.ndarray
+    polygon_velocity: np.ndarray
+    kappa: float
+    density: DensityModel | None = None
+
+
+def local_steps(
+    views: Sequence[LocalView],
+    feedforward: bool = True,
+    max_amplification: float = MAX_AMPLIFICATION,
+    law: str = "d1",
+) -> list[LocalStep]:
+    """``local_step`` of every view, in order: the brains of one process due in one tick.
+
+    Equal to ``[local_step(v.me, v.positions, v.polygon, v.polygon_velocity, v.kappa,
+    feedforward, v.density, max_amplification, law) for v in views]``. A view with invalid
+    input raises ValueError (TypeError for a density that is not a DensityModel) naming its
+    index and ``me``; the caller can then step the views one by one.
+    """
+    _check_local_law(law)
+    steps = []
+    for index, view in enumerate(views):
+        try:
+            steps.append(
+                local_step(
+                    view.me,
+                    view.positions,
+                    view.polygon,
+                    view.polygon_velocity,
+                    view.kappa,
+                    feedforward,
+                    view.density,
+                    max_amplification,
+                    law,
+                )
+            )
+        except (ValueError, TypeError) as error:
+            raise type(error)(f"view {index} (me={view.me!r}): {error}") from error
+    return steps
 
 
 def local_velocity(
