@@ -77,10 +77,10 @@ from covswarm.tvd.coverage import (
     cell_jacobian_blocks,
     cell_rates,
     check_density,
-    concatenate_cells,
     jacobian_times,
     local_cells,
     make_domain,
+    neighbor_candidates,
     tessellate,
     validate_positions,
 )
@@ -714,24 +714,19 @@ def _batch_steps(
     two-hop view).
     """
     count = len(views)
-    sizes = np.array([len(view.ids) for view in views])
-    starts = np.cumsum(sizes) - sizes
-    points = views[0].points if count == 1 else np.concatenate([view.points for view in views])
-    # Row v: view v's point indices, -1 padding.
-    candidates = np.arange(sizes.max()) + starts[:, None]
-    candidates[candidates >= (starts + sizes)[:, None]] = -1
-    mes = starts + np.array([view.me for view in views])
-    # Our cells, then our neighbours' (each among its own view's robots only).
-    cells = local_cells(points, mes, candidates, domain)  # mass: area, until weighed
-    of_view = np.nonzero(cells.shared)[0]
-    owners, of_row = mes, np.arange(count)
-    if len(of_view):
-        theirs = cells.labels[cells.shared]
-        cells = concatenate_cells([cells, local_cells(points, theirs, candidates[of_view], domain)])
-        owners, of_row = np.concatenate((mes, theirs)), np.concatenate((of_row, of_view))
+    points, candidates, starts = _stack(views)
+    mes = starts + [view.me for view in views]
+    # Our neighbours first (the half-plane intersection alone), then our cells and theirs
+    # in one pass, each among its own view's robots only.
+    of_view, column = np.nonzero(neighbor_candidates(points, mes, candidates, domain))
+    owners = np.concatenate((mes, candidates[of_view, column]))
+    kappa = views[0].kappa
+    if count > 1:  # each cell's own view's robots and gain
+        of_row = np.concatenate((np.arange(count), of_view))
+        candidates, kappa = candidates[of_row], np.array([view.kappa for view in views])[of_row]
+    cells = local_cells(points, owners, candidates, domain)  # mass: area, until weighed
     batch = _weigh(cells, density)
     target, rate = _targets(batch, points, domain, feedforward, density)
-    kappa = np.array([view.kappa for view in views])[of_row]
     feedback = kappa * (target - as_complex(points)[owners])
     mine = _rows(batch, slice(0, count))
     field = blocks = None
@@ -763,27 +758,34 @@ def _batch_steps(
     )
     velocity = as_vectors(rows if field is None else field[mes] + rows)
     centroid = as_vectors(mine.centroid)
-    shared = mine.shared
+    # Python lists: a few numpy calls for the whole batch, not per view.
+    labels, shared = mine.labels.tolist(), mine.shared.tolist()
+    masses, guards, areas = mine.mass.tolist(), guarded.tolist(), cells.mass[:count].tolist()
     return [
         LocalStep(
             velocity=velocity[k],
             neighbors=frozenset(
-                views[k].ids[j] for j in (mine.labels[k][shared[k]] - starts[k]).tolist()
+                view.ids[j - start] for j, edge in zip(labels[k], shared[k], strict=True) if edge
             ),
             centroid=centroid[k],
-            mass=mass,
-            guarded=guard,
-            area=area,
+            mass=masses[k],
+            guarded=guards[k],
+            area=areas[k],
         )
-        for k, (mass, guard, area) in enumerate(
-            zip(
-                mine.mass.tolist(),
-                guarded.tolist(),
-                cells.mass[:count].tolist(),
-                strict=True,
-            )
-        )
+        for k, (view, start) in enumerate(zip(views, starts.tolist(), strict=True))
     ]
+
+
+def _stack(views: list[_Known]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The views' points as disjoint blocks of one array: (points (N, 2), candidates (V, D)
+    each view's point indices padded with -1, starts (V,) each block's first index)."""
+    if len(views) == 1:
+        return views[0].points, np.arange(len(views[0].ids))[None], np.zeros(1, dtype=np.intp)
+    sizes = [len(view.ids) for view in views]
+    starts = np.cumsum([0, *sizes[:-1]])
+    candidates = np.arange(max(sizes)) + starts[:, None]
+    candidates[candidates >= (starts + sizes)[:, None]] = -1
+    return np.concatenate([view.points for view in views]), candidates, starts
 
 
 def local_velocity(

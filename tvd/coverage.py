@@ -406,13 +406,6 @@ def as_vectors(numbers: np.ndarray) -> np.ndarray:
     return numbers.view(np.float64).reshape(*numbers.shape, 2)
 
 
-def cell_neighbors(points: np.ndarray, owner: int, domain: CoverageDomain) -> np.ndarray:
-    """Robots whose bisector may bound the cell of ``owner`` among ``points: (n, 2)``, (m,):
-    ``neighbor_candidates`` of one cell with every robot a candidate."""
-    everyone = np.arange(len(points))[None]
-    return np.flatnonzero(neighbor_candidates(points, np.array([owner]), everyone, domain)[0])
-
-
 def neighbor_candidates(
     points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
 ) -> np.ndarray:
@@ -619,6 +612,8 @@ def build_cells_in_chunks(
 ) -> CellBatch:
     """``build_cells`` of many cells, BATCH_CELLS at a time: candidates (K, D), each chunk
     trimmed to its widest row (a row's -1 padding at its end)."""
+    if len(owners) <= BATCH_CELLS:
+        return build_cells(points, owners, candidates, domain)
     parts = []
     for s in range(0, len(owners), BATCH_CELLS):
         rows = candidates[s : s + BATCH_CELLS]
@@ -630,13 +625,17 @@ def build_cells_in_chunks(
 # Nearest robots of its view offered first to each cell by ``local_cells``; a cell that needs
 # more is rebuilt with the whole view. A near-CVT cell's neighbours are its ~6 nearest.
 LOCAL_CANDIDATES = 12
+# Fewer cells than this are built with every candidate at once: for one robot's step the
+# numpy calls of the pruning cost more than the arithmetic they save.
+PRUNED_CELLS = 32
 
 
 def local_cells(
     points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
 ) -> CellBatch:
-    """The cells of ``owners`` (K,), each among its own ``candidates`` (K, D) only (robot
-    indices in increasing order, -1 padding at the end of a row): ``build_cells``' cells.
+    """The cells of ``owners`` (K,), each among its own ``candidates`` (K, D) only, or (1, D)
+    shared (robot indices in increasing order, -1 padding at the end of a row):
+    ``build_cells``' cells.
 
     The half-plane intersection costs L^2 per cell for L lines, so each cell is first built
     from its LOCAL_CANDIDATES nearest candidates (kept in index order, so that coincident
@@ -644,8 +643,9 @@ def local_cells(
     left out is within twice the cell's radius (only a robot that near can cut it, as in
     ``team_cells``).
     """
-    if candidates.shape[1] <= LOCAL_CANDIDATES:
+    if candidates.shape[1] <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
+    candidates = np.broadcast_to(candidates, (len(owners), candidates.shape[1]))
     where = as_complex(points)
     distance = np.abs(where[candidates] - where[owners][:, None])
     distance[candidates < 0] = np.inf
