@@ -14,7 +14,14 @@ import pytest
 
 from covswarm.deploy.bench import bench_density, make_layout, two_hop
 from covswarm.tvd.control import LocalView, local_step, local_steps
-from covswarm.tvd.coverage import neighbors
+from covswarm.tvd.coverage import (
+    LOCAL_CANDIDATES,
+    PRUNED_CELLS,
+    build_cells,
+    local_cells,
+    make_domain,
+    neighbors,
+)
 
 TOL = 1e-9
 KAPPA = 1.3
@@ -175,3 +182,28 @@ def test_bad_law_and_density_type() -> None:
     wrong = LocalView(0, view.positions, polygon, np.zeros((4, 2)), 1.0, density="phi")
     with pytest.raises(TypeError, match=r"view 1 \(me=0\)"):
         local_steps([view, wrong])
+
+
+def test_local_cells_rebuild_a_cell_whose_neighbour_is_not_among_the_nearest() -> None:
+    """A robot with 30 robots on its left and one far to its right, which bounds its cell:
+    the first pass (the nearest LOCAL_CANDIDATES) misses that one, the radius test must
+    catch it. Every cell equals ``build_cells``' with all candidates."""
+    rng = np.random.default_rng(11)
+    huddle = np.array([0.6, 2.0]) + rng.uniform(-0.3, 0.3, size=(15, 2))
+    wall = np.stack([rng.uniform(0.05, 0.25, 15), rng.uniform(0.0, 4.0, 15)], axis=1)
+    points = np.concatenate(([[1.0, 2.0], [5.0, 2.0]], huddle, wall))
+    domain = make_domain(np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]]))
+    n = len(points)
+    assert n > LOCAL_CANDIDATES and n >= PRUNED_CELLS
+    owners = np.arange(n)
+    everyone = np.broadcast_to(owners, (n, n))
+    pruned, full = (
+        local_cells(points, owners, everyone, domain),
+        build_cells(points, owners, everyone, domain),
+    )
+    assert 1 in full.labels[0][full.shared[0]]  # the far robot is robot 0's neighbour
+    for k in range(n):
+        assert set(pruned.labels[k][pruned.shared[k]]) == set(full.labels[k][full.shared[k]])
+        np.testing.assert_allclose(pruned.vertices(k), full.vertices(k), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(pruned.mass, full.mass, rtol=1e-12, atol=0)
+    np.testing.assert_allclose(pruned.centroid, full.centroid, rtol=0, atol=1e-12)
