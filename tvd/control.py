@@ -59,8 +59,7 @@ one point; that happened in the ``circle`` scenario.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Iterator, Mapping, Sequence
-from contextlib import contextmanager
+from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -604,6 +603,7 @@ def local_step(
     _check_local_law(law)
     check_density(density)
     view = _known(LocalView(me, positions, polygon, polygon_velocity, kappa, density))
+    validate_positions(view.points)
     domain = make_domain(polygon, polygon_velocity)
     return _batch_steps([view], domain, density, feedforward, max_amplification, law)[0]
 
@@ -643,21 +643,37 @@ def local_steps(
     DensityModel) naming its index and ``me``; the caller can then step the views one by one.
     """
     _check_local_law(law)
-    known, groups = [], {}
+    known: list[_Known] = []
+    groups: dict[tuple, list[int]] = {}
+    keys: dict[tuple, tuple] = {}  # S and density by identity -> by value
     for index, view in enumerate(views):
-        with _naming(index, view):
+        try:
             check_density(view.density)
             known.append(_known(view))
-            polygon = np.asarray(view.polygon, dtype=np.float64)
-            velocity = np.asarray(view.polygon_velocity, dtype=np.float64)
-        shape = (polygon.shape, velocity.shape)
-        key = (shape, polygon.tobytes(), velocity.tobytes(), id(view.density))
+            same = (id(view.polygon), id(view.polygon_velocity), id(view.density))
+            key = keys.get(same)
+            if key is None:
+                polygon = np.asarray(view.polygon, dtype=np.float64)
+                velocity = np.asarray(view.polygon_velocity, dtype=np.float64)
+                shape = (polygon.shape, velocity.shape)
+                key = keys[same] = (shape, polygon.tobytes(), velocity.tobytes(), id(view.density))
+        except (ValueError, TypeError) as error:
+            raise _named(error, index, view) from error
         groups.setdefault(key, []).append(index)
+    # Finiteness for the whole batch at once; the view at fault is then named.
+    if known and not np.isfinite(np.concatenate([view.points for view in known])).all():
+        for index, view in enumerate(known):
+            try:
+                validate_positions(view.points)
+            except ValueError as error:
+                raise _named(error, index, views[index]) from error
     steps: list = [None] * len(known)
     for members in groups.values():
         first = views[members[0]]
-        with _naming(members[0], first):
+        try:
             domain = make_domain(first.polygon, first.polygon_velocity)
+        except ValueError as error:
+            raise _named(error, members[0], first) from error
         group = _batch_steps(
             [known[i] for i in members], domain, first.density, feedforward, max_amplification, law
         )
@@ -666,13 +682,9 @@ def local_steps(
     return steps
 
 
-@contextmanager
-def _naming(index: int, view: LocalView) -> Iterator[None]:
-    """Re-raise a view's ValueError or TypeError with its index and ``me`` in front."""
-    try:
-        yield
-    except (ValueError, TypeError) as error:
-        raise type(error)(f"view {index} (me={view.me!r}): {error}") from error
+def _named(error: Exception, index: int, view: LocalView) -> Exception:
+    """``error`` (a ValueError or TypeError) again, with the view's index and ``me`` in front."""
+    return type(error)(f"view {index} (me={view.me!r}): {error}")
 
 
 @dataclass(frozen=True)
@@ -686,12 +698,16 @@ class _Known:
 
 
 def _known(view: LocalView) -> _Known:
-    """The view's robots in order (``_ordered_ids``), validated; ValueError if not valid."""
+    """The view's robots in order (``_ordered_ids``); ValueError for a bad gain, ``me``
+    missing or a position that is not a 2-vector. Finiteness is left to the caller (once
+    for a whole batch)."""
     _check_kappa(view.kappa)
     if view.me not in view.positions:
         raise ValueError(f"positions must include the robot itself ({view.me!r})")
     ids = _ordered_ids(view.positions)
-    points = validate_positions(np.array([view.positions[key] for key in ids], dtype=np.float64))
+    points = np.array([view.positions[key] for key in ids], dtype=np.float64)
+    if points.shape != (len(ids), 2):
+        validate_positions(points)  # raises, naming the shape
     return _Known(ids, points, ids.index(view.me), float(view.kappa))
 
 
@@ -759,20 +775,20 @@ def _batch_steps(
     velocity = as_vectors(rows if field is None else field[mes] + rows)
     centroid = as_vectors(mine.centroid)
     # Python lists: a few numpy calls for the whole batch, not per view.
-    labels, shared = mine.labels.tolist(), mine.shared.tolist()
+    of_view, column = np.nonzero(mine.shared)
+    local = (mine.labels[of_view, column] - starts[of_view]).tolist()
+    ends = np.cumsum(np.bincount(of_view, minlength=count)).tolist()
     masses, guards, areas = mine.mass.tolist(), guarded.tolist(), cells.mass[:count].tolist()
     return [
         LocalStep(
             velocity=velocity[k],
-            neighbors=frozenset(
-                view.ids[j - start] for j, edge in zip(labels[k], shared[k], strict=True) if edge
-            ),
+            neighbors=frozenset(map(view.ids.__getitem__, local[begin:end])),
             centroid=centroid[k],
             mass=masses[k],
             guarded=guards[k],
             area=areas[k],
         )
-        for k, (view, start) in enumerate(zip(views, starts.tolist(), strict=True))
+        for k, (view, begin, end) in enumerate(zip(views, [0, *ends[:-1]], ends, strict=True))
     ]
 
 
