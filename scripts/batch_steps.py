@@ -7,8 +7,8 @@ A near-CVT team (deploy.bench.make_layout "cvt") in a translating square; each v
 robot's two-hop neighbourhood (deploy.bench.two_hop), as an agent holds it. For each batch
 size B the first B robots' views are stepped as one ``local_steps`` call and as a loop of
 ``local_step``, interleaved ``--repeats`` times (the machine's speed drifts: compare the
-ratio, and read the load printed with it). Prints the median microseconds per view of each
-and their ratio.
+ratio, and read the load printed with it). Prints the median microseconds per view of each,
+their ratio, and the fastest of the repeats (the cost without the other workers' noise).
 """
 
 from __future__ import annotations
@@ -67,8 +67,9 @@ def main(team: int, sizes: str, repeats: int, law: str, density: bool) -> None:
             batched.append((time.perf_counter() - start) / size * 1e6)
         one, many = float(np.median(single)), float(np.median(batched))
         print(
-            f"B={size:4d}: loop {one:7.1f} us/view, batch {many:7.1f} us/view, "
-            f"ratio {one / many:5.2f}, load {os.getloadavg()[0]:.2f}"
+            f"B={size:4d}: median loop {one:6.1f} us/view, batch {many:6.1f} us/view, "
+            f"ratio {one / many:5.2f}; fastest loop {min(single):6.1f}, batch "
+            f"{min(batched):6.1f}; load {os.getloadavg()[0]:.2f}"
         )
 
 

@@ -22,6 +22,7 @@ from covswarm.tvd.coverage import (
     make_domain,
     neighbors,
 )
+from covswarm.tvd.safety import safe_unicycle_velocities, safe_velocity
 
 TOL = 1e-9
 KAPPA = 1.3
@@ -207,3 +208,94 @@ def test_local_cells_rebuild_a_cell_whose_neighbour_is_not_among_the_nearest() -
         np.testing.assert_allclose(pruned.vertices(k), full.vertices(k), rtol=0, atol=1e-12)
     np.testing.assert_allclose(pruned.mass, full.mass, rtol=1e-12, atol=0)
     np.testing.assert_allclose(pruned.centroid, full.centroid, rtol=0, atol=1e-12)
+
+
+def random_filter_cases(count: int, seed: int) -> dict:
+    """Robots in a 4 m square with 0 to 8 neighbours within 0.5 m (some closer than the safe
+    distance: infeasible rows), their velocities, 0 to 3 box obstacles nearby, and a few
+    robots or neighbours that are not finite."""
+    rng = np.random.default_rng(seed)
+    positions = rng.uniform(0.3, 3.7, size=(count, 2))
+    neighbors, theirs, obstacles = [], [], []
+    for p in positions:
+        k = int(rng.integers(0, 9))
+        neighbors.append(p + rng.uniform(-0.4, 0.4, size=(k, 2)))
+        theirs.append(rng.normal(0.0, 0.2, size=(k, 2)))
+        corners = p + rng.uniform(-0.6, 0.4, size=(int(rng.integers(0, 4)), 2))
+        obstacles.append([c + np.array([[0, 0], [0.2, 0], [0.2, 0.2], [0, 0.2]]) for c in corners])
+    velocities = rng.normal(0.0, 0.2, size=(count, 2))
+    nominal = rng.normal(0.0, 0.4, size=(count, 2))
+    headings = rng.uniform(-np.pi, np.pi, size=count)
+    positions[1], nominal[2], headings[3], velocities[4] = np.nan, np.inf, np.nan, np.nan
+    neighbors[5] = np.concatenate([neighbors[5], [[np.nan, 1.0]]])
+    theirs[5] = np.concatenate([theirs[5], [[0.0, 0.0]]])
+    theirs[6][:1] = np.nan
+    return {
+        "positions": positions,
+        "nominal": nominal,
+        "headings": headings,
+        "neighbors": neighbors,
+        "velocities": velocities,
+        "neighbor_velocities": theirs,
+        "obstacles": obstacles,
+        "gamma": rng.uniform(2.0, 10.0, size=count),
+    }
+
+
+@pytest.mark.parametrize("walled", [False, True])
+@pytest.mark.parametrize("reciprocal", [False, True])
+def test_batch_unicycle_filter_equals_safe_velocity(walled: bool, reciprocal: bool) -> None:
+    count, safe = 300, 0.16
+    case = random_filter_cases(count, seed=int(walled) + 2 * int(reciprocal))
+    shared = {"obstacle_distance": 0.1, "reach": 0.5} if walled else {}
+    workspace = (0.0, 4.0, 0.0, 4.0) if walled else None
+    velocity, active, relaxed = safe_unicycle_velocities(
+        case["positions"],
+        case["nominal"],
+        case["headings"],
+        case["neighbors"],
+        safe,
+        case["gamma"],
+        velocities=case["velocities"] if reciprocal else None,
+        neighbor_velocities=case["neighbor_velocities"] if reciprocal else None,
+        obstacles=case["obstacles"] if walled else None,
+        workspace=workspace,
+        obstacle_gamma=0.5 * case["gamma"] if walled else None,
+        **shared,
+    )
+    for r in range(count):
+        want = safe_velocity(
+            case["positions"][r],
+            case["nominal"][r],
+            case["neighbors"][r],
+            safe,
+            float(case["gamma"][r]),
+            heading=float(case["headings"][r]),
+            velocity=case["velocities"][r] if reciprocal else None,
+            neighbor_velocities=case["neighbor_velocities"][r] if reciprocal else None,
+            obstacles=case["obstacles"][r] if walled else (),
+            workspace=workspace,
+            obstacle_gamma=0.5 * float(case["gamma"][r]) if walled else None,
+            **shared,
+        )
+        np.testing.assert_allclose(velocity[r], want.velocity, rtol=0, atol=TOL, err_msg=f"{r}")
+        assert (active[r], relaxed[r]) == (want.active, want.relaxed), r
+    # The cases are what they claim: untouched, clipped and relaxed robots, zeros for bad input.
+    assert np.sum(active == 0) > 20 and np.sum(active > 0) > 20 and np.sum(relaxed) > 5
+    assert np.all(velocity[1:4] == 0.0)
+
+
+def test_batch_unicycle_filter_edges() -> None:
+    """No robots; robots without neighbours; bad arguments as safe_velocity's."""
+    empty = safe_unicycle_velocities(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0), [], 0.2)
+    assert [len(x) for x in empty] == [0, 0, 0]
+    nominal = np.array([[0.3, -0.1], [0.0, 0.2]])
+    alone = safe_unicycle_velocities(np.ones((2, 2)), nominal, np.zeros(2), [[], []], 0.2)
+    np.testing.assert_array_equal(alone[0], nominal)
+    assert alone[1].tolist() == [0, 0] and not alone[2].any()
+    with pytest.raises(ValueError, match="gamma > 0"):
+        safe_unicycle_velocities(np.ones((1, 2)), nominal[:1], [0.0], [[]], 0.2, 0.0)
+    with pytest.raises(ValueError, match="obstacle_distance"):
+        safe_unicycle_velocities(
+            np.ones((1, 2)), nominal[:1], [0.0], [[]], 0.2, workspace=(0, 2, 0, 2)
+        )
