@@ -242,13 +242,17 @@ def random_filter_cases(count: int, seed: int) -> dict:
     }
 
 
-@pytest.mark.parametrize("walled", [False, True])
+@pytest.mark.parametrize("walled", [False, True, "some"])
 @pytest.mark.parametrize("reciprocal", [False, True])
-def test_batch_unicycle_filter_equals_safe_velocity(walled: bool, reciprocal: bool) -> None:
+def test_batch_unicycle_filter_equals_safe_velocity(walled: bool | str, reciprocal: bool) -> None:
+    """walled: obstacles and one workspace for all; "some": a workspace for every other robot
+    (brains of one process with and without a world)."""
     count, safe = 300, 0.16
-    case = random_filter_cases(count, seed=int(walled) + 2 * int(reciprocal))
+    case = random_filter_cases(count, seed=len(str(walled)) + 2 * int(reciprocal))
     shared = {"obstacle_distance": 0.1, "reach": 0.5} if walled else {}
-    workspace = (0.0, 4.0, 0.0, 4.0) if walled else None
+    box = (0.0, 4.0, 0.0, 4.0)
+    workspace = [box if r % 2 else None for r in range(count)] if walled == "some" else None
+    workspace = box if walled is True else workspace
     velocity, active, relaxed = safe_unicycle_velocities(
         case["positions"],
         case["nominal"],
@@ -274,7 +278,7 @@ def test_batch_unicycle_filter_equals_safe_velocity(walled: bool, reciprocal: bo
             velocity=case["velocities"][r] if reciprocal else None,
             neighbor_velocities=case["neighbor_velocities"][r] if reciprocal else None,
             obstacles=case["obstacles"][r] if walled else (),
-            workspace=workspace,
+            workspace=workspace[r] if isinstance(workspace, list) else workspace,
             obstacle_gamma=0.5 * float(case["gamma"][r]) if walled else None,
             **shared,
         )
@@ -299,3 +303,8 @@ def test_batch_unicycle_filter_edges() -> None:
         safe_unicycle_velocities(
             np.ones((1, 2)), nominal[:1], [0.0], [[]], 0.2, workspace=(0, 2, 0, 2)
         )
+    with pytest.raises(ValueError, match="workspace must be"):
+        safe_unicycle_velocities(
+            np.ones((2, 2)), nominal, [0.0, 0.0], [[], []], 0.2,
+            workspace=[None, (0, 2, 2, 0)], obstacle_distance=0.1,
+        )  # fmt: skip

@@ -441,7 +441,7 @@ def safe_unicycle_velocities(
     velocities: np.ndarray | None = None,
     neighbor_velocities: Sequence[np.ndarray] | None = None,
     obstacles: Sequence[Sequence[np.ndarray]] | None = None,
-    workspace: Box | None = None,
+    workspace: Box | Sequence[Box | None] | None = None,
     obstacle_distance: float | np.ndarray | None = None,
     reach: float = np.inf,
     obstacle_gamma: float | np.ndarray | None = None,
@@ -454,8 +454,9 @@ def safe_unicycle_velocities(
 
     positions, nominal: (R, 2) m, m/s; headings: (R,) rad; neighbors: R arrays (m_r, 2) m;
     velocities: (R, 2) m/s or None; neighbor_velocities: R arrays (m_r, 2) m/s or None;
-    obstacles: R sequences of convex polygons or None; safe_distance, gamma,
-    obstacle_distance, obstacle_gamma: one value or (R,) values. Returns (velocities
+    obstacles: R sequences of convex polygons or None; workspace: one box for all, or a box
+    or None per robot; safe_distance, gamma, obstacle_distance, obstacle_gamma: one value
+    or (R,) values. Returns (velocities
     (R, 2) m/s, active (R,) rows tight, relaxed (R,) bool).
 
     With the heading e given every row is (a . e) e^T u <= b (:func:`unicycle_rows`), a
@@ -545,6 +546,26 @@ def _clip_speed(
 Rows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 
+def _workspaces(
+    workspace: Box | Sequence[Box | None] | None, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robots with walls (W,) and their boxes (W, 4): ``workspace`` is one box for all,
+    or one box or None per robot. ValueError for a box that is not xmin < xmax, ymin < ymax."""
+    if workspace is None:
+        return np.zeros(0, dtype=int), np.zeros((0, 4))
+    try:
+        shared = [float(v) for v in workspace]
+    except TypeError:  # a box or None per robot
+        robots = [r for r, box in enumerate(workspace) if box is not None]
+        boxes = [[float(v) for v in workspace[r]] for r in robots]
+    else:
+        robots, boxes = list(range(count)), [shared] * count
+    for box in boxes:
+        if not (len(box) == 4 and box[0] < box[1] and box[2] < box[3]):
+            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax), got {box!r}")
+    return np.array(robots, dtype=int), np.array(boxes, dtype=float).reshape(-1, 4)
+
+
 def _pair_rows(
     p: np.ndarray,
     ok: np.ndarray,
@@ -587,7 +608,7 @@ def _obstacle_rows(
     p: np.ndarray,
     ok: np.ndarray,
     obstacles: Sequence[Sequence[np.ndarray]] | None,
-    workspace: Box | None,
+    workspace: Box | Sequence[Box | None] | None,
     distance: np.ndarray,
     gamma: np.ndarray,
     reach: float,
@@ -604,18 +625,19 @@ def _obstacle_rows(
             near = signed <= reach
             owner, b = owner[near], gamma[owner[near]] * (signed[near] - distance[owner[near]])
             parts.append((owner, -grad[near], b, np.maximum(b, 0.0)))
-    if workspace is not None:
-        xmin, xmax, ymin, ymax = (float(v) for v in workspace)
-        if not (xmin < xmax and ymin < ymax):
-            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax), got {workspace!r}")
+    robots, boxes = _workspaces(workspace, len(p))
+    if len(robots):
+        robots, boxes = robots[ok[robots]], boxes[ok[robots]]
         inward = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
-        robots = np.flatnonzero(ok)
-        x, y = p[robots, 0], p[robots, 1]
-        gaps = np.stack([x - xmin, xmax - x, y - ymin, ymax - y], axis=1)  # (R', 4)
+        x, y = p[robots, :1], p[robots, 1:]
+        gaps = np.concatenate([x, boxes[:, 1:2], y, boxes[:, 3:]], axis=1) - np.concatenate(
+            [boxes[:, :1], x, boxes[:, 2:3], y], axis=1
+        )  # (R', 4): left, right, bottom, top
         near = gaps <= reach
         owner = np.broadcast_to(robots[:, None], gaps.shape)[near]
         wall = np.broadcast_to(np.arange(4), gaps.shape)[near]
         b = gamma[owner] * (gaps[near] - distance[owner])
         parts.append((owner, -inward[wall], b, np.maximum(b, 0.0)))
     empty: Rows = (np.zeros(0, dtype=int), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
-    return tuple(np.concatenate(x) for x in zip(empty, *parts, strict=True))  # type: ignore[return-value]
+    owner, a, b, relaxed = (np.concatenate(x) for x in zip(empty, *parts, strict=True))
+    return owner, a, b, relaxed
