@@ -80,10 +80,10 @@ def team_target(fractions: Iterable[float]) -> float:
 
 def next_pace(pace: float, target: float, dt: float) -> float:
     """The pace after ``dt`` s towards ``target``: down at once, up by RISE_RATE per s,
-    unchanged within the dead band."""
+    unchanged within the dead band (but all the way back to 1 once the rate is held)."""
     if target < pace - DROP_BAND:
         return target
-    if target > pace + RISE_BAND:
+    if target > pace + RISE_BAND or target == 1.0:
         return min(target, pace + RISE_RATE * max(dt, 0.0))
     return pace
 
