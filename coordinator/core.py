@@ -14,6 +14,10 @@ real wall clock; message stamps are ``wall * time_scale``, as runtime.clock.scal
 the CPU-cost timers of the sampling and recording budgets are passed in. The shell
 (coordinator.link) only carries the actions out.
 
+S is the script's S_script(tau(t)) (or the steered S at tau): coordinator.pace slows tau
+down to the control rate the agents report holding, and the mission ends when tau reaches
+the duration; steering requests are handled (and recorded, journalled) in script time.
+
 Composed pieces: coordinator.monitor (the mission's state machine, liveness, e_a record),
 coordinator.steering (who moves S; ``Steering.checks`` vetoes a planned motion) and the run
 recorder (covswarm.records.recorder.RunRecorder, or None), which the core calls directly:
@@ -440,7 +444,7 @@ class CoordinatorCore:
             return
         if state.stats is not None:
             self.observed.agent_stats[state.id] = dict(state.stats)
-            self.pace.report(state.id, state.stats, state.stamp, self._now)
+            self.pace.report(state.id, state.stats, state.stamp)
 
     def on_steer(
         self, payload: bytes, now: float, wall: float, requester: str | None = None
@@ -515,7 +519,10 @@ class CoordinatorCore:
             actions.append(MissionStarted(settings.swarm, wall))
         t = phase.mission_time(now)
         if state != WAITING:
-            tau = self.pace.advance(t, self._team, now, end=settings.duration)
+            slowed = self.pace.pace < 1.0
+            tau = self.pace.advance(t, self._team, end=settings.duration)
+            if slowed != (self.pace.pace < 1.0):
+                self._log_pace(t)
             if state == RUNNING and settings.pace and tau >= settings.duration:
                 phase.stop(now)  # the script's end: done from this tick
                 state = DONE
@@ -561,6 +568,19 @@ class CoordinatorCore:
         if finished:
             actions.append(Finished(started=True))
         return actions
+
+    def _log_pace(self, t: float) -> None:
+        """Say that the script starts or stops running slower than the clock (an
+        overloaded team, coordinator.pace)."""
+        pace = self.pace
+        if pace.pace < 1.0:
+            log.warning(
+                "t = %.1f s: the agents do not hold their %g Hz; the mission's script slows "
+                "down to %.2fx (script at %.1f s)",
+                t, pace.asked, pace.pace, pace.tau,
+            )  # fmt: skip
+        else:
+            log.info("t = %.1f s: the agents hold their rate again; the script at full speed", t)
 
     # -- outputs --------------------------------------------------------------------------
 

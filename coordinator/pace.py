@@ -20,10 +20,15 @@ exist). Two seconds rather than one report's interval: at 10 Hz one tick more or
 one-second window would read as a 10 % change.
 The team's figure is the SLOW_QUANTILE of its members' (the slowest tenth: the team stays
 together only if its slow members keep up, but a single straggler does not freeze
-everyone); an alive member silent for STALE_STATS counts as holding nothing (a starved
-brain reports only when it steps). The pace falls at once to that figure, rises by at
-most RISE_RATE per second, and moves only outside a dead band (DROP_BAND, RISE_BAND:
-report jitter does not make S surge and stall); a team holding FULL of the rate holds it.
+everyone). A member that stops reporting keeps its last figure: a brain that is frozen,
+hung or dead before its token lapses is a fault the team covers for (its robot stops on
+its command timeout, docs/faults.md), not a machine that holds less; a starved brain
+still reports whenever it steps, with its low rate. The pace falls at once to the team's
+figure, rises by at most RISE_RATE per second, and moves only outside a dead band
+(DROP_BAND, RISE_BAND: report jitter does not make S surge and stall). A team holding
+FULL of the rate holds it: a brain stepping 4 of 5 periods never holds its robot
+(covswarm.agent.pack holds it after three missed periods in a row) and its gain is
+sampled for the period it holds, so the script need not wait for it.
 
 PACE_FLOOR rather than a pause at pace 0: a mission on a machine that holds nothing still
 ends (after at most 1 / PACE_FLOOR its duration), and S moving at 5 % of its speed is
@@ -46,12 +51,11 @@ import numpy as np
 from covswarm.tvd.density import Density
 
 PACE_FLOOR = 0.05  # slowest pace: the mission lasts at most 20x its script
-FULL = 0.9  # a team that holds this fraction of the asked rate holds it (ticker jitter)
+FULL = 0.8  # a team that holds this fraction of the asked rate holds it (module docstring)
 DROP_BAND = 0.03  # the pace falls only to a target this far below it ...
 RISE_BAND = 0.05  # ... and rises only towards one this far above it
 RISE_RATE = 0.1  # pace per s of mission time: from 0.4 back to 1 in 6 s
 SLOW_QUANTILE = 0.1  # the team's figure: the slowest tenth of its members
-STALE_STATS = 3.0  # s without stats after which an alive member counts as holding nothing
 HELD_WINDOW = 2.0  # s of an agent's reports its held rate is measured over
 
 
@@ -120,7 +124,6 @@ class Pace:
     tau_log: list[float] = field(default_factory=list)
     pace_log: list[float] = field(default_factory=list)
     held: dict[int, float] = field(default_factory=dict)  # fraction of asked, per agent
-    heard: dict[int, float] = field(default_factory=dict)  # clock of its last report, s
     # per agent: (stamp, mission_steps) of its reports, the oldest HELD_WINDOW s back
     _reports: dict[int, deque[tuple[float, float]]] = field(default_factory=dict)
 
@@ -128,30 +131,23 @@ class Pace:
         if not (math.isfinite(self.asked) and self.asked > 0.0):
             raise ValueError(f"the asked control rate must be positive, got {self.asked!r}")
 
-    def report(self, ident: int, stats: Mapping[str, float], stamp: float, now: float) -> None:
-        """Agent ``ident``'s stats, stamped ``stamp`` (its mission-scaled wall clock),
-        received at ``now`` (the coordinator's clock, s)."""
+    def report(self, ident: int, stats: Mapping[str, float], stamp: float) -> None:
+        """Agent ``ident``'s stats, stamped ``stamp`` (its mission-scaled wall clock, s)."""
         reports = self._reports.setdefault(ident, deque())
         steps = float(stats.get("mission_steps", 0.0))
         if reports and (steps < reports[-1][1] or stamp <= reports[-1][0]):
             reports.clear()  # a restarted agent, or a report out of order
         self.held[ident] = held_fraction(stats, stamp, reports[0] if reports else None, self.asked)
-        self.heard[ident] = now
         reports.append((stamp, steps))
         while len(reports) > 1 and reports[1][0] <= stamp - HELD_WINDOW:
             reports.popleft()
 
-    def target(self, team: Iterable[int], now: float) -> float:
-        """The pace ``team`` (alive members' ids) holds at ``now`` (:func:`team_target`);
-        members never heard from are left out, silent ones count as 0."""
-        fractions = [
-            0.0 if now - self.heard[i] > STALE_STATS else self.held[i]
-            for i in team
-            if i in self.held
-        ]
-        return team_target(fractions)
+    def target(self, team: Iterable[int]) -> float:
+        """The pace ``team`` (alive members' ids) holds (:func:`team_target` of their latest
+        figures; members never heard from are left out)."""
+        return team_target(self.held[i] for i in team if i in self.held)
 
-    def advance(self, t: float, team: Iterable[int], now: float, end: float = math.inf) -> float:
+    def advance(self, t: float, team: Iterable[int], end: float = math.inf) -> float:
         """Mission time ``t``: tau advanced at the pace broadcast since the last tick (up
         to the script's ``end``), then the pace for what follows; returns tau. A ``t`` not
         after the last tick's (a mission that is done) changes nothing."""
@@ -161,7 +157,7 @@ class Pace:
             dt = t - self.t_log[-1]
             self.tau = min(self.tau + self.pace * dt, end)
             if self.enabled:
-                self.pace = next_pace(self.pace, self.target(team, now), dt)
+                self.pace = next_pace(self.pace, self.target(team), dt)
         else:
             self.tau = min(t, end)  # the mission's first tick (0, or a resumed mission's t)
         self.t_log.append(t)
