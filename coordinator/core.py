@@ -355,7 +355,9 @@ class CoordinatorCore:
 
     def resume(self, started_wall: float, now: float, wall: float, journal: list[str]) -> None:
         """Continue the mission that started at ``started_wall`` (a restarted coordinator),
-        with the accepted steering requests of ``journal`` (its lines) replayed."""
+        with the accepted steering requests of ``journal`` (its lines) replayed. The
+        script's clock restarts at the mission time: how far a first coordinator had slowed
+        the script (coordinator.pace) is not kept, so S jumps ahead by that much."""
         # Mission time is wall time since the original start, so agents extrapolating the
         # last domain and the restarted broadcasts agree.
         self.phase.started_at = now - (self.stamp(wall) - started_wall * self.settings.time_scale)
