@@ -28,7 +28,11 @@ nothing, so any superset of a robot's true neighbours gives the same cell: that 
 one robot compute its control from its two-hop neighbourhood alone
 (``covswarm.tvd.control.local_step``). For the whole team, candidates are the nearest robots from a
 k-d tree; a cell not closed within half the distance to its farthest candidate is rebuilt
-with every robot as a candidate.
+with every robot as a candidate. Many robots' local views at once (``local_cells``,
+``covswarm.tvd.control.local_steps``): each cell takes only its own view's robots as
+candidates, the nearest of them first, so one batch holds many local diagrams side by side.
+The intersection costs L^2 per cell for L lines and runs in passes that keep its
+temporaries in cache (PIECE_PAIRS).
 
 Degenerate layouts have defined behaviour:
 - coincident robots: the one that comes first (lowest index) owns the cell, the others
