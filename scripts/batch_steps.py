@@ -8,8 +8,8 @@ A near-CVT team (deploy.bench.make_layout "cvt") in a translating square; each v
 robot's two-hop neighbourhood (deploy.bench.two_hop), as an agent holds it. For each batch
 size B the first B robots' views are stepped as one ``local_steps`` call and as a loop of
 ``local_step``, interleaved ``--repeats`` times (the machine's speed drifts: compare the
-ratio, and read the load printed with it). Prints the median microseconds per view of each,
-their ratio, and the fastest of the repeats (the cost without the other workers' noise).
+ratio, and read the load printed with it). Prints the median microseconds per view of each
+in wall-clock and in CPU time, and their ratios (``compare``).
 
 The safety filter's inputs are an agent's (covswarm.agent.brain._safe): the robots within
 SAFETY_RADIUS with velocities, a random heading, the nominal velocity of a coverage step, and
@@ -108,23 +108,27 @@ def filter_batch(inputs: dict, count: int, safe: float) -> None:
 
 
 def compare(label: str, sizes: list[int], repeats: int, one_by_one, batched) -> None:
-    """Interleaved timings of ``one_by_one(size)`` and ``batched(size)``, printed per item."""
+    """Interleaved timings of ``one_by_one(size)`` and ``batched(size)``, printed per item:
+    wall-clock medians and their ratio, and the process's CPU time (the median of
+    time.thread_time: what the call itself used, without the time other processes had the
+    cores, which on a loaded machine preempt a long batch more often than a short step)."""
     for size in sizes:
         one_by_one(size)
         batched(size)  # warm
-        single, many = [], []
+        wall: dict[str, list[float]] = {"loop": [], "batch": []}
+        cpu: dict[str, list[float]] = {"loop": [], "batch": []}
         for _ in range(repeats):
-            start = time.perf_counter()
-            one_by_one(size)
-            single.append((time.perf_counter() - start) / size * 1e6)
-            start = time.perf_counter()
-            batched(size)
-            many.append((time.perf_counter() - start) / size * 1e6)
-        one, batch = float(np.median(single)), float(np.median(many))
+            for name, run in (("loop", one_by_one), ("batch", batched)):
+                start, start_cpu = time.perf_counter(), time.thread_time()
+                run(size)
+                cpu[name].append((time.thread_time() - start_cpu) / size * 1e6)
+                wall[name].append((time.perf_counter() - start) / size * 1e6)
+        one, batch = float(np.median(wall["loop"])), float(np.median(wall["batch"]))
+        one_cpu, batch_cpu = float(np.median(cpu["loop"])), float(np.median(cpu["batch"]))
         print(
-            f"{label} B={size:4d}: median loop {one:6.1f} us, batch {batch:6.1f} us, "
-            f"ratio {one / batch:5.2f}; fastest loop {min(single):6.1f}, batch "
-            f"{min(many):6.1f}; load {os.getloadavg()[0]:.2f}"
+            f"{label} B={size:4d}: wall loop {one:6.1f} us, batch {batch:6.1f} us, "
+            f"ratio {one / batch:5.2f}; cpu loop {one_cpu:6.1f}, batch {batch_cpu:6.1f}, "
+            f"ratio {one_cpu / batch_cpu:5.2f}; load {os.getloadavg()[0]:.2f}"
         )
 
 

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from covswarm.deploy.bench import bench_density, make_layout, two_hop
-from covswarm.tvd.control import LocalView, local_step, local_steps
+from covswarm.tvd.control import LocalView, local_step, local_steps, team_step
 from covswarm.tvd.coverage import (
     LOCAL_CANDIDATES,
     PRUNED_CELLS,
@@ -90,7 +90,16 @@ def assert_same_steps(batch: list, single: list) -> None:
 def test_team_batch_equals_single_steps(kind: str, density: bool, law: str) -> None:
     views = team_views(36, kind, seed=3, density=density)
     single = one_by_one(views, law)
-    assert_same_steps(local_steps(views, law=law), single)
+    batch = local_steps(views, law=law)
+    assert_same_steps(batch, single)
+    # And, from exact two-hop views, the full team's step (team_cells' own cells).
+    first = views[0]
+    positions = np.array([v.positions[v.me] for v in views])  # views[i].me == i
+    team = team_step(
+        law, positions, first.polygon, first.polygon_velocity, KAPPA, density=first.density
+    )
+    got = np.array([step.velocity for step in batch])
+    np.testing.assert_allclose(got, team.velocity, rtol=0, atol=TOL)
     # The layouts exercise the law: moving robots, and (random) some rows guarded.
     assert max(np.linalg.norm(step.velocity) for step in single) > 0.01
     assert all(step.neighbors for step in single)

@@ -1,4 +1,5 @@
-"""Coverage control laws over a time-varying domain: TVD-C, TVD-D1, TVD-DA and one robot's step.
+"""Coverage control laws over a time-varying domain: TVD-C, TVD-D1, TVD-DA, one robot's step
+and the steps of many robots at once (``local_steps``, one vectorised batch).
 
 With r = kappa (c - p) + dc/dt (dc/dt of Proposition 1) and J = dc/dp:
 
@@ -61,6 +62,7 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
+from itertools import accumulate
 
 import numpy as np
 import scipy.sparse
@@ -774,21 +776,23 @@ def _batch_steps(
     )
     velocity = as_vectors(rows if field is None else field[mes] + rows)
     centroid = as_vectors(mine.centroid)
-    # Python lists: a few numpy calls for the whole batch, not per view.
-    of_view, column = np.nonzero(mine.shared)
-    local = (mine.labels[of_view, column] - starts[of_view]).tolist()
-    ends = np.cumsum(np.bincount(of_view, minlength=count)).tolist()
+    # Python lists: a few numpy calls for the whole batch, not per view. The neighbours'
+    # labels row by row, each view's in turn.
+    labels = mine.labels[mine.shared].tolist()
+    ends = list(accumulate(mine.shared.sum(axis=1).tolist()))
     masses, guards, areas = mine.mass.tolist(), guarded.tolist(), cells.mass[:count].tolist()
     return [
         LocalStep(
             velocity=velocity[k],
-            neighbors=frozenset(map(view.ids.__getitem__, local[begin:end])),
+            neighbors=frozenset(view.ids[j - start] for j in labels[begin:end]),
             centroid=centroid[k],
             mass=masses[k],
             guarded=guards[k],
             area=areas[k],
         )
-        for k, (view, begin, end) in enumerate(zip(views, [0, *ends[:-1]], ends, strict=True))
+        for k, (view, start, begin, end) in enumerate(
+            zip(views, starts.tolist(), [0, *ends[:-1]], ends, strict=True)
+        )
     ]
 
 

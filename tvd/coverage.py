@@ -28,7 +28,11 @@ nothing, so any superset of a robot's true neighbours gives the same cell: that 
 one robot compute its control from its two-hop neighbourhood alone
 (``covswarm.tvd.control.local_step``). For the whole team, candidates are the nearest robots from a
 k-d tree; a cell not closed within half the distance to its farthest candidate is rebuilt
-with every robot as a candidate.
+with every robot as a candidate. Many robots' local views at once (``local_cells``,
+``covswarm.tvd.control.local_steps``): each cell takes only its own view's robots as
+candidates, the nearest of them first, so one batch holds many local diagrams side by side.
+The intersection costs L^2 per cell for L lines and runs in passes that keep its
+temporaries in cache (PIECE_PAIRS).
 
 Degenerate layouts have defined behaviour:
 - coincident robots: the one that comes first (lowest index) owns the cell, the others
@@ -635,8 +639,8 @@ def build_cells_in_chunks(
 
 
 # Nearest robots of its view offered first to each cell by ``local_cells``; a cell that needs
-# more is rebuilt with the whole view. A near-CVT cell's neighbours are its ~6 nearest.
-LOCAL_CANDIDATES = 12
+# more is rebuilt with twice as many. A near-CVT cell's neighbours are its ~6 nearest.
+LOCAL_CANDIDATES = 8
 # Fewer cells than this are built with every candidate at once: for one robot's step the
 # numpy calls of the pruning cost more than the arithmetic they save.
 PRUNED_CELLS = 32
@@ -651,25 +655,32 @@ def local_cells(
 
     The half-plane intersection costs L^2 per cell for L lines, so each cell is first built
     from its LOCAL_CANDIDATES nearest candidates (kept in index order, so that coincident
-    robots tie-break as with all of them), and rebuilt with all of them when a candidate
-    left out is within twice the cell's radius (only a robot that near can cut it, as in
-    ``team_cells``).
+    robots tie-break as with all of them), and rebuilt with twice as many, and so on, while
+    a candidate left out is within twice the cell's radius (only a robot that near can cut
+    it, as in ``team_cells``).
     """
-    if candidates.shape[1] <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
+    width = candidates.shape[1]
+    if width <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
-    candidates = np.broadcast_to(candidates, (len(owners), candidates.shape[1]))
+    candidates = np.broadcast_to(candidates, (len(owners), width))
     where = as_complex(points)
     distance = np.abs(where[candidates] - where[owners][:, None])
     distance[candidates < 0] = np.inf
-    split = np.argpartition(distance, LOCAL_CANDIDATES, axis=1)
-    rows = np.arange(len(owners))
-    beyond = distance[rows, split[:, LOCAL_CANDIDATES]]  # the nearest one left out
-    nearest = np.sort(split[:, :LOCAL_CANDIDATES], axis=1)
-    batch = build_cells_in_chunks(points, owners, candidates[rows[:, None], nearest], domain)
-    unclosed = np.flatnonzero(beyond <= 2.0 * cell_radius(batch, points) + domain.tol)
-    if len(unclosed):
-        rebuilt = build_cells_in_chunks(points, owners[unclosed], candidates[unclosed], domain)
-        batch = _replace(batch, unclosed, rebuilt)
+    order = np.argsort(distance, axis=1)
+    rows, batch = np.arange(len(owners)), None
+    unclosed, taken = rows, LOCAL_CANDIDATES
+    while len(unclosed):
+        if taken >= width:
+            cells = build_cells_in_chunks(points, owners[unclosed], candidates[unclosed], domain)
+            return cells if batch is None else _replace(batch, unclosed, cells)
+        nearest = np.sort(order[unclosed, :taken], axis=1)
+        cells = build_cells_in_chunks(
+            points, owners[unclosed], candidates[unclosed[:, None], nearest], domain
+        )
+        batch = cells if batch is None else _replace(batch, unclosed, cells)
+        beyond = distance[unclosed, order[unclosed, taken]]  # the nearest one left out
+        unclosed = unclosed[beyond <= 2.0 * cell_radius(cells, points) + domain.tol]
+        taken *= 2
     return batch
 
 

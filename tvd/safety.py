@@ -400,7 +400,8 @@ def team_safe_velocities(
     obstacles (convex polygons) within radius m of a point, say
     covswarm.world.model.World.nearby; workspace, obstacle_distance: as in
     :func:`safe_velocity`; each robot gets rows for those within ``radius``. Returns
-    (velocities (n, 2), active (n,) rows tight per robot, relaxed (n,) bool).
+    (velocities (n, 2), active (n,) rows tight per robot, relaxed (n,) bool). With headings
+    the team is filtered in one batch (:func:`safe_unicycle_velocities`).
     """
     from scipy.spatial import cKDTree
 
@@ -410,6 +411,24 @@ def team_safe_velocities(
     active = np.zeros(n, dtype=int)
     relaxed = np.zeros(n, dtype=bool)
     near = cKDTree(positions).query_ball_point(positions, radius)
+    if headings is not None:  # differential drive: the whole team in one batch
+        others = [[j for j in near[i] if j != i] for i in range(n)]
+        return safe_unicycle_velocities(
+            positions,
+            nominal,
+            headings,
+            [positions[row] for row in others],
+            safe_distance,
+            gamma,
+            velocities=velocities,
+            neighbor_velocities=None if velocities is None else [velocities[r] for r in others],
+            obstacles=None
+            if nearby_obstacles is None
+            else [nearby_obstacles(p, radius) for p in positions],
+            workspace=workspace,
+            obstacle_distance=obstacle_distance,
+            reach=radius,
+        )
     for i in range(n):
         others = [j for j in near[i] if j != i]
         result = safe_velocity(
