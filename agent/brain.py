@@ -641,7 +641,7 @@ class AgentBrain:
             self._step_rate.add(now, self.counters.steps),
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
         )
-        others = self.neighborhood.candidates(now)
+        self.neighborhood.refresh(now)
         if not self.pose_fresh(now):
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
@@ -654,9 +654,7 @@ class AgentBrain:
         started = self._clock()
         assert self.pose is not None
         try:
-            relevant = self.neighborhood.relevant(
-                others, now, (self.pose.x, self.pose.y), self.reach
-            )
+            relevant = self.neighborhood.relevant(now, (self.pose.x, self.pose.y), self.reach)
             return self._view(relevant, now, now_wall, started)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self._failed(exc)
@@ -777,7 +775,8 @@ class AgentBrain:
         # The nearest few only: forged ids must not cost a subscription each.
         nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
         unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
-        return set(self._near(self.neighborhood.reckoned, x, y)) | unconfirmed
+        near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
+        return set(near.tolist()) | unconfirmed
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
@@ -815,10 +814,12 @@ class AgentBrain:
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        rows = list(reckoned.values())
-        rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
-        near = np.array(rows, dtype=float).reshape(-1, 4)
-        near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
+        near = self.neighborhood.table[self.neighborhood.within(*me, SAFETY_RADIUS)]
+        if self.obstacles:  # none is a candidate
+            rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
+            near = np.concatenate(
+                [near, rows[np.hypot(rows[:, 0] - me[0], rows[:, 1] - me[1]) <= SAFETY_RADIUS]]
+            )
         # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
         # world, so the filter is then exactly the robots' alone). Those whose bounding box
         # is that near are handed over and the filter keeps the ones within its reach: the

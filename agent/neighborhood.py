@@ -13,6 +13,8 @@ import math
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+import numpy as np
+
 from covswarm import protocol
 
 # s: at most this far ahead are positions dead-reckoned from a reported velocity. Ages count
@@ -125,6 +127,8 @@ class Neighborhood:
         # candidates at the last step.
         self.reckoned: dict[int, Reckoned] = {}
         self.first_hand: set[int] = set()
+        self.table = np.zeros((0, 4))
+        self.table_ids = np.zeros(0, dtype=np.int64)
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
         # no team member (a stopped robot without brain, or a brain without robot).
@@ -200,7 +204,15 @@ class Neighborhood:
     # --- what the control step uses ----------------------------------------------------
 
     def candidates(self, now: float) -> dict[int, tuple[float, float]]:
-        """Positions of the other robots known well enough to enter the local diagram.
+        """Positions (x, y) m of the other robots known well enough to enter the local
+        diagram, reckoned to ``now`` (:meth:`refresh`)."""
+        self.refresh(now)
+        return {rid: (x, y) for rid, (x, y, _, _) in self.reckoned.items()}
+
+    def refresh(self, now: float) -> None:
+        """Reckon the other robots known well enough to enter the local diagram to ``now``:
+        ``reckoned`` (id -> x, y, vx, vy) and the same as arrays, ``table`` (n, 4) (m, m/s)
+        and ``table_ids`` (n,), for the distance tests of every step.
 
         In order of trust: the freshest of a robot's own pose and AgentState while younger
         than ``stale_timeout`` (a pose wins a tie); else the freshest relay of it in a
@@ -230,15 +242,15 @@ class Neighborhood:
                     track.vy,
                 )
         first_hand = set(reckoned)
+        skip = first_hand | dead.keys()
+        skip.add(self.me)
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
         for relayer, (entries, received) in self.relays.items():
             if received < fresh or relayer in dead:
                 continue
             lead = min(now - received, DEAD_RECKONING_LIMIT)
             for rid, x, y, vx, vy in entries:
-                if rid in first_hand or rid in dead or rid == self.me:
-                    continue
-                if relayed.get(rid, -math.inf) < received:
+                if rid not in skip and relayed.get(rid, -math.inf) < received:
                     relayed[rid] = received
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         # A beacon only while it is the newest news of its robot: one that went stale after
@@ -246,24 +258,31 @@ class Neighborhood:
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
         beacon_only, unconfirmed = set(), {}
-        for rid, track in self.beacons.items():
-            if track.received >= oldest and rid not in reckoned and rid not in dead:
-                if self._heard.get(rid, -math.inf) < track.received:
-                    asked = self.asked.get(rid, now)
-                    if rid not in self.tokens and now - asked > self.confirmation:
-                        unconfirmed[rid] = (track.x, track.y)
-                    else:
-                        reckoned[rid] = (track.x, track.y, 0.0, 0.0)
-                        beacon_only.add(rid)
+        beacons, heard, asked, tokens = self.beacons, self._heard, self.asked, self.tokens
+        known = reckoned.keys() | dead.keys()
+        for rid, track in beacons.items():
+            received = track.received
+            if rid not in known and received >= oldest and heard.get(rid, -math.inf) < received:
+                if rid not in tokens and now - asked.get(rid, now) > self.confirmation:
+                    unconfirmed[rid] = (track.x, track.y)
+                else:
+                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                    beacon_only.add(rid)
         self.beacon_only = beacon_only
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
+        self.table = np.array(list(reckoned.values()), dtype=float).reshape(-1, 4)
+        self.table_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
-        return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
+
+    def within(self, x: float, y: float, radius: float) -> np.ndarray:
+        """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
+        table = self.table
+        return np.flatnonzero(np.hypot(table[:, 0] - x, table[:, 1] - y) <= radius)
 
     def _forget(self, now: float) -> None:
         """Drop records well past their timeout: memory stays bounded, and the tables that
@@ -293,13 +312,10 @@ class Neighborhood:
                 self.asked.setdefault(rid, now)
 
     def relevant(
-        self,
-        others: dict[int, tuple[float, float]],
-        now: float,
-        me: tuple[float, float],
-        reach: float | None,
+        self, now: float, me: tuple[float, float], reach: float | None
     ) -> dict[int, tuple[float, float]]:
-        """The candidates that can matter to our control, to keep the local diagram small.
+        """The candidates (id -> x, y m, as last reckoned: :meth:`refresh`) that can matter
+        to our control, to keep the local diagram small.
 
         The two-hop set (neighbours' reported neighbours) plus every robot within
         LOCAL_MARGIN x our cell's reach (m) around ``me``: our cell is cut only within
@@ -308,16 +324,12 @@ class Neighborhood:
         AgentStates arrive. Every known robot is used until a first non-empty cell gives a
         reach (``reach`` None).
         """
+        reckoned = self.reckoned
         if reach is None:
-            return others
-        limit = LOCAL_MARGIN * reach
-        keep = self.two_hop(now)
-        x, y = me
-        return {
-            rid: p
-            for rid, p in others.items()
-            if rid in keep or math.hypot(p[0] - x, p[1] - y) <= limit
-        }
+            return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
+        ids = self.table_ids[self.within(*me, LOCAL_MARGIN * reach)].tolist()
+        ids += self.two_hop(now) & reckoned.keys()
+        return {rid: reckoned[rid][:2] for rid in ids}
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
