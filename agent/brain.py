@@ -506,6 +506,13 @@ class AgentBrain:
         if self.neighborhood.on_liveliness(role, rid, alive):
             self._beacon_due = True  # a newcomer: let it find us without waiting
 
+    def catch_up(self) -> None:
+        """The token changes its process recorded since this brain's last turn apply from
+        now on (covswarm.agent.pack: each is recorded once for the process, after the
+        brain's data of the turn, as :meth:`on_liveliness` would have been called)."""
+        if self.neighborhood.catch_up():
+            self._beacon_due = True
+
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
         """Hold a newer domain: a higher sequence number than the held one (stamps come
         from the coordinator's clock and would drop a restarted coordinator on a host whose

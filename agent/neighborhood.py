@@ -9,6 +9,8 @@ reported neighbours it derives the two-hop set whose AgentStates the agent subsc
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
@@ -94,6 +96,43 @@ def linger(since: dict[int, float], current: Iterable[int], now: float, period: 
     return set(since)
 
 
+class Liveliness:
+    """The liveliness tokens of the agents and robots seen by one process, each change
+    recorded once, numbered (``serial``), for all the brains that share it
+    (:meth:`Neighborhood.share`)."""
+
+    def __init__(self) -> None:
+        self.serial = 0
+        self.deaths: dict[tuple[int, str], int] = {}  # (id, role) -> serial of the deletion
+        self.tokens: set[int] = set()  # agents whose token appeared and did not vanish since
+        self._appeared: list[tuple[int, int]] = []  # (serial, agent id), oldest first
+
+    def change(self, role: str, rid: int, alive: bool) -> None:
+        """Robot ``rid``'s ``role`` ("agent" or "robot"; others are ignored) token appeared
+        (``alive``) or vanished."""
+        if role not in ("agent", "robot"):
+            return
+        self.serial += 1
+        if not alive:
+            self.deaths[rid, role] = self.serial
+            if role == "agent":
+                self.tokens.discard(rid)
+            return
+        self.deaths.pop((rid, role), None)
+        if role == "agent":
+            self.tokens.add(rid)
+            self._appeared.append((self.serial, rid))
+
+    def appeared(self, since: int) -> list[int]:
+        """The agents whose token appeared after change number ``since``."""
+        first = bisect.bisect_right(self._appeared, since, key=lambda entry: entry[0])
+        return [rid for _, rid in self._appeared[first:]]
+
+    def trim(self, upto: int) -> None:
+        """Forget the appearances up to change number ``upto`` (every follower has them)."""
+        del self._appeared[: bisect.bisect_right(self._appeared, upto, key=lambda e: e[0])]
+
+
 class Neighborhood:
     """The other robots one agent knows of, by how it heard of them.
 
@@ -130,10 +169,17 @@ class Neighborhood:
         self.table = np.zeros((0, 4))
         self.table_ids = np.zeros(0, dtype=np.int64)
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
+        # The token changes seen (this agent's own, or its process's: share()), the serial
+        # of the last one taken as applied (catch_up), and (id, role) -> that serial when
+        # data from a robot revived it.
+        self.liveliness = Liveliness()
+        self._shared = False
+        self.mark = 0
+        self._revived: dict[tuple[int, str], int] = {}
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
-        # no team member (a stopped robot without brain, or a brain without robot).
+        # no team member (a stopped robot without brain, or a brain without robot); as of
+        # the last refresh().
         self.dead: dict[int, set[str]] = {}
-        self.tokens: set[int] = set()  # ids whose agent liveliness token we saw appear
         # id -> when we first asked for the AgentState of a robot known only from beacons
         # (ask()); the candidates of the last step known only from beacons; those left out
         # of it for want of confirmation (id -> x, y), and how many were so left out in all
@@ -173,6 +219,12 @@ class Neighborhood:
             del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
         self._revive(beacon.id, "agent")
 
+    def share(self, liveliness: Liveliness) -> None:
+        """Follow the token changes of ``liveliness``, the process's (covswarm.agent.pack):
+        each change is then handled once for all its brains, not once per brain."""
+        self.liveliness, self._shared = liveliness, True
+        self.mark = liveliness.serial
+
     def on_liveliness(self, role: str, rid: int, alive: bool) -> bool:
         """A liveliness token of another robot's agent or robot appeared or vanished; True
         when it announces a newcomer (an agent we do not know yet).
@@ -181,25 +233,38 @@ class Neighborhood:
         token immediately; a frozen process after the Zenoh lease). Fresh data from the same
         role revives it too (a process that came back after a router restart may re-declare
         its token before this agent's subscriber is back), so a missed PUT costs nothing.
+        In a packed process the pack records the change in the liveliness it shares
+        (:meth:`share`), and each brain :meth:`catch_up` after its turn's data.
         """
-        if rid == self.me or role not in ("agent", "robot"):
-            return False
-        if not alive:
-            self.dead.setdefault(rid, set()).add(role)
-            if role == "agent":
-                self.tokens.discard(rid)
-            return False
-        if role == "agent":
-            self.tokens.add(rid)
-        self._revive(rid, role)
-        return role == "agent" and rid not in self.reckoned
+        self.liveliness.change(role, rid, alive)
+        newcomer = self.catch_up()
+        if not self._shared:
+            self.liveliness.trim(self.mark)
+        return newcomer
+
+    def catch_up(self) -> bool:
+        """Take the token changes recorded since the last catch-up as applied from now on
+        (data received until now does not revive a robot whose token vanished since);
+        True when one announced a newcomer: another agent we do not know yet."""
+        liveliness = self.liveliness
+        newcomer = any(
+            rid != self.me and rid not in self.reckoned for rid in liveliness.appeared(self.mark)
+        )
+        self.mark = liveliness.serial
+        return newcomer
 
     def _revive(self, rid: int, role: str) -> None:
-        roles = self.dead.get(rid)
-        if roles is not None:
-            roles.discard(role)
-            if not roles:
-                del self.dead[rid]
+        if (rid, role) in self.liveliness.deaths:
+            self._revived[rid, role] = self.mark
+
+    def _dead(self) -> dict[int, set[str]]:
+        """id -> roles whose liveliness token vanished and that nothing revived since."""
+        dead: dict[int, set[str]] = {}
+        revived = self._revived
+        for (rid, role), serial in self.liveliness.deaths.items():
+            if rid != self.me and revived.get((rid, role), -1) < serial:
+                dead.setdefault(rid, set()).add(role)
+        return dead
 
     # --- what the control step uses ----------------------------------------------------
 
@@ -223,7 +288,7 @@ class Neighborhood:
         error in every neighbour.
         """
         fresh = now - self.stale_timeout
-        dead = self.dead
+        dead = self.dead = self._dead() if self.liveliness.deaths else {}
         chosen: dict[int, Track] = {}
         for table in (self.poses, self.state_tracks):
             for rid, track in table.items():
@@ -258,7 +323,8 @@ class Neighborhood:
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
         beacon_only, unconfirmed = set(), {}
-        beacons, heard, asked, tokens = self.beacons, self._heard, self.asked, self.tokens
+        beacons, heard, asked = self.beacons, self._heard, self.asked
+        tokens = self.liveliness.tokens
         known = reckoned.keys() | dead.keys()
         for rid, track in beacons.items():
             received = track.received
@@ -273,7 +339,8 @@ class Neighborhood:
         self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
-        self.table = np.array(list(reckoned.values()), dtype=float).reshape(-1, 4)
+        rows = itertools.chain.from_iterable(reckoned.values())
+        self.table = np.fromiter(rows, dtype=float, count=4 * len(reckoned)).reshape(-1, 4)
         self.table_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
@@ -297,6 +364,9 @@ class Neighborhood:
                 del table[rid]
         for rid in [rid for rid in self.asked if rid not in self.beacons]:
             del self.asked[rid]
+        deaths = self.liveliness.deaths
+        for key in [key for key in self._revived if key not in deaths]:
+            del self._revived[key]
         for sets in (self.neighbor_sets, self.relays):
             for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]

@@ -8,7 +8,15 @@ tick and its payload handed to every brain that follows the key, as the same ``b
 object, so the shared :class:`~covswarm.agent.decoding.MessageDecoder` decodes and
 validates it once (its hash is cached in the object). A brain still receives only the keys
 it follows itself, newest payload per key, in a canonical order (kind, id, key): what it
-would receive in a process of its own (tests/test_pack.py).
+would receive in a process of its own (tests/test_pack.py). Liveliness token changes are
+recorded once for the process (covswarm.agent.neighborhood.Liveliness), not once per
+brain; each brain takes them as applied after its turn's data, as a process of its own
+would.
+
+Brains due together step together (:meth:`Pack.step`): ``chunk`` at a time, at one clock
+reading, each brain's step split in phases (AgentBrain.begin, the local steps of the
+chunk in one batched call per law and feedforward, AgentBrain.conclude), the deadline
+checked between two chunks.
 
 Overload (issue 24, item 4): a brain whose turn comes after the end of the period it was
 to step for does not step on that period's inputs as if they were fresh: it skips the
@@ -54,6 +62,7 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import DECODE_CACHE
 from covswarm.agent.faults import InboxItem, PoseImpairment
+from covswarm.agent.neighborhood import Liveliness
 
 log = logging.getLogger("covswarm.agent")
 
@@ -161,7 +170,10 @@ class Pack:
         self._pending: _Queues = {bid: {} for bid in self.brains}
         # the same, taken out of a ring between two drains: theirs from the next drain on
         self._later: _Queues = {bid: {} for bid in self.brains}
-        self._changes: dict[int, list[tuple[str, int, bool]]] = {bid: [] for bid in self.brains}
+        # Token changes, recorded once for the process; each brain catches up on its turn.
+        self.liveliness = Liveliness()
+        for brain in brains:
+            brain.neighborhood.share(self.liveliness)
         self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
         self._every = 0  # samples queued one by one (the domain's), numbering their slots
         self._held: set[int] = set()  # brains whose last command was a hold
@@ -176,7 +188,7 @@ class Pack:
             self._follow({bid}, key, "pose", bid, False)
         # Token changes of every agent and robot (rare): a dead teammate leaves the
         # diagrams at once instead of after the staleness timeouts.
-        self._liveliness = bus.liveliness(protocol.alive_selector(swarm))
+        self._token_changes = bus.liveliness(protocol.alive_selector(swarm))
         self._impairment = {
             bid: PoseImpairment(
                 brain.config.pose_loss,
@@ -258,13 +270,14 @@ class Pack:
                 later.clear()
         for key, sub in self._subs.items():
             self._drain_subscription(key, sub, self._pending)
-        while (change := self._liveliness.try_recv()) is not None:
+        # What every brain has caught up on is not needed any more.
+        self.liveliness.trim(min(brain.neighborhood.mark for brain in self.brains.values()))
+        while (change := self._token_changes.try_recv()) is not None:
             try:
                 role, rid = protocol.parse_alive_key(change[0], self.swarm)
             except ValueError:
                 continue  # not a key of ours; nothing to count it against
-            for changes in self._changes.values():
-                changes.append((role, rid, change[1]))
+            self.liveliness.change(role, rid, change[1])
 
     def _drain_subscription(self, key: str, sub: _Subscription, queues: _Queues) -> None:
         """Queue what ``sub`` holds for its followers in ``queues``: its newest sample (one
@@ -350,10 +363,7 @@ class Pack:
             items = impairment.filter(items, now)
         for kind, key_id, payload in items:
             brain.receive(kind, payload, now, wall, key_id)
-        changes = self._changes[bid]
-        for role, rid, alive in changes:
-            brain.on_liveliness(role, rid, alive)
-        changes.clear()
+        brain.catch_up()
 
     # --- output --------------------------------------------------------------------------
 
