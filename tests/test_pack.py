@@ -377,3 +377,41 @@ def test_a_bad_view_stops_only_its_brain_and_the_batch_fallback_is_counted() -> 
     assert fallbacks == {brains[0].counters.steps}  # every batch held the bad view
     with pytest.raises(ValueError, match="chunk"):
         Pack(LocalBus(), SWARM, [AgentBrain(9)], chunk=0)
+
+
+def test_a_token_change_is_recorded_once_for_the_process_and_applied_as_alone() -> None:
+    """Agent 3's token vanishes (its last states still in flight) and agent 9's appears:
+    the packed process records each change once, and every brain drops 3 for the period,
+    takes it back with its next fresh state, and owes the newcomer a beacon, as lone
+    brains do."""
+    n = 6
+    positions = layout(n, 13)
+    packed = World([list(range(n))], positions)
+    alone = World([[i] for i in range(n)], positions)
+
+    def known(world: World) -> dict[int, list[int]]:
+        brains = [b for p in world.packs for b in p.brains.values()]
+        return {b.id: sorted(b.neighborhood.reckoned) for b in brains}
+
+    def change(world: World, rid: int, alive: bool) -> None:
+        for pack in world.packs:
+            pack._token_changes.samples.append((protocol.alive_key(SWARM, "agent", rid), alive))
+
+    for _ in range(5):
+        order = list(packed.packs[0].order)
+        packed.run(1)
+        alone.run(1, separately=True, order=order)
+    assert any(3 in ids for rid, ids in known(packed).items() if rid != 3)
+    serial = packed.packs[0].liveliness.serial
+    for alive, rid in ((False, 3), (True, 9)):
+        change(packed, rid, alive)
+        change(alone, rid, alive)
+        order = list(packed.packs[0].order)
+        packed.run(1)
+        alone.run(1, separately=True, order=order)
+        assert known(packed) == known(alone)
+        dropped = all(3 not in ids for ids in known(packed).values())
+        assert dropped == (not alive)  # back with its next state
+    assert packed.packs[0].liveliness.serial == serial + 2  # once each, for all six
+    for world in (packed, alone):  # every brain owes the newcomer an early beacon
+        assert all(b._beacon_due for p in world.packs for b in p.brains.values())
