@@ -45,7 +45,7 @@ from covswarm.agent.neighborhood import (
     tile_radius,
 )
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
-from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, local_step
+from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
 from covswarm.tvd.safety import (
@@ -186,37 +186,6 @@ class Decision:
     velocity: tuple[float, float] = (0.0, 0.0)  # m/s, the control law's (after the filter)
     # m/s: what the (saturated) wheels give the robot's centre, v (cos th, sin th)
     achieved: tuple[float, float] = (0.0, 0.0)
-
-
-# Until covswarm.tvd.control's batched local steps land (batchmath): the same signature,
-# one local_step per view. Removed when they do.
-@dataclass(frozen=True)
-class LocalView:
-    me: int
-    positions: dict[int, Any]
-    polygon: np.ndarray
-    polygon_velocity: np.ndarray
-    kappa: float
-    density: Density | None
-
-
-def local_steps(
-    views: list[LocalView], feedforward: bool, max_amplification: float, law: str
-) -> list[LocalStep]:
-    return [
-        local_step(
-            v.me,
-            v.positions,
-            v.polygon,
-            v.polygon_velocity,
-            v.kappa,
-            feedforward=feedforward,
-            density=v.density,
-            max_amplification=max_amplification,
-            law=law,
-        )
-        for v in views
-    ]
 
 
 @dataclass(frozen=True)

@@ -45,7 +45,6 @@ import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.brain import (
-    MAX_AMPLIFICATION,
     Action,
     AgentBrain,
     Begun,
@@ -53,16 +52,14 @@ from covswarm.agent.brain import (
     DeclareAlive,
     FollowStates,
     FollowTiles,
-    LocalStep,
-    LocalView,
     PublishBeacon,
     PublishState,
     SendCommand,
-    local_steps,
 )
 from covswarm.agent.decoding import DECODE_CACHE
 from covswarm.agent.faults import InboxItem, PoseImpairment
 from covswarm.agent.neighborhood import Liveliness
+from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 
 log = logging.getLogger("covswarm.agent")
 
