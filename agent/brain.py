@@ -298,6 +298,8 @@ class AgentBrain:
         self.radius = 1
         self.reach: float | None = None  # cell_reach of our last non-empty cell
         self.counters = Counters()
+        # s: how old a received message may be, by kind (the rest: stale_timeout)
+        self._max_age = {"beacon": config.beacon_timeout, "world": WORLD_MAX_AGE}
         self.drops = DropLog(self.log, f"agent {self.id}", DROP_REASONS)
         self._failure_log = RateLimit()
         self._local = 0  # robots in the last local diagram besides ourselves
@@ -425,9 +427,7 @@ class AgentBrain:
         self.counters.received += 1
         try:
             message = self.decoder.decode(kind, payload)
-            max_age = {"beacon": self.config.beacon_timeout, "world": WORLD_MAX_AGE}.get(
-                kind, self.config.stale_timeout
-            )
+            max_age = self._max_age.get(kind, self.config.stale_timeout)
             check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
             self.drops.drop(exc.reason, f"{kind}: {exc}")

@@ -45,7 +45,7 @@ RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentSt
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
 
 
-@dataclass
+@dataclass(slots=True)
 class Track:
     """Last known position of another robot, when (monotonic) it was received, and the
     velocity its agent reported with it (0 for poses and beacons)."""
@@ -323,13 +323,12 @@ class Neighborhood:
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
         beacon_only, unconfirmed = set(), {}
-        beacons, heard, asked = self.beacons, self._heard, self.asked
-        tokens = self.liveliness.tokens
-        known = reckoned.keys() | dead.keys()
-        for rid, track in beacons.items():
+        heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
+        known, never, confirmation = reckoned.keys() | dead.keys(), -math.inf, self.confirmation
+        for rid, track in self.beacons.items():
             received = track.received
-            if rid not in known and received >= oldest and heard.get(rid, -math.inf) < received:
-                if rid not in tokens and now - asked.get(rid, now) > self.confirmation:
+            if rid not in known and received >= oldest and heard.get(rid, never) < received:
+                if rid not in tokens and now - asked.get(rid, now) > confirmation:
                     unconfirmed[rid] = (track.x, track.y)
                 else:
                     reckoned[rid] = (track.x, track.y, 0.0, 0.0)
