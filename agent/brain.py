@@ -36,7 +36,6 @@ import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
 from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
@@ -46,7 +45,7 @@ from covswarm.agent.neighborhood import (
     tile_radius,
 )
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
-from covswarm.tvd.control import local_step
+from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
 from covswarm.tvd.safety import (
@@ -189,6 +188,19 @@ class Decision:
     achieved: tuple[float, float] = (0.0, 0.0)
 
 
+@dataclass(frozen=True)
+class Begun:
+    """A control step up to its local step (AgentBrain.begin): the local view to step,
+    the robot's predicted pose (x, y, heading) it was built from, the step's clocks, and
+    the s of the step timer spent so far."""
+
+    view: LocalView
+    pose: np.ndarray
+    now: float
+    now_wall: float
+    spent: float
+
+
 # --- actions: what a tick asks the shell to do ---------------------------------------
 
 
@@ -286,6 +298,8 @@ class AgentBrain:
         self.radius = 1
         self.reach: float | None = None  # cell_reach of our last non-empty cell
         self.counters = Counters()
+        # s: how old a received message may be, by kind (the rest: stale_timeout)
+        self._max_age = {"beacon": config.beacon_timeout, "world": WORLD_MAX_AGE}
         self.drops = DropLog(self.log, f"agent {self.id}", DROP_REASONS)
         self._failure_log = RateLimit()
         self._local = 0  # robots in the last local diagram besides ourselves
@@ -413,9 +427,7 @@ class AgentBrain:
         self.counters.received += 1
         try:
             message = self.decoder.decode(kind, payload)
-            max_age = {"beacon": self.config.beacon_timeout, "world": WORLD_MAX_AGE}.get(
-                kind, self.config.stale_timeout
-            )
+            max_age = self._max_age.get(kind, self.config.stale_timeout)
             check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
             self.drops.drop(exc.reason, f"{kind}: {exc}")
@@ -462,6 +474,13 @@ class AgentBrain:
         Neighborhood.on_liveliness); a newcomer is owed an early beacon."""
         if self.neighborhood.on_liveliness(role, rid, alive):
             self._beacon_due = True  # a newcomer: let it find us without waiting
+
+    def catch_up(self) -> None:
+        """The token changes its process recorded since this brain's last turn apply from
+        now on (covswarm.agent.pack: each is recorded once for the process, after the
+        brain's data of the turn, as :meth:`on_liveliness` would have been called)."""
+        if self.neighborhood.catch_up():
+            self._beacon_due = True
 
     def on_domain(self, domain: protocol.Domain, now: float) -> bool:
         """Hold a newer domain: a higher sequence number than the held one (stamps come
@@ -526,8 +545,14 @@ class AgentBrain:
     # --- the tick ------------------------------------------------------------------------
 
     def tick(self, now: float, now_wall: float) -> list[Action]:
-        """Everything to do this control period, in the order to do it."""
-        actions: list[Action] = [SendCommand(self.command(self.step(now, now_wall), now_wall))]
+        """Everything to do this control period, in the order to do it: the phases of
+        :meth:`begin`, one local step and :meth:`conclude` (what a packed process does for
+        many brains at once, covswarm.agent.pack), then :meth:`actions`."""
+        return self.actions(self.step(now, now_wall), now, now_wall)
+
+    def actions(self, decision: Decision, now: float, now_wall: float) -> list[Action]:
+        """The actions of a period whose step decided ``decision``, in the order to do them."""
+        actions: list[Action] = [SendCommand(self.command(decision, now_wall))]
         if self.pose_fresh(now):
             with_stats = now >= self._next_stats
             state = self.agent_state(now_wall, stats=with_stats)
@@ -565,18 +590,34 @@ class AgentBrain:
 
     def step(self, now: float, now_wall: float) -> Decision:
         """One control step: the wheel speeds to send now, (0, 0) whenever unsure."""
-        decision = self._decide(now, now_wall)
+        started = self._clock()
+        begun = self.begin(now, now_wall)
+        if isinstance(begun, Decision):
+            return self.settle(begun)
+        try:
+            result: LocalStep | Exception = local_steps(
+                [begun.view], self.config.feedforward, MAX_AMPLIFICATION, self.config.law
+            )[0]
+        except Exception as exc:  # noqa: BLE001 -- handed to conclude, which counts it
+            result = exc
+        return self.conclude(begun, result, self._clock() - started)
+
+    def settle(self, decision: Decision) -> Decision:
+        """``decision`` as this period's: the velocity our AgentState reports from now on."""
         self.velocity = decision.achieved
         return decision
 
-    def _decide(self, now: float, now_wall: float) -> Decision:
+    def begin(self, now: float, now_wall: float) -> Decision | Begun:
+        """A step up to its local step: the decision itself when the step ends early
+        (no pose, no domain, the mission not running yet, an error), else the local view
+        to step (:class:`Begun`) for :meth:`conclude`."""
         self.counters.steps += 1
         self.counters.mission_steps += self.running
         self._rates = (
             self._step_rate.add(now, self.counters.steps),
             self._rx_rate.add(now, self.counters.received + self.counters.coalesced),
         )
-        others = self.neighborhood.candidates(now)
+        self.neighborhood.refresh(now)
         if not self.pose_fresh(now):
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
@@ -589,60 +630,73 @@ class AgentBrain:
         started = self._clock()
         assert self.pose is not None
         try:
-            relevant = self.neighborhood.relevant(
-                others, now, (self.pose.x, self.pose.y), self.reach
-            )
-            decision = self._control(relevant, now, now_wall)
-        # Any failure of the geometry (degenerate input the math rejects, or a bug) must
-        # stop this robot, not kill the process and leave the robot on its last command.
-        except Exception as exc:
-            self.counters.step_errors += 1
-            if self._failure_log.ready():  # at most one line per LOG_INTERVAL, not per tick
-                self.log.warning(
-                    "agent %d: control step failed (%d so far), robot stopped: %r",
-                    self.id,
-                    self.counters.step_errors,
-                    exc,
-                )
-            return Decision(0.0, 0.0, "error")
-        self._step_us.add((self._clock() - started) * 1e6)
-        return decision
+            relevant = self.neighborhood.relevant(now, (self.pose.x, self.pose.y), self.reach)
+            return self._view(relevant, now, now_wall, started)
+        except Exception as exc:  # noqa: BLE001 -- see _failed
+            return self._failed(exc)
 
-    def _control(
-        self, others: dict[int, tuple[float, float]], now: float, now_wall: float
-    ) -> Decision:
+    def _view(
+        self, others: dict[int, tuple[float, float]], now: float, now_wall: float, started: float
+    ) -> Begun:
         assert self.pose is not None and self.domain is not None
         config = self.config
         pose = self.predicted_pose(now_wall + config.command_latency)
         mission_t = self.mission_estimate.mission_time(now)
         elapsed = 0.0 if mission_t is None else mission_t - self.domain.t
         elapsed += config.command_latency
-        vertices, velocities = extrapolate_domain(
-            self.domain, elapsed, self.config.max_extrapolation
+        # Shared by the brains of a process that step at the same time (the decoder's).
+        vertices, velocities, density = self.decoder.extrapolated(
+            self.domain, self.density, elapsed, config.max_extrapolation
         )
         me = pose[:2]
-        kappa = self.config.kappa if self.config.kappa is not None else self.domain.kappa
+        kappa = config.kappa if config.kappa is not None else self.domain.kappa
         period = 1.0 if self._last_control is None else min(now_wall - self._last_control, 1.0)
         if self._last_control is not None:
             kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
         self._period = period
-        result = local_step(
-            self.id,
-            {**others, self.id: me},
-            vertices,
-            velocities,
-            kappa,
-            feedforward=self.config.feedforward,
-            density=extrapolate_density(self.density, elapsed, self.config.max_extrapolation),
-            law=self.config.law,
-        )
+        others[self.id] = me
+        view = LocalView(self.id, others, vertices, velocities, kappa, density)
+        return Begun(view, pose, now, now_wall, self._clock() - started)
+
+    def conclude(self, begun: Begun, result: LocalStep | Exception, shared: float) -> Decision:
+        """The step after its local step ``result`` (or the exception it raised): the
+        neighbour and reach bookkeeping, the safety filter, the wheel speeds. ``shared``:
+        s of the clock spent on this brain's share of the local steps (the step timer)."""
+        started = self._clock()
+        try:
+            if isinstance(result, Exception):
+                raise result
+            decision = self._finish(begun, result)
+        except Exception as exc:  # noqa: BLE001 -- see _failed
+            return self.settle(self._failed(exc))
+        self._step_us.add((begun.spent + shared + self._clock() - started) * 1e6)
+        return self.settle(decision)
+
+    def _failed(self, exc: Exception) -> Decision:
+        """Any failure of the geometry (degenerate input the math rejects, or a bug) must
+        stop this robot, not kill the process and leave the robot on its last command."""
+        self.counters.step_errors += 1
+        if self._failure_log.ready():  # at most one line per LOG_INTERVAL, not per tick
+            self.log.warning(
+                "agent %d: control step failed (%d so far), robot stopped: %r",
+                self.id,
+                self.counters.step_errors,
+                exc,
+            )
+        return Decision(0.0, 0.0, "error")
+
+    def _finish(self, begun: Begun, result: LocalStep) -> Decision:
+        assert self.domain is not None
+        config = self.config
+        now, now_wall, pose = begun.now, begun.now_wall, begun.pose
+        me = pose[:2]
         self.counters.guarded += int(result.guarded and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         self.neighborhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
         if self.neighborhood.unrequited(now):
             self._beacon_due = True
-        self._local = len(others)
+        self._local = len(begun.view.positions) - 1
         if result.mass > 0.0:
             # The area, not the mass: a density's mass overstates the cell's size (by the
             # bump's peak over the floor under a bump), and with it the local set.
@@ -697,7 +751,8 @@ class AgentBrain:
         # The nearest few only: forged ids must not cost a subscription each.
         nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
         unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
-        return set(self._near(self.neighborhood.reckoned, x, y)) | unconfirmed
+        near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
+        return set(near.tolist()) | unconfirmed
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
@@ -735,10 +790,12 @@ class AgentBrain:
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        rows = list(reckoned.values())
-        rows += [(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()]  # none is a candidate
-        near = np.array(rows, dtype=float).reshape(-1, 4)
-        near = near[np.hypot(near[:, 0] - me[0], near[:, 1] - me[1]) <= SAFETY_RADIUS]
+        near = self.neighborhood.table[self.neighborhood.within(*me, SAFETY_RADIUS)]
+        if self.obstacles:  # none is a candidate
+            rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
+            near = np.concatenate(
+                [near, rows[np.hypot(rows[:, 0] - me[0], rows[:, 1] - me[1]) <= SAFETY_RADIUS]]
+            )
         # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
         # world, so the filter is then exactly the robots' alone). Those whose bounding box
         # is that near are handed over and the filter keeps the ones within its reach: the
@@ -829,6 +886,7 @@ class AgentBrain:
             "stale_dropped": self.neighborhood.stale_dropped,
             "beacon_unconfirmed": self.neighborhood.unconfirmed_total,
             "step_errors": c.step_errors,
+            "batch_fallbacks": c.batch_fallbacks,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),

@@ -13,6 +13,7 @@ from functools import lru_cache
 import numpy as np
 
 from covswarm import protocol
+from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
 from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.density import Density
 from covswarm.world.model import World
@@ -37,6 +38,7 @@ class MessageDecoder:
         self._geometry_of: tuple[protocol.Domain, Density | None] | None = None
         self._world_of: tuple[protocol.World, World] | None = None
         self._overlap_of: tuple[protocol.Domain, World, float] | None = None
+        self._extrapolated: tuple | None = None  # (domain, density, key, answer)
 
     def decode(self, kind: str, payload: object) -> protocol.Message:
         """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
@@ -60,6 +62,31 @@ class MessageDecoder:
         density = None if domain.density is None else Density.from_dict(domain.density)
         self._geometry_of = (domain, density)
         return density
+
+    def extrapolated(
+        self,
+        domain: protocol.Domain,
+        density: Density | None,
+        elapsed: float,
+        max_extrapolation: float,
+    ) -> tuple[np.ndarray, np.ndarray, Density | None]:
+        """The domain's vertices (k, 2) m and their velocities (k, 2) m/s, and the density,
+        ``elapsed`` s after the broadcast (covswarm.agent.extrapolation), read-only.
+
+        The last answer is remembered: the brains of a process that step together share
+        one clock reading and hold the same decoded Domain, so they ask the same question,
+        and receive the same arrays (a batched step may then build S's geometry once).
+        """
+        key = (elapsed, max_extrapolation)
+        cached = self._extrapolated
+        if cached is not None and cached[0] is domain and cached[1] is density:
+            if cached[2] == key:
+                return cached[3]
+        vertices, velocities = extrapolate_domain(domain, elapsed, max_extrapolation)
+        vertices.flags.writeable = velocities.flags.writeable = False
+        answer = (vertices, velocities, extrapolate_density(density, elapsed, max_extrapolation))
+        self._extrapolated = (domain, density, key, answer)
+        return answer
 
     def world_model(self, message: protocol.World) -> World:
         """The model World of a World message (covswarm.world.wire.from_message); ValueError

@@ -56,3 +56,6 @@ class Counters:
     # control periods of the mission a packed process could not step this brain in
     # (its turn came after the period ended: it held its robot, covswarm.agent.pack)
     late: int = 0
+    # steps of this brain whose batch of local steps raised (a bad view in it: covswarm.
+    # agent.pack), taken again one by one so that only the bad one stops
+    batch_fallbacks: int = 0

@@ -9,9 +9,13 @@ reported neighbours it derives the two-hop set whose AgentStates the agent subsc
 
 from __future__ import annotations
 
+import bisect
+import itertools
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+
+import numpy as np
 
 from covswarm import protocol
 
@@ -41,7 +45,7 @@ RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentSt
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
 
 
-@dataclass
+@dataclass(slots=True)
 class Track:
     """Last known position of another robot, when (monotonic) it was received, and the
     velocity its agent reported with it (0 for poses and beacons)."""
@@ -92,6 +96,43 @@ def linger(since: dict[int, float], current: Iterable[int], now: float, period: 
     return set(since)
 
 
+class Liveliness:
+    """The liveliness tokens of the agents and robots seen by one process, each change
+    recorded once, numbered (``serial``), for all the brains that share it
+    (:meth:`Neighborhood.share`)."""
+
+    def __init__(self) -> None:
+        self.serial = 0
+        self.deaths: dict[tuple[int, str], int] = {}  # (id, role) -> serial of the deletion
+        self.tokens: set[int] = set()  # agents whose token appeared and did not vanish since
+        self._appeared: list[tuple[int, int]] = []  # (serial, agent id), oldest first
+
+    def change(self, role: str, rid: int, alive: bool) -> None:
+        """Robot ``rid``'s ``role`` ("agent" or "robot"; others are ignored) token appeared
+        (``alive``) or vanished."""
+        if role not in ("agent", "robot"):
+            return
+        self.serial += 1
+        if not alive:
+            self.deaths[rid, role] = self.serial
+            if role == "agent":
+                self.tokens.discard(rid)
+            return
+        self.deaths.pop((rid, role), None)
+        if role == "agent":
+            self.tokens.add(rid)
+            self._appeared.append((self.serial, rid))
+
+    def appeared(self, since: int) -> list[int]:
+        """The agents whose token appeared after change number ``since``."""
+        first = bisect.bisect_right(self._appeared, since, key=lambda entry: entry[0])
+        return [rid for _, rid in self._appeared[first:]]
+
+    def trim(self, upto: int) -> None:
+        """Forget the appearances up to change number ``upto`` (every follower has them)."""
+        del self._appeared[: bisect.bisect_right(self._appeared, upto, key=lambda e: e[0])]
+
+
 class Neighborhood:
     """The other robots one agent knows of, by how it heard of them.
 
@@ -125,11 +166,20 @@ class Neighborhood:
         # candidates at the last step.
         self.reckoned: dict[int, Reckoned] = {}
         self.first_hand: set[int] = set()
+        self.table = np.zeros((0, 4))
+        self.table_ids = np.zeros(0, dtype=np.int64)
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
+        # The token changes seen (this agent's own, or its process's: share()), the serial
+        # of the last one taken as applied (catch_up), and (id, role) -> that serial when
+        # data from a robot revived it.
+        self.liveliness = Liveliness()
+        self._shared = False
+        self.mark = 0
+        self._revived: dict[tuple[int, str], int] = {}
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
-        # no team member (a stopped robot without brain, or a brain without robot).
+        # no team member (a stopped robot without brain, or a brain without robot); as of
+        # the last refresh().
         self.dead: dict[int, set[str]] = {}
-        self.tokens: set[int] = set()  # ids whose agent liveliness token we saw appear
         # id -> when we first asked for the AgentState of a robot known only from beacons
         # (ask()); the candidates of the last step known only from beacons; those left out
         # of it for want of confirmation (id -> x, y), and how many were so left out in all
@@ -169,6 +219,12 @@ class Neighborhood:
             del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
         self._revive(beacon.id, "agent")
 
+    def share(self, liveliness: Liveliness) -> None:
+        """Follow the token changes of ``liveliness``, the process's (covswarm.agent.pack):
+        each change is then handled once for all its brains, not once per brain."""
+        self.liveliness, self._shared = liveliness, True
+        self.mark = liveliness.serial
+
     def on_liveliness(self, role: str, rid: int, alive: bool) -> bool:
         """A liveliness token of another robot's agent or robot appeared or vanished; True
         when it announces a newcomer (an agent we do not know yet).
@@ -177,30 +233,51 @@ class Neighborhood:
         token immediately; a frozen process after the Zenoh lease). Fresh data from the same
         role revives it too (a process that came back after a router restart may re-declare
         its token before this agent's subscriber is back), so a missed PUT costs nothing.
+        In a packed process the pack records the change in the liveliness it shares
+        (:meth:`share`), and each brain :meth:`catch_up` after its turn's data.
         """
-        if rid == self.me or role not in ("agent", "robot"):
-            return False
-        if not alive:
-            self.dead.setdefault(rid, set()).add(role)
-            if role == "agent":
-                self.tokens.discard(rid)
-            return False
-        if role == "agent":
-            self.tokens.add(rid)
-        self._revive(rid, role)
-        return role == "agent" and rid not in self.reckoned
+        self.liveliness.change(role, rid, alive)
+        newcomer = self.catch_up()
+        if not self._shared:
+            self.liveliness.trim(self.mark)
+        return newcomer
+
+    def catch_up(self) -> bool:
+        """Take the token changes recorded since the last catch-up as applied from now on
+        (data received until now does not revive a robot whose token vanished since);
+        True when one announced a newcomer: another agent we do not know yet."""
+        liveliness = self.liveliness
+        newcomer = any(
+            rid != self.me and rid not in self.reckoned for rid in liveliness.appeared(self.mark)
+        )
+        self.mark = liveliness.serial
+        return newcomer
 
     def _revive(self, rid: int, role: str) -> None:
-        roles = self.dead.get(rid)
-        if roles is not None:
-            roles.discard(role)
-            if not roles:
-                del self.dead[rid]
+        if (rid, role) in self.liveliness.deaths:
+            self._revived[rid, role] = self.mark
+
+    def _dead(self) -> dict[int, set[str]]:
+        """id -> roles whose liveliness token vanished and that nothing revived since."""
+        dead: dict[int, set[str]] = {}
+        revived = self._revived
+        for (rid, role), serial in self.liveliness.deaths.items():
+            if rid != self.me and revived.get((rid, role), -1) < serial:
+                dead.setdefault(rid, set()).add(role)
+        return dead
 
     # --- what the control step uses ----------------------------------------------------
 
     def candidates(self, now: float) -> dict[int, tuple[float, float]]:
-        """Positions of the other robots known well enough to enter the local diagram.
+        """Positions (x, y) m of the other robots known well enough to enter the local
+        diagram, reckoned to ``now`` (:meth:`refresh`)."""
+        self.refresh(now)
+        return {rid: (x, y) for rid, (x, y, _, _) in self.reckoned.items()}
+
+    def refresh(self, now: float) -> None:
+        """Reckon the other robots known well enough to enter the local diagram to ``now``:
+        ``reckoned`` (id -> x, y, vx, vy) and the same as arrays, ``table`` (n, 4) (m, m/s)
+        and ``table_ids`` (n,), for the distance tests of every step.
 
         In order of trust: the freshest of a robot's own pose and AgentState while younger
         than ``stale_timeout`` (a pose wins a tie); else the freshest relay of it in a
@@ -211,7 +288,7 @@ class Neighborhood:
         error in every neighbour.
         """
         fresh = now - self.stale_timeout
-        dead = self.dead
+        dead = self.dead = self._dead() if self.liveliness.deaths else {}
         chosen: dict[int, Track] = {}
         for table in (self.poses, self.state_tracks):
             for rid, track in table.items():
@@ -230,15 +307,15 @@ class Neighborhood:
                     track.vy,
                 )
         first_hand = set(reckoned)
+        skip = first_hand | dead.keys()
+        skip.add(self.me)
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
         for relayer, (entries, received) in self.relays.items():
             if received < fresh or relayer in dead:
                 continue
             lead = min(now - received, DEAD_RECKONING_LIMIT)
             for rid, x, y, vx, vy in entries:
-                if rid in first_hand or rid in dead or rid == self.me:
-                    continue
-                if relayed.get(rid, -math.inf) < received:
+                if rid not in skip and relayed.get(rid, -math.inf) < received:
                     relayed[rid] = received
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         # A beacon only while it is the newest news of its robot: one that went stale after
@@ -246,24 +323,32 @@ class Neighborhood:
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
         beacon_only, unconfirmed = set(), {}
+        heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
+        known, never, confirmation = reckoned.keys() | dead.keys(), -math.inf, self.confirmation
         for rid, track in self.beacons.items():
-            if track.received >= oldest and rid not in reckoned and rid not in dead:
-                if self._heard.get(rid, -math.inf) < track.received:
-                    asked = self.asked.get(rid, now)
-                    if rid not in self.tokens and now - asked > self.confirmation:
-                        unconfirmed[rid] = (track.x, track.y)
-                    else:
-                        reckoned[rid] = (track.x, track.y, 0.0, 0.0)
-                        beacon_only.add(rid)
+            received = track.received
+            if rid not in known and received >= oldest and heard.get(rid, never) < received:
+                if rid not in tokens and now - asked.get(rid, now) > confirmation:
+                    unconfirmed[rid] = (track.x, track.y)
+                else:
+                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                    beacon_only.add(rid)
         self.beacon_only = beacon_only
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
+        rows = itertools.chain.from_iterable(reckoned.values())
+        self.table = np.fromiter(rows, dtype=float, count=4 * len(reckoned)).reshape(-1, 4)
+        self.table_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
-        return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
+
+    def within(self, x: float, y: float, radius: float) -> np.ndarray:
+        """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
+        table = self.table
+        return np.flatnonzero(np.hypot(table[:, 0] - x, table[:, 1] - y) <= radius)
 
     def _forget(self, now: float) -> None:
         """Drop records well past their timeout: memory stays bounded, and the tables that
@@ -278,6 +363,9 @@ class Neighborhood:
                 del table[rid]
         for rid in [rid for rid in self.asked if rid not in self.beacons]:
             del self.asked[rid]
+        deaths = self.liveliness.deaths
+        for key in [key for key in self._revived if key not in deaths]:
+            del self._revived[key]
         for sets in (self.neighbor_sets, self.relays):
             for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]
@@ -293,13 +381,10 @@ class Neighborhood:
                 self.asked.setdefault(rid, now)
 
     def relevant(
-        self,
-        others: dict[int, tuple[float, float]],
-        now: float,
-        me: tuple[float, float],
-        reach: float | None,
+        self, now: float, me: tuple[float, float], reach: float | None
     ) -> dict[int, tuple[float, float]]:
-        """The candidates that can matter to our control, to keep the local diagram small.
+        """The candidates (id -> x, y m, as last reckoned: :meth:`refresh`) that can matter
+        to our control, to keep the local diagram small.
 
         The two-hop set (neighbours' reported neighbours) plus every robot within
         LOCAL_MARGIN x our cell's reach (m) around ``me``: our cell is cut only within
@@ -308,16 +393,12 @@ class Neighborhood:
         AgentStates arrive. Every known robot is used until a first non-empty cell gives a
         reach (``reach`` None).
         """
+        reckoned = self.reckoned
         if reach is None:
-            return others
-        limit = LOCAL_MARGIN * reach
-        keep = self.two_hop(now)
-        x, y = me
-        return {
-            rid: p
-            for rid, p in others.items()
-            if rid in keep or math.hypot(p[0] - x, p[1] - y) <= limit
-        }
+            return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
+        ids = self.table_ids[self.within(*me, LOCAL_MARGIN * reach)].tolist()
+        ids += self.two_hop(now) & reckoned.keys()
+        return {rid: reckoned[rid][:2] for rid in ids}
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""

@@ -8,7 +8,15 @@ tick and its payload handed to every brain that follows the key, as the same ``b
 object, so the shared :class:`~covswarm.agent.decoding.MessageDecoder` decodes and
 validates it once (its hash is cached in the object). A brain still receives only the keys
 it follows itself, newest payload per key, in a canonical order (kind, id, key): what it
-would receive in a process of its own (tests/test_pack.py).
+would receive in a process of its own (tests/test_pack.py). Liveliness token changes are
+recorded once for the process (covswarm.agent.neighborhood.Liveliness), not once per
+brain; each brain takes them as applied after its turn's data, as a process of its own
+would.
+
+Brains due together step together (:meth:`Pack.step`): ``chunk`` at a time, at one clock
+reading, each brain's step split in phases (AgentBrain.begin, the local steps of the
+chunk in one batched call per law and feedforward, AgentBrain.conclude), the deadline
+checked between two chunks.
 
 Overload (issue 24, item 4): a brain whose turn comes after the end of the period it was
 to step for does not step on that period's inputs as if they were fresh: it skips the
@@ -27,6 +35,7 @@ and :class:`LocalBus`, an in-memory router, in tests and ``covswarm bench --brai
 from __future__ import annotations
 
 import logging
+import time
 from collections import deque
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -38,6 +47,8 @@ from covswarm import protocol
 from covswarm.agent.brain import (
     Action,
     AgentBrain,
+    Begun,
+    Decision,
     DeclareAlive,
     FollowStates,
     FollowTiles,
@@ -47,6 +58,8 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import DECODE_CACHE
 from covswarm.agent.faults import InboxItem, PoseImpairment
+from covswarm.agent.neighborhood import Liveliness
+from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 
 log = logging.getLogger("covswarm.agent")
 
@@ -60,6 +73,9 @@ RING_PER_TILE = 256
 # to judge. 16 holds 8 ticks' worth of a 20 Hz coordinator at 10 Hz plus forgeries; only a
 # flood beyond it can push the real ones out.
 DOMAIN_RING = 16
+# Brains stepped together: their local steps in one batch, the deadline checked between
+# two chunks (a brain of a chunk whose turn comes after it holds, see the module docstring).
+CHUNK = 32
 # The order in which a brain gets a tick's payloads (then by id and key): the world (the
 # domain is judged against it), the domain and its own pose first, as a process of its own
 # drained its subscribers.
@@ -122,13 +138,22 @@ class Pack:
     """
 
     def __init__(
-        self, bus: Bus, swarm: str, brains: list[AgentBrain], hold_after: float = 0.3
+        self,
+        bus: Bus,
+        swarm: str,
+        brains: list[AgentBrain],
+        hold_after: float = 0.3,
+        chunk: int = CHUNK,
+        clock: Callable[[], float] = time.perf_counter,
     ) -> None:
         if len({brain.id for brain in brains}) != len(brains):
             raise ValueError("a packed process cannot host one id twice")
         if not hold_after > 0.0:
             raise ValueError(f"hold_after must be positive, got {hold_after!r}")
-        self.hold_after = hold_after
+        if chunk < 1:
+            raise ValueError(f"chunk must be at least 1, got {chunk!r}")
+        self.hold_after, self.chunk = hold_after, chunk
+        self._clock = clock  # only times the batched local steps (the brains' step timers)
         self._stepped: dict[int, float] = {}  # brain -> clock of its last turn
         self.bus, self.swarm = bus, swarm
         self.brains = {brain.id: brain for brain in brains}
@@ -142,7 +167,10 @@ class Pack:
         self._pending: _Queues = {bid: {} for bid in self.brains}
         # the same, taken out of a ring between two drains: theirs from the next drain on
         self._later: _Queues = {bid: {} for bid in self.brains}
-        self._changes: dict[int, list[tuple[str, int, bool]]] = {bid: [] for bid in self.brains}
+        # Token changes, recorded once for the process; each brain catches up on its turn.
+        self.liveliness = Liveliness()
+        for brain in brains:
+            brain.neighborhood.share(self.liveliness)
         self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
         self._every = 0  # samples queued one by one (the domain's), numbering their slots
         self._held: set[int] = set()  # brains whose last command was a hold
@@ -157,7 +185,7 @@ class Pack:
             self._follow({bid}, key, "pose", bid, False)
         # Token changes of every agent and robot (rare): a dead teammate leaves the
         # diagrams at once instead of after the staleness timeouts.
-        self._liveliness = bus.liveliness(protocol.alive_selector(swarm))
+        self._token_changes = bus.liveliness(protocol.alive_selector(swarm))
         self._impairment = {
             bid: PoseImpairment(
                 brain.config.pose_loss,
@@ -239,13 +267,14 @@ class Pack:
                 later.clear()
         for key, sub in self._subs.items():
             self._drain_subscription(key, sub, self._pending)
-        while (change := self._liveliness.try_recv()) is not None:
+        # What every brain has caught up on is not needed any more.
+        self.liveliness.trim(min(brain.neighborhood.mark for brain in self.brains.values()))
+        while (change := self._token_changes.try_recv()) is not None:
             try:
                 role, rid = protocol.parse_alive_key(change[0], self.swarm)
             except ValueError:
                 continue  # not a key of ours; nothing to count it against
-            for changes in self._changes.values():
-                changes.append((role, rid, change[1]))
+            self.liveliness.change(role, rid, change[1])
 
     def _drain_subscription(self, key: str, sub: _Subscription, queues: _Queues) -> None:
         """Queue what ``sub`` holds for its followers in ``queues``: its newest sample (one
@@ -331,10 +360,7 @@ class Pack:
             items = impairment.filter(items, now)
         for kind, key_id, payload in items:
             brain.receive(kind, payload, now, wall, key_id)
-        changes = self._changes[bid]
-        for role, rid, alive in changes:
-            brain.on_liveliness(role, rid, alive)
-        changes.clear()
+        brain.catch_up()
 
     # --- output --------------------------------------------------------------------------
 
@@ -365,35 +391,87 @@ class Pack:
         return self.step(clock, wall, deadline)
 
     def step(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
-        """Each brain's turn of one period, in order; the number of brains that stepped.
+        """Each brain's turn of one period, in order, ``chunk`` brains at a time; the number
+        of brains that stepped.
 
-        ``clock``: the ticker's (monotonic, mission-scaled) clock, read for each brain when
-        its turn comes (the last of a large batch dead-reckons its neighbours to its own
-        time); ``wall``: seconds since the epoch, likewise; ``deadline``: the end of this
-        period on ``clock``. A brain whose turn comes after the deadline holds (module
-        docstring); the next tick starts with the first that held, or one brain later
-        when all stepped, so no robot is always last.
+        ``clock``: the ticker's (monotonic, mission-scaled) clock, read when a chunk's turn
+        comes: its brains step at that time together (they extrapolate the same domain to
+        the same time, and the last chunk of a large process dead-reckons its neighbours to
+        its own time); ``wall``: seconds since the epoch, likewise; ``deadline``: the end of
+        this period on ``clock``. The brains of a chunk whose turn comes after the deadline
+        hold (module docstring); the next tick starts with the first that held, or one
+        brain later when all stepped, so no robot is always last.
         """
         stepped = 0
-        for bid in self.order:
-            brain = self.brains[bid]
+        order = self.order
+        for first in range(0, len(order), self.chunk):
+            chunk = order[first : first + self.chunk]
             now = clock()
             if now > deadline:
-                self._hold(brain, now, wall())
+                for bid in chunk:
+                    self._hold(self.brains[bid], clock(), wall())
                 continue
+            stepped += len(chunk)
+            self._step_chunk(chunk, now, wall(), clock, deadline)
+        shift = stepped if 0 < stepped < len(order) else 1
+        self.order = order[shift:] + order[:shift]
+        return stepped
+
+    def _step_chunk(
+        self,
+        chunk: list[int],
+        now: float,
+        now_wall: float,
+        clock: Callable[[], float],
+        deadline: float,
+    ) -> None:
+        """The brains of ``chunk`` step at ``now``: each receives its inputs and begins its
+        step, their local steps run batched (grouped by the law's settings), then each
+        concludes and its actions are carried out."""
+        begun: dict[int, Begun] = {}
+        decisions: dict[int, Decision] = {}
+        for bid in chunk:
             self._held.discard(bid)
             self._stepped[bid] = now
-            self.receive(bid, now, wall())
-            for action in brain.tick(now, wall()):
+            self.receive(bid, now, now_wall)
+            early = self.brains[bid].begin(now, now_wall)
+            if isinstance(early, Decision):
+                decisions[bid] = self.brains[bid].settle(early)
+            else:
+                begun[bid] = early
+        groups: dict[tuple[bool, str], list[int]] = {}
+        for bid in begun:
+            config = self.brains[bid].config
+            groups.setdefault((config.feedforward, config.law), []).append(bid)
+        for (feedforward, law), bids in groups.items():
+            started = self._clock()
+            try:
+                results: list[LocalStep | Exception] = list(
+                    local_steps([begun[b].view for b in bids], feedforward, MAX_AMPLIFICATION, law)
+                )
+            except Exception:  # noqa: BLE001 -- one bad view: step them one by one
+                results = [self._step_one(begun[b].view, feedforward, law) for b in bids]
+                for bid in bids:
+                    self.brains[bid].counters.batch_fallbacks += 1
+            shared = (self._clock() - started) / len(bids)
+            for bid, result in zip(bids, results, strict=True):
+                decisions[bid] = self.brains[bid].conclude(begun[bid], result, shared)
+        for bid in chunk:
+            brain = self.brains[bid]
+            for action in brain.actions(decisions[bid], now, now_wall):
                 self.carry_out(bid, action)
                 # A missed deadline: this period's command went out after the period ended
                 # (start-up, while processes are still launching, aside).
                 if isinstance(action, SendCommand) and brain.running and clock() > deadline:
                     brain.counters.overruns += 1
-            stepped += 1
-        shift = stepped if 0 < stepped < len(self.order) else 1
-        self.order = self.order[shift:] + self.order[:shift]
-        return stepped
+
+    @staticmethod
+    def _step_one(view: LocalView, feedforward: bool, law: str) -> LocalStep | Exception:
+        """One brain's local step, or what it raised (its brain counts it and holds)."""
+        try:
+            return local_steps([view], feedforward, MAX_AMPLIFICATION, law)[0]
+        except Exception as exc:  # noqa: BLE001 -- the brain's conclude counts it
+            return exc
 
     def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
         """Brain's period is over before its turn: it skips this period (its robot runs on

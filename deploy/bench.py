@@ -393,8 +393,9 @@ def time_brain_ticks(
     re-published at their layout positions every period, the coordinator as a Domain every
     period, all encoded as on the wire. What is timed is each pack's whole tick: draining
     its subscriptions, handing payloads to the brains that follow them, decoding and
-    validating (shared per process), each brain's bookkeeping, local step, safety filter,
-    wheel speeds, AgentState (with relay) and beacons, encoding the command and the state,
+    validating (shared per process), each brain's bookkeeping, the local steps (batched,
+    the brains due together in chunks: covswarm.agent.pack.Pack.step), each brain's safety
+    filter, wheel speeds, AgentState (with relay) and beacons, encoding the command and the state,
     and the in-memory put that stands in for Zenoh's. Not timed: Zenoh itself (a put costs
     ~30 us of CPU in a live process), the robots, the coordinator. Returns wall and CPU
     (process_time) microseconds per brain-tick, the mean of ``rounds`` periods, and the

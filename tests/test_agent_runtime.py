@@ -384,7 +384,7 @@ def test_failing_math_stops_the_robot(monkeypatch: pytest.MonkeyPatch) -> None:
     def boom(*args: object, **kwargs: object) -> None:
         raise IndexError("bug")
 
-    monkeypatch.setattr(brain_module, "local_step", boom)
+    monkeypatch.setattr(brain_module, "local_steps", boom)
     brain = brain_at(0.5, 0.5)
     brain.on_domain(domain(), now=0.0)
     decision = brain.step(0.1, WALL)

@@ -140,7 +140,7 @@ def test_failing_control_step_logs_once_per_interval(
     def boom(*args: object, **kwargs: object) -> None:
         raise ValueError("polygon is self-intersecting: edge 0 crosses edge 2")
 
-    monkeypatch.setattr(brain_module, "local_step", boom)
+    monkeypatch.setattr(brain_module, "local_steps", boom)
     brain = AgentBrain(0)
     brain.receive("pose", pose(0, WALL), 0.0, WALL, key_id=0)
     brain.receive("domain", domain(WALL), 0.0, WALL)
