@@ -18,6 +18,7 @@ but one says ``--no-coordinator``.
 from __future__ import annotations
 
 import json
+import os
 import sys
 from dataclasses import replace
 from datetime import datetime
@@ -32,6 +33,7 @@ from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
     RunConfig,
+    auto_robots_per_process,
     console_spec,
     covswarm_argv,
     parse_per_process,
@@ -183,6 +185,9 @@ def run_swarm(run: RunConfig) -> None:
         packing = parse_per_process(run.agents_per_process, here)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
+    robot_packing = packing
+    if run.agents_per_process.strip().lower() == "auto":
+        robot_packing = auto_robots_per_process(here, len(os.sched_getaffinity(0)))
     duration = scenario.duration if run.duration is None else run.duration
     try:
         check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
@@ -196,8 +201,9 @@ def run_swarm(run: RunConfig) -> None:
         # Every child needs its own certificate: one missing would make that child exit and
         # the launcher wait for its token forever, so all are checked before anything starts.
         planned = plan_children(
-            run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids, per_process=packing
-        )
+            run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids,
+            per_process=packing, robots_per_process=robot_packing,
+        )  # fmt: skip
         names = {identity_name(s.role, s.members if s.role != "coordinator" else None)
                  for s in planned} | ({"console"} if run.console else set())  # fmt: skip
         try:
@@ -214,12 +220,14 @@ def run_swarm(run: RunConfig) -> None:
     ) as (session, endpoint):  # fmt: skip
         console.log(
             f"swarm {swarm} on {endpoint}; {here if run.robots == 'sim' else 'no'} robots + "
-            f"{here} agents here (team of {n}), {packing} per process; "
+            f"{here} agents here (team of {n}), {packing} per process"
+            f"{'' if robot_packing == packing else f' ({robot_packing} per robot process)'}; "
             f"logs in {log_dir}"
         )
         specs = plan_children(
-            run, scenario, endpoint=endpoint, base=covswarm_argv(), ids=ids, per_process=packing
-        )
+            run, scenario, endpoint=endpoint, base=covswarm_argv(), ids=ids,
+            per_process=packing, robots_per_process=robot_packing,
+        )  # fmt: skip
         if run.foxglove is not None:
             port = "a free port (see the coordinator's log)" if run.foxglove == 0 else (
                 f"ws://{LIVE_HOST}:{run.foxglove}"
@@ -237,6 +245,7 @@ def run_swarm(run: RunConfig) -> None:
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
                         "agents_per_process": packing,
+                        "robots_per_process": robot_packing,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
         result = run_processes(

@@ -4,7 +4,8 @@ This is the reference implementation of the robot contract that a real-robot bri
 honour, and agents see nothing else of a robot:
 
 - subscribe to ``covswarm/<swarm>/robot/<id>/cmd`` (WheelCommand, rim speeds in m/s);
-- publish ``covswarm/<swarm>/robot/<id>/pose`` (Pose) at ``--pose-rate``;
+- publish ``covswarm/<swarm>/robot/<id>/pose`` (Pose) at ``--pose-rate`` (at REST_POSE_RATE
+  until a command first sets its wheels moving: its pose cannot change before);
 - declare the liveliness token ``covswarm/<swarm>/alive/robot/<id>`` once ready, and refuse
   to start if another process already claims the same id (runtime.claims.claim).
 
@@ -67,6 +68,12 @@ log = logging.getLogger("covswarm.robot")
 # Why a World broadcast was dropped: protocol reasons, geometry the model refuses, or not
 # newer than the held one (by sequence number) while its sender still talks.
 WORLD_DROP_REASONS = (*protocol.REASONS, "bad_world", "old_world")
+# Hz: poses of a robot never driven yet (before the mission: agents command zero wheels
+# until it starts). Its pose cannot change, so fewer copies lose nothing, and 1000 robots
+# at 20 Hz while the team is still starting (20 000 puts/s through the router, decoded by
+# every agent near them) would starve the processes still starting. Four poses per agent
+# stale timeout (1 s) keep every robot fresh to its agent and neighbours.
+REST_POSE_RATE = 4.0
 # s: silence of the held world's sender after which any sequence number is taken (a
 # restarted coordinator numbers from 0 again); it repeats its World every second.
 WORLD_RESTART_SILENCE = 5.0
@@ -77,6 +84,7 @@ class RobotCounters:
     """What happened to the commands a robot received (drops: RobotSim.drops)."""
 
     commands: int = 0  # valid commands applied
+    driven: bool = False  # a command has set non-zero wheels (publish at the full pose rate)
     timeouts: int = 0  # times the wheels were stopped for lack of commands
     contact_stops: int = 0  # steps on which an obstacle or wall stopped the body
 
@@ -130,6 +138,7 @@ class RobotSim:
         self.step(now)
         # Decoding guarantees finite speeds; the model clamps them to this robot's limit.
         self.wheels = np.array([command.left, command.right])
+        self.counters.driven = self.counters.driven or bool(self.wheels.any())
         self._last_command = now
         self.counters.commands += 1
         return True
@@ -160,6 +169,28 @@ class RobotSim:
         """The current pose as a wire message (ProtocolError if it left the sane bounds)."""
         x, y, theta = (float(v) for v in self.pose)
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
+
+
+class PoseSchedule:
+    """When a robot process publishes poses: every robot driven so far at ``pose_rate``
+    (Hz), and every robot, driven or not, at REST_POSE_RATE (or ``pose_rate`` if lower).
+    Sans-IO: times are the caller's monotonic seconds, from ``start``."""
+
+    def __init__(self, pose_rate: float, start: float) -> None:
+        self.period = 1.0 / pose_rate
+        self.rest_period = max(self.period, 1.0 / REST_POSE_RATE)
+        self._next = self._next_rest = start
+
+    def due(self, now: float) -> tuple[bool, bool]:
+        """(driven robots publish, every robot publishes) at ``now``; a late tick does not
+        make up for the ticks it missed."""
+        publish = now >= self._next
+        if publish:
+            self._next = max(self._next + self.period, now)
+        rest = publish and now >= self._next_rest
+        if rest:
+            self._next_rest = max(self._next_rest + self.rest_period, now)
+        return publish, rest
 
 
 def step_robots(sims: Sequence[RobotSim], now: float) -> np.ndarray:
@@ -318,16 +349,13 @@ def run_robots(
                     session.liveliness().declare_token(protocol.alive_key(swarm, "robot", sim.id))
                 )
                 log.info("robot %d ready in swarm %s", sim.id, swarm)
-            pose_period = 1.0 / pose_rate
-            next_pose = ticker.now()
+            schedule = PoseSchedule(pose_rate, ticker.now())
             seq = 0
             unpublishable = RateLimit()
             while not stop.is_set():
                 now = ticker.wait(stop)
                 wall = wall_clock()
-                publish = now >= next_pose
-                if publish:
-                    next_pose = max(next_pose + pose_period, now)
+                publish, rest = schedule.due(now)
                 while (sample := worlds.try_recv()) is not None:
                     if held.on_payload(sample.payload.to_bytes(), now):
                         for sim in sims:
@@ -339,6 +367,8 @@ def run_robots(
                 if not publish:
                     continue
                 for sim, publisher, _ in links:
+                    if not (rest or sim.counters.driven):
+                        continue
                     try:
                         publisher.put(sim.pose_message(wall, seq).encode())
                     except protocol.ProtocolError as exc:

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from covswarm import protocol
-from covswarm.sim_robot.process import RobotSim, step_robots
+from covswarm.sim_robot.process import REST_POSE_RATE, PoseSchedule, RobotSim, step_robots
 from covswarm.tvd.drive import DiffDrive, integrate_one
 from covswarm.world.model import World
 
@@ -219,3 +219,25 @@ def test_a_batch_stops_at_walls_as_one_robot_does() -> None:
     )
     for got, want in zip(batch, alone, strict=True):
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_robots_not_driven_yet_publish_at_the_rest_rate() -> None:
+    """Over 2 s of 16 Hz ticks (binary-exact times): driven robots' poses at 16 Hz, resting
+    ones' at REST_POSE_RATE, always on a tick where the driven ones publish too."""
+    schedule = PoseSchedule(16.0, start=0.0)
+    due = [schedule.due(k / 16) for k in range(32)]
+    assert sum(full for full, _ in due) == 32
+    assert sum(rest for _, rest in due) == round(2.0 * REST_POSE_RATE)
+    assert all(full for full, rest in due if rest)
+    slow = PoseSchedule(2.0, start=0.0)  # a pose rate under the rest rate: every pose
+    assert all(full == rest for full, rest in (slow.due(0.05 * k) for k in range(40)))
+
+
+def test_a_robot_counts_as_driven_from_its_first_moving_command() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0))
+    assert sim.on_command(command(0.0, 0.0), now=0.0, now_wall=STAMP)
+    assert not sim.counters.driven  # zero wheels: the pose cannot change
+    assert sim.on_command(command(0.0, 0.1), now=0.1, now_wall=STAMP)
+    assert sim.counters.driven
+    sim.on_command(command(0.0, 0.0), now=0.2, now_wall=STAMP)
+    assert sim.counters.driven  # stays: a stopped robot moving again must not wait

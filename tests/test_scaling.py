@@ -20,6 +20,7 @@ from covswarm.deploy.plan import (
     MAX_PACKED,
     RunConfig,
     auto_per_process,
+    auto_robots_per_process,
     covswarm_argv,
     initial_poses,
     parse_per_process,
@@ -64,14 +65,16 @@ def test_poses_parse_or_are_refused() -> None:
             parse_pose(bad)
 
 
-def _plan(ids: list[int] | None = None, per_process: int = 1, **options) -> list:
+def _plan(
+    ids: list[int] | None = None, per_process: int = 1, robots: int | None = None, **options
+) -> list:
     run = RunConfig(
         scenario="passage", agents=6, seed=3, swarm="s", rate=10.0, kappa=2.0, feedforward=True,
         duration=10.0, out=Path("out"), **options,
     )  # fmt: skip
     return plan_children(
         run, load_scenario("passage"), endpoint="tcp/10.0.0.1:7447", base=["covswarm"],
-        ids=ids, per_process=per_process,
+        ids=ids, per_process=per_process, robots_per_process=robots,
     )  # fmt: skip
 
 
@@ -156,6 +159,29 @@ def test_a_phased_ticker_ticks_at_its_share_of_the_period() -> None:
     assert ticker.deadline == pytest.approx(101.025)
     with pytest.raises(ValueError, match="phase"):
         Ticker(10.0, phase=1.0)
+
+
+def test_robots_may_be_packed_apart_from_the_brains_each_process_before_its_agents() -> None:
+    full = initial_poses(load_scenario("passage"), 6, 3)
+    specs = _plan(per_process=2, robots=4)
+    assert [(s.role, s.members) for s in specs] == [
+        ("coordinator", (0,)), ("robot", (0, 1, 2, 3)), ("agent", (0, 1)), ("agent", (2, 3)),
+        ("robot", (4, 5)), ("agent", (4, 5)),
+    ]  # fmt: skip
+    for spec in (specs[1], specs[4]):  # each robot at its place in the full team
+        poses = [tuple(map(float, p.split(","))) for p in _options(spec.argv, "--pose")]
+        np.testing.assert_allclose(poses, full[list(spec.members)])
+    assert [s.members for s in _plan(per_process=3) if s.role == "robot"] == [(0, 1, 2), (3, 4, 5)]
+
+
+@pytest.mark.parametrize(
+    ("agents", "cores", "expected"),
+    [(10, 2, 1), (16, 2, 1), (17, 2, 9), (1000, 2, 500), (100, 16, 1), (200, 16, 13)],
+)  # fmt: skip
+def test_auto_packing_hosts_the_robots_of_a_big_team_in_one_process_per_core(
+    agents: int, cores: int, expected: int
+) -> None:
+    assert auto_robots_per_process(agents, cores) == expected
 
 
 @pytest.mark.parametrize(
