@@ -59,7 +59,7 @@ from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.sim_robot.config import RobotConfig
 from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate
-from covswarm.world.contact import stop_at_contact
+from covswarm.world.contact import stop_at_contacts
 from covswarm.world.model import World
 from covswarm.world.wire import from_message
 
@@ -200,27 +200,36 @@ def step_robots(sims: Sequence[RobotSim], now: float) -> np.ndarray:
 
     Per robot this is :meth:`RobotSim.step`: the command timeout, the elapsed time capped at
     ``cmd_timeout``, no motion for a robot stepped already at ``now`` (its command arrived
-    this tick), and a world's obstacles and walls stopping the chord at the first contact.
+    this tick) or with stopped wheels, and a world's obstacles and walls stopping the chord
+    at the first contact (world.contact.stop_at_contacts, one batch per world).
     A process hosting hundreds of robots pays numpy's per-call cost once per tick instead
     of a scalar integration per robot.
     """
     dts = np.array([sim._advance(now) for sim in sims], dtype=float)
     poses = np.array([sim.pose for sim in sims], dtype=float).reshape(-1, 3)
-    moving = np.flatnonzero(dts > 0.0)
-    if moving.size:
-        wheels = np.array([sims[k].wheels for k in moving], dtype=float)
-        robot = sims[0].robot
-        if any(sim.robot is not robot and sim.robot != robot for sim in sims):
-            raise ValueError("step_robots: the robots of one batch share one model (DiffDrive)")
-        moved = integrate(poses[moving], wheels, dts[moving], robot)
-        for row, k in zip(moved, moving.tolist(), strict=True):
-            sim = sims[k]
-            if sim.world is not None:
-                radius = 0.5 * sim.robot.body_diameter
-                row[:2], hit = stop_at_contact(sim.pose[:2], row[:2], radius, sim.world)
-                sim.counters.contact_stops += hit
-            sim.pose = row
-        poses[moving] = moved
+    wheels = np.array([sim.wheels for sim in sims], dtype=float).reshape(-1, 2)
+    # Robots with stopped wheels stay where they are (no arc, no contact check): before the
+    # mission, that is every robot.
+    moving = np.flatnonzero((dts > 0.0) & wheels.any(axis=1))
+    if not moving.size:
+        return poses
+    robot = sims[0].robot
+    if any(sim.robot is not robot and sim.robot != robot for sim in sims):
+        raise ValueError("step_robots: the robots of one batch share one model (DiffDrive)")
+    moved = integrate(poses[moving], wheels[moving], dts[moving], robot)
+    worlds = [sims[k].world for k in moving.tolist()]
+    for world in {id(w): w for w in worlds if w is not None}.values():
+        # The robots of a process share the world they heard: one batch per world.
+        rows = np.array([w is world for w in worlds])
+        radius = 0.5 * robot.body_diameter
+        moved[rows, :2], hit = stop_at_contacts(
+            poses[moving[rows], :2], moved[rows, :2], radius, world
+        )
+        for k in moving[rows][hit].tolist():
+            sims[k].counters.contact_stops += 1
+    poses[moving] = moved
+    for k, row in zip(moving.tolist(), moved, strict=True):
+        sims[k].pose = row
     return poses
 
 
