@@ -34,6 +34,7 @@ from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
     RunConfig,
     auto_robots_per_process,
+    capacity_note,
     console_spec,
     covswarm_argv,
     parse_per_process,
@@ -109,7 +110,7 @@ from covswarm.sim_robot.process import gather_drops
     show_default=True,
     help="Agent brains per agent process and robots per robot process: a positive integer, "
     "or auto (one each up to 8 agents per core on this host, else one agent process per "
-    "core of at most 50 brains; docs/scaling.md).",
+    "core, split further where a batch would not hold the rate; deploy/plan.py).",
 )
 @TIME_SCALE_OPTION
 @pose_loss_option("Fault injection: every agent drops this fraction of received poses (seeded).")
@@ -181,13 +182,15 @@ def run_swarm(run: RunConfig) -> None:
     if ids is not None and ids[-1] >= n:
         raise click.BadParameter(f"ids go up to {ids[-1]} in a team of {n}", param_hint="--ids")
     here = n if ids is None else len(ids)
+    cores = len(os.sched_getaffinity(0))
+    wall_rate = run.rate * run.time_scale  # control periods per second of wall time
     try:
-        packing = parse_per_process(run.agents_per_process, here)
+        packing = parse_per_process(run.agents_per_process, here, cores, wall_rate)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
     robot_packing = packing
     if run.agents_per_process.strip().lower() == "auto":
-        robot_packing = auto_robots_per_process(here, len(os.sched_getaffinity(0)))
+        robot_packing = auto_robots_per_process(here, cores)
     duration = scenario.duration if run.duration is None else run.duration
     try:
         check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
@@ -215,6 +218,8 @@ def run_swarm(run: RunConfig) -> None:
     console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
+    if (note := capacity_note(here, cores, wall_rate)) is not None:
+        console.log(f"[yellow]warning: {note}")
     with zenoh_session(
         run.connect, max(1000, 4 * n), run.router_listen, run.router_connect, secure=run.secure
     ) as (session, endpoint):  # fmt: skip

@@ -47,23 +47,56 @@ class ChildSpec:
         return f"{self.role}-{format_ids(list(self.members))}"
 
 
-# The default packing of brains into agent processes (and robots into robot processes),
-# from docs/scaling.md's measurements of 100 robots on 2 cores: one per process (K = 1)
-# took 9 minutes to bring up 201 processes at 85 MB per brain, K = 20 took 4-8 s and
-# K = 50 held 10 Hz with 0.02 % of periods missed, at 3.6 MB per brain. Up to
-# SOLO_PER_CORE agents per core each gets its own process (a process is a robot's unit of
-# failure, as on real robots); beyond, one agent process per core, at most MAX_PACKED brains
-# each (a process steps its brains one after the other: 50 at ~0.9 ms fill half a 10 Hz
-# period).
+# The default packing of brains into agent processes (``--agents-per-process auto``).
+# Up to SOLO_PER_CORE agents per core each gets its own process (a process is a robot's
+# unit of failure, as on real robots; 100 robots one per process took 9 minutes to start,
+# docs/scaling.md). Beyond, packing follows what holds real time, from the CPU cost of one
+# brain-tick (a brain's whole period in a packed process: draining, decoding, step, filter,
+# encoding, puts), BRAIN_TICK, measured by ``covswarm bench --brain-tick`` (docs/scaling.md,
+# "Brain-tick": 1.7-1.9 ms of CPU for 50 to 500 brains per process on this 2-core VM):
+# - if the team fits, agents x rate x BRAIN_TICK within AGENT_SHARE of the cores (the rest
+#   is the robots', the router's and the coordinator's), one agent process per core, of
+#   at most PERIOD_SHARE / (rate x BRAIN_TICK) brains each: a process steps its brains one
+#   after the other, and that keeps its batch within half a period (27 at 10 Hz);
+# - if it does not, no packing holds the rate: one agent process per core, as many brains
+#   as it takes. Fewer processes start sooner (each costs its imports and ~80 MB) and share
+#   more decoding; the brains whose turn comes after a period's deadline hold (agent.pack)
+#   either way, and the launcher says which rate the machine could hold
+#   (:func:`capacity_note`).
 SOLO_PER_CORE = 8
-MAX_PACKED = 50
+BRAIN_TICK = 1.8e-3  # s of CPU per brain and control period, packed (covswarm bench)
+AGENT_SHARE = 0.8  # of the host's cores, for the agents
+PERIOD_SHARE = 0.5  # of a control period, for one process's batch of brains
 
 
-def auto_per_process(agents: int, cores: int) -> int:
-    """Brains per agent process for ``agents`` brains on a host with ``cores`` cores."""
+def fits(agents: int, cores: int, rate: float) -> bool:
+    """Whether ``agents`` brains at ``rate`` Hz (of wall time) fit ``cores`` cores."""
+    return agents * rate * BRAIN_TICK <= AGENT_SHARE * max(cores, 1)
+
+
+def auto_per_process(agents: int, cores: int, rate: float = 10.0) -> int:
+    """Brains per agent process for ``agents`` brains at ``rate`` Hz (wall time) on a host
+    with ``cores`` cores (the rule above)."""
     if agents <= SOLO_PER_CORE * max(cores, 1):
         return 1
-    return min(MAX_PACKED, -(-agents // max(cores, 1)))
+    per_core = -(-agents // max(cores, 1))
+    if not fits(agents, cores, rate):
+        return per_core
+    return max(1, min(per_core, int(PERIOD_SHARE / (rate * BRAIN_TICK))))
+
+
+def capacity_note(agents: int, cores: int, rate: float) -> str | None:
+    """What the launcher says when ``agents`` brains at ``rate`` Hz (wall time) do not fit
+    ``cores`` cores (:func:`fits`); None when they do."""
+    if fits(agents, cores, rate):
+        return None
+    need = agents * rate * BRAIN_TICK
+    held = AGENT_SHARE * max(cores, 1) / (agents * BRAIN_TICK)
+    return (
+        f"{agents} brains at {rate:g} Hz need ~{need:.1f} cores of agent CPU (~"
+        f"{1e3 * BRAIN_TICK:.1f} ms a brain-tick, covswarm bench --brain-tick); this host has "
+        f"{cores}: expect about {held:.2g} Hz, or run at --time-scale {held / rate:.2g}"
+    )
 
 
 def auto_robots_per_process(agents: int, cores: int) -> int:
@@ -78,14 +111,14 @@ def auto_robots_per_process(agents: int, cores: int) -> int:
     return -(-agents // max(cores, 1))
 
 
-def parse_per_process(text: str, agents: int, cores: int | None = None) -> int:
+def parse_per_process(text: str, agents: int, cores: int | None = None, rate: float = 10.0) -> int:
     """``--agents-per-process``: a positive integer, or "auto" (:func:`auto_per_process` for
-    ``agents`` brains on ``cores`` cores, default the cores this process may run on).
-    ValueError with the reason for anything else."""
+    ``agents`` brains at ``rate`` Hz of wall time on ``cores`` cores, default the cores this
+    process may run on). ValueError with the reason for anything else."""
     if text.strip().lower() == "auto":
         if cores is None:
             cores = len(os.sched_getaffinity(0))
-        return auto_per_process(agents, cores)
+        return auto_per_process(agents, cores, rate)
     try:
         value = int(text)
     except ValueError:
