@@ -8,11 +8,14 @@ progress, reports children that die, and shuts everything down on completion, Ct
 SIGTERM. Children die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSIG).
 
 Scaling (docs/scaling.md): ``--agents-per-process K`` packs K brains into one agent
-process and K robots into one robot process; ``--time-scale`` runs mission time slower
-than wall time. A team spread over several hosts runs one ``covswarm run`` per host with
-the same ``--swarm``, ``--agents`` and ``--seed``: ``--ids`` picks the host's slice,
-``--router-listen``/``--router-connect`` link the hosts' embedded routers, and every host
-but one says ``--no-coordinator``.
+process and K robots into one robot process; ``auto`` packs by what holds real time
+(deploy.plan.auto_per_process) and hosts a big team's robots in one process per core;
+``--time-scale`` runs mission time slower than wall time. Robot and agent processes run at
+a lower priority than the launcher (its embedded router) and the coordinator, which serve
+them all (deploy.processes.CHILD_NICE). A team spread over several hosts runs one
+``covswarm run`` per host with the same ``--swarm``, ``--agents`` and ``--seed``:
+``--ids`` picks the host's slice, ``--router-listen``/``--router-connect`` link the hosts'
+embedded routers, and every host but one says ``--no-coordinator``.
 """
 
 from __future__ import annotations
