@@ -54,6 +54,8 @@ class AgentProcessConfig:
     workspace: tuple[float, float, float, float] | None = field(default=None, metadata={"nargs": 4})
     secure: Path | None = None
     verbose: bool = False
+    # s of sleep added to every control step (agent.faults.delay_steps: a starved process)
+    fault_step_delay: float = 0.0
 
     def brain(self) -> AgentConfig:
         """The AgentConfig every brain of this process runs with."""

@@ -1,9 +1,13 @@
-"""Fault injection in an agent: seeded loss and delay of the positions it receives."""
+"""Fault injection in an agent: seeded loss and delay of the positions it receives, and
+control steps that take longer than the machine needs (a starved process)."""
 
 from __future__ import annotations
 
 import math
+import time
 from collections import deque
+from collections.abc import Callable, Iterable
+from typing import Any
 
 import numpy as np
 
@@ -43,3 +47,30 @@ class PoseImpairment:
         while self._queue and self._queue[0][0] <= now:
             out.append(self._queue.popleft()[1])
         return out
+
+
+def delay_steps(
+    brains: Iterable[Any], delay: float, sleep: Callable[[float], None] = time.sleep
+) -> None:
+    """Make every control tick of each of ``brains`` (covswarm.agent.brain.AgentBrain) take
+    ``delay`` s more of wall time: a sleep after the tick, before its actions are carried
+    out (``covswarm agent --fault-step-delay``).
+
+    An artificially starved process (issue 24, item 4): a process of K brains at R Hz holds
+    about 1 / (R * delay) of its K steps per period, as on an overloaded machine, but the
+    sleep loads no core, so the test of graceful overload does not depend on the machine's
+    speed or on the other processes running.
+    """
+    if not (math.isfinite(delay) and delay >= 0.0):
+        raise ValueError(f"the step delay must be >= 0 s, got {delay!r}")
+    if delay == 0.0:
+        return
+    for brain in brains:
+        tick = brain.tick
+
+        def slow(now: float, now_wall: float, tick: Callable = tick) -> Any:
+            actions = tick(now, now_wall)
+            sleep(delay)
+            return actions
+
+        brain.tick = slow

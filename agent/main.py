@@ -91,6 +91,7 @@ from covswarm import protocol
 from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE, AgentBrain
 from covswarm.agent.config import AgentProcessConfig
 from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.faults import delay_steps
 from covswarm.agent.link import ZenohBus
 from covswarm.agent.metrics import Counters
 from covswarm.agent.pack import Pack
@@ -264,6 +265,13 @@ def run_agents(
     metavar="XMIN XMAX YMIN YMAX",
     help="The scenario's workspace, m: a domain outside it is refused [no check].",
 )
+@float_option(
+    "--fault-step-delay",
+    low=0.0,
+    default=0.0,
+    help="Fault injection: every control step takes this many s more (a sleep): a starved "
+    "process that holds fewer steps than asked.",
+)
 @SECURE_OPTION
 @VERBOSE_OPTION
 def agent_command(**options: Any) -> None:
@@ -291,6 +299,7 @@ def run_agent_process(config: AgentProcessConfig) -> None:
         brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]
     except ValueError as exc:  # an empty or non-finite --workspace
         raise click.BadParameter(str(exc), param_hint="--workspace") from exc
+    delay_steps(brains, config.fault_step_delay)
     run_agents(
         brains, config.swarm, zenoh_config, config.rate, config.time_scale, config.tick_phase
     )

@@ -41,3 +41,6 @@ class CoordinatorConfig:
     seed: int | None = None  # the robots' start seed, recorded in run.mcap
     time_scale: float = 1.0
     secure: Path | None = None
+    # The agents' control rate (Hz): what their reported rates are held against (pacing).
+    agent_rate: float = 10.0
+    pace: bool = True  # slow the mission's script to what the team holds (coordinator.pace)

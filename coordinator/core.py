@@ -14,6 +14,10 @@ real wall clock; message stamps are ``wall * time_scale``, as runtime.clock.scal
 the CPU-cost timers of the sampling and recording budgets are passed in. The shell
 (coordinator.link) only carries the actions out.
 
+S is the script's S_script(tau(t)) (or the steered S at tau): coordinator.pace slows tau
+down to the control rate the agents report holding, and the mission ends when tau reaches
+the duration; steering requests are handled (and recorded, journalled) in script time.
+
 Composed pieces: coordinator.monitor (the mission's state machine, liveness, e_a record),
 coordinator.steering (who moves S; ``Steering.checks`` vetoes a planned motion) and the run
 recorder (covswarm.records.recorder.RunRecorder, or None), which the core calls directly:
@@ -46,6 +50,7 @@ from covswarm.coordinator.monitor import (
     clip_sample_time,
     mean_pose_time,
 )
+from covswarm.coordinator.pace import Pace, paced_density
 from covswarm.coordinator.steering import (
     Limits,
     MotionCheck,
@@ -132,6 +137,8 @@ class CoordinatorSettings:
     time_scale: float = 1.0  # mission s per wall s (runtime.clock.scaled)
     tile_size: float | None = None  # beacon tiles broadcast to the agents (None: default)
     max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
+    agent_rate: float = 10.0  # Hz the agents were asked to step at (coordinator.pace)
+    pace: bool = True  # slow the script to what the team holds (coordinator.pace)
 
     @classmethod
     def from_config(cls, config: CoordinatorConfig, scenario: Scenario) -> CoordinatorSettings:
@@ -152,6 +159,8 @@ class CoordinatorSettings:
                 swarm_tile_size(scenario, agents) if config.tile_size is None else config.tile_size
             ),
             max_domain_speed=config.max_domain_speed,
+            agent_rate=config.agent_rate,
+            pace=config.pace,
         )
 
     @cached_property
@@ -192,6 +201,8 @@ class Observed:
     # S at every recorded instant (the rows of domain.csv): mission time, vertices (k, 2).
     domain_t: list[float] = field(default_factory=list)
     domain_polygons: list[np.ndarray] = field(default_factory=list)
+    # The script's clock tau(t) and what the agents held (None only outside a core).
+    pace: Pace | None = None
 
 
 # -- actions (what the shell carries out) --------------------------------------------------
@@ -321,8 +332,14 @@ class CoordinatorCore:
         completed."""
         self.settings = settings
         self.roster = Roster.of_size(settings.agents)
-        self.observed = Observed(roster=self.roster)
-        self.phase = MissionPhase(settings.duration, settle=START_SETTLE)
+        # S(t) = S_script(tau(t)): the script slows down to what the team holds, and the
+        # mission ends when tau reaches the duration (coordinator.pace); without pacing
+        # tau = t and the phase ends the mission itself.
+        self.pace = Pace(settings.agent_rate, enabled=settings.pace)
+        self.observed = Observed(roster=self.roster, pace=self.pace)
+        self.phase = MissionPhase(
+            math.inf if settings.pace else settings.duration, settle=START_SETTLE
+        )
         world = settings.scenario.world
         # S never touches the arena: every steered motion is swept against it first.
         checks = tuple(steer_checks)
@@ -374,7 +391,9 @@ class CoordinatorCore:
 
     def resume(self, started_wall: float, now: float, wall: float, journal: list[str]) -> None:
         """Continue the mission that started at ``started_wall`` (a restarted coordinator),
-        with the accepted steering requests of ``journal`` (its lines) replayed."""
+        with the accepted steering requests of ``journal`` (its lines) replayed. The
+        script's clock restarts at the mission time: how far a first coordinator had slowed
+        the script (coordinator.pace) is not kept, so S jumps ahead by that much."""
         # Mission time is wall time since the original start, so agents extrapolating the
         # last domain and the restarted broadcasts agree.
         self.phase.started_at = now - (self.stamp(wall) - started_wall * self.settings.time_scale)
@@ -463,6 +482,7 @@ class CoordinatorCore:
             return
         if state.stats is not None:
             self.observed.agent_stats[state.id] = dict(state.stats)
+            self.pace.report(state.id, state.stats, state.stamp)
 
     def on_steer(
         self, payload: bytes, now: float, wall: float, requester: str | None = None
@@ -473,7 +493,10 @@ class CoordinatorCore:
         requester; None: not rate-limited."""
         t = self.phase.mission_time(now)
         running = self.phase.state == RUNNING
-        reply = self.steering.handle(payload, t, wall, running, requester)
+        # Steering moves S in script time, as the script does: a steered S slows down with
+        # an overloaded team too (its records and journal are in script time).
+        tau = self.pace.script_time(t) if running else t
+        reply = self.steering.handle(payload, tau, wall, running, requester)
         record = self.steering.records[-1]
         if self.recorder is not None:  # a goto's route too, for Foxglove and replays
             event = record.to_dict()
@@ -533,6 +556,14 @@ class CoordinatorCore:
             log.info("team ready: mission started")
             actions.append(MissionStarted(settings.swarm, wall))
         t = phase.mission_time(now)
+        if state != WAITING:
+            slowed = self.pace.pace < 1.0
+            tau = self.pace.advance(t, self._team, end=settings.duration)
+            if slowed != (self.pace.pace < 1.0):
+                self._log_pace(t)
+            if state == RUNNING and settings.pace and tau >= settings.duration:
+                phase.stop(now)  # the script's end: done from this tick
+                state = DONE
         polygon, domain = self._domain(state, t)
         actions.append(PublishDomain(domain))
         if self._next_world is None or now >= self._next_world:
@@ -578,15 +609,33 @@ class CoordinatorCore:
             actions.append(Finished(started=True))
         return actions
 
+    def _log_pace(self, t: float) -> None:
+        """Say that the script starts or stops running slower than the clock (an
+        overloaded team, coordinator.pace)."""
+        pace = self.pace
+        if pace.pace < 1.0:
+            log.warning(
+                "t = %.1f s: the agents do not hold their %g Hz; the mission's script slows "
+                "down to %.2fx (script at %.1f s)",
+                t, pace.asked, pace.pace, pace.tau,
+            )  # fmt: skip
+        else:
+            log.info("t = %.1f s: the agents hold their rate again; the script at full speed", t)
+
     # -- outputs --------------------------------------------------------------------------
 
     def _domain(self, state: str, t: float) -> tuple[np.ndarray, Domain]:
-        """S(t)'s vertices and the Domain message that broadcasts it (next sequence number)."""
-        vertices, velocities = self.steering.domain(t)
-        density = self.settings.scenario.density(t)
+        """S(t)'s vertices and the Domain message that broadcasts it (next sequence number):
+        S_script(tau) with the exact velocities dS/dt = S_script'(tau) * pace."""
+        tau, pace = (self.pace.tau, self.pace.pace) if state != WAITING else (0.0, 1.0)
+        vertices, velocities = self.steering.domain(tau)
+        density = self.settings.scenario.density(tau)
         if state != RUNNING:
             velocities = np.zeros_like(velocities)  # held still while waiting / done
             density = None if density is None else density.frozen()
+        else:
+            velocities = velocities * pace
+            density = None if density is None else paced_density(density, pace, t)
         domain = Domain(
             seq=self._seq,
             stamp=self.stamp(self._wall),
@@ -629,7 +678,9 @@ class CoordinatorCore:
             error=record.error[-1] if record.error else None,
             alive_agents=live.count("agent"),
             alive_robots=live.count("robot"),
-            route=self.steering.active_route(t) if state == RUNNING else None,
+            route=self.steering.active_route(self.pace.tau) if state == RUNNING else None,
+            pace=self.pace.pace if state == RUNNING else None,
+            script_t=self.pace.tau if state != WAITING else None,
         )
 
     def _start_sample(
@@ -642,16 +693,17 @@ class CoordinatorCore:
             return None
         ids = sorted(positions)
         record = self.observed.record
-        measured = t
+        measured, script = t, self.pace.tau
         if self.phase.state == RUNNING:  # once done, S holds still at S(duration)
             stamps = [self.observed.pose_stamps[i] for i in ids]
             when = mean_pose_time(t, self.stamp(self._wall), stamps)
             measured = clip_sample_time(when, t, record.t[-1] if record.t else 0.0)
             # Poses too old, out of order or badly stamped: the sample is placed at a bound.
             self.observed.clipped_samples += measured != when
-            polygon = self.steering.domain(measured)[0]
+            script = self.pace.script_time(measured)
+            polygon = self.steering.domain(script)[0]
         points = np.array([positions[i] for i in ids])
-        density = self.settings.scenario.density(measured)
+        density = self.settings.scenario.density(script)
         clock = self._cost_clock
 
         def job() -> tuple[float, float]:

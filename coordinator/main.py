@@ -32,6 +32,7 @@ from covswarm.coordinator.core import (
 )
 from covswarm.coordinator.link import CoordinatorLink
 from covswarm.coordinator.outputs import open_recorder, read_mission_start, write_run_outputs
+from covswarm.coordinator.pace import pace_sentence
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm
@@ -125,6 +126,8 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     except OSError as exc:  # a full disk: the mission is over, its records stay readable
         log.error("%s %s: %s", OUTPUTS_NOT_WRITTEN, config.out, exc.strerror or exc)
         raise SystemExit(1) from None
+    pace = core.pace.summary(core.observed.agent_stats, core.observed.record.t[-1])
+    log.info("%s", pace_sentence(pace))
     log.info("wrote %s", config.out)
 
 
@@ -163,6 +166,18 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 )
 @switch_option(
     "record", "Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).", show_default=True
+)
+@float_option(
+    "--agent-rate",
+    low=0,
+    low_open=True,
+    default=10.0,
+    help="The agents' control rate, Hz (what their reported rates are held against).",
+)
+@switch_option(
+    "pace",
+    "Slow the mission's script down to the rate the agents hold (an overloaded machine); "
+    "--no-pace: S runs at the script's speed whatever they hold.",
 )
 @FOXGLOVE_OPTION
 @click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")

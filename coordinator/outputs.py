@@ -19,6 +19,7 @@ from covswarm.coordinator.monitor import (
     losses_summary,
     team_changes_summary,
 )
+from covswarm.coordinator.pace import Pace
 from covswarm.coordinator.steering import Steering
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.physical import agent_wheel_figures, physical_summary
@@ -82,22 +83,25 @@ def run_goals(
     polygons: list[np.ndarray],
     scenario_goals: tuple[tuple[float, float], ...],
     steering: Steering | None,
+    pace: Pace | None = None,
 ) -> tuple[list[tuple[float, float]], list[float | None]]:
     """The goals of a run and when S's centroid reached each (s, None if never): the
     scenario's (its route's goals, in order, while its script moves S: until the first
     accepted steering request) and every accepted goto's goal, from its acceptance until the
     next accepted request (a goto pre-empted before arriving is not reached).
-    (covswarm.mission.world_metrics.goal_times in each window.)"""
+    (covswarm.mission.world_metrics.goal_times in each window.) ``pace``: the run's script
+    clock, whose script times the steering records are in (None: the same as ``t``)."""
     accepted = [] if steering is None else [r for r in steering.records if r.accepted]
+    when = [r.t if pace is None else pace.mission_time(r.t) for r in accepted]
     windows: list[tuple[float, float, list[tuple[float, float]]]] = []
-    first = accepted[0].t if accepted else math.inf
+    first = when[0] if accepted else math.inf
     if scenario_goals:
         windows.append((-math.inf, first, list(scenario_goals)))
     for k, record in enumerate(accepted):
         request = record.request or {}
         if request.get("kind") == "goto":
-            until = accepted[k + 1].t if k + 1 < len(accepted) else math.inf
-            windows.append((record.t, until, [tuple(request["goal"])]))
+            until = when[k + 1] if k + 1 < len(accepted) else math.inf
+            windows.append((when[k], until, [tuple(request["goal"])]))
     goals: list[tuple[float, float]] = []
     times: list[float | None] = []
     for begin, end, wanted in windows:
@@ -127,7 +131,7 @@ def arena_summary(
         scenario.world,
         ids=record.robot_ids(),
     )
-    goals, times = run_goals(t, record.polygons, scenario.goals, steering)
+    goals, times = run_goals(t, record.polygons, scenario.goals, steering, observed.pace)
     summary.update(
         goals=len(goals),
         goals_reached=sum(when is not None for when in times),
@@ -184,6 +188,11 @@ def build_summary(
         "foreign_domains": observed.foreign_domains,
         "error_samples_clipped": observed.clipped_samples,
         "tile_size": settings.tile_size,
+        **(
+            {}
+            if observed.pace is None
+            else {"pace": observed.pace.summary(observed.agent_stats, record.t[-1])}
+        ),
         "started_wall": observed.started_wall,
         **arena_summary(settings, observed, steering),
         **({} if observed.roster is None else {"unexpected": observed.roster.summary()}),
@@ -223,7 +232,11 @@ def write_run_outputs(
         polygons=record.polygons,
         obstacles=list(settings.scenario.obstacles),
         workspace=settings.scenario.workspace,
-        density=settings.scenario.density(record.t[-1]) if record.t else None,
+        density=settings.scenario.density(
+            record.t[-1] if observed.pace is None else observed.pace.script_time(record.t[-1])
+        )
+        if record.t
+        else None,
     )
     if observed.domain_t:
         write_domain_csv(

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from covswarm.coordinator.monitor import HEADLINE_STATS
+from covswarm.coordinator.pace import pace_sentence
 from covswarm.deploy.processes import RunResult
 
 
@@ -46,10 +47,11 @@ def render(progress: Progress) -> Any:
             table.add_row(f"{label} ready", bar(count, total, f"{count}/{total}"))
         return table
     table.add_row("phase", status.state)
-    table.add_row(
-        "mission time",
-        bar(status.t, progress.duration, f"{status.t:.1f} / {progress.duration:.1f} s"),
-    )
+    script = status.t if status.script_t is None else status.script_t
+    text = f"{script:.1f} / {progress.duration:.1f} s"
+    if status.pace is not None and status.pace < 1.0:  # an overloaded team: S slowed down
+        text += f" at {status.pace:.2f}x (the agents do not hold their rate)"
+    table.add_row("mission", bar(script, progress.duration, text))
     table.add_row("e_a", "-" if status.error is None else f"{status.error:.4f} m")
     table.add_row("robots alive", f"{status.alive_robots}/{n}")
     table.add_row("agents alive", f"{status.alive_agents}/{n}")
@@ -71,6 +73,8 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
     table.add_row("feedforward", str(summary.get("feedforward")))
     table.add_row("kappa", fmt(summary.get("kappa")))
     table.add_row("mission time", fmt(summary.get("mission_time"), " s"))
+    if (pace := summary.get("pace")) is not None:  # what the machine held (coordinator.pace)
+        table.add_row("rate held", pace_sentence(pace))
     table.add_row("e_a initial", fmt(summary.get("initial_error"), " m"))
     table.add_row("e_a steady state (2nd half)", fmt(summary.get("steady_state_error_mean"), " m"))
     table.add_row("e_a final", fmt(summary.get("final_error"), " m"))

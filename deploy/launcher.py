@@ -118,6 +118,17 @@ from covswarm.sim_robot.process import gather_drops
 @TIME_SCALE_OPTION
 @pose_loss_option("Fault injection: every agent drops this fraction of received poses (seeded).")
 @pose_delay_option("Fault injection: every agent receives poses this many s late.")
+@float_option(
+    "--fault-step-delay",
+    low=0.0,
+    default=0.0,
+    help="Fault injection: every agent step takes this many s more (a sleep): a starved team.",
+)
+@switch_option(
+    "pace",
+    "The coordinator slows the mission down to the rate the agents hold (--no-pace: S keeps "
+    "the script's speed).",
+)
 @switch_option("safety", "Agents filter for collisions (--no-safety: they run without the filter).")
 @switch_option(
     "prediction",

@@ -183,6 +183,8 @@ class RunConfig:
     console_port: int = 7480
     max_domain_speed: float | None = None
     secure: Path | None = None
+    pace: bool = True  # the coordinator slows the script to what the agents hold
+    fault_step_delay: float = 0.0  # s of sleep per agent step (agent.faults.delay_steps)
 
 
 # Options of a run that its coordinator and agents take as they are, under the same name.
@@ -203,7 +205,9 @@ def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> Coo
         agents=team_size(run, scenario),
         duration=scenario.duration if run.duration is None else run.duration,
         kappa=scenario.kappa if run.kappa is None else run.kappa,
+        agent_rate=run.rate,
         **_passed_on(run, "swarm", "out", "scenario", "max_domain_speed", "record", "foxglove"),
+        **_passed_on(run, "pace"),
         **_passed_on(run, "seed", *_EVERY_CHILD),
     )
 
@@ -245,7 +249,7 @@ def agent_config(
         body_diameter=scenario.robot_diameter,
         workspace=scenario.workspace,
         **_passed_on(run, "swarm", "rate", "pose_loss", "pose_delay", "prediction", "safety"),
-        **_passed_on(run, *_EVERY_CHILD),
+        **_passed_on(run, "fault_step_delay", *_EVERY_CHILD),
     )
 
 

@@ -591,7 +591,9 @@ class Status(Message):
     """Coordinator -> all: mission state, aggregate error (None until known), live counts,
     and the route S follows: the stops of the accepted goto being carried out (whoever
     sent it; SteerReply.route's stops, 3 or 4 numbers each), absent otherwise (optional,
-    so a Status without a route is the same bytes as before)."""
+    so a Status without a route is the same bytes as before). ``pace`` and ``script_t``
+    (optional): how fast the coordinator runs the mission's script for a team that cannot
+    hold its control rate, and how far the script got (covswarm.coordinator.pace)."""
 
     stamp: float
     t: float
@@ -600,6 +602,8 @@ class Status(Message):
     alive_agents: int
     alive_robots: int
     route: tuple[tuple[float, ...], ...] | None = None
+    pace: float | None = None
+    script_t: float | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "stamp": _STAMP,
@@ -609,8 +613,10 @@ class Status(Message):
         "alive_agents": _int(0, MAX_ID + 1),
         "alive_robots": _int(0, MAX_ID + 1),
         "route": _optional(route_stops(MAX_STOPS, MAX_STOP_SCALE)),
+        "pace": _optional(_real(0.0, 1.0)),
+        "script_t": _optional(_TIME),
     }
-    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"route"})
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"route", "pace", "script_t"})
 
 
 # World: the arena, sent by the coordinator at start and every WORLD_PERIOD s after.

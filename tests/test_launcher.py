@@ -146,6 +146,28 @@ def test_display_shows_start_up_then_the_mission() -> None:
     assert "robots alive  2/3" in text
 
 
+def test_display_says_when_the_mission_runs_slower_than_its_script(tmp_path: Path) -> None:
+    from covswarm.deploy.display import summary_table
+    from covswarm.deploy.processes import RunResult
+    from covswarm.protocol import Status
+
+    progress = Progress(agents=3, duration=20.0)
+    progress.status = Status(
+        stamp=1.0, t=9.0, state="running", error=0.01, alive_agents=3, alive_robots=3,
+        pace=0.45, script_t=4.0,
+    )  # fmt: skip
+    text = " ".join(_text(render(progress)).split())
+    assert "4.0 / 20.0 s at 0.45x" in text and "do not hold their rate" in text
+    pace = {
+        "enabled": True, "asked_rate_hz": 10.0, "held_rate_hz": 4.1, "periods_missed": 0.59,
+        "late_held": 0.3, "pace_min": 0.3, "pace_mean": 0.45, "script_time": 20.0,
+        "mission_time": 44.4,
+    }  # fmt: skip
+    table = summary_table({"scenario": "circle", "pace": pace}, RunResult(0, {}, {}), tmp_path)
+    text = " ".join(_text(table).split())
+    assert "the machine held 4.1 Hz of 10 asked" in text and "ran at 0.45x" in text
+
+
 def test_a_session_close_that_times_out_does_not_lose_the_run(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

@@ -406,30 +406,34 @@ def as_vectors(numbers: np.ndarray) -> np.ndarray:
     return numbers.view(np.float64).reshape(*numbers.shape, 2)
 
 
-def cell_neighbors(points: np.ndarray, owner: int, domain: CoverageDomain) -> np.ndarray:
-    """Robots whose bisector may bound the cell of ``owner`` among ``points: (n, 2)``, (m,).
+def neighbor_candidates(
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+) -> np.ndarray:
+    """(K, D) bool: which ``candidates`` (K, D) robot indices, -1 padding, may bound the cell
+    of each of ``owners`` (K,) among ``points: (n, 2)``.
 
     A superset of its Voronoi neighbours in S, for deciding whose cells to build next: the
-    half-plane intersection of ``build_cells`` for one cell with every constraint loosened
-    by the tolerance, no tie-breaking and none of the cell's integrals, so that nothing
-    that touches the cell is missed (at worst a robot whose bisector only touches it).
+    half-plane intersection of ``build_cells`` with every constraint loosened by the
+    tolerance, no tie-breaking and none of the cell's integrals, so that nothing that
+    touches the cell is missed (at worst a robot whose bisector only touches it). The owner
+    itself, robots coincident with it and padding are never candidates.
     """
     tol = domain.tol
-    k = len(domain.offsets)
+    count, k = len(owners), len(domain.offsets)
     where = as_complex(points)
-    offsets_to = where - where[owner]
+    me = where[owners]
+    offsets_to = where[candidates] - me[:, None]  # padding reads points[-1]: masked
     distance = np.abs(offsets_to)
-    valid = distance > tol  # not the owner, nor a robot coincident with it
-    normal = np.concatenate((domain.normals, offsets_to / np.maximum(distance, tol)))
-    # An invalid robot's line is moved out to the size of S, where it cannot cut the cell.
-    offset = np.concatenate(
-        (
-            domain.offsets - (domain.normals.conj() * where[owner]).real,
-            np.where(valid, 0.5 * distance, domain.size),
-        )
-    )
-    upper, lower = _piece_bounds(normal[None], offset[None], tol, loosen=True)
-    return np.flatnonzero(valid & (upper[0, k:] > lower[0, k:] - tol))
+    valid = (distance > tol) & (candidates >= 0)
+    # An invalid line gets a zero normal and the size of S as offset: it never binds.
+    normal = np.empty((count, k + candidates.shape[1]), dtype=np.complex128)
+    normal[:, :k] = domain.normals
+    normal[:, k:] = offsets_to * (valid / np.maximum(distance, tol))
+    offset = np.empty(normal.shape)
+    offset[:, :k] = domain.offsets - (me[:, None] * domain.normals.conj()).real
+    offset[:, k:] = np.where(valid, 0.5 * distance, domain.size)
+    upper, lower = _piece_bounds(normal, offset, tol, loosen=True)
+    return valid & (upper[:, k:] > lower[:, k:] - tol)
 
 
 class _Lines(NamedTuple):
@@ -488,6 +492,11 @@ def _clip(
     return _Lines(me, normal, offset, lower, labels, present)
 
 
+# Pairs (line, constraint) per pass of ``_piece_bounds``: its (2, L, K, L) temporaries then
+# stay within a few MB, in cache; one pass over 500 cells of 26 lines was 3 to 5 times
+# slower per cell than passes of 100.
+PIECE_PAIRS = 1 << 16
+
 # The LP's columns of a line from its row (nx, ny, o): the foot (o nx, o ny, -1) and the
 # clockwise direction (ny, -nx, 0).
 _COLUMN_ENDS = np.array([-1.0, 0.0])[:, None, None]
@@ -513,6 +522,13 @@ def _piece_bounds(
     on, so that vertices of lines that do cross are exact.
     """
     count, lines = offset.shape
+    step = max(1, PIECE_PAIRS // (lines * lines))
+    if count > step:
+        parts = [
+            _piece_bounds(normal[s : s + step], offset[s : s + step], tol, loosen)
+            for s in range(0, count, step)
+        ]
+        return tuple(np.concatenate(bounds) for bounds in zip(*parts, strict=True))
     # Computed with the opposite direction (y, -x), so that the sign of clockwise_rate
     # tells the kinds apart without a negation: clockwise_rate = -rate, excess = -slack.
     # Every pair comes from one batched matrix product: row (normal_m, offset_m) of
@@ -588,12 +604,7 @@ def team_cells(points: np.ndarray, domain: CoverageDomain) -> CellBatch:
         return build_cells(points, everyone, np.broadcast_to(everyone, (n, n)), domain)
     tree = cKDTree(points)
     distance, nearest = tree.query(points, k=TEAM_CANDIDATES + 1)
-    batch = _concatenate(
-        [
-            build_cells(points, everyone[s : s + BATCH_CELLS], nearest[s : s + BATCH_CELLS], domain)
-            for s in range(0, n, BATCH_CELLS)
-        ]
-    )
+    batch = build_cells_in_chunks(points, everyone, nearest, domain)
     # Robots beyond the farthest candidate cannot cut a cell within half that distance; cells
     # that reach farther (large boundary cells) are rebuilt with twice the candidates.
     width = TEAM_CANDIDATES + 1
@@ -608,11 +619,65 @@ def team_cells(points: np.ndarray, domain: CoverageDomain) -> CellBatch:
     return batch
 
 
+def build_cells_in_chunks(
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+) -> CellBatch:
+    """``build_cells`` of many cells, BATCH_CELLS at a time: candidates (K, D), each chunk
+    trimmed to its widest row (a row's -1 padding at its end)."""
+    if len(owners) <= BATCH_CELLS:
+        return build_cells(points, owners, candidates, domain)
+    parts = []
+    for s in range(0, len(owners), BATCH_CELLS):
+        rows = candidates[s : s + BATCH_CELLS]
+        width = max(int((rows >= 0).sum(axis=1).max()), 1)
+        parts.append(build_cells(points, owners[s : s + BATCH_CELLS], rows[:, :width], domain))
+    return concatenate_cells(parts)
+
+
+# Nearest robots of its view offered first to each cell by ``local_cells``; a cell that needs
+# more is rebuilt with the whole view. A near-CVT cell's neighbours are its ~6 nearest.
+LOCAL_CANDIDATES = 12
+# Fewer cells than this are built with every candidate at once: for one robot's step the
+# numpy calls of the pruning cost more than the arithmetic they save.
+PRUNED_CELLS = 32
+
+
+def local_cells(
+    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+) -> CellBatch:
+    """The cells of ``owners`` (K,), each among its own ``candidates`` (K, D) only, or (1, D)
+    shared (robot indices in increasing order, -1 padding at the end of a row):
+    ``build_cells``' cells.
+
+    The half-plane intersection costs L^2 per cell for L lines, so each cell is first built
+    from its LOCAL_CANDIDATES nearest candidates (kept in index order, so that coincident
+    robots tie-break as with all of them), and rebuilt with all of them when a candidate
+    left out is within twice the cell's radius (only a robot that near can cut it, as in
+    ``team_cells``).
+    """
+    if candidates.shape[1] <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
+        return build_cells_in_chunks(points, owners, candidates, domain)
+    candidates = np.broadcast_to(candidates, (len(owners), candidates.shape[1]))
+    where = as_complex(points)
+    distance = np.abs(where[candidates] - where[owners][:, None])
+    distance[candidates < 0] = np.inf
+    split = np.argpartition(distance, LOCAL_CANDIDATES, axis=1)
+    rows = np.arange(len(owners))
+    beyond = distance[rows, split[:, LOCAL_CANDIDATES]]  # the nearest one left out
+    nearest = np.sort(split[:, :LOCAL_CANDIDATES], axis=1)
+    batch = build_cells_in_chunks(points, owners, candidates[rows[:, None], nearest], domain)
+    unclosed = np.flatnonzero(beyond <= 2.0 * cell_radius(batch, points) + domain.tol)
+    if len(unclosed):
+        rebuilt = build_cells_in_chunks(points, owners[unclosed], candidates[unclosed], domain)
+        batch = _replace(batch, unclosed, rebuilt)
+    return batch
+
+
 # CellBatch fields with one entry per line, (K, L, ...); the others are per cell.
 _LINE_FIELDS = ("start", "end", "labels", "present")
 
 
-def _concatenate(parts: list[CellBatch]) -> CellBatch:
+def concatenate_cells(parts: list[CellBatch]) -> CellBatch:
     """The cells of ``parts`` in order, padded to the widest part's lines."""
     if len(parts) == 1:
         return parts[0]
@@ -788,12 +853,13 @@ def boundary_rates(batch: CellBatch, points: np.ndarray, domain: CoverageDomain)
     rates = np.zeros(len(labels), dtype=np.complex128)
     if boundary.any():  # cells inside S have no boundary term
         # Plane vectors as complex numbers: a . b = Re(a conj(b)). Label -(l + 1) is edge
-        # l, i.e. ~label; robot labels read wrapped entries, masked by ``length``.
-        edge = ~labels
-        gradient = np.take(domain.speed_gradient, edge, mode="wrap").conj()
+        # l, i.e. ~label; other lines read edge 0, masked by ``length`` (not a wrapped take:
+        # numpy wraps a large negative index by adding k in a loop, slow for large labels).
+        edge = np.where(boundary, ~labels, 0)
+        gradient = domain.speed_gradient[edge].conj()
         half = 0.5 * (batch.end - batch.start)
         middle = batch.start + half
-        nu = np.take(domain.speed_offset, edge, mode="wrap") + (gradient * middle).real
+        nu = domain.speed_offset[edge] + (gradient * middle).real
         delta = (gradient * half).real
         length = np.abs(half, out=np.zeros(labels.shape), where=boundary)
         integral = length * (nu * (middle - batch.centroid[:, None]) + delta / 3.0 * half)

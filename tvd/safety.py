@@ -157,13 +157,15 @@ def polygon_distance_grads(
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`covswarm.tvd.geometry.point_polygon_distance_grad` of ``point`` (2,) m to each
     of m convex CCW polygons (k_j, 2) m at once: (signed distances (m,) m, gradients (m, 2)).
+    ``point`` may also be (m, 2), a point per polygon (several robots' obstacles at once).
 
     One numpy pass over the polygons padded to the most vertices K (a short one repeats its
     last vertex: zero-length edges, which the nearest point ignores by ties and the depth by
     a mask), instead of a call per polygon, whose overhead dominated an agent's filter near
     a map's many pieces. The same formulas edge by edge (equal to rounding).
     """
-    p = np.asarray(point, dtype=float).reshape(2)
+    p = np.asarray(point, dtype=float).reshape(-1, 2)
+    px, py = p[:, :1], p[:, 1:]  # (1, 1) or (m, 1): broadcast over the polygons' vertices
     m = len(polygons)
     sizes = {len(q) for q in polygons}
     if len(sizes) == 1:  # all boxes, say: no padding
@@ -176,7 +178,7 @@ def polygon_distance_grads(
     # Components on (m, K) arrays: faster than einsum over a last axis of 2.
     ax, ay = a[..., 0], a[..., 1]
     dx, dy = np.roll(ax, -1, axis=1) - ax, np.roll(ay, -1, axis=1) - ay  # K-1 closes
-    rx, ry = p[0] - ax, p[1] - ay
+    rx, ry = px - ax, py - ay
     length2 = dx * dx + dy * dy
     valid = length2 > 0.0
     safe2 = np.where(valid, length2, 1.0)
@@ -426,3 +428,216 @@ def team_safe_velocities(
         )
         out[i], active[i], relaxed[i] = result.velocity, result.active, result.relaxed
     return out, active, relaxed
+
+
+def safe_unicycle_velocities(
+    positions: np.ndarray,
+    nominal: np.ndarray,
+    headings: np.ndarray,
+    neighbors: Sequence[np.ndarray],
+    safe_distance: float | np.ndarray,
+    gamma: float | np.ndarray = DEFAULT_GAMMA,
+    *,
+    velocities: np.ndarray | None = None,
+    neighbor_velocities: Sequence[np.ndarray] | None = None,
+    obstacles: Sequence[Sequence[np.ndarray]] | None = None,
+    workspace: Box | Sequence[Box | None] | None = None,
+    obstacle_distance: float | np.ndarray | None = None,
+    reach: float = np.inf,
+    obstacle_gamma: float | np.ndarray | None = None,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`safe_velocity` of R differential-drive robots at once (the brains of one process
+    due in one tick): robot r's result equals ``safe_velocity(positions[r], nominal[r],
+    neighbors[r], safe_distance, gamma, heading=headings[r], velocity=velocities[r],
+    neighbor_velocities=neighbor_velocities[r], obstacles=obstacles[r], workspace=workspace,
+    obstacle_distance=..., reach=reach, obstacle_gamma=...)`` to rounding.
+
+    positions, nominal: (R, 2) m, m/s; headings: (R,) rad; neighbors: R arrays (m_r, 2) m;
+    velocities: (R, 2) m/s or None; neighbor_velocities: R arrays (m_r, 2) m/s or None;
+    obstacles: R sequences of convex polygons or None; workspace: one box for all, or a box
+    or None per robot; safe_distance, gamma, obstacle_distance, obstacle_gamma: one value
+    or (R,) values. Returns (velocities
+    (R, 2) m/s, active (R,) rows tight, relaxed (R,) bool).
+
+    With the heading e given every row is (a . e) e^T u <= b (:func:`unicycle_rows`), a
+    bound on the forward speed s = e . u alone, so the QP keeps the sideways part of the
+    nominal velocity and clips s to the interval the rows leave: [max b/alpha over
+    alpha = a . e < 0, min b/alpha over alpha > 0], checked with :func:`closest_feasible`'s
+    tolerances (an empty interval: the relaxed bounds, as there). Every robot's rows in one
+    padded (R, M) array: a few dozen numpy calls for the whole batch.
+    """
+    gamma = np.asarray(gamma, dtype=float)
+    safe_distance = np.asarray(safe_distance, dtype=float)
+    if np.any(safe_distance < 0.0) or np.any(gamma <= 0.0):
+        raise ValueError(f"need safe_distance >= 0 and gamma > 0, got {safe_distance}, {gamma}")
+    walled = obstacles is not None or workspace is not None
+    if walled and not (
+        obstacle_distance is not None and np.all(np.asarray(obstacle_distance) >= 0.0)
+    ):
+        raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
+    if obstacle_gamma is not None and not np.all(np.asarray(obstacle_gamma) > 0.0):
+        raise ValueError(f"need obstacle_gamma > 0, got {obstacle_gamma!r}")
+    p = np.asarray(positions, dtype=float).reshape(-1, 2)
+    count = len(p)
+    nominal = np.asarray(nominal, dtype=float).reshape(count, 2)
+    headings = np.asarray(headings, dtype=float).reshape(count)
+    ok = np.isfinite(p).all(axis=1) & np.isfinite(nominal).all(axis=1) & np.isfinite(headings)
+    # A robot with bad input gets 0 (its rows are left out); computed as a still one.
+    nominal, headings = np.where(ok[:, None], nominal, 0.0), np.where(ok, headings, 0.0)
+    gamma, safe_distance = np.broadcast_to(gamma, count), np.broadcast_to(safe_distance, count)
+    wall_gamma = gamma if obstacle_gamma is None else np.broadcast_to(obstacle_gamma, count)
+    rows = [_pair_rows(p, ok, neighbors, safe_distance, gamma, velocities, neighbor_velocities)]
+    if walled:
+        distance = np.broadcast_to(np.asarray(obstacle_distance, dtype=float), count)
+        rows.append(_obstacle_rows(p, ok, obstacles, workspace, distance, wall_gamma, reach))
+    owner, a, b, relaxed_b = (np.concatenate(parts) for parts in zip(*rows, strict=True))
+    e = np.stack([np.cos(headings), np.sin(headings)], axis=1)
+    speed = np.einsum("ri,ri->r", e, nominal)
+    alpha = np.einsum("ti,ti->t", a, e[owner])
+    # Padded to (R, M): a padding row is 0 <= inf, which nothing violates.
+    order = np.argsort(owner, kind="stable")
+    owner, alpha, b, relaxed_b = owner[order], alpha[order], b[order], relaxed_b[order]
+    first = np.searchsorted(owner, np.arange(count))
+    slot = np.arange(len(owner)) - first[owner]
+    width = int(slot.max(initial=-1)) + 1
+    padded_alpha = np.zeros((count, width))
+    padded_alpha[owner, slot] = alpha
+    padded_b, padded_relaxed = np.full((count, width), np.inf), np.full((count, width), np.inf)
+    padded_b[owner, slot], padded_relaxed[owner, slot] = b, relaxed_b
+    forward, active, feasible = _clip_speed(speed, padded_alpha, padded_b)
+    relaxed = ~feasible
+    if relaxed.any():
+        again = _clip_speed(speed[relaxed], padded_alpha[relaxed], padded_relaxed[relaxed])
+        forward[relaxed], active[relaxed] = again[0], again[1]
+    velocity = nominal + (forward - speed)[:, None] * e
+    return (
+        np.where(ok[:, None], velocity, 0.0),
+        np.where(ok, active, 0),
+        relaxed & ok,
+    )
+
+
+def _clip_speed(
+    speed: np.ndarray, alpha: np.ndarray, b: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The forward speed nearest ``speed`` (R,) with alpha s <= b on every row (R, M):
+    (speed (R,), tight rows (R,), feasible (R,) bool), :func:`closest_feasible` on rows
+    alpha e^T: a nominal within FEASIBILITY_TOL of every row is kept (0 rows tight), rows
+    with |alpha| <= 1e-12 only bound the feasibility (0 <= b), and the nearest end of the
+    interval must meet every row to FEASIBILITY_TOL max(1, |b|)."""
+    with np.errstate(divide="ignore", invalid="ignore"):
+        kept = np.all(alpha * speed[:, None] - b <= FEASIBILITY_TOL, axis=1)
+        usable = alpha * alpha > 1e-24
+        bound = b / alpha
+        upper = np.where(usable & (alpha > 0.0), bound, np.inf).min(axis=1, initial=np.inf)
+        lower = np.where(usable & (alpha < 0.0), bound, -np.inf).max(axis=1, initial=-np.inf)
+        forward = np.where(kept, speed, np.minimum(np.maximum(speed, lower), upper))
+        slack = alpha * forward[:, None] - b
+        tol = FEASIBILITY_TOL * np.maximum(1.0, np.abs(b))
+        feasible = kept | (
+            np.all(slack <= tol, axis=1)
+            & ~np.any(~usable & (b < -FEASIBILITY_TOL), axis=1)
+            & np.isfinite(forward)
+        )
+        tight = np.maximum(np.sum((np.abs(slack) <= tol) & (b < np.inf), axis=1), 1)
+    return forward, np.where(kept, 0, tight), feasible
+
+
+Rows = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def _workspaces(
+    workspace: Box | Sequence[Box | None] | None, count: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The robots with walls (W,) and their boxes (W, 4): ``workspace`` is one box for all,
+    or one box or None per robot. ValueError for a box that is not xmin < xmax, ymin < ymax."""
+    if workspace is None:
+        return np.zeros(0, dtype=int), np.zeros((0, 4))
+    try:
+        shared = [float(v) for v in workspace]
+    except TypeError:  # a box or None per robot
+        robots = [r for r, box in enumerate(workspace) if box is not None]
+        boxes = [[float(v) for v in workspace[r]] for r in robots]
+    else:
+        robots, boxes = list(range(count)), [shared] * count
+    for box in boxes:
+        if not (len(box) == 4 and box[0] < box[1] and box[2] < box[3]):
+            raise ValueError(f"workspace must be (xmin, xmax, ymin, ymax), got {box!r}")
+    return np.array(robots, dtype=int), np.array(boxes, dtype=float).reshape(-1, 4)
+
+
+def _pair_rows(
+    p: np.ndarray,
+    ok: np.ndarray,
+    neighbors: Sequence[np.ndarray],
+    safe_distance: np.ndarray,
+    gamma: np.ndarray,
+    velocities: np.ndarray | None,
+    neighbor_velocities: Sequence[np.ndarray] | None,
+) -> Rows:
+    """Every robot's :func:`pair_constraints` rows, flat: (owner (T,), A (T, 2), b (T,),
+    relaxed bounds (T,)); neighbours (or their velocities) not finite are left out, as a
+    velocity of our own that is not finite (then zero)."""
+    counts = [len(np.asarray(q).reshape(-1, 2)) for q in neighbors]
+    owner = np.repeat(np.arange(len(p)), counts)
+    q = np.concatenate(
+        [np.zeros((0, 2))] + [np.asarray(x, float).reshape(-1, 2) for x in neighbors]
+    )
+    keep = ok[owner] & np.isfinite(q).all(axis=1)
+    mean = np.zeros((len(q), 2))
+    if neighbor_velocities is not None:
+        theirs = [np.asarray(x, dtype=float).reshape(-1, 2) for x in neighbor_velocities]
+        vq = np.concatenate([np.zeros((0, 2)), *theirs])
+        keep &= np.isfinite(vq).all(axis=1)
+        mean = 0.5 * vq
+    if velocities is not None:
+        own = np.asarray(velocities, dtype=float).reshape(-1, 2)
+        own = np.where(np.isfinite(own).all(axis=1)[:, None], own, 0.0)
+        mean = 0.5 * own[owner] + mean
+    owner, q, mean = owner[keep], q[keep], mean[keep]
+    offset = p[owner] - q
+    h = np.einsum("ij,ij->i", offset, offset) - safe_distance[owner] ** 2
+    a = -2.0 * offset
+    half = 0.5 * gamma[owner] * h
+    share = np.maximum(half, 0.0)
+    b = half + np.clip(np.einsum("ij,ij->i", a, mean), -share, share)
+    return owner, a, b, share
+
+
+def _obstacle_rows(
+    p: np.ndarray,
+    ok: np.ndarray,
+    obstacles: Sequence[Sequence[np.ndarray]] | None,
+    workspace: Box | Sequence[Box | None] | None,
+    distance: np.ndarray,
+    gamma: np.ndarray,
+    reach: float,
+) -> Rows:
+    """Every robot's :func:`obstacle_constraints` rows, flat, as ``_pair_rows``."""
+    parts: list[Rows] = []
+    if obstacles is not None:
+        polygons = [poly for r, near in enumerate(obstacles) if ok[r] for poly in near]
+        owner = np.repeat(
+            np.arange(len(p)), [len(near) if ok[r] else 0 for r, near in enumerate(obstacles)]
+        )
+        if polygons:
+            signed, grad = polygon_distance_grads(p[owner], polygons)
+            near = signed <= reach
+            owner, b = owner[near], gamma[owner[near]] * (signed[near] - distance[owner[near]])
+            parts.append((owner, -grad[near], b, np.maximum(b, 0.0)))
+    robots, boxes = _workspaces(workspace, len(p))
+    if len(robots):
+        robots, boxes = robots[ok[robots]], boxes[ok[robots]]
+        inward = np.array([[1.0, 0.0], [-1.0, 0.0], [0.0, 1.0], [0.0, -1.0]])
+        x, y = p[robots, :1], p[robots, 1:]
+        gaps = np.concatenate([x, boxes[:, 1:2], y, boxes[:, 3:]], axis=1) - np.concatenate(
+            [boxes[:, :1], x, boxes[:, 2:3], y], axis=1
+        )  # (R', 4): left, right, bottom, top
+        near = gaps <= reach
+        owner = np.broadcast_to(robots[:, None], gaps.shape)[near]
+        wall = np.broadcast_to(np.arange(4), gaps.shape)[near]
+        b = gamma[owner] * (gaps[near] - distance[owner])
+        parts.append((owner, -inward[wall], b, np.maximum(b, 0.0)))
+    empty: Rows = (np.zeros(0, dtype=int), np.zeros((0, 2)), np.zeros(0), np.zeros(0))
+    owner, a, b, relaxed = (np.concatenate(x) for x in zip(empty, *parts, strict=True))
+    return owner, a, b, relaxed

@@ -1,0 +1,238 @@
+"""Pacing the mission to what the team holds (issue 24, item 4): sans-IO, numpy only.
+
+When the machine cannot step the agents at the asked control rate, a late brain skips its
+period and then stops its robot (covswarm.agent.pack); if S kept moving at the script's
+speed meanwhile, the team would fall behind it and e_a grow without bound. So the
+coordinator slows the script down to what the team holds:
+
+    S(t) = S_script(tau(t)),  dtau/dt = pace(t) in [PACE_FLOOR, 1],
+
+and broadcasts the exact velocities dS/dt = S_script'(tau) * pace (the density's rates
+likewise). Mission time t stays 1:1 with the wall clock (the agents' MissionTimeEstimate
+assumes it): the script is warped, not the clock. The mission ends when tau reaches the
+script's duration.
+
+The pace follows the fraction of the asked rate the team holds, measured from the agents'
+stats (one AgentState with stats about once a second): agent i held
+``(mission_steps - earlier) / (stamp - earlier stamp) / asked`` since its report of
+HELD_WINDOW s before (``rate_hz / asked``, a 5 s window, until two reports of the mission
+exist). Two seconds rather than one report's interval: at 10 Hz one tick more or less in a
+one-second window would read as a 10 % change.
+The team's figure is the SLOW_QUANTILE of its members' (the slowest tenth: the team stays
+together only if its slow members keep up, but a single straggler does not freeze
+everyone). A member that stops reporting keeps its last figure: a brain that is frozen,
+hung or dead before its token lapses is a fault the team covers for (its robot stops on
+its command timeout, docs/faults.md), not a machine that holds less; a starved brain
+still reports whenever it steps, with its low rate. The pace falls at once to the team's
+figure, rises by at most RISE_RATE per second, and moves only outside a dead band
+(DROP_BAND, RISE_BAND: report jitter does not make S surge and stall). A team holding
+FULL of the rate holds it: a brain stepping 4 of 5 periods never holds its robot
+(covswarm.agent.pack holds it after three missed periods in a row) and its gain is
+sampled for the period it holds, so the script need not wait for it.
+
+PACE_FLOOR rather than a pause at pace 0: a mission on a machine that holds nothing still
+ends (after at most 1 / PACE_FLOOR its duration), and S moving at 5 % of its speed is
+nearly still for robots that step even rarely. tau between two ticks is linear in t with
+the slope broadcast at the first (what the agents extrapolate), so :meth:`Pace.script_time`
+gives S at any past mission time exactly as broadcast (an e_a sample placed at its poses'
+time).
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from collections.abc import Iterable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from covswarm.tvd.density import Density
+
+PACE_FLOOR = 0.05  # slowest pace: the mission lasts at most 20x its script
+FULL = 0.8  # a team that holds this fraction of the asked rate holds it (module docstring)
+DROP_BAND = 0.03  # the pace falls only to a target this far below it ...
+RISE_BAND = 0.05  # ... and rises only towards one this far above it
+RISE_RATE = 0.1  # pace per s of mission time: from 0.4 back to 1 in 6 s
+SLOW_QUANTILE = 0.1  # the team's figure: the slowest tenth of its members
+HELD_WINDOW = 2.0  # s of an agent's reports its held rate is measured over
+
+
+def held_fraction(
+    stats: Mapping[str, float], stamp: float, previous: tuple[float, float] | None, asked: float
+) -> float:
+    """The fraction of ``asked`` Hz an agent held (>= 0, not capped): its mission steps per
+    s since ``previous`` (stamp, mission_steps of an earlier report, None: none) when both
+    reports are of the mission and in order, else its reported ``rate_hz`` (0 without)."""
+    steps = float(stats.get("mission_steps", 0.0))
+    if previous is not None and previous[1] > 0 and steps >= previous[1] and stamp > previous[0]:
+        return (steps - previous[1]) / (stamp - previous[0]) / asked
+    rate = float(stats.get("rate_hz", 0.0))
+    return rate / asked if math.isfinite(rate) else 0.0
+
+
+def team_target(fractions: Iterable[float]) -> float:
+    """The pace the team can hold, from its members' held fractions: 1 without any, else
+    their SLOW_QUANTILE, 1 from FULL up, at least PACE_FLOOR."""
+    values = np.fromiter(fractions, dtype=float)
+    if values.size == 0:
+        return 1.0
+    slow = float(np.quantile(np.nan_to_num(values, nan=0.0), SLOW_QUANTILE))
+    return 1.0 if slow >= FULL else max(PACE_FLOOR, slow)
+
+
+def next_pace(pace: float, target: float, dt: float) -> float:
+    """The pace after ``dt`` s towards ``target``: down at once, up by RISE_RATE per s,
+    unchanged within the dead band (but all the way back to 1 once the rate is held)."""
+    if target < pace - DROP_BAND:
+        return target
+    if target > pace + RISE_BAND or target == 1.0:
+        return min(target, pace + RISE_RATE * max(dt, 0.0))
+    return pace
+
+
+def paced_density(density: Density, pace: float, t: float) -> Density:
+    """``density`` (the script's phi at tau) with its rates scaled by ``pace`` and stamped
+    with mission time ``t``: what an agent advances with mission time (d phi / dt)."""
+    return Density(
+        density.floor,
+        density.means,
+        density.covariances,
+        density.weights,
+        density.mean_rates * pace,
+        density.covariance_rates * pace,
+        density.weight_rates * pace,
+        time=t,
+    )
+
+
+@dataclass
+class Pace:
+    """The script's clock tau(t) of one run and what it was derived from.
+
+    ``asked``: the agents' control rate (Hz of mission time); ``enabled``: False keeps
+    pace 1 (tau = t) whatever the agents hold, while still measuring it.
+    """
+
+    asked: float
+    enabled: bool = True
+    pace: float = 1.0
+    tau: float = 0.0
+    # tau(t) at every tick of the mission: mission time, script time, pace from then on
+    t_log: list[float] = field(default_factory=list)
+    tau_log: list[float] = field(default_factory=list)
+    pace_log: list[float] = field(default_factory=list)
+    held: dict[int, float] = field(default_factory=dict)  # fraction of asked, per agent
+    # per agent: (stamp, mission_steps) of its reports, the oldest HELD_WINDOW s back
+    _reports: dict[int, deque[tuple[float, float]]] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.asked) and self.asked > 0.0):
+            raise ValueError(f"the asked control rate must be positive, got {self.asked!r}")
+
+    def report(self, ident: int, stats: Mapping[str, float], stamp: float) -> None:
+        """Agent ``ident``'s stats, stamped ``stamp`` (its mission-scaled wall clock, s)."""
+        reports = self._reports.setdefault(ident, deque())
+        steps = float(stats.get("mission_steps", 0.0))
+        if reports and (steps < reports[-1][1] or stamp <= reports[-1][0]):
+            reports.clear()  # a restarted agent, or a report out of order
+        self.held[ident] = held_fraction(stats, stamp, reports[0] if reports else None, self.asked)
+        reports.append((stamp, steps))
+        while len(reports) > 1 and reports[1][0] <= stamp - HELD_WINDOW:
+            reports.popleft()
+
+    def target(self, team: Iterable[int]) -> float:
+        """The pace ``team`` (alive members' ids) holds (:func:`team_target` of their latest
+        figures; members never heard from are left out)."""
+        return team_target(self.held[i] for i in team if i in self.held)
+
+    def advance(self, t: float, team: Iterable[int], end: float = math.inf) -> float:
+        """Mission time ``t``: tau advanced at the pace broadcast since the last tick (up
+        to the script's ``end``), then the pace for what follows; returns tau. A ``t`` not
+        after the last tick's (a mission that is done) changes nothing."""
+        if self.t_log and t <= self.t_log[-1]:
+            return self.tau
+        if self.t_log:
+            dt = t - self.t_log[-1]
+            self.tau = min(self.tau + self.pace * dt, end)
+            if self.enabled:
+                self.pace = next_pace(self.pace, self.target(team), dt)
+        else:
+            self.tau = min(t, end)  # the mission's first tick (0, or a resumed mission's t)
+        self.t_log.append(t)
+        self.tau_log.append(self.tau)
+        self.pace_log.append(self.pace)
+        return self.tau
+
+    def script_time(self, t: float) -> float:
+        """tau at mission time ``t`` as broadcast (linear between ticks, the last pace on)."""
+        if not self.t_log:
+            return t
+        k = int(np.searchsorted(self.t_log, t, side="right")) - 1
+        if k < 0:
+            return self.tau_log[0] - (self.t_log[0] - t)
+        return self.tau_log[k] + self.pace_log[k] * (t - self.t_log[k])
+
+    def mission_time(self, tau: float) -> float:
+        """The mission time at which the script reached ``tau`` (inverse of script_time on
+        the mission's ticks; past the last tick at its pace)."""
+        if not self.t_log or tau <= self.tau_log[0]:
+            return tau if not self.t_log else self.t_log[0] - (self.tau_log[0] - tau)
+        k = int(np.searchsorted(self.tau_log, tau, side="right")) - 1
+        return self.t_log[k] + (tau - self.tau_log[k]) / self.pace_log[k]
+
+    def summary(self, stats: Mapping[int, Mapping[str, float]], mission_t: float) -> dict:
+        """summary.json's "pace": the rate asked and held, what was missed, the pace.
+
+        ``stats``: every agent's latest stats; ``mission_t``: the mission's length, s.
+        held_rate_hz: mission steps per s of mission, mean (min) over the agents that
+        report them; periods_missed: 1 - held / asked (the team's mean); late_held: the
+        agents' mean share of periods skipped by a late turn; missed_deadline: their
+        mean share of commands sent after their period.
+        """
+        held = [
+            float(s["mission_steps"]) / mission_t
+            for s in stats.values()
+            if "mission_steps" in s and mission_t > 0.0
+        ]
+
+        def mean(name: str) -> float | None:
+            values = [float(s[name]) for s in stats.values() if name in s]
+            return float(np.mean(values)) if values else None
+
+        paces = np.array(self.pace_log) if self.pace_log else np.ones(1)
+        reached = self.tau_log[-1] if self.tau_log else 0.0
+        return {
+            "enabled": self.enabled,
+            "asked_rate_hz": self.asked,
+            "held_rate_hz": float(np.mean(held)) if held else None,
+            "held_rate_hz_min": min(held) if held else None,
+            "periods_missed": max(0.0, 1.0 - float(np.mean(held)) / self.asked) if held else None,
+            "late_held": mean("late_held"),
+            "missed_deadline": mean("missed_deadline"),
+            "pace_min": float(paces.min()),
+            "pace_mean": reached / mission_t if mission_t > 0.0 else 1.0,
+            "script_time": reached,
+            "mission_time": mission_t,
+        }
+
+
+def pace_sentence(pace: Mapping[str, Any]) -> str:
+    """summary.json's "pace" in plain words, for the coordinator's log and the launcher."""
+    asked, held = pace["asked_rate_hz"], pace.get("held_rate_hz")
+    if held is None:
+        rate = f"the agents reported no rate (asked {asked:g} Hz)"
+    else:
+        rate = f"the machine held {held:.3g} Hz of {asked:g} asked"
+        missed = [f"{pace['periods_missed']:.0%} of periods missed"]
+        if pace.get("late_held"):
+            missed.append(f"{pace['late_held']:.0%} skipped by late brains")
+        rate += f" ({', '.join(missed)})"
+    ran = (
+        f"the mission ran at {pace['pace_mean']:.2f}x (slowest {pace['pace_min']:.2f}x): "
+        f"{pace['script_time']:.1f} s of script in {pace['mission_time']:.1f} s"
+    )
+    if not pace["enabled"]:
+        ran = f"pacing off: {ran}"
+    return f"{rate}; {ran}"
