@@ -31,6 +31,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future
 from dataclasses import dataclass, field
 from functools import cached_property
 from typing import TYPE_CHECKING, Any
@@ -72,7 +73,7 @@ from covswarm.protocol import (
 )
 from covswarm.records.observations import timed_layers
 from covswarm.runtime.ratelog import RateLog
-from covswarm.tvd.coverage import aggregate_error
+from covswarm.tvd.coverage import aggregate_error, cells
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.world.map_image import map_image
 from covswarm.world.wire import to_message
@@ -270,6 +271,29 @@ Action = (
 )
 
 
+def run_inline(job: Callable[[], Any]) -> Future:
+    """Run ``job`` now; its result (or exception) as a completed Future. The core's default
+    ``offload``: tests and small teams sample e_a within the tick."""
+    future: Future = Future()
+    try:
+        future.set_result(job())
+    except Exception as exc:  # raised again by Future.result, in the tick that collects it
+        future.set_exception(exc)
+    return future
+
+
+@dataclass(frozen=True)
+class PendingSample:
+    """An e_a sample handed to ``offload``: the poses and S it is computed from, and the
+    Future of (e_a, the s it took)."""
+
+    t: float  # mission time the poses were measured at, on average
+    positions: dict[int, tuple[float, float]]
+    polygon: np.ndarray
+    tick: int  # the core's tick count when it started
+    result: Future
+
+
 def recording_counts() -> dict[str, float | int]:
     """What recording cost and what it could not record, counted (all zero at the start)."""
     return {
@@ -293,13 +317,19 @@ class CoordinatorCore:
         steer_checks: Sequence[MotionCheck] = (),
         cost_clock: Callable[[], float] = time.monotonic,
         cpu_clock: Callable[[], float] = time.thread_time,
+        offload: Callable[[Callable[[], Any]], Future] = run_inline,
     ) -> None:
         """``recorder``: where what the coordinator sees goes (run.mcap, trajectories.csv,
         a live Foxglove view), or None; ``steer_checks``: vetoes on a steered motion of S
         (coordinator.steering.MotionCheck, e.g. against the world's obstacles);
         ``cost_clock`` times an e_a sample (elapsed: a slow sample on a loaded machine must
         slow sampling down too), ``cpu_clock`` a record (CPU: a busy machine that
-        descheduled us is not recording's cost)."""
+        descheduled us is not recording's cost); ``offload`` runs the tessellations of an
+        e_a sample and of the recorded cells (:func:`run_inline`, or a worker thread's
+        submit: at 1000 robots they take ~65 and ~250 ms, more than a broadcast period,
+        mostly in numpy, which releases the GIL, so the broadcasts keep their period). One
+        of each is in flight at a time; its result is entered at the first tick after it
+        completed."""
         self.settings = settings
         self.roster = Roster.of_size(settings.agents)
         # S(t) = S_script(tau(t)): the script slows down to what the team holds, and the
@@ -322,6 +352,12 @@ class CoordinatorCore:
         self.recorder = recorder
         self._cost_clock = cost_clock
         self._cpu_clock = cpu_clock
+        self._offload = offload
+        self._pending: PendingSample | None = None
+        # Cells being tessellated for the recorder: (mission time, ids, Future of (cells,
+        # CPU s)); offloaded like e_a (at 1000 robots ~250 ms, five broadcast periods).
+        self._pending_cells: tuple[float, list[int], Future] | None = None
+        self._ticks = 0  # ticks so far (an offloaded sample's budget counts from its start)
         n = settings.agents
         self._seq = 0
         # (seq, stamp) of the Domains published lately: hearing one of them is hearing
@@ -533,21 +569,21 @@ class CoordinatorCore:
         if self._next_world is None or now >= self._next_world:
             actions.append(PublishWorld(self.world_message()))
             self._next_world = now + WORLD_PERIOD
+        self._ticks += 1
         self._ticks_to_sample -= 1
-        if state == RUNNING and self._ticks_to_sample <= 0:
-            began = self._cost_clock()
-            self._sample(t, polygon)
-            cost = self._cost_clock() - began
-            # Sample less often while e_a is expensive (big team, overloaded machine), so
-            # that it takes at most SAMPLE_SHARE of a core; back to normal once cheap.
-            self._ticks_to_sample = max(
-                self._every,
-                math.ceil(cost / SAMPLE_SHARE * settings.rate * settings.time_scale),
-            )
+        self._collect_sample(wait=False)
+        self._collect_cells(wait=False)
+        if state == RUNNING and self._ticks_to_sample <= 0 and self._pending is None:
+            self._pending = self._start_sample(t, polygon, self._offload)
+            self._ticks_to_sample = self._every
+            self._collect_sample(wait=False)  # done already unless offloaded
         done_now = state == DONE and self._done_since is None
         if done_now:
             self._done_since = now
-            self._sample(t, polygon)  # the final error, at the end of the mission
+            self._collect_sample(wait=True)
+            # The final error, at the end of the mission, before the outputs are written.
+            self._pending = self._start_sample(t, polygon, run_inline)
+            self._collect_sample(wait=True)
             log.info("mission done at t = %.1f s", t)
         if self.recorder is not None and (state == RUNNING or done_now):
             self._ticks_to_record -= 1
@@ -564,6 +600,8 @@ class CoordinatorCore:
         if state == WAITING:  # the first record holds the poses of one tick only
             self._pose_backlog.clear()
         finished = self._done_since is not None and now - self._done_since >= DONE_HOLD
+        if finished:  # the recorder closes after the last tick
+            self._collect_cells(wait=True)
         if self._next_status is None or now >= self._next_status or finished:
             actions.append(PublishStatus(self._status(state, t)))
             self._next_status = now + STATUS_PERIOD
@@ -645,11 +683,14 @@ class CoordinatorCore:
             script_t=self.pace.tau if state != WAITING else None,
         )
 
-    def _sample(self, t: float, polygon: np.ndarray) -> None:
-        """One e_a sample, against S at the time the team's poses were measured."""
+    def _start_sample(
+        self, t: float, polygon: np.ndarray, offload: Callable[[Callable[[], Any]], Future]
+    ) -> PendingSample | None:
+        """One e_a sample, against S at the time the team's poses were measured: the poses
+        are read now, the tessellation runs through ``offload``. None without poses."""
         positions = self.alive_positions()
         if not positions:
-            return
+            return None
         ids = sorted(positions)
         record = self.observed.record
         measured, script = t, self.pace.tau
@@ -661,12 +702,41 @@ class CoordinatorCore:
             self.observed.clipped_samples += measured != when
             script = self.pace.script_time(measured)
             polygon = self.steering.domain(script)[0]
-        error = aggregate_error(
-            np.array([positions[i] for i in ids]), polygon, self.settings.scenario.density(script)
-        )
-        record.add(measured, error, positions, polygon)
+        points = np.array([positions[i] for i in ids])
+        density = self.settings.scenario.density(script)
+        clock = self._cost_clock
+
+        def job() -> tuple[float, float]:
+            began = clock()
+            return aggregate_error(points, polygon, density), clock() - began
+
+        return PendingSample(measured, positions, polygon, self._ticks, offload(job))
+
+    def _collect_cells(self, wait: bool) -> None:
+        """Record the pending cells once tessellated (``wait``: block until they are)."""
+        if self._pending_cells is None or not (wait or self._pending_cells[2].done()):
+            return
+        t, team, result = self._pending_cells
+        self._pending_cells = None
+        pieces, cost = result.result()
         if self.recorder is not None:
-            self.recorder.error(measured, error, len(ids))
+            self.recorder.log_cells(t, team, pieces, cost)
+
+    def _collect_sample(self, wait: bool) -> None:
+        """Enter the pending e_a sample in the record once computed (``wait``: block until
+        it is); sample less often while e_a is expensive (big team, overloaded machine),
+        so that it takes at most SAMPLE_SHARE of a core; back to normal once cheap."""
+        pending = self._pending
+        if pending is None or not (wait or pending.result.done()):
+            return
+        self._pending = None
+        error, cost = pending.result.result()
+        self.observed.record.add(pending.t, error, pending.positions, pending.polygon)
+        if self.recorder is not None:
+            self.recorder.error(pending.t, error, len(pending.positions))
+        settings = self.settings
+        budget = math.ceil(cost / SAMPLE_SHARE * settings.rate * settings.time_scale)
+        self._ticks_to_sample = max(self._ticks_to_sample, budget - (self._ticks - pending.tick))
 
     def _record(self, t: float, polygon: np.ndarray, thin: bool) -> float:
         """Every pose received since the last record, each at the mission time it was
@@ -712,9 +782,17 @@ class CoordinatorCore:
         self.observed.domain_t.append(t)
         self.observed.domain_polygons.append(np.asarray(polygon, dtype=float))
         cost = self._cpu_clock() - began
-        if recorder.cells_due(t) and (positions := self.alive_positions()):
-            team = sorted(positions)
-            recorder.cells(t, team, np.array([positions[i] for i in team]), polygon)
+        if self._pending_cells is None and recorder.cells_due(t):
+            if positions := self.alive_positions():
+                team = sorted(positions)
+                points, cpu = np.array([positions[i] for i in team]), self._cpu_clock
+
+                def job() -> tuple[list[np.ndarray], float]:
+                    began = cpu()  # the CPU of the thread that runs it
+                    return cells(points, polygon), cpu() - began
+
+                self._pending_cells = (t, team, self._offload(job))
+                self._collect_cells(wait=False)  # done already unless offloaded
         if t >= self._next_stats_record and self.observed.agent_stats:
             recorder.agent_stats(t, self.observed.agent_stats)
             self._next_stats_record = t + STATS_RECORD_PERIOD

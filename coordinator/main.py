@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import time
+from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import click
@@ -90,7 +91,9 @@ def run_coordinator(config: CoordinatorConfig) -> None:
             recorder = open_recorder(config, settings)
         except LiveViewError as exc:
             raise click.ClickException(f"--foxglove: {exc}") from None
-        core = CoordinatorCore(settings, recorder=recorder)
+        # e_a's tessellation on a worker thread: at 1000 robots it outlasts a broadcast period.
+        sampler = ThreadPoolExecutor(max_workers=1, thread_name_prefix="e_a")
+        core = CoordinatorCore(settings, recorder=recorder, offload=sampler.submit)
         try:
             if resume_wall is not None:
                 journal = config.out / STEERING_JOURNAL
@@ -99,6 +102,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
                 core.resume(resume_wall, now, time.time(), lines)
             CoordinatorLink(session, core, mission_file).run(stop)
         finally:
+            sampler.shutdown(cancel_futures=True)
             if recorder is not None:
                 recorder.note("recording", {**core.recording_note(), **recorder.counts})
                 recorder.close()

@@ -8,16 +8,20 @@ progress, reports children that die, and shuts everything down on completion, Ct
 SIGTERM. Children die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSIG).
 
 Scaling (docs/scaling.md): ``--agents-per-process K`` packs K brains into one agent
-process and K robots into one robot process; ``--time-scale`` runs mission time slower
-than wall time. A team spread over several hosts runs one ``covswarm run`` per host with
-the same ``--swarm``, ``--agents`` and ``--seed``: ``--ids`` picks the host's slice,
-``--router-listen``/``--router-connect`` link the hosts' embedded routers, and every host
-but one says ``--no-coordinator``.
+process and K robots into one robot process; ``auto`` packs by what holds real time
+(deploy.plan.auto_per_process) and hosts a big team's robots in one process per core;
+``--time-scale`` runs mission time slower than wall time. Robot and agent processes run at
+a lower priority than the launcher (its embedded router) and the coordinator, which serve
+them all (deploy.processes.CHILD_NICE). A team spread over several hosts runs one
+``covswarm run`` per host with the same ``--swarm``, ``--agents`` and ``--seed``:
+``--ids`` picks the host's slice, ``--router-listen``/``--router-connect`` link the hosts'
+embedded routers, and every host but one says ``--no-coordinator``.
 """
 
 from __future__ import annotations
 
 import json
+import os
 import sys
 from dataclasses import replace
 from datetime import datetime
@@ -32,6 +36,8 @@ from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.deploy.display import summary_table
 from covswarm.deploy.plan import (
     RunConfig,
+    auto_robots_per_process,
+    capacity_note,
     console_spec,
     covswarm_argv,
     parse_per_process,
@@ -107,7 +113,7 @@ from covswarm.sim_robot.process import gather_drops
     show_default=True,
     help="Agent brains per agent process and robots per robot process: a positive integer, "
     "or auto (one each up to 8 agents per core on this host, else one agent process per "
-    "core of at most 50 brains; docs/scaling.md).",
+    "core, split further where a batch would not hold the rate; deploy/plan.py).",
 )
 @TIME_SCALE_OPTION
 @pose_loss_option("Fault injection: every agent drops this fraction of received poses (seeded).")
@@ -190,10 +196,15 @@ def run_swarm(run: RunConfig) -> None:
     if ids is not None and ids[-1] >= n:
         raise click.BadParameter(f"ids go up to {ids[-1]} in a team of {n}", param_hint="--ids")
     here = n if ids is None else len(ids)
+    cores = len(os.sched_getaffinity(0))
+    wall_rate = run.rate * run.time_scale  # control periods per second of wall time
     try:
-        packing = parse_per_process(run.agents_per_process, here)
+        packing = parse_per_process(run.agents_per_process, here, cores, wall_rate)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
+    robot_packing = packing
+    if run.agents_per_process.strip().lower() == "auto":
+        robot_packing = auto_robots_per_process(here, cores)
     duration = scenario.duration if run.duration is None else run.duration
     try:
         check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
@@ -207,8 +218,9 @@ def run_swarm(run: RunConfig) -> None:
         # Every child needs its own certificate: one missing would make that child exit and
         # the launcher wait for its token forever, so all are checked before anything starts.
         planned = plan_children(
-            run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids, per_process=packing
-        )
+            run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids,
+            per_process=packing, robots_per_process=robot_packing,
+        )  # fmt: skip
         names = {identity_name(s.role, s.members if s.role != "coordinator" else None)
                  for s in planned} | ({"console"} if run.console else set())  # fmt: skip
         try:
@@ -220,17 +232,21 @@ def run_swarm(run: RunConfig) -> None:
     console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
+    if (note := capacity_note(here, cores, wall_rate)) is not None:
+        console.log(f"[yellow]warning: {note}")
     with zenoh_session(
         run.connect, max(1000, 4 * n), run.router_listen, run.router_connect, secure=run.secure
     ) as (session, endpoint):  # fmt: skip
         console.log(
             f"swarm {swarm} on {endpoint}; {here if run.robots == 'sim' else 'no'} robots + "
-            f"{here} agents here (team of {n}), {packing} per process; "
+            f"{here} agents here (team of {n}), {packing} per process"
+            f"{'' if robot_packing == packing else f' ({robot_packing} per robot process)'}; "
             f"logs in {log_dir}"
         )
         specs = plan_children(
-            run, scenario, endpoint=endpoint, base=covswarm_argv(), ids=ids, per_process=packing
-        )
+            run, scenario, endpoint=endpoint, base=covswarm_argv(), ids=ids,
+            per_process=packing, robots_per_process=robot_packing,
+        )  # fmt: skip
         if run.foxglove is not None:
             port = "a free port (see the coordinator's log)" if run.foxglove == 0 else (
                 f"ws://{LIVE_HOST}:{run.foxglove}"
@@ -248,6 +264,7 @@ def run_swarm(run: RunConfig) -> None:
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
                         "agents_per_process": packing,
+                        "robots_per_process": robot_packing,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
         result = run_processes(

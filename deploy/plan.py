@@ -47,33 +47,78 @@ class ChildSpec:
         return f"{self.role}-{format_ids(list(self.members))}"
 
 
-# The default packing of brains into agent processes (and robots into robot processes),
-# from docs/scaling.md's measurements of 100 robots on 2 cores: one per process (K = 1)
-# took 9 minutes to bring up 201 processes at 85 MB per brain, K = 20 took 4-8 s and
-# K = 50 held 10 Hz with 0.02 % of periods missed, at 3.6 MB per brain. Up to
-# SOLO_PER_CORE agents per core each gets its own process (a process is a robot's unit of
-# failure, as on real robots); beyond, one agent process per core, at most MAX_PACKED brains
-# each (a process steps its brains one after the other: 50 at ~0.9 ms fill half a 10 Hz
-# period).
+# The default packing of brains into agent processes (``--agents-per-process auto``).
+# Up to SOLO_PER_CORE agents per core each gets its own process (a process is a robot's
+# unit of failure, as on real robots; 100 robots one per process took 9 minutes to start,
+# docs/scaling.md). Beyond, packing follows what holds real time, from the CPU cost of one
+# brain-tick (a brain's whole period in a packed process: draining, decoding, step, filter,
+# encoding, puts), BRAIN_TICK, measured by ``covswarm bench --brain-tick`` (docs/scaling.md,
+# "Brain-tick": 1.7-1.9 ms of CPU for 50 to 500 brains per process on this 2-core VM):
+# - if the team fits, agents x rate x BRAIN_TICK within AGENT_SHARE of the cores (the rest
+#   is the robots', the router's and the coordinator's), one agent process per core, of
+#   at most PERIOD_SHARE / (rate x BRAIN_TICK) brains each: a process steps its brains one
+#   after the other, and that keeps its batch within half a period (27 at 10 Hz);
+# - if it does not, no packing holds the rate: one agent process per core, as many brains
+#   as it takes. Fewer processes start sooner (each costs its imports and ~80 MB) and share
+#   more decoding; the brains whose turn comes after a period's deadline hold (agent.pack)
+#   either way, and the launcher says which rate the machine could hold
+#   (:func:`capacity_note`).
 SOLO_PER_CORE = 8
-MAX_PACKED = 50
+BRAIN_TICK = 1.8e-3  # s of CPU per brain and control period, packed (covswarm bench)
+AGENT_SHARE = 0.8  # of the host's cores, for the agents
+PERIOD_SHARE = 0.5  # of a control period, for one process's batch of brains
 
 
-def auto_per_process(agents: int, cores: int) -> int:
-    """Brains per agent process for ``agents`` brains on a host with ``cores`` cores."""
+def fits(agents: int, cores: int, rate: float) -> bool:
+    """Whether ``agents`` brains at ``rate`` Hz (of wall time) fit ``cores`` cores."""
+    return agents * rate * BRAIN_TICK <= AGENT_SHARE * max(cores, 1)
+
+
+def auto_per_process(agents: int, cores: int, rate: float = 10.0) -> int:
+    """Brains per agent process for ``agents`` brains at ``rate`` Hz (wall time) on a host
+    with ``cores`` cores (the rule above)."""
     if agents <= SOLO_PER_CORE * max(cores, 1):
         return 1
-    return min(MAX_PACKED, -(-agents // max(cores, 1)))
+    per_core = -(-agents // max(cores, 1))
+    if not fits(agents, cores, rate):
+        return per_core
+    return max(1, min(per_core, int(PERIOD_SHARE / (rate * BRAIN_TICK))))
 
 
-def parse_per_process(text: str, agents: int, cores: int | None = None) -> int:
+def capacity_note(agents: int, cores: int, rate: float) -> str | None:
+    """What the launcher says when ``agents`` brains at ``rate`` Hz (wall time) do not fit
+    ``cores`` cores (:func:`fits`); None when they do."""
+    if fits(agents, cores, rate):
+        return None
+    need = agents * rate * BRAIN_TICK
+    held = AGENT_SHARE * max(cores, 1) / (agents * BRAIN_TICK)
+    return (
+        f"{agents} brains at {rate:g} Hz need ~{need:.1f} cores of agent CPU (~"
+        f"{1e3 * BRAIN_TICK:.1f} ms a brain-tick, covswarm bench --brain-tick); this host has "
+        f"{cores}: expect about {held:.2g} Hz, or run at --time-scale {held / rate:.2g}"
+    )
+
+
+def auto_robots_per_process(agents: int, cores: int) -> int:
+    """Simulated robots per robot process under ``auto`` packing: one each while the brains
+    have a process each (:func:`auto_per_process`), else one robot process per core. A
+    robot process steps its robots as one numpy batch (sim_robot.process.step_robots) and
+    puts ~1 us of CPU per robot-step into stepping, ~10 us into each pose it publishes, so
+    500 robots at 20 Hz take ~10 % of a core, while every process more costs its imports
+    (~0.5 s of CPU at start-up) and ~50 MB."""
+    if agents <= SOLO_PER_CORE * max(cores, 1):
+        return 1
+    return -(-agents // max(cores, 1))
+
+
+def parse_per_process(text: str, agents: int, cores: int | None = None, rate: float = 10.0) -> int:
     """``--agents-per-process``: a positive integer, or "auto" (:func:`auto_per_process` for
-    ``agents`` brains on ``cores`` cores, default the cores this process may run on).
-    ValueError with the reason for anything else."""
+    ``agents`` brains at ``rate`` Hz of wall time on ``cores`` cores, default the cores this
+    process may run on). ValueError with the reason for anything else."""
     if text.strip().lower() == "auto":
         if cores is None:
             cores = len(os.sched_getaffinity(0))
-        return auto_per_process(agents, cores)
+        return auto_per_process(agents, cores, rate)
     try:
         value = int(text)
     except ValueError:
@@ -221,6 +266,7 @@ def plan_children(
     base: Sequence[str],
     ids: Sequence[int] | None = None,
     per_process: int = 1,
+    robots_per_process: int | None = None,
 ) -> list[ChildSpec]:
     """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
 
@@ -232,9 +278,11 @@ def plan_children(
     scenario; ``endpoint``: the router the children join; ``base``: how to run covswarm
     (:func:`covswarm_argv`). ``ids``: the slice of the team this host runs (default: all of
     it); a robot starts where it would in the full team, so hosts that split a team with the
-    same seed reproduce the one-host run. ``per_process`` robots (brains) share a robot
-    (agent) process; ``run.coordinator`` False leaves the coordinator to another host,
-    ``run.robots`` "none" the robots to bridges (covswarm bridge ros2) that join the swarm.
+    same seed reproduce the one-host run. ``per_process`` brains share an agent process,
+    ``robots_per_process`` (default ``per_process``) robots a robot process, which starts
+    just before the first agent process of its robots; ``run.coordinator`` False leaves the
+    coordinator to another host, ``run.robots`` "none" the robots to bridges (covswarm
+    bridge ros2) that join the swarm.
     Agent process k of n gets ``--tick-phase k/n``: their batches of brains take turns
     within the control period instead of colliding on the cores at chance moments. Each
     child's command line is its config object's (runtime.options.config_argv).
@@ -247,14 +295,18 @@ def plan_children(
     poses = initial_poses(scenario, n, run.seed)
     chosen = list(range(n)) if ids is None else sorted(ids)
     processes = -(-len(chosen) // per_process)
+    robots = per_process if robots_per_process is None else robots_per_process
+    robot_groups = [] if run.robots != "sim" else [
+        chosen[k : k + robots] for k in range(0, len(chosen), robots)
+    ]  # fmt: skip
     for start in range(0, len(chosen), per_process):
         group = chosen[start : start + per_process]
         members = tuple(group) if per_process > 1 else ()
-        if run.robots == "sim":
-            robot = robot_config(run, endpoint, group, poses, per_process > 1)
-            specs.append(
-                ChildSpec("robot", group[0], (*base, "robot", *config_argv(robot)), members)
-            )
+        while robot_groups and robot_groups[0][0] <= group[-1]:
+            hosted = robot_groups.pop(0)
+            robot = robot_config(run, endpoint, hosted, poses, robots > 1)
+            argv = (*base, "robot", *config_argv(robot))
+            specs.append(ChildSpec("robot", hosted[0], argv, tuple(hosted) if robots > 1 else ()))
         phase = start // per_process / processes
         agent = agent_config(run, scenario, endpoint, group, phase, per_process > 1)
         specs.append(ChildSpec("agent", group[0], (*base, "agent", *config_argv(agent)), members))

@@ -17,10 +17,15 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from covswarm.deploy.lifeline import PARENT_ENV
+from covswarm.deploy.lifeline import NICE_ENV, PARENT_ENV
 from covswarm.deploy.plan import ChildSpec
 
 TERMINATE_GRACE = 5.0  # s between SIGTERM and SIGKILL when stopping children
+# Niceness added to robot and agent processes: the embedded router (in the launcher) and the
+# coordinator serve every one of them, and on an overloaded machine an equal share among
+# 40 processes starved the router: commands reached robots 13 s late and Zenoh sessions
+# timed out (robots' tokens lost before the start, docs/scaling.md, 1000 robots).
+CHILD_NICE = {"robot": 5, "agent": 5}
 
 
 @dataclass
@@ -53,7 +58,11 @@ def spawn(spec: ChildSpec, log_dir: Path) -> Child:
             stdout=log,
             stderr=subprocess.STDOUT,
             process_group=0,
-            env={**os.environ, PARENT_ENV: str(os.getpid())},
+            env={
+                **os.environ,
+                PARENT_ENV: str(os.getpid()),
+                **({NICE_ENV: str(CHILD_NICE[spec.role])} if spec.role in CHILD_NICE else {}),
+            },
         )
     return Child(spec, process, log_path)
 

@@ -341,8 +341,17 @@ class RunRecorder:
             return
         began = time.thread_time()
         pieces = cells(np.asarray(positions, dtype=float), np.asarray(polygon, dtype=float))
+        self.log_cells(t, ids, pieces, time.thread_time() - began)
+
+    def log_cells(
+        self, t: float, ids: Sequence[int], pieces: Sequence[np.ndarray], cost: float
+    ) -> None:
+        """Record cells tessellated elsewhere (tvd.coverage.cells of the robots ``ids`` at
+        mission time ``t``; the coordinator's worker thread): ``cost``, the CPU s the
+        tessellation took, sets when the next is due (``cell_share``)."""
+        if not self._writing(t):
+            return
         self._cells.log(scene.cells_update(t, ids, pieces), log_time=self._log_time(t))
-        cost = time.thread_time() - began
         share = self.cell_share
         self._next_cells = t + (CELL_PERIOD if share is None else max(CELL_PERIOD, cost / share))
         self.counts["cells"] += 1

@@ -4,12 +4,14 @@ This is the reference implementation of the robot contract that a real-robot bri
 honour, and agents see nothing else of a robot:
 
 - subscribe to ``covswarm/<swarm>/robot/<id>/cmd`` (WheelCommand, rim speeds in m/s);
-- publish ``covswarm/<swarm>/robot/<id>/pose`` (Pose) at ``--pose-rate``;
+- publish ``covswarm/<swarm>/robot/<id>/pose`` (Pose) at ``--pose-rate`` (at REST_POSE_RATE
+  until a command first sets its wheels moving: its pose cannot change before);
 - declare the liveliness token ``covswarm/<swarm>/alive/robot/<id>`` once ready, and refuse
   to start if another process already claims the same id (runtime.claims.claim).
 
-The robot integrates its kinematics (tvd.drive.integrate_one, exact arcs) at ``--rate``
-from the last valid command and stops its wheels when no valid command arrived for
+The robot integrates its kinematics (tvd.drive.integrate, exact arcs; the robots of a
+process as one numpy batch, :func:`step_robots`) at ``--rate`` from the last valid command
+and stops its wheels when no valid command arrived for
 ``--cmd-timeout`` seconds (an agent that dies or stalls must not leave its robot driving).
 Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
 than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` plus that
@@ -34,6 +36,7 @@ from __future__ import annotations
 import json
 import logging
 import time
+from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -55,8 +58,8 @@ from covswarm.runtime import options
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.sim_robot.config import RobotConfig
-from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate_one
-from covswarm.world.contact import stop_at_contact
+from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED, DiffDrive, integrate
+from covswarm.world.contact import stop_at_contacts
 from covswarm.world.model import World
 from covswarm.world.wire import from_message
 
@@ -65,6 +68,12 @@ log = logging.getLogger("covswarm.robot")
 # Why a World broadcast was dropped: protocol reasons, geometry the model refuses, or not
 # newer than the held one (by sequence number) while its sender still talks.
 WORLD_DROP_REASONS = (*protocol.REASONS, "bad_world", "old_world")
+# Hz: poses of a robot never driven yet (before the mission: agents command zero wheels
+# until it starts). Its pose cannot change, so fewer copies lose nothing, and 1000 robots
+# at 20 Hz while the team is still starting (20 000 puts/s through the router, decoded by
+# every agent near them) would starve the processes still starting. Four poses per agent
+# stale timeout (1 s) keep every robot fresh to its agent and neighbours.
+REST_POSE_RATE = 4.0
 # s: silence of the held world's sender after which any sequence number is taken (a
 # restarted coordinator numbers from 0 again); it repeats its World every second.
 WORLD_RESTART_SILENCE = 5.0
@@ -75,6 +84,7 @@ class RobotCounters:
     """What happened to the commands a robot received (drops: RobotSim.drops)."""
 
     commands: int = 0  # valid commands applied
+    driven: bool = False  # a command has set non-zero wheels (publish at the full pose rate)
     timeouts: int = 0  # times the wheels were stopped for lack of commands
     contact_stops: int = 0  # steps on which an obstacle or wall stopped the body
 
@@ -128,6 +138,7 @@ class RobotSim:
         self.step(now)
         # Decoding guarantees finite speeds; the model clamps them to this robot's limit.
         self.wheels = np.array([command.left, command.right])
+        self.counters.driven = self.counters.driven or bool(self.wheels.any())
         self._last_command = now
         self.counters.commands += 1
         return True
@@ -138,29 +149,88 @@ class RobotSim:
         The elapsed time is capped at ``cmd_timeout``: after a stall (an overloaded machine,
         SIGSTOP) the robot must not jump by what it would have driven meanwhile. In a world,
         the move (the chord of the arc) stops at the first contact with an obstacle or wall;
-        the heading turns all the same (a disk turning in place moves nothing).
+        the heading turns all the same (a disk turning in place moves nothing). One robot
+        of :func:`step_robots`.
         """
+        return step_robots([self], now)[0]
+
+    def _advance(self, now: float) -> float:
+        """Stop the wheels if the last command timed out; the s to drive until ``now``
+        (capped at ``cmd_timeout``), and ``now`` becomes the last step."""
         commanded = self._last_command is not None and now - self._last_command <= self.cmd_timeout
         if not commanded and self.wheels.any():
             self.counters.timeouts += 1
             self.wheels = np.zeros(2)
         dt = min(max(now - self._last_step, 0.0), self.cmd_timeout)
         self._last_step = now
-        if dt > 0.0:
-            pose = np.array(
-                integrate_one(*self.pose.tolist(), *self.wheels.tolist(), dt, self.robot)
-            )
-            if self.world is not None:
-                radius = 0.5 * self.robot.body_diameter
-                pose[:2], hit = stop_at_contact(self.pose[:2], pose[:2], radius, self.world)
-                self.counters.contact_stops += hit
-            self.pose = pose
-        return self.pose
+        return dt
 
     def pose_message(self, stamp: float, seq: int) -> protocol.Pose:
         """The current pose as a wire message (ProtocolError if it left the sane bounds)."""
         x, y, theta = (float(v) for v in self.pose)
         return protocol.Pose(id=self.id, x=x, y=y, theta=theta, stamp=stamp, seq=seq)
+
+
+class PoseSchedule:
+    """When a robot process publishes poses: every robot driven so far at ``pose_rate``
+    (Hz), and every robot, driven or not, at REST_POSE_RATE (or ``pose_rate`` if lower).
+    Sans-IO: times are the caller's monotonic seconds, from ``start``."""
+
+    def __init__(self, pose_rate: float, start: float) -> None:
+        self.period = 1.0 / pose_rate
+        self.rest_period = max(self.period, 1.0 / REST_POSE_RATE)
+        self._next = self._next_rest = start
+
+    def due(self, now: float) -> tuple[bool, bool]:
+        """(driven robots publish, every robot publishes) at ``now``; a late tick does not
+        make up for the ticks it missed."""
+        publish = now >= self._next
+        if publish:
+            self._next = max(self._next + self.period, now)
+        rest = publish and now >= self._next_rest
+        if rest:
+            self._next_rest = max(self._next_rest + self.rest_period, now)
+        return publish, rest
+
+
+def step_robots(sims: Sequence[RobotSim], now: float) -> np.ndarray:
+    """Drive every robot of ``sims`` from its previous step to ``now`` as one numpy batch
+    (tvd.drive.integrate, exact arcs, each with its own elapsed time and wheels); returns
+    their (n, 3) poses (x m, y m, heading rad), row k of ``sims[k]``, which also holds it.
+
+    Per robot this is :meth:`RobotSim.step`: the command timeout, the elapsed time capped at
+    ``cmd_timeout``, no motion for a robot stepped already at ``now`` (its command arrived
+    this tick) or with stopped wheels, and a world's obstacles and walls stopping the chord
+    at the first contact (world.contact.stop_at_contacts, one batch per world).
+    A process hosting hundreds of robots pays numpy's per-call cost once per tick instead
+    of a scalar integration per robot.
+    """
+    dts = np.array([sim._advance(now) for sim in sims], dtype=float)
+    poses = np.array([sim.pose for sim in sims], dtype=float).reshape(-1, 3)
+    wheels = np.array([sim.wheels for sim in sims], dtype=float).reshape(-1, 2)
+    # Robots with stopped wheels stay where they are (no arc, no contact check): before the
+    # mission, that is every robot.
+    moving = np.flatnonzero((dts > 0.0) & wheels.any(axis=1))
+    if not moving.size:
+        return poses
+    robot = sims[0].robot
+    if any(sim.robot is not robot and sim.robot != robot for sim in sims):
+        raise ValueError("step_robots: the robots of one batch share one model (DiffDrive)")
+    moved = integrate(poses[moving], wheels[moving], dts[moving], robot)
+    worlds = [sims[k].world for k in moving.tolist()]
+    for world in {id(w): w for w in worlds if w is not None}.values():
+        # The robots of a process share the world they heard: one batch per world.
+        rows = np.array([w is world for w in worlds])
+        radius = 0.5 * robot.body_diameter
+        moved[rows, :2], hit = stop_at_contacts(
+            poses[moving[rows], :2], moved[rows, :2], radius, world
+        )
+        for k in moving[rows][hit].tolist():
+            sims[k].counters.contact_stops += 1
+    poses[moving] = moved
+    for k, row in zip(moving.tolist(), moved, strict=True):
+        sims[k].pose = row
+    return poses
 
 
 class WorldHeld:
@@ -288,32 +358,32 @@ def run_robots(
                     session.liveliness().declare_token(protocol.alive_key(swarm, "robot", sim.id))
                 )
                 log.info("robot %d ready in swarm %s", sim.id, swarm)
-            pose_period = 1.0 / pose_rate
-            next_pose = ticker.now()
+            schedule = PoseSchedule(pose_rate, ticker.now())
             seq = 0
             unpublishable = RateLimit()
             while not stop.is_set():
                 now = ticker.wait(stop)
                 wall = wall_clock()
-                publish = now >= next_pose
-                if publish:
-                    next_pose = max(next_pose + pose_period, now)
+                publish, rest = schedule.due(now)
                 while (sample := worlds.try_recv()) is not None:
                     if held.on_payload(sample.payload.to_bytes(), now):
                         for sim in sims:
                             sim.world = held.world
-                for sim, publisher, commands in links:
+                for sim, _, commands in links:
                     while (sample := commands.try_recv()) is not None:
                         sim.on_command(sample.payload.to_bytes(), now, wall)
-                    sim.step(now)
-                    if not publish:
+                step_robots(sims, now)
+                if not publish:
+                    continue
+                for sim, publisher, _ in links:
+                    if not (rest or sim.counters.driven):
                         continue
                     try:
                         publisher.put(sim.pose_message(wall, seq).encode())
                     except protocol.ProtocolError as exc:
                         if unpublishable.ready():  # once per LOG_INTERVAL, not per tick
                             log.error("robot %d: pose not publishable: %s", sim.id, exc)
-                seq += publish
+                seq += 1
         finally:
             for token in tokens:
                 token.undeclare()

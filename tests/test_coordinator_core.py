@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import threading
+import time
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
@@ -308,3 +311,44 @@ def test_domains_of_another_publisher_are_counted_not_its_own(caplog) -> None:
         core.on_domain_heard(b"\xc1garbage")
     assert core.observed.foreign_domains == 2
     assert "another process publishes" in caplog.text
+
+
+def test_an_offloaded_sample_enters_the_record_once_done_with_the_inline_value() -> None:
+    """e_a computed on a worker thread (coordinator.main at 1000 robots): the ticks go on
+    broadcasting while it runs, no second sample starts, and once it is done the next tick
+    records the same time and value as a core that sampled inline."""
+    release = threading.Event()
+
+    def gated(pool: ThreadPoolExecutor):
+        def submit(job):
+            return pool.submit(lambda: (release.wait(10), job())[1])
+
+        return submit
+
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        settings = make_core().settings
+        inline = CoordinatorCore(settings, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0)
+        worker = CoordinatorCore(
+            settings, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0, offload=gated(pool)
+        )
+        started = [start(core) for core in (inline, worker)][0]
+        centre = settings.scenario.domain(0.0)[0].mean(axis=0)
+        positions = centre + np.array([[-0.3, 0.1], [0.4, -0.2]])
+
+        def tick(core: CoordinatorCore, k: int) -> list:
+            now = round(started + 0.05 * (k + 1), 10)
+            for i, (x, y) in enumerate(positions + 0.01 * k):
+                pose = Pose(id=i, x=x, y=y, theta=0.0, stamp=WALL0 + now - 0.02, seq=k)
+                core.on_pose(pose_key(SWARM, i), pose.encode())
+            return core.tick(now, WALL0 + now)
+
+        for k in range(6):  # the worker's first sample is held back all along
+            tick(inline, k)
+            assert of(PublishDomain, tick(worker, k))
+        assert len(inline.observed.record.t) == 3 and not worker.observed.record.t
+        release.set()
+        while not worker._pending.result.done():
+            time.sleep(0.01)
+        tick(worker, 6)
+        assert worker.observed.record.t == inline.observed.record.t[:1]
+        assert worker.observed.record.error == inline.observed.record.error[:1]

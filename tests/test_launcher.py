@@ -19,7 +19,7 @@ from covswarm.deploy.plan import (
     initial_poses,
     plan_children,
 )
-from covswarm.deploy.processes import cpu_seconds, rss_mb
+from covswarm.deploy.processes import CHILD_NICE, cpu_seconds, rss_mb, spawn
 from covswarm.deploy.router import free_port
 from covswarm.deploy.supervisor import Startup
 from covswarm.mission.scenario_files import load_scenario
@@ -184,3 +184,15 @@ def test_a_session_close_that_times_out_does_not_lose_the_run(
     with caplog.at_level("WARNING"), _closing(SlowSession()):
         pass
     assert "close operation timed out" in caplog.text
+
+
+def test_robot_and_agent_children_run_nicer_than_the_launcher(tmp_path: Path) -> None:
+    """The router (in the launcher) and the coordinator serve every child: robots and agents
+    take CHILD_NICE more niceness, in their own entry point (deploy.lifeline)."""
+    probe = "from covswarm.deploy import lifeline; lifeline.hold(); import os; print(os.nice(0))"
+    mine = os.nice(0)
+    for role in ("robot", "agent", "coordinator"):
+        child = spawn(ChildSpec(role, 0, (sys.executable, "-c", probe)), tmp_path)
+        assert child.process.wait(timeout=30) == 0
+        niceness = int(child.log_path.read_text().split()[-1])
+        assert niceness == min(19, mine + CHILD_NICE.get(role, 0)), role

@@ -11,8 +11,9 @@ import numpy as np
 import pytest
 
 from covswarm import protocol
-from covswarm.sim_robot.process import RobotSim
-from covswarm.tvd.drive import DiffDrive
+from covswarm.sim_robot.process import REST_POSE_RATE, PoseSchedule, RobotSim, step_robots
+from covswarm.tvd.drive import DiffDrive, integrate_one
+from covswarm.world.model import World
 
 STAMP = 1.7e9
 
@@ -154,3 +155,89 @@ def test_drops_per_reason_are_one_line_at_exit() -> None:
     log = f'INFO starting\nWARNING {line}\nWARNING {line}\nrobot drops {{"3": {{"und\n'
     assert gather_drops(log) == {"3": {"undecodable": 1000, "wrong_id": 1000, "stamp_old": 2}}
     assert gather_drops("nothing dropped\n") == {}
+
+
+def _fleet(n: int, seed: int, world=None) -> list[RobotSim]:
+    rng = np.random.default_rng(seed)
+    poses = np.column_stack([rng.uniform(-1, 1, (n, 2)), rng.uniform(-math.pi, math.pi, n)])
+    return [RobotSim(i, tuple(p), cmd_timeout=0.5, world=world) for i, p in enumerate(poses)]
+
+
+def _drive_history(sims: list[RobotSim], step, seed: int) -> list[np.ndarray]:
+    """Commands at random times (some robots never commanded, some time out, some get a
+    command on the tick they are stepped), steps every 0.05 s by ``step(sims, now)``; the
+    (n, 3) poses after each step."""
+    rng = np.random.default_rng([seed, 1])
+    out = []
+    for k in range(1, 30):
+        now = 0.05 * k
+        for sim in sims:
+            if sim.id % 4 != 0 and now < 0.9 and rng.random() < 0.4:
+                left, right = rng.uniform(-1.2, 1.2, 2)  # some beyond the rim limit
+                assert sim.on_command(command(left, right, robot_id=sim.id), now, STAMP)
+        out.append(step(sims, now))
+    return out
+
+
+def test_a_batch_steps_every_robot_as_its_own_step_does() -> None:
+    """step_robots (one numpy batch) equals each robot stepped alone, to 1e-12, over a
+    history with clamped wheels, command timeouts and commands arriving on a tick."""
+    batch = _drive_history(_fleet(40, 3), step_robots, 3)
+    alone = _drive_history(
+        _fleet(40, 3), lambda sims, now: np.array([sim.step(now) for sim in sims]), 3
+    )
+    for got, want in zip(batch, alone, strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+    assert not np.allclose(batch[0], batch[-1])  # the robots did move
+
+
+def test_a_batch_equals_the_scalar_arc_per_robot() -> None:
+    """Independent reference: tvd.drive.integrate_one, one robot at a time in floats."""
+    sims = _fleet(25, 5)
+    rng = np.random.default_rng(9)
+    wheels = rng.uniform(-1.0, 1.0, (25, 2))
+    wheels[:3] = [[0.2, 0.2], [-0.1, 0.1], [0.0, 0.0]]  # straight, in place, still
+    for sim, (left, right) in zip(sims, wheels, strict=True):
+        sim.on_command(command(left, right, robot_id=sim.id), 0.0, STAMP)
+    want = [tuple(sim.pose.tolist()) for sim in sims]
+    before = 0.0
+    for now in (0.05, 0.1, 0.13, 0.2):
+        got = step_robots(sims, now)
+        arcs = zip(want, wheels.tolist(), strict=True)
+        want = [integrate_one(*p, *w, now - before) for p, w in arcs]
+        np.testing.assert_allclose(got, np.array(want), rtol=0, atol=1e-12)
+        before = now
+
+
+def test_a_batch_stops_at_walls_as_one_robot_does() -> None:
+    world = World((-1.0, 1.0, -1.0, 1.0))
+    walled = _fleet(12, 7, world)
+    batch = _drive_history(walled, step_robots, 7)
+    assert sum(sim.counters.contact_stops for sim in walled) > 0
+    alone = _drive_history(
+        _fleet(12, 7, world), lambda sims, now: np.array([sim.step(now) for sim in sims]), 7
+    )
+    for got, want in zip(batch, alone, strict=True):
+        np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def test_robots_not_driven_yet_publish_at_the_rest_rate() -> None:
+    """Over 2 s of 16 Hz ticks (binary-exact times): driven robots' poses at 16 Hz, resting
+    ones' at REST_POSE_RATE, always on a tick where the driven ones publish too."""
+    schedule = PoseSchedule(16.0, start=0.0)
+    due = [schedule.due(k / 16) for k in range(32)]
+    assert sum(full for full, _ in due) == 32
+    assert sum(rest for _, rest in due) == round(2.0 * REST_POSE_RATE)
+    assert all(full for full, rest in due if rest)
+    slow = PoseSchedule(2.0, start=0.0)  # a pose rate under the rest rate: every pose
+    assert all(full == rest for full, rest in (slow.due(0.05 * k) for k in range(40)))
+
+
+def test_a_robot_counts_as_driven_from_its_first_moving_command() -> None:
+    sim = RobotSim(1, (0.0, 0.0, 0.0))
+    assert sim.on_command(command(0.0, 0.0), now=0.0, now_wall=STAMP)
+    assert not sim.counters.driven  # zero wheels: the pose cannot change
+    assert sim.on_command(command(0.0, 0.1), now=0.1, now_wall=STAMP)
+    assert sim.counters.driven
+    sim.on_command(command(0.0, 0.0), now=0.2, now_wall=STAMP)
+    assert sim.counters.driven  # stays: a stopped robot moving again must not wait

@@ -17,9 +17,14 @@ import pytest
 from live_runs import launch, new_swarm, swarm_pids
 
 from covswarm.deploy.plan import (
-    MAX_PACKED,
+    AGENT_SHARE,
+    BRAIN_TICK,
+    PERIOD_SHARE,
+    SOLO_PER_CORE,
     RunConfig,
     auto_per_process,
+    auto_robots_per_process,
+    capacity_note,
     covswarm_argv,
     initial_poses,
     parse_per_process,
@@ -64,14 +69,16 @@ def test_poses_parse_or_are_refused() -> None:
             parse_pose(bad)
 
 
-def _plan(ids: list[int] | None = None, per_process: int = 1, **options) -> list:
+def _plan(
+    ids: list[int] | None = None, per_process: int = 1, robots: int | None = None, **options
+) -> list:
     run = RunConfig(
         scenario="passage", agents=6, seed=3, swarm="s", rate=10.0, kappa=2.0, feedforward=True,
         duration=10.0, out=Path("out"), **options,
     )  # fmt: skip
     return plan_children(
         run, load_scenario("passage"), endpoint="tcp/10.0.0.1:7447", base=["covswarm"],
-        ids=ids, per_process=per_process,
+        ids=ids, per_process=per_process, robots_per_process=robots,
     )  # fmt: skip
 
 
@@ -158,16 +165,56 @@ def test_a_phased_ticker_ticks_at_its_share_of_the_period() -> None:
         Ticker(10.0, phase=1.0)
 
 
+def test_robots_may_be_packed_apart_from_the_brains_each_process_before_its_agents() -> None:
+    full = initial_poses(load_scenario("passage"), 6, 3)
+    specs = _plan(per_process=2, robots=4)
+    assert [(s.role, s.members) for s in specs] == [
+        ("coordinator", (0,)), ("robot", (0, 1, 2, 3)), ("agent", (0, 1)), ("agent", (2, 3)),
+        ("robot", (4, 5)), ("agent", (4, 5)),
+    ]  # fmt: skip
+    for spec in (specs[1], specs[4]):  # each robot at its place in the full team
+        poses = [tuple(map(float, p.split(","))) for p in _options(spec.argv, "--pose")]
+        np.testing.assert_allclose(poses, full[list(spec.members)])
+    assert [s.members for s in _plan(per_process=3) if s.role == "robot"] == [(0, 1, 2), (3, 4, 5)]
+
+
 @pytest.mark.parametrize(
     ("agents", "cores", "expected"),
-    [(10, 2, 1), (16, 2, 1), (17, 2, 9), (100, 2, 50), (1000, 2, MAX_PACKED), (100, 16, 1),
-     (200, 16, 13), (3, 0, 1)],
+    [(10, 2, 1), (16, 2, 1), (17, 2, 9), (1000, 2, 500), (100, 16, 1), (200, 16, 13)],
 )  # fmt: skip
-def test_auto_packing_gives_each_core_one_agent_process_once_a_team_is_big(
+def test_auto_packing_hosts_the_robots_of_a_big_team_in_one_process_per_core(
     agents: int, cores: int, expected: int
 ) -> None:
-    assert auto_per_process(agents, cores) == expected
-    assert parse_per_process("auto", agents, cores) == expected
+    assert auto_robots_per_process(agents, cores) == expected
+
+
+@pytest.mark.parametrize(
+    ("agents", "cores", "rate"),
+    [(10, 2, 10), (16, 2, 10), (17, 2, 10), (100, 2, 10), (1000, 2, 10), (100, 16, 10),
+     (200, 16, 10), (300, 16, 30), (100, 8, 10), (100, 4, 30), (3, 0, 10)],
+)  # fmt: skip
+def test_auto_packing_holds_the_rate_where_the_team_fits_else_one_process_per_core(
+    agents: int, cores: int, rate: float
+) -> None:
+    k = auto_per_process(agents, cores, rate)
+    assert parse_per_process("auto", agents, cores, rate) == k
+    processes = -(-agents // k)
+    if agents <= SOLO_PER_CORE * max(cores, 1):
+        assert k == 1  # small teams: one process per brain
+    elif agents * rate * BRAIN_TICK > AGENT_SHARE * cores:
+        assert processes == cores  # nothing holds the rate: the fewest processes
+        assert capacity_note(agents, cores, rate) is not None
+    else:  # every batch within half a period, as big as that allows, a process per core
+        assert k * rate * BRAIN_TICK <= PERIOD_SHARE
+        assert (k + 1) * rate * BRAIN_TICK > PERIOD_SHARE or processes == cores
+        assert processes >= cores and capacity_note(agents, cores, rate) is None
+
+
+def test_the_capacity_note_says_what_rate_the_machine_holds() -> None:
+    note = capacity_note(1000, 2, 10.0)
+    held = AGENT_SHARE * 2 / (1000 * BRAIN_TICK)  # Hz at which 1000 brains fit 2 cores
+    assert f"about {held:.2g} Hz" in note and f"--time-scale {held / 10:.2g}" in note
+    assert capacity_note(100, 16, 10.0) is None
 
 
 def test_agents_per_process_is_a_positive_integer_or_auto() -> None:

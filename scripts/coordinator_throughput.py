@@ -1,0 +1,110 @@
+"""Does the coordinator keep up with a big team's poses? Sans-IO, in real time.
+
+Usage: .venv/bin/python scripts/coordinator_throughput.py [--agents 1000] [--seconds 8]
+       [--offload/--inline] [--no-record]
+
+A CoordinatorCore of ``--agents`` robots on scenarios/circle-1000.toml, its mission
+running, is handed every robot's encoded Pose at 20 Hz (the robots' pose rate: 20 000
+poses per second for 1000) and ticked at its broadcast rate (20 Hz) on the wall clock, with
+the recorder writing run.mcap and trajectories.csv to a temporary folder, as
+``covswarm coordinator`` does (no Zenoh: the link's own cost per sample is not in it). The
+e_a sample and the recorded cells tessellate on a worker thread (``--offload``, what
+coordinator.main does) or within the tick (``--inline``, the core's default).
+
+Prints one JSON document: the main thread's CPU per second of mission (taking in the poses;
+ticking), the wall time of a tick (p50, p99, max; how many outlast a broadcast period, which
+delays the Domain), the e_a samples and the recorder's counts (poses thinned, skipped ticks).
+"""
+
+from __future__ import annotations
+
+import json
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import click
+import numpy as np
+
+from covswarm.coordinator.config import CoordinatorConfig
+from covswarm.coordinator.core import WAITING, CoordinatorCore, CoordinatorSettings, run_inline
+from covswarm.coordinator.outputs import open_recorder
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.protocol import Pose, alive_key, pose_key
+
+SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "circle-1000.toml"
+SWARM = "throughput"
+RATE = 20.0  # Hz: the robots' poses and the coordinator's broadcasts
+
+
+@click.command()
+@click.option("--agents", type=click.IntRange(1), default=1000, show_default=True)
+@click.option("--seconds", type=click.FloatRange(1.0), default=8.0, show_default=True)
+@click.option("--offload/--inline", default=True, show_default=True)
+@click.option("--record/--no-record", default=True, show_default=True)
+def main(agents: int, seconds: float, offload: bool, record: bool) -> None:
+    out = Path(tempfile.mkdtemp(prefix="coordinator-throughput-"))
+    config = CoordinatorConfig(
+        swarm=SWARM, out=out, scenario=str(SCENARIO), agents=agents, duration=seconds + 5.0,
+        record=record,
+    )  # fmt: skip
+    settings = CoordinatorSettings.from_config(config, load_scenario(config.scenario))
+    recorder = open_recorder(config, settings)
+    with ThreadPoolExecutor(max_workers=1) as pool:
+        core = CoordinatorCore(
+            settings, recorder=recorder, offload=pool.submit if offload else run_inline
+        )
+        wall0 = time.time()
+        for i in range(agents):
+            for role in ("robot", "agent"):
+                core.on_liveliness(alive_key(SWARM, role, i), True, 0.0, wall0)
+        now = 0.0
+        while core.phase.state == WAITING:
+            core.tick(now, wall0 + now)
+            now += 1.0 / RATE
+        # The robots' side, encoded beforehand: a team spread over S, each robot on a small
+        # circle, poses stamped 20 ms before the tick that takes them in.
+        start = settings.scenario.initial_positions(agents, 0)
+        keys = [pose_key(SWARM, i) for i in range(agents)]
+        ticks = round(seconds * RATE)
+        payloads = []
+        for k in range(ticks):
+            t = now + k / RATE
+            angle = 0.5 * t + np.arange(agents)
+            xy = start + 0.05 * np.column_stack([np.cos(angle), np.sin(angle)])
+            stamp = wall0 + t - 0.02
+            payloads.append([
+                Pose(id=i, x=float(x), y=float(y), theta=0.0, stamp=stamp, seq=k).encode()
+                for i, (x, y) in enumerate(xy)
+            ])  # fmt: skip
+        taking = ticking = 0.0
+        walls = []
+        began = time.monotonic()
+        for k in range(ticks):
+            time.sleep(max(0.0, began + k / RATE - time.monotonic()))
+            t = now + k / RATE
+            w0, c0 = time.monotonic(), time.thread_time()
+            for key, payload in zip(keys, payloads[k], strict=True):
+                core.on_pose(key, payload)
+            c1 = time.thread_time()
+            core.tick(t, wall0 + t)
+            ticking += time.thread_time() - c1
+            taking += c1 - c0
+            walls.append(time.monotonic() - w0)
+        if recorder is not None:
+            recorder.close()
+    walls_ms = 1e3 * np.array(walls)
+    print(json.dumps({
+        "agents": agents, "poses_per_s": agents * RATE, "offload": offload, "record": record,
+        "seconds": seconds,
+        "cpu_share_taking_poses": taking / seconds, "cpu_share_ticks": ticking / seconds,
+        "tick_wall_ms": {"p50": float(np.median(walls_ms)),
+                         "p99": float(np.percentile(walls_ms, 99)), "max": float(walls_ms.max())},
+        "ticks_over_a_period": int(np.sum(walls_ms > 1e3 / RATE)), "ticks": ticks,
+        "e_a_samples": len(core.observed.record.t), "recording": core.recording,
+    }, indent=1))  # fmt: skip
+
+
+if __name__ == "__main__":
+    main()
