@@ -475,8 +475,9 @@ def safe_unicycle_velocities(
     velocities: (R, 2) m/s or None; neighbor_velocities: R arrays (m_r, 2) m/s or None;
     obstacles: R sequences of convex polygons or None; workspace: one box for all, or a box
     or None per robot; safe_distance, gamma, obstacle_distance, obstacle_gamma: one value
-    or (R,) values. Returns (velocities
-    (R, 2) m/s, active (R,) rows tight, relaxed (R,) bool).
+    or (R,) values. Returns (velocities (R, 2) m/s, active (R,) rows tight, relaxed (R,)
+    bool; callers count these); a robot whose position, nominal velocity or heading is not
+    finite gets 0, as from safe_velocity.
 
     With the heading e given every row is (a . e) e^T u <= b (:func:`unicycle_rows`), a
     bound on the forward speed s = e . u alone, so the QP keeps the sideways part of the
