@@ -598,11 +598,9 @@ def _pair_rows(
     """Every robot's :func:`pair_constraints` rows, flat: (owner (T,), A (T, 2), b (T,),
     relaxed bounds (T,)); neighbours (or their velocities) not finite are left out, as a
     velocity of our own that is not finite (then zero)."""
-    counts = [len(np.asarray(q).reshape(-1, 2)) for q in neighbors]
-    owner = np.repeat(np.arange(len(p)), counts)
-    q = np.concatenate(
-        [np.zeros((0, 2))] + [np.asarray(x, float).reshape(-1, 2) for x in neighbors]
-    )
+    arrays = [np.asarray(x, dtype=float).reshape(-1, 2) for x in neighbors]
+    owner = np.repeat(np.arange(len(p)), [len(x) for x in arrays])
+    q = np.concatenate([np.zeros((0, 2)), *arrays])
     keep = ok[owner] & np.isfinite(q).all(axis=1)
     mean = np.zeros((len(q), 2))
     if neighbor_velocities is not None:
