@@ -604,7 +604,7 @@ def local_step(
     """
     _check_local_law(law)
     check_density(density)
-    view = _known(LocalView(me, positions, polygon, polygon_velocity, kappa, density))
+    view = _known(me, positions, kappa)
     validate_positions(view.points)
     domain = make_domain(polygon, polygon_velocity)
     return _batch_steps([view], domain, density, feedforward, max_amplification, law)[0]
@@ -651,7 +651,7 @@ def local_steps(
     for index, view in enumerate(views):
         try:
             check_density(view.density)
-            known.append(_known(view))
+            known.append(_known(view.me, view.positions, view.kappa))
             same = (id(view.polygon), id(view.polygon_velocity), id(view.density))
             key = keys.get(same)
             if key is None:
@@ -699,18 +699,18 @@ class _Known:
     kappa: float
 
 
-def _known(view: LocalView) -> _Known:
-    """The view's robots in order (``_ordered_ids``); ValueError for a bad gain, ``me``
+def _known(me: Hashable, positions: Mapping[Hashable, np.ndarray], kappa: float) -> _Known:
+    """A view's robots in order (``_ordered_ids``); ValueError for a bad gain, ``me``
     missing or a position that is not a 2-vector. Finiteness is left to the caller (once
     for a whole batch)."""
-    _check_kappa(view.kappa)
-    if view.me not in view.positions:
-        raise ValueError(f"positions must include the robot itself ({view.me!r})")
-    ids = _ordered_ids(view.positions)
-    points = np.array([view.positions[key] for key in ids], dtype=np.float64)
+    _check_kappa(kappa)
+    if me not in positions:
+        raise ValueError(f"positions must include the robot itself ({me!r})")
+    ids = _ordered_ids(positions)
+    points = np.array([positions[key] for key in ids], dtype=np.float64)
     if points.shape != (len(ids), 2):
         validate_positions(points)  # raises, naming the shape
-    return _Known(ids, points, ids.index(view.me), float(view.kappa))
+    return _Known(ids, points, ids.index(me), float(kappa))
 
 
 def _batch_steps(
@@ -732,8 +732,7 @@ def _batch_steps(
     two-hop view).
     """
     count = len(views)
-    points, candidates, starts = _stack(views)
-    mes = starts + [view.me for view in views]
+    points, candidates, starts, mes = _stack(views)
     # Our neighbours first (the half-plane intersection alone), then our cells and theirs
     # in one pass, each among its own view's robots only.
     of_view, column = np.nonzero(neighbor_candidates(points, mes, candidates, domain))
@@ -796,16 +795,24 @@ def _batch_steps(
     ]
 
 
-def _stack(views: list[_Known]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _stack(views: list[_Known]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The views' points as disjoint blocks of one array: (points (N, 2), candidates (V, D)
-    each view's point indices padded with -1, starts (V,) each block's first index)."""
+    each view's point indices padded with -1, starts (V,) each block's first index, mes (V,)
+    each view's own robot)."""
     if len(views) == 1:
-        return views[0].points, np.arange(len(views[0].ids))[None], np.zeros(1, dtype=np.intp)
+        (view,) = views
+        return (
+            view.points,
+            np.arange(len(view.ids))[None],
+            np.zeros(1, np.intp),
+            np.array([view.me]),
+        )
     sizes = [len(view.ids) for view in views]
     starts = np.cumsum([0, *sizes[:-1]])
     candidates = np.arange(max(sizes)) + starts[:, None]
     candidates[candidates >= (starts + sizes)[:, None]] = -1
-    return np.concatenate([view.points for view in views]), candidates, starts
+    mes = starts + [view.me for view in views]
+    return np.concatenate([view.points for view in views]), candidates, starts, mes
 
 
 def local_velocity(

@@ -497,8 +497,8 @@ def _clip(
 
 
 # Pairs (line, constraint) per pass of ``_piece_bounds``: its (2, L, K, L) temporaries then
-# stay within a few MB, in cache; one pass over 500 cells of 26 lines was 3 to 5 times
-# slower per cell than passes of 100.
+# stay within a few MB, in cache. Measured against one pass for all cells: tvd_d1 of 1000
+# robots 26 -> 6.6 ms, local_steps of 500 two-hop views 41 -> 22 us per view.
 PIECE_PAIRS = 1 << 16
 
 # The LP's columns of a line from its row (nx, ny, o): the foot (o nx, o ny, -1) and the
@@ -596,7 +596,8 @@ def cell_radius(batch: CellBatch, points: np.ndarray) -> np.ndarray:
 
 # Nearest robots offered to each cell of the whole team; a cell needing more is rebuilt.
 TEAM_CANDIDATES = 16
-# Cells built per vectorised batch: bounds the (K, L, L) temporaries to a few tens of MB.
+# Cells built per build_cells call (build_cells_in_chunks): bounds its (K, L) arrays, and
+# each chunk is only as wide as its widest cell's candidates (PIECE_PAIRS bounds the pairs).
 BATCH_CELLS = 512
 
 
@@ -635,7 +636,7 @@ def build_cells_in_chunks(
         rows = candidates[s : s + BATCH_CELLS]
         width = max(int((rows >= 0).sum(axis=1).max()), 1)
         parts.append(build_cells(points, owners[s : s + BATCH_CELLS], rows[:, :width], domain))
-    return concatenate_cells(parts)
+    return _concatenate(parts)
 
 
 # Nearest robots of its view offered first to each cell by ``local_cells``; a cell that needs
@@ -688,7 +689,7 @@ def local_cells(
 _LINE_FIELDS = ("start", "end", "labels", "present")
 
 
-def concatenate_cells(parts: list[CellBatch]) -> CellBatch:
+def _concatenate(parts: list[CellBatch]) -> CellBatch:
     """The cells of ``parts`` in order, padded to the widest part's lines."""
     if len(parts) == 1:
         return parts[0]

@@ -475,8 +475,9 @@ def safe_unicycle_velocities(
     velocities: (R, 2) m/s or None; neighbor_velocities: R arrays (m_r, 2) m/s or None;
     obstacles: R sequences of convex polygons or None; workspace: one box for all, or a box
     or None per robot; safe_distance, gamma, obstacle_distance, obstacle_gamma: one value
-    or (R,) values. Returns (velocities
-    (R, 2) m/s, active (R,) rows tight, relaxed (R,) bool).
+    or (R,) values. Returns (velocities (R, 2) m/s, active (R,) rows tight, relaxed (R,)
+    bool; callers count these); a robot whose position, nominal velocity or heading is not
+    finite gets 0, as from safe_velocity.
 
     With the heading e given every row is (a . e) e^T u <= b (:func:`unicycle_rows`), a
     bound on the forward speed s = e . u alone, so the QP keeps the sideways part of the
@@ -597,11 +598,9 @@ def _pair_rows(
     """Every robot's :func:`pair_constraints` rows, flat: (owner (T,), A (T, 2), b (T,),
     relaxed bounds (T,)); neighbours (or their velocities) not finite are left out, as a
     velocity of our own that is not finite (then zero)."""
-    counts = [len(np.asarray(q).reshape(-1, 2)) for q in neighbors]
-    owner = np.repeat(np.arange(len(p)), counts)
-    q = np.concatenate(
-        [np.zeros((0, 2))] + [np.asarray(x, float).reshape(-1, 2) for x in neighbors]
-    )
+    arrays = [np.asarray(x, dtype=float).reshape(-1, 2) for x in neighbors]
+    owner = np.repeat(np.arange(len(p)), [len(x) for x in arrays])
+    q = np.concatenate([np.zeros((0, 2)), *arrays])
     keep = ok[owner] & np.isfinite(q).all(axis=1)
     mean = np.zeros((len(q), 2))
     if neighbor_velocities is not None:
