@@ -188,6 +188,15 @@ class Decision:
     achieved: tuple[float, float] = (0.0, 0.0)
 
 
+def local_step_of(view: LocalView, config: AgentConfig) -> LocalStep | Exception:
+    """The local step of one view by ``config``'s law, or what it raised (for
+    AgentBrain.conclude to count: one bad view stops its own robot only)."""
+    try:
+        return local_steps([view], config.feedforward, MAX_AMPLIFICATION, config.law)[0]
+    except Exception as exc:  # noqa: BLE001 -- handed to conclude, which counts it
+        return exc
+
+
 @dataclass(frozen=True)
 class Begun:
     """A control step up to its local step (AgentBrain.begin): the local view to step,
@@ -594,12 +603,7 @@ class AgentBrain:
         begun = self.begin(now, now_wall)
         if isinstance(begun, Decision):
             return self.settle(begun)
-        try:
-            result: LocalStep | Exception = local_steps(
-                [begun.view], self.config.feedforward, MAX_AMPLIFICATION, self.config.law
-            )[0]
-        except Exception as exc:  # noqa: BLE001 -- handed to conclude, which counts it
-            result = exc
+        result = local_step_of(begun.view, self.config)
         return self.conclude(begun, result, self._clock() - started)
 
     def settle(self, decision: Decision) -> Decision:

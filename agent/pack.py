@@ -55,11 +55,12 @@ from covswarm.agent.brain import (
     PublishBeacon,
     PublishState,
     SendCommand,
+    local_step_of,
 )
 from covswarm.agent.decoding import DECODE_CACHE
 from covswarm.agent.faults import InboxItem, PoseImpairment
 from covswarm.agent.neighborhood import Liveliness
-from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
+from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, local_steps
 
 log = logging.getLogger("covswarm.agent")
 
@@ -450,7 +451,7 @@ class Pack:
                     local_steps([begun[b].view for b in bids], feedforward, MAX_AMPLIFICATION, law)
                 )
             except Exception:  # noqa: BLE001 -- one bad view: step them one by one
-                results = [self._step_one(begun[b].view, feedforward, law) for b in bids]
+                results = [local_step_of(begun[b].view, self.brains[b].config) for b in bids]
                 for bid in bids:
                     self.brains[bid].counters.batch_fallbacks += 1
             shared = (self._clock() - started) / len(bids)
@@ -464,14 +465,6 @@ class Pack:
                 # (start-up, while processes are still launching, aside).
                 if isinstance(action, SendCommand) and brain.running and clock() > deadline:
                     brain.counters.overruns += 1
-
-    @staticmethod
-    def _step_one(view: LocalView, feedforward: bool, law: str) -> LocalStep | Exception:
-        """One brain's local step, or what it raised (its brain counts it and holds)."""
-        try:
-            return local_steps([view], feedforward, MAX_AMPLIFICATION, law)[0]
-        except Exception as exc:  # noqa: BLE001 -- the brain's conclude counts it
-            return exc
 
     def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
         """Brain's period is over before its turn: it skips this period (its robot runs on
