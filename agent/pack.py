@@ -132,10 +132,11 @@ class Pack:
     """The brains of one process over one bus: one subscription per key, payloads handed
     to every brain that follows the key.
 
-    ``drain()`` once per control tick; then each brain's ``receive()`` (its own pose is
-    drained again just before, so the last of a batch controls from its robot's newest
-    pose), ``brain.tick()`` and ``carry_out()``; :meth:`tick` does all that with the
-    overload rule of the module docstring.
+    ``drain()`` once per control tick; then, a chunk at a time, ``take_own_poses()`` (its
+    robots' poses drained again, so the last of a batch controls from its robot's newest
+    pose), each brain's ``receive()`` at a clock read after that, ``brain.tick()`` and
+    ``carry_out()``; :meth:`tick` does all that with the overload rule of the module
+    docstring.
     """
 
     def __init__(
@@ -346,12 +347,18 @@ class Pack:
                 self._ids[key] = None
         return self._ids[key]
 
+    def take_own_poses(self, bids: list[int]) -> None:
+        """Queue the newest pose of each robot of ``bids`` for its brain (the last of a
+        batch then controls from its robot's newest pose)."""
+        for bid in bids:
+            key = self._own_pose[bid]
+            self._drain_key(key, self._subs[key], self._pending)
+
     def receive(self, bid: int, now: float, wall: float) -> None:
-        """Hand brain ``bid`` everything queued for it since its last turn, its own newest
-        pose included, then the token changes (after the data: a last message from a
-        process that has just died must not revive it)."""
-        key = self._own_pose[bid]
-        self._drain_key(key, self._subs[key], self._pending)
+        """Hand brain ``bid`` everything queued for it since its last turn, then the token
+        changes (after the data: a last message from a process that has just died must not
+        revive it). ``now``, ``wall``: read after the payloads were taken off the bus (a
+        brain takes them as its receipt times, covswarm.agent.latency)."""
         brain = self.brains[bid]
         pending = self._pending[bid]
         items = [pending[slot] for slot in sorted(pending, key=_slot_order(pending))]
@@ -413,7 +420,13 @@ class Pack:
                     self._hold(self.brains[bid], clock(), wall())
                 continue
             stepped += len(chunk)
-            self._step_chunk(chunk, now, wall(), clock, deadline)
+            # Their newest poses first, then the chunk's clock: a receipt time read before
+            # the payload was taken would precede it, and a pose stamped in between would
+            # read as a robot clock running ahead of ours (ClockBound), so every later pose
+            # counted as that much older: at 100 robots in packs of 32 on two loaded cores,
+            # -26 to -90 ms, each robot predicted ~10 mm ahead of where it was.
+            self.take_own_poses(chunk)
+            self._step_chunk(chunk, clock(), wall(), clock, deadline)
         shift = stepped if 0 < stepped < len(order) else 1
         self.order = order[shift:] + order[:shift]
         return stepped

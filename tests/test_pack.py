@@ -415,3 +415,36 @@ def test_a_token_change_is_recorded_once_for_the_process_and_applied_as_alone() 
     assert packed.packs[0].liveliness.serial == serial + 2  # once each, for all six
     for world in (packed, alone):  # every brain owes the newcomer an early beacon
         assert all(b._beacon_due for p in world.packs for b in p.brains.values())
+
+
+def test_a_receipt_time_never_precedes_the_pose_received() -> None:
+    """Robot 1's next pose arrives while brain 0 of the same chunk takes its inputs. A
+    chunk that read its clock before draining its robots' poses handed that pose over with
+    a receipt time before its stamp: robot 1's clock then seemed 50 ms ahead of ours, and
+    each of its later poses 50 ms older than it was (predicted that much too far)."""
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1)])
+    clock = [0.0]
+    seq = [0]
+
+    def put_pose(rid: int) -> None:
+        seq[0] += 1
+        pose = protocol.Pose(id=rid, x=1.0, y=1.0, theta=0.0, stamp=WALL + clock[0], seq=seq[0])
+        bus.put(protocol.pose_key(SWARM, rid), pose.encode())
+
+    put_pose(0)
+    put_pose(1)
+    first = pack.brains[0]
+    receive = first.receive
+
+    def slow_receive(kind, payload, now, wall, key_id=None):  # type: ignore[no-untyped-def]
+        clock[0] += 0.05  # brain 0's inputs take 50 ms (a loaded machine) ...
+        put_pose(1)  # ... during which robot 1 publishes again
+        return receive(kind, payload, now, wall, key_id)
+
+    first.receive = slow_receive  # type: ignore[method-assign]
+    pack.tick(lambda: clock[0], lambda: WALL + clock[0], 1.0)
+    for brain in pack.brains.values():
+        assert brain.pose is not None
+        assert brain.robot_clock.bound >= 0.0, (brain.id, brain.robot_clock.bound)
+        assert brain.pose_taken == brain.pose.stamp
