@@ -16,6 +16,7 @@ from pathlib import Path
 
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
 STEERING_JOURNAL = "steering.jsonl"  # in --out: accepted steering requests, for --resume
+SCRIPT_FILE = "script.json"  # in --out: where the script's clock stands, for --resume
 
 
 @dataclass(frozen=True)

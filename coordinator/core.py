@@ -7,12 +7,13 @@ appeared or vanished), :meth:`~CoordinatorCore.on_pose` and
 broadcast period :meth:`~CoordinatorCore.tick` returns what to do, in order:
 :class:`MissionStarted` (once), :class:`PublishDomain`, :class:`PublishWorld` (on the first
 tick, before the mission starts, then every WORLD_PERIOD), :class:`PublishStatus` (every
-STATUS_PERIOD) and :class:`Finished` (after DONE_HOLD s of "done", or when stopped before
-the start). No zenoh and no clock of its own: ``now`` is monotonic mission seconds (the
-shell's runtime.clock.scaled monotonic clock), ``wall`` seconds since the epoch (the run's
-real wall clock; message stamps are ``wall * time_scale``, as runtime.clock.scaled), and
-the CPU-cost timers of the sampling and recording budgets are passed in. The shell
-(coordinator.link) only carries the actions out.
+STATUS_PERIOD, with a :class:`RecordScriptClock` while running) and :class:`Finished`
+(after DONE_HOLD s of "done", or when stopped before the start). No zenoh and no clock of
+its own: ``now`` is monotonic mission seconds (the shell's runtime.clock.scaled monotonic
+clock), ``wall`` seconds since the epoch (the run's real wall clock; message stamps are
+``wall * time_scale``, as runtime.clock.scaled), and the CPU-cost timers of the sampling
+and recording budgets are passed in. The shell (coordinator.link) only carries the actions
+out.
 
 S is the script's S_script(tau(t)) (or the steered S at tau): coordinator.pace slows tau
 down to the control rate the agents report holding, and the mission ends when tau reaches
@@ -50,7 +51,7 @@ from covswarm.coordinator.monitor import (
     clip_sample_time,
     mean_pose_time,
 )
-from covswarm.coordinator.pace import Pace, paced_density
+from covswarm.coordinator.pace import Pace, ScriptClock, paced_density
 from covswarm.coordinator.steering import (
     Limits,
     MotionCheck,
@@ -254,6 +255,15 @@ class MissionStarted:
 
 
 @dataclass(frozen=True)
+class RecordScriptClock:
+    """Record where the script's clock stands (for --resume: the script continues from
+    there, not from the mission time)."""
+
+    swarm: str
+    clock: ScriptClock
+
+
+@dataclass(frozen=True)
 class Finished:
     """The loop ends; ``started``: whether the mission ever ran (outputs to write)."""
 
@@ -267,6 +277,7 @@ Action = (
     | ReplySteer
     | JournalSteering
     | MissionStarted
+    | RecordScriptClock
     | Finished
 )
 
@@ -389,15 +400,24 @@ class CoordinatorCore:
         """A message stamp at real wall time ``wall``: the run's scaled wall clock."""
         return wall * self.settings.time_scale
 
-    def resume(self, started_wall: float, now: float, wall: float, journal: list[str]) -> None:
+    def resume(
+        self,
+        started_wall: float,
+        now: float,
+        wall: float,
+        journal: list[str],
+        script: ScriptClock | None = None,
+    ) -> None:
         """Continue the mission that started at ``started_wall`` (a restarted coordinator),
-        with the accepted steering requests of ``journal`` (its lines) replayed. The
-        script's clock restarts at the mission time: how far a first coordinator had slowed
-        the script (coordinator.pace) is not kept, so S jumps ahead by that much."""
+        with the accepted steering requests of ``journal`` (its lines) replayed, and the
+        script's clock from where the first coordinator last recorded it (``script``; None:
+        from the mission time, as if the script had never been slowed)."""
         # Mission time is wall time since the original start, so agents extrapolating the
         # last domain and the restarted broadcasts agree.
         self.phase.started_at = now - (self.stamp(wall) - started_wall * self.settings.time_scale)
         self.observed.started_wall = started_wall
+        if script is not None:
+            self.pace.resume(script)
         if journal:
             log.info("resumed %d steering requests", self.steering.replay(journal))
 
@@ -605,6 +625,9 @@ class CoordinatorCore:
         if self._next_status is None or now >= self._next_status or finished:
             actions.append(PublishStatus(self._status(state, t)))
             self._next_status = now + STATUS_PERIOD
+            clock = self.pace.clock()
+            if state == RUNNING and clock is not None:
+                actions.append(RecordScriptClock(settings.swarm, clock))
         if finished:
             actions.append(Finished(started=True))
         return actions

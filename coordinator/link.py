@@ -14,7 +14,7 @@ from pathlib import Path
 
 import zenoh
 
-from covswarm.coordinator.config import STEERING_JOURNAL
+from covswarm.coordinator.config import SCRIPT_FILE, STEERING_JOURNAL
 from covswarm.coordinator.core import (
     Action,
     CoordinatorCore,
@@ -24,6 +24,7 @@ from covswarm.coordinator.core import (
     PublishDomain,
     PublishStatus,
     PublishWorld,
+    RecordScriptClock,
     ReplySteer,
 )
 from covswarm.coordinator.steering import requester_key
@@ -58,6 +59,7 @@ class CoordinatorLink:
         swarm, n = core.settings.swarm, core.settings.agents
         self.mission_file = mission_file
         self.journal = None if mission_file is None else mission_file.with_name(STEERING_JOURNAL)
+        self.script = None if mission_file is None else mission_file.with_name(SCRIPT_FILE)
         self._delete = zenoh.SampleKind.DELETE
         # Liveliness changes must never be dropped (FIFO); poses and agent states are
         # "latest wins" and drained every tick, so a ring that overwrites is right.
@@ -138,6 +140,13 @@ class CoordinatorLink:
                 self.mission_file.parent.mkdir(parents=True, exist_ok=True)
                 self.mission_file.write_text(json.dumps(mission) + "\n", encoding="utf-8")
                 self.journal.unlink(missing_ok=True)  # a previous mission's requests
+                self.script.unlink(missing_ok=True)  # and script clock
+        elif isinstance(action, RecordScriptClock):
+            if self.script is not None:
+                # Replaced whole (a rename), never left half-written by a crash.
+                part = self.script.with_name(self.script.name + ".part")
+                part.write_text(action.clock.to_json(action.swarm) + "\n", encoding="utf-8")
+                part.replace(self.script)
         elif not isinstance(action, Finished):
             raise TypeError(f"unknown action {action!r}")
 

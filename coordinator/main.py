@@ -23,7 +23,12 @@ import click
 import zenoh
 
 from covswarm.coordinator.broadcastable import check_broadcastable
-from covswarm.coordinator.config import MISSION_FILE, STEERING_JOURNAL, CoordinatorConfig
+from covswarm.coordinator.config import (
+    MISSION_FILE,
+    SCRIPT_FILE,
+    STEERING_JOURNAL,
+    CoordinatorConfig,
+)
 from covswarm.coordinator.core import (
     TILE_SPACINGS,
     WAITING,
@@ -31,7 +36,12 @@ from covswarm.coordinator.core import (
     CoordinatorSettings,
 )
 from covswarm.coordinator.link import CoordinatorLink
-from covswarm.coordinator.outputs import open_recorder, read_mission_start, write_run_outputs
+from covswarm.coordinator.outputs import (
+    open_recorder,
+    read_mission_start,
+    read_script_clock,
+    write_run_outputs,
+)
 from covswarm.coordinator.pace import pace_sentence
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP
@@ -74,10 +84,11 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     if settings.crowding.crowded:
         log.warning(settings.crowding.warning(settings.agents))
     mission_file = config.out / MISSION_FILE
-    resume_wall = None
+    resume_wall = script = None
     if config.resume:
         try:
             resume_wall = read_mission_start(mission_file, config.swarm)
+            script = read_script_clock(config.out / SCRIPT_FILE, config.swarm)
         except ValueError as exc:
             raise click.UsageError(f"--resume: {exc}") from None
     stop = StopFlag()
@@ -99,7 +110,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
                 journal = config.out / STEERING_JOURNAL
                 lines = journal.read_text(encoding="utf-8").splitlines() if journal.exists() else []
                 now = scaled(time.monotonic, settings.time_scale)()  # the Ticker's clock
-                core.resume(resume_wall, now, time.time(), lines)
+                core.resume(resume_wall, now, time.time(), lines, script)
             CoordinatorLink(session, core, mission_file).run(stop)
         finally:
             sampler.shutdown(cancel_futures=True)

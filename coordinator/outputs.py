@@ -19,7 +19,7 @@ from covswarm.coordinator.monitor import (
     losses_summary,
     team_changes_summary,
 )
-from covswarm.coordinator.pace import Pace
+from covswarm.coordinator.pace import Pace, ScriptClock
 from covswarm.coordinator.steering import Steering
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.physical import agent_wheel_figures, physical_summary
@@ -277,6 +277,21 @@ def open_recorder(config: CoordinatorConfig, settings: CoordinatorSettings) -> R
     if recorder.live_port is not None:
         log.info("Foxglove live view on ws://%s:%d", LIVE_HOST, recorder.live_port)
     return recorder
+
+
+def read_script_clock(path: Path, swarm: str) -> ScriptClock | None:
+    """The script's clock recorded in ``path`` for ``swarm``; None without the file (a
+    first coordinator stopped before it ever recorded one); ValueError if malformed."""
+    try:
+        text = path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        return None
+    except OSError as exc:
+        raise ValueError(f"cannot read {path}: {exc}") from None
+    try:
+        return ScriptClock.from_json(text, swarm)
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None
 
 
 def read_mission_start(path: Path, swarm: str) -> float:

@@ -40,6 +40,7 @@ time).
 
 from __future__ import annotations
 
+import json
 import math
 from collections import deque
 from collections.abc import Iterable, Mapping
@@ -165,6 +166,17 @@ class Pace:
         self.pace_log.append(self.pace)
         return self.tau
 
+    def clock(self) -> ScriptClock | None:
+        """Where the script's clock stands at the last tick (None before the mission)."""
+        return ScriptClock(self.t_log[-1], self.tau, self.pace) if self.t_log else None
+
+    def resume(self, clock: ScriptClock) -> None:
+        """Continue the script's clock of a previous coordinator: the next :meth:`advance`
+        moves tau on from ``clock.tau`` at ``clock.pace`` (what the agents extrapolated
+        meanwhile), not from the mission time."""
+        self.tau, self.pace = clock.tau, clock.pace
+        self.t_log, self.tau_log, self.pace_log = [clock.t], [clock.tau], [clock.pace]
+
     def script_time(self, t: float) -> float:
         """tau at mission time ``t`` as broadcast (linear between ticks, the last pace on)."""
         if not self.t_log:
@@ -216,6 +228,40 @@ class Pace:
             "script_time": reached,
             "mission_time": mission_t,
         }
+
+
+@dataclass(frozen=True)
+class ScriptClock:
+    """Where the script's clock stood: at mission time ``t`` (s) the script was at ``tau``
+    (s) and ran at ``pace``. The coordinator records it for --resume, so that a restarted
+    one continues the script where the first left it (:meth:`Pace.resume`)."""
+
+    t: float
+    tau: float
+    pace: float
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.t) and math.isfinite(self.tau) and self.tau >= 0.0):
+            raise ValueError(f"a script clock needs finite times, got {self.t!r}, {self.tau!r}")
+        if not PACE_FLOOR <= self.pace <= 1.0:
+            raise ValueError(f"a pace must be in [{PACE_FLOOR}, 1], got {self.pace!r}")
+
+    def to_json(self, swarm: str) -> str:
+        return json.dumps({"swarm": swarm, "t": self.t, "script_t": self.tau, "pace": self.pace})
+
+    @classmethod
+    def from_json(cls, text: str, swarm: str) -> ScriptClock:
+        """The clock recorded in ``text`` for ``swarm`` (ValueError if malformed, another
+        swarm's, or out of range)."""
+        try:
+            data = json.loads(text)
+            ours = data.get("swarm") == swarm
+            values = float(data["t"]), float(data["script_t"]), float(data["pace"])
+        except (ValueError, KeyError, TypeError, AttributeError) as exc:
+            raise ValueError(f"not a script clock: {exc!r}") from None
+        if not ours:
+            raise ValueError(f"not a script clock of swarm {swarm!r}")
+        return cls(*values)
 
 
 def pace_sentence(pace: Mapping[str, Any]) -> str:

@@ -15,12 +15,14 @@ from covswarm.coordinator.core import (
     CoordinatorSettings,
     PublishDomain,
     PublishStatus,
+    RecordScriptClock,
 )
 from covswarm.coordinator.pace import (
     DROP_BAND,
     PACE_FLOOR,
     RISE_RATE,
     Pace,
+    ScriptClock,
     held_fraction,
     next_pace,
     pace_sentence,
@@ -251,3 +253,37 @@ def test_a_waiting_core_keeps_s_still_at_the_script_start() -> None:
     domain = [a for a in core.tick(0.0, WALL0) if isinstance(a, PublishDomain)][0].domain
     assert domain.state == WAITING and not np.any(domain.velocities)
     np.testing.assert_allclose(domain.vertices, core.settings.scenario.domain(0.0)[0])
+
+
+def test_a_resumed_coordinator_continues_the_script_where_the_first_left_it() -> None:
+    first = make_core()
+    now, ticks = Team(first, held=3.0).run(0.0, 6.0)  # the script slowed to ~0.3x
+    recorded = [a.clock for _, acts in ticks for a in acts if isinstance(a, RecordScriptClock)]
+    assert len(recorded) >= 6 / 0.5 - 4  # with every status while running
+    clock = ScriptClock.from_json(recorded[-1].to_json(SWARM), SWARM)
+    assert clock == recorded[-1] and clock.tau < 0.6 * clock.t and clock.pace < 0.5
+    # Restarted 2 s of mission later, on another monotonic clock.
+    gap = 2.0
+    second = make_core()
+    later = clock.t + gap
+    started = WALL0 + now - first.phase.mission_time(now)  # the first's start, wall
+    second.resume(started, 100.0, started + later, [], clock)
+    domain = domains([(100.0, second.tick(100.0, started + later))])[0][1]
+    assert domain.t == pytest.approx(later)
+    tau = clock.tau + clock.pace * gap  # what the agents extrapolated meanwhile
+    scenario = second.settings.scenario
+    np.testing.assert_allclose(domain.vertices, scenario.domain(tau)[0], atol=1e-9)
+    # From there the pace follows the team (unheard yet: up by at most RISE_RATE per s).
+    assert clock.pace < second.pace.pace <= clock.pace + RISE_RATE * gap + 1e-9
+    np.testing.assert_allclose(domain.velocities, second.pace.pace * scenario.domain(tau)[1])
+    # Not from the mission time: that S is far ahead (~0.19 m/s over the slowed seconds).
+    assert np.abs(np.asarray(domain.vertices) - scenario.domain(later)[0]).max() > 0.3
+    for bad in (
+        "{}",
+        "[1]",
+        clock.to_json("another-swarm"),
+        ScriptClock(1.0, 1.0, 1.0).to_json(SWARM).replace('"pace": 1.0', '"pace": 0.0'),
+        ScriptClock(1.0, 1.0, 1.0).to_json(SWARM).replace('"script_t": 1.0', '"script_t": NaN'),
+    ):
+        with pytest.raises(ValueError):
+            ScriptClock.from_json(bad, SWARM)
