@@ -5,7 +5,7 @@ Feed it raw payloads with :meth:`AgentBrain.receive` and liveliness changes with
 everything to do, in order: the wheel command, the AgentState, a beacon when one is due,
 the AgentStates and beacon tiles to follow, and the liveliness token to declare once the
 agent hears its own robot. No Zenoh, no wall clock of its own: ``now`` arguments are
-monotonic seconds (receipt, staleness, the domain's mission clock), ``now_wall`` seconds
+monotonic seconds (receipt, staleness), ``now_wall`` seconds
 since the epoch (message stamps and the commands' timeline), and the step timer is passed in
 (``clock``). The shell (:mod:`covswarm.agent.link`) only carries the actions out.
 
@@ -13,14 +13,13 @@ Latency (covswarm.agent.latency): the step controls from its robot's pose *predi
 the time of the command (the stamped pose moved along the commands sent since, in exact
 arcs), tells its neighbours that same prediction in its AgentState, and dead-reckons
 theirs from their stamps (on its own clock within the one-sided bound of each sender's
-offset), not from when they arrived. The domain runs on the coordinator's mission clock as
-seen from this host (its broadcasts' mission time against their receipt), and newer means
-a higher sequence number. Safety (covswarm.tvd.safety): the velocity is filtered so that
-this robot's half of every pair's barrier condition holds against every robot it knows
-within SAFETY_RADIUS, and against robots it stopped hearing from (OBSTACLE_MEMORY). Once
-it knows the world (:meth:`AgentBrain.set_world`, from the coordinator's World broadcast),
-also against the obstacles and workspace walls within SAFETY_RADIUS, and it refuses a domain
-that overlaps an obstacle.
+offset), not from when they arrived; the domain likewise, from its broadcast's stamp and
+mission time, and newer means a higher sequence number. Safety (covswarm.tvd.safety): the
+velocity is filtered so that this robot's half of every pair's barrier condition holds
+against every robot it knows within SAFETY_RADIUS, and against robots it stopped hearing
+from (OBSTACLE_MEMORY). Once it knows the world (:meth:`AgentBrain.set_world`, from the
+coordinator's World broadcast), also against the obstacles and workspace walls within
+SAFETY_RADIUS, and it refuses a domain that overlaps an obstacle.
 """
 
 from __future__ import annotations
@@ -36,7 +35,7 @@ import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
+from covswarm.agent.latency import ClockBound, CommandHistory
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
     Neighborhood,
@@ -292,7 +291,8 @@ class AgentBrain:
         self.history = CommandHistory(config.robot, config.cmd_timeout)
         self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
-        self.mission_estimate = MissionTimeEstimate()
+        # Our clock minus the coordinator's, bounded from above: the held domain's age.
+        self.coordinator_clock = ClockBound()
         self._domain_received = -math.inf
         # id -> (x, y, when it vanished, monotonic): robots heard first-hand within
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
@@ -454,7 +454,10 @@ class AgentBrain:
                 clock = self.peer_clocks[message.id] = ClockBound()
             clock.add(now, now_wall, message.stamp)
             now -= min(max(now_wall - clock.to_local(message.stamp), 0.0), MAX_PREDICTION)
-        return _HANDLERS[kind](self, message, now)
+        accepted = _HANDLERS[kind](self, message, now)
+        if accepted and kind == "domain":
+            self.coordinator_clock.add(now, now_wall, message.stamp)
+        return accepted
 
     def on_pose(self, pose: protocol.Pose, now: float) -> bool:
         if pose.id == self.id:
@@ -516,13 +519,11 @@ class AgentBrain:
         if self._in_obstacle(domain):
             self.drops.drop("domain_in_obstacle", f"domain {domain.vertices}")
             return False
+        if held is not None and domain.seq < held.seq:
+            self.coordinator_clock.clear()  # a restarted coordinator, maybe on another host
         self.domain = domain
         self.density = density
         self._domain_received = now
-        if domain.state == "running":
-            self.mission_estimate.add(now, domain.t, domain.seq)
-        else:  # mission time stands still: no clock to follow until it runs
-            self.mission_estimate.reset()
         return True
 
     @property
@@ -645,8 +646,16 @@ class AgentBrain:
         assert self.pose is not None and self.domain is not None
         config = self.config
         pose = self.predicted_pose(now_wall + config.command_latency)
-        mission_t = self.mission_estimate.mission_time(now)
-        elapsed = 0.0 if mission_t is None else mission_t - self.domain.t
+        # The domain's age since its stamp on our clock (within the bound on the
+        # coordinator's offset, as a neighbour's state), not since we took it: a packed
+        # process takes it at its tick, a constant 0-50 ms after a 20 Hz broadcast, which a
+        # windowed minimum of receipt delays never removed (10 robots: S 1.6 mm behind each,
+        # e_a's second half 0.0078 m against 0.0045 m with the stamp). Mission time stands
+        # still until the mission runs.
+        elapsed = 0.0
+        if self.domain.state == "running":
+            stamped = self.coordinator_clock.to_local(self.domain.stamp)
+            elapsed = max(now_wall - stamped, 0.0)
         elapsed += config.command_latency
         # Shared by the brains of a process that step at the same time (the decoder's).
         vertices, velocities, density = self.decoder.extrapolated(

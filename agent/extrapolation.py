@@ -22,8 +22,8 @@ def extrapolate_domain(
 
     Moves the vertices along their velocities for ``elapsed`` (never backwards), at most
     ``max_extrapolation`` s; beyond that the domain holds still (zero velocities). The
-    agent measures ``elapsed`` on the coordinator's mission clock as seen from its own host
-    (covswarm.agent.latency.MissionTimeEstimate), never by comparing two hosts' wall clocks.
+    agent measures ``elapsed`` from the broadcast's stamp, on its own clock within the bound
+    on the coordinator's offset (covswarm.agent.latency).
     """
     vertices = np.array(domain.vertices, dtype=float)
     velocities = np.array(domain.velocities, dtype=float)

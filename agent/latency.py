@@ -1,6 +1,6 @@
 """Latency compensation of an agent: where its robot is *now*, and what time it is anywhere.
 
-Three pure pieces (no I/O), used by the agent brain:
+Pure pieces (no I/O), used by the agent brain:
 
 - :class:`CommandHistory` and :meth:`CommandHistory.predict`: a Smith-predictor-style
   estimate of the robot's pose at the time a new command will act. The latest pose is
@@ -17,11 +17,12 @@ Three pure pieces (no I/O), used by the agent brain:
   round trip, so its lag is compensated as if it were transport delay (bounded by the
   prediction horizon). So the offset is *bounded from the data*, one-sided, and measured
   exactly for a sender that runs ahead; ``b`` is reported.
-- :class:`MissionTimeEstimate`: the coordinator's mission time on *our* monotonic clock, from the
-  Domain broadcasts' mission time ``t`` and when we received them, never by comparing wall
-  clocks across hosts: ``t - receipt`` over a window, its maximum (the broadcast that
-  travelled fastest) is the offset between the two clocks, short by the minimal transit.
-  A sequence number that goes backwards (a restarted coordinator) starts it afresh.
+- The coordinator's mission time: a Domain broadcast's ``t`` plus its age since its stamp,
+  on our clock within the ClockBound of the coordinator (exact on one host or between
+  synchronised clocks; a coordinator's clock behind ours by an offset no message proves
+  puts S that far ahead, as it does a neighbour's state). Not from when the broadcast was
+  taken: a packed agent takes it at its tick, a constant 0-50 ms after a 20 Hz broadcast
+  whose phase it keeps, so receipt times understated its age by as much on every message.
 
 Times: ``wall`` arguments are seconds on this host's (scaled) wall clock, the clock the
 agent stamps its commands with; ``now`` arguments are this host's monotonic seconds.
@@ -159,27 +160,6 @@ class ClockBound:
         bound = self.bound
         return stamp + bound if bound < 0.0 else stamp
 
-
-class MissionTimeEstimate:
-    """The coordinator's mission time on our monotonic clock (module docstring)."""
-
-    def __init__(self, window: float = CLOCK_WINDOW) -> None:
-        self._max = _WindowedExtreme(window, maximum=True)
-        self._seq: int | None = None
-
-    def add(self, now: float, mission_t: float, seq: int) -> None:
-        """A Domain broadcast with mission time ``mission_t`` and ``seq`` received at ``now``."""
-        if self._seq is not None and seq < self._seq:
-            self._max.clear()  # a restarted coordinator: its clock is a new one
-        self._seq = seq
-        self._max.add(now, mission_t - now)
-
-    def reset(self) -> None:
-        """Forget the estimate (the mission is not running: mission time stands still)."""
-        self._max.clear()
-        self._seq = None
-
-    def mission_time(self, now: float) -> float | None:
-        """Mission time at monotonic ``now`` (None before any broadcast)."""
-        offset = self._max.value
-        return None if math.isnan(offset) else now + offset
+    def clear(self) -> None:
+        """Forget the bound (a restarted sender, maybe on another host)."""
+        self._min.clear()

@@ -8,8 +8,8 @@ coordinator slows the script down to what the team holds:
     S(t) = S_script(tau(t)),  dtau/dt = pace(t) in [PACE_FLOOR, 1],
 
 and broadcasts the exact velocities dS/dt = S_script'(tau) * pace (the density's rates
-likewise). Mission time t stays 1:1 with the wall clock (the agents' MissionTimeEstimate
-assumes it): the script is warped, not the clock. The mission ends when tau reaches the
+likewise). Mission time t stays 1:1 with the wall clock (the agents extrapolate S by the
+age of its stamp): the script is warped, not the clock. The mission ends when tau reaches the
 script's duration.
 
 The pace follows the fraction of the asked rate the team holds, measured from the agents'

@@ -7,7 +7,9 @@ import math
 import numpy as np
 import pytest
 
-from covswarm.agent.latency import ClockBound, CommandHistory, MissionTimeEstimate
+from covswarm import protocol
+from covswarm.agent.brain import AgentBrain, AgentConfig, Begun
+from covswarm.agent.latency import ClockBound, CommandHistory
 from covswarm.tvd.drive import KHEPERA_IV
 
 
@@ -77,15 +79,25 @@ def test_clock_bound_corrects_a_sender_ahead_and_bounds_one_behind() -> None:
             assert bound.to_local(999.75) == 999.75  # indistinguishable from delay
 
 
-def test_mission_time_estimate_from_receipts_and_restart() -> None:
-    clock = MissionTimeEstimate()
-    assert clock.mission_time(5.0) is None
-    rng = np.random.default_rng(1)
-    # Mission time = our monotonic - 40 s; broadcasts at 20 Hz, some 0.2 s late.
+def test_the_domain_is_extrapolated_by_the_age_of_its_stamp_not_of_its_receipt() -> None:
+    """Each 20 Hz broadcast is taken 30 ms after it was sent (an agent takes it at its
+    tick, whose phase it keeps): S is extrapolated over the age since its stamp, so exactly
+    where it is. Its age since receipt left S 30 ms behind at every step."""
+    wall, velocity = 1.7e9, np.array([0.2, 0.1])
+    square = [(0.0, 0.0), (2.0, 0.0), (2.0, 2.0), (0.0, 2.0)]
+    brain = AgentBrain(0, AgentConfig(safety=False))
     for k in range(100):
-        sent = 50.0 + 0.05 * k
-        clock.add(sent + 0.001 + rng.exponential(0.02) + 0.2 * (k % 4 == 1), sent - 40.0, k + 1)
-    assert clock.mission_time(60.0) == pytest.approx(20.0, abs=0.002)
-    # A restarted coordinator (seq from 1 again) on a mission clock 3 s behind.
-    clock.add(56.0, 13.0, 1)
-    assert clock.mission_time(57.0) == pytest.approx(14.0, abs=1e-9)
+        sent = 0.05 * k
+        domain = protocol.Domain(
+            seq=k + 1, stamp=wall + sent, t=sent, state="running",
+            vertices=[tuple(np.add(v, velocity * sent)) for v in square],
+            velocities=[tuple(velocity)] * 4, kappa=1.0,
+        )  # fmt: skip
+        assert brain.receive("domain", domain.encode(), sent + 0.03, wall + sent + 0.03)
+    now = sent + 0.045  # 45 ms after the last broadcast was sent
+    pose = protocol.Pose(id=0, x=1.0, y=1.0, theta=0.0, stamp=wall + now, seq=1)
+    brain.receive("pose", pose.encode(), now, wall + now)
+    begun = brain.begin(now, wall + now)
+    assert isinstance(begun, Begun)
+    np.testing.assert_allclose(begun.view.polygon, np.add(square, velocity * now), atol=1e-9)
+    np.testing.assert_allclose(begun.view.polygon_velocity, [velocity] * 4)
