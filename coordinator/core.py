@@ -50,6 +50,7 @@ from covswarm.coordinator.monitor import (
     TeamChange,
     clip_sample_time,
     mean_pose_time,
+    positions_at,
 )
 from covswarm.coordinator.pace import Pace, ScriptClock, paced_density
 from covswarm.coordinator.steering import (
@@ -188,6 +189,8 @@ class Observed:
     liveness: Liveness = field(default_factory=Liveness)
     poses: dict[int, tuple[float, float]] = field(default_factory=dict)
     pose_stamps: dict[int, float] = field(default_factory=dict)  # s, the run's wall clock
+    # (stamp s, x m, y m) of each robot's pose before the latest (its velocity for e_a)
+    earlier_poses: dict[int, tuple[float, float, float]] = field(default_factory=dict)
     agent_stats: dict[int, dict[str, float]] = field(default_factory=dict)
     rejected: int = 0  # messages dropped as malformed (ProtocolError)
     clipped_samples: int = 0  # e_a samples not placed at their poses' time (clip_sample_time)
@@ -547,6 +550,8 @@ class CoordinatorCore:
                 continue
             if not self.roster.admit_pose(pose.id):
                 continue
+            if pose.id in obs.poses and pose.stamp > obs.pose_stamps[pose.id]:
+                obs.earlier_poses[pose.id] = (obs.pose_stamps[pose.id], *obs.poses[pose.id])
             obs.poses[pose.id] = (pose.x, pose.y)
             obs.pose_stamps[pose.id] = pose.stamp
         self._pose_payloads.clear()
@@ -717,15 +722,21 @@ class CoordinatorCore:
         ids = sorted(positions)
         record = self.observed.record
         measured, script = t, self.pace.tau
+        points = np.array([positions[i] for i in ids])
         if self.phase.state == RUNNING:  # once done, S holds still at S(duration)
-            stamps = [self.observed.pose_stamps[i] for i in ids]
-            when = mean_pose_time(t, self.stamp(self._wall), stamps)
+            obs, wall_now = self.observed, self.stamp(self._wall)
+            stamps = np.array([obs.pose_stamps[i] for i in ids])
+            when = mean_pose_time(t, wall_now, stamps)
             measured = clip_sample_time(when, t, record.t[-1] if record.t else 0.0)
             # Poses too old, out of order or badly stamped: the sample is placed at a bound.
-            self.observed.clipped_samples += measured != when
+            obs.clipped_samples += measured != when
             script = self.pace.script_time(measured)
             polygon = self.steering.domain(script)[0]
-        points = np.array([positions[i] for i in ids])
+            earlier = np.array([obs.earlier_poses.get(i, (np.nan,) * 3) for i in ids])
+            points = positions_at(
+                wall_now - (t - measured), stamps, points, earlier[:, 0], earlier[:, 1:]
+            )
+            positions = {i: (float(x), float(y)) for i, (x, y) in zip(ids, points, strict=True)}
         density = self.settings.scenario.density(script)
         clock = self._cost_clock
 

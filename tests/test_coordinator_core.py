@@ -352,3 +352,26 @@ def test_an_offloaded_sample_enters_the_record_once_done_with_the_inline_value()
         tick(worker, 6)
         assert worker.observed.record.t == inline.observed.record.t[:1]
         assert worker.observed.record.error == inline.observed.record.error[:1]
+
+
+def test_an_e_a_sample_takes_every_robot_at_the_sample_time() -> None:
+    # Robots driving at S's speed publish at their own phase: their latest poses are 0, 20
+    # and 45 ms old at each tick. The sample moves each to the one time it is placed at.
+    core = make_core(agents=3, duration=30.0)
+    started = start(core)
+    velocity = np.array([0.19, 0.05])
+    origin = np.array([[1.0, 0.0], [1.5, 0.4], [2.0, -0.3]])
+    phases = (0.0, 0.02, 0.045)
+    for k in range(1, 21):
+        now = round(started + 0.05 * k, 10)
+        for i, phase in enumerate(phases):
+            stamp = WALL0 + now - phase
+            x, y = origin[i] + velocity * (stamp - WALL0)
+            pose = Pose(id=i, x=x, y=y, theta=0.0, stamp=stamp, seq=k)
+            core.on_pose(pose_key(SWARM, i), pose.encode())
+        core.tick(now, WALL0 + now)
+    record = core.observed.record
+    assert len(record.t) >= 5
+    for t, positions in zip(record.t[-3:], record.positions[-3:], strict=True):
+        at = origin + velocity * (started + t)  # the sample's wall time, since WALL0
+        np.testing.assert_allclose([positions[i] for i in range(3)], at, atol=1e-9)

@@ -17,6 +17,7 @@ from covswarm.coordinator.monitor import (
     clip_sample_time,
     losses_summary,
     mean_pose_time,
+    positions_at,
 )
 
 
@@ -192,3 +193,24 @@ def test_measurement_time_stays_in_order_and_within_the_age_bound() -> None:
     assert measurement_time(10.0, 1000.0, [float("nan")], earliest=9.0) == 10.0
     # At the mission's start there is nothing earlier than 0.
     assert measurement_time(0.0, 1000.0, [999.9], earliest=0.0) == 0.0
+
+
+def test_e_a_compares_every_robot_at_one_time() -> None:
+    # Three robots on straight lines at 0.2 m/s, their latest poses 0, 20 and 45 ms old.
+    velocity = np.array([[0.2, 0.0], [0.0, -0.2], [0.1, 0.1]])
+    start = np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.5]])
+
+    def at(when: np.ndarray) -> np.ndarray:
+        return start + velocity * when[:, None]
+
+    stamps = np.array([100.0, 99.98, 99.955])
+    earlier = stamps - np.array([0.05, 0.05, 0.1])
+    moved = positions_at(99.99, stamps, at(stamps), earlier, at(earlier))
+    np.testing.assert_allclose(moved, at(np.full(3, 99.99)), atol=1e-12)
+    # No velocity known: no earlier pose, one not older, one older than MAX_POSE_AGE.
+    unknown = np.array([np.nan, stamps[1], stamps[2] - 2 * MAX_POSE_AGE])
+    points = at(stamps)
+    np.testing.assert_array_equal(positions_at(99.99, stamps, points, unknown, points), points)
+    # A stamp far off moves a robot by at most MAX_POSE_AGE of its velocity.
+    far = positions_at(120.0, stamps, points, earlier, at(earlier))
+    np.testing.assert_allclose(far, points + velocity * MAX_POSE_AGE, atol=1e-12)
