@@ -753,9 +753,14 @@ class AgentBrain:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
         AgentStates whether or not they are Voronoi neighbours), and those there known only
         from beacons and left out for want of confirmation: a real one's AgentState then
-        confirms it (covswarm.agent.neighborhood.BEACON_CONFIRMATION)."""
+        confirms it (covswarm.agent.neighborhood.BEACON_CONFIRMATION). And the robots held
+        as obstacles: one alive that moved on leaves the obstacle set with its next state.
+        Unfollowed, it stayed a phantom where last heard for OBSTACLE_MEMORY: a robot left
+        behind outside S (empty cell, no neighbours, no subscriptions) was fenced in by its
+        former neighbours' phantoms, wheels saturated against them, for the rest of the
+        mission (100-robot circle on a loaded machine: 13-19 robots, e_a 2.9 m)."""
         if self.pose is None:
-            return set()
+            return set(self.obstacles)
         x, y = self.pose.x, self.pose.y
         distance = {
             rid: math.hypot(ux - x, uy - y)
@@ -765,7 +770,7 @@ class AgentBrain:
         nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
         unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
         near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
-        return set(near.tolist()) | unconfirmed
+        return set(near.tolist()) | unconfirmed | set(self.obstacles)
 
     def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
         """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned

@@ -14,7 +14,7 @@ from wire_samples import domain_message
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
 from covswarm.agent import neighborhood
-from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
+from covswarm.agent.brain import AgentBrain, AgentConfig, Decision, FollowStates
 
 WALL = 1.7e9
 WORKSPACE = (-1.0, 3.0, -1.0, 3.0)  # xmin, xmax, ymin, ymax (m)
@@ -261,3 +261,35 @@ def test_a_forger_right_after_each_broadcast_does_not_hide_it() -> None:
     assert refused == 2, brain.drops.counts
     assert brain.counters.coalesced == 0
     assert DOMAIN_RING >= 4
+
+
+def test_a_robot_held_as_an_obstacle_is_still_followed_and_freed_by_its_next_state() -> None:
+    # Robot 1 was heard next to ours, then not (our brain stopped following it, say, with
+    # an empty cell outside S). Held as an obstacle where last heard, it must stay followed:
+    # unfollowed, its phantom fenced our robot in for OBSTACLE_MEMORY though it had moved on.
+    brain = brain_at(0.5, 1.0)
+    for role in ("agent", "robot"):
+        brain.on_liveliness(role, 1, True)
+    assert brain.receive("domain", domain(SQUARE, 1).encode(), now=0.0, now_wall=WALL)
+
+    def pose(now: float) -> None:
+        message = protocol.Pose(id=0, x=0.5, y=1.0, theta=0.0, stamp=WALL + now, seq=int(now))
+        assert brain.receive("pose", message.encode(), now, WALL + now)
+
+    def state(now: float, x: float) -> None:
+        message = protocol.AgentState(id=1, x=x, y=1.0, stamp=WALL + now, neighbors=(0,))
+        assert brain.receive("state", message.encode(), now, WALL + now)
+
+    state(0.0, 0.75)
+    control(brain, 0.0)
+    assert 1 not in brain.obstacles
+    for now in (2.0, 3.0):  # silent for longer than its state stays fresh
+        pose(now)
+        actions = brain.tick(now, WALL + now)
+    assert brain.obstacles[1][:2] == (0.75, 1.0)
+    (follow,) = [a for a in actions if isinstance(a, FollowStates)]
+    assert 1 in follow.ids
+    pose(3.5)
+    state(3.5, 1.8)  # it was alive and moved on
+    control(brain, 3.5)
+    assert 1 not in brain.obstacles
