@@ -251,3 +251,21 @@ def test_a_waiting_core_keeps_s_still_at_the_script_start() -> None:
     domain = [a for a in core.tick(0.0, WALL0) if isinstance(a, PublishDomain)][0].domain
     assert domain.state == WAITING and not np.any(domain.velocities)
     np.testing.assert_allclose(domain.vertices, core.settings.scenario.domain(0.0)[0])
+
+
+def test_the_held_rate_is_measured_up_to_each_agents_last_report() -> None:
+    # A team that holds the asked 10 Hz, whose last stats (once a second) came 0.9 s
+    # before the mission's end: over the mission's length it would read as 18 % missed.
+    pace = Pace(asked=10.0)
+    stats = {}
+    for i in range(3):
+        for k in range(5):
+            stats[i] = {"mission_steps": 10.0 * k + 3.0, "rate_hz": 10.0}
+            pace.report(i, stats[i], 100.0 + k + 0.3)
+    summary = pace.summary(stats, 4.3 + 0.9)
+    assert summary["held_rate_hz"] == pytest.approx(10.0)
+    assert summary["periods_missed"] == pytest.approx(0.0)
+    # One report only: its steps over the whole mission.
+    single = Pace(asked=10.0)
+    single.report(0, {"mission_steps": 26.0}, 100.0)
+    assert single.summary({0: {"mission_steps": 26.0}}, 5.2)["held_rate_hz"] == pytest.approx(5.0)
