@@ -50,11 +50,15 @@ from covswarm.agent.brain import (
     Begun,
     Decision,
     DeclareAlive,
+    Filtering,
     FollowStates,
     FollowTiles,
     PublishBeacon,
     PublishState,
+    SafeVelocity,
     SendCommand,
+    filter_all,
+    filter_one,
     local_step_of,
 )
 from covswarm.agent.decoding import DECODE_CACHE
@@ -424,6 +428,7 @@ class Pack:
         actions are carried out. The number that stepped."""
         now, now_wall = clock(), wall()
         begun: dict[int, Begun] = {}
+        filtering: dict[int, Filtering] = {}
         decisions: dict[int, Decision] = {}
         for bid in chunk:
             if clock() > deadline:
@@ -453,7 +458,13 @@ class Pack:
                     self.brains[bid].counters.batch_fallbacks += 1
             shared = (self._clock() - started) / len(bids)
             for bid, result in zip(bids, results, strict=True):
-                decisions[bid] = self.brains[bid].conclude(begun[bid], result, shared)
+                concluded = self.brains[bid].conclude(begun[bid], result, shared)
+                if isinstance(concluded, Filtering):
+                    filtering[bid] = concluded
+                else:
+                    decisions[bid] = concluded
+        if filtering:
+            self._filter(filtering, decisions)
         for bid in [bid for bid in chunk if bid in decisions]:  # in turn order
             brain = self.brains[bid]
             for action in brain.actions(decisions[bid], now, now_wall):
@@ -463,6 +474,20 @@ class Pack:
                 if isinstance(action, SendCommand) and brain.running and clock() > deadline:
                     brain.counters.overruns += 1
         return len(decisions)
+
+    def _filter(self, filtering: dict[int, Filtering], decisions: dict[int, Decision]) -> None:
+        """The safety filters of the brains of ``filtering`` in one batch, then their wheel
+        speeds, into ``decisions``; a batch that raises is taken again one by one."""
+        started = self._clock()
+        try:
+            safe: list[SafeVelocity | Exception] = list(filter_all(list(filtering.values())))
+        except Exception:  # noqa: BLE001 -- one bad input: filter them one by one
+            safe = [filter_one(f) for f in filtering.values()]
+            for bid in filtering:
+                self.brains[bid].counters.batch_fallbacks += 1
+        shared = (self._clock() - started) / len(filtering)
+        for (bid, inputs), answer in zip(filtering.items(), safe, strict=True):
+            decisions[bid] = self.brains[bid].drive(inputs, answer, shared)
 
     def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
         """Brain's period is over before its turn: it skips this period (its robot runs on
