@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from live_runs import wait_until
+from live_runs import split_packing_team, wait_until
 
 from covswarm import protocol
 from covswarm.deploy.plan import covswarm_argv
@@ -208,8 +208,9 @@ def test_a_launcher_learns_every_missing_identity_at_once(creds: Path) -> None:
 def test_an_auto_packed_run_is_told_to_issue_exactly_its_processes_certificates(
     tmp_path: Path,
 ) -> None:
-    """The smallest team whose auto packing on 2 cores puts brains in smaller processes than
-    robots (deploy.plan: robots one process per core, brains in batches that hold the rate):
+    """A small team whose auto packing on 2 cores puts brains in smaller processes than
+    robots (live_runs.split_packing_team; deploy.plan: robots one process per core, brains
+    in batches that hold the rate):
     the command the launcher's check names issues each process's certificate and no other
     group, and each group's certificate may put and hold the keys of its own ids only."""
     from click.testing import CliRunner
@@ -224,15 +225,11 @@ def test_an_auto_packed_run_is_told_to_issue_exactly_its_processes_certificates(
     from covswarm.protocol.security import credentials_command
 
     cores = 2
-    agents = next(
-        n
-        for n in range(2, 2000)
-        if 1 < auto_per_process(n, cores) < auto_robots_per_process(n, cores)
-    )
-    run = RunConfig(agents=agents, swarm="s", out=tmp_path / "run")
+    agents, rate = split_packing_team(cores)
+    run = RunConfig(agents=agents, rate=rate, swarm="s", out=tmp_path / "run")
     specs = plan_children(
         run, load_scenario("passage"), endpoint="tcp/127.0.0.1:7447", base=(),
-        per_process=auto_per_process(agents, cores),
+        per_process=auto_per_process(agents, cores, rate),
         robots_per_process=auto_robots_per_process(agents, cores),
     )  # fmt: skip
     names = {spec.identity for spec in specs}

@@ -14,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from live_runs import alive_tokens, open_router
+from live_runs import alive_tokens, open_router, split_packing_team
 
 from covswarm import protocol
 from covswarm.protocol.security import make_test_credentials, read_identities
@@ -149,19 +149,15 @@ def test_covswarm_run_is_secured_with_one_flag(secure: Path, tmp_path: Path) -> 
 @pytest.mark.e2e
 @pytest.mark.timeout(300)
 def test_an_auto_packed_secure_run_presents_exactly_its_group_certificates(tmp_path: Path) -> None:
-    """``covswarm run --secure`` under auto packing, pinned to one core: the smallest team
-    whose brains go in smaller processes than its robots (deploy.plan). Without their group
-    certificates the launcher exits 2 naming the command that issues them; that command
-    issues each process's certificate and no other, and then the run completes with every
-    robot and brain of the packed processes joined on its own certificate."""
-    from covswarm.deploy.plan import auto_per_process, auto_robots_per_process
-
-    agents = next(
-        n for n in range(2, 2000) if 1 < auto_per_process(n, 1) < auto_robots_per_process(n, 1)
-    )
+    """``covswarm run --secure`` under auto packing, pinned to one core: a small team whose
+    brains go in smaller processes than its robots (live_runs.split_packing_team). Without
+    their group certificates the launcher exits 2 naming the command that issues them; that
+    command issues each process's certificate and no other, and then the run completes with
+    every robot and brain of the packed processes joined on its own certificate."""
+    agents, rate = split_packing_team(cores=1)
     folder = make_test_credentials(tmp_path / "secure", ids=[])
     out = tmp_path / "run"
-    argv = [COVSWARM, "run", "--secure", str(folder), "--agents", str(agents)]
+    argv = [COVSWARM, "run", "--secure", str(folder), "--agents", str(agents), "--rate", str(rate)]
     argv += ["--duration", "2", "--out", str(out)]
 
     def one_core() -> None:  # in the launcher before exec: it and its children on one core
