@@ -130,7 +130,9 @@ def test_a_frozen_brain_stops_its_robot_and_leaves_its_neighbors(tmp_path: Path)
     SIGCONT it steers again and is a neighbour again. The Zenoh lease (~10 s) never expires,
     so its liveliness token stays throughout: none of this relies on it."""
     swarm, out = new_swarm(), tmp_path / "frozen"
-    with launch(out, "--agents", "5", "--duration", "30", swarm=swarm) as launcher:
+    # The checks end about 15 s into the mission (freeze at 6 s, 5 s frozen, 1 s to show it
+    # steers again, 3 s watched): 24 s leaves their waits 9 s more.
+    with launch(out, "--agents", "5", "--duration", "24", swarm=swarm) as launcher:
         start = mission_started(out)
         endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
         watch = Watch(endpoint, swarm)
