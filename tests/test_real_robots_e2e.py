@@ -86,15 +86,15 @@ DELAYS = [(0.15, 0.3), (0.3, 0.0)]  # (pose delay s, pose loss) of the delayed r
 
 @pytest.fixture(scope="module")
 def passages(tmp_path_factory: pytest.TempPathFactory) -> dict[str, dict]:
-    """Summaries of the PASSAGE missions, all run at once: "undelayed-0" and "undelayed-1"
-    (two identical runs: see PASSAGE for how much one run varies), and "late-D-L" for each
-    delay D and loss L of DELAYS. Each run takes about a quarter of a core (the launcher's
-    CPU table), so the four fit on two cores and end together after one mission."""
-    runs = {f"undelayed-{k}": PASSAGE for k in range(2)} | {
-        f"late-{delay}-{loss}": (*PASSAGE, "--pose-delay", repr(delay), "--pose-loss", repr(loss))
-        for delay, loss in DELAYS
-    }
-    return finish_runs(tmp_path_factory.mktemp("passages"), runs)
+    """Summaries of the PASSAGE missions: "undelayed-0" and "undelayed-1" (two identical
+    runs: see PASSAGE for how much one run varies), and "late-D-L" for each delay D and loss
+    L of DELAYS. Run two at a time, each delayed run beside an undelayed one (so both see
+    the same machine): one takes about a quarter of a core (the launcher's CPU table)."""
+    folder, summaries = tmp_path_factory.mktemp("passages"), {}
+    for k, (delay, loss) in enumerate(DELAYS):
+        late = (*PASSAGE, "--pose-delay", repr(delay), "--pose-loss", repr(loss))
+        summaries |= finish_runs(folder, {f"undelayed-{k}": PASSAGE, f"late-{delay}-{loss}": late})
+    return summaries
 
 
 @pytest.mark.e2e
