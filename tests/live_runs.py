@@ -15,7 +15,7 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from covswarm import protocol
@@ -95,6 +95,25 @@ def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subproce
         log.close()
         for pid in swarm_pids(swarm) if swarm else ():
             os.kill(pid, signal.SIGKILL)
+
+
+def finish_runs(folder: Path, runs: dict[str, tuple[str, ...]], timeout: float = 240.0) -> dict:
+    """Several ``covswarm run``s started together, each with its own swarm, waited to their
+    end (exit code 0); their summary.json by name. ``runs``: name -> run arguments; outputs
+    in ``folder``/name.
+
+    Together, not one after the other: a run of a few robots takes a fraction of a core, so
+    the wall time is the longest mission's, not their sum."""
+    with ExitStack() as stack:
+        launched = {
+            name: stack.enter_context(launch(folder / name, *args, swarm=new_swarm()))
+            for name, args in runs.items()
+        }
+        deadline = time.monotonic() + timeout
+        for name, launcher in launched.items():
+            code = launcher.wait(timeout=max(1.0, deadline - time.monotonic()))
+            assert code == 0, (folder / f"{name}.launcher.log").read_text()
+    return {name: json.loads((folder / name / "summary.json").read_text()) for name in runs}
 
 
 def new_swarm() -> str:
