@@ -5,9 +5,9 @@ Feed it raw payloads with :meth:`AgentBrain.receive` and liveliness changes with
 everything to do, in order: the wheel command, the AgentState, a beacon when one is due,
 the AgentStates and beacon tiles to follow, and the liveliness token to declare once the
 agent hears its own robot. No Zenoh, no wall clock of its own: ``now`` arguments are
-monotonic seconds (receipt, staleness), ``now_wall`` seconds
-since the epoch (message stamps and the commands' timeline), and the step timer is passed in
-(``clock``). The shell (:mod:`covswarm.agent.link`) only carries the actions out.
+monotonic seconds (receipt, staleness), ``now_wall`` seconds since the epoch (message
+stamps and the commands' timeline), and the step timer is passed in (``clock``). The
+shell (:mod:`covswarm.agent.link`) only carries the actions out.
 
 Latency (covswarm.agent.latency): the step controls from its robot's pose *predicted* to
 the time of the command (the stamped pose moved along the commands sent since, in exact
@@ -28,8 +28,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass
-from typing import Any
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -53,7 +52,7 @@ from covswarm.tvd.safety import (
     SAFETY_RADIUS,
     barrier_gain,
     body_safe_distance,
-    safe_velocity,
+    safe_unicycle_velocities,
     wall_distance,
 )
 from covswarm.world.model import World
@@ -193,6 +192,60 @@ def local_step_of(view: LocalView, config: AgentConfig) -> LocalStep | Exception
     try:
         return local_steps([view], config.feedforward, MAX_AMPLIFICATION, config.law)[0]
     except Exception as exc:  # noqa: BLE001 -- handed to conclude, which counts it
+        return exc
+
+
+# The safety filter's answer for one robot: velocity (2,) m/s, rows tight, relaxed.
+SafeVelocity = tuple[np.ndarray, int, bool]
+
+
+@dataclass(frozen=True)
+class Filtering:
+    """A control step whose velocity awaits the safety filter (AgentBrain.conclude): the
+    inputs of covswarm.tvd.safety.safe_unicycle_velocities for this robot. nominal,
+    velocity (its last achieved one): (2,) m/s; near: (m, 4) the robots near it (x, y m,
+    vx, vy m/s); obstacles: the world's convex polygons near it; workspace: its box or
+    None; distances m, gains 1/s; spent: s of the step timer so far."""
+
+    begun: Begun
+    nominal: np.ndarray
+    near: np.ndarray
+    safe_distance: float
+    gamma: float
+    velocity: np.ndarray
+    obstacles: list[np.ndarray]
+    workspace: tuple[float, float, float, float] | None
+    obstacle_distance: float
+    obstacle_gamma: float
+    spent: float = 0.0
+
+
+def filter_all(filterings: list[Filtering]) -> list[SafeVelocity]:
+    """The safety filter of every step of ``filterings`` in one batch
+    (covswarm.tvd.safety.safe_unicycle_velocities: each equal to its own filter)."""
+    velocities, active, relaxed = safe_unicycle_velocities(
+        np.array([f.begun.pose[:2] for f in filterings]),
+        np.array([f.nominal for f in filterings]),
+        np.array([f.begun.pose[2] for f in filterings]),
+        [f.near[:, :2] for f in filterings],
+        np.array([f.safe_distance for f in filterings]),
+        np.array([f.gamma for f in filterings]),
+        velocities=np.array([f.velocity for f in filterings]),
+        neighbor_velocities=[f.near[:, 2:] for f in filterings],
+        obstacles=[f.obstacles for f in filterings],
+        workspace=[f.workspace for f in filterings],
+        obstacle_distance=np.array([f.obstacle_distance for f in filterings]),
+        reach=SAFETY_RADIUS,
+        obstacle_gamma=np.array([f.obstacle_gamma for f in filterings]),
+    )
+    return [(velocities[k], int(active[k]), bool(relaxed[k])) for k in range(len(filterings))]
+
+
+def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
+    """One step's safety filter, or what it raised (for AgentBrain.drive to count)."""
+    try:
+        return filter_all([filtering])[0]
+    except Exception as exc:  # noqa: BLE001 -- handed to drive, which counts it
         return exc
 
 
@@ -600,12 +653,17 @@ class AgentBrain:
 
     def step(self, now: float, now_wall: float) -> Decision:
         """One control step: the wheel speeds to send now, (0, 0) whenever unsure."""
-        started = self._clock()
         begun = self.begin(now, now_wall)
         if isinstance(begun, Decision):
             return self.settle(begun)
+        started = self._clock()
         result = local_step_of(begun.view, self.config)
-        return self.conclude(begun, result, self._clock() - started)
+        concluded = self.conclude(begun, result, self._clock() - started)
+        if isinstance(concluded, Decision):
+            return concluded
+        started = self._clock()
+        safe = filter_one(concluded)
+        return self.drive(concluded, safe, self._clock() - started)
 
     def settle(self, decision: Decision) -> Decision:
         """``decision`` as this period's: the velocity our AgentState reports from now on."""
@@ -672,18 +730,44 @@ class AgentBrain:
         view = LocalView(self.id, others, vertices, velocities, kappa, density)
         return Begun(view, pose, now, now_wall, self._clock() - started)
 
-    def conclude(self, begun: Begun, result: LocalStep | Exception, shared: float) -> Decision:
+    def conclude(
+        self, begun: Begun, result: LocalStep | Exception, shared: float
+    ) -> Decision | Filtering:
         """The step after its local step ``result`` (or the exception it raised): the
-        neighbour and reach bookkeeping, the safety filter, the wheel speeds. ``shared``:
-        s of the clock spent on this brain's share of the local steps (the step timer)."""
+        neighbour and reach bookkeeping, then the decision, or, with the safety filter on
+        and the mission running, the filter's inputs (:class:`Filtering`) for
+        :meth:`drive`. ``shared``: s of the clock spent on this brain's share of the local
+        steps (the step timer)."""
         started = self._clock()
         try:
             if isinstance(result, Exception):
                 raise result
-            decision = self._finish(begun, result)
+            outcome = self._finish(begun, result)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))
-        self._step_us.add((begun.spent + shared + self._clock() - started) * 1e6)
+        spent = begun.spent + shared + self._clock() - started
+        if isinstance(outcome, Filtering):
+            return replace(outcome, spent=spent)
+        self._step_us.add(spent * 1e6)
+        return self.settle(outcome)
+
+    def drive(
+        self, filtering: Filtering, safe: SafeVelocity | Exception, shared: float
+    ) -> Decision:
+        """The step after its safety filter ``safe`` (filtered velocity (2,) m/s, rows
+        tight, relaxed; or the exception it raised): the wheel speeds. ``shared``: s of the
+        clock spent on this brain's share of the filter."""
+        started = self._clock()
+        try:
+            if isinstance(safe, Exception):
+                raise safe
+            velocity, active, relaxed = safe
+            self.safety_active += active > 0
+            self.safety_relaxed += bool(relaxed)
+            decision = self._wheels(np.asarray(velocity, dtype=float), filtering.begun.pose)
+        except Exception as exc:  # noqa: BLE001 -- see _failed
+            return self.settle(self._failed(exc))
+        self._step_us.add((filtering.spent + shared + self._clock() - started) * 1e6)
         return self.settle(decision)
 
     def _failed(self, exc: Exception) -> Decision:
@@ -699,10 +783,10 @@ class AgentBrain:
             )
         return Decision(0.0, 0.0, "error")
 
-    def _finish(self, begun: Begun, result: LocalStep) -> Decision:
+    def _finish(self, begun: Begun, result: LocalStep) -> Decision | Filtering:
         assert self.domain is not None
         config = self.config
-        now, now_wall, pose = begun.now, begun.now_wall, begun.pose
+        now, pose = begun.now, begun.pose
         me = pose[:2]
         self.counters.guarded += int(result.guarded and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
@@ -725,7 +809,12 @@ class AgentBrain:
         if not np.all(np.isfinite(velocity)):
             raise ValueError(f"non-finite velocity {velocity}")
         if config.safety:
-            velocity = self._safe(velocity, pose, now, now_wall)
+            return self._safety_inputs(begun, velocity)
+        return self._wheels(velocity, pose)
+
+    def _wheels(self, velocity: np.ndarray, pose: np.ndarray) -> Decision:
+        """The running decision for ``velocity`` (2,) m/s from ``pose`` (x, y, heading)."""
+        config = self.config
         heading = pose[2]
         wheels = wheel_speeds(
             np.array([heading]), velocity[None], config.robot, config.projection_distance
@@ -783,14 +872,14 @@ class AgentBrain:
             if math.hypot(rx - x, ry - y) <= SAFETY_RADIUS
         }
 
-    def _safe(
-        self, velocity: np.ndarray, pose: np.ndarray, now: float, now_wall: float
-    ) -> np.ndarray:
-        """``velocity`` filtered by covswarm.tvd.safety against the robots near us: the
-        candidates (dead-reckoned, with their reported velocities) and the obstacles we
-        stopped hearing from (at rest where last known); with a world, against its
-        obstacles and workspace walls near us too (a body radius plus the margin)."""
+    def _safety_inputs(self, begun: Begun, velocity: np.ndarray) -> Filtering:
+        """What the safety filter (covswarm.tvd.safety) needs to filter ``velocity`` (2,)
+        m/s: the robots near us, i.e. the candidates (dead-reckoned, with their reported
+        velocities) and the obstacles we stopped hearing from (at rest where last known);
+        with a world, its obstacles and workspace walls near us too (a body radius plus
+        the margin)."""
         config = self.config
+        now, pose = begun.now, begun.pose
         me = pose[:2]
         reckoned = self.neighborhood.reckoned
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
@@ -820,33 +909,23 @@ class AgentBrain:
         # same rows as World.nearby's, without computing every distance twice (~90 us).
         gamma = barrier_gain(config.safety_gamma, self._period)
         world = self.world
-        walls: dict[str, Any] = {}
+        obstacles: list[np.ndarray] = []
         if world is not None:
             x, y = float(me[0]), float(me[1])
             nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
-            walls = {
-                "obstacles": [world.obstacles[j].vertices for j in nearby],
-                "workspace": self.workspace,
-                "obstacle_distance": wall_distance(
-                    config.robot.body_diameter, config.safety_margin
-                ),
-                "reach": SAFETY_RADIUS,
-                "obstacle_gamma": WALL_GAMMA_FRACTION * gamma,
-            }
-        result = safe_velocity(
-            me,
-            velocity,
-            near[:, :2],
-            body_safe_distance(config.robot.body_diameter, config.safety_margin),
-            gamma,
-            heading=float(pose[2]),
+            obstacles = [world.obstacles[j].vertices for j in nearby]
+        return Filtering(
+            begun=begun,
+            nominal=velocity,
+            near=near,
+            safe_distance=body_safe_distance(config.robot.body_diameter, config.safety_margin),
+            gamma=gamma,
             velocity=np.array(self.velocity),
-            neighbor_velocities=near[:, 2:],
-            **walls,
+            obstacles=obstacles,
+            workspace=self.workspace if world is not None else None,
+            obstacle_distance=wall_distance(config.robot.body_diameter, config.safety_margin),
+            obstacle_gamma=WALL_GAMMA_FRACTION * gamma,
         )
-        self.safety_active += result.active > 0
-        self.safety_relaxed += result.relaxed
-        return result.velocity
 
     # --- output --------------------------------------------------------------------------
 

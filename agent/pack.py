@@ -15,8 +15,8 @@ would.
 
 Brains due together step together (:meth:`Pack.step`): ``chunk`` at a time, at one clock
 reading, each brain's step split in phases (AgentBrain.begin, the local steps of the
-chunk in one batched call per law and feedforward, AgentBrain.conclude), the deadline
-checked between two chunks.
+chunk in one batched call per law and feedforward, AgentBrain.conclude). The deadline is
+checked before each brain begins its step, so it stays per brain.
 
 Overload (issue 24, item 4): a brain whose turn comes after the end of the period it was
 to step for does not step on that period's inputs as if they were fresh: it skips the
@@ -50,11 +50,15 @@ from covswarm.agent.brain import (
     Begun,
     Decision,
     DeclareAlive,
+    Filtering,
     FollowStates,
     FollowTiles,
     PublishBeacon,
     PublishState,
+    SafeVelocity,
     SendCommand,
+    filter_all,
+    filter_one,
     local_step_of,
 )
 from covswarm.agent.decoding import DECODE_CACHE
@@ -74,8 +78,7 @@ RING_PER_TILE = 256
 # to judge. 16 holds 8 ticks' worth of a 20 Hz coordinator at 10 Hz plus forgeries; only a
 # flood beyond it can push the real ones out.
 DOMAIN_RING = 16
-# Brains stepped together: their local steps in one batch, the deadline checked between
-# two chunks (a brain of a chunk whose turn comes after it holds, see the module docstring).
+# Brains stepped together: their local steps in one batch.
 CHUNK = 32
 # The order in which a brain gets a tick's payloads (then by id and key): the world (the
 # domain is judged against it), the domain and its own pose first, as a process of its own
@@ -406,27 +409,15 @@ class Pack:
         comes: its brains step at that time together (they extrapolate the same domain to
         the same time, and the last chunk of a large process dead-reckons its neighbours to
         its own time); ``wall``: seconds since the epoch, likewise; ``deadline``: the end of
-        this period on ``clock``. The brains of a chunk whose turn comes after the deadline
-        hold (module docstring); the next tick starts with the first that held, or one
-        brain later when all stepped, so no robot is always last.
+        this period on ``clock``, checked before each brain begins its step: a brain whose
+        turn comes after it holds, and so do the brains after it (module docstring); the
+        next tick starts with the first that held, or one brain later when all stepped, so
+        no robot is always last.
         """
         stepped = 0
         order = self.order
         for first in range(0, len(order), self.chunk):
-            chunk = order[first : first + self.chunk]
-            now = clock()
-            if now > deadline:
-                for bid in chunk:
-                    self._hold(self.brains[bid], clock(), wall())
-                continue
-            stepped += len(chunk)
-            # Their newest poses first, then the chunk's clock: a receipt time read before
-            # the payload was taken would precede it, and a pose stamped in between would
-            # read as a robot clock running ahead of ours (ClockBound), so every later pose
-            # counted as that much older: at 100 robots in packs of 32 on two loaded cores,
-            # -26 to -90 ms, each robot predicted ~10 mm ahead of where it was.
-            self.take_own_poses(chunk)
-            self._step_chunk(chunk, clock(), wall(), clock, deadline)
+            stepped += self._step_chunk(order[first : first + self.chunk], clock, wall, deadline)
         shift = stepped if 0 < stepped < len(order) else 1
         self.order = order[shift:] + order[:shift]
         return stepped
@@ -434,17 +425,28 @@ class Pack:
     def _step_chunk(
         self,
         chunk: list[int],
-        now: float,
-        now_wall: float,
         clock: Callable[[], float],
+        wall: Callable[[], float],
         deadline: float,
-    ) -> None:
-        """The brains of ``chunk`` step at ``now``: each receives its inputs and begins its
-        step, their local steps run batched (grouped by the law's settings), then each
-        concludes and its actions are carried out."""
+    ) -> int:
+        """The brains of ``chunk`` step at the time its turn comes: each receives its inputs
+        and begins its step (those whose turn comes after the deadline hold instead), their
+        local steps run batched (grouped by the law's settings), then each concludes and its
+        actions are carried out. The number that stepped."""
+        # Their newest poses first, then the chunk's clock: a receipt time read before the
+        # payload was taken would precede it, and a pose stamped in between would read as a
+        # robot clock running ahead of ours (ClockBound), so every later pose counted as
+        # that much older: at 100 robots in packs of 32 on two loaded cores, -26 to -90 ms,
+        # each robot predicted ~10 mm ahead of where it was.
+        self.take_own_poses(chunk)
+        now, now_wall = clock(), wall()
         begun: dict[int, Begun] = {}
+        filtering: dict[int, Filtering] = {}
         decisions: dict[int, Decision] = {}
         for bid in chunk:
+            if clock() > deadline:
+                self._hold(self.brains[bid], clock(), wall())
+                continue
             self._held.discard(bid)
             self._stepped[bid] = now
             self.receive(bid, now, now_wall)
@@ -469,8 +471,14 @@ class Pack:
                     self.brains[bid].counters.batch_fallbacks += 1
             shared = (self._clock() - started) / len(bids)
             for bid, result in zip(bids, results, strict=True):
-                decisions[bid] = self.brains[bid].conclude(begun[bid], result, shared)
-        for bid in chunk:
+                concluded = self.brains[bid].conclude(begun[bid], result, shared)
+                if isinstance(concluded, Filtering):
+                    filtering[bid] = concluded
+                else:
+                    decisions[bid] = concluded
+        if filtering:
+            self._filter(filtering, decisions)
+        for bid in [bid for bid in chunk if bid in decisions]:  # in turn order
             brain = self.brains[bid]
             for action in brain.actions(decisions[bid], now, now_wall):
                 self.carry_out(bid, action)
@@ -478,6 +486,21 @@ class Pack:
                 # (start-up, while processes are still launching, aside).
                 if isinstance(action, SendCommand) and brain.running and clock() > deadline:
                     brain.counters.overruns += 1
+        return len(decisions)
+
+    def _filter(self, filtering: dict[int, Filtering], decisions: dict[int, Decision]) -> None:
+        """The safety filters of the brains of ``filtering`` in one batch, then their wheel
+        speeds, into ``decisions``; a batch that raises is taken again one by one."""
+        started = self._clock()
+        try:
+            safe: list[SafeVelocity | Exception] = list(filter_all(list(filtering.values())))
+        except Exception:  # noqa: BLE001 -- one bad input: filter them one by one
+            safe = [filter_one(f) for f in filtering.values()]
+            for bid in filtering:
+                self.brains[bid].counters.batch_fallbacks += 1
+        shared = (self._clock() - started) / len(filtering)
+        for (bid, inputs), answer in zip(filtering.items(), safe, strict=True):
+            decisions[bid] = self.brains[bid].drive(inputs, answer, shared)
 
     def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
         """Brain's period is over before its turn: it skips this period (its robot runs on

@@ -505,7 +505,8 @@ class CoordinatorCore:
             return
         if state.stats is not None:
             self.observed.agent_stats[state.id] = dict(state.stats)
-            self.pace.report(state.id, state.stats, state.stamp)
+            if self.phase.state != DONE:  # the held rate is the mission's, not the hold's
+                self.pace.report(state.id, state.stats, state.stamp)
 
     def on_steer(
         self, payload: bytes, now: float, wall: float, requester: str | None = None

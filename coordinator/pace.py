@@ -127,6 +127,8 @@ class Pace:
     held: dict[int, float] = field(default_factory=dict)  # fraction of asked, per agent
     # per agent: (stamp, mission_steps) of its reports, the oldest HELD_WINDOW s back
     _reports: dict[int, deque[tuple[float, float]]] = field(default_factory=dict)
+    # per agent: (stamp, mission_steps) of its first report of the mission and its latest
+    _span: dict[int, tuple[tuple[float, float], tuple[float, float]]] = field(default_factory=dict)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.asked) and self.asked > 0.0):
@@ -140,6 +142,9 @@ class Pace:
             reports.clear()  # a restarted agent, or a report out of order
         self.held[ident] = held_fraction(stats, stamp, reports[0] if reports else None, self.asked)
         reports.append((stamp, steps))
+        if steps > 0.0:
+            first = self._span.get(ident, ((stamp, steps),))[0]
+            self._span[ident] = (first if steps >= first[1] else (stamp, steps), (stamp, steps))
         while len(reports) > 1 and reports[1][0] <= stamp - HELD_WINDOW:
             reports.popleft()
 
@@ -199,15 +204,20 @@ class Pace:
 
         ``stats``: every agent's latest stats; ``mission_t``: the mission's length, s.
         held_rate_hz: mission steps per s of mission, mean (min) over the agents that
-        report them; periods_missed: 1 - held / asked (the team's mean); late_held: the
-        agents' mean share of periods skipped by a late turn; missed_deadline: their
-        mean share of commands sent after their period.
+        report them: between an agent's first and latest reports of the mission (stats
+        come about once a second, so its latest is up to a second older than the end),
+        over the whole mission for one that reported only once; periods_missed: 1 - held /
+        asked (the team's mean); late_held: the agents' mean share of periods skipped by a
+        late turn; missed_deadline: their mean share of commands sent after their period.
         """
-        held = [
-            float(s["mission_steps"]) / mission_t
-            for s in stats.values()
-            if "mission_steps" in s and mission_t > 0.0
-        ]
+        held = []
+        for ident, s in stats.items():
+            span = self._span.get(ident)
+            if span is not None and span[1][0] > span[0][0]:
+                (t0, steps0), (t1, steps1) = span
+                held.append((steps1 - steps0) / (t1 - t0))
+            elif "mission_steps" in s and mission_t > 0.0:
+                held.append(float(s["mission_steps"]) / mission_t)
 
         def mean(name: str) -> float | None:
             values = [float(s[name]) for s in stats.values() if name in s]

@@ -51,7 +51,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
-from covswarm.protocol.security import SECURE_OPTION, identity_name, require_identities
+from covswarm.protocol.security import SECURE_OPTION, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
     TIME_SCALE_OPTION,
@@ -221,8 +221,7 @@ def run_swarm(run: RunConfig) -> None:
             run, scenario, endpoint="tcp/127.0.0.1:7447", base=(), ids=ids,
             per_process=packing, robots_per_process=robot_packing,
         )  # fmt: skip
-        names = {identity_name(s.role, s.members if s.role != "coordinator" else None)
-                 for s in planned} | ({"console"} if run.console else set())  # fmt: skip
+        names = {s.identity for s in planned} | ({"console"} if run.console else set())
         try:
             require_identities(run.secure, sorted(names))
         except ValueError as exc:

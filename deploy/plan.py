@@ -20,6 +20,7 @@ from covswarm.agent.config import AgentProcessConfig
 from covswarm.coordinator.config import CoordinatorConfig
 from covswarm.mission.scenarios import Scenario
 from covswarm.protocol.keys import format_ids
+from covswarm.protocol.security import SINGLE_ROLES, identity_name
 from covswarm.runtime.options import config_argv
 from covswarm.sim_robot.config import RobotConfig
 
@@ -45,6 +46,12 @@ class ChildSpec:
     @property
     def name(self) -> str:
         return f"{self.role}-{format_ids(list(self.members))}"
+
+    @property
+    def identity(self) -> str:
+        """The certificate it presents under ``--secure`` (protocol.security): a robot or
+        agent process's names exactly the robots or brains it hosts."""
+        return identity_name(self.role, None if self.role in SINGLE_ROLES else self.members)
 
 
 # The default packing of brains into agent processes (``--agents-per-process auto``).

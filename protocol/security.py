@@ -141,14 +141,40 @@ def require_identities(directory: Path, names: Iterable[str]) -> None:
     directory = Path(directory)
     missing = [n for n in names if not (directory / n / CERT).is_file()]
     if missing:
-        ids = sorted({n.partition("-")[2] for n in missing} - {""})
-        groups = [i for i in ids if not i.isdigit()]
-        single = [i for i in ids if i.isdigit()]
-        command = f"covswarm credentials {directory}"
-        command += "".join(f" --group {g}" for g in groups)
-        if single:
-            command += f" --ids {format_ids([int(i) for i in single])}"
+        command = f"covswarm credentials {directory}{issue_options(missing)}"
         raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}: {command}")
+
+
+def issue_options(names: Iterable[str]) -> str:
+    """The ``covswarm credentials`` options that issue the identities ``names`` and no other
+    agent or robot: an id or group both roles lack goes in ``--ids``/``--group``, one that
+    only one role lacks in that role's option (an auto-packed run hosts its robots in fewer
+    processes than its brains, so its robot groups are not its agent groups; a certificate
+    no process needs is one more that could command or impersonate robots)."""
+    singles: dict[str, set[int]] = {role: set() for role in ID_ROLES}
+    groups: dict[str, set[str]] = {role: set() for role in ID_ROLES}
+    for name in names:
+        role, _, ids = name.partition("-")
+        if role in ID_ROLES and ids.isdigit():
+            singles[role].add(int(ids))
+        elif role in ID_ROLES and ids:
+            groups[role].add(ids)
+    options = ""
+    agent_groups, robot_groups = groups["agent"], groups["robot"]
+    for group in sorted(agent_groups | robot_groups, key=parse_ids):
+        if group not in robot_groups:
+            options += f" --agent-group {group}"
+        elif group not in agent_groups:
+            options += f" --robot-group {group}"
+        else:
+            options += f" --group {group}"
+    agents, robots = singles["agent"], singles["robot"]
+    if agents and agents == robots:
+        options += f" --ids {format_ids(sorted(agents))}"
+    else:
+        options += f" --agent-ids {format_ids(sorted(agents))}" if agents else ""
+        options += f" --robot-ids {format_ids(sorted(robots))}" if robots else ""
+    return options
 
 
 def _openssl(*args: str) -> None:
@@ -205,14 +231,17 @@ def issue_credentials(
     robots: Sequence[int] = (),
     groups: Sequence[Sequence[int]] = (),
     hosts: Sequence[str] = (),
+    agent_groups: Sequence[Sequence[int]] = (),
+    robot_groups: Sequence[Sequence[int]] = (),
 ) -> Path:
     """Write (or extend) a secure folder and return its path.
 
     Creates the CA on first use (kept in ``ca/ca.key``, owner-only), the router's
     certificate (127.0.0.1, localhost and ``hosts``), the coordinator, bridge, console and
-    operator, one agent per id of ``agents``, one robot per id of ``robots``, and one agent
+    operator, one agent per id of ``agents``, one robot per id of ``robots``, one agent
     and one robot per group of ``groups`` (a process running several brains or simulated
-    robots, ``--ids``, presents one certificate for them all).
+    robots, ``--ids``, presents one certificate for them all), one agent per group of
+    ``agent_groups`` and one robot per group of ``robot_groups``.
     Run again on the same folder, it adds identities signed by the same CA and keeps the
     existing ones. Private files are owner-only. RuntimeError without ``openssl``.
     """
@@ -241,6 +270,8 @@ def issue_credentials(
     wanted: list[tuple[str, list[int]]] = [(role, []) for role in SINGLE_ROLES]
     wanted += [("agent", [i]) for i in agents] + [("robot", [i]) for i in robots]
     wanted += [(role, sorted(set(group))) for group in groups for role in ID_ROLES]
+    wanted += [("agent", sorted(set(group))) for group in agent_groups]
+    wanted += [("robot", sorted(set(group))) for group in robot_groups]
     names = {entry["name"] for entry in known}
     if hosts or not (directory / ROUTER / CERT).is_file():
         _issue(directory, ROUTER, alt_names)
@@ -290,6 +321,18 @@ def _id_list(ctx: click.Context, param: click.Parameter, value: str | None) -> l
     "(--ids), e.g. 0-49 (repeatable).",
 )
 @click.option(
+    "--agent-group",
+    "agent_groups",
+    multiple=True,
+    help="An agent certificate only, for an agent process running several ids (repeatable).",
+)
+@click.option(
+    "--robot-group",
+    "robot_groups",
+    multiple=True,
+    help="A robot certificate only, for a robot process running several ids (repeatable).",
+)
+@click.option(
     "--host",
     "hosts",
     multiple=True,
@@ -302,6 +345,8 @@ def credentials_command(
     agent_ids: list[int],
     robot_ids: list[int],
     groups: tuple[str, ...],
+    agent_groups: tuple[str, ...],
+    robot_groups: tuple[str, ...],
     hosts: tuple[str, ...],
 ) -> None:
     """Issue a CA and one certificate per role for `--secure`: router, coordinator, bridge,
@@ -310,8 +355,12 @@ def credentials_command(
         raise click.UsageError("give --agents N or --ids, not both")
     both = list(range(agents)) if agents is not None else ids
     try:
-        group_ids = [parse_ids(group) for group in groups]
-        issue_credentials(directory, agent_ids or both, robot_ids or both, group_ids, hosts)
+        issue_credentials(
+            directory, agent_ids or both, robot_ids or both,
+            groups=[parse_ids(group) for group in groups], hosts=hosts,
+            agent_groups=[parse_ids(group) for group in agent_groups],
+            robot_groups=[parse_ids(group) for group in robot_groups],
+        )  # fmt: skip
     except (RuntimeError, ValueError, subprocess.CalledProcessError) as exc:
         raise click.ClickException(str(exc)) from exc
     click.echo(

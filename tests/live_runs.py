@@ -15,11 +15,11 @@ import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 
 from covswarm import protocol
-from covswarm.deploy.plan import covswarm_argv
+from covswarm.deploy.plan import auto_per_process, auto_robots_per_process, covswarm_argv
 from covswarm.deploy.router import free_port
 
 # A stand-alone Zenoh router: ``python -c ROUTER ENDPOINT`` prints "ready", runs until SIGTERM.
@@ -47,6 +47,19 @@ def swarm_pids(swarm: str, *words: str) -> set[int]:
         if wanted <= set(cmdline) and state != "Z":
             pids.add(int(entry.name))
     return pids
+
+
+def split_packing_team(cores: int) -> tuple[int, float]:
+    """(agents, rate Hz): the smallest team whose auto packing on ``cores`` cores puts its
+    brains in processes of several, smaller than its robot processes (deploy.plan), at the
+    first rate from 10 Hz up (doubling) where that team has at most 40 robots per core: a
+    faster rate packs fewer brains a process, so the team stays small whatever BRAIN_TICK."""
+    for rate in (10.0, 20.0, 40.0, 80.0, 160.0):
+        for agents in range(2, 40 * cores + 1):
+            brains = auto_per_process(agents, cores, rate)
+            if 1 < brains < auto_robots_per_process(agents, cores):
+                return agents, rate
+    raise AssertionError("no team of at most 40 robots a core splits brains from robots")
 
 
 def wait_until(predicate: Callable[[], bool], timeout: float, period: float = 0.2) -> bool:
@@ -82,6 +95,25 @@ def launch(out: Path, *args: str, swarm: str | None = None) -> Iterator[subproce
         log.close()
         for pid in swarm_pids(swarm) if swarm else ():
             os.kill(pid, signal.SIGKILL)
+
+
+def finish_runs(folder: Path, runs: dict[str, tuple[str, ...]], timeout: float = 240.0) -> dict:
+    """Several ``covswarm run``s started together, each with its own swarm, waited to their
+    end (exit code 0); their summary.json by name. ``runs``: name -> run arguments; outputs
+    in ``folder``/name.
+
+    Together, not one after the other: a run of a few robots takes a fraction of a core, so
+    the wall time is the longest mission's, not their sum."""
+    with ExitStack() as stack:
+        launched = {
+            name: stack.enter_context(launch(folder / name, *args, swarm=new_swarm()))
+            for name, args in runs.items()
+        }
+        deadline = time.monotonic() + timeout
+        for name, launcher in launched.items():
+            code = launcher.wait(timeout=max(1.0, deadline - time.monotonic()))
+            assert code == 0, (folder / f"{name}.launcher.log").read_text()
+    return {name: json.loads((folder / name / "summary.json").read_text()) for name in runs}
 
 
 def new_swarm() -> str:

@@ -231,17 +231,17 @@ def test_a_moving_density_is_broadcast_with_its_rates_scaled_by_the_pace() -> No
     assert then.time == pytest.approx(before.t)
 
 
-def test_the_step_delay_fault_sleeps_after_every_tick() -> None:
+def test_the_step_delay_fault_sleeps_after_every_step_begins() -> None:
     slept: list[float] = []
 
     class Brain:
-        def tick(self, now: float, wall: float) -> list:
-            slept.append(-1.0)  # the tick itself, before the sleep
-            return ["done"]
+        def begin(self, now: float, wall: float) -> str:
+            slept.append(-1.0)  # the step's first phase, before the sleep
+            return "begun"
 
     brains = [Brain(), Brain()]
     delay_steps(brains, 0.04, sleep=slept.append)
-    assert brains[0].tick(0.0, WALL0) == ["done"] and slept == [-1.0, 0.04]
+    assert brains[0].begin(0.0, WALL0) == "begun" and slept == [-1.0, 0.04]
     delay_steps(brains[1:], 0.0, sleep=slept.append)  # no fault: left as it was
     for bad in (-0.1, float("nan")):
         with pytest.raises(ValueError, match="step delay"):
@@ -287,3 +287,21 @@ def test_a_resumed_coordinator_continues_the_script_where_the_first_left_it() ->
     ):
         with pytest.raises(ValueError):
             ScriptClock.from_json(bad, SWARM)
+
+
+def test_the_held_rate_is_measured_up_to_each_agents_last_report() -> None:
+    # A team that holds the asked 10 Hz, whose last stats (once a second) came 0.9 s
+    # before the mission's end: over the mission's length it would read as 18 % missed.
+    pace = Pace(asked=10.0)
+    stats = {}
+    for i in range(3):
+        for k in range(5):
+            stats[i] = {"mission_steps": 10.0 * k + 3.0, "rate_hz": 10.0}
+            pace.report(i, stats[i], 100.0 + k + 0.3)
+    summary = pace.summary(stats, 4.3 + 0.9)
+    assert summary["held_rate_hz"] == pytest.approx(10.0)
+    assert summary["periods_missed"] == pytest.approx(0.0)
+    # One report only: its steps over the whole mission.
+    single = Pace(asked=10.0)
+    single.report(0, {"mission_steps": 26.0}, 100.0)
+    assert single.summary({0: {"mission_steps": 26.0}}, 5.2)["held_rate_hz"] == pytest.approx(5.0)

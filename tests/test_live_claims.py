@@ -32,6 +32,8 @@ import functools
 import json
 import time
 from collections import Counter
+from concurrent.futures import ThreadPoolExecutor
+from contextlib import ExitStack
 from pathlib import Path
 
 import pytest
@@ -111,29 +113,39 @@ def mission_started(out: Path) -> bool:
 def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
     """{team size: {"summary": summary.json, "agent": [libraries per agent process],
     "robot": [libraries per robot process], "threads": [threads per agent process],
-    "counts": messages per kind (10 robots only)}}, read mid-mission."""
+    "counts": messages per kind (10 robots only)}}, read mid-mission. Both runs at once (on
+    their own swarms and routers): together they take under a core."""
+    folder = tmp_path_factory.mktemp("live")
+    swarms = {n: new_swarm() for n in SIZES}
+    outs = {n: folder / f"square-{n}" for n in SIZES}
     results = {}
+    with ExitStack() as stack:
+        launchers = {}
+        for n in SIZES:
+            scenario = folder / f"square-{n}.toml"
+            scenario.write_text(SQUARE_TOML.format(n=n, h=round((n / 10) ** 0.5, 4)))
+            args = ["--scenario", str(scenario), "--agents", str(n), "--duration", "8",
+                    "--agents-per-process", "20"]  # fmt: skip
+            launchers[n] = stack.enter_context(launch(outs[n], *args, swarm=swarms[n]))
+        with ThreadPoolExecutor(1) as counter:
+            counts = None
+            for n in SIZES:  # the 10 robots first: their count runs while the 40 start
+                assert wait_until(functools.partial(mission_started, outs[n]), 90)
+                if counts is None:
+                    endpoint = json.loads((outs[n] / "launch.json").read_text())["endpoint"]
+                    counts = counter.submit(count_messages, endpoint, swarms[n], WINDOW)
+                results[n] = {
+                    role: [loaded_libraries(pid) for pid in swarm_pids(swarms[n], role)]
+                    for role in ("agent", "robot")
+                }
+                results[n]["threads"] = [threads(pid) for pid in swarm_pids(swarms[n], "agent")]
+            results[SIZES[0]]["counts"] = counts.result()
+        for n in SIZES:
+            code = launchers[n].wait(timeout=180)
+            assert code == 0, (folder / f"square-{n}.launcher.log").read_text()
     for n in SIZES:
-        folder = tmp_path_factory.mktemp("live")
-        swarm, out, scenario = new_swarm(), folder / f"square-{n}", folder / f"square-{n}.toml"
-        scenario.write_text(SQUARE_TOML.format(n=n, h=round((n / 10) ** 0.5, 4)))
-        args = ["--scenario", str(scenario), "--agents", str(n), "--duration", "8",
-                "--agents-per-process", "20"]  # fmt: skip
-        with launch(out, *args, swarm=swarm) as launcher:
-            assert wait_until(functools.partial(mission_started, out), 90)
-            libraries = {
-                role: [loaded_libraries(pid) for pid in swarm_pids(swarm, role)]
-                for role in ("agent", "robot")
-            }
-            libraries["threads"] = [threads(pid) for pid in swarm_pids(swarm, "agent")]
-            if n == SIZES[0]:
-                endpoint = json.loads((out / "launch.json").read_text())["endpoint"]
-                libraries["counts"] = count_messages(endpoint, swarm, WINDOW)
-            code = launcher.wait(timeout=180)
-            assert code == 0, (out.parent / f"{out.name}.launcher.log").read_text()
-        assert swarm_pids(swarm) == set()
-        summary = json.loads((out / "summary.json").read_text())
-        results[n] = {"summary": summary, **libraries}
+        assert swarm_pids(swarms[n]) == set()
+        results[n]["summary"] = json.loads((outs[n] / "summary.json").read_text())
     return results
 
 

@@ -384,10 +384,11 @@ def turning_reference(boxes: list[list[float]], polygon, goal, grow: float = 0.0
     )
     shapely.prepare(obstacles)
 
-    def free_at(s: float, angle: float) -> np.ndarray:
+    def free_at(s: float, angle: float, cells: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """Whether S at scale s turned by angle is free at centres[cells]."""
         c, n = math.cos(angle), math.sin(angle)
         q = s * shape @ np.array([[c, -n], [n, c]]).T
-        coords = centres[:, None, :] + q[None, :, :]
+        coords = centres[cells][:, None, :] + q[None, :, :]
         inside = (
             (coords[..., 0].min(axis=1) >= xmin + grow)
             & (coords[..., 0].max(axis=1) <= xmax - grow)
@@ -398,11 +399,14 @@ def turning_reference(boxes: list[list[float]], polygon, goal, grow: float = 0.0
 
     angles = np.arange(4) * math.pi / 4
     free = np.array([[free_at(s, a) for a in angles] for s in scales])  # (levels, 4, cells)
-    sweep = np.ones((len(scales), 4, len(centres)), dtype=bool)
+    # A turn is a move only where S is free at both of its ends: the angles between are
+    # checked there alone, each on the cells every angle before left free.
+    sweep = free & np.roll(free, -1, axis=1)
     for li, s in enumerate(scales):
         for o, a in enumerate(angles):
             for b in np.linspace(a, a + math.pi / 4, 46)[1:-1]:
-                sweep[li, o] &= free_at(s, b)
+                cells = np.flatnonzero(sweep[li, o])
+                sweep[li, o, cells] = free_at(s, b, cells)
     shape3 = (len(scales), 4, *gi.shape)
     free, sweep = free.reshape(shape3), sweep.reshape(shape3)
     index = -np.ones(shape3, dtype=int)

@@ -20,7 +20,7 @@ from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
-from live_runs import wait_until
+from live_runs import split_packing_team, wait_until
 
 from covswarm import protocol
 from covswarm.deploy.plan import covswarm_argv
@@ -45,6 +45,9 @@ with zenoh.open(session_config(peers, [sys.argv[1]], mode="router", secure=Path(
     signal.pause()  # until SIGTERM
 """
 AGENTS, ROBOTS = [0, 1, 2], [0, 1, 2, 30]
+# Group certificates: for both roles, as --agents-per-process 3 packs; and an agent group
+# with a smaller robot group, as auto packing hosts robots in fewer processes than brains.
+GROUP, AGENT_GROUP, ROBOT_GROUP = [5, 6, 7], [8, 9, 10], [8, 9]
 SETTLE = 0.5  # s for declarations to reach the router before a put or a query
 
 
@@ -56,8 +59,9 @@ def openssl(require) -> None:
 @pytest.fixture(scope="module")
 def creds(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return issue_credentials(
-        tmp_path_factory.mktemp("secure"), agents=AGENTS, robots=ROBOTS, groups=[[5, 6, 7]]
-    )
+        tmp_path_factory.mktemp("secure"), agents=AGENTS, robots=ROBOTS, groups=[GROUP],
+        agent_groups=[AGENT_GROUP], robot_groups=[ROBOT_GROUP],
+    )  # fmt: skip
 
 
 def _free_port() -> int:
@@ -125,6 +129,7 @@ class Inbox:
 def test_credentials_give_each_identity_its_own_certificate(creds: Path) -> None:
     names = {entry["name"] for entry in read_identities(creds)}
     expected = {"coordinator", "bridge", "console", "operator", "ros2", "agent-5-7", "robot-5-7"}
+    expected |= {"agent-8-10", "robot-8-9"}
     expected |= {f"agent-{i}" for i in AGENTS} | {f"robot-{i}" for i in ROBOTS}
     assert names == expected
     for name in [*names, "router"]:
@@ -179,18 +184,84 @@ def test_identity_names_and_bad_roles() -> None:
 
 
 def test_a_machine_without_its_certificate_is_told_how_to_issue_it(creds: Path) -> None:
-    with pytest.raises(ValueError, match=r"lacks agent-9: covswarm credentials .* --ids 9$"):
+    with pytest.raises(ValueError, match=r"lacks agent-9: covswarm credentials .* --agent-ids 9$"):
         session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=9)
-    with pytest.raises(ValueError, match=r"--group 0-49"):
+    with pytest.raises(ValueError, match=r"lacks agent-0-49: .* --agent-group 0-49$"):
         session_config(["tls/127.0.0.1:7447"], secure=creds, role="agent", id=range(50))
 
 
 def test_a_launcher_learns_every_missing_identity_at_once(creds: Path) -> None:
     require_identities(creds, ["coordinator", "agent-0", "robot-5-7"])
+    wanted = ["agent-0", "agent-11-12", "robot-11-12", "robot-14", "agent-15", "agent-16"]
+    wanted += ["robot-16", "agent-17-19", "robot-17-18"]
     with pytest.raises(ValueError) as missing:
-        require_identities(creds, ["agent-0", "agent-8-9", "robot-8-9", "robot-11", "agent-12"])
-    assert "lacks agent-8-9, robot-8-9, robot-11, agent-12" in str(missing.value)
-    assert str(missing.value).endswith(f"covswarm credentials {creds} --group 8-9 --ids 11-12")
+        require_identities(creds, wanted)
+    assert f"lacks {', '.join(wanted[1:])}" in str(missing.value)
+    # Exactly what is missing: an id or group both roles lack in --ids/--group, others in
+    # the option of the one role that lacks it.
+    assert str(missing.value).endswith(
+        f"covswarm credentials {creds} --group 11-12 --robot-group 17-18 --agent-group 17-19"
+        " --agent-ids 15-16 --robot-ids 14,16"
+    )
+
+
+def test_an_auto_packed_run_is_told_to_issue_exactly_its_processes_certificates(
+    tmp_path: Path,
+) -> None:
+    """A small team whose auto packing on 2 cores puts brains in smaller processes than
+    robots (live_runs.split_packing_team; deploy.plan: robots one process per core, brains
+    in batches that hold the rate):
+    the command the launcher's check names issues each process's certificate and no other
+    group, and each group's certificate may put and hold the keys of its own ids only."""
+    from click.testing import CliRunner
+
+    from covswarm.deploy.plan import (
+        RunConfig,
+        auto_per_process,
+        auto_robots_per_process,
+        plan_children,
+    )
+    from covswarm.mission.scenario_files import load_scenario
+    from covswarm.protocol.security import credentials_command
+
+    cores = 2
+    agents, rate = split_packing_team(cores)
+    run = RunConfig(agents=agents, rate=rate, swarm="s", out=tmp_path / "run")
+    specs = plan_children(
+        run, load_scenario("passage"), endpoint="tcp/127.0.0.1:7447", base=(),
+        per_process=auto_per_process(agents, cores, rate),
+        robots_per_process=auto_robots_per_process(agents, cores),
+    )  # fmt: skip
+    names = {spec.identity for spec in specs}
+    groups = {spec.identity for spec in specs if spec.role in ("agent", "robot")}
+    half = -(-agents // cores)
+    robot_groups = {f"robot-0-{half - 1}", f"robot-{half}-{agents - 1}"}
+    assert {n for n in groups if n.startswith("robot-")} == robot_groups
+    folder = tmp_path / "secure"
+    with pytest.raises(ValueError) as missing:
+        require_identities(folder, sorted(names))
+    command = str(missing.value).rpartition(": ")[2].split()
+    assert command[:3] == ["covswarm", "credentials", str(folder)]
+    done = CliRunner().invoke(credentials_command, command[2:])
+    assert done.exit_code == 0, done.output
+    require_identities(folder, sorted(names))
+    issued = read_identities(folder)
+    assert {e["name"] for e in issued if e["role"] in ("agent", "robot")} == groups
+    acl = access_control(issued)
+    swarm = protocol.new_swarm_name()
+    for spec in specs:
+        if spec.role not in ("agent", "robot"):
+            continue
+        for i in range(agents):
+            pose = _allowed(acl, spec.identity, "ingress", "put", protocol.pose_key(swarm, i))
+            cmd = _allowed(acl, spec.identity, "ingress", "put", protocol.cmd_key(swarm, i))
+            token = protocol.alive_key(swarm, spec.role, i)
+            held = _allowed(acl, spec.identity, "ingress", "liveliness_token", token)
+            assert (pose, cmd) == (
+                spec.role == "robot" and i in spec.members,
+                spec.role == "agent" and i in spec.members,
+            ), (spec.identity, i)
+            assert held == (i in spec.members), (spec.identity, i)
 
 
 def _allowed(acl: dict, subject: str, flow: str, message: str, key: str) -> bool:
@@ -215,15 +286,22 @@ def test_the_access_list_grants_each_key_to_its_owner_only(creds: Path) -> None:
         protocol.world_key(swarm): {"coordinator"},
         protocol.world_map_key(swarm): set(),  # a queryable's key: nobody puts there
     }
-    for i in range(8):
-        agent = {f"agent-{i}"} if i in AGENTS else {"agent-5-7"} if i >= 5 else set()
-        robot = {f"robot-{i}"} if i in ROBOTS else {"robot-5-7"} if i >= 5 else set()
+    ids = range(12)
+    for i in ids:
+        agent = {identity_name("agent", i)} if i in AGENTS else set()
+        robot = {identity_name("robot", i)} if i in ROBOTS else set()
+        for group, role, owner in [
+            (GROUP, "agent", agent), (GROUP, "robot", robot),
+            (AGENT_GROUP, "agent", agent), (ROBOT_GROUP, "robot", robot),
+        ]:  # fmt: skip
+            if i in group:
+                owner.add(identity_name(role, group))
         owners[protocol.cmd_key(swarm, i)] = agent
         owners[protocol.agent_state_key(swarm, i)] = agent
         owners[protocol.beacon_key(swarm, -3, 7, i)] = agent
         owners[protocol.pose_key(swarm, i)] = robot | {"bridge"}
     tokens: dict[str, set[str]] = {protocol.alive_key(swarm, "coordinator", 0): {"coordinator"}}
-    for i in range(8):
+    for i in ids:
         for role, owner in [("agent", owners[protocol.cmd_key(swarm, i)])]:
             tokens[protocol.alive_key(swarm, role, i)] = owner
             tokens[protocol.claim_key(swarm, role, i, "ab12")] = owner
@@ -408,6 +486,27 @@ def test_a_process_of_several_ids_holds_one_group_certificate(endpoint: str, cre
             assert inbox.wait_for(b"cmd 7")
             time.sleep(SETTLE)
     assert sorted(p for _, p in inbox.items) == [b"cmd 5", b"cmd 6", b"cmd 7"]
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(60)
+def test_a_robot_group_publishes_only_its_own_robots_poses(endpoint: str, creds: Path) -> None:
+    """A robot process of an auto-packed run (robot-8-9) puts its robots' poses; the router
+    drops its poses of robots 7 and 10 and the agent group's (agent-8-10) forged poses."""
+    swarm = protocol.new_swarm_name()
+    with join(endpoint, creds, "operator") as listener:
+        inbox = Inbox(listener, protocol.all_poses_selector(swarm))
+        with (
+            join(endpoint, creds, "robot", ROBOT_GROUP) as robots,
+            join(endpoint, creds, "agent", AGENT_GROUP) as brains,
+        ):
+            time.sleep(SETTLE)
+            for i in (7, 8, 9, 10):
+                brains.put(protocol.pose_key(swarm, i), f"forged {i}".encode())
+                robots.put(protocol.pose_key(swarm, i), f"pose {i}".encode())
+            assert inbox.wait_for(b"pose 9")
+            time.sleep(SETTLE)
+    assert sorted(p for _, p in inbox.items) == [b"pose 8", b"pose 9"]
 
 
 @pytest.mark.e2e

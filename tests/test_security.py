@@ -5,6 +5,7 @@ What each role may do once joined is tested in tests/test_secure_roles.py."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -13,7 +14,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from live_runs import alive_tokens, open_router
+from live_runs import alive_tokens, open_router, split_packing_team
 
 from covswarm import protocol
 from covswarm.protocol.security import make_test_credentials, read_identities
@@ -143,3 +144,44 @@ def test_covswarm_run_is_secured_with_one_flag(secure: Path, tmp_path: Path) -> 
         assert child[child.index("--secure") + 1] == str(secure)
     team = json.loads((out / "summary.json").read_text())["agent_stats"]["team"]
     assert team["drop_undecodable"]["max"] == 0  # drops reach summary.json, per reason
+
+
+@pytest.mark.e2e
+@pytest.mark.timeout(300)
+def test_an_auto_packed_secure_run_presents_exactly_its_group_certificates(tmp_path: Path) -> None:
+    """``covswarm run --secure`` under auto packing, pinned to one core: a small team whose
+    brains go in smaller processes than its robots (live_runs.split_packing_team). Without
+    their group certificates the launcher exits 2 naming the command that issues them; that
+    command issues each process's certificate and no other, and then the run completes with
+    every robot and brain of the packed processes joined on its own certificate."""
+    agents, rate = split_packing_team(cores=1)
+    folder = make_test_credentials(tmp_path / "secure", ids=[])
+    out = tmp_path / "run"
+    argv = [COVSWARM, "run", "--secure", str(folder), "--agents", str(agents), "--rate", str(rate)]
+    argv += ["--duration", "2", "--out", str(out)]
+
+    def one_core() -> None:  # in the launcher before exec: it and its children on one core
+        os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
+
+    refused = subprocess.run(
+        argv, cwd=REPO, capture_output=True, text=True, timeout=60, preexec_fn=one_core
+    )
+    assert refused.returncode == 2, refused.stdout[-2000:] + refused.stderr[-2000:]
+    command = refused.stderr.strip().rpartition(": ")[2].split()
+    assert command[:3] == ["covswarm", "credentials", str(folder)], refused.stderr
+    subprocess.run([COVSWARM, *command[1:]], check=True, capture_output=True, timeout=120)
+    run = subprocess.run(
+        argv, cwd=REPO, capture_output=True, text=True, timeout=280, preexec_fn=one_core
+    )
+    assert run.returncode == 0, run.stdout[-2000:] + run.stderr[-2000:]
+    launch = json.loads((out / "launch.json").read_text())
+    assert 1 < launch["agents_per_process"] < launch["robots_per_process"] == agents
+    presented = {
+        f"{child[2]}-{child[child.index('--ids') + 1]}"
+        for child in launch["argv"]
+        if child[2] in ("agent", "robot")
+    }
+    issued = {e["name"] for e in read_identities(folder) if e["role"] in ("agent", "robot")}
+    assert issued == presented
+    alive = json.loads((out / "summary.json").read_text())["alive_at_end"]
+    assert alive == {"agents": agents, "robots": agents}
