@@ -47,7 +47,7 @@ from covswarm.agent.neighborhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer, twist_from_wheels
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -718,9 +718,16 @@ class AgentBrain:
         if config.safety:
             velocity = self._safe(velocity, pose, now, now_wall)
         heading = pose[2]
-        wheels = wheel_speeds(
-            np.array([heading]), velocity[None], config.robot, config.projection_distance
+        # The command stays in force until the next step, about a period from now (longer
+        # when overloaded: the period is measured), or until the robot's command timeout.
+        wheels, capped = steer(
+            np.array([heading]),
+            velocity[None],
+            config.robot,
+            config.projection_distance,
+            hold=min(self._period, config.cmd_timeout),
         )
+        self.counters.turn_capped += int(capped[0])
         left, right = wheels[0].tolist()
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
@@ -891,6 +898,7 @@ class AgentBrain:
             "beacon_unconfirmed": self.neighborhood.unconfirmed_total,
             "step_errors": c.step_errors,
             "batch_fallbacks": c.batch_fallbacks,
+            "turn_capped": c.turn_capped,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),
