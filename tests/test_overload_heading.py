@@ -101,9 +101,7 @@ def starved_team(cost: float, n: int = 12, rounds: int = 60) -> list[float]:
     rng = np.random.default_rng(1)
     start = np.c_[rng.uniform(-1.8, -0.2, n), rng.uniform(0.2, 1.8, n)]
     clock = [0.0]
-    robots = [
-        RobotSim(i, (*start[i], rng.uniform(-math.pi, math.pi)), now=0.0) for i in range(n)
-    ]
+    robots = [RobotSim(i, (*start[i], rng.uniform(-math.pi, math.pi)), now=0.0) for i in range(n)]
     bus = _Bus(robots, clock)
     decoder = MessageDecoder()
     brains = [AgentBrain(i, AgentConfig(), decoder, clock=lambda: 0.0) for i in range(n)]
