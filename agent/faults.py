@@ -52,10 +52,9 @@ class PoseImpairment:
 def delay_steps(
     brains: Iterable[Any], delay: float, sleep: Callable[[float], None] = time.sleep
 ) -> None:
-    """Make every control step of each of ``brains`` (covswarm.agent.brain.AgentBrain) take
-    ``delay`` s more of wall time: a sleep as the step begins (AgentBrain.begin, which a lone
-    brain's tick and a packed process's batched steps both call), so a pack sees the time
-    pass between its brains' turns (``covswarm agent --fault-step-delay``).
+    """Make every control tick of each of ``brains`` (covswarm.agent.brain.AgentBrain) take
+    ``delay`` s more of wall time: a sleep after the tick, before its actions are carried
+    out (``covswarm agent --fault-step-delay``).
 
     An artificially starved process (issue 24, item 4): a process of K brains at R Hz holds
     about 1 / (R * delay) of its K steps per period, as on an overloaded machine, but the
@@ -67,10 +66,11 @@ def delay_steps(
     if delay == 0.0:
         return
     for brain in brains:
-        begin = brain.begin
+        tick = brain.tick
 
-        def slow(now: float, now_wall: float, begin: Callable = begin) -> Any:
+        def slow(now: float, now_wall: float, tick: Callable = tick) -> Any:
+            actions = tick(now, now_wall)
             sleep(delay)
-            return begin(now, now_wall)
+            return actions
 
-        brain.begin = slow
+        brain.tick = slow

@@ -229,17 +229,17 @@ def test_a_moving_density_is_broadcast_with_its_rates_scaled_by_the_pace() -> No
     assert then.time == pytest.approx(before.t)
 
 
-def test_the_step_delay_fault_sleeps_as_every_step_begins() -> None:
+def test_the_step_delay_fault_sleeps_after_every_tick() -> None:
     slept: list[float] = []
 
     class Brain:
-        def begin(self, now: float, wall: float) -> list:
-            slept.append(-1.0)  # the step itself, after the sleep
+        def tick(self, now: float, wall: float) -> list:
+            slept.append(-1.0)  # the tick itself, before the sleep
             return ["done"]
 
     brains = [Brain(), Brain()]
     delay_steps(brains, 0.04, sleep=slept.append)
-    assert brains[0].begin(0.0, WALL0) == ["done"] and slept == [0.04, -1.0]
+    assert brains[0].tick(0.0, WALL0) == ["done"] and slept == [-1.0, 0.04]
     delay_steps(brains[1:], 0.0, sleep=slept.append)  # no fault: left as it was
     for bad in (-0.1, float("nan")):
         with pytest.raises(ValueError, match="step delay"):

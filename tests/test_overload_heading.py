@@ -15,7 +15,6 @@ import pytest
 from covswarm import protocol
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.faults import delay_steps
 from covswarm.agent.pack import LocalBus, Pack
 from covswarm.sim_robot.process import RobotSim, step_robots
 from covswarm.tvd.coverage import aggregate_error
@@ -107,11 +106,14 @@ def starved_team(cost: float, n: int = 12, rounds: int = 60) -> list[float]:
     decoder = MessageDecoder()
     brains = [AgentBrain(i, AgentConfig(), decoder, clock=lambda: 0.0) for i in range(n)]
     pack = Pack(bus, SWARM, brains, hold_after=0.3, chunk=1, clock=lambda: 0.0)
+    for brain in brains:
+        begin = brain.begin
 
-    def sleep(seconds: float) -> None:  # the fake clock runs on while a brain steps
-        clock[0] += seconds
+        def costly(now: float, now_wall: float, begin=begin):  # type: ignore[no-untyped-def]
+            clock[0] += cost
+            return begin(now, now_wall)
 
-    delay_steps(brains, cost, sleep=sleep)  # --fault-step-delay, through the pack's steps
+        brain.begin = costly  # type: ignore[method-assign]
     errors = []
     for k in range(rounds):
         t = clock[0] = k * 0.1
