@@ -317,6 +317,8 @@ class AgentBrain:
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
         self._period = 1.0  # s, the last control period (at most 1)
+        self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
+        self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
         self._next_stats = -math.inf
         self._alive = False
@@ -659,6 +661,12 @@ class AgentBrain:
             kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
         self._period = period
+        # s the coming command is expected to stay in force (covswarm.tvd.drive.steer): the
+        # period measured between two mission steps, up to the robot's command timeout. None
+        # measured yet (the first mission step follows an idle one, up to a second ago): 0,
+        # no cap, rather than the first command crawling along the robot's start heading.
+        self._hold = min(period, config.cmd_timeout) if self._was_running else 0.0
+        self._was_running = self.running
         others[self.id] = me
         view = LocalView(self.id, others, vertices, velocities, kappa, density)
         return Begun(view, pose, now, now_wall, self._clock() - started)
@@ -718,15 +726,8 @@ class AgentBrain:
         if config.safety:
             velocity = self._safe(velocity, pose, now, now_wall)
         heading = pose[2]
-        # The command stays in force until the next step, about a period from now (longer
-        # when overloaded: the period is measured), or until the robot's command timeout.
-        wheels, capped = steer(
-            np.array([heading]),
-            velocity[None],
-            config.robot,
-            config.projection_distance,
-            hold=min(self._period, config.cmd_timeout),
-        )
+        robot, distance = config.robot, config.projection_distance
+        wheels, capped = steer(np.array([heading]), velocity[None], robot, distance, self._hold)
         self.counters.turn_capped += int(capped[0])
         left, right = wheels[0].tolist()
         # What the robot's centre will do, not what was asked: what our AgentState reports
