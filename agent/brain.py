@@ -664,7 +664,8 @@ class AgentBrain:
         # s the coming command is expected to stay in force (covswarm.tvd.drive.steer): the
         # period measured between two mission steps, up to the robot's command timeout. None
         # measured yet (the first mission step follows an idle one, up to a second ago): 0,
-        # no cap, rather than the first command crawling along the robot's start heading.
+        # no cap, rather than a first command that drives off along the start heading and
+        # barely turns (a cap for a 0.5 s hold).
         self._hold = min(period, config.cmd_timeout) if self._was_running else 0.0
         self._was_running = self.running
         others[self.id] = me
