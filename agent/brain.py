@@ -45,7 +45,7 @@ from covswarm.agent.neighborhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, twist_from_wheels, wheel_speeds
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer, twist_from_wheels
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -370,6 +370,8 @@ class AgentBrain:
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
         self._period = 1.0  # s, the last control period (at most 1)
+        self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
+        self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
         self._next_stats = -math.inf
         self._alive = False
@@ -726,6 +728,13 @@ class AgentBrain:
             kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
         self._period = period
+        # s the coming command is expected to stay in force (covswarm.tvd.drive.steer): the
+        # period measured between two mission steps, up to the robot's command timeout. None
+        # measured yet (the first mission step follows an idle one, up to a second ago): 0,
+        # no cap, rather than a first command that drives off along the start heading and
+        # barely turns (a cap for a 0.5 s hold).
+        self._hold = min(period, config.cmd_timeout) if self._was_running else 0.0
+        self._was_running = self.running
         others[self.id] = me
         view = LocalView(self.id, others, vertices, velocities, kappa, density)
         return Begun(view, pose, now, now_wall, self._clock() - started)
@@ -816,9 +825,9 @@ class AgentBrain:
         """The running decision for ``velocity`` (2,) m/s from ``pose`` (x, y, heading)."""
         config = self.config
         heading = pose[2]
-        wheels = wheel_speeds(
-            np.array([heading]), velocity[None], config.robot, config.projection_distance
-        )
+        robot, distance = config.robot, config.projection_distance
+        wheels, capped = steer(np.array([heading]), velocity[None], robot, distance, self._hold)
+        self.counters.turn_capped += int(capped[0])
         left, right = wheels[0].tolist()
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
@@ -984,6 +993,7 @@ class AgentBrain:
             "beacon_unconfirmed": self.neighborhood.unconfirmed_total,
             "step_errors": c.step_errors,
             "batch_fallbacks": c.batch_fallbacks,
+            "turn_capped": c.turn_capped,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),

@@ -59,3 +59,6 @@ class Counters:
     # steps of this brain whose batch of local steps raised (a bad view in it: covswarm.
     # agent.pack), taken again one by one so that only the bad one stops
     batch_fallbacks: int = 0
+    # mission steps whose turn rate was capped so that the command, held until the next
+    # step, turns the robot no further than to face its velocity (covswarm.tvd.drive.steer)
+    turn_capped: int = 0

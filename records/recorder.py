@@ -104,6 +104,7 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "stale_dropped": ("number", "neighbours dropped as stale"),
     "step_errors": ("number", "control steps that raised"),
     "batch_fallbacks": ("number", "batched local steps retaken one by one (a bad view)"),
+    "turn_capped": ("number", "steps whose turn rate was capped for the period held"),
     "mission_steps": ("number", "control steps while the mission ran"),
     "guarded": ("number", "steps the amplification guard rescaled"),
     "candidates": ("number", "robots known (dead-reckoned)"),

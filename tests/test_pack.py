@@ -52,6 +52,9 @@ class World:
         self.speed = speed
         configs = config if isinstance(config, dict) else {}
         config = AgentConfig(safety=True) if isinstance(config, dict) else config
+        # These robots drive a command for one period only (_move): a command timeout the
+        # brains must know, since they predict their robots and turn them by it.
+        config = config or AgentConfig(cmd_timeout=0.1)
         self.packs = []
         self.received: dict[int, list] = {}
         for ids in packing:

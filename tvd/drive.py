@@ -51,14 +51,38 @@ def wheel_speeds(
     velocities: np.ndarray,
     robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
+    hold: float | np.ndarray = 0.0,
 ) -> np.ndarray:
-    """Rim speeds (left, right) in m/s that make each robot follow a planar velocity.
+    """Rim speeds (left, right) in m/s that make each robot follow a planar velocity:
+    :func:`steer`'s wheels."""
+    return steer(headings, velocities, robot, projection_distance, hold)[0]
 
-    headings: (n,) rad; velocities: (n, 2) m/s. Returns (n, 2) [left, right].
+
+def steer(
+    headings: np.ndarray,
+    velocities: np.ndarray,
+    robot: DiffDrive = KHEPERA_IV,
+    projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
+    hold: float | np.ndarray = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Rim speeds (left, right) in m/s that make each robot follow a planar velocity, and
+    which robots' turn rate was capped for ``hold``.
+
+    headings: (n,) rad; velocities: (n, 2) m/s; hold: s the command will stay in force,
+    scalar or (n,) (0: not known, no cap). Returns wheels (n, 2) [left, right] and
+    capped (n,) bool.
+
     Forward speed v = vx cos th + vy sin th, turn rate w = (-vx sin th + vy cos th) / l.
-    Saturation scales both wheels of a robot by the same factor so the curvature (the path)
-    is kept and only the speed along it drops. A robot with a non-finite heading or velocity
-    gets (0, 0): a stopped robot is safer than a NaN on the wire.
+    That turn rate is the derivative of a continuous loop: held for ``hold`` s it turns the
+    robot by w * hold = |u| sin(e) hold / l, e the angle from the heading to the velocity.
+    Once |u| hold / l exceeds 2 (0.8 m/s held 0.13 s at l = 0.05 m) the heading overshoots
+    the velocity's direction by more than it was off, and a robot far from its goal spins
+    in place instead of driving (issue 24: an overloaded team, ~3 Hz, left robots behind
+    spinning). So |w| is capped at |e| / hold: the held command at most turns the robot to
+    face the velocity. Saturation then scales both wheels of a robot by the same factor so
+    the curvature (the path) is kept and only the speed along it drops. A robot with a
+    non-finite heading or velocity gets (0, 0): a stopped robot is safer than a NaN on the
+    wire.
     """
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
@@ -66,19 +90,29 @@ def wheel_speeds(
     velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
     if headings.shape[0] != velocities.shape[0]:
         raise ValueError(f"{headings.shape[0]} headings but {velocities.shape[0]} velocities")
+    hold = np.broadcast_to(np.asarray(hold, dtype=float), headings.shape)
+    if not np.all(hold >= 0.0):
+        raise ValueError(f"hold must be >= 0 s, got {hold}")
     half_track = 0.5 * robot.wheel_separation
-    with np.errstate(invalid="ignore", over="ignore"):  # non-finite rows are zeroed below
+    with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
+        # non-finite rows are zeroed below
         cos, sin = np.cos(headings), np.sin(headings)
         vx, vy = velocities[:, 0], velocities[:, 1]
         v = vx * cos + vy * sin
-        w = (-vx * sin + vy * cos) / projection_distance
+        lateral = -vx * sin + vy * cos
+        w = lateral / projection_distance
+        # |e| / hold, and no cap (inf) where the hold is not known
+        limit = np.where(hold > 0.0, np.abs(np.arctan2(lateral, v)) / hold, np.inf)
+        capped = np.abs(w) > limit
+        w = np.where(capped, np.copysign(limit, w), w)
         wheels = np.stack([v - w * half_track, v + w * half_track], axis=1)
-    wheels[~np.isfinite(wheels).all(axis=1)] = 0.0
+    bad = ~np.isfinite(wheels).all(axis=1)
+    wheels[bad] = 0.0
     peak = np.abs(wheels).max(axis=1, initial=0.0)
     scale = np.where(
         peak > robot.max_wheel_speed, robot.max_wheel_speed / np.maximum(peak, 1e-300), 1.0
     )
-    return wheels * scale[:, None]
+    return wheels * scale[:, None], capped & ~bad
 
 
 def twist_from_wheels(
