@@ -231,7 +231,7 @@ def run_swarm(run: RunConfig) -> None:
     console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
-    if (note := capacity_note(here, cores, wall_rate)) is not None:
+    if (note := capacity_note(here, cores, run.rate, run.time_scale)) is not None:
         console.log(f"[yellow]warning: {note}")
     with zenoh_session(
         run.connect, max(1000, 4 * n), run.router_listen, run.router_connect, secure=run.secure

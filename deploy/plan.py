@@ -92,17 +92,20 @@ def auto_per_process(agents: int, cores: int, rate: float = 10.0) -> int:
     return max(1, min(per_core, int(PERIOD_SHARE / (rate * BRAIN_TICK))))
 
 
-def capacity_note(agents: int, cores: int, rate: float) -> str | None:
-    """What the launcher says when ``agents`` brains at ``rate`` Hz (wall time) do not fit
-    ``cores`` cores (:func:`fits`); None when they do."""
-    if fits(agents, cores, rate):
+def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0) -> str | None:
+    """What the launcher says when ``agents`` brains at ``rate`` Hz of mission time, run at
+    ``time_scale`` (mission s per wall s), do not fit ``cores`` cores (:func:`fits`); None
+    when they do."""
+    wall_rate = rate * time_scale
+    if fits(agents, cores, wall_rate):
         return None
-    need = agents * rate * BRAIN_TICK
-    held = AGENT_SHARE * max(cores, 1) / (agents * BRAIN_TICK)
+    need = agents * wall_rate * BRAIN_TICK
+    held = AGENT_SHARE * max(cores, 1) / (agents * BRAIN_TICK)  # Hz of wall time
     return (
-        f"{agents} brains at {rate:g} Hz need ~{need:.1f} cores of agent CPU (~"
-        f"{1e3 * BRAIN_TICK:.1f} ms a brain-tick, covswarm bench --brain-tick); this host has "
-        f"{cores}: expect about {held:.2g} Hz, or run at --time-scale {held / rate:.2g}"
+        f"{agents} brains at {rate:g} Hz (x{time_scale:g}: {wall_rate:g} Hz of wall time) "
+        f"need ~{need:.1f} cores of agent CPU (~{1e3 * BRAIN_TICK:.1f} ms a brain-tick, "
+        f"covswarm bench --brain-tick); this host has {cores}: expect about "
+        f"{held / time_scale:.2g} Hz, or run at --time-scale {held / rate:.2g}"
     )
 
 
