@@ -59,19 +59,21 @@ class ChildSpec:
 # unit of failure, as on real robots; 100 robots one per process took 9 minutes to start,
 # docs/scaling.md). Beyond, packing follows what holds real time, from the CPU cost of one
 # brain-tick (a brain's whole period in a packed process: draining, decoding, step, filter,
-# encoding, puts), BRAIN_TICK, measured by ``covswarm bench --brain-tick`` (docs/scaling.md,
-# "Brain-tick": 1.7-1.9 ms of CPU for 50 to 500 brains per process on this 2-core VM):
+# encoding, puts), BRAIN_TICK, measured by ``covswarm bench --brain-tick --brain-tick-sizes
+# 50,200,500`` (docs/scaling.md, "Brain-tick"): 0.52-0.71 ms of CPU for 50 to 500 brains per
+# process on this 2-core VM, twice, 2026-11-27 09:00-09:03 UTC, load 2.1-6.0 (main at
+# c2a33a3, brainbatch merged up to 111b82c; it was 1.7-1.9 ms before):
 # - if the team fits, agents x rate x BRAIN_TICK within AGENT_SHARE of the cores (the rest
 #   is the robots', the router's and the coordinator's), one agent process per core, of
 #   at most PERIOD_SHARE / (rate x BRAIN_TICK) brains each: a process steps its brains one
-#   after the other, and that keeps its batch within half a period (27 at 10 Hz);
+#   after the other, and that keeps its batch within half a period (71 at 10 Hz);
 # - if it does not, no packing holds the rate: one agent process per core, as many brains
 #   as it takes. Fewer processes start sooner (each costs its imports and ~80 MB) and share
 #   more decoding; the brains whose turn comes after a period's deadline hold (agent.pack)
 #   either way, and the launcher says which rate the machine could hold
 #   (:func:`capacity_note`).
 SOLO_PER_CORE = 8
-BRAIN_TICK = 1.8e-3  # s of CPU per brain and control period, packed (covswarm bench)
+BRAIN_TICK = 0.7e-3  # s of CPU per brain and control period, packed (covswarm bench)
 AGENT_SHARE = 0.8  # of the host's cores, for the agents
 PERIOD_SHARE = 0.5  # of a control period, for one process's batch of brains
 
