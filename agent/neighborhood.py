@@ -157,16 +157,6 @@ class Neighborhood:
         self.poses: dict[int, Track] = {}
         self.state_tracks: dict[int, Track] = {}
         self.beacons: dict[int, Track] = {}
-        # The beacons as arrays in the order of ``beacons``, for refresh() to test them all
-        # at once (a brain keeps ~200 of them, mostly robots it never hears otherwise):
-        # id -> row, ids (b,), rows (b, 3) of x, y (m) and receipt time, and (b,) when we
-        # last heard the robot's own pose or state (-inf: not since its beacon's row was
-        # made, or longer ago than any live beacon). Rows are rebuilt only when ids change.
-        self._beacon_row: dict[int, int] = {}
-        self._beacon_ids = np.zeros(0, dtype=np.int64)
-        self._beacon_rows = np.zeros((0, 3))
-        self._beacon_heard = np.zeros(0)
-        self._beacons_stale = False
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
         # relayer id -> (its AgentState.relay entries, when received)
         self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
@@ -207,13 +197,13 @@ class Neighborhood:
 
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         self.poses[pose.id] = Track(pose.x, pose.y, now)
-        self._hear(pose.id, now)
+        self._heard[pose.id] = now
         self.asked.pop(pose.id, None)
         self._revive(pose.id, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
-        self._hear(state.id, now)
+        self._heard[state.id] = now
         self.asked.pop(state.id, None)
         self._revive(state.id, "agent")
         self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
@@ -222,20 +212,8 @@ class Neighborhood:
         else:
             self.relays[state.id] = (state.relay, now)
 
-    def _hear(self, rid: int, now: float) -> None:
-        """Robot ``rid``'s own pose or state was received at ``now``."""
-        self._heard[rid] = now
-        row = self._beacon_row.get(rid)
-        if row is not None:
-            self._beacon_heard[row] = now
-
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
-        row = self._beacon_row.get(beacon.id)
-        if row is None:
-            self._beacons_stale = True
-        else:
-            self._beacon_rows[row] = (beacon.x, beacon.y, now)
         asked = self.asked.get(beacon.id)
         if asked is not None and now - asked >= CONFIRMATION_RETRY:
             del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
@@ -343,55 +321,29 @@ class Neighborhood:
         # A beacon only while it is the newest news of its robot: one that went stale after
         # we heard its state must not bring back where it was seconds ago.
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
-        if self._beacons_stale:
-            self._index_beacons()
-        rows, row_of = self._beacon_rows, self._beacon_row
-        received = rows[:, 2]
-        usable = (received >= now - self.beacon_timeout) & (self._beacon_heard < received)
-        for rid in itertools.chain(reckoned, dead):
-            row = row_of.get(rid)
-            if row is not None:
-                usable[row] = False
-        unconfirmed = {}
-        tokens, confirmation = self.liveliness.tokens, self.confirmation
-        for rid, asked in self.asked.items():
-            row = row_of.get(rid)
-            if row is not None and usable[row] and rid not in tokens and now - asked > confirmation:
-                usable[row] = False
-                unconfirmed[rid] = (float(rows[row, 0]), float(rows[row, 1]))
-        picked = np.flatnonzero(usable)
-        beacon_ids = self._beacon_ids[picked]
-        beacon_table = np.zeros((len(picked), 4))
-        beacon_table[:, :2] = rows[picked, :2]
-        ids = beacon_ids.tolist()
-        self.beacon_only = set(ids)
+        oldest = now - self.beacon_timeout
+        beacon_only, unconfirmed = set(), {}
+        heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
+        known, never, confirmation = reckoned.keys() | dead.keys(), -math.inf, self.confirmation
+        for rid, track in self.beacons.items():
+            received = track.received
+            if rid not in known and received >= oldest and heard.get(rid, never) < received:
+                if rid not in tokens and now - asked.get(rid, now) > confirmation:
+                    unconfirmed[rid] = (track.x, track.y)
+                else:
+                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+                    beacon_only.add(rid)
+        self.beacon_only = beacon_only
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
-        head = np.fromiter(
-            itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
-        ).reshape(-1, 4)
-        head_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
-        reckoned.update(zip(ids, map(tuple, beacon_table.tolist()), strict=True))
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
-        self.table = np.concatenate((head, beacon_table))
-        self.table_ids = np.concatenate((head_ids, beacon_ids))
+        rows = itertools.chain.from_iterable(reckoned.values())
+        self.table = np.fromiter(rows, dtype=float, count=4 * len(reckoned)).reshape(-1, 4)
+        self.table_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
-
-    def _index_beacons(self) -> None:
-        """Rebuild the beacon arrays from ``beacons`` (a robot's first beacon, or forgotten
-        ones)."""
-        beacons, heard, never = self.beacons, self._heard, -math.inf
-        self._beacon_row = {rid: row for row, rid in enumerate(beacons)}
-        self._beacon_ids = np.fromiter(beacons, dtype=np.int64, count=len(beacons))
-        rows = itertools.chain.from_iterable((t.x, t.y, t.received) for t in beacons.values())
-        self._beacon_rows = np.fromiter(rows, dtype=float, count=3 * len(beacons)).reshape(-1, 3)
-        self._beacon_heard = np.fromiter(
-            (heard.get(rid, never) for rid in beacons), dtype=float, count=len(beacons)
-        )
-        self._beacons_stale = False
 
     def within(self, x: float, y: float, radius: float) -> np.ndarray:
         """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
@@ -409,7 +361,6 @@ class Neighborhood:
         ):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
-                self._beacons_stale |= table is self.beacons
         for rid in [rid for rid in self.asked if rid not in self.beacons]:
             del self.asked[rid]
         deaths = self.liveliness.deaths
