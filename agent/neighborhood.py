@@ -309,31 +309,36 @@ class Neighborhood:
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
+        # The loops below run over every robot known (~250 at the paper's density), each
+        # control period: membership tests rather than dict.get calls, sets built at once.
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
         for relayer, (entries, received) in self.relays.items():
             if received < fresh or relayer in dead:
                 continue
             lead = min(now - received, DEAD_RECKONING_LIMIT)
             for rid, x, y, vx, vy in entries:
-                if rid not in skip and relayed.get(rid, -math.inf) < received:
+                if rid not in skip and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         # A beacon only while it is the newest news of its robot: one that went stale after
         # we heard its state must not bring back where it was seconds ago.
         # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
         oldest = now - self.beacon_timeout
-        beacon_only, unconfirmed = set(), {}
+        unconfirmed = {}
         heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
-        known, never, confirmation = reckoned.keys() | dead.keys(), -math.inf, self.confirmation
+        known, confirmation = reckoned.keys() | dead.keys(), self.confirmation
         for rid, track in self.beacons.items():
             received = track.received
-            if rid not in known and received >= oldest and heard.get(rid, never) < received:
-                if rid not in tokens and now - asked.get(rid, now) > confirmation:
+            if (
+                rid not in known
+                and received >= oldest
+                and (rid not in heard or heard[rid] < received)
+            ):
+                if rid not in tokens and (now - asked[rid] if rid in asked else 0.0) > confirmation:
                     unconfirmed[rid] = (track.x, track.y)
                 else:
                     reckoned[rid] = (track.x, track.y, 0.0, 0.0)
-                    beacon_only.add(rid)
-        self.beacon_only = beacon_only
+        self.beacon_only = reckoned.keys() - known
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
