@@ -94,7 +94,7 @@ from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import delay_steps
 from covswarm.agent.link import ZenohBus
 from covswarm.agent.metrics import Counters
-from covswarm.agent.pack import Pack
+from covswarm.agent.pack import Pack, collect_less
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import session_config
 from covswarm.runtime.claims import claim_or_refuse
@@ -161,6 +161,7 @@ def run_agents(
             for brain in brains:
                 claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
             pack = Pack(ZenohBus(session), swarm, brains, hold_after=HOLD_AFTER_PERIODS / rate)
+            collect_less()
             while not stop.is_set():
                 ticker.wait(stop)
                 pack.tick(ticker.now, wall_clock, ticker.deadline)

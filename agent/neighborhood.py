@@ -13,6 +13,7 @@ import bisect
 import itertools
 import math
 from collections.abc import Iterable
+from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,6 +158,13 @@ class Neighborhood:
         self.poses: dict[int, Track] = {}
         self.state_tracks: dict[int, Track] = {}
         self.beacons: dict[int, Track] = {}
+        self._beacons_changed = 0  # beacons added or forgotten (keys the cache below)
+        # What refresh() took from the beacons last, while it holds: (key, computed at, the
+        # oldest beacon in it (s; valid while fresh), id -> x, y, 0, 0 in the order of
+        # ``beacons``, their table rows, id -> row).
+        # Most of a brain's candidates are beacon-only robots that change far less often
+        # than every control period, and rebuilding them each period was a fifth of it.
+        self._beacon_cache: tuple | None = None
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
         # relayer id -> (its AgentState.relay entries, when received)
         self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
@@ -184,7 +192,7 @@ class Neighborhood:
         # (ask()); the candidates of the last step known only from beacons; those left out
         # of it for want of confirmation (id -> x, y), and how many were so left out in all
         self.asked: dict[int, float] = {}
-        self.beacon_only: set[int] = set()
+        self.beacon_only: AbstractSet[int] = set()
         self.unconfirmed: dict[int, tuple[float, float]] = {}
         self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
@@ -214,10 +222,28 @@ class Neighborhood:
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
+        self._update_beacon_cache(beacon)
         asked = self.asked.get(beacon.id)
         if asked is not None and now - asked >= CONFIRMATION_RETRY:
             del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
         self._revive(beacon.id, "agent")
+
+    def _update_beacon_cache(self, beacon: protocol.Beacon) -> None:
+        """Keep refresh()'s beacon cache valid through a new beacon where it can (a team of
+        N hears N / beacon_period of them a second): a beacon-only robot's row moves in
+        place (the cache then expires early, with its previous beacon: harmless); a robot
+        known otherwise stays out of it while it is; any other one invalidates it."""
+        cache = self._beacon_cache
+        if cache is not None:
+            (_, known, _), _, _, rows, table, index = cache
+            row = index.get(beacon.id)
+            if row is not None:
+                rows[beacon.id] = (beacon.x, beacon.y, 0.0, 0.0)
+                table[row, :2] = (beacon.x, beacon.y)
+                return
+            if beacon.id in known:
+                return
+        self._beacons_changed += 1
 
     def share(self, liveliness: Liveliness) -> None:
         """Follow the token changes of ``liveliness``, the process's (covswarm.agent.pack):
@@ -309,41 +335,84 @@ class Neighborhood:
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
+        # The loops below run over every robot known (~250 at the paper's density), each
+        # control period: membership tests rather than dict.get calls, sets built at once.
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
         for relayer, (entries, received) in self.relays.items():
             if received < fresh or relayer in dead:
                 continue
             lead = min(now - received, DEAD_RECKONING_LIMIT)
             for rid, x, y, vx, vy in entries:
-                if rid not in skip and relayed.get(rid, -math.inf) < received:
+                if rid not in skip and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
-        # A beacon only while it is the newest news of its robot: one that went stale after
-        # we heard its state must not bring back where it was seconds ago.
-        # Unconfirmed past BEACON_CONFIRMATION: not a candidate (module constant's notes).
-        oldest = now - self.beacon_timeout
-        beacon_only, unconfirmed = set(), {}
-        heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
-        known, never, confirmation = reckoned.keys() | dead.keys(), -math.inf, self.confirmation
-        for rid, track in self.beacons.items():
-            received = track.received
-            if rid not in known and received >= oldest and heard.get(rid, never) < received:
-                if rid not in tokens and now - asked.get(rid, now) > confirmation:
-                    unconfirmed[rid] = (track.x, track.y)
-                else:
-                    reckoned[rid] = (track.x, track.y, 0.0, 0.0)
-                    beacon_only.add(rid)
-        self.beacon_only = beacon_only
+        known = reckoned.keys() | dead.keys()
+        # The beacons' part (_from_beacons) depends on nothing but this key and time while
+        # no robot awaits confirmation (then none is unconfirmed either): the heard times
+        # of the robots not in ``known`` change only as they enter it.
+        key = (self._beacons_changed, known, self.liveliness.serial)
+        cache = self._beacon_cache
+        if (
+            cache is not None
+            and not self.asked
+            and cache[0] == key
+            and cache[1] <= now
+            and cache[2] >= now - self.beacon_timeout
+        ):
+            _, _, _, rows, beacon_table, _ = cache
+            unconfirmed: dict[int, tuple[float, float]] = {}
+        else:
+            rows, unconfirmed, first = self._from_beacons(now, known)
+            beacon_table = np.array(list(rows.values()), dtype=float).reshape(-1, 4)
+            self._beacon_cache = None
+            if not self.asked:
+                index = {rid: row for row, rid in enumerate(rows)}
+                self._beacon_cache = (key, now, first, rows, beacon_table, index)
+        self.beacon_only = rows.keys()
+        head = np.fromiter(
+            itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
+        ).reshape(-1, 4)
+        head_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
+        reckoned.update(rows)
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
         self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
         self.reckoned, self.first_hand = reckoned, first_hand
-        rows = itertools.chain.from_iterable(reckoned.values())
-        self.table = np.fromiter(rows, dtype=float, count=4 * len(reckoned)).reshape(-1, 4)
-        self.table_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
+        self.table = np.concatenate((head, beacon_table))
+        self.table_ids = np.concatenate(
+            (head_ids, np.fromiter(rows, dtype=np.int64, count=len(rows)))
+        )
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
+
+    def _from_beacons(
+        self, now: float, known: set[int]
+    ) -> tuple[dict[int, Reckoned], dict[int, tuple[float, float]], float]:
+        """The beacon-only candidates (id -> x, y, 0, 0, in the order of ``beacons``), the
+        robots left out for want of confirmation (id -> x, y) and the oldest receipt time
+        among the first (s; they hold with the same inputs while it is fresh). A beacon
+        only while it is the newest news of its robot (one that went stale after we heard
+        its state must not bring back where it was seconds ago); unconfirmed past
+        BEACON_CONFIRMATION: no candidate (module notes)."""
+        oldest = now - self.beacon_timeout
+        rows: dict[int, Reckoned] = {}
+        unconfirmed = {}
+        heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
+        confirmation, first = self.confirmation, math.inf
+        for rid, track in self.beacons.items():
+            received = track.received
+            if (
+                rid not in known
+                and received >= oldest
+                and (rid not in heard or heard[rid] < received)
+            ):
+                if rid not in tokens and (now - asked[rid] if rid in asked else 0.0) > confirmation:
+                    unconfirmed[rid] = (track.x, track.y)
+                else:
+                    rows[rid] = (track.x, track.y, 0.0, 0.0)
+                    first = min(first, received)
+        return rows, unconfirmed, first
 
     def within(self, x: float, y: float, radius: float) -> np.ndarray:
         """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
@@ -361,6 +430,7 @@ class Neighborhood:
         ):
             for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
                 del table[rid]
+                self._beacons_changed += 1
         for rid in [rid for rid in self.asked if rid not in self.beacons]:
             del self.asked[rid]
         deaths = self.liveliness.deaths

@@ -26,6 +26,7 @@ step itself; one clock, since the live runs are on one machine).
 from __future__ import annotations
 
 import csv
+import gc
 import json
 import math
 import time
@@ -396,15 +397,16 @@ def time_brain_ticks(
     validating (shared per process), each brain's bookkeeping, the local steps (batched,
     the brains due together in chunks: covswarm.agent.pack.Pack.step), each brain's safety
     filter, wheel speeds, AgentState (with relay) and beacons, encoding the command and the state,
-    and the in-memory put that stands in for Zenoh's. Not timed: Zenoh itself (a put costs
-    ~30 us of CPU in a live process), the robots, the coordinator. Returns wall and CPU
+    and the in-memory put that stands in for Zenoh's, under the agent process's garbage
+    collection thresholds (covswarm.agent.pack.collect_less). Not timed: Zenoh itself (a
+    put costs ~30 us of CPU in a live process), the robots, the coordinator. Returns wall and CPU
     (process_time) microseconds per brain-tick, the mean of ``rounds`` periods, and the
     messages each brain received per tick.
     """
     from covswarm import protocol
     from covswarm.agent.brain import AgentBrain, AgentConfig
     from covswarm.agent.decoding import MessageDecoder
-    from covswarm.agent.pack import LocalBus, Pack
+    from covswarm.agent.pack import LocalBus, Pack, collect_less
 
     swarm = "bench"
     n = len(layout.positions)
@@ -422,6 +424,7 @@ def time_brain_ticks(
     period = 1.0 / rate
     wall_s = cpu_s = 0.0
     received = 0
+    thresholds = collect_less()  # as the agent process does (covswarm.agent.main)
     for k in range(warm + rounds):
         t = k * period
         bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, k + 1))
@@ -437,6 +440,7 @@ def time_brain_ticks(
             wall_s += time.perf_counter() - wall0
             cpu_s += time.process_time() - cpu0
             received += sum(b.counters.received for p in packs for b in p.brains.values()) - before
+    gc.set_threshold(*thresholds)
     ticks = rounds * n
     return {
         "brain_tick_us": wall_s / ticks * 1e6,

@@ -204,11 +204,12 @@ def _relay(max_n: int) -> Checker:
 
     def plain(items: list[Any]) -> tuple[tuple[int, float, float, float, float], ...] | None:
         # What every receiver decodes at the control rate from each neighbour: msgpack lists
-        # of an int and four floats. One type test and chained comparison per number (NaN
-        # fails it); anything else goes through the checkers below for the exact reason.
+        # of an int and four floats (tuples when an agent builds its own state). One type
+        # test and chained comparison per number (NaN fails it); anything else goes through
+        # the checkers below for the exact reason.
         out = []
         for entry in items:
-            if type(entry) is not list or len(entry) != 5:
+            if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
                 return None
             rid, x, y, vx, vy = entry
             if not (

@@ -241,6 +241,7 @@ def test_agent_state_relay() -> None:
     assert AgentState.decode(state.encode()) == state
     assert state.relay == ((2, 1.0, 2.0, 0.1, -0.1), (7, -3.0, 0.5, 0.0, 0.0))
     base = {**wire(state)}
+    fields = {"id": 4, "x": 0.5, "y": 0.5, "stamp": STAMP, "neighbors": [2, 7]}
     as_ints = AgentState.decode(packed({**base, "relay": [[2, 1, 2, 0, 0]]}))
     assert as_ints.relay == ((2, 1.0, 2.0, 0.0, 0.0),) and type(as_ints.relay[0][1]) is float
     too_many = [[i, 0.0, 0.0, 0.0, 0.0] for i in range(protocol.MAX_RELAY + 1)]
@@ -257,6 +258,11 @@ def test_agent_state_relay() -> None:
     ):
         with pytest.raises(ProtocolError, match=reason):
             AgentState.decode(packed({**base, "relay": bad}))
+        # An agent builds its own relay as tuples: checked the same way.
+        if isinstance(bad, list):
+            with pytest.raises(ProtocolError, match=reason):
+                AgentState(**{**fields, "relay": [tuple(entry) for entry in bad]})
+    assert AgentState(**{**fields, "relay": [tuple(entry) for entry in relay]}) == state
 
 
 # --- rejection --------------------------------------------------------------------------
