@@ -25,7 +25,8 @@ hung or dead before its token lapses is a fault the team covers for (its robot s
 its command timeout, docs/faults.md), not a machine that holds less; a starved brain
 still reports whenever it steps, with its low rate. The pace falls at once to the team's
 figure, rises by at most RISE_RATE per second, and moves only outside a dead band
-(DROP_BAND, RISE_BAND: report jitter does not make S surge and stall). A team holding
+(DROP_BAND, RISE_BAND: report jitter does not make S surge and stall), except that it
+climbs all the way back to 1 once the team holds its rate again. A team holding
 FULL of the rate holds it: a brain stepping 4 of 5 periods never holds its robot
 (covswarm.agent.pack holds it after three missed periods in a row) and its gain is
 sampled for the period it holds, so the script need not wait for it.

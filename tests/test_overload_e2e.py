@@ -44,12 +44,13 @@ def test_a_starved_team_slows_down_and_stays_together(tmp_path: Path) -> None:
     assert pace["pace_mean"] == pytest.approx(pace["held_rate_hz"] / 10.0, abs=0.15)
     assert pace["script_time"] == pytest.approx(DURATION)
     assert summary["mission_time"] > DURATION / 0.6
-    # The team stayed together: e_a never rose above its start and ended as an unstarved
-    # run's does (measured: starved and paced 0.008-0.013 m over the second half, unstarved
-    # 0.016 m, starved without pacing 0.31 m; bound 0.05 m, the fault tests' own).
+    # The team stayed together: e_a never rose far above its start and ended near an unstarved
+    # run's (measured with this mission, load 17-19: starved and paced 0.012-0.019 m over
+    # the second half and 0.006-0.011 m at the end; starved with --no-pace 0.50 m and 0.58 m;
+    # covswarm sim at 10 Hz 0.006 m and 0.013 m. Bound 0.05 m, the fault tests' own).
     with (out / "error.csv").open() as rows:
         errors = [float(row["e_a"]) for row in csv.DictReader(rows)]
-    assert max(errors) <= 1.1 * summary["initial_error"]
+    assert max(errors) <= 1.25 * summary["initial_error"]  # measured up to 1.06x: turning
     assert summary["steady_state_error_mean"] < 0.05
     assert summary["final_error"] < 0.05
     # The launcher says so in plain words.
