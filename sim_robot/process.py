@@ -134,8 +134,10 @@ class RobotSim:
             return False
         # The old command drives until now, the new one from now on (not back to the last
         # step: a command must not act before it arrived, which agents predicting their
-        # robot's pose from the commands they sent rely on).
-        self.step(now)
+        # robot's pose from the commands they sent rely on). Stepped to ``now`` already (a
+        # process's tick, :func:`step_with_commands`): nothing to drive.
+        if now != self._last_step:
+            self.step(now)
         # Decoding guarantees finite speeds; the model clamps them to this robot's limit.
         self.wheels = np.array([command.left, command.right])
         self.counters.driven = self.counters.driven or bool(self.wheels.any())
@@ -230,6 +232,30 @@ def step_robots(sims: Sequence[RobotSim], now: float) -> np.ndarray:
     poses[moving] = moved
     for k, row in zip(moving.tolist(), moved, strict=True):
         sims[k].pose = row
+    return poses
+
+
+def step_with_commands(
+    sims: Sequence[RobotSim],
+    received: Sequence[tuple[RobotSim, object]],
+    now: float,
+    now_wall: float,
+) -> np.ndarray:
+    """One tick of a robot process at ``now`` (monotonic; ``now_wall``: s since the epoch):
+    every robot of ``sims`` driven to ``now`` on the wheels it had, as one batch
+    (:func:`step_robots`), then ``received``, the tick's raw WheelCommand payloads as
+    (robot, payload) pairs in arrival order, applied (:meth:`RobotSim.on_command`); returns
+    the (n, 3) poses at ``now``.
+
+    The same as applying each command, then stepping the batch: every command of a tick
+    arrives at ``now``, and on_command drives its robot on the old wheels up to its arrival,
+    which the batch has done already. Stepping a robot alone for each command cost a numpy
+    batch of one per command: with 50 robots commanded at 30 Hz, half a robot process's
+    CPU.
+    """
+    poses = step_robots(sims, now)
+    for sim, payload in received:
+        sim.on_command(payload, now, now_wall)
     return poses
 
 
@@ -369,10 +395,12 @@ def run_robots(
                     if held.on_payload(sample.payload.to_bytes(), now):
                         for sim in sims:
                             sim.world = held.world
-                for sim, _, commands in links:
-                    while (sample := commands.try_recv()) is not None:
-                        sim.on_command(sample.payload.to_bytes(), now, wall)
-                step_robots(sims, now)
+                received = [
+                    (sim, sample.payload.to_bytes())
+                    for sim, _, commands in links
+                    for sample in iter(commands.try_recv, None)
+                ]
+                step_with_commands(sims, received, now, wall)
                 if not publish:
                     continue
                 for sim, publisher, _ in links:

@@ -11,7 +11,13 @@ import numpy as np
 import pytest
 
 from covswarm import protocol
-from covswarm.sim_robot.process import REST_POSE_RATE, PoseSchedule, RobotSim, step_robots
+from covswarm.sim_robot.process import (
+    REST_POSE_RATE,
+    PoseSchedule,
+    RobotSim,
+    step_robots,
+    step_with_commands,
+)
 from covswarm.tvd.drive import DiffDrive, integrate_one
 from covswarm.world.model import World
 
@@ -219,6 +225,48 @@ def test_a_batch_stops_at_walls_as_one_robot_does() -> None:
     )
     for got, want in zip(batch, alone, strict=True):
         np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
+
+
+def _tick_history(sims: list[RobotSim], tick, seed: int) -> list[np.ndarray]:
+    """Ticks every 0.05 s; on each, some robots receive one or two commands (none after
+    0.9 s, so they time out), handed to ``tick(sims, received, now)``; the (n, 3) poses
+    after each tick."""
+    rng = np.random.default_rng([seed, 2])
+    out = []
+    for k in range(1, 30):
+        now = 0.05 * k
+        received = [
+            (sim, command(*rng.uniform(-1.2, 1.2, 2), robot_id=sim.id))
+            for sim in sims
+            for _ in range(rng.choice(3, p=[0.5, 0.3, 0.2]) if now < 0.9 else 0)
+        ]
+        out.append(tick(sims, received, now))
+    return out
+
+
+def _command_then_step(sims: list[RobotSim], received: list, now: float) -> np.ndarray:
+    """The reference: each command drives its robot alone up to its arrival, then the
+    batch steps the rest."""
+    for sim, payload in received:
+        assert sim.on_command(payload, now, STAMP)
+    return step_robots(sims, now)
+
+
+@pytest.mark.parametrize("world", [None, World((-1.0, 1.0, -1.0, 1.0))])
+def test_a_tick_steps_the_batch_then_applies_its_commands(world: World | None) -> None:
+    """step_with_commands (one batch, then the commands) drives every robot as applying
+    each command alone and then stepping does: poses to 1e-12, and the same commands,
+    timeouts and wall stops counted."""
+    ticked, reference = _fleet(30, 4, world), _fleet(30, 4, world)
+    got = _tick_history(ticked, lambda s, r, now: step_with_commands(s, r, now, STAMP), 4)
+    want = _tick_history(reference, _command_then_step, 4)
+    for a, b in zip(got, want, strict=True):
+        np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
+    assert not np.allclose(got[0], got[-1])  # the robots did move
+    assert [s.counters for s in ticked] == [s.counters for s in reference]
+    assert sum(s.counters.timeouts for s in ticked) > 0
+    if world is not None:
+        assert sum(s.counters.contact_stops for s in ticked) > 0
 
 
 def test_robots_not_driven_yet_publish_at_the_rest_rate() -> None:
