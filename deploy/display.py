@@ -58,7 +58,29 @@ def render(progress: Progress) -> Any:
     return table
 
 
-def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> Any:
+def live_brain_tick(
+    result: RunResult, held_rate_hz: float | None, time_scale: float
+) -> float | None:
+    """CPU of the agent processes per brain-step during the mission, s: their CPU (% of a
+    core each, ``result.cpu``) over the steps their brains took per wall second, the held
+    rate (mission steps per mission s per brain, summary.json's pace) x the brains they host
+    (``result.members``) x ``time_scale`` (mission s per wall s). None without those
+    figures.
+
+    The live counterpart of ``covswarm bench --brain-tick`` (sans-IO, no router): it adds
+    what a real process pays for Zenoh and real traffic, and depends much less than the held
+    rate on how much CPU other programs left the run (a starved process steps less often;
+    each step costs somewhat more, as more messages wait for it).
+    """
+    cpu, brains = result.cpu.get("agent", []), sum(result.members.get("agent", []))
+    if not cpu or not brains or not held_rate_hz or len(cpu) != len(result.members["agent"]):
+        return None
+    return sum(cpu) / 100.0 / (held_rate_hz * brains * time_scale)
+
+
+def summary_table(
+    summary: dict[str, Any], result: RunResult, out_dir: Path, time_scale: float = 1.0
+) -> Any:
     """The closing table: errors, per-agent figures, memory, processes lost."""
     from rich.table import Table
 
@@ -111,6 +133,16 @@ def summary_table(summary: dict[str, Any], result: RunResult, out_dir: Path) -> 
             f"CPU per {role} process",
             f"mean {np.mean(values):.1f}%  max {max(values):.1f}% of a core (total "
             f"{sum(values):.0f}%)",
+        )
+    others = sum(sum(values) for role, values in result.cpu.items() if role != "agent")
+    if others:  # what the agents cannot have of the machine
+        table.add_row("CPU outside the agents", f"{others:.0f}% of a core")
+    held = (summary.get("pace") or {}).get("held_rate_hz")
+    if (tick := live_brain_tick(result, held, time_scale)) is not None:
+        table.add_row(
+            "CPU per brain-tick (live)",
+            f"{1e3 * tick:.2f} ms (agent processes' CPU / brain steps; sans-IO: covswarm "
+            "bench --brain-tick)",
         )
     lost = summary.get("lost_processes", [])
     table.add_row("liveliness lost", ", ".join(f"{e['role']} {e['id']}" for e in lost) or "none")

@@ -33,7 +33,7 @@ from rich.console import Console
 
 from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
-from covswarm.deploy.display import summary_table
+from covswarm.deploy.display import live_brain_tick, summary_table
 from covswarm.deploy.plan import (
     RunConfig,
     auto_robots_per_process,
@@ -270,12 +270,18 @@ def run_swarm(run: RunConfig) -> None:
             specs, session=session, swarm=swarm, agents=n, duration=duration, log_dir=log_dir,
             startup_timeout=run.startup_timeout, console=console,
         )  # fmt: skip
+    summary_path = out_dir / "summary.json"
+    summary = None
+    if summary_path.exists():
+        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    held = None if summary is None else (summary.get("pace") or {}).get("held_rate_hz")
     (out_dir / "resources.json").write_text(
         json.dumps(
             {
                 "rss_mb": result.rss,
                 "cpu_percent_of_core": result.cpu,
                 "robots_per_process": result.members,
+                "brain_tick_s": live_brain_tick(result, held, run.time_scale),
             },
             indent=1,
         )
@@ -283,9 +289,7 @@ def run_swarm(run: RunConfig) -> None:
         encoding="utf-8",
     )
     console.print()  # the live display's last frame ends without a newline off a terminal
-    summary_path = out_dir / "summary.json"
-    if summary_path.exists():
-        summary = json.loads(summary_path.read_text(encoding="utf-8"))
+    if summary is not None:
         # Robots count what they drop per reason and say it once, at exit: a flood of forged
         # or broken commands shows here, not only in their logs.
         summary["robot_drops"] = {
@@ -299,7 +303,7 @@ def run_swarm(run: RunConfig) -> None:
             summary_path.write_text(json.dumps(summary, indent=1) + "\n", encoding="utf-8")
         except OSError as exc:  # a full disk: the coordinator's summary stays as it was
             console.log(f"[yellow]robot drops not added to {summary_path}: {exc.strerror}")
-        console.print(summary_table(summary, result, out_dir))
+        console.print(summary_table(summary, result, out_dir, run.time_scale))
     elif not run.coordinator:
         console.log(f"the coordinator's host writes the summary; resources in {out_dir}")
     else:

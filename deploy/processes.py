@@ -38,13 +38,19 @@ class Child:
     exit_code: int | None = None
 
 
+# RunResult.cpu's role of the launcher process itself.
+LAUNCHER = "launcher"
+
+
 @dataclass
 class RunResult:
     """How the children of a run ended and what they used (the summary table shows it)."""
 
     exit_code: int
     rss: dict[str, list[float]]  # role -> RSS (MB) of each child at the end of the mission
-    cpu: dict[str, list[float]]  # role -> CPU use of each child during the mission, % of a core
+    # role -> CPU use of each child during the mission, % of a core; the launcher's own (its
+    # embedded router and display) under LAUNCHER.
+    cpu: dict[str, list[float]]
     members: dict[str, list[int]] = field(default_factory=dict)  # role -> robots per child
 
 

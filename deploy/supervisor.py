@@ -12,6 +12,7 @@ from typing import Any
 from covswarm.deploy.display import Progress, render
 from covswarm.deploy.plan import ChildSpec
 from covswarm.deploy.processes import (
+    LAUNCHER,
     Child,
     RunResult,
     cpu_seconds,
@@ -139,20 +140,24 @@ class Supervisor:
             self._measure_resources(now)
 
     def _cpu_times(self) -> dict[str, float | None]:
-        return {name: cpu_seconds(c.process.pid) for name, c in self.children.items()}
+        times = {name: cpu_seconds(c.process.pid) for name, c in self.children.items()}
+        times[LAUNCHER] = cpu_seconds(os.getpid())  # its embedded router serves every child
+        return times
 
     def _measure_resources(self, now: float) -> None:
         """RSS of every child at the end of the mission (all still up) and its CPU use
         since the mission started."""
         started, before = self._cpu_at_start or (now, {})
         after = self._cpu_times()
-        for name, child in self.children.items():
+        for child in self.children.values():
             if (mb := rss_mb(child.process.pid)) is not None:
                 self.rss.setdefault(child.spec.role, []).append(mb)
                 self.members.setdefault(child.spec.role, []).append(len(child.spec.members))
+        roles = {name: child.spec.role for name, child in self.children.items()}
+        for name, role in {**roles, LAUNCHER: LAUNCHER}.items():
             if now > started and before.get(name) is not None and after[name] is not None:
                 share = 100.0 * (after[name] - before[name]) / (now - started)
-                self.cpu.setdefault(child.spec.role, []).append(share)
+                self.cpu.setdefault(role, []).append(share)
 
     def stop_coordinator(self, received: list[int]) -> None:
         """SIGTERM makes a running coordinator end the mission early and write its outputs;

@@ -168,6 +168,30 @@ def test_display_says_when_the_mission_runs_slower_than_its_script(tmp_path: Pat
     assert "the machine held 4.1 Hz of 10 asked" in text and "ran at 0.45x" in text
 
 
+def test_the_live_brain_tick_is_the_agents_cpu_per_brain_step(tmp_path: Path) -> None:
+    """Two agent processes of 50 brains at 39.2 % and 39.6 % of a core, holding 13.05 Hz:
+    0.788 core-s per s over 1305 brain steps per s; at half speed (x0.5) the same CPU
+    buys half the steps per wall second, so each costs twice as much."""
+    from covswarm.deploy.display import live_brain_tick, summary_table
+    from covswarm.deploy.processes import LAUNCHER, RunResult
+
+    cpu = {"agent": [39.2, 39.6], "robot": [4.0, 5.0], "coordinator": [12.0], LAUNCHER: [8.0]}
+    result = RunResult(0, {}, cpu, {"agent": [50, 50], "robot": [50, 50], "coordinator": [1]})
+    assert live_brain_tick(result, 13.05, 1.0) == pytest.approx(0.788 / 1305)
+    assert live_brain_tick(result, 13.05, 0.5) == pytest.approx(2 * 0.788 / 1305)
+    assert live_brain_tick(result, None, 1.0) is None  # no agent reported a rate
+    unmeasured = RunResult(0, {}, {"agent": [39.2]}, {"agent": [50, 50]})  # one died early
+    assert live_brain_tick(unmeasured, 13.05, 1.0) is None
+    pace = {"enabled": True, "asked_rate_hz": 30.0, "held_rate_hz": 13.05,
+            "periods_missed": 0.56, "pace_min": 1.0, "pace_mean": 1.0, "script_time": 20.0,
+            "mission_time": 20.0}  # fmt: skip
+    summary = {"scenario": "circle", "pace": pace}
+    text = " ".join(_text(summary_table(summary, result, tmp_path)).split())
+    assert "CPU per brain-tick (live) │ 0.60 ms" in text
+    assert "CPU outside the agents │ 29% of a core" in text  # robots, coordinator, launcher
+    assert "CPU per launcher process │ mean 8.0%" in text
+
+
 def test_a_session_close_that_times_out_does_not_lose_the_run(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

@@ -259,6 +259,13 @@ def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> No
     assert team["step_errors"]["max"] == 0
     assert team["pose_age_ms_p50"]["min"] > 0.0
     resources = json.loads((out / "resources.json").read_text())
+    cpu = resources["cpu_percent_of_core"]
+    assert len(cpu["launcher"]) == 1 and cpu["launcher"][0] > 0.0  # its router's share
+    # The live brain-tick: 6 brains stepping at the held rate of mission time, half as often
+    # per wall second (x0.5), for the agent processes' CPU.
+    steps_per_wall_s = summary["pace"]["held_rate_hz"] * 6 * 0.5
+    assert resources["brain_tick_s"] == pytest.approx(sum(cpu["agent"]) / 100 / steps_per_wall_s)
+    assert 0.0 < resources["brain_tick_s"] < 0.05
     assert resources["robots_per_process"] == {"coordinator": [1], "robot": [3, 3],
                                                "agent": [3, 3]}  # fmt: skip
     assert swarm_pids(swarm) == set()
