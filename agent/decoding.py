@@ -8,6 +8,7 @@ domain that all of them follow, is parsed and validated once.
 
 from __future__ import annotations
 
+from collections import OrderedDict
 from functools import lru_cache
 
 import numpy as np
@@ -28,6 +29,37 @@ MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
 }
 # Sized for a tick's worth of distinct payloads of a 100-brain process.
 DECODE_CACHE = 4096
+# Domains whose checks are remembered. Brains take their turns one after another, each
+# handed every domain sample of the tick (a pack hands all of them on, in order: up to its
+# ring of 16): remembering only the last one made every brain check them all again when a
+# tick brought two or more (below 20 Hz held, 40-60 us each: 11 % of an agent process at
+# 8 Hz held, scripts/live_cpu.py, 27 Nov 2026).
+DOMAINS_REMEMBERED = 16
+
+
+class _ByIdentity:
+    """The answers for the last ``size`` objects asked about, by identity (the objects are
+    held, so their ids stay theirs)."""
+
+    def __init__(self, size: int) -> None:
+        self.size = size
+        self._answers: OrderedDict[tuple[int, ...], tuple[tuple[object, ...], object]] = (
+            OrderedDict()
+        )
+
+    def get(self, *objects: object) -> tuple[bool, object]:
+        """(True, the answer) if one is remembered for exactly these objects."""
+        entry = self._answers.get(tuple(map(id, objects)))
+        if entry is None or any(a is not b for a, b in zip(entry[0], objects, strict=True)):
+            return False, None
+        return True, entry[1]
+
+    def put(self, answer: object, *objects: object) -> None:
+        key = tuple(map(id, objects))
+        self._answers[key] = (objects, answer)
+        self._answers.move_to_end(key)
+        while len(self._answers) > self.size:
+            self._answers.popitem(last=False)
 
 
 class MessageDecoder:
@@ -35,9 +67,9 @@ class MessageDecoder:
 
     def __init__(self, cache_size: int = DECODE_CACHE) -> None:
         self._decode_bytes = lru_cache(maxsize=cache_size)(self._decode_uncached)
-        self._geometry_of: tuple[protocol.Domain, Density | None] | None = None
+        self._geometry_of = _ByIdentity(DOMAINS_REMEMBERED)
         self._world_of: tuple[protocol.World, World] | None = None
-        self._overlap_of: tuple[protocol.Domain, World, float] | None = None
+        self._overlap_of = _ByIdentity(DOMAINS_REMEMBERED)
         self._extrapolated: tuple | None = None  # (domain, density, key, answer)
 
     def decode(self, kind: str, payload: object) -> protocol.Message:
@@ -53,14 +85,16 @@ class MessageDecoder:
     def domain_geometry(self, domain: protocol.Domain) -> Density | None:
         """Check the domain's polygon and parse its density; ValueError if either is invalid.
 
-        The last valid domain is remembered: the brains of a process receive the same
-        decoded Domain object, and the polygon check costs more than the decoding.
+        The last DOMAINS_REMEMBERED valid domains are remembered: the brains of a process
+        receive the same decoded Domain objects, and the polygon check costs more than the
+        decoding.
         """
-        if self._geometry_of is not None and self._geometry_of[0] is domain:
-            return self._geometry_of[1]
+        known, density = self._geometry_of.get(domain)
+        if known:
+            return density  # type: ignore[return-value]
         validate_polygon(np.array(domain.vertices))
         density = None if domain.density is None else Density.from_dict(domain.density)
-        self._geometry_of = (domain, density)
+        self._geometry_of.put(density, domain)
         return density
 
     def extrapolated(
@@ -104,11 +138,11 @@ class MessageDecoder:
         that separates S from it (0 when S touches none). For two convex polygons that is
         the least overlap of their projections on the edge normals of both (the
         separating-axis theorem). Only obstacles whose bounding box meets S's are looked
-        at; the last answer is remembered (the brains of a process hold the same world and
-        receive the same Domain, 20 times a second)."""
-        cached = self._overlap_of
-        if cached is not None and cached[0] is domain and cached[1] is world:
-            return cached[2]
+        at; the answers for the last DOMAINS_REMEMBERED domains are remembered (the brains of
+        a process hold the same world and receive the same Domains, 20 times a second)."""
+        known, depth = self._overlap_of.get(domain, world)
+        if known:
+            return depth  # type: ignore[return-value]
         polygon = np.array(domain.vertices, dtype=float)
         low, high = polygon.min(axis=0), polygon.max(axis=0)
         deepest = 0.0
@@ -125,5 +159,5 @@ class MessageDecoder:
                 on_s.max(axis=0) - on_o.min(axis=0), on_o.max(axis=0) - on_s.min(axis=0)
             )
             deepest = max(deepest, float(overlap.min()))
-        self._overlap_of = (domain, world, deepest)
+        self._overlap_of.put(deepest, domain, world)
         return deepest

@@ -439,6 +439,36 @@ def test_brains_of_a_process_share_decoding() -> None:
         assert brain.drops.counts["undecodable"] == 1
 
 
+def test_a_tick_of_several_domains_checks_each_once(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Brains take turns, each handed every domain of the tick: with the last domain only
+    remembered, every brain checked them all again. A domain's check runs once while it is
+    among the last DOMAINS_REMEMBERED, and the answers are each domain's own."""
+    from covswarm.agent import decoding
+
+    checked = []
+    real = decoding.validate_polygon
+    monkeypatch.setattr(decoding, "validate_polygon", lambda v: checked.append(1) or real(v))
+    decoder = MessageDecoder()
+    small = [[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]
+    domains = [domain(seq=1), domain(seq=2, vertices=small)]
+    for _ in range(5):  # five brains' turns
+        for d in domains:
+            assert decoder.domain_geometry(d) is None  # no density
+    assert len(checked) == 2
+    many = [domain(seq=k) for k in range(decoding.DOMAINS_REMEMBERED + 1)]
+    for d in many:
+        decoder.domain_geometry(d)
+    decoder.domain_geometry(many[-1])
+    assert len(checked) == 2 + len(many)
+    decoder.domain_geometry(many[0])  # forgotten: checked again
+    assert len(checked) == 3 + len(many)
+    flat = domain(vertices=[[0.0, 0.0], [1.0, 1.0], [2.0, 2.0]])
+    for _ in range(2):  # a refused polygon is never remembered as valid
+        with pytest.raises(ValueError):
+            decoder.domain_geometry(flat)
+    assert len(checked) == 5 + len(many)
+
+
 # --- real processes ---------------------------------------------------------------------
 
 REPO = Path(__file__).resolve().parent.parent
