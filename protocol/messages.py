@@ -74,13 +74,22 @@ class ProtocolError(ValueError):
 Checker = Callable[[Any, str], Any]
 
 
+def _inline(check: Checker, test: str) -> Checker:
+    """``check`` with ``test``: a Python expression in ``{v}`` that is true exactly when the
+    value ``{v}`` is one ``check`` accepts *and returns unchanged* (canonical already). Each
+    message type compiles the tests of its fields into one expression (Message's fast
+    path); a value failing it goes through ``check`` for the verdict and the reason."""
+    check.inline = test  # type: ignore[attr-defined]
+    return check
+
+
 def _real(lo: float, hi: float) -> Checker:
     """A finite number in [lo, hi], returned as float."""
 
     def check(value: Any, name: str) -> float:
-        # Every field of every message goes through here: plain floats and ints take one
-        # type test and one chained comparison (NaN and inf fail it and are sorted out
-        # below); the ABC test (numpy scalars on the sending side) only runs for others.
+        # Plain floats and ints take one type test and one chained comparison (NaN and inf
+        # fail it and are sorted out below); the ABC test (numpy scalars on the sending
+        # side) only runs for others.
         kind = type(value)
         if kind is float or kind is int:
             out = float(value)
@@ -95,7 +104,10 @@ def _real(lo: float, hi: float) -> Checker:
             raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
         return out
 
-    return check
+    # A float (not an int, which check converts) within finite bounds: NaN fails the
+    # comparisons, and so does an infinity.
+    assert math.isfinite(lo) and math.isfinite(hi)
+    return _inline(check, f"type({{v}}) is float and {float(lo)!r} <= {{v}} <= {float(hi)!r}")
 
 
 def _positive(hi: float) -> Checker:
@@ -108,7 +120,7 @@ def _positive(hi: float) -> Checker:
             raise ProtocolError(f"{name}: must be > 0, got {out}")
         return out
 
-    return check
+    return _inline(check, f"type({{v}}) is float and 0.0 < {{v}} <= {float(hi)!r}")
 
 
 def _int(lo: int, hi: int) -> Checker:
@@ -125,7 +137,8 @@ def _int(lo: int, hi: int) -> Checker:
             raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
         return out
 
-    return check
+    # type(...) is int excludes bool, a subclass of int.
+    return _inline(check, f"type({{v}}) is int and {int(lo)!r} <= {{v}} <= {int(hi)!r}")
 
 
 def _optional(inner: Checker) -> Checker:
@@ -134,7 +147,8 @@ def _optional(inner: Checker) -> Checker:
     def check(value: Any, name: str) -> Any:
         return None if value is None else inner(value, name)
 
-    return check
+    test = getattr(inner, "inline", None)
+    return check if test is None else _inline(check, f"{{v}} is None or ({test})")
 
 
 def _choice(options: tuple[str, ...]) -> Checker:
@@ -148,6 +162,8 @@ def _choice(options: tuple[str, ...]) -> Checker:
 
 def _sequence(value: Any, name: str) -> list[Any]:
     """A list/tuple (or, when sending, anything with ``tolist`` such as a numpy array)."""
+    if type(value) is list or type(value) is tuple:  # msgpack's arrays, without hasattr
+        return list(value)
     if hasattr(value, "tolist") and not isinstance(value, (list, tuple)):
         value = value.tolist()
     if not isinstance(value, (list, tuple)):
@@ -183,8 +199,12 @@ def _ids(max_n: int) -> Checker:
         items = _sequence(list(value) if isinstance(value, (set, frozenset)) else value, name)
         if len(items) > max_n:
             raise ProtocolError(f"{name}: {len(items)} ids, at most {max_n}")
-        # The common case (plain ints in range, distinct) without a checker call per id.
-        if all(type(item) is int and 0 <= item <= MAX_ID for item in items):
+        # The common case (plain ints in range, distinct) without a checker call per id:
+        # a plain loop, faster than all() over a generator or passes of map().
+        for item in items:
+            if type(item) is not int or not 0 <= item <= MAX_ID:
+                break
+        else:
             unique = set(items)
             if len(unique) == len(items):
                 return tuple(sorted(unique))
@@ -259,12 +279,30 @@ def _relay(max_n: int) -> Checker:
     return check
 
 
+def _plain_stats(value: dict[Any, Any]) -> bool:
+    """Whether _stats would return the map ``value`` as it is: names of plain str of
+    1..MAX_STAT_NAME characters, values plain floats and ints within +-MAX_STAT (stricter
+    than ints need; NaN and infinities fail the comparison)."""
+    for key, item in value.items():
+        kind = type(item)
+        if not (
+            type(key) is str
+            and 1 <= len(key) <= MAX_STAT_NAME
+            and (kind is float or kind is int)
+            and -MAX_STAT <= item <= MAX_STAT
+        ):
+            return False
+    return True
+
+
 def _stats(value: Any, name: str) -> dict[str, float | int]:
     """Small flat map of named numbers (counters and measurements)."""
     if not isinstance(value, dict):
         raise ProtocolError(f"{name}: expected a map, got {type(value).__name__}")
     if len(value) > MAX_STATS:
         raise ProtocolError(f"{name}: {len(value)} entries, at most {MAX_STATS}")
+    if _plain_stats(value):
+        return dict(value)
     number = _real(-MAX_STAT, MAX_STAT)
     integer = _int(-MAX_SEQ, MAX_SEQ)
     out: dict[str, float | int] = {}
@@ -306,22 +344,75 @@ def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
         ) from exc
 
 
+def _compile_fill(spec: dict[str, Checker], optional: frozenset[str]) -> tuple[Callable, Callable]:
+    """The fast paths of a message type with fields ``spec``: (own, decoded).
+
+    ``own(message)`` checks a constructed message's fields, ``decoded(message, raw)`` fills
+    an empty one from an unpacked map whose keys were checked. Each tests every field
+    whose checker has an ``inline`` test (the numbers: _real, _int, _positive, optional
+    ones) in one compiled expression, and returns False, having set nothing, unless all
+    pass; then it runs the other fields' checkers as the slow path (Message._fill_checked)
+    would, in the same order. A False sends the message down the slow path, which finds
+    the reason; so both accept the same messages with the same fields (the fields of the
+    inline tests are ones their checkers return unchanged), and raise the same errors.
+    """
+    inline = {name: check.inline for name, check in spec.items() if hasattr(check, "inline")}
+    assert all(name.isidentifier() for name in spec)
+    test = " and ".join(f"({t.format(v='v_' + name)})" for name, t in inline.items()) or "True"
+    others = [name for name in spec if name not in inline]
+
+    def read(name: str) -> str:
+        return f"raw.get({name!r})" if name in optional else f"raw[{name!r}]"
+
+    own = ["def own(message):"]
+    own += [f"    v_{name} = message.{name}" for name in inline]
+    own += [f"    if not ({test}):", "        return False"]
+    own += [f"    set_(message, {n!r}, c_{n}(message.{n}, {n!r}))" for n in others]
+    decoded = ["def decoded(message, raw):"]
+    decoded += [f"    v_{name} = {read(name)}" for name in inline]
+    decoded += [f"    if not ({test}):", "        return False"]
+    decoded += [f"    set_(message, {n!r}, v_{n})" for n in inline]
+    decoded += [f"    set_(message, {n!r}, c_{n}({read(n)}, {n!r}))" for n in others]
+    namespace: dict[str, Any] = {"set_": object.__setattr__}
+    namespace.update({f"c_{name}": spec[name] for name in others})
+    exec("\n".join([*own, "    return True", *decoded, "    return True"]), namespace)
+    return namespace["own"], namespace["decoded"]
+
+
 class Message:
     """Base of all wire messages: schema-checked construction, encode and decode.
 
     Subclasses are frozen dataclasses whose fields are the wire fields (besides "v") and
     declare one checker per field in ``_SPEC``.
+
+    Every brain builds a command and a state and decodes a pose and a state per period, so
+    checking is on the hot path: each type compiles its number fields' checks into one
+    expression (_compile_fill), which takes the messages whose numbers are already plain
+    in-range floats and ints, and leaves any other to the field-by-field checkers.
     """
 
     __slots__ = ()
     _SPEC: ClassVar[dict[str, Checker]]
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
+    _fill_own: ClassVar[Callable[[Message], bool]]
+    _fill_decoded: ClassVar[Callable[[Message, dict[str, Any]], bool]]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own, decoded = _compile_fill(cls._SPEC, cls._OPTIONAL)
+        cls._fill_own, cls._fill_decoded = staticmethod(own), staticmethod(decoded)
 
     def __post_init__(self) -> None:
         # Canonicalise every field (float/int/tuple) so equal messages compare equal.
-        for name, check in self._SPEC.items():
-            object.__setattr__(self, name, check(getattr(self, name), name))
+        if not self._fill_own(self):
+            self._fill_checked({name: getattr(self, name) for name in self._SPEC})
         self._check_fields()
+
+    def _fill_checked(self, raw: dict[str, Any]) -> None:
+        """Set every field to its checker's verdict on ``raw``'s value (None if absent):
+        the slow path, which raises the first field's error."""
+        for name, check in self._SPEC.items():
+            object.__setattr__(self, name, check(raw.get(name), name))
 
     def _check_fields(self) -> None:
         """Checks across fields, after each field passed its own (override to add some)."""
@@ -367,8 +458,8 @@ class Message:
         # Built field by field rather than through __init__, which would check every field
         # a second time in __post_init__: decoding is what every receiver does per message.
         message = object.__new__(cls)
-        for name, check in spec.items():
-            object.__setattr__(message, name, check(raw.get(name), name))
+        if not cls._fill_decoded(message, raw):
+            message._fill_checked(raw)
         message._check_fields()
         return message
 
