@@ -190,6 +190,17 @@ def _points(min_n: int, max_n: int, bound: float) -> Checker:
     return check
 
 
+def _plain_ids(items: list[Any]) -> tuple[int, ...] | None:
+    """The ids as _ids's checker returns them if they are plain ints in range and distinct
+    (the common case, without a checker call per id), else None: the checker finds the
+    reason. A plain loop: faster than all() over a generator or passes of map()."""
+    for item in items:
+        if type(item) is not int or not 0 <= item <= MAX_ID:
+            return None
+    unique = set(items)
+    return tuple(sorted(unique)) if len(unique) == len(items) else None
+
+
 def _ids(max_n: int) -> Checker:
     """A list of distinct robot ids, returned as a sorted tuple."""
     one = _int(0, MAX_ID)
@@ -199,15 +210,8 @@ def _ids(max_n: int) -> Checker:
         items = _sequence(list(value) if isinstance(value, (set, frozenset)) else value, name)
         if len(items) > max_n:
             raise ProtocolError(f"{name}: {len(items)} ids, at most {max_n}")
-        # The common case (plain ints in range, distinct) without a checker call per id:
-        # a plain loop, faster than all() over a generator or passes of map().
-        for item in items:
-            if type(item) is not int or not 0 <= item <= MAX_ID:
-                break
-        else:
-            unique = set(items)
-            if len(unique) == len(items):
-                return tuple(sorted(unique))
+        if (fast := _plain_ids(items)) is not None:
+            return fast
         ids = [one(item, f"{name}[{i}]") for i, item in enumerate(items)]
         if len(set(ids)) != len(ids):
             raise ProtocolError(f"{name}: duplicate ids")
@@ -216,43 +220,44 @@ def _ids(max_n: int) -> Checker:
     return check
 
 
+def _plain_relay(items: list[Any]) -> tuple[tuple[int, float, float, float, float], ...] | None:
+    """The relay as _relay's checker returns it if it is what every receiver decodes at the
+    control rate from each neighbour (msgpack lists of an int and four floats; tuples when
+    an agent builds its own state), in bounds, of distinct ids; else None, and the checker
+    finds the reason. One type test and chained comparison per number (NaN fails it)."""
+    out = []
+    for entry in items:
+        if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
+            return None
+        rid, x, y, vx, vy = entry
+        if not (
+            type(rid) is int
+            and type(x) is float
+            and type(y) is float
+            and type(vx) is float
+            and type(vy) is float
+            and 0 <= rid <= MAX_ID
+            and -MAX_COORD <= x <= MAX_COORD
+            and -MAX_COORD <= y <= MAX_COORD
+            and -MAX_SPEED <= vx <= MAX_SPEED
+            and -MAX_SPEED <= vy <= MAX_SPEED
+        ):
+            return None
+        out.append((rid, x, y, vx, vy))
+    return tuple(out) if len({entry[0] for entry in out}) == len(out) else None
+
+
 def _relay(max_n: int) -> Checker:
     """A list of [id, x, y, vx, vy] of distinct robots, returned as a tuple of tuples."""
     one = _int(0, MAX_ID)
     coord = _real(-MAX_COORD, MAX_COORD)
     speed = _real(-MAX_SPEED, MAX_SPEED)
 
-    def plain(items: list[Any]) -> tuple[tuple[int, float, float, float, float], ...] | None:
-        # What every receiver decodes at the control rate from each neighbour: msgpack lists
-        # of an int and four floats (tuples when an agent builds its own state). One type
-        # test and chained comparison per number (NaN fails it); anything else goes through
-        # the checkers below for the exact reason.
-        out = []
-        for entry in items:
-            if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
-                return None
-            rid, x, y, vx, vy = entry
-            if not (
-                type(rid) is int
-                and type(x) is float
-                and type(y) is float
-                and type(vx) is float
-                and type(vy) is float
-                and 0 <= rid <= MAX_ID
-                and -MAX_COORD <= x <= MAX_COORD
-                and -MAX_COORD <= y <= MAX_COORD
-                and -MAX_SPEED <= vx <= MAX_SPEED
-                and -MAX_SPEED <= vy <= MAX_SPEED
-            ):
-                return None
-            out.append((rid, x, y, vx, vy))
-        return tuple(out) if len({entry[0] for entry in out}) == len(out) else None
-
     def check(value: Any, name: str) -> tuple[tuple[int, float, float, float, float], ...]:
         items = _sequence(value, name)
         if len(items) > max_n:
             raise ProtocolError(f"{name}: {len(items)} entries, at most {max_n}")
-        if (fast := plain(items)) is not None:
+        if (fast := _plain_relay(items)) is not None:
             return fast
         out = []
         for i, item in enumerate(items):
