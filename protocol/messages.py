@@ -23,6 +23,7 @@ from __future__ import annotations
 import math
 import numbers
 import re
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, ClassVar, TypeVar
@@ -74,12 +75,15 @@ class ProtocolError(ValueError):
 Checker = Callable[[Any, str], Any]
 
 
-def _inline(check: Checker, test: str) -> Checker:
+def _inline(check: Checker, test: str, real: bool = False) -> Checker:
     """``check`` with ``test``: a Python expression in ``{v}`` that is true exactly when the
     value ``{v}`` is one ``check`` accepts *and returns unchanged* (canonical already). Each
     message type compiles the tests of its fields into one expression (Message's fast
-    path); a value failing it goes through ``check`` for the verdict and the reason."""
+    path); a value failing it goes through ``check`` for the verdict and the reason.
+    ``real``: ``check`` returns float(value) for any float (numpy's float64 is one), so the
+    fast path may test that instead."""
     check.inline = test  # type: ignore[attr-defined]
+    check.real = real  # type: ignore[attr-defined]
     return check
 
 
@@ -107,7 +111,8 @@ def _real(lo: float, hi: float) -> Checker:
     # A float (not an int, which check converts) within finite bounds: NaN fails the
     # comparisons, and so does an infinity.
     assert math.isfinite(lo) and math.isfinite(hi)
-    return _inline(check, f"type({{v}}) is float and {float(lo)!r} <= {{v}} <= {float(hi)!r}")
+    test = f"type({{v}}) is float and {float(lo)!r} <= {{v}} <= {float(hi)!r}"
+    return _inline(check, test, real=True)
 
 
 def _positive(hi: float) -> Checker:
@@ -120,7 +125,7 @@ def _positive(hi: float) -> Checker:
             raise ProtocolError(f"{name}: must be > 0, got {out}")
         return out
 
-    return _inline(check, f"type({{v}}) is float and 0.0 < {{v}} <= {float(hi)!r}")
+    return _inline(check, f"type({{v}}) is float and 0.0 < {{v}} <= {float(hi)!r}", real=True)
 
 
 def _int(lo: int, hi: int) -> Checker:
@@ -148,7 +153,9 @@ def _optional(inner: Checker) -> Checker:
         return None if value is None else inner(value, name)
 
     test = getattr(inner, "inline", None)
-    return check if test is None else _inline(check, f"{{v}} is None or ({test})")
+    if test is None:
+        return check
+    return _inline(check, f"{{v}} is None or ({test})", inner.real)  # type: ignore[attr-defined]
 
 
 def _choice(options: tuple[str, ...]) -> Checker:
@@ -331,7 +338,9 @@ M = TypeVar("M", bound="Message")
 def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
     """Bytes (or a zenoh ZBytes) -> msgpack object, ProtocolError on anything malformed or
     longer than ``limit`` bytes."""
-    if isinstance(payload, (bytes, bytearray, memoryview)):
+    if type(payload) is bytes:  # the common case, without the isinstance tests below
+        data = payload
+    elif isinstance(payload, (bytes, bytearray, memoryview)):
         data = bytes(payload)
     elif hasattr(payload, "to_bytes"):  # zenoh.ZBytes
         data = payload.to_bytes()
@@ -360,6 +369,10 @@ def _compile_fill(spec: dict[str, Checker], optional: frozenset[str]) -> tuple[C
     would, in the same order. A False sends the message down the slow path, which finds
     the reason; so both accept the same messages with the same fields (the fields of the
     inline tests are ones their checkers return unchanged), and raise the same errors.
+
+    A sender's number fields may hold numpy's float64 (a float subclass): ``own`` tests
+    float(value) of a float field's value that is a float but not exactly one, as its
+    checker does, and sets the field to it if all pass.
     """
     inline = {name: check.inline for name, check in spec.items() if hasattr(check, "inline")}
     assert all(name.isidentifier() for name in spec)
@@ -369,9 +382,17 @@ def _compile_fill(spec: dict[str, Checker], optional: frozenset[str]) -> tuple[C
     def read(name: str) -> str:
         return f"raw.get({name!r})" if name in optional else f"raw[{name!r}]"
 
+    real = [name for name in inline if spec[name].real]  # type: ignore[attr-defined]
     own = ["def own(message):"]
     own += [f"    v_{name} = message.{name}" for name in inline]
+    for name in real:
+        own += [
+            f"    f_{name} = type(v_{name}) is not float and isinstance(v_{name}, float)",
+            f"    if f_{name}:",
+            f"        v_{name} = float(v_{name})",
+        ]
     own += [f"    if not ({test}):", "        return False"]
+    own += [f"    if f_{n}:\n        set_(message, {n!r}, v_{n})" for n in real]
     own += [f"    set_(message, {n!r}, c_{n}(message.{n}, {n!r}))" for n in others]
     decoded = ["def decoded(message, raw):"]
     decoded += [f"    v_{name} = {read(name)}" for name in inline]
@@ -382,6 +403,37 @@ def _compile_fill(spec: dict[str, Checker], optional: frozenset[str]) -> tuple[C
     namespace.update({f"c_{name}": spec[name] for name in others})
     exec("\n".join([*own, "    return True", *decoded, "    return True"]), namespace)
     return namespace["own"], namespace["decoded"]
+
+
+def _compile_wire(spec: dict[str, Checker], optional: frozenset[str]) -> Callable:
+    """``wire(message)``: the map Message.encode packs, the schema version and the fields
+    of ``spec`` in order, an ``optional`` one left out when None; built in one expression
+    rather than a loop over the fields."""
+    required = ", ".join(f"{name!r}: message.{name}" for name in spec if name not in optional)
+    lines = ["def wire(message):", f"    out = {{'v': {SCHEMA_VERSION!r}, {required}}}"]
+    for name in spec:
+        if name in optional:
+            lines += [
+                f"    if message.{name} is not None:",
+                f"        out[{name!r}] = message.{name}",
+            ]
+    namespace: dict[str, Any] = {}
+    exec("\n".join([*lines, "    return out"]), namespace)
+    return namespace["wire"]
+
+
+_PACKERS = threading.local()
+
+
+def _pack(value: Any) -> bytes:
+    """msgpack bytes of ``value``, by this thread's Packer: msgpack.packb builds a Packer per
+    call, most of its cost for a small message (a Packer is not shared between threads,
+    which may encode at once)."""
+    try:
+        packer = _PACKERS.packer
+    except AttributeError:
+        packer = _PACKERS.packer = msgpack.Packer(use_bin_type=True)
+    return packer.pack(value)
 
 
 class Message:
@@ -401,11 +453,13 @@ class Message:
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
     _fill_own: ClassVar[Callable[[Message], bool]]
     _fill_decoded: ClassVar[Callable[[Message, dict[str, Any]], bool]]
+    _wire: ClassVar[Callable[[Message], dict[str, Any]]]
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
         own, decoded = _compile_fill(cls._SPEC, cls._OPTIONAL)
         cls._fill_own, cls._fill_decoded = staticmethod(own), staticmethod(decoded)
+        cls._wire = staticmethod(_compile_wire(cls._SPEC, cls._OPTIONAL))
 
     def __post_init__(self) -> None:
         # Canonicalise every field (float/int/tuple) so equal messages compare equal.
@@ -424,12 +478,7 @@ class Message:
 
     def encode(self) -> bytes:
         """msgpack bytes of this message, with the schema version."""
-        wire: dict[str, Any] = {"v": SCHEMA_VERSION}
-        for name in self._SPEC:
-            value = getattr(self, name)
-            if value is not None or name not in self._OPTIONAL:
-                wire[name] = value
-        return msgpack.packb(wire, use_bin_type=True)
+        return _pack(self._wire(self))
 
     @classmethod
     def decode(cls: type[M], payload: Any) -> M:
@@ -945,7 +994,7 @@ class World(Message):
         wire["obstacles"] = obstacles
         if self.names != default_names(len(self.obstacles)):
             wire["names"] = _name_runs(self.names)
-        data = msgpack.packb(wire, use_bin_type=True)
+        data = _pack(wire)
         if len(data) > MAX_WORLD_PAYLOAD:
             raise ProtocolError(f"World: {len(data)} bytes, limit {MAX_WORLD_PAYLOAD}", "oversize")
         return data

@@ -14,6 +14,7 @@ same fields (same types too) or refuse with the same reason and message.
 from __future__ import annotations
 
 import math
+from concurrent.futures import ThreadPoolExecutor
 from unittest.mock import patch
 
 import msgpack
@@ -113,7 +114,8 @@ def _field(valid: object) -> st.SearchStrategy:
 
 
 def _outcome(make) -> tuple:
-    """("ok", the fields with their types) or ("refused", reason, message)."""
+    """("ok", the fields' repr, which tells 1 from 1.0 and numpy scalars from floats) or
+    ("refused", reason, message)."""
     try:
         message = make()
     except protocol.ProtocolError as exc:
@@ -234,3 +236,53 @@ def test_decoded_stats_and_relay_are_copies() -> None:
     relay[0][1] = math.nan
     assert state.stats == {"rate_hz": 9.5}
     assert state.relay == ((4, 1.5, 2.5, 0.0, 0.2),)
+
+
+@pytest.mark.parametrize(
+    ("value", "taken"),
+    [(np.float64(1.25), True), (np.float64(math.nan), False), (np.float64(2e4), False)],
+)
+def test_numpy_floats_of_a_sender_take_the_fast_path(value: np.float64, taken: bool) -> None:
+    """A sender's float64 (a float subclass) is tested as the float it becomes; the message
+    then holds that float."""
+    message = object.__new__(protocol.Pose)
+    for name, field in {**VALID[protocol.Pose], "x": value}.items():
+        object.__setattr__(message, name, field)
+    assert protocol.Pose._fill_own(message) is taken
+    assert type(message.x) is (float if taken else np.float64)
+
+
+@pytest.mark.parametrize("cls", list(VALID), ids=lambda cls: cls.__name__)
+def test_encode_packs_the_fields_in_order(cls) -> None:
+    """encode's compiled map is the schema version and the fields in order, an optional
+    one left out when None, packed as msgpack.packb packs it; and decodes back."""
+    for values in ({**VALID[cls]}, {name: value for name, value in VALID[cls].items()
+                                    if name not in cls._OPTIONAL}):  # fmt: skip
+        message = cls(**values)
+        wire = {"v": protocol.SCHEMA_VERSION}
+        for name in message._SPEC:
+            value = getattr(message, name)
+            if value is not None or name not in cls._OPTIONAL:
+                wire[name] = value
+        assert message.encode() == msgpack.packb(wire, use_bin_type=True)
+        assert cls.decode(message.encode()) == message
+
+
+def test_encode_from_threads_at_once() -> None:
+    """Each thread packs with its own Packer: threads encoding at once get their own bytes,
+    and a Packer that failed packs the next message from a clean buffer."""
+    with pytest.raises(TypeError):
+        messages._pack({"x": object()})
+    poses = [protocol.Pose(id=i % 1000, x=i * 1e-3, y=-1.0, theta=0.0, stamp=WALL, seq=i)
+             for i in range(3000)]  # fmt: skip
+
+    def encode_all(offset: int) -> list[bool]:
+        return [
+            protocol.Pose.decode(poses[(i + offset) % len(poses)].encode())
+            == poses[(i + offset) % len(poses)]
+            for i in range(len(poses))
+        ]
+
+    with ThreadPoolExecutor(4) as pool:
+        results = list(pool.map(encode_all, [0, 700, 1400, 2100]))
+    assert all(all(ok) for ok in results)
