@@ -167,10 +167,11 @@ def _choice(options: tuple[str, ...]) -> Checker:
     return check
 
 
-def _sequence(value: Any, name: str) -> list[Any]:
-    """A list/tuple (or, when sending, anything with ``tolist`` such as a numpy array)."""
+def _sequence(value: Any, name: str) -> list[Any] | tuple[Any, ...]:
+    """A list/tuple (or, when sending, anything with ``tolist`` such as a numpy array), as
+    it is: checkers read it and build their own."""
     if type(value) is list or type(value) is tuple:  # msgpack's arrays, without hasattr
-        return list(value)
+        return value
     if hasattr(value, "tolist") and not isinstance(value, (list, tuple)):
         value = value.tolist()
     if not isinstance(value, (list, tuple)):
@@ -227,12 +228,14 @@ def _ids(max_n: int) -> Checker:
     return check
 
 
-def _plain_relay(items: list[Any]) -> tuple[tuple[int, float, float, float, float], ...] | None:
+def _plain_relay(
+    items: list[Any] | tuple[Any, ...],
+) -> tuple[tuple[int, float, float, float, float], ...] | None:
     """The relay as _relay's checker returns it if it is what every receiver decodes at the
-    control rate from each neighbour (msgpack lists of an int and four floats; tuples when
-    an agent builds its own state), in bounds, of distinct ids; else None, and the checker
-    finds the reason. One type test and chained comparison per number (NaN fails it)."""
-    out = []
+    control rate from each neighbour (msgpack arrays of an int and four floats, which
+    Message.decode unpacks as tuples, as an agent builds its own), in bounds, of distinct
+    ids; else None, and the checker finds the reason. One type test and chained comparison
+    per number (NaN fails it); the tuples are kept (tuple() of one is itself)."""
     for entry in items:
         if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
             return None
@@ -250,8 +253,9 @@ def _plain_relay(items: list[Any]) -> tuple[tuple[int, float, float, float, floa
             and -MAX_SPEED <= vy <= MAX_SPEED
         ):
             return None
-        out.append((rid, x, y, vx, vy))
-    return tuple(out) if len({entry[0] for entry in out}) == len(out) else None
+    if len({entry[0] for entry in items}) != len(items):
+        return None
+    return tuple(map(tuple, items))
 
 
 def _relay(max_n: int) -> Checker:
@@ -335,9 +339,10 @@ _TIME = _real(-MAX_TIME, MAX_TIME)
 M = TypeVar("M", bound="Message")
 
 
-def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
+def _unpack(payload: Any, limit: int = MAX_PAYLOAD, arrays: type = tuple) -> Any:
     """Bytes (or a zenoh ZBytes) -> msgpack object, ProtocolError on anything malformed or
-    longer than ``limit`` bytes."""
+    longer than ``limit`` bytes. Arrays become ``arrays`` (tuple or list): tuples by
+    default, which unpack a little faster and which checkers keep as they are."""
     if type(payload) is bytes:  # the common case, without the isinstance tests below
         data = payload
     elif isinstance(payload, (bytes, bytearray, memoryview)):
@@ -349,7 +354,7 @@ def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
     if len(data) > limit:
         raise ProtocolError(f"payload: {len(data)} bytes, limit {limit}", "oversize")
     try:
-        return msgpack.unpackb(data, raw=False, strict_map_key=True)
+        return msgpack.unpackb(data, raw=False, strict_map_key=True, use_list=arrays is list)
     # msgpack signals malformed input with many exception types (ExtraData, FormatError,
     # StackError, UnicodeDecodeError, ValueError, ...): all of them mean "bad payload".
     except Exception as exc:
@@ -1002,7 +1007,7 @@ class World(Message):
     @classmethod
     def decode(cls, payload: Any) -> World:
         """Parse and validate a payload (the compact form); ProtocolError with the reason."""
-        raw = _unpack(payload, MAX_WORLD_PAYLOAD)
+        raw = _unpack(payload, MAX_WORLD_PAYLOAD, list)
         if not isinstance(raw, dict):
             raise ProtocolError(f"World: expected a map, got {type(raw).__name__}", "schema")
         version = raw.pop("v", None)

@@ -165,7 +165,7 @@ def test_fast_path_refuses_what_the_checkers_refuse(cls, data: st.DataObject) ->
     except (TypeError, ValueError, OverflowError):
         return  # numpy values and ints beyond 64 bits: not on the wire
     try:
-        unpacked = msgpack.unpackb(payload, raw=False, strict_map_key=True)
+        unpacked = msgpack.unpackb(payload, raw=False, strict_map_key=True, use_list=False)
     except ValueError:  # a map with a key that is not a string
         assert _outcome(lambda: cls.decode(payload))[:2] == ("refused", "undecodable")
         return
