@@ -456,6 +456,7 @@ class Message:
     __slots__ = ()
     _SPEC: ClassVar[dict[str, Checker]]
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
+    _REQUIRED: ClassVar[frozenset[str]]  # the fields not in _OPTIONAL
     _fill_own: ClassVar[Callable[[Message], bool]]
     _fill_decoded: ClassVar[Callable[[Message, dict[str, Any]], bool]]
     _wire: ClassVar[Callable[[Message], dict[str, Any]]]
@@ -465,6 +466,7 @@ class Message:
         own, decoded = _compile_fill(cls._SPEC, cls._OPTIONAL)
         cls._fill_own, cls._fill_decoded = staticmethod(own), staticmethod(decoded)
         cls._wire = staticmethod(_compile_wire(cls._SPEC, cls._OPTIONAL))
+        cls._REQUIRED = frozenset(cls._SPEC) - cls._OPTIONAL
 
     def __post_init__(self) -> None:
         # Canonicalise every field (float/int/tuple) so equal messages compare equal.
@@ -504,8 +506,10 @@ class Message:
                 f"{cls.__name__}: schema version {version!r}, expected {SCHEMA_VERSION}",
                 "version",
             )
-        spec = cls._SPEC
-        if raw.keys() != spec.keys():  # the common case is one comparison
+        spec, keys = cls._SPEC, raw.keys()
+        # The common cases in one or two comparisons: every field, or no other than the
+        # fields and every required one (optional ones are often left out).
+        if keys != spec.keys() and not (keys <= spec.keys() and keys >= cls._REQUIRED):
             missing = [name for name in spec if name not in raw and name not in cls._OPTIONAL]
             if missing:
                 raise ProtocolError(f"{cls.__name__}: missing fields {missing}", "schema")

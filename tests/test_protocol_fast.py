@@ -286,3 +286,25 @@ def test_encode_from_threads_at_once() -> None:
     with ThreadPoolExecutor(4) as pool:
         results = list(pool.map(encode_all, [0, 700, 1400, 2100]))
     assert all(all(ok) for ok in results)
+
+
+@pytest.mark.parametrize("cls", list(VALID), ids=lambda cls: cls.__name__)
+def test_decode_refuses_missing_and_unknown_fields(cls) -> None:
+    """Any set of fields with an unknown one added or not: refused ("schema") exactly when a
+    required field is missing or an unknown one is present, missing ones named first; the
+    optional ones may each be left out."""
+    valid = VALID[cls]
+    names = list(valid)
+    for drop in [(), *[(name,) for name in names], tuple(cls._OPTIONAL)]:
+        for extra in ({}, {"extra": 1.0}):
+            fields = {k: v for k, v in valid.items() if k not in drop} | extra
+            payload = msgpack.packb({"v": protocol.SCHEMA_VERSION, **fields})
+            missing = [name for name in names if name in drop and name not in cls._OPTIONAL]
+            if missing:
+                expected = ("refused", "schema", f"{cls.__name__}: missing fields {missing}")
+            elif extra:
+                expected = ("refused", "schema", f"{cls.__name__}: unknown fields 'extra'")
+            else:
+                expected = _outcome(lambda fields=fields: cls(**fields))
+                assert expected[0] == "ok"
+            assert _outcome(lambda payload=payload: cls.decode(payload)) == expected
