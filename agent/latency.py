@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -46,9 +46,11 @@ HISTORY_SPAN = 2.0
 CLOCK_WINDOW = 10.0
 
 
-@dataclass(frozen=True)
-class SentCommand:
-    """A wheel command as sent: our wall stamp, rim speeds (m/s, already saturated)."""
+class SentCommand(NamedTuple):
+    """A wheel command as sent: our wall stamp, rim speeds (m/s, already saturated).
+
+    A NamedTuple: one is built per command of every brain, several times cheaper than a
+    frozen dataclass."""
 
     wall: float
     left: float
@@ -68,11 +70,13 @@ class CommandHistory:
         """Record a command sent at ``wall`` (non-finite speeds were sent as 0)."""
         if not (math.isfinite(left) and math.isfinite(right)):
             left = right = 0.0
-        if self._sent and wall < self._sent[-1].wall:
-            self._sent.clear()  # our own clock stepped back: the history no longer lines up
-        self._sent.append(SentCommand(wall, left, right))
-        while self._sent and self._sent[0].wall < wall - HISTORY_SPAN:
-            self._sent.popleft()
+        sent = self._sent
+        if sent and wall < sent[-1].wall:
+            sent.clear()  # our own clock stepped back: the history no longer lines up
+        sent.append(SentCommand(wall, left, right))
+        start = wall - HISTORY_SPAN
+        while sent[0].wall < start:  # never the command just added
+            sent.popleft()
 
     def segments(self, start: float, end: float) -> list[tuple[float, float, float]]:
         """[(duration s, left, right)] the robot drove between walls ``start`` and ``end``.
@@ -114,45 +118,33 @@ class CommandHistory:
         return np.array([x, y, heading])
 
 
-class _WindowedExtreme:
-    """Sliding-window minimum (or maximum) of (time, value) samples, O(1) amortised."""
-
-    def __init__(self, window: float, maximum: bool = False) -> None:
-        self.window, self._sign = window, -1.0 if maximum else 1.0
-        self._samples: deque[tuple[float, float]] = deque()  # increasing signed values
-
-    def add(self, now: float, value: float) -> float:
-        signed = self._sign * value
-        while self._samples and self._samples[-1][1] >= signed:
-            self._samples.pop()
-        self._samples.append((now, signed))
-        while self._samples[0][0] < now - self.window:
-            self._samples.popleft()
-        return self.value
-
-    @property
-    def value(self) -> float:
-        return self._sign * self._samples[0][1] if self._samples else math.nan
-
-    def clear(self) -> None:
-        self._samples.clear()
-
-
 class ClockBound:
-    """Bound on our wall clock minus a sender's, from its stamps (module docstring)."""
+    """Bound on our wall clock minus a sender's, from its stamps (module docstring).
+
+    The bound is the minimum of ``receipt - stamp`` over the last ``window`` s, kept in O(1)
+    amortised per message: the samples that could still become the minimum, oldest first,
+    their values increasing. Every brain adds one per message it accepts."""
 
     def __init__(self, window: float = CLOCK_WINDOW) -> None:
-        self._min = _WindowedExtreme(window)
+        self.window = window
+        self._samples: deque[tuple[float, float]] = deque()  # (now, receipt - stamp)
 
     def add(self, now: float, received_wall: float, stamp: float) -> None:
         """A message stamped ``stamp`` (sender's clock) received at our ``received_wall``,
         ``now`` monotonic (the window's clock)."""
-        self._min.add(now, received_wall - stamp)
+        value = received_wall - stamp
+        samples = self._samples
+        while samples and samples[-1][1] >= value:
+            samples.pop()  # never the minimum again: this one is lower and newer
+        samples.append((now, value))
+        start = now - self.window
+        while samples[0][0] < start:  # never the sample just added
+            samples.popleft()
 
     @property
     def bound(self) -> float:
         """min(receipt - stamp) over the window, s (NaN before any message)."""
-        return self._min.value
+        return self._samples[0][1] if self._samples else math.nan
 
     def to_local(self, stamp: float) -> float:
         """A sender's stamp on our wall clock: shifted by the bound when it proves the sender
@@ -162,4 +154,4 @@ class ClockBound:
 
     def clear(self) -> None:
         """Forget the bound (a restarted sender, maybe on another host)."""
-        self._min.clear()
+        self._samples.clear()

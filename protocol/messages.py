@@ -16,6 +16,13 @@ Status's ``route`` work the same way), exact types
 and magnitudes within sane bounds. Ints are accepted where floats are expected (other
 languages' encoders drop ``.0``). Geometry (convexity) is not checked here: that is
 covswarm.tvd.coverage.validate_polygon's job.
+
+Checking is on every brain's hot path (a command and a state built, a pose and a state
+decoded per period), so each message type compiles its number fields' checks into one
+expression that takes the plain, in-range values (Message, _compile_fill) and ids, relays
+and stats take a plain loop first; anything else goes to the field-by-field checkers, which
+give the verdict and the reason. Both refuse the same messages
+(tests/test_protocol_fast.py).
 """
 
 from __future__ import annotations
@@ -23,8 +30,11 @@ from __future__ import annotations
 import math
 import numbers
 import re
+import threading
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import partial
+from types import MemberDescriptorType
 from typing import Any, ClassVar, TypeVar
 
 import msgpack
@@ -74,13 +84,25 @@ class ProtocolError(ValueError):
 Checker = Callable[[Any, str], Any]
 
 
+def _inline(check: Checker, test: str, real: bool = False) -> Checker:
+    """``check`` with ``test``: a Python expression in ``{v}`` that is true exactly when the
+    value ``{v}`` is one ``check`` accepts *and returns unchanged* (canonical already). Each
+    message type compiles the tests of its fields into one expression (Message's fast
+    path); a value failing it goes through ``check`` for the verdict and the reason.
+    ``real``: ``check`` returns float(value) for any float (numpy's float64 is one), so the
+    fast path may test that instead."""
+    check.inline = test  # type: ignore[attr-defined]
+    check.real = real  # type: ignore[attr-defined]
+    return check
+
+
 def _real(lo: float, hi: float) -> Checker:
     """A finite number in [lo, hi], returned as float."""
 
     def check(value: Any, name: str) -> float:
-        # Every field of every message goes through here: plain floats and ints take one
-        # type test and one chained comparison (NaN and inf fail it and are sorted out
-        # below); the ABC test (numpy scalars on the sending side) only runs for others.
+        # Plain floats and ints take one type test and one chained comparison (NaN and inf
+        # fail it and are sorted out below); the ABC test (numpy scalars on the sending
+        # side) only runs for others.
         kind = type(value)
         if kind is float or kind is int:
             out = float(value)
@@ -95,7 +117,11 @@ def _real(lo: float, hi: float) -> Checker:
             raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
         return out
 
-    return check
+    # A float (not an int, which check converts) within finite bounds: NaN fails the
+    # comparisons, and so does an infinity.
+    assert math.isfinite(lo) and math.isfinite(hi)
+    test = f"type({{v}}) is float and {float(lo)!r} <= {{v}} <= {float(hi)!r}"
+    return _inline(check, test, real=True)
 
 
 def _positive(hi: float) -> Checker:
@@ -108,7 +134,7 @@ def _positive(hi: float) -> Checker:
             raise ProtocolError(f"{name}: must be > 0, got {out}")
         return out
 
-    return check
+    return _inline(check, f"type({{v}}) is float and 0.0 < {{v}} <= {float(hi)!r}", real=True)
 
 
 def _int(lo: int, hi: int) -> Checker:
@@ -125,7 +151,8 @@ def _int(lo: int, hi: int) -> Checker:
             raise ProtocolError(f"{name}: {out} outside [{lo}, {hi}]")
         return out
 
-    return check
+    # type(...) is int excludes bool, a subclass of int.
+    return _inline(check, f"type({{v}}) is int and {int(lo)!r} <= {{v}} <= {int(hi)!r}")
 
 
 def _optional(inner: Checker) -> Checker:
@@ -134,7 +161,10 @@ def _optional(inner: Checker) -> Checker:
     def check(value: Any, name: str) -> Any:
         return None if value is None else inner(value, name)
 
-    return check
+    test = getattr(inner, "inline", None)
+    if test is None:
+        return check
+    return _inline(check, f"{{v}} is None or ({test})", inner.real)  # type: ignore[attr-defined]
 
 
 def _choice(options: tuple[str, ...]) -> Checker:
@@ -146,8 +176,11 @@ def _choice(options: tuple[str, ...]) -> Checker:
     return check
 
 
-def _sequence(value: Any, name: str) -> list[Any]:
-    """A list/tuple (or, when sending, anything with ``tolist`` such as a numpy array)."""
+def _sequence(value: Any, name: str) -> list[Any] | tuple[Any, ...]:
+    """A list/tuple (or, when sending, anything with ``tolist`` such as a numpy array), as
+    it is: checkers read it and build their own."""
+    if type(value) is list or type(value) is tuple:  # msgpack's arrays, without hasattr
+        return value
     if hasattr(value, "tolist") and not isinstance(value, (list, tuple)):
         value = value.tolist()
     if not isinstance(value, (list, tuple)):
@@ -174,6 +207,17 @@ def _points(min_n: int, max_n: int, bound: float) -> Checker:
     return check
 
 
+def _plain_ids(items: list[Any]) -> tuple[int, ...] | None:
+    """The ids as _ids's checker returns them if they are plain ints in range and distinct
+    (the common case, without a checker call per id), else None: the checker finds the
+    reason. A plain loop: faster than all() over a generator or passes of map()."""
+    for item in items:
+        if type(item) is not int or not 0 <= item <= MAX_ID:
+            return None
+    unique = set(items)
+    return tuple(sorted(unique)) if len(unique) == len(items) else None
+
+
 def _ids(max_n: int) -> Checker:
     """A list of distinct robot ids, returned as a sorted tuple."""
     one = _int(0, MAX_ID)
@@ -183,11 +227,8 @@ def _ids(max_n: int) -> Checker:
         items = _sequence(list(value) if isinstance(value, (set, frozenset)) else value, name)
         if len(items) > max_n:
             raise ProtocolError(f"{name}: {len(items)} ids, at most {max_n}")
-        # The common case (plain ints in range, distinct) without a checker call per id.
-        if all(type(item) is int and 0 <= item <= MAX_ID for item in items):
-            unique = set(items)
-            if len(unique) == len(items):
-                return tuple(sorted(unique))
+        if (fast := _plain_ids(items)) is not None:
+            return fast
         ids = [one(item, f"{name}[{i}]") for i, item in enumerate(items)]
         if len(set(ids)) != len(ids):
             raise ProtocolError(f"{name}: duplicate ids")
@@ -196,43 +237,47 @@ def _ids(max_n: int) -> Checker:
     return check
 
 
+def _plain_relay(
+    items: list[Any] | tuple[Any, ...],
+) -> tuple[tuple[int, float, float, float, float], ...] | None:
+    """The relay as _relay's checker returns it if it is what every receiver decodes at the
+    control rate from each neighbour (msgpack arrays of an int and four floats, which
+    Message.decode unpacks as tuples, as an agent builds its own), in bounds, of distinct
+    ids; else None, and the checker finds the reason. One type test and chained comparison
+    per number (NaN fails it); the tuples are kept (tuple() of one is itself)."""
+    for entry in items:
+        if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
+            return None
+        rid, x, y, vx, vy = entry
+        if not (
+            type(rid) is int
+            and type(x) is float
+            and type(y) is float
+            and type(vx) is float
+            and type(vy) is float
+            and 0 <= rid <= MAX_ID
+            and -MAX_COORD <= x <= MAX_COORD
+            and -MAX_COORD <= y <= MAX_COORD
+            and -MAX_SPEED <= vx <= MAX_SPEED
+            and -MAX_SPEED <= vy <= MAX_SPEED
+        ):
+            return None
+    if len({entry[0] for entry in items}) != len(items):
+        return None
+    return tuple(map(tuple, items))
+
+
 def _relay(max_n: int) -> Checker:
     """A list of [id, x, y, vx, vy] of distinct robots, returned as a tuple of tuples."""
     one = _int(0, MAX_ID)
     coord = _real(-MAX_COORD, MAX_COORD)
     speed = _real(-MAX_SPEED, MAX_SPEED)
 
-    def plain(items: list[Any]) -> tuple[tuple[int, float, float, float, float], ...] | None:
-        # What every receiver decodes at the control rate from each neighbour: msgpack lists
-        # of an int and four floats (tuples when an agent builds its own state). One type
-        # test and chained comparison per number (NaN fails it); anything else goes through
-        # the checkers below for the exact reason.
-        out = []
-        for entry in items:
-            if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
-                return None
-            rid, x, y, vx, vy = entry
-            if not (
-                type(rid) is int
-                and type(x) is float
-                and type(y) is float
-                and type(vx) is float
-                and type(vy) is float
-                and 0 <= rid <= MAX_ID
-                and -MAX_COORD <= x <= MAX_COORD
-                and -MAX_COORD <= y <= MAX_COORD
-                and -MAX_SPEED <= vx <= MAX_SPEED
-                and -MAX_SPEED <= vy <= MAX_SPEED
-            ):
-                return None
-            out.append((rid, x, y, vx, vy))
-        return tuple(out) if len({entry[0] for entry in out}) == len(out) else None
-
     def check(value: Any, name: str) -> tuple[tuple[int, float, float, float, float], ...]:
         items = _sequence(value, name)
         if len(items) > max_n:
             raise ProtocolError(f"{name}: {len(items)} entries, at most {max_n}")
-        if (fast := plain(items)) is not None:
+        if (fast := _plain_relay(items)) is not None:
             return fast
         out = []
         for i, item in enumerate(items):
@@ -259,12 +304,30 @@ def _relay(max_n: int) -> Checker:
     return check
 
 
+def _plain_stats(value: dict[Any, Any]) -> bool:
+    """Whether _stats would return the map ``value`` as it is: names of plain str of
+    1..MAX_STAT_NAME characters, values plain floats and ints within +-MAX_STAT (stricter
+    than ints need; NaN and infinities fail the comparison)."""
+    for key, item in value.items():
+        kind = type(item)
+        if not (
+            type(key) is str
+            and 1 <= len(key) <= MAX_STAT_NAME
+            and (kind is float or kind is int)
+            and -MAX_STAT <= item <= MAX_STAT
+        ):
+            return False
+    return True
+
+
 def _stats(value: Any, name: str) -> dict[str, float | int]:
     """Small flat map of named numbers (counters and measurements)."""
     if not isinstance(value, dict):
         raise ProtocolError(f"{name}: expected a map, got {type(value).__name__}")
     if len(value) > MAX_STATS:
         raise ProtocolError(f"{name}: {len(value)} entries, at most {MAX_STATS}")
+    if _plain_stats(value):
+        return dict(value)
     number = _real(-MAX_STAT, MAX_STAT)
     integer = _int(-MAX_SEQ, MAX_SEQ)
     out: dict[str, float | int] = {}
@@ -285,10 +348,13 @@ _TIME = _real(-MAX_TIME, MAX_TIME)
 M = TypeVar("M", bound="Message")
 
 
-def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
+def _unpack(payload: Any, limit: int = MAX_PAYLOAD, arrays: type = tuple) -> Any:
     """Bytes (or a zenoh ZBytes) -> msgpack object, ProtocolError on anything malformed or
-    longer than ``limit`` bytes."""
-    if isinstance(payload, (bytes, bytearray, memoryview)):
+    longer than ``limit`` bytes. Arrays become ``arrays`` (tuple or list): tuples by
+    default, which unpack a little faster and which checkers keep as they are."""
+    if type(payload) is bytes:  # the common case, without the isinstance tests below
+        data = payload
+    elif isinstance(payload, (bytes, bytearray, memoryview)):
         data = bytes(payload)
     elif hasattr(payload, "to_bytes"):  # zenoh.ZBytes
         data = payload.to_bytes()
@@ -297,7 +363,7 @@ def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
     if len(data) > limit:
         raise ProtocolError(f"payload: {len(data)} bytes, limit {limit}", "oversize")
     try:
-        return msgpack.unpackb(data, raw=False, strict_map_key=True)
+        return msgpack.unpackb(data, raw=False, strict_map_key=True, use_list=arrays is list)
     # msgpack signals malformed input with many exception types (ExtraData, FormatError,
     # StackError, UnicodeDecodeError, ValueError, ...): all of them mean "bad payload".
     except Exception as exc:
@@ -306,34 +372,143 @@ def _unpack(payload: Any, limit: int = MAX_PAYLOAD) -> Any:
         ) from exc
 
 
+def _compile_fill(cls: type[Message]) -> tuple[Callable, Callable]:
+    """The fast paths of a message type ``cls``: (own, decoded).
+
+    ``own(message)`` checks a constructed message's fields, ``decoded(message, raw)`` fills
+    an empty one from an unpacked map whose keys were checked. Each tests every field
+    whose checker has an ``inline`` test (the numbers: _real, _int, _positive, optional
+    ones) in one compiled expression, and returns False, having set nothing, unless all
+    pass; then it runs the other fields' checkers as the slow path (Message._fill_checked)
+    would, in the same order. A False sends the message down the slow path, which finds
+    the reason; so both accept the same messages with the same fields (the fields of the
+    inline tests are ones their checkers return unchanged), and raise the same errors.
+
+    A sender's number fields may hold numpy's float64 (a float subclass): ``own`` tests
+    float(value) of a float field's value that is a float but not exactly one, as its
+    checker does, and sets the field to it if all pass.
+
+    Fields are set through their slots' descriptors (a frozen dataclass refuses setattr),
+    about twice as fast as object.__setattr__.
+    """
+    spec, optional = cls._SPEC, cls._OPTIONAL
+    inline = {name: check.inline for name, check in spec.items() if hasattr(check, "inline")}
+    assert all(name.isidentifier() for name in spec)
+    test = " and ".join(f"({t.format(v='v_' + name)})" for name, t in inline.items()) or "True"
+    others = [name for name in spec if name not in inline]
+
+    def read(name: str) -> str:
+        return f"raw.get({name!r})" if name in optional else f"raw[{name!r}]"
+
+    real = [name for name in inline if spec[name].real]  # type: ignore[attr-defined]
+    own = ["def own(message):"]
+    own += [f"    v_{name} = message.{name}" for name in inline]
+    for name in real:
+        own += [
+            f"    f_{name} = type(v_{name}) is not float and isinstance(v_{name}, float)",
+            f"    if f_{name}:",
+            f"        v_{name} = float(v_{name})",
+        ]
+    own += [f"    if not ({test}):", "        return False"]
+    own += [f"    if f_{n}:\n        s_{n}(message, v_{n})" for n in real]
+    own += [f"    s_{n}(message, c_{n}(message.{n}, {n!r}))" for n in others]
+    decoded = ["def decoded(message, raw):"]
+    decoded += [f"    v_{name} = {read(name)}" for name in inline]
+    decoded += [f"    if not ({test}):", "        return False"]
+    decoded += [f"    s_{n}(message, v_{n})" for n in inline]
+    decoded += [f"    s_{n}(message, c_{n}({read(n)}, {n!r}))" for n in others]
+    namespace: dict[str, Any] = {f"c_{name}": spec[name] for name in others}
+    for name in spec:
+        slot = cls.__dict__.get(name)
+        namespace[f"s_{name}"] = (
+            slot.__set__
+            if isinstance(slot, MemberDescriptorType)
+            else partial(_set_field, name=name)  # a class without slots
+        )
+    exec("\n".join([*own, "    return True", *decoded, "    return True"]), namespace)
+    return namespace["own"], namespace["decoded"]
+
+
+def _set_field(message: Message, value: Any, name: str) -> None:
+    object.__setattr__(message, name, value)
+
+
+def _compile_wire(spec: dict[str, Checker], optional: frozenset[str]) -> Callable:
+    """``wire(message)``: the map Message.encode packs, the schema version and the fields
+    of ``spec`` in order, an ``optional`` one left out when None; built in one expression
+    rather than a loop over the fields."""
+    required = ", ".join(f"{name!r}: message.{name}" for name in spec if name not in optional)
+    lines = ["def wire(message):", f"    out = {{'v': {SCHEMA_VERSION!r}, {required}}}"]
+    for name in spec:
+        if name in optional:
+            lines += [
+                f"    if message.{name} is not None:",
+                f"        out[{name!r}] = message.{name}",
+            ]
+    namespace: dict[str, Any] = {}
+    exec("\n".join([*lines, "    return out"]), namespace)
+    return namespace["wire"]
+
+
+_PACKERS = threading.local()
+
+
+def _pack(value: Any) -> bytes:
+    """msgpack bytes of ``value``, by this thread's Packer: msgpack.packb builds a Packer per
+    call, most of its cost for a small message (a Packer is not shared between threads,
+    which may encode at once)."""
+    try:
+        packer = _PACKERS.packer
+    except AttributeError:
+        packer = _PACKERS.packer = msgpack.Packer(use_bin_type=True)
+    return packer.pack(value)
+
+
 class Message:
     """Base of all wire messages: schema-checked construction, encode and decode.
 
     Subclasses are frozen dataclasses whose fields are the wire fields (besides "v") and
     declare one checker per field in ``_SPEC``.
+
+    Every brain builds a command and a state and decodes a pose and a state per period, so
+    checking is on the hot path: each type compiles its number fields' checks into one
+    expression (_compile_fill), which takes the messages whose numbers are already plain
+    in-range floats and ints, and leaves any other to the field-by-field checkers.
     """
 
     __slots__ = ()
     _SPEC: ClassVar[dict[str, Checker]]
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
+    _REQUIRED: ClassVar[frozenset[str]]  # the fields not in _OPTIONAL
+    _fill_own: ClassVar[Callable[[Message], bool]]
+    _fill_decoded: ClassVar[Callable[[Message, dict[str, Any]], bool]]
+    _wire: ClassVar[Callable[[Message], dict[str, Any]]]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        super().__init_subclass__(**kwargs)
+        own, decoded = _compile_fill(cls)
+        cls._fill_own, cls._fill_decoded = staticmethod(own), staticmethod(decoded)
+        cls._wire = staticmethod(_compile_wire(cls._SPEC, cls._OPTIONAL))
+        cls._REQUIRED = frozenset(cls._SPEC) - cls._OPTIONAL
 
     def __post_init__(self) -> None:
         # Canonicalise every field (float/int/tuple) so equal messages compare equal.
-        for name, check in self._SPEC.items():
-            object.__setattr__(self, name, check(getattr(self, name), name))
+        if not self._fill_own(self):
+            self._fill_checked({name: getattr(self, name) for name in self._SPEC})
         self._check_fields()
+
+    def _fill_checked(self, raw: dict[str, Any]) -> None:
+        """Set every field to its checker's verdict on ``raw``'s value (None if absent):
+        the slow path, which raises the first field's error."""
+        for name, check in self._SPEC.items():
+            object.__setattr__(self, name, check(raw.get(name), name))
 
     def _check_fields(self) -> None:
         """Checks across fields, after each field passed its own (override to add some)."""
 
     def encode(self) -> bytes:
         """msgpack bytes of this message, with the schema version."""
-        wire: dict[str, Any] = {"v": SCHEMA_VERSION}
-        for name in self._SPEC:
-            value = getattr(self, name)
-            if value is not None or name not in self._OPTIONAL:
-                wire[name] = value
-        return msgpack.packb(wire, use_bin_type=True)
+        return _pack(self._wire(self))
 
     @classmethod
     def decode(cls: type[M], payload: Any) -> M:
@@ -354,8 +529,10 @@ class Message:
                 f"{cls.__name__}: schema version {version!r}, expected {SCHEMA_VERSION}",
                 "version",
             )
-        spec = cls._SPEC
-        if raw.keys() != spec.keys():  # the common case is one comparison
+        spec, keys = cls._SPEC, raw.keys()
+        # The common cases in one or two comparisons: every field, or no other than the
+        # fields and every required one (optional ones are often left out).
+        if keys != spec.keys() and not (keys <= spec.keys() and keys >= cls._REQUIRED):
             missing = [name for name in spec if name not in raw and name not in cls._OPTIONAL]
             if missing:
                 raise ProtocolError(f"{cls.__name__}: missing fields {missing}", "schema")
@@ -367,8 +544,8 @@ class Message:
         # Built field by field rather than through __init__, which would check every field
         # a second time in __post_init__: decoding is what every receiver does per message.
         message = object.__new__(cls)
-        for name, check in spec.items():
-            object.__setattr__(message, name, check(raw.get(name), name))
+        if not cls._fill_decoded(message, raw):
+            message._fill_checked(raw)
         message._check_fields()
         return message
 
@@ -849,7 +1026,7 @@ class World(Message):
         wire["obstacles"] = obstacles
         if self.names != default_names(len(self.obstacles)):
             wire["names"] = _name_runs(self.names)
-        data = msgpack.packb(wire, use_bin_type=True)
+        data = _pack(wire)
         if len(data) > MAX_WORLD_PAYLOAD:
             raise ProtocolError(f"World: {len(data)} bytes, limit {MAX_WORLD_PAYLOAD}", "oversize")
         return data
@@ -857,7 +1034,7 @@ class World(Message):
     @classmethod
     def decode(cls, payload: Any) -> World:
         """Parse and validate a payload (the compact form); ProtocolError with the reason."""
-        raw = _unpack(payload, MAX_WORLD_PAYLOAD)
+        raw = _unpack(payload, MAX_WORLD_PAYLOAD, list)
         if not isinstance(raw, dict):
             raise ProtocolError(f"World: expected a map, got {type(raw).__name__}", "schema")
         version = raw.pop("v", None)

@@ -9,7 +9,7 @@ import pytest
 
 from covswarm import protocol
 from covswarm.agent.brain import AgentBrain, AgentConfig, Begun
-from covswarm.agent.latency import ClockBound, CommandHistory
+from covswarm.agent.latency import HISTORY_SPAN, ClockBound, CommandHistory
 from covswarm.tvd.drive import KHEPERA_IV
 
 
@@ -101,3 +101,41 @@ def test_the_domain_is_extrapolated_by_the_age_of_its_stamp_not_of_its_receipt()
     assert isinstance(begun, Begun)
     np.testing.assert_allclose(begun.view.polygon, np.add(square, velocity * now), atol=1e-9)
     np.testing.assert_allclose(begun.view.polygon_velocity, [velocity] * 4)
+
+
+def test_clock_bound_is_the_windowed_minimum() -> None:
+    """Against brute force: the bound is the minimum of receipt - stamp over the messages
+    of the last window s, on random arrivals with repeated values, bursts and silences
+    longer than the window; clear forgets it."""
+    rng = np.random.default_rng(1)
+    bound = ClockBound(window=1.0)
+    seen: list[tuple[float, float]] = []
+    now = 0.0
+    for k in range(1500):
+        if k == 700:
+            bound.clear()
+            seen.clear()
+            assert math.isnan(bound.bound)
+        now += float(rng.choice([0.0, 0.01, 0.3, 1.5]))
+        stamp = now - float(rng.choice([0.1, 0.2, rng.normal()]))
+        bound.add(now, now, stamp)
+        seen.append((now, now - stamp))
+        assert bound.bound == min(value for t, value in seen[-200:] if t >= now - 1.0)
+
+
+def test_command_history_keeps_the_last_span() -> None:
+    """Against brute force: the commands kept are those sent within HISTORY_SPAN s of the
+    last, all of them since the clock last stepped back."""
+    rng = np.random.default_rng(2)
+    history = CommandHistory()
+    sent: list[tuple[float, float, float]] = []
+    wall = 100.0
+    for _ in range(600):
+        wall += float(rng.choice([0.0, 0.05, 0.4, 3.0, -0.5]))
+        left, right = (float(v) for v in rng.uniform(-0.5, 0.5, 2))
+        if sent and wall < sent[-1][0]:
+            sent.clear()
+        history.add(wall, left, right)
+        sent.append((wall, left, right))
+        kept = [command for command in sent if command[0] >= wall - HISTORY_SPAN]
+        assert [tuple(command) for command in history._sent] == kept
