@@ -45,7 +45,7 @@ from covswarm.agent.neighborhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer, twist_from_wheels
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer_one, twist_from_wheels
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -824,17 +824,17 @@ class AgentBrain:
     def _wheels(self, velocity: np.ndarray, pose: np.ndarray) -> Decision:
         """The running decision for ``velocity`` (2,) m/s from ``pose`` (x, y, heading)."""
         config = self.config
-        heading = pose[2]
+        heading = float(pose[2])
+        vx, vy = velocity.tolist()
         robot, distance = config.robot, config.projection_distance
-        wheels, capped = steer(np.array([heading]), velocity[None], robot, distance, self._hold)
-        self.counters.turn_capped += int(capped[0])
-        left, right = wheels[0].tolist()
+        left, right, capped = steer_one(heading, vx, vy, robot, distance, self._hold)
+        self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
         forward, _ = twist_from_wheels(left, right, config.robot.wheel_separation)
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
-        return Decision(left, right, "running", tuple(velocity.tolist()), achieved)
+        return Decision(left, right, "running", (vx, vy), achieved)
 
     def predicted_pose(self, target_wall: float) -> np.ndarray:
         """(x, y, heading) of our robot at our wall time ``target_wall``: its last pose moved
