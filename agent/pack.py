@@ -271,8 +271,8 @@ class Pack:
         ("beacon")."""
         follows = self._follows[bid]
         held = follows[kind]
-        if wanted == held:
-            return  # the usual tick: nothing changed
+        if wanted is held or wanted == held:
+            return  # the usual tick: nothing changed (often the very same set)
         for item in held - wanted:
             self._unfollow(bid, self._key(kind, item))
         for item in wanted - held:
