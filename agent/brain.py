@@ -28,7 +28,7 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -884,17 +884,6 @@ class AgentBrain:
         near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
         return set(near.tolist()) | unconfirmed | set(self.obstacles)
 
-    def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
-        """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
-        positions."""
-        reckoned = self.neighborhood.reckoned
-        return {
-            rid: (rx, ry)
-            for rid in ids
-            for rx, ry, _, _ in (reckoned[rid],)
-            if math.hypot(rx - x, ry - y) <= SAFETY_RADIUS
-        }
-
     def _safety_inputs(self, begun: Begun, velocity: np.ndarray) -> Filtering:
         """What the safety filter (covswarm.tvd.safety) needs to filter ``velocity`` (2,)
         m/s: the robots near us, i.e. the candidates (dead-reckoned, with their reported
@@ -904,7 +893,10 @@ class AgentBrain:
         config = self.config
         now, pose = begun.now, begun.pose
         me = pose[:2]
-        reckoned = self.neighborhood.reckoned
+        neighborhood = self.neighborhood
+        reckoned = neighborhood.reckoned
+        inside = neighborhood.within(*me, SAFETY_RADIUS)
+        near = neighborhood.table[inside]
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
@@ -912,15 +904,20 @@ class AgentBrain:
         for rid, (x, y) in self._near_first_hand.items():
             if rid not in reckoned:
                 self.obstacles[rid] = (x, y, now)
-        self._near_first_hand = self._near(self.neighborhood.first_hand, *me)
-        dead = self.neighborhood.dead
+        first_hand = neighborhood.first_hand
+        ids = neighborhood.table_ids[inside].tolist()
+        self._near_first_hand = {
+            rid: (x, y)
+            for rid, (x, y, _, _) in zip(ids, near.tolist(), strict=True)
+            if rid in first_hand
+        }
+        dead = neighborhood.dead
         for rid in [
             r
             for r, (_, _, since) in self.obstacles.items()
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        near = self.neighborhood.table[self.neighborhood.within(*me, SAFETY_RADIUS)]
         if self.obstacles:  # none is a candidate
             rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
             near = np.concatenate(
