@@ -150,7 +150,8 @@ def test_steer_one_is_steer_for_one_robot() -> None:
     velocities = rng.normal(0.0, 0.5, (n, 2)) * rng.choice([1e-3, 1.0, 10.0], (n, 1))
     holds = rng.choice([0.0, 0.02, 0.1, 0.5], n)
     velocities[:20] = 0.0
-    velocities[20:40] *= 1e300  # overflows to inf in the products: stopped
+    velocities[20:30] *= 1e300  # huge but finite: saturated
+    velocities[30:40] = rng.choice([-1.7e308, 1.7e308], (10, 2))  # products overflow
     velocities[40:50, 0] = np.nan
     velocities[50:60, 1] = np.inf
     headings[60:70] = rng.choice([np.nan, np.inf, -np.inf], 10)
@@ -166,6 +167,10 @@ def test_steer_one_is_steer_for_one_robot() -> None:
                 np.testing.assert_allclose([left, right], wheels[k], rtol=1e-12, atol=1e-15)
                 assert cap == bool(capped[k]), k
                 capped_seen += cap
+            peaks = np.abs(wheels).max(axis=1)
+            np.testing.assert_allclose(peaks[20:30], robot.max_wheel_speed)
+            assert np.all(np.isfinite(wheels))
+            assert np.all(wheels[40:70] == 0.0)  # a non-finite input stops the robot
     assert capped_seen > 100  # the cap was exercised
     for bad in ({"projection_distance": 0.0}, {"hold": -0.1}, {"hold": float("nan")}):
         with pytest.raises(ValueError):
