@@ -206,8 +206,8 @@ class Filtering:
     inputs of covswarm.tvd.safety.safe_unicycle_velocities for this robot. nominal,
     velocity (its last achieved one): (2,) m/s; near: (m, 4) the robots near it (x, y m,
     vx, vy m/s); obstacles: the world's convex polygons near it; workspace: its box or
-    None; distances m, gains 1/s; spent: s of the step timer so far (set by conclude once
-    the inputs are built, which dataclasses.replace of a frozen record cost ~3 us a step)."""
+    None; distances m, gains 1/s; spent: s of the step timer so far, set by conclude once
+    the inputs are built (not frozen: copying it with dataclasses.replace cost ~3 us)."""
 
     begun: Begun
     nominal: np.ndarray
@@ -370,7 +370,7 @@ class AgentBrain:
         self.radius = 1
         self.reach: float | None = None  # cell_reach of our last non-empty cell
         self.counters = Counters()
-        # s: how old a received message may be, by kind (the rest: stale_timeout)
+        # s: how old a received message may be, by kind (beacons and worlds: their own)
         self._max_age = {
             **dict.fromkeys(_HANDLERS, config.stale_timeout),
             "beacon": config.beacon_timeout,

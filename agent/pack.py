@@ -263,8 +263,8 @@ class Pack:
             self.bus.unsubscribe(sub.source)
         # Unread payloads of an undeclared subscriber are lost to a process of its own too.
         pending = self._pending[bid]
-        for item in [slot for slot in pending if slot[2] == key]:
-            del pending[item]
+        for slot in [slot for slot in pending if slot[2] == key]:
+            del pending[slot]
 
     def follow(self, bid: int, kind: str, wanted: frozenset) -> None:
         """Brain ``bid`` follows exactly ``wanted``: robot ids (kind "state") or tiles
