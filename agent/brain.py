@@ -24,11 +24,12 @@ SAFETY_RADIUS, and it refuses a domain that overlaps an obstacle.
 
 from __future__ import annotations
 
+import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable
-from dataclasses import dataclass, replace
+from collections.abc import Callable
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -45,7 +46,7 @@ from covswarm.agent.neighborhood import (
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
 from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer, twist_from_wheels
+from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer_one, twist_from_wheels
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -199,13 +200,14 @@ def local_step_of(view: LocalView, config: AgentConfig) -> LocalStep | Exception
 SafeVelocity = tuple[np.ndarray, int, bool]
 
 
-@dataclass(frozen=True)
+@dataclass
 class Filtering:
     """A control step whose velocity awaits the safety filter (AgentBrain.conclude): the
     inputs of covswarm.tvd.safety.safe_unicycle_velocities for this robot. nominal,
     velocity (its last achieved one): (2,) m/s; near: (m, 4) the robots near it (x, y m,
     vx, vy m/s); obstacles: the world's convex polygons near it; workspace: its box or
-    None; distances m, gains 1/s; spent: s of the step timer so far."""
+    None; distances m, gains 1/s; spent: s of the step timer so far, set by conclude once
+    the inputs are built (not frozen: copying it with dataclasses.replace cost ~3 us)."""
 
     begun: Begun
     nominal: np.ndarray
@@ -308,6 +310,14 @@ def _ms(seconds: float) -> float:
     return round(seconds * 1e3, 2) if math.isfinite(seconds) else 0.0
 
 
+@functools.lru_cache(maxsize=1024)
+def _tile_block(tx: int, ty: int, r: int) -> frozenset[tuple[int, int]]:
+    """The (2r+1)^2 tiles around tile (tx, ty): one object per block for all brains (a
+    brain's block rarely changes between two ticks, and a pack compares it by identity
+    first, covswarm.agent.pack.Pack.follow)."""
+    return frozenset((tx + i, ty + j) for i in range(-r, r + 1) for j in range(-r, r + 1))
+
+
 def sampled_gain(kappa: float, period: float) -> float:
     """The gain to hold over one control period of ``period`` s in place of ``kappa`` (1/s).
 
@@ -360,8 +370,12 @@ class AgentBrain:
         self.radius = 1
         self.reach: float | None = None  # cell_reach of our last non-empty cell
         self.counters = Counters()
-        # s: how old a received message may be, by kind (the rest: stale_timeout)
-        self._max_age = {"beacon": config.beacon_timeout, "world": WORLD_MAX_AGE}
+        # s: how old a received message may be, by kind (beacons and worlds: their own)
+        self._max_age = {
+            **dict.fromkeys(_HANDLERS, config.stale_timeout),
+            "beacon": config.beacon_timeout,
+            "world": WORLD_MAX_AGE,
+        }
         self.drops = DropLog(self.log, f"agent {self.id}", DROP_REASONS)
         self._failure_log = RateLimit()
         self._local = 0  # robots in the last local diagram besides ourselves
@@ -491,8 +505,7 @@ class AgentBrain:
         self.counters.received += 1
         try:
             message = self.decoder.decode(kind, payload)
-            max_age = self._max_age.get(kind, self.config.stale_timeout)
-            check_stamp(message.stamp, now_wall, max_age, self.config.max_clock_skew)
+            check_stamp(message.stamp, now_wall, self._max_age[kind], self.config.max_clock_skew)
         except protocol.ProtocolError as exc:
             self.drops.drop(exc.reason, f"{kind}: {exc}")
             return False
@@ -597,15 +610,13 @@ class AgentBrain:
             return None
         return self.domain.tile_size or protocol.DEFAULT_TILE_SIZE
 
-    def wanted_tiles(self) -> set[tuple[int, int]]:
+    def wanted_tiles(self) -> frozenset[tuple[int, int]]:
         """Beacon tiles to subscribe to: (2r+1)^2 around our own tile (none without a pose
         or before the domain says the swarm's tile size)."""
         tile_size = self.tile_size
         if self.pose is None or tile_size is None:
-            return set()
-        tx, ty = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
-        r = self.radius
-        return {(tx + i, ty + j) for i in range(-r, r + 1) for j in range(-r, r + 1)}
+            return frozenset()
+        return _tile_block(*protocol.tile_of(self.pose.x, self.pose.y, tile_size), self.radius)
 
     # --- the tick ------------------------------------------------------------------------
 
@@ -633,7 +644,7 @@ class AgentBrain:
             wanted |= self.near_ids()
         self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
         actions.append(FollowStates(frozenset(wanted)))
-        actions.append(FollowTiles(frozenset(self.wanted_tiles())))
+        actions.append(FollowTiles(self.wanted_tiles()))
         if not self._alive and self.pose is not None:
             self._alive = True
             actions.append(DeclareAlive())
@@ -756,7 +767,8 @@ class AgentBrain:
             return self.settle(self._failed(exc))
         spent = begun.spent + shared + self._clock() - started
         if isinstance(outcome, Filtering):
-            return replace(outcome, spent=spent)
+            outcome.spent = spent
+            return outcome
         self._step_us.add(spent * 1e6)
         return self.settle(outcome)
 
@@ -806,7 +818,8 @@ class AgentBrain:
         if result.mass > 0.0:
             # The area, not the mass: a density's mass overstates the cell's size (by the
             # bump's peak over the floor under a bump), and with it the local set.
-            self.reach = cell_reach(float(np.linalg.norm(result.centroid - me)), result.area)
+            cx, cy = result.centroid.tolist()
+            self.reach = cell_reach(math.hypot(cx - me[0], cy - me[1]), result.area)
             self.radius = tile_radius(
                 self.reach, self.tile_size, self.radius, self.config.max_tile_radius
             )
@@ -815,7 +828,8 @@ class AgentBrain:
         if self.domain.state != "running":
             return Decision(0.0, 0.0, self.domain.state)
         velocity = np.asarray(result.velocity, dtype=float)
-        if not np.all(np.isfinite(velocity)):
+        vx, vy = velocity.tolist()
+        if not (math.isfinite(vx) and math.isfinite(vy)):
             raise ValueError(f"non-finite velocity {velocity}")
         if config.safety:
             return self._safety_inputs(begun, velocity)
@@ -824,17 +838,17 @@ class AgentBrain:
     def _wheels(self, velocity: np.ndarray, pose: np.ndarray) -> Decision:
         """The running decision for ``velocity`` (2,) m/s from ``pose`` (x, y, heading)."""
         config = self.config
-        heading = pose[2]
+        heading = float(pose[2])
+        vx, vy = velocity.tolist()
         robot, distance = config.robot, config.projection_distance
-        wheels, capped = steer(np.array([heading]), velocity[None], robot, distance, self._hold)
-        self.counters.turn_capped += int(capped[0])
-        left, right = wheels[0].tolist()
+        left, right, capped = steer_one(heading, vx, vy, robot, distance, self._hold)
+        self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
         forward, _ = twist_from_wheels(left, right, config.robot.wheel_separation)
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
-        return Decision(left, right, "running", tuple(velocity.tolist()), achieved)
+        return Decision(left, right, "running", (vx, vy), achieved)
 
     def predicted_pose(self, target_wall: float) -> np.ndarray:
         """(x, y, heading) of our robot at our wall time ``target_wall``: its last pose moved
@@ -870,17 +884,6 @@ class AgentBrain:
         near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
         return set(near.tolist()) | unconfirmed | set(self.obstacles)
 
-    def _near(self, ids: Iterable[int], x: float, y: float) -> dict[int, tuple[float, float]]:
-        """The candidates among ``ids`` within SAFETY_RADIUS of (x, y) m, at their reckoned
-        positions."""
-        reckoned = self.neighborhood.reckoned
-        return {
-            rid: (rx, ry)
-            for rid in ids
-            for rx, ry, _, _ in (reckoned[rid],)
-            if math.hypot(rx - x, ry - y) <= SAFETY_RADIUS
-        }
-
     def _safety_inputs(self, begun: Begun, velocity: np.ndarray) -> Filtering:
         """What the safety filter (covswarm.tvd.safety) needs to filter ``velocity`` (2,)
         m/s: the robots near us, i.e. the candidates (dead-reckoned, with their reported
@@ -890,7 +893,10 @@ class AgentBrain:
         config = self.config
         now, pose = begun.now, begun.pose
         me = pose[:2]
-        reckoned = self.neighborhood.reckoned
+        neighborhood = self.neighborhood
+        reckoned = neighborhood.reckoned
+        inside = neighborhood.within(*me, SAFETY_RADIUS)
+        near = neighborhood.table[inside]
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
@@ -898,15 +904,20 @@ class AgentBrain:
         for rid, (x, y) in self._near_first_hand.items():
             if rid not in reckoned:
                 self.obstacles[rid] = (x, y, now)
-        self._near_first_hand = self._near(self.neighborhood.first_hand, *me)
-        dead = self.neighborhood.dead
+        first_hand = neighborhood.first_hand
+        ids = neighborhood.table_ids[inside].tolist()
+        self._near_first_hand = {
+            rid: (x, y)
+            for rid, (x, y, _, _) in zip(ids, near.tolist(), strict=True)
+            if rid in first_hand
+        }
+        dead = neighborhood.dead
         for rid in [
             r
             for r, (_, _, since) in self.obstacles.items()
             if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
         ]:
             del self.obstacles[rid]
-        near = self.neighborhood.table[self.neighborhood.within(*me, SAFETY_RADIUS)]
         if self.obstacles:  # none is a candidate
             rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
             near = np.concatenate(

@@ -102,9 +102,16 @@ CHUNK = 32
 # drained its subscribers.
 KIND_ORDER = {"world": 0, "domain": 1, "pose": 2, "state": 3, "beacon": 4}
 
+# Where a payload waits for a brain: (KIND_ORDER of its kind, the id in its key or -1, key),
+# one per key (per key and id in a beacon tile, per sample for the domain). Sorted as they
+# are, the slots give a brain its payloads in the canonical order, without a sort key.
+_Slot = tuple[int, int, str]
+# brain -> {slot: (kind, id, payload)}: the newest payload per key for a brain
+_Queues = dict[int, dict[_Slot, InboxItem]]
 
-# brain -> {(key, id in it): (kind, id, payload)}: the newest payload per key for a brain
-_Queues = dict[int, dict[tuple[str, int | None], InboxItem]]
+
+def _slot(kind: str, key_id: int | None, key: str) -> _Slot:
+    return KIND_ORDER[kind], -1 if key_id is None else key_id, key
 
 
 class Payload(Protocol):
@@ -145,6 +152,7 @@ class _Subscription:
     key_id: int | None  # the id in its key; None for the domain and wildcard tiles
     wildcard: bool
     source: Source
+    slot: _Slot  # where its payloads wait (a single key's; a tile's slots are per id)
     followers: set[int] = field(default_factory=set)
 
 
@@ -237,7 +245,8 @@ class Pack:
         if sub is None:
             capacity = RING_PER_TILE if wildcard else RING_PER_KEY
             capacity = DOMAIN_RING if kind == "domain" else capacity
-            sub = _Subscription(kind, key_id, wildcard, self.bus.subscribe(key, capacity))
+            source = self.bus.subscribe(key, capacity)
+            sub = _Subscription(kind, key_id, wildcard, source, _slot(kind, key_id, key))
             self._subs[key] = sub
         else:
             # What arrived before these brains followed the key is not theirs (a subscriber
@@ -254,16 +263,16 @@ class Pack:
             self.bus.unsubscribe(sub.source)
         # Unread payloads of an undeclared subscriber are lost to a process of its own too.
         pending = self._pending[bid]
-        for item in [item for item in pending if item[0] == key]:
-            del pending[item]
+        for slot in [slot for slot in pending if slot[2] == key]:
+            del pending[slot]
 
     def follow(self, bid: int, kind: str, wanted: frozenset) -> None:
         """Brain ``bid`` follows exactly ``wanted``: robot ids (kind "state") or tiles
         ("beacon")."""
         follows = self._follows[bid]
         held = follows[kind]
-        if wanted == held:
-            return  # the usual tick: nothing changed
+        if wanted is held or wanted == held:
+            return  # the usual tick: nothing changed (often the very same set)
         for item in held - wanted:
             self._unfollow(bid, self._key(kind, item))
         for item in wanted - held:
@@ -318,7 +327,7 @@ class Pack:
             if (rid := self._key_id(skey)) is None:
                 malformed += 1
             else:
-                items.append(((key, rid), (sub.kind, rid, payload)))
+                items.append((_slot(sub.kind, rid, key), (sub.kind, rid, payload)))
         for bid in sub.followers:
             brain = self.brains[bid]
             pending = queues[bid]
@@ -340,7 +349,7 @@ class Pack:
             last = sample
         if last is None:
             return
-        slot = (key, sub.key_id)
+        slot = sub.slot
         item = (sub.kind, sub.key_id, last.payload.to_bytes())
         for bid in sub.followers:
             pending = queues[bid]
@@ -352,7 +361,7 @@ class Pack:
         (the slots sort in arrival order: same kind and id, increasing numbers)."""
         while (sample := sub.source.try_recv()) is not None:
             self._every += 1
-            slot = (f"{key}#{self._every:012d}", sub.key_id)
+            slot = _slot(sub.kind, sub.key_id, f"{key}#{self._every:012d}")
             item = (sub.kind, sub.key_id, sample.payload.to_bytes())
             for bid in sub.followers:
                 queues[bid][slot] = item
@@ -381,7 +390,7 @@ class Pack:
         brain takes them as its receipt times, covswarm.agent.latency)."""
         brain = self.brains[bid]
         pending = self._pending[bid]
-        items = [pending[slot] for slot in sorted(pending, key=_slot_order(pending))]
+        items = [pending[slot] for slot in sorted(pending)]
         pending.clear()
         impairment = self._impairment.get(bid)
         if impairment is not None:
@@ -536,16 +545,6 @@ class Pack:
         """Stop every robot at once (rather than after their command timeout)."""
         for bid, brain in self.brains.items():
             self.carry_out(bid, brain.stop(wall))
-
-
-def _slot_order(
-    pending: dict[tuple[str, int | None], InboxItem],
-) -> Callable[[tuple[str, int | None]], tuple[int, int, str]]:
-    def order(slot: tuple[str, int | None]) -> tuple[int, int, str]:
-        kind, rid, _ = pending[slot]
-        return KIND_ORDER[kind], -1 if rid is None else rid, slot[0]
-
-    return order
 
 
 class _Ring:

@@ -11,6 +11,8 @@ from covswarm.tvd.drive import (
     DiffDrive,
     integrate,
     integrate_one,
+    steer,
+    steer_one,
     wheel_speeds,
 )
 
@@ -136,3 +138,42 @@ def test_integrate_one_is_integrate_for_one_robot() -> None:
         expected = integrate(pose[None], wheel[None], dt)[0]
         got = integrate_one(*pose.tolist(), *wheel.tolist(), dt)
         np.testing.assert_allclose(got, expected, rtol=0, atol=1e-12)
+
+
+def test_steer_one_is_steer_for_one_robot() -> None:
+    """The plain-float steer an agent uses for its robot equals the numpy one row by row:
+    random headings and velocities, held commands that cap the turn and ones that do not,
+    zero, huge and non-finite velocities, non-finite headings, a tiny robot limit."""
+    rng = np.random.default_rng(11)
+    n = 600
+    headings = rng.uniform(-4.0, 4.0, n)
+    velocities = rng.normal(0.0, 0.5, (n, 2)) * rng.choice([1e-3, 1.0, 10.0], (n, 1))
+    holds = rng.choice([0.0, 0.02, 0.1, 0.5], n)
+    velocities[:20] = 0.0
+    velocities[20:30] *= 1e300  # huge but finite: saturated
+    velocities[30:40] = rng.choice([-1.7e308, 1.7e308], (10, 2))  # products overflow
+    velocities[40:50, 0] = np.nan
+    velocities[50:60, 1] = np.inf
+    headings[60:70] = rng.choice([np.nan, np.inf, -np.inf], 10)
+    velocities[70:80] = velocities[70:80, ::-1] * [[-1.0, 1.0]]  # sideways: capped if held
+    capped_seen = 0
+    for robot in (KHEPERA_IV, DiffDrive(max_wheel_speed=0.05)):
+        for distance in (L, 0.05):
+            wheels, capped = steer(headings, velocities, robot, distance, holds)
+            for k in range(n):
+                left, right, cap = steer_one(
+                    float(headings[k]), *velocities[k].tolist(), robot, distance, float(holds[k])
+                )
+                np.testing.assert_allclose([left, right], wheels[k], rtol=1e-12, atol=1e-15)
+                assert cap == bool(capped[k]), k
+                capped_seen += cap
+            peaks = np.abs(wheels).max(axis=1)
+            np.testing.assert_allclose(peaks[20:30], robot.max_wheel_speed)
+            assert np.all(np.isfinite(wheels))
+            assert np.all(wheels[40:70] == 0.0)  # a non-finite input stops the robot
+    assert capped_seen > 100  # the cap was exercised
+    for bad in ({"projection_distance": 0.0}, {"hold": -0.1}, {"hold": float("nan")}):
+        with pytest.raises(ValueError):
+            steer_one(0.0, 0.1, 0.0, **bad)
+        with pytest.raises(ValueError):
+            steer(np.zeros(1), np.array([[0.1, 0.0]]), **bad)

@@ -354,6 +354,51 @@ def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() ->
         assert brain.counters.coalesced == (bid < 2)
 
 
+def test_a_brain_gets_its_payloads_by_kind_then_id_then_key() -> None:
+    """A turn's payloads reach a brain in the documented order whatever order they arrived
+    in: the world, the domain (every sample, in arrival order), its pose, the states by
+    id, the beacons by id then tile key; a key it stopped following hands it nothing."""
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1)])
+    pack.follow(0, "state", frozenset({9, 3, 5, 6}))
+    pack.follow(0, "beacon", frozenset({(1, 0), (0, 0)}))
+    arrivals = [
+        (protocol.beacon_key(SWARM, 1, 0, 4), b"beacon 4 in (1, 0)"),
+        (protocol.agent_state_key(SWARM, 9), b"state 9"),
+        (protocol.domain_key(SWARM), b"domain a"),
+        (protocol.beacon_key(SWARM, 0, 0, 8), b"beacon 8"),
+        (protocol.agent_state_key(SWARM, 6), b"state 6"),
+        (protocol.pose_key(SWARM, 0), b"pose 0"),
+        (protocol.agent_state_key(SWARM, 3), b"state 3"),
+        (protocol.beacon_key(SWARM, 0, 0, 4), b"beacon 4 in (0, 0)"),
+        (protocol.world_key(SWARM), b"world"),
+        (protocol.domain_key(SWARM), b"domain b"),
+        (protocol.agent_state_key(SWARM, 5), b"state 5"),
+        (protocol.pose_key(SWARM, 1), b"pose 1"),
+    ]
+    for key, payload in arrivals:
+        bus.put(key, payload)
+    pack.drain()
+    pack.follow(0, "state", frozenset({9, 3, 5}))  # 6 unfollowed before the brain's turn
+    seen: list[tuple[str, int | None, bytes]] = []
+    pack.brains[0].receive = lambda kind, payload, now, wall, key_id=None: seen.append(  # type: ignore[method-assign]
+        (kind, key_id, payload)
+    )
+    pack.receive(0, 0.0, WALL)
+    assert seen == [
+        ("world", None, b"world"),
+        ("domain", None, b"domain a"),
+        ("domain", None, b"domain b"),
+        ("pose", 0, b"pose 0"),
+        ("state", 3, b"state 3"),
+        ("state", 5, b"state 5"),
+        ("state", 9, b"state 9"),
+        ("beacon", 4, b"beacon 4 in (0, 0)"),
+        ("beacon", 4, b"beacon 4 in (1, 0)"),
+        ("beacon", 8, b"beacon 8"),
+    ]
+
+
 def test_a_bad_view_stops_only_its_brain_and_the_batch_fallback_is_counted() -> None:
     """A brain whose local step raises (an invalid gain here) in a chunk with others: the
     batch is taken again one by one, the bad brain stops its robot and counts a step

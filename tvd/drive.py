@@ -115,6 +115,41 @@ def steer(
     return wheels * scale[:, None], capped & ~bad
 
 
+def steer_one(
+    heading: float, vx: float, vy: float, robot: DiffDrive = KHEPERA_IV,
+    projection_distance: float = DEFAULT_PROJECTION_DISTANCE, hold: float = 0.0,
+) -> tuple[float, float, bool]:  # fmt: skip
+    """:func:`steer` for one robot in plain floats: rim speeds (left, right) m/s for the
+    planar velocity (vx, vy) m/s from ``heading`` rad, and whether the turn rate was capped
+    for ``hold`` s; the same arithmetic, guards and errors. An agent steers its one robot
+    every step, where numpy's per-call overhead was ~40 us of steer's cost for a single row
+    (tests/test_drive_model.py checks both agree on random, capped and non-finite input)."""
+    if projection_distance <= 0.0:
+        raise ValueError(f"projection_distance must be positive, got {projection_distance}")
+    if not hold >= 0.0:
+        raise ValueError(f"hold must be >= 0 s, got {hold}")
+    if not math.isfinite(heading):
+        return 0.0, 0.0, False  # math.cos raises on inf; steer zeroes the row
+    cos, sin = math.cos(heading), math.sin(heading)
+    v = vx * cos + vy * sin
+    lateral = -vx * sin + vy * cos
+    w = lateral / projection_distance
+    capped = False
+    if hold > 0.0:
+        limit = abs(math.atan2(lateral, v)) / hold
+        if abs(w) > limit:
+            capped, w = True, math.copysign(limit, w)
+    half_track = 0.5 * robot.wheel_separation
+    left, right = v - w * half_track, v + w * half_track
+    if not (math.isfinite(left) and math.isfinite(right)):
+        return 0.0, 0.0, False
+    peak = max(abs(left), abs(right))
+    if peak > robot.max_wheel_speed:
+        scale = robot.max_wheel_speed / max(peak, 1e-300)
+        left, right = left * scale, right * scale
+    return left, right, capped
+
+
 def twist_from_wheels(
     left: float | np.ndarray, right: float | np.ndarray, wheel_separation: float
 ) -> tuple[float | np.ndarray, float | np.ndarray]:
