@@ -810,6 +810,7 @@ class AgentBrain:
         now, pose = begun.now, begun.pose
         me = pose[:2]
         self.counters.guarded += int(result.guarded and self.running)
+        self.counters.cell_empty += int(result.mass <= 0.0 and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         self.neighborhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
         if self.neighborhood.unrequited(now):
@@ -1005,6 +1006,7 @@ class AgentBrain:
             "step_errors": c.step_errors,
             "batch_fallbacks": c.batch_fallbacks,
             "turn_capped": c.turn_capped,
+            "cell_empty": c.cell_empty,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),

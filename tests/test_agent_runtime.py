@@ -96,6 +96,21 @@ def test_running_drives_toward_centroid() -> None:
     assert max(abs(decision.left), abs(decision.right)) <= 0.8
 
 
+def test_steps_without_a_cell_are_counted() -> None:
+    """A robot outside S whose Voronoi cell misses S (a teammate stands between them) has
+    no cell: its mission steps so are counted (the trap that dominates e_a at 100+ robots),
+    those with a cell are not."""
+    brain = brain_at(-1.0, 1.0)
+    brain.on_domain(domain(), now=0.0)
+    teammate = protocol.AgentState(id=1, x=-0.2, y=1.0, stamp=WALL, neighbors=[0])
+    brain.on_agent_state(teammate, now=0.0)
+    assert brain.step(0.1, WALL).reason == "running"
+    assert brain.stats()["cell_empty"] == 1
+    brain.on_pose(pose(0, 0.5, 1.0), now=0.1)  # inside S now, its cell with it
+    brain.step(0.15, WALL + 0.05)
+    assert brain.stats()["cell_empty"] == 1 and brain.counters.mission_steps == 2
+
+
 @pytest.mark.parametrize("state", ["waiting", "done"])
 def test_waiting_and_done_give_zero_but_learn_neighbors(state: str) -> None:
     brain = brain_at(0.5, 0.5)
