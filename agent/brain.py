@@ -655,12 +655,18 @@ class AgentBrain:
         after its command timeout."""
         return SendCommand(self.command(Decision(0.0, 0.0, "stopped"), now_wall))
 
-    def hold(self, now_wall: float) -> SendCommand:
+    def hold(self, now: float, now_wall: float) -> list[Action]:
         """A zero command for a control period this brain could not step in time (an
         overloaded process, covswarm.agent.pack): its robot stops rather than run on the
-        last command, computed from inputs that are now a period old."""
+        last command, computed from inputs that are now a period old; and our AgentState
+        saying so (velocity 0), or neighbours would dead-reckon the robot on at its last
+        velocity until our next step."""
         self.velocity = (0.0, 0.0)
-        return SendCommand(self.command(Decision(0.0, 0.0, "late"), now_wall))
+        actions: list[Action] = [SendCommand(self.command(Decision(0.0, 0.0, "late"), now_wall))]
+        state = self.agent_state(now_wall, stats=False) if self.pose_fresh(now) else None
+        if state is not None:
+            actions.append(PublishState(state))
+        return actions
 
     # --- control -------------------------------------------------------------------------
 

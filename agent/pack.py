@@ -539,7 +539,8 @@ class Pack:
         if brain.id in self._held or now - self._stepped.get(brain.id, now) <= self.hold_after:
             return
         self._held.add(brain.id)
-        self.carry_out(brain.id, brain.hold(wall))
+        for action in brain.hold(now, wall):
+            self.carry_out(brain.id, action)
 
     def stop(self, wall: float) -> None:
         """Stop every robot at once (rather than after their command timeout)."""

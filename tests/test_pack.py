@@ -69,6 +69,7 @@ class World:
             )
         self.round = 0
         self.sent_commands: list[protocol.WheelCommand] = []
+        self.sent_states: list[protocol.AgentState] = []
 
     def _record(self, brain: AgentBrain) -> None:
         log = self.received[brain.id] = []
@@ -161,6 +162,8 @@ class World:
             if key.endswith("/cmd"):
                 command = protocol.WheelCommand.decode(payload)
                 latest[command.id] = command
+            elif key.endswith("/state"):
+                self.sent_states.append(protocol.AgentState.decode(payload))
         self.sent_commands.extend(latest.values())
         self.bus.sent.clear()
         axle = AgentConfig().robot.wheel_separation
@@ -283,12 +286,17 @@ def test_a_late_brain_skips_its_period_then_holds_its_robot(chunk: int) -> None:
     # hold_after (0.3 s) and they stop their robots, once per stretch without a step.
     steps = {bid: pack.brains[bid].counters.steps for bid in first}
     world.sent_commands.clear()
+    world.sent_states.clear()
     world.run(8, cost=0.15)
     for bid in first:
         mine = [c for c in world.sent_commands if c.id == bid]
         zeros = [c for c in mine if (c.left, c.right) == (0.0, 0.0)]
         stepped = pack.brains[bid].counters.steps - steps[bid]
         assert 1 <= len(zeros) <= stepped + 1 and len(mine) == stepped + len(zeros), bid
+        # With the stop goes an AgentState saying so: neighbours must not dead-reckon the
+        # robot on at the velocity of its last step.
+        stopped = [s for s in world.sent_states if s.id == bid and (s.vx, s.vy) == (0.0, 0.0)]
+        assert len(stopped) >= len(zeros), bid
     stats = pack.brains[late[0]].stats()
     assert 0.5 < stats["late_held"] < 1.0
     with pytest.raises(ValueError, match="hold_after"):
