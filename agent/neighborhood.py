@@ -186,6 +186,27 @@ class BeaconLedger:
         return (received >= oldest) & (self.heard[: self.n] < received)
 
 
+@dataclass(slots=True)
+class BeaconChoice:
+    """The beacon-only candidates refresh() chose (Neighborhood._from_beacons). Most of a
+    brain's candidates are such robots, and the same ones from one control period to the
+    next: a beacon that moves one of them updates it in place (on_beacon), and the choice
+    is taken again as it is while ``current``, its oldest beacon fresh and the robots known
+    otherwise the same."""
+
+    ledger: BeaconLedger
+    mask: bytes  # the ledger's slots chosen, (n,) bool
+    slots: np.ndarray  # (m,) of them
+    rows: dict[int, Reckoned]  # id -> x, y, 0, 0 in slot order
+    table: np.ndarray  # (m, 4) the same as table rows
+    ids: np.ndarray  # (m,) their ids
+    known: AbstractSet[int] = frozenset()  # robots known otherwise: none of them chosen
+    first: float = math.inf  # s: the oldest receipt of a beacon chosen
+    # False once a beacon or state arrived that may change the choice (a new robot's, or
+    # one of them heard first-hand), or while robots await confirmation (ask())
+    current: bool = False
+
+
 class Neighborhood:
     """The other robots one agent knows of, by how it heard of them.
 
@@ -214,12 +235,7 @@ class Neighborhood:
         self.beacons: dict[int, Track] = {}
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
         self._ledger = BeaconLedger(self.beacons, self._heard)
-        # The beacon-only candidates refresh() chose last: (the ledger and the (n,) bool mask
-        # of its slots chosen, which key it, the slots (m,), id -> x, y, 0, 0 in slot order,
-        # their table rows (m, 4), their ids (m,)). Most of a brain's candidates are such
-        # robots, and the same ones from one control period to the next; a beacon that
-        # moves one of them updates it in place (on_beacon).
-        self._beacon_rows: tuple | None = None
+        self._choice: BeaconChoice | None = None  # the beacon-only candidates chosen last
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
         # relayer id -> (its AgentState.relay entries, when received)
         self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
@@ -270,18 +286,14 @@ class Neighborhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
         self.poses[rid] = Track(pose.x, pose.y, now)
-        self._heard[rid] = now
-        self._ledger.hear(rid, now)
-        self.asked.pop(rid, None)
+        self._hear(rid, now)
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         rid = state.id
         self.state_tracks[rid] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
-        self._heard[rid] = now
-        self._ledger.hear(rid, now)
-        self.asked.pop(rid, None)
+        self._hear(rid, now)
         if self.liveliness.deaths:
             self._revive(rid, "agent")
         self.neighbor_sets[rid] = (frozenset(state.neighbors), now)
@@ -290,19 +302,29 @@ class Neighborhood:
         else:
             self.relays[state.id] = (state.relay, now)
 
+    def _hear(self, rid: int, now: float) -> None:
+        """Robot ``rid``'s own pose or state arrived at ``now``."""
+        self._heard[rid] = now
+        self._ledger.hear(rid, now)
+        self.asked.pop(rid, None)
+        choice = self._choice
+        if choice is not None and rid in choice.rows:
+            choice.current = False  # its beacon is no longer its newest news
+
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         rid, x, y = beacon.id, beacon.x, beacon.y
         self.beacons[rid] = Track(x, y, now)
         slot = self._ledger.put(rid, x, y, now, self._heard.get(rid, -math.inf))
-        chosen = self._beacon_rows
-        if chosen is not None and rid in chosen[3]:
+        choice = self._choice
+        if choice is not None and rid in choice.rows:
             # A beacon-only candidate moved (a team of N hears N / beacon_period beacons a
             # second): in place, as refresh() would choose it again.
-            _, _, slots, rows, table, _ = chosen
-            rows[rid] = (x, y, 0.0, 0.0)
+            choice.rows[rid] = (x, y, 0.0, 0.0)
             self._moved.append(rid)
-            row = int(slots.searchsorted(slot))
-            table[row, 0], table[row, 1] = x, y
+            row = int(choice.slots.searchsorted(slot))
+            choice.table[row, 0], choice.table[row, 1] = x, y
+        elif choice is not None and rid not in choice.known:
+            choice.current = False  # a robot that may now be chosen
         asked = self.asked.get(rid)
         if asked is not None and now - asked >= CONFIRMATION_RETRY:
             del self.asked[rid]  # another chance (CONFIRMATION_RETRY)
@@ -459,8 +481,17 @@ class Neighborhood:
         the newest news of its robot (one that went stale after we heard its state must
         not bring back where it was seconds ago), and of none in ``known``; unconfirmed
         past BEACON_CONFIRMATION: no candidate (module notes)."""
-        ledger = self._ledger
-        usable = ledger.usable(now - self.beacon_timeout)
+        ledger, choice, oldest = self._ledger, self._choice, now - self.beacon_timeout
+        if (
+            choice is not None
+            and choice.current
+            and not self.asked
+            and choice.ledger is ledger
+            and choice.first >= oldest
+            and choice.known == known
+        ):
+            return choice.rows, choice.table, choice.ids, {}
+        usable = ledger.usable(oldest)
         slot = ledger.slot
         usable[[slot[rid] for rid in known if rid in slot]] = False
         unconfirmed: dict[int, tuple[float, float]] = {}
@@ -478,17 +509,18 @@ class Neighborhood:
                 track = self.beacons[rid]
                 unconfirmed[rid] = (track.x, track.y)
             usable[[s for s, _ in late]] = False
-        chosen = self._beacon_rows
-        key = usable.tobytes()
-        if chosen is None or chosen[0] is not ledger or chosen[1] != key:
+        mask = usable.tobytes()
+        if choice is None or choice.ledger is not ledger or choice.mask != mask:
             slots = np.flatnonzero(usable)
             table = ledger.rows[slots]
             ids = ledger.ids[slots]
             xs, ys = table[:, 0].tolist(), table[:, 1].tolist()
             rows = dict(zip(ids.tolist(), zip(xs, ys, repeat(0.0), repeat(0.0)), strict=False))
-            chosen = self._beacon_rows = (ledger, key, slots, rows, table, ids)
-        _, _, _, rows, table, ids = chosen
-        return rows, table, ids, unconfirmed
+            choice = self._choice = BeaconChoice(ledger, mask, slots, rows, table, ids)
+        choice.known = known
+        choice.first = float(ledger.received[choice.slots].min(initial=math.inf))
+        choice.current = not self.asked
+        return choice.rows, choice.table, choice.ids, unconfirmed
 
     def within(self, x: float, y: float, radius: float) -> np.ndarray:
         """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
