@@ -440,7 +440,6 @@ class Neighborhood:
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)
-        head_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
         rows, beacon_table, beacon_ids, unconfirmed = self._from_beacons(
             now, reckoned.keys() | dead.keys()
         )
@@ -456,17 +455,22 @@ class Neighborhood:
             for rid in self._moved:
                 last[rid] = rows[rid]
             reckoned = last
+            # and the table's rows too (the same layout): a new one cost more than them
+            self.table[: len(head)] = head
+            if self._moved:
+                self.table[len(head) :] = beacon_table
         else:
             reckoned.update(rows)
             if rows is self._beacon_only:  # the same beacon-only ones: none of them dropped
                 self.stale_dropped += sum(rid not in reckoned for rid in self._head_ids)
             else:
                 self.stale_dropped += len(last.keys() - reckoned.keys())
+            self.table = np.concatenate((head, beacon_table))
+            head_ids = np.fromiter(head_ids_list, dtype=np.int64, count=len(head_ids_list))
+            self.table_ids = np.concatenate((head_ids, beacon_ids))
         self._moved.clear()
         self._beacon_only, self.beacon_only, self._head_ids = rows, rows.keys(), head_ids_list
         self.reckoned, self.first_hand = reckoned, first_hand
-        self.table = np.concatenate((head, beacon_table))
-        self.table_ids = np.concatenate((head_ids, beacon_ids))
         self._distances = {}
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
