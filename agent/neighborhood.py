@@ -15,6 +15,7 @@ import math
 from collections.abc import Iterable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
+from itertools import repeat
 
 import numpy as np
 
@@ -134,6 +135,78 @@ class Liveliness:
         del self._appeared[: bisect.bisect_right(self._appeared, upto, key=lambda e: e[0])]
 
 
+class BeaconLedger:
+    """The beacons of a :class:`Neighborhood` as arrays, slot i the i-th of its ``beacons``
+    (their order), beside when each robot's own pose or state was last heard: for
+    refresh()'s vectorised choice of the beacon-only candidates: walking ~250 beacons in
+    Python whenever the robots known otherwise changed (one control period in ten, 500
+    packed brains) was half of refresh()."""
+
+    def __init__(self, beacons: dict[int, Track], heard: dict[int, float]) -> None:
+        n = len(beacons)
+        self.n = n  # slots in use (the arrays keep room to append)
+        self.slot = {rid: i for i, rid in enumerate(beacons)}
+        self.ids = np.fromiter(beacons, dtype=np.int64, count=n)
+        self.rows = np.zeros((n, 4))  # x, y (m), 0, 0: a row of Neighborhood.table
+        self.rows[:, 0] = np.fromiter((t.x for t in beacons.values()), dtype=float, count=n)
+        self.rows[:, 1] = np.fromiter((t.y for t in beacons.values()), dtype=float, count=n)
+        self.received = np.fromiter((t.received for t in beacons.values()), dtype=float, count=n)
+        self.heard = np.fromiter(
+            (heard.get(rid, -math.inf) for rid in beacons), dtype=float, count=n
+        )
+
+    def put(self, rid: int, x: float, y: float, received: float, heard: float) -> int:
+        """Robot ``rid``'s beacon at (x, y) m received at ``received`` s (a new robot's last,
+        as in the dict, with its own data last heard at ``heard``); its slot."""
+        slot = self.slot.get(rid)
+        if slot is None:
+            slot = self.slot[rid] = self.n
+            if slot == len(self.ids):
+                room = max(16, 2 * slot)
+                self.ids, self.rows, self.received, self.heard = (
+                    np.concatenate((a, np.zeros((room - slot, *a.shape[1:]), dtype=a.dtype)))
+                    for a in (self.ids, self.rows, self.received, self.heard)
+                )
+            self.ids[slot], self.heard[slot] = rid, heard
+            self.n += 1
+        rows = self.rows
+        rows[slot, 0], rows[slot, 1], self.received[slot] = x, y, received
+        return slot
+
+    def hear(self, rid: int, now: float) -> None:
+        """Robot ``rid``'s own pose or state arrived at ``now``."""
+        slot = self.slot.get(rid)
+        if slot is not None:
+            self.heard[slot] = now
+
+    def usable(self, oldest: float) -> np.ndarray:
+        """(n,) bool: the beacons received since ``oldest`` s and after their robot's own
+        pose or state (a beacon only while it is its robot's newest news)."""
+        received = self.received[: self.n]
+        return (received >= oldest) & (self.heard[: self.n] < received)
+
+
+@dataclass(slots=True)
+class BeaconChoice:
+    """The beacon-only candidates refresh() chose (Neighborhood._from_beacons). Most of a
+    brain's candidates are such robots, and the same ones from one control period to the
+    next: a beacon that moves one of them updates it in place (on_beacon), and the choice
+    is taken again as it is while ``current``, its oldest beacon fresh and the robots known
+    otherwise the same."""
+
+    ledger: BeaconLedger
+    mask: bytes  # the ledger's slots chosen, (n,) bool
+    slots: np.ndarray  # (m,) of them
+    rows: dict[int, Reckoned]  # id -> x, y, 0, 0 in slot order
+    table: np.ndarray  # (m, 4) the same as table rows
+    ids: np.ndarray  # (m,) their ids
+    known: AbstractSet[int] = frozenset()  # robots known otherwise: none of them chosen
+    first: float = math.inf  # s: the oldest receipt of a beacon chosen
+    # False once a beacon or state arrived that may change the choice (a new robot's, or
+    # one of them heard first-hand), or while robots await confirmation (ask())
+    current: bool = False
+
+
 class Neighborhood:
     """The other robots one agent knows of, by how it heard of them.
 
@@ -150,6 +223,8 @@ class Neighborhood:
         linger_period: float,
         confirmation: float = BEACON_CONFIRMATION,
     ) -> None:
+        if not confirmation >= 0.0:
+            raise ValueError(f"beacon confirmation must be >= 0 s, not {confirmation}")
         self.me = me
         self.confirmation = confirmation
         self.stale_timeout = stale_timeout
@@ -158,13 +233,9 @@ class Neighborhood:
         self.poses: dict[int, Track] = {}
         self.state_tracks: dict[int, Track] = {}
         self.beacons: dict[int, Track] = {}
-        self._beacons_changed = 0  # beacons added or forgotten (keys the cache below)
-        # What refresh() took from the beacons last, while it holds: (key, computed at, the
-        # oldest beacon in it (s; valid while fresh), id -> x, y, 0, 0 in the order of
-        # ``beacons``, their table rows, id -> row).
-        # Most of a brain's candidates are beacon-only robots that change far less often
-        # than every control period, and rebuilding them each period was a fifth of it.
-        self._beacon_cache: tuple | None = None
+        self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
+        self._ledger = BeaconLedger(self.beacons, self._heard)
+        self._choice: BeaconChoice | None = None  # the beacon-only candidates chosen last
         self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
         # relayer id -> (its AgentState.relay entries, when received)
         self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
@@ -176,7 +247,9 @@ class Neighborhood:
         self.first_hand: set[int] = set()
         self.table = np.zeros((0, 4))
         self.table_ids = np.zeros(0, dtype=np.int64)
-        self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
+        # (x, y) -> distances (n,) m of the rows of ``table`` from there: a step asks for
+        # the robots around its pose more than once (local set, followed ids, safety).
+        self._distances: dict[tuple[float, float], np.ndarray] = {}
         # The token changes seen (this agent's own, or its process's: share()), the serial
         # of the last one taken as applied (catch_up), and (id, role) -> that serial when
         # data from a robot revived it.
@@ -184,6 +257,8 @@ class Neighborhood:
         self._shared = False
         self.mark = 0
         self._revived: dict[tuple[int, str], int] = {}
+        self._revivals = 0  # changes of _revived: with the liveliness serial, keys ``dead``
+        self._dead_key: tuple = ()
         # id -> roles ("agent", "robot") whose liveliness token was deleted: such a robot is
         # no team member (a stopped robot without brain, or a brain without robot); as of
         # the last refresh().
@@ -193,6 +268,11 @@ class Neighborhood:
         # of it for want of confirmation (id -> x, y), and how many were so left out in all
         self.asked: dict[int, float] = {}
         self.beacon_only: AbstractSet[int] = set()
+        # The dict whose keys are beacon_only, those of them moved (on_beacon) since, and
+        # the other candidates of the last step, in their order in ``reckoned``.
+        self._beacon_only: dict[int, Reckoned] = {}
+        self._moved: list[int] = []
+        self._head_ids: list[int] = []
         self.unconfirmed: dict[int, tuple[float, float]] = {}
         self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
@@ -204,46 +284,52 @@ class Neighborhood:
     # --- input -------------------------------------------------------------------------
 
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
-        self.poses[pose.id] = Track(pose.x, pose.y, now)
-        self._heard[pose.id] = now
-        self.asked.pop(pose.id, None)
-        self._revive(pose.id, "robot")
+        rid = pose.id
+        self.poses[rid] = Track(pose.x, pose.y, now)
+        self._hear(rid, now)
+        if self.liveliness.deaths:
+            self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
-        self.state_tracks[state.id] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
-        self._heard[state.id] = now
-        self.asked.pop(state.id, None)
-        self._revive(state.id, "agent")
-        self.neighbor_sets[state.id] = (frozenset(state.neighbors), now)
+        rid = state.id
+        self.state_tracks[rid] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
+        self._hear(rid, now)
+        if self.liveliness.deaths:
+            self._revive(rid, "agent")
+        self.neighbor_sets[rid] = (frozenset(state.neighbors), now)
         if state.relay is None:
             self.relays.pop(state.id, None)
         else:
             self.relays[state.id] = (state.relay, now)
 
-    def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
-        self.beacons[beacon.id] = Track(beacon.x, beacon.y, now)
-        self._update_beacon_cache(beacon)
-        asked = self.asked.get(beacon.id)
-        if asked is not None and now - asked >= CONFIRMATION_RETRY:
-            del self.asked[beacon.id]  # another chance (CONFIRMATION_RETRY)
-        self._revive(beacon.id, "agent")
+    def _hear(self, rid: int, now: float) -> None:
+        """Robot ``rid``'s own pose or state arrived at ``now``."""
+        self._heard[rid] = now
+        self._ledger.hear(rid, now)
+        self.asked.pop(rid, None)
+        choice = self._choice
+        if choice is not None and rid in choice.rows:
+            choice.current = False  # its beacon is no longer its newest news
 
-    def _update_beacon_cache(self, beacon: protocol.Beacon) -> None:
-        """Keep refresh()'s beacon cache valid through a new beacon where it can (a team of
-        N hears N / beacon_period of them a second): a beacon-only robot's row moves in
-        place (the cache then expires early, with its previous beacon: harmless); a robot
-        known otherwise stays out of it while it is; any other one invalidates it."""
-        cache = self._beacon_cache
-        if cache is not None:
-            (_, known, _), _, _, rows, table, index = cache
-            row = index.get(beacon.id)
-            if row is not None:
-                rows[beacon.id] = (beacon.x, beacon.y, 0.0, 0.0)
-                table[row, :2] = (beacon.x, beacon.y)
-                return
-            if beacon.id in known:
-                return
-        self._beacons_changed += 1
+    def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
+        rid, x, y = beacon.id, beacon.x, beacon.y
+        self.beacons[rid] = Track(x, y, now)
+        slot = self._ledger.put(rid, x, y, now, self._heard.get(rid, -math.inf))
+        choice = self._choice
+        if choice is not None and rid in choice.rows:
+            # A beacon-only candidate moved (a team of N hears N / beacon_period beacons a
+            # second): in place, as refresh() would choose it again.
+            choice.rows[rid] = (x, y, 0.0, 0.0)
+            self._moved.append(rid)
+            row = int(choice.slots.searchsorted(slot))
+            choice.table[row, 0], choice.table[row, 1] = x, y
+        elif choice is not None and rid not in choice.known:
+            choice.current = False  # a robot that may now be chosen
+        asked = self.asked.get(rid)
+        if asked is not None and now - asked >= CONFIRMATION_RETRY:
+            del self.asked[rid]  # another chance (CONFIRMATION_RETRY)
+        if self.liveliness.deaths:
+            self._revive(rid, "agent")
 
     def share(self, liveliness: Liveliness) -> None:
         """Follow the token changes of ``liveliness``, the process's (covswarm.agent.pack):
@@ -282,9 +368,15 @@ class Neighborhood:
     def _revive(self, rid: int, role: str) -> None:
         if (rid, role) in self.liveliness.deaths:
             self._revived[rid, role] = self.mark
+            self._revivals += 1
 
     def _dead(self) -> dict[int, set[str]]:
-        """id -> roles whose liveliness token vanished and that nothing revived since."""
+        """id -> roles whose liveliness token vanished and that nothing revived since: the
+        last one while no token changed and no data revived a robot."""
+        key = (self.liveliness, self.liveliness.serial, self._revivals)
+        if key == self._dead_key:
+            return self.dead
+        self._dead_key = key
         dead: dict[int, set[str]] = {}
         revived = self._revived
         for (rid, role), serial in self.liveliness.deaths.items():
@@ -314,24 +406,21 @@ class Neighborhood:
         error in every neighbour.
         """
         fresh = now - self.stale_timeout
+        limit = DEAD_RECKONING_LIMIT
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
-        chosen: dict[int, Track] = {}
-        for table in (self.poses, self.state_tracks):
-            for rid, track in table.items():
-                if track.received >= fresh:
-                    known = chosen.get(rid)
-                    if known is None or track.received > known.received:
-                        chosen[rid] = track
+        chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
+        for rid, track in self.state_tracks.items():
+            received = track.received
+            if received >= fresh and (rid not in chosen or received > chosen[rid].received):
+                chosen[rid] = track
         reckoned: dict[int, Reckoned] = {}
         for rid, track in chosen.items():
             if rid not in dead:
-                lead = min(now - track.received, DEAD_RECKONING_LIMIT)
-                reckoned[rid] = (
-                    track.x + lead * track.vx,
-                    track.y + lead * track.vy,
-                    track.vx,
-                    track.vy,
-                )
+                lead = now - track.received
+                if lead > limit:
+                    lead = limit
+                vx, vy = track.vx, track.vy
+                reckoned[rid] = (track.x + lead * vx, track.y + lead * vy, vx, vy)
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
@@ -341,96 +430,121 @@ class Neighborhood:
         for relayer, (entries, received) in self.relays.items():
             if received < fresh or relayer in dead:
                 continue
-            lead = min(now - received, DEAD_RECKONING_LIMIT)
+            lead = now - received
+            if lead > limit:
+                lead = limit
             for rid, x, y, vx, vy in entries:
                 if rid not in skip and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
-        known = reckoned.keys() | dead.keys()
-        # The beacons' part (_from_beacons) depends on nothing but this key and time while
-        # no robot awaits confirmation (then none is unconfirmed either): the heard times
-        # of the robots not in ``known`` change only as they enter it.
-        key = (self._beacons_changed, known, self.liveliness.serial)
-        cache = self._beacon_cache
-        if (
-            cache is not None
-            and not self.asked
-            and cache[0] == key
-            and cache[1] <= now
-            and cache[2] >= now - self.beacon_timeout
-        ):
-            _, _, _, rows, beacon_table, _ = cache
-            unconfirmed: dict[int, tuple[float, float]] = {}
-        else:
-            rows, unconfirmed, first = self._from_beacons(now, known)
-            beacon_table = np.array(list(rows.values()), dtype=float).reshape(-1, 4)
-            self._beacon_cache = None
-            if not self.asked:
-                index = {rid: row for row, rid in enumerate(rows)}
-                self._beacon_cache = (key, now, first, rows, beacon_table, index)
-        self.beacon_only = rows.keys()
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)
-        head_ids = np.fromiter(reckoned, dtype=np.int64, count=len(reckoned))
-        reckoned.update(rows)
+        rows, beacon_table, beacon_ids, unconfirmed = self._from_beacons(
+            now, reckoned.keys() | dead.keys()
+        )
         self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
-        self.stale_dropped += len(self.reckoned.keys() - reckoned.keys())
+        last, head_ids_list = self.reckoned, list(reckoned)
+        if rows is self._beacon_only and head_ids_list == self._head_ids:
+            # The same candidates in the same order as at the last step (most steps): new
+            # values in place, rather than a new dict of them all (~250), which touched
+            # every beacon-only candidate's tuple in memory each period (a packed process
+            # holds too many brains for its cache).
+            last.update(reckoned)
+            for rid in self._moved:
+                last[rid] = rows[rid]
+            reckoned = last
+            # and the table's rows too (the same layout): a new one cost more than them
+            self.table[: len(head)] = head
+            if self._moved:
+                self.table[len(head) :] = beacon_table
+        else:
+            reckoned.update(rows)
+            if rows is self._beacon_only:  # the same beacon-only ones: none of them dropped
+                self.stale_dropped += sum(rid not in reckoned for rid in self._head_ids)
+            else:
+                self.stale_dropped += len(last.keys() - reckoned.keys())
+            self.table = np.concatenate((head, beacon_table))
+            head_ids = np.fromiter(head_ids_list, dtype=np.int64, count=len(head_ids_list))
+            self.table_ids = np.concatenate((head_ids, beacon_ids))
+        self._moved.clear()
+        self._beacon_only, self.beacon_only, self._head_ids = rows, rows.keys(), head_ids_list
         self.reckoned, self.first_hand = reckoned, first_hand
-        self.table = np.concatenate((head, beacon_table))
-        self.table_ids = np.concatenate(
-            (head_ids, np.fromiter(rows, dtype=np.int64, count=len(rows)))
-        )
+        self._distances = {}
         if now - self._last_forget >= FORGET_PERIOD:
             self._last_forget = now
             self._forget(now)
 
     def _from_beacons(
-        self, now: float, known: set[int]
-    ) -> tuple[dict[int, Reckoned], dict[int, tuple[float, float]], float]:
-        """The beacon-only candidates (id -> x, y, 0, 0, in the order of ``beacons``), the
-        robots left out for want of confirmation (id -> x, y) and the oldest receipt time
-        among the first (s; they hold with the same inputs while it is fresh). A beacon
-        only while it is the newest news of its robot (one that went stale after we heard
-        its state must not bring back where it was seconds ago); unconfirmed past
-        BEACON_CONFIRMATION: no candidate (module notes)."""
-        oldest = now - self.beacon_timeout
-        rows: dict[int, Reckoned] = {}
-        unconfirmed = {}
-        heard, asked, tokens = self._heard, self.asked, self.liveliness.tokens
-        confirmation, first = self.confirmation, math.inf
-        for rid, track in self.beacons.items():
-            received = track.received
-            if (
-                rid not in known
-                and received >= oldest
-                and (rid not in heard or heard[rid] < received)
-            ):
-                if rid not in tokens and (now - asked[rid] if rid in asked else 0.0) > confirmation:
-                    unconfirmed[rid] = (track.x, track.y)
-                else:
-                    rows[rid] = (track.x, track.y, 0.0, 0.0)
-                    first = min(first, received)
-        return rows, unconfirmed, first
+        self, now: float, known: AbstractSet[int]
+    ) -> tuple[dict[int, Reckoned], np.ndarray, np.ndarray, dict[int, tuple[float, float]]]:
+        """The beacon-only candidates: id -> x, y, 0, 0 in the order of ``beacons``, the
+        same as table rows (m, 4) and ids (m,); and the robots left out for want of
+        confirmation (id -> x, y). A beacon only while younger than ``beacon_timeout`` and
+        the newest news of its robot (one that went stale after we heard its state must
+        not bring back where it was seconds ago), and of none in ``known``; unconfirmed
+        past BEACON_CONFIRMATION: no candidate (module notes)."""
+        ledger, choice, oldest = self._ledger, self._choice, now - self.beacon_timeout
+        if (
+            choice is not None
+            and choice.current
+            and not self.asked
+            and choice.ledger is ledger
+            and choice.first >= oldest
+            and choice.known == known
+        ):
+            return choice.rows, choice.table, choice.ids, {}
+        usable = ledger.usable(oldest)
+        slot = ledger.slot
+        usable[[slot[rid] for rid in known if rid in slot]] = False
+        unconfirmed: dict[int, tuple[float, float]] = {}
+        if self.asked:
+            tokens, confirmation = self.liveliness.tokens, self.confirmation
+            late = sorted(
+                (slot[rid], rid)
+                for rid, asked in self.asked.items()
+                if now - asked > confirmation
+                and rid not in tokens
+                and rid in slot
+                and usable[slot[rid]]
+            )
+            for _, rid in late:
+                track = self.beacons[rid]
+                unconfirmed[rid] = (track.x, track.y)
+            usable[[s for s, _ in late]] = False
+        mask = usable.tobytes()
+        if choice is None or choice.ledger is not ledger or choice.mask != mask:
+            slots = np.flatnonzero(usable)
+            table = ledger.rows[slots]
+            ids = ledger.ids[slots]
+            xs, ys = table[:, 0].tolist(), table[:, 1].tolist()
+            rows = dict(zip(ids.tolist(), zip(xs, ys, repeat(0.0), repeat(0.0)), strict=False))
+            choice = self._choice = BeaconChoice(ledger, mask, slots, rows, table, ids)
+        choice.known = known
+        choice.first = float(ledger.received[choice.slots].min(initial=math.inf))
+        choice.current = not self.asked
+        return choice.rows, choice.table, choice.ids, unconfirmed
 
     def within(self, x: float, y: float, radius: float) -> np.ndarray:
         """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
-        table = self.table
-        return np.flatnonzero(np.hypot(table[:, 0] - x, table[:, 1] - y) <= radius)
+        distance = self._distances.get((x, y))
+        if distance is None:
+            table = self.table
+            distance = self._distances[x, y] = np.hypot(table[:, 0] - x, table[:, 1] - y)
+        return np.flatnonzero(distance <= radius)
 
     def _forget(self, now: float) -> None:
         """Drop records well past their timeout: memory stays bounded, and the tables that
         every step walks hold only the robots heard from lately."""
         recent = 2.0 * max(self.stale_timeout, self.linger_period)
-        for table, horizon in (
-            (self.poses, recent),
-            (self.state_tracks, recent),
-            (self.beacons, 2.0 * self.beacon_timeout),
-        ):
-            for rid in [rid for rid, t in table.items() if now - t.received > horizon]:
+        for table in (self.poses, self.state_tracks):
+            for rid in [rid for rid, t in table.items() if now - t.received > recent]:
                 del table[rid]
-                self._beacons_changed += 1
+        ledger = self._ledger
+        old = ledger.ids[: ledger.n][now - ledger.received[: ledger.n] > 2.0 * self.beacon_timeout]
+        for rid in old.tolist():
+            del self.beacons[rid]
         for rid in [rid for rid in self.asked if rid not in self.beacons]:
             del self.asked[rid]
         deaths = self.liveliness.deaths
@@ -439,9 +553,11 @@ class Neighborhood:
         for sets in (self.neighbor_sets, self.relays):
             for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
                 del sets[rid]
-        old = now - 2.0 * self.beacon_timeout
-        for rid in [rid for rid, t in self._heard.items() if t < old]:
+        unheard = [rid for rid, t in self._heard.items() if t < now - 2.0 * self.beacon_timeout]
+        for rid in unheard:
             del self._heard[rid]
+        if len(old) or any(rid in ledger.slot for rid in unheard):
+            self._ledger = BeaconLedger(self.beacons, self._heard)
 
     def ask(self, followed: Iterable[int], now: float) -> None:
         """The AgentStates of ``followed`` are subscribed to from ``now`` on: the robots
@@ -487,11 +603,13 @@ class Neighborhood:
         every few ticks, and every declaration is a round of routing updates for the whole
         swarm)."""
         fresh = now - self.stale_timeout
-        covered: set[int] = set()
-        for rid in self.one_hop:
-            relay = self.relays.get(rid)
-            if relay is not None and relay[1] >= fresh:
-                covered.update(entry[0] for entry in relay[0])
+        relays = self.relays
+        covered = {
+            entry[0]
+            for rid in self.one_hop
+            if rid in relays and relays[rid][1] >= fresh
+            for entry in relays[rid][0]
+        }
         wanted = self.one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 

@@ -1,0 +1,186 @@
+"""Neighborhood.refresh() and within() keep state from one call to the next (the beacon
+ledger, the beacon-only candidates, ``reckoned`` updated in place, the dead, distances):
+over random sequences of inputs they must give what the rules give from scratch, here a
+brute-force restatement of them over the records the neighbourhood holds."""
+
+from __future__ import annotations
+
+import math
+import random
+
+import numpy as np
+import pytest
+
+from covswarm import protocol
+from covswarm.agent.neighborhood import DEAD_RECKONING_LIMIT, Neighborhood
+
+STALE, BEACON, LINGER = 0.5, 2.0, 0.4  # s: short, so that random steps cross every timeout
+IDS = range(1, 13)  # few, so that every robot is heard of in several ways
+
+
+def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]:
+    """(reckoned, first_hand, beacon_only, dead, unconfirmed) of ``nb`` at ``now``, by the
+    rules of Neighborhood.refresh's docstring, from its records alone."""
+    deaths, revived = nb.liveliness.deaths, nb._revived
+    dead: dict[int, set[str]] = {}
+    for (rid, role), serial in deaths.items():
+        if rid != nb.me and revived.get((rid, role), -1) < serial:
+            dead.setdefault(rid, set()).add(role)
+    fresh = now - nb.stale_timeout
+    chosen = {}  # the freshest of pose and state, a pose on a tie
+    for tracks in (nb.poses, nb.state_tracks):
+        for rid, t in tracks.items():
+            if t.received >= fresh and (rid not in chosen or t.received > chosen[rid].received):
+                chosen[rid] = t
+    reckoned = {}
+    for rid, t in chosen.items():
+        if rid not in dead:
+            lead = min(now - t.received, DEAD_RECKONING_LIMIT)
+            reckoned[rid] = (t.x + lead * t.vx, t.y + lead * t.vy, t.vx, t.vy)
+    first_hand = set(reckoned)
+    newest: dict[int, float] = {}
+    for relayer, (entries, received) in nb.relays.items():
+        if received < fresh or relayer in dead:
+            continue
+        lead = min(now - received, DEAD_RECKONING_LIMIT)
+        for rid, x, y, vx, vy in entries:
+            taken = rid in first_hand or rid in dead or rid == nb.me
+            if not taken and newest.get(rid, -math.inf) < received:
+                newest[rid] = received
+                reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
+    known = set(reckoned) | set(dead)
+    beacon_only = set()
+    unconfirmed = {}
+    for rid, track in nb.beacons.items():
+        heard = nb._heard.get(rid, -math.inf)
+        if rid in known or track.received < now - nb.beacon_timeout or heard >= track.received:
+            continue
+        asked = nb.asked.get(rid)
+        if rid not in nb.liveliness.tokens and asked is not None and now - asked > nb.confirmation:
+            unconfirmed[rid] = (track.x, track.y)
+        else:
+            reckoned[rid] = (track.x, track.y, 0.0, 0.0)
+            beacon_only.add(rid)
+    return reckoned, first_hand, beacon_only, dead, unconfirmed
+
+
+def _relay(rng: random.Random) -> tuple | None:
+    if rng.random() < 0.2:
+        return None
+    ids = rng.sample(IDS, rng.randint(0, 5)) + [0] * (rng.random() < 0.2)  # 0: ourselves
+    return tuple((rid, *_xy(rng), *_v(rng)) for rid in sorted(ids))
+
+
+def _xy(rng: random.Random) -> tuple[float, float]:
+    return rng.uniform(-2.0, 2.0), rng.uniform(-2.0, 2.0)
+
+
+def _v(rng: random.Random) -> tuple[float, float]:
+    return rng.uniform(-0.3, 0.3), rng.uniform(-0.3, 0.3)
+
+
+def _step(nb: Neighborhood, rng: random.Random, now: float) -> None:
+    """One random input to ``nb`` at ``now``."""
+    rid, kind = rng.choice(IDS), rng.random()
+    x, y = _xy(rng)
+    if kind < 0.15:
+        nb.on_pose(protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=1.0, seq=0), now)
+    elif kind < 0.4:
+        vx, vy = _v(rng) if rng.random() < 0.8 else (None, None)
+        neighbors = tuple(sorted(rng.sample(IDS, rng.randint(0, 4)) + [0] * rng.randint(0, 1)))
+        state = protocol.AgentState(
+            id=rid, x=x, y=y, stamp=1.0, neighbors=neighbors, vx=vx, vy=vy, relay=_relay(rng)
+        )
+        nb.on_agent_state(state, now)
+    elif kind < 0.75:
+        nb.on_beacon(protocol.Beacon(id=rid, x=x, y=y, stamp=1.0), now)
+    elif kind < 0.85:
+        nb.on_liveliness(rng.choice(("agent", "robot")), rid, alive=rng.random() < 0.4)
+    elif kind < 0.95:
+        nb.ask(rng.sample(IDS, rng.randint(1, 6)), now)
+    else:
+        nb.one_hop = frozenset(rng.sample(IDS, rng.randint(0, 5)))
+
+
+@pytest.mark.parametrize("seed", range(12))
+def test_refresh_and_within_equal_the_rules_from_scratch(seed: int) -> None:
+    rng = random.Random(seed)
+    nb = Neighborhood(0, STALE, BEACON, LINGER)
+    now, dropped, unconfirmed_total = 0.0, 0, 0
+    last_reckoned: set[int] = set()
+    last_unconfirmed: set[int] = set()
+    last_point = (0.0, 0.0)
+    for _ in range(400):
+        for _ in range(rng.choice((0, 1, 1, 2, 6))):
+            _step(nb, rng, now)
+            now += rng.choice((0.0, 0.0, 0.0, 0.2, 0.7))  # some go stale before the refresh
+        nb.refresh(now)
+        reckoned, first_hand, beacon_only, dead, unconfirmed = reference(nb, now)
+        assert list(nb.reckoned.items()) == list(reckoned.items())  # order: table rows
+        assert nb.first_hand == first_hand and nb.beacon_only == beacon_only
+        assert nb.dead == dead
+        assert list(nb.unconfirmed.items()) == list(unconfirmed.items())
+        assert nb.table.tolist() == [list(v) for v in reckoned.values()]
+        assert nb.table_ids.tolist() == list(reckoned)
+        dropped += len(last_reckoned - reckoned.keys())
+        unconfirmed_total += len(unconfirmed.keys() - last_unconfirmed)
+        last_reckoned, last_unconfirmed = set(reckoned), set(unconfirmed)
+        assert nb.stale_dropped == dropped and nb.unconfirmed_total == unconfirmed_total
+        # within: from the last refresh's point, twice from a new one (the second from the
+        # distances kept), each against every row's distance
+        point = _xy(rng)
+        for x, y in (last_point, point, point):
+            radius = rng.uniform(0.0, 3.0)
+            expected = [
+                i for i, (rx, ry, _, _) in enumerate(reckoned.values())
+                if math.hypot(rx - x, ry - y) <= radius
+            ]  # fmt: skip
+            assert nb.within(x, y, radius).tolist() == expected
+        last_point = point
+        nb.relay(), nb.wanted_state_ids(now), nb.unrequited(now)  # they read the same state
+        now += rng.choice((0.0, 0.05, 0.1, 0.1, 0.3, 0.6, 1.1, 2.5))
+
+
+def test_the_cache_is_exercised() -> None:
+    """The sequences above keep the beacon-only candidates from one refresh to the next
+    and update ``reckoned`` in place, and also rebuild them: the comparison above covers
+    both paths."""
+    rng = random.Random(0)
+    nb = Neighborhood(0, STALE, BEACON, LINGER)
+    kept = rebuilt = in_place = 0
+    now = 0.0
+    for _ in range(400):
+        for _ in range(rng.choice((0, 1, 1, 2))):
+            _step(nb, rng, now)
+        before, rows_before = nb.reckoned, nb._choice
+        nb.refresh(now)
+        kept += rows_before is not None and nb._choice is rows_before
+        rebuilt += nb._choice is not rows_before
+        in_place += nb.reckoned is before
+        now += rng.choice((0.0, 0.05, 0.1))
+    assert kept > 50 and rebuilt > 50 and in_place > 20
+
+
+def test_a_negative_confirmation_is_refused() -> None:
+    with pytest.raises(ValueError, match="confirmation"):
+        Neighborhood(0, STALE, BEACON, LINGER, confirmation=-1.0)
+
+
+def test_beacon_rows_follow_a_moved_beacon_between_refreshes() -> None:
+    """A beacon-only candidate's new beacon moves it at the next refresh, not before (the
+    brain reads ``reckoned`` and ``table`` between refreshes)."""
+    nb = Neighborhood(0, STALE, BEACON, LINGER)
+    for rid in (1, 2, 3):
+        nb.on_beacon(protocol.Beacon(id=rid, x=float(rid), y=0.0, stamp=1.0), 0.0)
+    nb.refresh(0.1)
+    table = nb.table.copy()
+    nb.on_beacon(protocol.Beacon(id=2, x=2.0, y=1.5, stamp=1.0), 0.2)
+    assert nb.reckoned[2] == (2.0, 0.0, 0.0, 0.0)
+    np.testing.assert_array_equal(nb.table, table)
+    nb.refresh(0.2)
+    assert list(nb.reckoned.items()) == [
+        (1, (1.0, 0.0, 0.0, 0.0)),
+        (2, (2.0, 1.5, 0.0, 0.0)),
+        (3, (3.0, 0.0, 0.0, 0.0)),
+    ]
+    assert nb.within(2.0, 1.5, 0.1).tolist() == [1]
