@@ -8,7 +8,6 @@ domain that all of them follow, is parsed and validated once.
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from functools import lru_cache
 
 import numpy as np
@@ -38,28 +37,22 @@ DOMAINS_REMEMBERED = 16
 
 
 class _ByIdentity:
-    """The answers for the last ``size`` objects asked about, by identity (the objects are
-    held, so their ids stay theirs)."""
+    """The answers for the last ``size`` objects answered, by identity: the objects are
+    held, so no other object can take their ids while they are remembered."""
 
     def __init__(self, size: int) -> None:
         self.size = size
-        self._answers: OrderedDict[tuple[int, ...], tuple[tuple[object, ...], object]] = (
-            OrderedDict()
-        )
+        self._answers: dict[tuple[int, ...], tuple[tuple[object, ...], object]] = {}
 
     def get(self, *objects: object) -> tuple[bool, object]:
         """(True, the answer) if one is remembered for exactly these objects."""
         entry = self._answers.get(tuple(map(id, objects)))
-        if entry is None or any(a is not b for a, b in zip(entry[0], objects, strict=True)):
-            return False, None
-        return True, entry[1]
+        return (False, None) if entry is None else (True, entry[1])
 
     def put(self, answer: object, *objects: object) -> None:
-        key = tuple(map(id, objects))
-        self._answers[key] = (objects, answer)
-        self._answers.move_to_end(key)
-        while len(self._answers) > self.size:
-            self._answers.popitem(last=False)
+        self._answers[tuple(map(id, objects))] = (objects, answer)
+        if len(self._answers) > self.size:  # the oldest first: dicts keep insertion order
+            del self._answers[next(iter(self._answers))]
 
 
 class MessageDecoder:

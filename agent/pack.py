@@ -23,10 +23,11 @@ to step for does not step on that period's inputs as if they were fresh: it skip
 period, and the next tick starts with it. Its robot runs on the command of its last step
 (as at a lower rate: the gain is sampled for the period actually held,
 covswarm.agent.brain.sampled_gain) until that step is ``hold_after`` s old (three periods in
-``covswarm agent``); then the brain commands (0, 0) once (:meth:`AgentBrain.hold`: the
-robot stops rather than overshoot). A process that cannot hold K steps per period thus
-steps its brains in turn at the rate it can hold, and each brain's ``rate_hz`` and
-``late_held`` (the fraction of the mission's periods skipped) stats say so.
+``covswarm agent``); then the brain commands (0, 0) once and says so in an AgentState of
+velocity 0 (:meth:`AgentBrain.hold`: the robot stops rather than overshoot). A process that
+cannot hold K steps per period thus steps its brains in turn at the rate it can hold, and
+each brain's ``rate_hz`` and ``late_held`` (the fraction of the mission's periods skipped)
+stats say so.
 
 The bus (:class:`Bus`) is Zenoh in a live process (:class:`covswarm.agent.link.ZenohBus`)
 and :class:`LocalBus`, an in-memory router, in tests and ``covswarm bench --brain-tick``.
