@@ -162,6 +162,8 @@ def test_empty_batch() -> None:
     ("bad", "message"),
     [
         ({"positions": {0: np.array([np.nan, 1.0]), 1: np.array([1.0, 1.0])}}, "NaN"),
+        # 3-vectors: the batch's one conversion fails, the views are converted one by one
+        ({"positions": {0: np.array([0.5, 0.5, 0.0]), 1: np.array([1.5, 1.5, 0.0])}}, "shape"),
         ({"me": 5}, "positions must include"),
         ({"kappa": -1.0}, "kappa"),
         ({"polygon": np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])}, "zero area"),
