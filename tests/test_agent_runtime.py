@@ -585,8 +585,9 @@ def test_agent_states_go_out_at_most_every_state_period(
     rate: float, state_period: float, every: int
 ) -> None:
     """A control loop faster than the state period keeps stepping (a command every period)
-    but publishes its AgentState every ``every`` periods, jitter of a tenth of a period
-    included; a held period (Pack._hold) always says it stopped."""
+    but publishes its AgentState, and chooses what to follow, every ``every`` periods,
+    jitter of a tenth of a period included; a held period (Pack._hold) always says it
+    stopped."""
     brain = brain_at(1.0, 1.0, state_period=state_period)
     brain.on_domain(domain(), now=0.0)
     rng = np.random.default_rng(3)
@@ -597,7 +598,10 @@ def test_agent_states_go_out_at_most_every_state_period(
         brain.on_pose(pose(0, 1.0, 1.0), now=now)
         actions = brain.tick(now, WALL + now)
         assert isinstance(actions[0], brain_module.SendCommand)
-        published.append(any(isinstance(a, brain_module.PublishState) for a in actions))
+        kinds = {type(a) for a in actions}
+        published.append(brain_module.PublishState in kinds)
+        assert (brain_module.FollowStates in kinds) == published[-1]
+        assert (brain_module.FollowTiles in kinds) == published[-1]
     assert published[0]
     gaps = np.diff(np.flatnonzero(published))
     assert set(gaps.tolist()) == {every}
