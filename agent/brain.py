@@ -894,12 +894,12 @@ class AgentBrain:
         """(x, y, heading) of our robot at our wall time ``target_wall``: its last pose moved
         along the commands sent since it was taken (covswarm.agent.latency), or as taken when
         prediction is off or the pose is older than MAX_PREDICTION."""
-        assert self.pose is not None
-        pose = np.array([self.pose.x, self.pose.y, self.pose.theta])
+        pose = self.pose
+        assert pose is not None
         horizon = target_wall - self.pose_taken
         if not self.config.prediction or not 0.0 < horizon <= MAX_PREDICTION:
-            return pose
-        return self.history.predict(pose, self.pose_taken, target_wall)
+            return np.array([pose.x, pose.y, pose.theta])
+        return np.array(self.history.move(pose.x, pose.y, pose.theta, self.pose_taken, target_wall))
 
     def near_ids(self) -> set[int]:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their

@@ -88,9 +88,16 @@ class CommandHistory:
         out: list[tuple[float, float, float]] = []
         if end <= start:
             return out
-        sent = list(self._sent)
+        sent = self._sent
+        # From the last command sent by ``start`` on (found from the newest: a pose is a
+        # period old or less, the history HISTORY_SPAN long): every earlier one was
+        # replaced by ``start`` and drives none of it.
+        first = len(sent) - 1
+        while first > 0 and sent[first].wall > start:
+            first -= 1
         cursor = start
-        for k, command in enumerate(sent):
+        for k in range(max(first, 0), len(sent)):
+            command = sent[k]
             until = sent[k + 1].wall if k + 1 < len(sent) else math.inf
             driving_end = min(until, command.wall + self.cmd_timeout, end)
             begin = max(command.wall, cursor)
@@ -112,10 +119,17 @@ class CommandHistory:
         Exact arcs of the commands in :meth:`segments` (a ``target`` before ``taken`` returns
         the pose unchanged: nothing to undo). pose: (3,).
         """
-        x, y, heading = (float(v) for v in np.asarray(pose, dtype=float).reshape(3))
+        x, y, heading = np.asarray(pose, dtype=float).reshape(3).tolist()
+        return np.array(self.move(x, y, heading, taken, target))
+
+    def move(
+        self, x: float, y: float, heading: float, taken: float, target: float
+    ) -> tuple[float, float, float]:
+        """:meth:`predict` in plain floats: (x m, y m, heading rad) at wall ``target`` from
+        the pose (x, y, heading) taken at wall ``taken``."""
         for duration, left, right in self.segments(taken, target):
             x, y, heading = integrate_one(x, y, heading, left, right, duration, self.robot)
-        return np.array([x, y, heading])
+        return x, y, heading
 
 
 class ClockBound:

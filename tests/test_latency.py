@@ -139,3 +139,46 @@ def test_command_history_keeps_the_last_span() -> None:
         sent.append((wall, left, right))
         kept = [command for command in sent if command[0] >= wall - HISTORY_SPAN]
         assert [tuple(command) for command in history._sent] == kept
+
+
+def segments_reference(commands, start, end, timeout):
+    """The driving segments between ``start`` and ``end``, instant by instant from every
+    command (brute force): on a fine grid, the newest command sent at or before each
+    instant if younger than ``timeout``, else stopped; runs of equal wheels merged."""
+    grid = np.linspace(start, end, 20001)
+    mids = 0.5 * (grid[:-1] + grid[1:])
+    wheels = []
+    for t in mids:
+        sent = [c for c in commands if c[0] <= t]
+        newest = sent[-1] if sent else None
+        on = newest is not None and t - newest[0] <= timeout
+        wheels.append((newest[1], newest[2]) if on else (0.0, 0.0))
+    durations: dict[tuple[float, float], float] = {}
+    for w, a, b in zip(wheels, grid[:-1], grid[1:], strict=True):
+        durations[w] = durations.get(w, 0.0) + (b - a)
+    return durations
+
+
+@pytest.mark.parametrize("seed", range(4))
+def test_segments_of_a_recent_pose_match_every_command(seed: int) -> None:
+    """A pose taken after most of the history (as every step's is): the segments start from
+    the command driving at ``start`` (the scan from the newest), and drive each command as
+    long as a brute-force replay of the whole history does."""
+    rng = np.random.default_rng(seed)
+    history = CommandHistory(cmd_timeout=0.3)
+    walls = np.cumsum(rng.uniform(0.02, 0.1, 25)) + 50.0
+    walls[5] = walls[4]  # two commands with one stamp: the later one drives
+    walls[15:] += 0.5  # a gap beyond the timeout
+    commands = [(float(w), *rng.uniform(-0.5, 0.5, 2).tolist()) for w in walls]
+    for c in commands:
+        history.add(*c)
+    for start in [walls[0] - 0.1, walls[3], walls[4], walls[14] + 0.4, walls[-2] + 0.01]:
+        end = start + rng.uniform(0.15, 0.6)
+        got: dict[tuple[float, float], float] = {}
+        for duration, left, right in history.segments(start, end):
+            got[left, right] = got.get((left, right), 0.0) + duration
+        assert math.isclose(sum(got.values()), end - start, rel_tol=1e-12)
+        reference = segments_reference(commands, start, end, 0.3)
+        grid_step = (end - start) / 20000
+        for wheels in got.keys() | reference.keys():  # a sliver may fall between grid points
+            assert abs(got.get(wheels, 0.0) - reference.get(wheels, 0.0)) <= 2.0 * grid_step

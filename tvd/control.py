@@ -604,10 +604,12 @@ def local_step(
     """
     _check_local_law(law)
     check_density(density)
-    view = _known(me, positions, kappa)
-    validate_positions(view.points)
+    _check_kappa(kappa)
+    ids = _ordered_known(me, positions)
+    points = validate_positions(_view_points(positions, ids))
     domain = make_domain(polygon, polygon_velocity)
-    return _batch_steps([view], domain, density, feedforward, max_amplification, law)[0]
+    known = _Known([ids], points, [0], [ids.index(me)], [float(kappa)])
+    return _batch_steps(known, domain, density, feedforward, max_amplification, law)[0]
 
 
 @dataclass(frozen=True)
@@ -645,13 +647,14 @@ def local_steps(
     DensityModel) naming its index and ``me``; the caller can then step the views one by one.
     """
     _check_local_law(law)
-    known: list[_Known] = []
+    orders: list[list] = []  # each view's ids in point order
     groups: dict[tuple, list[int]] = {}
     keys: dict[tuple, tuple] = {}  # S and density by identity -> by value
     for index, view in enumerate(views):
         try:
             check_density(view.density)
-            known.append(_known(view.me, view.positions, view.kappa))
+            _check_kappa(view.kappa)
+            orders.append(_ordered_known(view.me, view.positions))
             same = (id(view.polygon), id(view.polygon_velocity), id(view.density))
             key = keys.get(same)
             if key is None:
@@ -662,23 +665,29 @@ def local_steps(
         except (ValueError, TypeError) as error:
             raise _named(error, index, view) from error
         groups.setdefault(key, []).append(index)
-    # Finiteness for the whole batch at once; the view at fault is then named.
-    if known and not np.isfinite(np.concatenate([view.points for view in known])).all():
-        for index, view in enumerate(known):
-            try:
-                validate_positions(view.points)
-            except ValueError as error:
-                raise _named(error, index, views[index]) from error
-    steps: list = [None] * len(known)
+    if not views:
+        return []
+    points = _batch_points(views, orders)
+    sizes = [len(ids) for ids in orders]
+    starts = list(accumulate(sizes, initial=0))
+    steps: list = [None] * len(views)
     for members in groups.values():
         first = views[members[0]]
         try:
             domain = make_domain(first.polygon, first.polygon_velocity)
         except ValueError as error:
             raise _named(error, members[0], first) from error
-        group = _batch_steps(
-            [known[i] for i in members], domain, first.density, feedforward, max_amplification, law
-        )
+        if len(members) == len(views):  # one S for all (a pack's brains): no copy
+            known = _Known(
+                orders,
+                points,
+                starts[:-1],
+                [start + orders[i].index(views[i].me) for i, start in enumerate(starts[:-1])],
+                [float(view.kappa) for view in views],
+            )
+        else:
+            known = _subset(views, orders, points, starts, members)
+        group = _batch_steps(known, domain, first.density, feedforward, max_amplification, law)
         for index, step in zip(members, group, strict=True):
             steps[index] = step
     return steps
@@ -691,30 +700,87 @@ def _named(error: Exception, index: int, view: LocalView) -> Exception:
 
 @dataclass(frozen=True)
 class _Known:
-    """A validated view: ids (n,) in point order, points (n, 2) m, me its index there."""
+    """Validated views of one S and density, stacked: ids: each view's ids (V lists) in
+    point order; points: (N, 2) m, the views' blocks in turn; starts: (V,) each block's
+    first row; mes: (V,) each view's own robot's row; kappa: (V,) 1/s."""
 
-    ids: list
+    ids: list[list]
     points: np.ndarray
-    me: int
-    kappa: float
+    starts: list[int]
+    mes: list[int]
+    kappa: list[float]
 
 
-def _known(me: Hashable, positions: Mapping[Hashable, np.ndarray], kappa: float) -> _Known:
-    """A view's robots in order (``_ordered_ids``); ValueError for a bad gain, ``me``
-    missing or a position that is not a 2-vector. Finiteness is left to the caller (once
-    for a whole batch)."""
-    _check_kappa(kappa)
+def _ordered_known(me: Hashable, positions: Mapping[Hashable, np.ndarray]) -> list:
+    """A view's ids in point order (``_ordered_ids``); ValueError when ``me`` is missing."""
     if me not in positions:
         raise ValueError(f"positions must include the robot itself ({me!r})")
-    ids = _ordered_ids(positions)
+    return _ordered_ids(positions)
+
+
+def _view_points(positions: Mapping[Hashable, np.ndarray], ids: list) -> np.ndarray:
+    """A view's positions (n, 2) m in the order of ``ids``; ValueError for a position that
+    is not a 2-vector. Finiteness is left to the caller (once for a whole batch)."""
     points = np.array([positions[key] for key in ids], dtype=np.float64)
     if points.shape != (len(ids), 2):
         validate_positions(points)  # raises, naming the shape
-    return _Known(ids, points, ids.index(me), float(kappa))
+    return points
+
+
+def _batch_points(views: Sequence[LocalView], orders: list[list]) -> np.ndarray:
+    """Every view's positions as blocks of one array (N, 2) m, converted in one call; a
+    view whose positions are not 2-vectors or not finite raises ValueError naming it."""
+    count = sum(len(ids) for ids in orders)
+    try:
+        points = np.array(
+            [view.positions[key] for view, ids in zip(views, orders, strict=True) for key in ids],
+            dtype=np.float64,
+        )
+        stacked = points.shape == (count, 2)
+    except (ValueError, TypeError):
+        stacked = False
+    if not stacked:  # one by one, so that the view at fault is named
+        blocks = []
+        for index, (view, ids) in enumerate(zip(views, orders, strict=True)):
+            try:
+                blocks.append(_view_points(view.positions, ids))
+            except (ValueError, TypeError) as error:
+                raise _named(error, index, view) from error
+        points = np.concatenate(blocks)
+    if not np.isfinite(points).all():
+        start = 0
+        for index, (view, ids) in enumerate(zip(views, orders, strict=True)):
+            try:
+                validate_positions(points[start : start + len(ids)])
+            except ValueError as error:
+                raise _named(error, index, view) from error
+            start += len(ids)
+    return points
+
+
+def _subset(
+    views: Sequence[LocalView],
+    orders: list[list],
+    points: np.ndarray,
+    starts: list[int],
+    members: list[int],
+) -> _Known:
+    """The views ``members`` of a batch (``local_steps``' points and block starts) as their
+    own stack."""
+    rows = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in members])
+    ids = [orders[i] for i in members]
+    offsets = list(accumulate((len(block) for block in ids), initial=0))[:-1]
+    return _Known(
+        ids,
+        points[rows],
+        offsets,
+        [start + orders[i].index(views[i].me) for i, start in zip(members, offsets, strict=True)],
+        [float(views[i].kappa) for i in members],
+    )
 
 
 def _batch_steps(
-    views: list[_Known],
+    views: _Known,
     domain: CoverageDomain,
     density: DensityModel | None,
     feedforward: bool,
@@ -723,7 +789,7 @@ def _batch_steps(
 ) -> list[LocalStep]:
     """The local steps of validated views of one S and density, as one batch.
 
-    Each view's points are a block of one points array, and each view's cells take only
+    Each view's points are a block of the points array, and each view's cells take only
     its block as candidates, so they are the cells of its own local diagram. The batch's
     rows: every view's own cell first (so that they are its leading rows, which a density
     reuses its integrals for), then its neighbours' cells (found by the half-plane
@@ -731,16 +797,16 @@ def _batch_steps(
     kappa (c - p) + rho (TVD-DA; a neighbour's row of J needs its neighbours' v, in the
     two-hop view).
     """
-    count = len(views)
-    points, candidates, starts, mes = _stack(views)
+    count = len(views.ids)
+    points, candidates, mes = _stack(views)
     # Our neighbours first (the half-plane intersection alone), then our cells and theirs
     # in one pass, each among its own view's robots only.
     of_view, column = np.nonzero(neighbor_candidates(points, mes, candidates, domain))
     owners = np.concatenate((mes, candidates[of_view, column]))
-    kappa = views[0].kappa
+    kappa = views.kappa[0]
     if count > 1:  # each cell's own view's robots and gain
         of_row = np.concatenate((np.arange(count), of_view))
-        candidates, kappa = candidates[of_row], np.array([view.kappa for view in views])[of_row]
+        candidates, kappa = candidates[of_row], np.array(views.kappa)[of_row]
     cells = local_cells(points, owners, candidates, domain)  # mass: area, until weighed
     batch = _weigh(cells, density)
     target, rate = _targets(batch, points, domain, feedforward, density)
@@ -776,43 +842,34 @@ def _batch_steps(
     velocity = as_vectors(rows if field is None else field[mes] + rows)
     centroid = as_vectors(mine.centroid)
     # Python lists: a few numpy calls for the whole batch, not per view. The neighbours'
-    # labels row by row, each view's in turn.
-    labels = mine.labels[mine.shared].tolist()
+    # labels (rows of the stacked points) row by row, each view's in turn, as robot ids.
+    every = [rid for ids in views.ids for rid in ids]
+    names = list(map(every.__getitem__, mine.labels[mine.shared].tolist()))
     ends = list(accumulate(mine.shared.sum(axis=1).tolist()))
     masses, guards, areas = mine.mass.tolist(), guarded.tolist(), cells.mass[:count].tolist()
     return [
         LocalStep(
             velocity=velocity[k],
-            neighbors=frozenset(view.ids[j - start] for j in labels[begin:end]),
+            neighbors=frozenset(names[begin:end]),
             centroid=centroid[k],
             mass=masses[k],
             guarded=guards[k],
             area=areas[k],
         )
-        for k, (view, start, begin, end) in enumerate(
-            zip(views, starts.tolist(), [0, *ends[:-1]], ends, strict=True)
-        )
+        for k, (begin, end) in enumerate(zip([0, *ends[:-1]], ends, strict=True))
     ]
 
 
-def _stack(views: list[_Known]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def _stack(views: _Known) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The views' points as disjoint blocks of one array: (points (N, 2), candidates (V, D)
-    each view's point indices padded with -1, starts (V,) each block's first index, mes (V,)
-    each view's own robot)."""
-    if len(views) == 1:
-        (view,) = views
-        return (
-            view.points,
-            np.arange(len(view.ids))[None],
-            np.zeros(1, np.intp),
-            np.array([view.me]),
-        )
-    sizes = [len(view.ids) for view in views]
-    starts = np.cumsum([0, *sizes[:-1]])
-    candidates = np.arange(max(sizes)) + starts[:, None]
+    each view's point indices padded with -1, mes (V,) each view's own robot)."""
+    if len(views.ids) == 1:
+        return views.points, np.arange(len(views.points))[None], np.array(views.mes)
+    sizes = np.array([len(ids) for ids in views.ids])
+    starts = np.array(views.starts)
+    candidates = np.arange(sizes.max()) + starts[:, None]
     candidates[candidates >= (starts + sizes)[:, None]] = -1
-    mes = starts + [view.me for view in views]
-    return np.concatenate([view.points for view in views]), candidates, starts, mes
+    return views.points, candidates, np.array(views.mes)
 
 
 def local_velocity(
