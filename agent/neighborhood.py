@@ -447,9 +447,10 @@ class Neighborhood:
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)
         head_ids_list, choice = list(reckoned), self._choice
+        same_head = head_ids_list == self._head_ids
         if (
             choice is not None
-            and head_ids_list == self._head_ids
+            and same_head
             and (dead is self._dead_known or not (dead or self._dead_known))
         ):
             known = choice.known  # the same robots as at the last step (most steps)
@@ -461,7 +462,7 @@ class Neighborhood:
             self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
         last = self.reckoned
-        if rows is self._beacon_only and head_ids_list == self._head_ids:
+        if rows is self._beacon_only and same_head:
             # The same candidates in the same order as at the last step (most steps): new
             # values in place, rather than a new dict of them all (~250), which touched
             # every beacon-only candidate's tuple in memory each period (a packed process
@@ -577,9 +578,10 @@ class Neighborhood:
     def ask(self, followed: Iterable[int], now: float) -> None:
         """The AgentStates of ``followed`` are subscribed to from ``now`` on: the robots
         among them known only from beacons start their BEACON_CONFIRMATION."""
+        beacon_only, unconfirmed, asked = self.beacon_only, self.unconfirmed, self.asked
         for rid in followed:
-            if rid in self.beacon_only or rid in self.unconfirmed:
-                self.asked.setdefault(rid, now)
+            if rid in beacon_only or rid in unconfirmed:
+                asked.setdefault(rid, now)
 
     def relevant(
         self, now: float, me: tuple[float, float], reach: float | None
@@ -597,19 +599,9 @@ class Neighborhood:
         reckoned = self.reckoned
         if reach is None:
             return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
-        inside = self.within(*me, LOCAL_MARGIN * reach)
-        near = self.table[inside]  # the same values as ``reckoned``'s, in one block of memory
-        relevant = dict(
-            zip(
-                self.table_ids[inside].tolist(),
-                zip(near[:, 0].tolist(), near[:, 1].tolist(), strict=False),
-                strict=True,
-            )
-        )
-        for rid in self.two_hop(now) & reckoned.keys():
-            if rid not in relevant:
-                relevant[rid] = reckoned[rid][:2]
-        return relevant
+        ids = self.table_ids[self.within(*me, LOCAL_MARGIN * reach)].tolist()
+        ids += self.two_hop(now) & reckoned.keys()
+        return {rid: reckoned[rid][:2] for rid in ids}
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
