@@ -914,14 +914,17 @@ class AgentBrain:
         if self.pose is None:
             return set(self.obstacles)
         x, y = self.pose.x, self.pose.y
-        distance = {
-            rid: math.hypot(ux - x, uy - y)
-            for rid, (ux, uy) in self.neighborhood.unconfirmed.items()
-        }
-        # The nearest few only: forged ids must not cost a subscription each.
-        nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
-        unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
-        near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
+        neighborhood = self.neighborhood
+        unconfirmed: set[int] = set()
+        if neighborhood.unconfirmed:
+            distance = {
+                rid: math.hypot(ux - x, uy - y)
+                for rid, (ux, uy) in neighborhood.unconfirmed.items()
+            }
+            # The nearest few only: forged ids must not cost a subscription each.
+            nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
+            unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
+        near = neighborhood.table_ids[neighborhood.within(x, y, SAFETY_RADIUS)]
         return set(near.tolist()) | unconfirmed | set(self.obstacles)
 
     def _safety_inputs(self, begun: Begun, velocity: np.ndarray) -> Filtering:

@@ -12,6 +12,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
+import operator
 from collections.abc import Iterable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
@@ -44,6 +45,7 @@ BEACON_CONFIRMATION = 1.0
 CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
+_first = operator.itemgetter(0)  # a relay entry's id
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
 
 
@@ -91,8 +93,7 @@ def clamp_position(x: float, y: float) -> tuple[float, float]:
 def linger(since: dict[int, float], current: Iterable[int], now: float, period: float) -> set[int]:
     """``current`` plus the ids that were in it (``since``: id -> last seen) within ``period``
     s; updates ``since``."""
-    for rid in current:
-        since[rid] = now
+    since.update(dict.fromkeys(current, now))
     for rid in [r for r, t in since.items() if now - t > period]:
         del since[rid]
     return set(since)
@@ -273,6 +274,7 @@ class Neighborhood:
         self._beacon_only: dict[int, Reckoned] = {}
         self._moved: list[int] = []
         self._head_ids: list[int] = []
+        self._dead_known: dict[int, set[str]] = {}  # ``dead`` at the last refresh
         self.unconfirmed: dict[int, tuple[float, float]] = {}
         self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
@@ -408,15 +410,19 @@ class Neighborhood:
         fresh = now - self.stale_timeout
         limit = DEAD_RECKONING_LIMIT
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
-        chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
-        for rid, track in self.state_tracks.items():
-            received = track.received
-            if received >= fresh and (rid not in chosen or received > chosen[rid].received):
-                chosen[rid] = track
+        tracks = self.state_tracks.items()
+        if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
+            chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
+            for rid, track in tracks:
+                received = track.received
+                if received >= fresh and (rid not in chosen or received > chosen[rid].received):
+                    chosen[rid] = track
+            tracks = chosen.items()
         reckoned: dict[int, Reckoned] = {}
-        for rid, track in chosen.items():
-            if rid not in dead:
-                lead = now - track.received
+        for rid, track in tracks:
+            received = track.received
+            if received >= fresh and rid not in dead:
+                lead = now - received
                 if lead > limit:
                     lead = limit
                 vx, vy = track.vx, track.vy
@@ -440,13 +446,23 @@ class Neighborhood:
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)
-        rows, beacon_table, beacon_ids, unconfirmed = self._from_beacons(
-            now, reckoned.keys() | dead.keys()
-        )
-        self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
+        head_ids_list, choice = list(reckoned), self._choice
+        same_head = head_ids_list == self._head_ids
+        if (
+            choice is not None
+            and same_head
+            and (dead is self._dead_known or not (dead or self._dead_known))
+        ):
+            known = choice.known  # the same robots as at the last step (most steps)
+        else:
+            known = reckoned.keys() | dead.keys()
+        self._dead_known = dead
+        rows, beacon_table, beacon_ids, unconfirmed = self._from_beacons(now, known)
+        if unconfirmed:
+            self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
-        last, head_ids_list = self.reckoned, list(reckoned)
-        if rows is self._beacon_only and head_ids_list == self._head_ids:
+        last = self.reckoned
+        if rows is self._beacon_only and same_head:
             # The same candidates in the same order as at the last step (most steps): new
             # values in place, rather than a new dict of them all (~250), which touched
             # every beacon-only candidate's tuple in memory each period (a packed process
@@ -492,7 +508,7 @@ class Neighborhood:
             and not self.asked
             and choice.ledger is ledger
             and choice.first >= oldest
-            and choice.known == known
+            and (choice.known is known or choice.known == known)
         ):
             return choice.rows, choice.table, choice.ids, {}
         usable = ledger.usable(oldest)
@@ -532,7 +548,7 @@ class Neighborhood:
         if distance is None:
             table = self.table
             distance = self._distances[x, y] = np.hypot(table[:, 0] - x, table[:, 1] - y)
-        return np.flatnonzero(distance <= radius)
+        return (distance <= radius).nonzero()[0]
 
     def _forget(self, now: float) -> None:
         """Drop records well past their timeout: memory stays bounded, and the tables that
@@ -562,9 +578,10 @@ class Neighborhood:
     def ask(self, followed: Iterable[int], now: float) -> None:
         """The AgentStates of ``followed`` are subscribed to from ``now`` on: the robots
         among them known only from beacons start their BEACON_CONFIRMATION."""
+        beacon_only, unconfirmed, asked = self.beacon_only, self.unconfirmed, self.asked
         for rid in followed:
-            if rid in self.beacon_only or rid in self.unconfirmed:
-                self.asked.setdefault(rid, now)
+            if rid in beacon_only or rid in unconfirmed:
+                asked.setdefault(rid, now)
 
     def relevant(
         self, now: float, me: tuple[float, float], reach: float | None
@@ -588,10 +605,11 @@ class Neighborhood:
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
-        ids = set(self.one_hop)
-        for rid in self.one_hop:
-            entry = self.neighbor_sets.get(rid)
-            if entry is not None and now - entry[1] <= self.stale_timeout:
+        one_hop, sets, stale = self.one_hop, self.neighbor_sets, self.stale_timeout
+        ids = set(one_hop)
+        for rid in one_hop:
+            entry = sets.get(rid)
+            if entry is not None and now - entry[1] <= stale:
                 ids |= entry[0]
         ids.discard(self.me)
         return frozenset(ids)
@@ -602,15 +620,13 @@ class Neighborhood:
         ``linger_period`` s (a robot across a near-degenerate Voronoi vertex comes and goes
         every few ticks, and every declaration is a round of routing updates for the whole
         swarm)."""
-        fresh = now - self.stale_timeout
-        relays = self.relays
-        covered = {
-            entry[0]
-            for rid in self.one_hop
-            if rid in relays and relays[rid][1] >= fresh
-            for entry in relays[rid][0]
-        }
-        wanted = self.one_hop | (self.two_hop(now) - covered)
+        fresh, relays, one_hop = now - self.stale_timeout, self.relays, self.one_hop
+        covered: set[int] = set()
+        for rid in one_hop:
+            relay = relays.get(rid)
+            if relay is not None and relay[1] >= fresh:
+                covered.update(map(_first, relay[0]))
+        wanted = one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 
     def unrequited(self, now: float) -> bool:
@@ -620,22 +636,26 @@ class Neighborhood:
         no relay reached it and our last routine beacon may be 10 s away. Meanwhile both
         cells are wrong where they meet.
         """
-        fresh = now - self.stale_timeout
+        fresh, me, sets = now - self.stale_timeout, self.me, self.neighbor_sets
+        since = self._unrequited
         unrequited = {}
         for rid in self.one_hop:
-            entry = self.neighbor_sets.get(rid)
-            if entry is not None and entry[1] >= fresh and self.me not in entry[0]:
-                unrequited[rid] = self._unrequited.get(rid, now)
+            entry = sets.get(rid)
+            if entry is not None and entry[1] >= fresh and me not in entry[0]:
+                unrequited[rid] = since.get(rid, now)
         self._unrequited = unrequited
-        return any(now - since >= ASYMMETRY_GRACE for since in unrequited.values())
+        return bool(unrequited) and now - min(unrequited.values()) >= ASYMMETRY_GRACE
 
     def relay(self) -> list[RelayEntry]:
         """Our one-hop neighbours known first-hand, as reckoned at the last step (at most
         protocol.MAX_RELAY): only first-hand positions are relayed, since a relayed one
         passed on again would be dead-reckoned once more at every hop, and around a cycle
         of relays forever."""
-        reckoned = self.reckoned
-        return [
-            (rid, *clamp_position(*reckoned[rid][:2]), *reckoned[rid][2:])
-            for rid in sorted(self.one_hop & self.first_hand)
-        ][: protocol.MAX_RELAY]
+        reckoned, bound = self.reckoned, protocol.MAX_COORD
+        relay = []
+        for rid in sorted(self.one_hop & self.first_hand)[: protocol.MAX_RELAY]:
+            x, y, vx, vy = reckoned[rid]
+            if not (-bound <= x <= bound and -bound <= y <= bound):  # NaN too: as it is
+                x, y = clamp_position(x, y)
+            relay.append((rid, x, y, vx, vy))
+        return relay
