@@ -45,6 +45,18 @@ CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
+# What a receiver takes from an AgentState besides the message: its neighbours as a set and
+# its velocity vx, vy (m/s, 0 when absent) (state_facts).
+StateFacts = tuple[frozenset[int], float, float]
+# An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
+# StateFacts, and its receipt time (monotonic s).
+HeardState = tuple[protocol.AgentState, frozenset[int], float, float, float]
+
+
+def state_facts(state: protocol.AgentState) -> StateFacts:
+    """What every receiver takes from ``state`` besides its fields: the same for all, so a
+    process of many brains derives it once per message (covswarm.agent.decoding)."""
+    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
 
 
 @dataclass(slots=True)
@@ -291,16 +303,27 @@ class Neighborhood:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
-        rid = state.id
-        self.state_tracks[rid] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
-        self._hear(rid, now)
-        if self.liveliness.deaths:
-            self._revive(rid, "agent")
-        self.neighbor_sets[rid] = (frozenset(state.neighbors), now)
-        if state.relay is None:
-            self.relays.pop(state.id, None)
-        else:
-            self.relays[state.id] = (state.relay, now)
+        self.on_agent_states(((state, *state_facts(state), now),))
+
+    def on_agent_states(self, states: Iterable[HeardState]) -> None:
+        """AgentStates in order, each with its state_facts and receipt time: as
+        :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
+        control period, and this is the bulk of its receive path)."""
+        tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
+        hear = self._hear
+        revive = bool(self.liveliness.deaths)  # token changes apply between turns only
+        for state, neighbours, vx, vy, now in states:
+            rid = state.id
+            tracks[rid] = Track(state.x, state.y, now, vx, vy)
+            hear(rid, now)
+            if revive:
+                self._revive(rid, "agent")
+            neighbor_sets[rid] = (neighbours, now)
+            relay = state.relay
+            if relay is None:
+                relays.pop(rid, None)
+            else:
+                relays[rid] = (relay, now)
 
     def _hear(self, rid: int, now: float) -> None:
         """Robot ``rid``'s own pose or state arrived at ``now``."""
