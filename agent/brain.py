@@ -28,7 +28,7 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -506,19 +506,19 @@ class AgentBrain:
         dropped."""
         return self.receive_all(((kind, key_id, payload),), now, now_wall) == 1
 
-    def receive_all(self, items: Iterable[InboxItem], now: float, now_wall: float) -> int:
+    def receive_all(self, items: Sequence[InboxItem], now: float, now_wall: float) -> int:
         """:meth:`receive` each of ``items`` (kind, the id in its key or None, payload), in
         order, received at ``now``, ``now_wall``; the number accepted. One call for a
         packed brain's turn (covswarm.agent.pack): ~8 payloads a control period, most of
         them neighbours' AgentStates, each handed to the neighbourhood with what the
         process's decoder derived from it once (covswarm.agent.neighborhood.state_facts)."""
-        decoder, counters, me = self.decoder, self.counters, self.id
+        decoder, me = self.decoder, self.id
         received, received_bytes = decoder.received, decoder.received_bytes
         max_age, skew, peer_clocks = self._max_age, self.config.max_clock_skew, self.peer_clocks
         states: list[HeardState] = []  # the current run of AgentStates, applied at its end
         accepted = 0
+        self.counters.received += len(items)
         for kind, key_id, payload in items:
-            counters.received += 1
             if states and kind != "state":
                 self.neighborhood.on_agent_states(states)
                 states = []

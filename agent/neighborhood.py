@@ -298,7 +298,7 @@ class Neighborhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
         self.poses[rid] = Track(pose.x, pose.y, now)
-        self._hear(rid, now)
+        self._hear(((rid, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
@@ -310,12 +310,12 @@ class Neighborhood:
         :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
         control period, and this is the bulk of its receive path)."""
         tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
-        hear = self._hear
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
+        heard = []
         for state, neighbours, vx, vy, now in states:
             rid = state.id
             tracks[rid] = Track(state.x, state.y, now, vx, vy)
-            hear(rid, now)
+            heard.append((rid, now))
             if revive:
                 self._revive(rid, "agent")
             neighbor_sets[rid] = (neighbours, now)
@@ -324,15 +324,18 @@ class Neighborhood:
                 relays.pop(rid, None)
             else:
                 relays[rid] = (relay, now)
+        self._hear(heard)
 
-    def _hear(self, rid: int, now: float) -> None:
-        """Robot ``rid``'s own pose or state arrived at ``now``."""
-        self._heard[rid] = now
-        self._ledger.hear(rid, now)
-        self.asked.pop(rid, None)
-        choice = self._choice
-        if choice is not None and rid in choice.rows:
-            choice.current = False  # its beacon is no longer its newest news
+    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
+        """Robots' own poses or states arrived: (id, receipt time) each."""
+        times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
+        for rid, now in heard:
+            times[rid] = now
+            hear(rid, now)
+            if asked:
+                asked.pop(rid, None)
+            if choice is not None and rid in choice.rows:
+                choice.current = False  # its beacon is no longer its newest news
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         rid, x, y = beacon.id, beacon.x, beacon.y
