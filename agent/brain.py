@@ -28,16 +28,18 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.faults import InboxItem
 from covswarm.agent.latency import ClockBound, CommandHistory
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
+    HeardState,
     Neighborhood,
     cell_reach,
     clamp_position,
@@ -519,29 +521,57 @@ class AgentBrain:
         """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
         "domain" | "world"); ``key_id`` is the id in the key it arrived on. False if
         dropped."""
-        self.counters.received += 1
-        try:
-            message = self.decoder.decode(kind, payload)
-            check_stamp(message.stamp, now_wall, self._max_age[kind], self.config.max_clock_skew)
-        except protocol.ProtocolError as exc:
-            self.drops.drop(exc.reason, f"{kind}: {exc}")
-            return False
-        if key_id is not None and message.id != key_id:
-            self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
-            return False
-        if kind == "pose" and message.id == self.id:
-            self.robot_clock.add(now, now_wall, message.stamp)
-        elif kind == "state":
-            # Dead reckoning counts from when the state was stamped, not from when it
-            # arrived: on our clock, within the bound on its sender's offset.
-            clock = self.peer_clocks.get(message.id)
-            if clock is None:
-                clock = self.peer_clocks[message.id] = ClockBound()
-            clock.add(now, now_wall, message.stamp)
-            now -= min(max(now_wall - clock.to_local(message.stamp), 0.0), MAX_PREDICTION)
-        accepted = _HANDLERS[kind](self, message, now)
-        if accepted and kind == "domain":
-            self.coordinator_clock.add(now, now_wall, message.stamp)
+        return self.receive_all(((kind, key_id, payload),), now, now_wall) == 1
+
+    def receive_all(self, items: Sequence[InboxItem], now: float, now_wall: float) -> int:
+        """:meth:`receive` each of ``items`` (kind, the id in its key or None, payload), in
+        order, received at ``now``, ``now_wall``; the number accepted. One call for a
+        packed brain's turn (covswarm.agent.pack): ~8 payloads a control period, most of
+        them neighbours' AgentStates, each handed to the neighbourhood with what the
+        process's decoder derived from it once (covswarm.agent.neighborhood.state_facts)."""
+        decoder, me = self.decoder, self.id
+        received, received_bytes = decoder.received, decoder.received_bytes
+        max_age, skew, peer_clocks = self._max_age, self.config.max_clock_skew, self.peer_clocks
+        states: list[HeardState] = []  # the current run of AgentStates, applied at its end
+        accepted = 0
+        self.counters.received += len(items)
+        for kind, key_id, payload in items:
+            if states and kind != "state":
+                self.neighborhood.on_agent_states(states)
+                states = []
+            try:
+                if type(payload) is bytes:
+                    message, facts = received_bytes(kind, payload)
+                else:
+                    message, facts = received(kind, payload)
+                check_stamp(message.stamp, now_wall, max_age[kind], skew)
+            except protocol.ProtocolError as exc:
+                self.drops.drop(exc.reason, f"{kind}: {exc}")
+                continue
+            if key_id is not None and message.id != key_id:
+                self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
+                continue
+            if kind == "state":
+                rid = message.id
+                clock = peer_clocks.get(rid)
+                if clock is None:
+                    clock = peer_clocks[rid] = ClockBound()
+                # Dead reckoning counts from when the state was stamped, not from when it
+                # arrived: on our clock, within the bound on its sender's offset.
+                local = clock.add(now, now_wall, message.stamp)
+                if rid != me:  # else our own state (on_agent_state)
+                    lag = min(max(now_wall - local, 0.0), MAX_PREDICTION)
+                    states.append((message, *facts, now - lag))
+                    accepted += 1
+                continue
+            if kind == "pose" and message.id == me:
+                self.robot_clock.add(now, now_wall, message.stamp)
+            if _HANDLERS[kind](self, message, now):
+                accepted += 1
+                if kind == "domain":
+                    self.coordinator_clock.add(now, now_wall, message.stamp)
+        if states:
+            self.neighborhood.on_agent_states(states)
         return accepted
 
     def on_pose(self, pose: protocol.Pose, now: float) -> bool:

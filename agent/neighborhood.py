@@ -47,6 +47,18 @@ CONFIRMATION_RETRY = 10.0
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 _first = operator.itemgetter(0)  # a relay entry's id
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
+# What a receiver takes from an AgentState besides the message: its neighbours as a set and
+# its velocity vx, vy (m/s, 0 when absent) (state_facts).
+StateFacts = tuple[frozenset[int], float, float]
+# An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
+# StateFacts, and its receipt time (monotonic s).
+HeardState = tuple[protocol.AgentState, frozenset[int], float, float, float]
+
+
+def state_facts(state: protocol.AgentState) -> StateFacts:
+    """What every receiver takes from ``state`` besides its fields: the same for all, so a
+    process of many brains derives it once per message (covswarm.agent.decoding)."""
+    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
 
 
 @dataclass(slots=True)
@@ -288,30 +300,44 @@ class Neighborhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
         self.poses[rid] = Track(pose.x, pose.y, now)
-        self._hear(rid, now)
+        self._hear(((rid, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
-        rid = state.id
-        self.state_tracks[rid] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
-        self._hear(rid, now)
-        if self.liveliness.deaths:
-            self._revive(rid, "agent")
-        self.neighbor_sets[rid] = (frozenset(state.neighbors), now)
-        if state.relay is None:
-            self.relays.pop(state.id, None)
-        else:
-            self.relays[state.id] = (state.relay, now)
+        self.on_agent_states(((state, *state_facts(state), now),))
 
-    def _hear(self, rid: int, now: float) -> None:
-        """Robot ``rid``'s own pose or state arrived at ``now``."""
-        self._heard[rid] = now
-        self._ledger.hear(rid, now)
-        self.asked.pop(rid, None)
-        choice = self._choice
-        if choice is not None and rid in choice.rows:
-            choice.current = False  # its beacon is no longer its newest news
+    def on_agent_states(self, states: Iterable[HeardState]) -> None:
+        """AgentStates in order, each with its state_facts and receipt time: as
+        :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
+        control period, and this is the bulk of its receive path)."""
+        tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
+        revive = bool(self.liveliness.deaths)  # token changes apply between turns only
+        heard = []
+        for state, neighbours, vx, vy, now in states:
+            rid = state.id
+            tracks[rid] = Track(state.x, state.y, now, vx, vy)
+            heard.append((rid, now))
+            if revive:
+                self._revive(rid, "agent")
+            neighbor_sets[rid] = (neighbours, now)
+            relay = state.relay
+            if relay is None:
+                relays.pop(rid, None)
+            else:
+                relays[rid] = (relay, now)
+        self._hear(heard)
+
+    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
+        """Robots' own poses or states arrived: (id, receipt time) each."""
+        times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
+        for rid, now in heard:
+            times[rid] = now
+            hear(rid, now)
+            if asked:
+                asked.pop(rid, None)
+            if choice is not None and rid in choice.rows:
+                choice.current = False  # its beacon is no longer its newest news
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         rid, x, y = beacon.id, beacon.x, beacon.y

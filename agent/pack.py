@@ -396,8 +396,7 @@ class Pack:
         impairment = self._impairment.get(bid)
         if impairment is not None:
             items = impairment.filter(items, now)
-        for kind, key_id, payload in items:
-            brain.receive(kind, payload, now, wall, key_id)
+        brain.receive_all(items, now, wall)
         brain.catch_up()
 
     # --- output --------------------------------------------------------------------------
