@@ -244,10 +244,15 @@ def _plain_relay(
     Message.decode unpacks as tuples, as an agent builds its own), in bounds, of distinct
     ids; else None, and the checker finds the reason. One type test and chained comparison
     per number (NaN fails it); the tuples are kept (tuple() of one is itself)."""
+    xlo, xhi, vlo, vhi = -MAX_COORD, MAX_COORD, -MAX_SPEED, MAX_SPEED  # locals, once
     for entry in items:
-        if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
+        kind = type(entry)
+        if kind is not tuple and kind is not list:
             return None
-        rid, x, y, vx, vy = entry
+        try:  # of a list or tuple: unpacks exactly when it holds five values
+            rid, x, y, vx, vy = entry
+        except ValueError:
+            return None
         if not (
             type(rid) is int
             and type(x) is float
@@ -255,10 +260,10 @@ def _plain_relay(
             and type(vx) is float
             and type(vy) is float
             and 0 <= rid <= MAX_ID
-            and -MAX_COORD <= x <= MAX_COORD
-            and -MAX_COORD <= y <= MAX_COORD
-            and -MAX_SPEED <= vx <= MAX_SPEED
-            and -MAX_SPEED <= vy <= MAX_SPEED
+            and xlo <= x <= xhi
+            and xlo <= y <= xhi
+            and vlo <= vx <= vhi
+            and vlo <= vy <= vhi
         ):
             return None
     if len({entry[0] for entry in items}) != len(items):
