@@ -317,3 +317,36 @@ def test_decode_refuses_missing_and_unknown_fields(cls) -> None:
                 expected = _outcome(lambda fields=fields: cls(**fields))
                 assert expected[0] == "ok"
             assert _outcome(lambda payload=payload: cls.decode(payload)) == expected
+
+
+def test_a_running_pack_builds_and_decodes_on_the_fast_path() -> None:
+    """What a running pack of brains builds (commands, AgentStates with neighbours, relays
+    and stats, beacons) and decodes is of plain, in-range numbers: none of it goes through
+    the checkers alone (Message._fill_checked), as a brain's numpy float would."""
+    from covswarm.agent.brain import AgentBrain
+    from covswarm.agent.pack import LocalBus, Pack
+    from covswarm.deploy.bench import BRAIN_TICK_WALL, brain_tick_domain, make_layout
+
+    n, swarm = 30, "fast"
+    layout = make_layout(n, "cvt", 0)
+    bus = LocalBus()
+    pack = Pack(bus, swarm, [AgentBrain(i) for i in range(n)])
+    slow = AssertionError("the checkers' path")
+    with patch.object(messages.Message, "_fill_checked", side_effect=slow):
+        for k in range(15):
+            t = k * 0.1
+            bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, k + 1))
+            for rid, (x, y) in enumerate(layout.positions.tolist()):
+                stamp = BRAIN_TICK_WALL + t
+                pose = protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=stamp, seq=k)
+                bus.put(protocol.pose_key(swarm, rid), pose.encode())
+            pack.tick(lambda t=t: t, lambda t=t: BRAIN_TICK_WALL + t, math.inf)
+    sent = {
+        kind: [p for key, p in bus.sent if key.endswith(f"/{kind}")] for kind in ("cmd", "state")
+    }
+    states = [protocol.AgentState.decode(payload) for payload in sent["state"]]
+    assert len(sent["cmd"]) == 15 * n and states
+    assert any(s.relay for s in states) and any(s.stats for s in states)
+    assert any(s.neighbors for s in states) and any(s.vx for s in states)
+    assert any(protocol.WheelCommand.decode(c).left for c in sent["cmd"])
+    assert any("/beacon/" in key for key, _ in bus.sent)
