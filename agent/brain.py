@@ -79,6 +79,15 @@ IDLE_STEP_PERIOD = 1.0
 # a whole team starting at once costs each agent one beacon per second, not per tick.
 BEACON_MIN_PERIOD = 1.0
 STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
+# s: the least time between two AgentStates (AgentConfig.state_period), and between two
+# choices of the AgentStates and beacon tiles to follow (AgentBrain.exchange_due). At 10 Hz
+# or slower every control step has both; a faster control loop keeps its neighbours' news
+# at ~10 Hz, dead-reckoned in between with the velocity each carries. At 30 Hz an AgentState
+# per step was two thirds of what each brain received and most of what a packed process
+# decoded: 100 robots at 30 Hz then sent 11-12 % of their commands after their period on
+# two cores (27 Nov 2026); the control loop itself still runs at the asked rate on its own
+# pose.
+STATE_PERIOD = 0.1
 # s: a pose older than this (on our clock) is used as it is, not predicted (an agent whose
 # pose is that old stops its robot anyway: --stale-timeout); and the largest age a
 # neighbour's AgentState is dead-reckoned over.
@@ -145,6 +154,7 @@ class AgentConfig:
     feedforward: bool = True
     law: str = "da"  # covswarm.tvd.control.local_step's: "da" (default) or "d1" (the paper's)
     stale_timeout: float = 1.0
+    state_period: float = STATE_PERIOD  # s, see STATE_PERIOD; 0: an AgentState every step
     # Beacons only bootstrap: neighbours' relays keep the two-hop set current, and a
     # teammate's new token triggers an early beacon (see AgentBrain.beacon).
     beacon_period: float = 10.0
@@ -345,6 +355,11 @@ class AgentBrain:
     ) -> None:
         self.id = protocol.check_id(robot_id)
         self.config = config = config or AgentConfig()
+        if not 0.0 <= config.state_period < config.stale_timeout:
+            raise ValueError(
+                f"state_period {config.state_period} s must be >= 0 and below the stale "
+                f"timeout ({config.stale_timeout} s): neighbours would drop us in between"
+            )
         self.decoder = decoder or MessageDecoder()
         self._clock = clock  # only times the control step (stats)
         self.log = log or logging.getLogger("covswarm.agent")
@@ -388,6 +403,8 @@ class AgentBrain:
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
         self._next_stats = -math.inf
+        self._last_exchange = -math.inf  # ``now`` of the last neighbour exchange (exchange_due)
+        self._last_actions = -math.inf  # ``now`` of the last period's actions (exchange_due)
         self._alive = False
         self.velocity: tuple[float, float] = (0.0, 0.0)  # last achieved (saturated) command, m/s
         self._seq = 0
@@ -629,26 +646,42 @@ class AgentBrain:
     def actions(self, decision: Decision, now: float, now_wall: float) -> list[Action]:
         """The actions of a period whose step decided ``decision``, in the order to do them."""
         actions: list[Action] = [SendCommand(self.command(decision, now_wall))]
-        if self.pose_fresh(now):
-            with_stats = now >= self._next_stats
-            state = self.agent_state(now_wall, stats=with_stats)
-            if state is not None:
-                actions.append(PublishState(state))
-                if with_stats:
-                    self._next_stats = now + STATS_PERIOD
+        exchange = self.exchange_due(now)
+        self._last_actions = now
+        if exchange:
+            self._last_exchange = now
+            if self.pose_fresh(now):
+                with_stats = now >= self._next_stats
+                state = self.agent_state(now_wall, stats=with_stats)
+                if state is not None:
+                    actions.append(PublishState(state))
+                    if with_stats:
+                        self._next_stats = now + STATS_PERIOD
         beacon = self.beacon(now, now_wall)
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
-        wanted = self.neighborhood.wanted_state_ids(now)
-        if self.config.safety:
-            wanted |= self.near_ids()
-        self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
-        actions.append(FollowStates(frozenset(wanted)))
-        actions.append(FollowTiles(self.wanted_tiles()))
+        if exchange:
+            wanted = self.neighborhood.wanted_state_ids(now)
+            if self.config.safety:
+                wanted |= self.near_ids()
+            self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
+            actions.append(FollowStates(frozenset(wanted)))
+            actions.append(FollowTiles(self.wanted_tiles()))
         if not self._alive and self.pose is not None:
             self._alive = True
             actions.append(DeclareAlive())
         return actions
+
+    def exchange_due(self, now: float) -> bool:
+        """Whether this period's actions (at ``now``) are a round of the neighbour exchange:
+        our AgentState out, and the AgentStates and beacon tiles to follow chosen again.
+        Once ``state_period`` s have passed since the last round, give or take half a
+        control period (the gap since the last period's actions), so that a 10 Hz loop
+        has one every step despite its jitter and a 30 Hz one every third step (what it
+        follows changes no faster than the states it hears)."""
+        gap = now - self._last_actions
+        half = 0.5 * gap if math.isfinite(gap) else 0.0
+        return now - self._last_exchange + half >= self.config.state_period
 
     def stop(self, now_wall: float) -> SendCommand:
         """The last command, when the process stops: the robot stops at once rather than
