@@ -634,8 +634,14 @@ class Neighborhood:
         protocol.MAX_RELAY): only first-hand positions are relayed, since a relayed one
         passed on again would be dead-reckoned once more at every hop, and around a cycle
         of relays forever."""
-        reckoned = self.reckoned
+        reckoned, bound = self.reckoned, protocol.MAX_COORD
+        ids = sorted(self.one_hop & self.first_hand)[: protocol.MAX_RELAY]
+        # clamp_position (the same numbers within bounds) only for the rare one beyond them:
+        # a call per entry was most of what the relay cost.
         return [
-            (rid, *clamp_position(*reckoned[rid][:2]), *reckoned[rid][2:])
-            for rid in sorted(self.one_hop & self.first_hand)
-        ][: protocol.MAX_RELAY]
+            (rid, x, y, vx, vy)
+            if -bound <= x <= bound and -bound <= y <= bound
+            else (rid, *clamp_position(x, y), vx, vy)
+            for rid in ids
+            for x, y, vx, vy in (reckoned[rid],)
+        ]
