@@ -420,7 +420,8 @@ def _compile_init(cls: type[Message]) -> tuple[Callable[..., None], Callable[[di
     body += [f"        s_{n}(self, c_{n}({n}, {n!r}))" for n in spec if n not in inline]
     values = ", ".join(f"{name!r}: {name}" for name in spec)
     body += ["    else:", f"        self._fill_checked({{{values}}})"]
-    body += ["    self._check_fields()"]
+    if cls._check_fields is not Message._check_fields:  # the base's checks nothing
+        body += ["    self._check_fields()"]
     init = [f"def __init__(self, {', '.join(params)}):", *body]
     decoded = ["def decoded(raw):", "    self = new(cls)", *reads, *body, "    return self"]
     exec("\n".join([*init, *decoded]), namespace)
