@@ -1095,8 +1095,11 @@ class AgentBrain:
         # Where the robot is at the state's stamp by the same prediction the control step
         # uses, so that neighbours and we agree on it; they dead-reckon from the stamp on with
         # the velocity (clamped: the control's is unbounded, the wire's is not).
-        vx, vy = (min(max(v, -protocol.MAX_SPEED), protocol.MAX_SPEED) for v in self.velocity)
-        x, y = clamp_position(*self.predicted_pose(stamp)[:2])
+        # Plain floats (not numpy's), which AgentState takes without a checker call each.
+        vx, vy = self.velocity
+        bound = protocol.MAX_SPEED
+        vx, vy = min(max(vx, -bound), bound), min(max(vy, -bound), bound)
+        x, y = clamp_position(*self.predicted_pose(stamp)[:2].tolist())
         return protocol.AgentState(
             id=self.id,
             x=x,
