@@ -237,22 +237,27 @@ class Filtering:
 def filter_all(filterings: list[Filtering]) -> list[SafeVelocity]:
     """The safety filter of every step of ``filterings`` in one batch
     (covswarm.tvd.safety.safe_unicycle_velocities: each equal to its own filter)."""
+    poses = np.array([f.begun.pose for f in filterings])  # (R, 3): x, y, heading
+    # (R, 4): safe distance, gamma, obstacle distance, obstacle gamma
+    scalars = np.array(
+        [(f.safe_distance, f.gamma, f.obstacle_distance, f.obstacle_gamma) for f in filterings]
+    )
     velocities, active, relaxed = safe_unicycle_velocities(
-        np.array([f.begun.pose[:2] for f in filterings]),
+        poses[:, :2],
         np.array([f.nominal for f in filterings]),
-        np.array([f.begun.pose[2] for f in filterings]),
+        poses[:, 2],
         [f.near[:, :2] for f in filterings],
-        np.array([f.safe_distance for f in filterings]),
-        np.array([f.gamma for f in filterings]),
+        scalars[:, 0],
+        scalars[:, 1],
         velocities=np.array([f.velocity for f in filterings]),
         neighbor_velocities=[f.near[:, 2:] for f in filterings],
         obstacles=[f.obstacles for f in filterings],
         workspace=[f.workspace for f in filterings],
-        obstacle_distance=np.array([f.obstacle_distance for f in filterings]),
+        obstacle_distance=scalars[:, 2],
         reach=SAFETY_RADIUS,
-        obstacle_gamma=np.array([f.obstacle_gamma for f in filterings]),
+        obstacle_gamma=scalars[:, 3],
     )
-    return [(velocities[k], int(active[k]), bool(relaxed[k])) for k in range(len(filterings))]
+    return list(zip(velocities, active.tolist(), relaxed.tolist(), strict=True))
 
 
 def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
@@ -881,7 +886,7 @@ class AgentBrain:
         self.counters.guarded += int(result.guarded and self.running)
         self.counters.cell_empty += int(result.mass <= 0.0 and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
-        self.neighborhood.one_hop = frozenset(int(rid) for rid in result.neighbors)
+        self.neighborhood.one_hop = frozenset(map(int, result.neighbors))
         if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(begun.view.positions) - 1
