@@ -12,7 +12,6 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-import operator
 from collections.abc import Iterable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
@@ -45,7 +44,6 @@ BEACON_CONFIRMATION = 1.0
 CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
-_first = operator.itemgetter(0)  # a relay entry's id
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
 # What a receiver takes from an AgentState besides the message: its neighbours as a set and
 # its velocity vx, vy (m/s, 0 when absent) (state_facts).
@@ -105,7 +103,8 @@ def clamp_position(x: float, y: float) -> tuple[float, float]:
 def linger(since: dict[int, float], current: Iterable[int], now: float, period: float) -> set[int]:
     """``current`` plus the ids that were in it (``since``: id -> last seen) within ``period``
     s; updates ``since``."""
-    since.update(dict.fromkeys(current, now))
+    for rid in current:
+        since[rid] = now
     for rid in [r for r, t in since.items() if now - t > period]:
         del since[rid]
     return set(since)
@@ -634,9 +633,10 @@ class Neighborhood:
         one_hop, sets, stale = self.one_hop, self.neighbor_sets, self.stale_timeout
         ids = set(one_hop)
         for rid in one_hop:
-            entry = sets.get(rid)
-            if entry is not None and now - entry[1] <= stale:
-                ids |= entry[0]
+            if rid in sets:
+                reported, received = sets[rid]
+                if now - received <= stale:
+                    ids |= reported
         ids.discard(self.me)
         return frozenset(ids)
 
@@ -646,13 +646,15 @@ class Neighborhood:
         ``linger_period`` s (a robot across a near-degenerate Voronoi vertex comes and goes
         every few ticks, and every declaration is a round of routing updates for the whole
         swarm)."""
-        fresh, relays, one_hop = now - self.stale_timeout, self.relays, self.one_hop
-        covered: set[int] = set()
-        for rid in one_hop:
-            relay = relays.get(rid)
-            if relay is not None and relay[1] >= fresh:
-                covered.update(map(_first, relay[0]))
-        wanted = one_hop | (self.two_hop(now) - covered)
+        fresh = now - self.stale_timeout
+        relays = self.relays
+        covered = {
+            entry[0]
+            for rid in self.one_hop
+            if rid in relays and relays[rid][1] >= fresh
+            for entry in relays[rid][0]
+        }
+        wanted = self.one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 
     def unrequited(self, now: float) -> bool:
@@ -666,9 +668,10 @@ class Neighborhood:
         since = self._unrequited
         unrequited = {}
         for rid in self.one_hop:
-            entry = sets.get(rid)
-            if entry is not None and entry[1] >= fresh and me not in entry[0]:
-                unrequited[rid] = since.get(rid, now)
+            if rid in sets:
+                reported, received = sets[rid]
+                if received >= fresh and me not in reported:
+                    unrequited[rid] = since.get(rid, now)
         self._unrequited = unrequited
         return bool(unrequited) and now - min(unrequited.values()) >= ASYMMETRY_GRACE
 
