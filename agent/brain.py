@@ -544,7 +544,7 @@ class AgentBrain:
                 local = clock.add(now, now_wall, message.stamp)
                 if rid != me:  # else our own state (on_agent_state)
                     lag = min(max(now_wall - local, 0.0), MAX_PREDICTION)
-                    states.append((message, *facts, now - lag))
+                    states.append((message, facts, now - lag))
                     accepted += 1
                 continue
             if kind == "pose" and message.id == me:

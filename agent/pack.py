@@ -354,7 +354,8 @@ class Pack:
         item = (sub.kind, sub.key_id, last.payload.to_bytes())
         for bid in sub.followers:
             pending = queues[bid]
-            self.brains[bid].counters.coalesced += coalesced + (slot in pending)
+            if coalesced or slot in pending:  # rarely: one sample a tick, taken each tick
+                self.brains[bid].counters.coalesced += coalesced + (slot in pending)
             pending[slot] = item
 
     def _drain_every(self, key: str, sub: _Subscription, queues: _Queues) -> None:
