@@ -1,6 +1,7 @@
 """The brain of one agent as a sans-IO state machine: messages and clocks in, actions out.
 
-Feed it raw payloads with :meth:`AgentBrain.receive` and liveliness changes with
+Feed it raw payloads with :meth:`AgentBrain.receive` (a control period's at once with
+:meth:`AgentBrain.receive_all`) and liveliness changes with
 :meth:`AgentBrain.on_liveliness`; once per control period :meth:`AgentBrain.tick` returns
 everything to do, in order: the wheel command, the AgentState, a beacon when one is due,
 the AgentStates and beacon tiles to follow, and the liveliness token to declare once the
@@ -565,8 +566,12 @@ class AgentBrain:
                 # arrived: on our clock, within the bound on its sender's offset.
                 local = clock.add(now, now_wall, message.stamp)
                 if rid != me:  # else our own state (on_agent_state)
-                    lag = min(max(now_wall - local, 0.0), MAX_PREDICTION)
-                    states.append((message, *facts, now - lag))
+                    lag = now_wall - local  # clamped to [0, MAX_PREDICTION] (NaN stays)
+                    if lag > MAX_PREDICTION:
+                        lag = MAX_PREDICTION
+                    elif lag < 0.0:
+                        lag = 0.0
+                    states.append((message, facts, now - lag))
                     accepted += 1
                 continue
             if kind == "pose" and message.id == me:

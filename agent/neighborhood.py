@@ -50,7 +50,7 @@ Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/
 StateFacts = tuple[frozenset[int], float, float]
 # An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
 # StateFacts, and its receipt time (monotonic s).
-HeardState = tuple[protocol.AgentState, frozenset[int], float, float, float]
+HeardState = tuple[protocol.AgentState, StateFacts, float]
 
 
 def state_facts(state: protocol.AgentState) -> StateFacts:
@@ -304,7 +304,7 @@ class Neighborhood:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
-        self.on_agent_states(((state, *state_facts(state), now),))
+        self.on_agent_states(((state, state_facts(state), now),))
 
     def on_agent_states(self, states: Iterable[HeardState]) -> None:
         """AgentStates in order, each with its state_facts and receipt time: as
@@ -313,7 +313,7 @@ class Neighborhood:
         tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
         heard = []
-        for state, neighbours, vx, vy, now in states:
+        for state, (neighbours, vx, vy), now in states:
             rid = state.id
             tracks[rid] = Track(state.x, state.y, now, vx, vy)
             heard.append((rid, now))
@@ -386,6 +386,8 @@ class Neighborhood:
         (data received until now does not revive a robot whose token vanished since);
         True when one announced a newcomer: another agent we do not know yet."""
         liveliness = self.liveliness
+        if liveliness.serial == self.mark:
+            return False  # no change since (most turns)
         newcomer = any(
             rid != self.me and rid not in self.reckoned for rid in liveliness.appeared(self.mark)
         )

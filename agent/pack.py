@@ -354,7 +354,8 @@ class Pack:
         item = (sub.kind, sub.key_id, last.payload.to_bytes())
         for bid in sub.followers:
             pending = queues[bid]
-            self.brains[bid].counters.coalesced += coalesced + (slot in pending)
+            if coalesced or slot in pending:  # rarely: one sample a tick, taken each tick
+                self.brains[bid].counters.coalesced += coalesced + (slot in pending)
             pending[slot] = item
 
     def _drain_every(self, key: str, sub: _Subscription, queues: _Queues) -> None:
@@ -385,10 +386,11 @@ class Pack:
             self._drain_key(key, self._subs[key], self._pending)
 
     def receive(self, bid: int, now: float, wall: float) -> None:
-        """Hand brain ``bid`` everything queued for it since its last turn, then the token
-        changes (after the data: a last message from a process that has just died must not
-        revive it). ``now``, ``wall``: read after the payloads were taken off the bus (a
-        brain takes them as its receipt times, covswarm.agent.latency)."""
+        """Hand brain ``bid`` everything queued for it since its last turn (in one call,
+        AgentBrain.receive_all), then the token changes (after the data: a last message
+        from a process that has just died must not revive it). ``now``, ``wall``: read
+        after the payloads were taken off the bus (a brain takes them as its receipt times,
+        covswarm.agent.latency)."""
         brain = self.brains[bid]
         pending = self._pending[bid]
         items = [pending[slot] for slot in sorted(pending)]
