@@ -160,6 +160,7 @@ def _optional(inner: Checker) -> Checker:
     def check(value: Any, name: str) -> Any:
         return None if value is None else inner(value, name)
 
+    check.inner = inner  # type: ignore[attr-defined]  # _compile_init's: a call less
     test = getattr(inner, "inline", None)
     if test is None:
         return check
@@ -417,7 +418,12 @@ def _compile_init(cls: type[Message]) -> tuple[Callable[..., None], Callable[[di
         namespace[f"c_{name}"] = spec[name]
     body = [f"    if {test}:"]
     body += [f"        s_{name}(self, {name})" for name in inline]
-    body += [f"        s_{n}(self, c_{n}({n}, {n!r}))" for n in spec if n not in inline]
+    for name in [name for name in spec if name not in inline]:
+        call = f"c_{name}({name}, {name!r})"
+        inner = getattr(spec[name], "inner", None)  # an optional field's checker (_optional)
+        if inner is not None:  # _optional's test, without a call to it
+            namespace[f"c_{name}"], call = inner, f"None if {name} is None else {call}"
+        body.append(f"        s_{name}(self, {call})")
     values = ", ".join(f"{name!r}: {name}" for name in spec)
     body += ["    else:", f"        self._fill_checked({{{values}}})"]
     if cls._check_fields is not Message._check_fields:  # the base's checks nothing
