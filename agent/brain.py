@@ -1,6 +1,7 @@
 """The brain of one agent as a sans-IO state machine: messages and clocks in, actions out.
 
-Feed it raw payloads with :meth:`AgentBrain.receive` and liveliness changes with
+Feed it raw payloads with :meth:`AgentBrain.receive` (a control period's at once with
+:meth:`AgentBrain.receive_all`) and liveliness changes with
 :meth:`AgentBrain.on_liveliness`; once per control period :meth:`AgentBrain.tick` returns
 everything to do, in order: the wheel command, the AgentState, a beacon when one is due,
 the AgentStates and beacon tiles to follow, and the liveliness token to declare once the
@@ -28,16 +29,18 @@ import functools
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.faults import InboxItem
 from covswarm.agent.latency import ClockBound, CommandHistory
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
+    HeardState,
     Neighborhood,
     cell_reach,
     clamp_position,
@@ -79,6 +82,15 @@ IDLE_STEP_PERIOD = 1.0
 # a whole team starting at once costs each agent one beacon per second, not per tick.
 BEACON_MIN_PERIOD = 1.0
 STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
+# s: the least time between two AgentStates (AgentConfig.state_period), and between two
+# choices of the AgentStates and beacon tiles to follow (AgentBrain.exchange_due). At 10 Hz
+# or slower every control step has both; a faster control loop keeps its neighbours' news
+# at ~10 Hz, dead-reckoned in between with the velocity each carries. At 30 Hz an AgentState
+# per step was two thirds of what each brain received and most of what a packed process
+# decoded: 100 robots at 30 Hz then sent 11-12 % of their commands after their period on
+# two cores (27 Nov 2026); the control loop itself still runs at the asked rate on its own
+# pose.
+STATE_PERIOD = 0.1
 # s: a pose older than this (on our clock) is used as it is, not predicted (an agent whose
 # pose is that old stops its robot anyway: --stale-timeout); and the largest age a
 # neighbour's AgentState is dead-reckoned over.
@@ -145,6 +157,7 @@ class AgentConfig:
     feedforward: bool = True
     law: str = "da"  # covswarm.tvd.control.local_step's: "da" (default) or "d1" (the paper's)
     stale_timeout: float = 1.0
+    state_period: float = STATE_PERIOD  # s, see STATE_PERIOD; 0: an AgentState every step
     # Beacons only bootstrap: neighbours' relays keep the two-hop set current, and a
     # teammate's new token triggers an early beacon (see AgentBrain.beacon).
     beacon_period: float = 10.0
@@ -350,6 +363,11 @@ class AgentBrain:
     ) -> None:
         self.id = protocol.check_id(robot_id)
         self.config = config = config or AgentConfig()
+        if not 0.0 <= config.state_period < config.stale_timeout:
+            raise ValueError(
+                f"state_period {config.state_period} s must be >= 0 and below the stale "
+                f"timeout ({config.stale_timeout} s): neighbours would drop us in between"
+            )
         self.decoder = decoder or MessageDecoder()
         self._clock = clock  # only times the control step (stats)
         self.log = log or logging.getLogger("covswarm.agent")
@@ -393,6 +411,8 @@ class AgentBrain:
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
         self._next_stats = -math.inf
+        self._last_exchange = -math.inf  # ``now`` of the last neighbour exchange (exchange_due)
+        self._last_actions = -math.inf  # ``now`` of the last period's actions (exchange_due)
         self._alive = False
         self.velocity: tuple[float, float] = (0.0, 0.0)  # last achieved (saturated) command, m/s
         self._seq = 0
@@ -507,29 +527,61 @@ class AgentBrain:
         """Decode, check and apply a raw payload of ``kind`` ("pose" | "state" | "beacon" |
         "domain" | "world"); ``key_id`` is the id in the key it arrived on. False if
         dropped."""
-        self.counters.received += 1
-        try:
-            message = self.decoder.decode(kind, payload)
-            check_stamp(message.stamp, now_wall, self._max_age[kind], self.config.max_clock_skew)
-        except protocol.ProtocolError as exc:
-            self.drops.drop(exc.reason, f"{kind}: {exc}")
-            return False
-        if key_id is not None and message.id != key_id:
-            self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
-            return False
-        if kind == "pose" and message.id == self.id:
-            self.robot_clock.add(now, now_wall, message.stamp)
-        elif kind == "state":
-            # Dead reckoning counts from when the state was stamped, not from when it
-            # arrived: on our clock, within the bound on its sender's offset.
-            clock = self.peer_clocks.get(message.id)
-            if clock is None:
-                clock = self.peer_clocks[message.id] = ClockBound()
-            clock.add(now, now_wall, message.stamp)
-            now -= min(max(now_wall - clock.to_local(message.stamp), 0.0), MAX_PREDICTION)
-        accepted = _HANDLERS[kind](self, message, now)
-        if accepted and kind == "domain":
-            self.coordinator_clock.add(now, now_wall, message.stamp)
+        return self.receive_all(((kind, key_id, payload),), now, now_wall) == 1
+
+    def receive_all(self, items: Sequence[InboxItem], now: float, now_wall: float) -> int:
+        """:meth:`receive` each of ``items`` (kind, the id in its key or None, payload), in
+        order, received at ``now``, ``now_wall``; the number accepted. One call for a
+        packed brain's turn (covswarm.agent.pack): ~8 payloads a control period, most of
+        them neighbours' AgentStates, each handed to the neighbourhood with what the
+        process's decoder derived from it once (covswarm.agent.neighborhood.state_facts)."""
+        decoder, me = self.decoder, self.id
+        received, received_bytes = decoder.received, decoder.received_bytes
+        max_age, skew, peer_clocks = self._max_age, self.config.max_clock_skew, self.peer_clocks
+        states: list[HeardState] = []  # the current run of AgentStates, applied at its end
+        accepted = 0
+        self.counters.received += len(items)
+        for kind, key_id, payload in items:
+            if states and kind != "state":
+                self.neighborhood.on_agent_states(states)
+                states = []
+            try:
+                if type(payload) is bytes:
+                    message, facts = received_bytes(kind, payload)
+                else:
+                    message, facts = received(kind, payload)
+                check_stamp(message.stamp, now_wall, max_age[kind], skew)
+            except protocol.ProtocolError as exc:
+                self.drops.drop(exc.reason, f"{kind}: {exc}")
+                continue
+            if key_id is not None and message.id != key_id:
+                self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
+                continue
+            if kind == "state":
+                rid = message.id
+                clock = peer_clocks.get(rid)
+                if clock is None:
+                    clock = peer_clocks[rid] = ClockBound()
+                # Dead reckoning counts from when the state was stamped, not from when it
+                # arrived: on our clock, within the bound on its sender's offset.
+                local = clock.add(now, now_wall, message.stamp)
+                if rid != me:  # else our own state (on_agent_state)
+                    lag = now_wall - local  # clamped to [0, MAX_PREDICTION] (NaN stays)
+                    if lag > MAX_PREDICTION:
+                        lag = MAX_PREDICTION
+                    elif lag < 0.0:
+                        lag = 0.0
+                    states.append((message, facts, now - lag))
+                    accepted += 1
+                continue
+            if kind == "pose" and message.id == me:
+                self.robot_clock.add(now, now_wall, message.stamp)
+            if _HANDLERS[kind](self, message, now):
+                accepted += 1
+                if kind == "domain":
+                    self.coordinator_clock.add(now, now_wall, message.stamp)
+        if states:
+            self.neighborhood.on_agent_states(states)
         return accepted
 
     def on_pose(self, pose: protocol.Pose, now: float) -> bool:
@@ -634,26 +686,42 @@ class AgentBrain:
     def actions(self, decision: Decision, now: float, now_wall: float) -> list[Action]:
         """The actions of a period whose step decided ``decision``, in the order to do them."""
         actions: list[Action] = [SendCommand(self.command(decision, now_wall))]
-        if self.pose_fresh(now):
-            with_stats = now >= self._next_stats
-            state = self.agent_state(now_wall, stats=with_stats)
-            if state is not None:
-                actions.append(PublishState(state))
-                if with_stats:
-                    self._next_stats = now + STATS_PERIOD
+        exchange = self.exchange_due(now)
+        self._last_actions = now
+        if exchange:
+            self._last_exchange = now
+            if self.pose_fresh(now):
+                with_stats = now >= self._next_stats
+                state = self.agent_state(now_wall, stats=with_stats)
+                if state is not None:
+                    actions.append(PublishState(state))
+                    if with_stats:
+                        self._next_stats = now + STATS_PERIOD
         beacon = self.beacon(now, now_wall)
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
-        wanted = self.neighborhood.wanted_state_ids(now)
-        if self.config.safety:
-            wanted |= self.near_ids()
-        self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
-        actions.append(FollowStates(frozenset(wanted)))
-        actions.append(FollowTiles(self.wanted_tiles()))
+        if exchange:
+            wanted = self.neighborhood.wanted_state_ids(now)
+            if self.config.safety:
+                wanted |= self.near_ids()
+            self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
+            actions.append(FollowStates(frozenset(wanted)))
+            actions.append(FollowTiles(self.wanted_tiles()))
         if not self._alive and self.pose is not None:
             self._alive = True
             actions.append(DeclareAlive())
         return actions
+
+    def exchange_due(self, now: float) -> bool:
+        """Whether this period's actions (at ``now``) are a round of the neighbour exchange:
+        our AgentState out, and the AgentStates and beacon tiles to follow chosen again.
+        Once ``state_period`` s have passed since the last round, give or take half a
+        control period (the gap since the last period's actions), so that a 10 Hz loop
+        has one every step despite its jitter and a 30 Hz one every third step (what it
+        follows changes no faster than the states it hears)."""
+        gap = now - self._last_actions
+        half = 0.5 * gap if math.isfinite(gap) else 0.0
+        return now - self._last_exchange + half >= self.config.state_period
 
     def stop(self, now_wall: float) -> SendCommand:
         """The last command, when the process stops: the robot stops at once rather than
@@ -886,14 +954,17 @@ class AgentBrain:
         if self.pose is None:
             return set(self.obstacles)
         x, y = self.pose.x, self.pose.y
-        distance = {
-            rid: math.hypot(ux - x, uy - y)
-            for rid, (ux, uy) in self.neighborhood.unconfirmed.items()
-        }
-        # The nearest few only: forged ids must not cost a subscription each.
-        nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
-        unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
-        near = self.neighborhood.table_ids[self.neighborhood.within(x, y, SAFETY_RADIUS)]
+        neighborhood = self.neighborhood
+        unconfirmed: set[int] = set()
+        if neighborhood.unconfirmed:
+            distance = {
+                rid: math.hypot(ux - x, uy - y)
+                for rid, (ux, uy) in neighborhood.unconfirmed.items()
+            }
+            # The nearest few only: forged ids must not cost a subscription each.
+            nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
+            unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
+        near = neighborhood.table_ids[neighborhood.within(x, y, SAFETY_RADIUS)]
         return set(near.tolist()) | unconfirmed | set(self.obstacles)
 
     def _safety_inputs(self, begun: Begun, velocity: np.ndarray) -> Filtering:
@@ -1034,8 +1105,11 @@ class AgentBrain:
         # Where the robot is at the state's stamp by the same prediction the control step
         # uses, so that neighbours and we agree on it; they dead-reckon from the stamp on with
         # the velocity (clamped: the control's is unbounded, the wire's is not).
-        vx, vy = (min(max(v, -protocol.MAX_SPEED), protocol.MAX_SPEED) for v in self.velocity)
-        x, y = clamp_position(*self.predicted_pose(stamp)[:2])
+        # Plain floats (not numpy's), which AgentState takes without a checker call each.
+        vx, vy = self.velocity
+        bound = protocol.MAX_SPEED
+        vx, vy = min(max(vx, -bound), bound), min(max(vy, -bound), bound)
+        x, y = clamp_position(*self.predicted_pose(stamp)[:2].tolist())
         return protocol.AgentState(
             id=self.id,
             x=x,

@@ -33,6 +33,7 @@ class AgentProcessConfig:
     feedforward: bool = _BRAIN.feedforward
     law: str = _BRAIN.law
     stale_timeout: float = _BRAIN.stale_timeout
+    state_period: float = _BRAIN.state_period
     beacon_period: float = _BRAIN.beacon_period
     beacon_timeout: float = _BRAIN.beacon_timeout
     max_tile_radius: int = _BRAIN.max_tile_radius
@@ -64,6 +65,7 @@ class AgentProcessConfig:
             feedforward=self.feedforward,
             law=self.law,
             stale_timeout=self.stale_timeout,
+            state_period=self.state_period,
             beacon_period=self.beacon_period,
             beacon_timeout=self.beacon_timeout,
             max_tile_radius=self.max_tile_radius,

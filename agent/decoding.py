@@ -14,6 +14,7 @@ import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.extrapolation import extrapolate_density, extrapolate_domain
+from covswarm.agent.neighborhood import StateFacts, state_facts
 from covswarm.tvd.coverage import validate_polygon
 from covswarm.tvd.density import Density
 from covswarm.world.model import World
@@ -55,11 +56,18 @@ class _ByIdentity:
             del self._answers[next(iter(self._answers))]
 
 
+# A decoded message as a receiver takes it: the message, and for an AgentState its
+# StateFacts (None for the other kinds).
+Received = tuple[protocol.Message, StateFacts | None]
+
+
 class MessageDecoder:
     """Bytes -> validated messages, with a bounded cache owned by this instance."""
 
     def __init__(self, cache_size: int = DECODE_CACHE) -> None:
-        self._decode_bytes = lru_cache(maxsize=cache_size)(self._decode_uncached)
+        # (kind, payload bytes) -> Received; ProtocolError if invalid (never cached). A
+        # brain's receive path calls it directly: one lookup per payload and brain.
+        self.received_bytes = lru_cache(maxsize=cache_size)(self._received_uncached)
         self._geometry_of = _ByIdentity(DOMAINS_REMEMBERED)
         self._world_of: tuple[protocol.World, World] | None = None
         self._overlap_of = _ByIdentity(DOMAINS_REMEMBERED)
@@ -67,13 +75,19 @@ class MessageDecoder:
 
     def decode(self, kind: str, payload: object) -> protocol.Message:
         """The message of ``kind`` in ``payload``; ProtocolError if invalid (never cached)."""
+        return self.received(kind, payload)[0]
+
+    def received(self, kind: str, payload: object) -> Received:
+        """The message of ``kind`` in ``payload`` and what a receiver takes from it besides
+        (Received); ProtocolError if invalid. Bytes are cached (``received_bytes``)."""
         if type(payload) is bytes:
-            return self._decode_bytes(kind, payload)
-        return MESSAGE_TYPES[kind].decode(payload)
+            return self.received_bytes(kind, payload)
+        return self._received_uncached(kind, payload)
 
     @staticmethod
-    def _decode_uncached(kind: str, payload: bytes) -> protocol.Message:
-        return MESSAGE_TYPES[kind].decode(payload)
+    def _received_uncached(kind: str, payload: object) -> Received:
+        message = MESSAGE_TYPES[kind].decode(payload)
+        return message, state_facts(message) if kind == "state" else None  # type: ignore[arg-type]
 
     def domain_geometry(self, domain: protocol.Domain) -> Density | None:
         """Check the domain's polygon and parse its density; ValueError if either is invalid.

@@ -143,9 +143,10 @@ class ClockBound:
         self.window = window
         self._samples: deque[tuple[float, float]] = deque()  # (now, receipt - stamp)
 
-    def add(self, now: float, received_wall: float, stamp: float) -> None:
+    def add(self, now: float, received_wall: float, stamp: float) -> float:
         """A message stamped ``stamp`` (sender's clock) received at our ``received_wall``,
-        ``now`` monotonic (the window's clock)."""
+        ``now`` monotonic (the window's clock); returns its stamp on our clock with it
+        counted (:meth:`to_local`, in the same call: every brain does it per state)."""
         value = received_wall - stamp
         samples = self._samples
         while samples and samples[-1][1] >= value:
@@ -154,6 +155,8 @@ class ClockBound:
         start = now - self.window
         while samples[0][0] < start:  # never the sample just added
             samples.popleft()
+        bound = samples[0][1]
+        return stamp + bound if bound < 0.0 else stamp
 
     @property
     def bound(self) -> float:

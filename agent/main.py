@@ -20,7 +20,8 @@ Neighbour discovery
   robot farther than twice the cell radius cannot; see :func:`cell_reach`). A robot known
   only from its beacon is a candidate at the beacon's position while that beacon is the
   newest news of it.
-- **Two-hop set**: the agent publishes AgentState at the control rate: its robot's
+- **Two-hop set**: the agent publishes AgentState at the control rate, at most every
+  ``--state-period`` (0.1 s: at 10 Hz every step, at 30 Hz every third): its robot's
   position and velocity, its current Voronoi neighbour ids, and the positions and
   velocities of those neighbours as it used them (``relay``; first-hand ones only), with
   its stats about once a second. It subscribes to the AgentStates of its one-hop
@@ -204,6 +205,13 @@ def run_agents(
 @switch_option("feedforward", "Use the dc/dt term (--no-feedforward: drop it, an ablation).")
 @law_option("da: domain-motion feedforward (docs/tracking.md); d1: the paper's TVD-D1.")
 @float_option("--stale-timeout", low=0.01, default=1.0)
+@float_option(
+    "--state-period",
+    low=0.0,
+    default=0.1,
+    help="Least time between two AgentStates, s (0: one every control step; must be below "
+    "--stale-timeout). A faster control loop keeps its neighbours' news at this period.",
+)
 @float_option("--beacon-period", low=0.05, default=10.0)
 @float_option("--beacon-timeout", low=0.1, default=25.0)
 @click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
@@ -295,6 +303,12 @@ def run_agent_process(config: AgentProcessConfig) -> None:
         )
     except ValueError as exc:  # clear endpoints in secured mode, incomplete secure folder
         raise click.UsageError(str(exc)) from exc
+    if config.state_period >= config.stale_timeout:
+        raise click.BadParameter(
+            f"{config.state_period} s is not below --stale-timeout ({config.stale_timeout} s): "
+            "neighbours would drop this agent between two of its AgentStates",
+            param_hint="--state-period",
+        )
     decoder = MessageDecoder()  # shared: the brains of a process decode each payload once
     try:
         brains = [AgentBrain(i, config.brain(), decoder) for i in robot_ids]

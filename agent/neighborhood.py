@@ -45,6 +45,18 @@ CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
+# What a receiver takes from an AgentState besides the message: its neighbours as a set and
+# its velocity vx, vy (m/s, 0 when absent) (state_facts).
+StateFacts = tuple[frozenset[int], float, float]
+# An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
+# StateFacts, and its receipt time (monotonic s).
+HeardState = tuple[protocol.AgentState, StateFacts, float]
+
+
+def state_facts(state: protocol.AgentState) -> StateFacts:
+    """What every receiver takes from ``state`` besides its fields: the same for all, so a
+    process of many brains derives it once per message (covswarm.agent.decoding)."""
+    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
 
 
 @dataclass(slots=True)
@@ -273,6 +285,7 @@ class Neighborhood:
         self._beacon_only: dict[int, Reckoned] = {}
         self._moved: list[int] = []
         self._head_ids: list[int] = []
+        self._dead_known: dict[int, set[str]] = {}  # ``dead`` at the last refresh
         self.unconfirmed: dict[int, tuple[float, float]] = {}
         self.unconfirmed_total = 0
         self.one_hop: frozenset[int] = frozenset()
@@ -286,30 +299,44 @@ class Neighborhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
         self.poses[rid] = Track(pose.x, pose.y, now)
-        self._hear(rid, now)
+        self._hear(((rid, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
-        rid = state.id
-        self.state_tracks[rid] = Track(state.x, state.y, now, state.vx or 0.0, state.vy or 0.0)
-        self._hear(rid, now)
-        if self.liveliness.deaths:
-            self._revive(rid, "agent")
-        self.neighbor_sets[rid] = (frozenset(state.neighbors), now)
-        if state.relay is None:
-            self.relays.pop(state.id, None)
-        else:
-            self.relays[state.id] = (state.relay, now)
+        self.on_agent_states(((state, state_facts(state), now),))
 
-    def _hear(self, rid: int, now: float) -> None:
-        """Robot ``rid``'s own pose or state arrived at ``now``."""
-        self._heard[rid] = now
-        self._ledger.hear(rid, now)
-        self.asked.pop(rid, None)
-        choice = self._choice
-        if choice is not None and rid in choice.rows:
-            choice.current = False  # its beacon is no longer its newest news
+    def on_agent_states(self, states: Iterable[HeardState]) -> None:
+        """AgentStates in order, each with its state_facts and receipt time: as
+        :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
+        control period, and this is the bulk of its receive path)."""
+        tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
+        revive = bool(self.liveliness.deaths)  # token changes apply between turns only
+        heard = []
+        for state, (neighbours, vx, vy), now in states:
+            rid = state.id
+            tracks[rid] = Track(state.x, state.y, now, vx, vy)
+            heard.append((rid, now))
+            if revive:
+                self._revive(rid, "agent")
+            neighbor_sets[rid] = (neighbours, now)
+            relay = state.relay
+            if relay is None:
+                relays.pop(rid, None)
+            else:
+                relays[rid] = (relay, now)
+        self._hear(heard)
+
+    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
+        """Robots' own poses or states arrived: (id, receipt time) each."""
+        times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
+        for rid, now in heard:
+            times[rid] = now
+            hear(rid, now)
+            if asked:
+                asked.pop(rid, None)
+            if choice is not None and rid in choice.rows:
+                choice.current = False  # its beacon is no longer its newest news
 
     def on_beacon(self, beacon: protocol.Beacon, now: float) -> None:
         rid, x, y = beacon.id, beacon.x, beacon.y
@@ -359,6 +386,8 @@ class Neighborhood:
         (data received until now does not revive a robot whose token vanished since);
         True when one announced a newcomer: another agent we do not know yet."""
         liveliness = self.liveliness
+        if liveliness.serial == self.mark:
+            return False  # no change since (most turns)
         newcomer = any(
             rid != self.me and rid not in self.reckoned for rid in liveliness.appeared(self.mark)
         )
@@ -408,15 +437,19 @@ class Neighborhood:
         fresh = now - self.stale_timeout
         limit = DEAD_RECKONING_LIMIT
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
-        chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
-        for rid, track in self.state_tracks.items():
-            received = track.received
-            if received >= fresh and (rid not in chosen or received > chosen[rid].received):
-                chosen[rid] = track
+        tracks = self.state_tracks.items()
+        if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
+            chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
+            for rid, track in tracks:
+                received = track.received
+                if received >= fresh and (rid not in chosen or received > chosen[rid].received):
+                    chosen[rid] = track
+            tracks = chosen.items()
         reckoned: dict[int, Reckoned] = {}
-        for rid, track in chosen.items():
-            if rid not in dead:
-                lead = now - track.received
+        for rid, track in tracks:
+            received = track.received
+            if received >= fresh and rid not in dead:
+                lead = now - received
                 if lead > limit:
                     lead = limit
                 vx, vy = track.vx, track.vy
@@ -440,13 +473,23 @@ class Neighborhood:
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)
-        rows, beacon_table, beacon_ids, unconfirmed = self._from_beacons(
-            now, reckoned.keys() | dead.keys()
-        )
-        self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
+        head_ids_list, choice = list(reckoned), self._choice
+        same_head = head_ids_list == self._head_ids
+        if (
+            choice is not None
+            and same_head
+            and (dead is self._dead_known or not (dead or self._dead_known))
+        ):
+            known = choice.known  # the same robots as at the last step (most steps)
+        else:
+            known = reckoned.keys() | dead.keys()
+        self._dead_known = dead
+        rows, beacon_table, beacon_ids, unconfirmed = self._from_beacons(now, known)
+        if unconfirmed:
+            self.unconfirmed_total += len(unconfirmed.keys() - self.unconfirmed.keys())
         self.unconfirmed = unconfirmed
-        last, head_ids_list = self.reckoned, list(reckoned)
-        if rows is self._beacon_only and head_ids_list == self._head_ids:
+        last = self.reckoned
+        if rows is self._beacon_only and same_head:
             # The same candidates in the same order as at the last step (most steps): new
             # values in place, rather than a new dict of them all (~250), which touched
             # every beacon-only candidate's tuple in memory each period (a packed process
@@ -492,7 +535,7 @@ class Neighborhood:
             and not self.asked
             and choice.ledger is ledger
             and choice.first >= oldest
-            and choice.known == known
+            and (choice.known is known or choice.known == known)
         ):
             return choice.rows, choice.table, choice.ids, {}
         usable = ledger.usable(oldest)
@@ -532,7 +575,7 @@ class Neighborhood:
         if distance is None:
             table = self.table
             distance = self._distances[x, y] = np.hypot(table[:, 0] - x, table[:, 1] - y)
-        return np.flatnonzero(distance <= radius)
+        return (distance <= radius).nonzero()[0]
 
     def _forget(self, now: float) -> None:
         """Drop records well past their timeout: memory stays bounded, and the tables that
@@ -562,9 +605,10 @@ class Neighborhood:
     def ask(self, followed: Iterable[int], now: float) -> None:
         """The AgentStates of ``followed`` are subscribed to from ``now`` on: the robots
         among them known only from beacons start their BEACON_CONFIRMATION."""
+        beacon_only, unconfirmed, asked = self.beacon_only, self.unconfirmed, self.asked
         for rid in followed:
-            if rid in self.beacon_only or rid in self.unconfirmed:
-                self.asked.setdefault(rid, now)
+            if rid in beacon_only or rid in unconfirmed:
+                asked.setdefault(rid, now)
 
     def relevant(
         self, now: float, me: tuple[float, float], reach: float | None
@@ -588,11 +632,13 @@ class Neighborhood:
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
-        ids = set(self.one_hop)
-        for rid in self.one_hop:
-            entry = self.neighbor_sets.get(rid)
-            if entry is not None and now - entry[1] <= self.stale_timeout:
-                ids |= entry[0]
+        one_hop, sets, stale = self.one_hop, self.neighbor_sets, self.stale_timeout
+        ids = set(one_hop)
+        for rid in one_hop:
+            if rid in sets:
+                reported, received = sets[rid]
+                if now - received <= stale:
+                    ids |= reported
         ids.discard(self.me)
         return frozenset(ids)
 
@@ -620,22 +666,27 @@ class Neighborhood:
         no relay reached it and our last routine beacon may be 10 s away. Meanwhile both
         cells are wrong where they meet.
         """
-        fresh = now - self.stale_timeout
+        fresh, me, sets = now - self.stale_timeout, self.me, self.neighbor_sets
+        since = self._unrequited
         unrequited = {}
         for rid in self.one_hop:
-            entry = self.neighbor_sets.get(rid)
-            if entry is not None and entry[1] >= fresh and self.me not in entry[0]:
-                unrequited[rid] = self._unrequited.get(rid, now)
+            if rid in sets:
+                reported, received = sets[rid]
+                if received >= fresh and me not in reported:
+                    unrequited[rid] = since.get(rid, now)
         self._unrequited = unrequited
-        return any(now - since >= ASYMMETRY_GRACE for since in unrequited.values())
+        return bool(unrequited) and now - min(unrequited.values()) >= ASYMMETRY_GRACE
 
     def relay(self) -> list[RelayEntry]:
         """Our one-hop neighbours known first-hand, as reckoned at the last step (at most
         protocol.MAX_RELAY): only first-hand positions are relayed, since a relayed one
         passed on again would be dead-reckoned once more at every hop, and around a cycle
         of relays forever."""
-        reckoned = self.reckoned
-        return [
-            (rid, *clamp_position(*reckoned[rid][:2]), *reckoned[rid][2:])
-            for rid in sorted(self.one_hop & self.first_hand)
-        ][: protocol.MAX_RELAY]
+        reckoned, bound = self.reckoned, protocol.MAX_COORD
+        relay = []
+        for rid in sorted(self.one_hop & self.first_hand)[: protocol.MAX_RELAY]:
+            x, y, vx, vy = reckoned[rid]
+            if not (-bound <= x <= bound and -bound <= y <= bound):  # NaN too: as it is
+                x, y = clamp_position(x, y)
+            relay.append((rid, x, y, vx, vy))
+        return relay

@@ -451,19 +451,27 @@ def time_brain_ticks(
 
 
 def run_brain_ticks(
-    sizes: tuple[int, ...], team: int, sample: int | None, progress=None
+    sizes: tuple[int, ...],
+    team: int,
+    sample: int | None,
+    progress=None,
+    rate: float = LIVE_RATE,
 ) -> list[dict]:
-    """One row per process size: the amortised brain-tick (time_brain_ticks) beside the
-    local step alone (time_local_steps' p50 on the same layout)."""
+    """One row per process size: the amortised brain-tick (time_brain_ticks) at ``rate``
+    Hz beside the local step alone (time_local_steps' p50 on the same layout). The warm-up
+    lasts as long in time at any rate; so do the periods timed, in whole state periods."""
     layout = make_layout(team, "cvt", 0)
     step_us, _ = time_local_steps(layout, sample)
+    scale = max(1.0, rate / LIVE_RATE)
+    warm, rounds = math.ceil(BRAIN_TICK_WARM * scale), math.ceil(BRAIN_TICK_ROUNDS * scale)
     rows = []
     for size in sizes:
-        row = time_brain_ticks(size, layout)
+        row = time_brain_ticks(size, layout, warm=warm, rounds=rounds, rate=rate)
         rows.append(
             {
                 "agents": team,
                 "layout": "brain-tick",
+                "rate_hz": rate,
                 "agents_per_process": size,
                 **row,
                 "local_step_p50_us": float(np.percentile(step_us, 50)),
@@ -480,13 +488,14 @@ def brain_tick_table(rows: list[dict]) -> Any:
 
     table = Table(title="covswarm bench --brain-tick: one brain's period, amortised per process")
     for name in (
-        "team", "brains per process", "brain-tick us (wall)", "brain-tick us (CPU)",
+        "team", "rate Hz", "brains per process", "brain-tick us (wall)", "brain-tick us (CPU)",
         "local step p50 us", "local step mean us", "rx per tick", "subscriptions per brain",
     ):  # fmt: skip
         table.add_column(name, justify="right")
     for row in rows:
         table.add_row(
             str(row["agents"]),
+            f"{row['rate_hz']:g}",
             str(row["agents_per_process"]),
             f"{row['brain_tick_us']:.0f}",
             f"{row['brain_tick_cpu_us']:.0f}",
@@ -742,6 +751,12 @@ def live_table(rows: list[dict]) -> Any:
     help="Robots in the team the packs share for --brain-tick.",
 )
 @float_option(
+    "--brain-tick-rate",
+    low=0.5,
+    default=LIVE_RATE,
+    help="Control rate of the brains for --brain-tick, Hz (AgentStates at most every 0.1 s).",
+)
+@float_option(
     "--live-time-scale",
     low=0.0,
     low_open=True,
@@ -764,6 +779,7 @@ def bench_command(
     brain_tick: bool,
     brain_tick_sizes: str,
     brain_tick_team: int,
+    brain_tick_rate: float,
 ) -> None:
     """Measure per-agent compute vs team size against the centralised baseline (and, with
     --live, what real distributed runs achieve; with --brain-tick, only what one brain's
@@ -785,6 +801,7 @@ def bench_command(
             brain_tick_team,
             min(sample, brain_tick_team),
             progress=lambda size: Console().log(f"{size} brains per process: done"),
+            rate=brain_tick_rate,
         )
         out.mkdir(parents=True, exist_ok=True)
         (out / "bench.json").write_text(json.dumps(tick_rows, indent=2, sort_keys=True) + "\n")

@@ -79,6 +79,13 @@ from covswarm.sim_robot.process import gather_drops
 @click.option("--seed", type=int, default=0, show_default=True, help="Initial poses.")
 @out_option(help="Output folder [runs/run-<scenario>-<timestamp>].")
 @float_option("--rate", low=0.5, default=10.0, help="Control rate of every agent, Hz.")
+@float_option(
+    "--state-period",
+    low=0.0,
+    high=0.5,
+    default=0.1,
+    help="Least time between two AgentStates of an agent, s (0: one every control step).",
+)
 @click.option("--swarm", help="Swarm name (key prefix) [random, unique per run].")
 @click.option("--connect", help="Join this Zenoh endpoint instead of an embedded router.")
 @click.option(

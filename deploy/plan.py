@@ -175,6 +175,7 @@ class RunConfig:
     seed: int = 0
     out: Path | None = None
     rate: float = 10.0  # the agents' control rate
+    state_period: float = 0.1  # s, least time between two AgentStates of an agent
     swarm: str | None = None
     connect: str | None = None
     ids: str | None = None  # this host's slice, e.g. "0-49"
@@ -260,7 +261,8 @@ def agent_config(
         pose_seed=run.seed,
         body_diameter=scenario.robot_diameter,
         workspace=scenario.workspace,
-        **_passed_on(run, "swarm", "rate", "pose_loss", "pose_delay", "prediction", "safety"),
+        **_passed_on(run, "swarm", "rate", "state_period", "pose_loss", "pose_delay"),
+        **_passed_on(run, "prediction", "safety"),
         **_passed_on(run, "fault_step_delay", *_EVERY_CHILD),
     )
 

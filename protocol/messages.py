@@ -1,6 +1,6 @@
 """Message types of the covswarm wire protocol: msgpack maps with a schema version.
 
-Every message is a frozen dataclass validated on construction (``__post_init__``), so an
+Every message is a frozen dataclass validated on construction (``__init__``), so an
 invalid message can neither be decoded nor encoded: ``decode`` and the constructor raise
 :class:`ProtocolError` (a ValueError) with the reason, and callers drop and count.
 
@@ -19,7 +19,7 @@ covswarm.tvd.coverage.validate_polygon's job.
 
 Checking is on every brain's hot path (a command and a state built, a pose and a state
 decoded per period), so each message type compiles its number fields' checks into one
-expression that takes the plain, in-range values (Message, _compile_fill) and ids, relays
+expression that takes the plain, in-range values (Message, _compile_init) and ids, relays
 and stats take a plain loop first; anything else goes to the field-by-field checkers, which
 give the verdict and the reason. Both refuse the same messages
 (tests/test_protocol_fast.py).
@@ -27,14 +27,13 @@ give the verdict and the reason. Both refuse the same messages
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 import re
 import threading
 from collections.abc import Callable
-from dataclasses import dataclass
-from functools import partial
-from types import MemberDescriptorType
+from dataclasses import MISSING, dataclass
 from typing import Any, ClassVar, TypeVar
 
 import msgpack
@@ -161,6 +160,7 @@ def _optional(inner: Checker) -> Checker:
     def check(value: Any, name: str) -> Any:
         return None if value is None else inner(value, name)
 
+    check.inner = inner  # type: ignore[attr-defined]  # _compile_init's: a call less
     test = getattr(inner, "inline", None)
     if test is None:
         return check
@@ -245,10 +245,15 @@ def _plain_relay(
     Message.decode unpacks as tuples, as an agent builds its own), in bounds, of distinct
     ids; else None, and the checker finds the reason. One type test and chained comparison
     per number (NaN fails it); the tuples are kept (tuple() of one is itself)."""
+    xlo, xhi, vlo, vhi = -MAX_COORD, MAX_COORD, -MAX_SPEED, MAX_SPEED  # locals, once
     for entry in items:
-        if (type(entry) is not list and type(entry) is not tuple) or len(entry) != 5:
+        kind = type(entry)
+        if kind is not tuple and kind is not list:
             return None
-        rid, x, y, vx, vy = entry
+        try:  # of a list or tuple: unpacks exactly when it holds five values
+            rid, x, y, vx, vy = entry
+        except ValueError:
+            return None
         if not (
             type(rid) is int
             and type(x) is float
@@ -256,10 +261,10 @@ def _plain_relay(
             and type(vx) is float
             and type(vy) is float
             and 0 <= rid <= MAX_ID
-            and -MAX_COORD <= x <= MAX_COORD
-            and -MAX_COORD <= y <= MAX_COORD
-            and -MAX_SPEED <= vx <= MAX_SPEED
-            and -MAX_SPEED <= vy <= MAX_SPEED
+            and xlo <= x <= xhi
+            and xlo <= y <= xhi
+            and vlo <= vx <= vhi
+            and vlo <= vy <= vhi
         ):
             return None
     if len({entry[0] for entry in items}) != len(items):
@@ -372,65 +377,66 @@ def _unpack(payload: Any, limit: int = MAX_PAYLOAD, arrays: type = tuple) -> Any
         ) from exc
 
 
-def _compile_fill(cls: type[Message]) -> tuple[Callable, Callable]:
-    """The fast paths of a message type ``cls``: (own, decoded).
+def _compile_init(cls: type[Message]) -> tuple[Callable[..., None], Callable[[dict], Message]]:
+    """(``__init__``, ``decoded``) of the slotted dataclass ``cls`` (a message type):
+    ``__init__`` in place of the one dataclass writes (the same parameters), ``decoded(raw)``
+    the message of an unpacked map whose keys were checked (decode's); each field checked
+    and set once.
 
-    ``own(message)`` checks a constructed message's fields, ``decoded(message, raw)`` fills
-    an empty one from an unpacked map whose keys were checked. Each tests every field
-    whose checker has an ``inline`` test (the numbers: _real, _int, _positive, optional
-    ones) in one compiled expression, and returns False, having set nothing, unless all
-    pass; then it runs the other fields' checkers as the slow path (Message._fill_checked)
-    would, in the same order. A False sends the message down the slow path, which finds
-    the reason; so both accept the same messages with the same fields (the fields of the
-    inline tests are ones their checkers return unchanged), and raise the same errors.
-
-    A sender's number fields may hold numpy's float64 (a float subclass): ``own`` tests
-    float(value) of a float field's value that is a float but not exactly one, as its
-    checker does, and sets the field to it if all pass.
+    Both run the same code on the values: the fields whose checkers have an ``inline``
+    test (the numbers: _real, _int, _positive, optional ones) are tested in one compiled
+    expression. If all pass, they are set unchanged (their checkers would return them so)
+    and the other fields set to their checkers' verdicts, in order, as the checkers alone
+    (Message._fill_checked) would; otherwise the checkers alone set every field and find
+    the reason. So both accept the same messages with the same fields and raise the same
+    errors (tests/test_protocol_fast.py), and a message of plain, in-range numbers (what
+    msgpack decodes, what a sender passes) takes no call per number. A sender's numpy
+    floats, and ints for floats, take the checkers' path, which makes them floats.
 
     Fields are set through their slots' descriptors (a frozen dataclass refuses setattr),
     about twice as fast as object.__setattr__.
     """
-    spec, optional = cls._SPEC, cls._OPTIONAL
+    spec, fields = cls._SPEC, {info.name: info for info in dataclasses.fields(cls)}
+    assert list(fields) == list(spec), f"{cls.__name__}: _SPEC must list the fields in order"
+    assert all(name.isidentifier() and name not in ("self", "raw", "type") for name in spec)
     inline = {name: check.inline for name, check in spec.items() if hasattr(check, "inline")}
-    assert all(name.isidentifier() for name in spec)
-    test = " and ".join(f"({t.format(v='v_' + name)})" for name, t in inline.items()) or "True"
-    others = [name for name in spec if name not in inline]
+    test = " and ".join(f"({t.format(v=name)})" for name, t in inline.items()) or "True"
+    namespace: dict[str, Any] = {"new": object.__new__, "cls": cls}
+    params, reads = [], []
+    for name, info in fields.items():
+        assert info.default_factory is MISSING, f"{cls.__name__}.{name}: no factories"
+        # An absent optional field is None to decoded and the checkers: so is its default.
+        assert name not in cls._OPTIONAL or info.default is None, f"{cls.__name__}.{name}"
+        if info.default is MISSING:
+            params.append(name)
+        else:
+            namespace[f"d_{name}"] = info.default
+            params.append(f"{name}=d_{name}")
+        read = f"raw.get({name!r})" if name in cls._OPTIONAL else f"raw[{name!r}]"
+        reads.append(f"    {name} = {read}")
+        namespace[f"s_{name}"] = cls.__dict__[name].__set__  # the slot's descriptor
+        namespace[f"c_{name}"] = spec[name]
+    body = [f"    if {test}:"]
+    body += [f"        s_{name}(self, {name})" for name in inline]
+    for name in [name for name in spec if name not in inline]:
+        call = f"c_{name}({name}, {name!r})"
+        inner = getattr(spec[name], "inner", None)  # an optional field's checker (_optional)
+        if inner is not None:  # _optional's test, without a call to it
+            namespace[f"c_{name}"], call = inner, f"None if {name} is None else {call}"
+        body.append(f"        s_{name}(self, {call})")
+    values = ", ".join(f"{name!r}: {name}" for name in spec)
+    body += ["    else:", f"        self._fill_checked({{{values}}})"]
+    if cls._check_fields is not Message._check_fields:  # the base's checks nothing
+        body += ["    self._check_fields()"]
+    init = [f"def __init__(self, {', '.join(params)}):", *body]
+    decoded = ["def decoded(raw):", "    self = new(cls)", *reads, *body, "    return self"]
+    exec("\n".join([*init, *decoded]), namespace)
+    namespace["__init__"].__qualname__ = f"{cls.__qualname__}.__init__"
+    return namespace["__init__"], namespace["decoded"]
 
-    def read(name: str) -> str:
-        return f"raw.get({name!r})" if name in optional else f"raw[{name!r}]"
 
-    real = [name for name in inline if spec[name].real]  # type: ignore[attr-defined]
-    own = ["def own(message):"]
-    own += [f"    v_{name} = message.{name}" for name in inline]
-    for name in real:
-        own += [
-            f"    f_{name} = type(v_{name}) is not float and isinstance(v_{name}, float)",
-            f"    if f_{name}:",
-            f"        v_{name} = float(v_{name})",
-        ]
-    own += [f"    if not ({test}):", "        return False"]
-    own += [f"    if f_{n}:\n        s_{n}(message, v_{n})" for n in real]
-    own += [f"    s_{n}(message, c_{n}(message.{n}, {n!r}))" for n in others]
-    decoded = ["def decoded(message, raw):"]
-    decoded += [f"    v_{name} = {read(name)}" for name in inline]
-    decoded += [f"    if not ({test}):", "        return False"]
-    decoded += [f"    s_{n}(message, v_{n})" for n in inline]
-    decoded += [f"    s_{n}(message, c_{n}({read(n)}, {n!r}))" for n in others]
-    namespace: dict[str, Any] = {f"c_{name}": spec[name] for name in others}
-    for name in spec:
-        slot = cls.__dict__.get(name)
-        namespace[f"s_{name}"] = (
-            slot.__set__
-            if isinstance(slot, MemberDescriptorType)
-            else partial(_set_field, name=name)  # a class without slots
-        )
-    exec("\n".join([*own, "    return True", *decoded, "    return True"]), namespace)
-    return namespace["own"], namespace["decoded"]
-
-
-def _set_field(message: Message, value: Any, name: str) -> None:
-    object.__setattr__(message, name, value)
+def _not_slotted(self: Message, *args: Any, **kwargs: Any) -> None:
+    raise TypeError(f"{type(self).__name__}: a Message must be @dataclass(frozen=True, slots=True)")
 
 
 def _compile_wire(spec: dict[str, Checker], optional: frozenset[str]) -> Callable:
@@ -471,31 +477,31 @@ class Message:
     declare one checker per field in ``_SPEC``.
 
     Every brain builds a command and a state and decodes a pose and a state per period, so
-    checking is on the hot path: each type compiles its number fields' checks into one
-    expression (_compile_fill), which takes the messages whose numbers are already plain
-    in-range floats and ints, and leaves any other to the field-by-field checkers.
+    checking is on the hot path: each type's ``__init__`` (_compile_init) tests its number
+    fields in one compiled expression, which takes the messages whose numbers are already
+    plain in-range floats and ints, and leaves any other to the field-by-field checkers.
+    Decoding goes through the same ``__init__``.
     """
 
     __slots__ = ()
     _SPEC: ClassVar[dict[str, Checker]]
     _OPTIONAL: ClassVar[frozenset[str]] = frozenset()
     _REQUIRED: ClassVar[frozenset[str]]  # the fields not in _OPTIONAL
-    _fill_own: ClassVar[Callable[[Message], bool]]
-    _fill_decoded: ClassVar[Callable[[Message, dict[str, Any]], bool]]
     _wire: ClassVar[Callable[[Message], dict[str, Any]]]
+    _decoded: ClassVar[Callable[[dict[str, Any]], Message]]
 
     def __init_subclass__(cls, **kwargs: Any) -> None:
         super().__init_subclass__(**kwargs)
-        own, decoded = _compile_fill(cls)
-        cls._fill_own, cls._fill_decoded = staticmethod(own), staticmethod(decoded)
+        if "__dataclass_fields__" not in cls.__dict__:
+            # The class statement's class: @dataclass(slots=True) makes it anew, with its
+            # fields, and comes back here. One that is not made anew keeps this __init__
+            # (dataclass does not replace an __init__ the class defines), which refuses.
+            cls.__init__ = _not_slotted  # type: ignore[method-assign]
+            return
+        init, decoded = _compile_init(cls)
+        cls.__init__, cls._decoded = init, staticmethod(decoded)  # type: ignore[method-assign]
         cls._wire = staticmethod(_compile_wire(cls._SPEC, cls._OPTIONAL))
         cls._REQUIRED = frozenset(cls._SPEC) - cls._OPTIONAL
-
-    def __post_init__(self) -> None:
-        # Canonicalise every field (float/int/tuple) so equal messages compare equal.
-        if not self._fill_own(self):
-            self._fill_checked({name: getattr(self, name) for name in self._SPEC})
-        self._check_fields()
 
     def _fill_checked(self, raw: dict[str, Any]) -> None:
         """Set every field to its checker's verdict on ``raw``'s value (None if absent):
@@ -541,13 +547,8 @@ class Message:
                 raise ProtocolError(
                     f"{cls.__name__}: unknown fields {', '.join(unknown)}", "schema"
                 )
-        # Built field by field rather than through __init__, which would check every field
-        # a second time in __post_init__: decoding is what every receiver does per message.
-        message = object.__new__(cls)
-        if not cls._fill_decoded(message, raw):
-            message._fill_checked(raw)
-        message._check_fields()
-        return message
+        # Not through __init__: binding a map's values to parameters costs more.
+        return cls._decoded(raw)  # type: ignore[return-value]
 
 
 @dataclass(frozen=True, slots=True)

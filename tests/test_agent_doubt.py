@@ -223,6 +223,11 @@ def test_the_agent_command_refuses_a_bad_workspace_with_a_sentence() -> None:
     assert result.exit_code == 2
     assert "Invalid value for --workspace" in result.output
     assert "Traceback" not in result.output
+    args = ["--id", "0", "--connect", "tcp/127.0.0.1:1", "--state-period", "0.5"]
+    result = CliRunner().invoke(agent_command, [*args, "--stale-timeout", "0.4"])
+    assert result.exit_code == 2
+    assert "Invalid value for --state-period" in result.output
+    assert "Traceback" not in result.output
 
 
 def test_a_beacon_only_robot_never_asked_for_stays_a_candidate() -> None:

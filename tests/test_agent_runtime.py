@@ -575,3 +575,43 @@ def test_tick_gives_every_action_in_order_and_declares_alive_once() -> None:
     assert kinds.index(brain_module.PublishState) < kinds.index(brain_module.FollowStates)
     assert brain_module.DeclareAlive not in [type(a) for a in brain.tick(0.2, WALL + 0.2)]
     assert brain.stop(WALL).command.left == 0.0
+
+
+@pytest.mark.parametrize(
+    ("rate", "state_period", "every"),
+    [(10.0, 0.1, 1), (30.0, 0.1, 3), (20.0, 0.1, 2), (30.0, 0.0, 1), (5.0, 0.1, 1)],
+)
+def test_agent_states_go_out_at_most_every_state_period(
+    rate: float, state_period: float, every: int
+) -> None:
+    """A control loop faster than the state period keeps stepping (a command every period)
+    but publishes its AgentState, and chooses what to follow, every ``every`` periods,
+    jitter of a tenth of a period included; a held period (Pack._hold) always says it
+    stopped."""
+    brain = brain_at(1.0, 1.0, state_period=state_period)
+    brain.on_domain(domain(), now=0.0)
+    rng = np.random.default_rng(3)
+    period = 1.0 / rate
+    published = []
+    for k in range(60):
+        now = k * period + rng.uniform(-0.1, 0.1) * period
+        brain.on_pose(pose(0, 1.0, 1.0), now=now)
+        actions = brain.tick(now, WALL + now)
+        assert isinstance(actions[0], brain_module.SendCommand)
+        kinds = {type(a) for a in actions}
+        published.append(brain_module.PublishState in kinds)
+        assert (brain_module.FollowStates in kinds) == published[-1]
+        assert (brain_module.FollowTiles in kinds) == published[-1]
+    assert published[0]
+    gaps = np.diff(np.flatnonzero(published))
+    assert set(gaps.tolist()) == {every}
+    held = brain.hold(60 * period, WALL + 60 * period)
+    assert [type(a) for a in held] == [brain_module.SendCommand, brain_module.PublishState]
+    assert held[1].state.vx == held[1].state.vy == 0.0
+
+
+def test_a_state_period_the_neighbours_would_time_out_on_is_refused() -> None:
+    with pytest.raises(ValueError, match="state_period"):
+        AgentBrain(0, AgentConfig(state_period=1.0, stale_timeout=1.0))
+    with pytest.raises(ValueError, match="state_period"):
+        AgentBrain(0, AgentConfig(state_period=-0.1))

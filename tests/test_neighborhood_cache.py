@@ -1,7 +1,9 @@
 """Neighborhood.refresh() and within() keep state from one call to the next (the beacon
 ledger, the beacon-only candidates, ``reckoned`` updated in place, the dead, distances):
 over random sequences of inputs they must give what the rules give from scratch, here a
-brute-force restatement of them over the records the neighbourhood holds."""
+brute-force restatement of them over the records the neighbourhood holds; and so must what
+a control step asks of them after each refresh (relevant, two_hop, wanted_state_ids,
+unrequited, relay)."""
 
 from __future__ import annotations
 
@@ -12,7 +14,13 @@ import numpy as np
 import pytest
 
 from covswarm import protocol
-from covswarm.agent.neighborhood import DEAD_RECKONING_LIMIT, Neighborhood
+from covswarm.agent.neighborhood import (
+    ASYMMETRY_GRACE,
+    DEAD_RECKONING_LIMIT,
+    LOCAL_MARGIN,
+    Neighborhood,
+    Track,
+)
 
 STALE, BEACON, LINGER = 0.5, 2.0, 0.4  # s: short, so that random steps cross every timeout
 IDS = range(1, 13)  # few, so that every robot is heard of in several ways
@@ -62,6 +70,66 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             reckoned[rid] = (track.x, track.y, 0.0, 0.0)
             beacon_only.add(rid)
     return reckoned, first_hand, beacon_only, dead, unconfirmed
+
+
+def two_hop_reference(nb: Neighborhood, now: float) -> set[int]:
+    """Our one-hop neighbours and their neighbours reported within ``stale_timeout``."""
+    ids = set(nb.one_hop)
+    for rid in nb.one_hop:
+        if rid in nb.neighbor_sets and now - nb.neighbor_sets[rid][1] <= nb.stale_timeout:
+            ids |= nb.neighbor_sets[rid][0]
+    return ids - {nb.me}
+
+
+def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None:
+    """relevant, wanted_state_ids, unrequited and relay of ``nb`` at ``now`` (after its
+    refresh) against their rules, restated over its records."""
+    reckoned = dict(nb.reckoned)
+    # relevant: the candidates within LOCAL_MARGIN x reach, in table order, then the rest
+    # of the two-hop set, each at its reckoned position
+    me, reach = _xy(rng), rng.uniform(0.1, 2.0)
+    relevant = nb.relevant(now, me, reach)
+    near = [
+        rid for rid, (x, y, _, _) in reckoned.items()
+        if math.hypot(x - me[0], y - me[1]) <= LOCAL_MARGIN * reach
+    ]  # fmt: skip
+    assert list(relevant)[: len(near)] == near
+    assert set(relevant) == set(near) | (two_hop_reference(nb, now) & reckoned.keys())
+    assert all(relevant[rid] == reckoned[rid][:2] for rid in relevant)
+    assert nb.relevant(now, me, None) == {rid: v[:2] for rid, v in reckoned.items()}
+    assert nb.two_hop(now) == two_hop_reference(nb, now)
+    # wanted_state_ids: one-hop, and two-hop ids no fresh relay of a neighbour carries,
+    # lingering
+    fresh = now - nb.stale_timeout
+    covered = {
+        entry[0]
+        for rid in nb.one_hop
+        if rid in nb.relays and nb.relays[rid][1] >= fresh
+        for entry in nb.relays[rid][0]
+    }
+    current = set(nb.one_hop) | (two_hop_reference(nb, now) - covered)
+    since = {rid: t for rid, t in nb.wanted.items() if now - t <= nb.linger_period}
+    since |= dict.fromkeys(current, now)
+    assert nb.wanted_state_ids(now) == set(since) and nb.wanted == since
+    # unrequited: neighbours whose fresh neighbour set omits us, since when
+    earlier = dict(nb._unrequited)
+    omitting = {
+        rid: earlier.get(rid, now)
+        for rid in nb.one_hop
+        if rid in nb.neighbor_sets
+        and nb.neighbor_sets[rid][1] >= fresh
+        and nb.me not in nb.neighbor_sets[rid][0]
+    }
+    late = any(now - t >= ASYMMETRY_GRACE for t in omitting.values())
+    assert nb.unrequited(now) == late and nb._unrequited == omitting
+    # relay: one-hop neighbours known first-hand, by id, positions within the wire's bounds
+    bound = protocol.MAX_COORD
+    expected = [
+        (rid, min(max(x, -bound), bound), min(max(y, -bound), bound), vx, vy)
+        for rid in sorted(nb.one_hop & nb.first_hand)
+        for x, y, vx, vy in [reckoned[rid]]
+    ][: protocol.MAX_RELAY]
+    assert nb.relay() == expected
 
 
 def _relay(rng: random.Random) -> tuple | None:
@@ -137,7 +205,7 @@ def test_refresh_and_within_equal_the_rules_from_scratch(seed: int) -> None:
             ]  # fmt: skip
             assert nb.within(x, y, radius).tolist() == expected
         last_point = point
-        nb.relay(), nb.wanted_state_ids(now), nb.unrequited(now)  # they read the same state
+        check_step_queries(nb, now, rng)
         now += rng.choice((0.0, 0.05, 0.1, 0.1, 0.3, 0.6, 1.1, 2.5))
 
 
@@ -184,3 +252,17 @@ def test_beacon_rows_follow_a_moved_beacon_between_refreshes() -> None:
         (3, (3.0, 0.0, 0.0, 0.0)),
     ]
     assert nb.within(2.0, 1.5, 0.1).tolist() == [1]
+
+
+def test_relay_clamps_a_position_reckoned_past_the_wire_bounds() -> None:
+    """Dead reckoning may carry a neighbour past protocol.MAX_COORD: relayed clamped, the
+    velocity as reported."""
+    nb = Neighborhood(0, STALE, BEACON, LINGER)
+    bound = protocol.MAX_COORD
+    nb.state_tracks[1] = Track(bound - 0.01, -bound + 0.01, 0.0, 0.2, -0.2)
+    nb.state_tracks[2] = Track(1.0, 2.0, 0.0, 0.1, 0.0)
+    nb._heard[1] = nb._heard[2] = 0.0
+    nb.one_hop = frozenset({1, 2})
+    nb.refresh(0.3)
+    assert nb.reckoned[1][0] > bound and nb.reckoned[1][1] < -bound
+    assert nb.relay() == [(1, bound, -bound, 0.2, -0.2), (2, 1.0 + 0.3 * 0.1, 2.0, 0.1, 0.0)]

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,18 @@ TILE = 0.6
 
 def square(offset: float) -> list[list[float]]:
     return [[offset, 0.0], [offset + SIDE, 0.0], [offset + SIDE, SIDE], [offset, SIDE]]
+
+
+def _intercept(brain: AgentBrain, hear: Callable[[str, bytes, int | None], object]) -> None:
+    """Hand each payload of ``brain``'s turns to ``hear(kind, payload, key_id)`` instead of
+    the brain (a pack hands them over with one receive_all call per turn)."""
+
+    def receive_all(items, now, wall):  # type: ignore[no-untyped-def]
+        for kind, key_id, payload in items:
+            hear(kind, payload, key_id)
+        return 0
+
+    brain.receive_all = receive_all  # type: ignore[method-assign]
 
 
 class World:
@@ -73,13 +86,14 @@ class World:
 
     def _record(self, brain: AgentBrain) -> None:
         log = self.received[brain.id] = []
-        receive = brain.receive
+        receive_all = brain.receive_all  # what receive() and a pack's turn go through
 
-        def recording(kind, payload, now, now_wall, key_id=None):  # type: ignore[no-untyped-def]
-            log.append((self.round, kind, key_id, payload))
-            return receive(kind, payload, now, now_wall, key_id)
+        def recording(items, now, now_wall):  # type: ignore[no-untyped-def]
+            items = list(items)
+            log.extend((self.round, kind, key_id, payload) for kind, key_id, payload in items)
+            return receive_all(items, now, now_wall)
 
-        brain.receive = recording  # type: ignore[method-assign]
+        brain.receive_all = recording  # type: ignore[method-assign]
 
     def publish(self, t: float) -> None:
         """The coordinator's domain and every robot's pose at mission time ``t``."""
@@ -254,9 +268,7 @@ def test_a_subscription_lives_while_a_brain_follows_it() -> None:
     assert pack.followers(key) == {1}
     seen = []
     for brain in pack.brains.values():
-        brain.receive = lambda kind, payload, now, wall, key_id=None, b=brain.id: seen.append(  # type: ignore[method-assign]
-            (b, kind, key_id)
-        )
+        _intercept(brain, lambda kind, payload, key_id, b=brain.id: seen.append((b, kind, key_id)))
     pack.receive(0, 0.0, WALL)
     pack.receive(1, 0.0, WALL)
     assert seen == [(1, "state", 5)]
@@ -352,9 +364,7 @@ def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() ->
     pack.drain()
     seen: dict[int, list] = {0: [], 1: [], 2: []}
     for bid, brain in pack.brains.items():
-        brain.receive = lambda kind, payload, now, wall, key_id=None, b=bid: seen[b].append(  # type: ignore[method-assign]
-            (kind, key_id)
-        )
+        _intercept(brain, lambda kind, payload, key_id, b=bid: seen[b].append((kind, key_id)))
         pack.receive(bid, 0.0, WALL)
     assert seen == {0: [("beacon", 7)], 1: [("beacon", 7)], 2: []}
     for bid, brain in pack.brains.items():
@@ -389,9 +399,7 @@ def test_a_brain_gets_its_payloads_by_kind_then_id_then_key() -> None:
     pack.drain()
     pack.follow(0, "state", frozenset({9, 3, 5}))  # 6 unfollowed before the brain's turn
     seen: list[tuple[str, int | None, bytes]] = []
-    pack.brains[0].receive = lambda kind, payload, now, wall, key_id=None: seen.append(  # type: ignore[method-assign]
-        (kind, key_id, payload)
-    )
+    _intercept(pack.brains[0], lambda kind, payload, key_id: seen.append((kind, key_id, payload)))
     pack.receive(0, 0.0, WALL)
     assert seen == [
         ("world", None, b"world"),
@@ -489,14 +497,15 @@ def test_a_receipt_time_never_precedes_the_pose_received() -> None:
     put_pose(0)
     put_pose(1)
     first = pack.brains[0]
-    receive = first.receive
+    receive_all = first.receive_all
 
-    def slow_receive(kind, payload, now, wall, key_id=None):  # type: ignore[no-untyped-def]
-        clock[0] += 0.05  # brain 0's inputs take 50 ms (a loaded machine) ...
-        put_pose(1)  # ... during which robot 1 publishes again
-        return receive(kind, payload, now, wall, key_id)
+    def slow_receive(items, now, wall):  # type: ignore[no-untyped-def]
+        for _ in items:
+            clock[0] += 0.05  # brain 0's inputs take 50 ms each (a loaded machine) ...
+            put_pose(1)  # ... during which robot 1 publishes again
+        return receive_all(items, now, wall)
 
-    first.receive = slow_receive  # type: ignore[method-assign]
+    first.receive_all = slow_receive  # type: ignore[method-assign]
     pack.tick(lambda: clock[0], lambda: WALL + clock[0], 1.0)
     for brain in pack.brains.values():
         assert brain.pose is not None

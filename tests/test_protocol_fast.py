@@ -1,7 +1,7 @@
 """The fast path of message checking refuses exactly what the field-by-field checkers refuse.
 
-Every message type compiles its number fields' checks into one expression
-(protocol.messages._compile_fill) and leaves any message failing it to the checkers. Here
+Every message type's __init__ tests its number fields in one compiled expression
+(protocol.messages._compile_init) and leaves any message failing it to the checkers. Here
 random messages, each field the valid value or an adversarial one (NaN, infinities, values
 just past a bound, huge ints, booleans, numpy scalars, ints for floats, strings, None,
 arrays and maps where numbers belong, and the same inside ids, relays, stats and
@@ -143,6 +143,17 @@ def _reference(cls: type[protocol.Message], values: dict) -> protocol.Message:
     return message
 
 
+def _fast(cls: type[protocol.Message], values: dict) -> bool:
+    """Whether constructing ``cls`` of ``values`` takes the fast path: the checkers alone
+    (Message._fill_checked) are not called; False too when it raises."""
+    with patch.object(messages.Message, "_fill_checked", side_effect=AssertionError) as slow:
+        try:
+            cls(**values)
+        except (protocol.ProtocolError, AssertionError):
+            return False
+    return not slow.called
+
+
 FAST = settings(
     max_examples=150, deadline=None, suppress_health_check=[HealthCheck.too_slow], database=None
 )
@@ -180,15 +191,14 @@ def test_fast_path_takes_only_numbers_the_checkers_return_unchanged(cls) -> None
     the reference's; for valid messages it does take them (so that the test above tests
     the fast path, not only the slow one)."""
     valid = VALID[cls]
-    assert cls._fill_decoded(object.__new__(cls), dict(valid))
-    assert cls._fill_own(cls(**valid))
+    assert _fast(cls, valid)
     names = [name for name, check in cls._SPEC.items() if hasattr(check, "inline")]
     assert names
     for name in names:
         for value in ATOMS:
             values = {**valid, name: value}
             reference = _outcome(lambda values=values: _reference(cls, values))
-            if cls._fill_decoded(object.__new__(cls), values):
+            if _fast(cls, values):
                 checked = getattr(_slow_fill(cls, values), name)
                 assert type(checked) is type(value) and checked == value
             assert _outcome(lambda values=values: cls._from_map({"v": 1, **values})) == reference
@@ -238,18 +248,17 @@ def test_decoded_stats_and_relay_are_copies() -> None:
     assert state.relay == ((4, 1.5, 2.5, 0.0, 0.2),)
 
 
-@pytest.mark.parametrize(
-    ("value", "taken"),
-    [(np.float64(1.25), True), (np.float64(math.nan), False), (np.float64(2e4), False)],
-)
-def test_numpy_floats_of_a_sender_take_the_fast_path(value: np.float64, taken: bool) -> None:
-    """A sender's float64 (a float subclass) is tested as the float it becomes; the message
-    then holds that float."""
-    message = object.__new__(protocol.Pose)
-    for name, field in {**VALID[protocol.Pose], "x": value}.items():
-        object.__setattr__(message, name, field)
-    assert protocol.Pose._fill_own(message) is taken
-    assert type(message.x) is (float if taken else np.float64)
+@pytest.mark.parametrize("value", [np.float64(1.25), np.float64(math.nan), np.float64(2e4)])
+def test_numpy_floats_of_a_sender_take_the_checkers_path(value: np.float64) -> None:
+    """A sender's float64 (a float subclass) is no plain float: the checkers judge it, and a
+    message then holds the float it becomes (the brain passes plain floats)."""
+    values = {**VALID[protocol.Pose], "x": value}
+    assert not _fast(protocol.Pose, values)
+    assert _outcome(lambda: protocol.Pose(**values)) == _outcome(
+        lambda: _reference(protocol.Pose, values)
+    )
+    if math.isfinite(value) and abs(value) <= messages.MAX_COORD:
+        assert type(protocol.Pose(**values).x) is float
 
 
 @pytest.mark.parametrize("cls", list(VALID), ids=lambda cls: cls.__name__)
@@ -308,3 +317,36 @@ def test_decode_refuses_missing_and_unknown_fields(cls) -> None:
                 expected = _outcome(lambda fields=fields: cls(**fields))
                 assert expected[0] == "ok"
             assert _outcome(lambda payload=payload: cls.decode(payload)) == expected
+
+
+def test_a_running_pack_builds_and_decodes_on_the_fast_path() -> None:
+    """What a running pack of brains builds (commands, AgentStates with neighbours, relays
+    and stats, beacons) and decodes is of plain, in-range numbers: none of it goes through
+    the checkers alone (Message._fill_checked), as a brain's numpy float would."""
+    from covswarm.agent.brain import AgentBrain
+    from covswarm.agent.pack import LocalBus, Pack
+    from covswarm.deploy.bench import BRAIN_TICK_WALL, brain_tick_domain, make_layout
+
+    n, swarm = 30, "fast"
+    layout = make_layout(n, "cvt", 0)
+    bus = LocalBus()
+    pack = Pack(bus, swarm, [AgentBrain(i) for i in range(n)])
+    slow = AssertionError("the checkers' path")
+    with patch.object(messages.Message, "_fill_checked", side_effect=slow):
+        for k in range(15):
+            t = k * 0.1
+            bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, k + 1))
+            for rid, (x, y) in enumerate(layout.positions.tolist()):
+                stamp = BRAIN_TICK_WALL + t
+                pose = protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=stamp, seq=k)
+                bus.put(protocol.pose_key(swarm, rid), pose.encode())
+            pack.tick(lambda t=t: t, lambda t=t: BRAIN_TICK_WALL + t, math.inf)
+    sent = {
+        kind: [p for key, p in bus.sent if key.endswith(f"/{kind}")] for kind in ("cmd", "state")
+    }
+    states = [protocol.AgentState.decode(payload) for payload in sent["state"]]
+    assert len(sent["cmd"]) == 15 * n and states
+    assert any(s.relay for s in states) and any(s.stats for s in states)
+    assert any(s.neighbors for s in states) and any(s.vx for s in states)
+    assert any(protocol.WheelCommand.decode(c).left for c in sent["cmd"])
+    assert any("/beacon/" in key for key, _ in bus.sent)
