@@ -994,13 +994,14 @@ class AgentBrain:
             for rid, (x, y, _, _) in zip(ids, near.tolist(), strict=True)
             if rid in first_hand
         }
-        dead = neighborhood.dead
-        for rid in [
-            r
-            for r, (_, _, since) in self.obstacles.items()
-            if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
-        ]:
-            del self.obstacles[rid]
+        if self.obstacles:  # (seldom any: no scan of an empty table every step)
+            dead = neighborhood.dead
+            for rid in [
+                r
+                for r, (_, _, since) in self.obstacles.items()
+                if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
+            ]:
+                del self.obstacles[rid]
         if self.obstacles:  # none is a candidate
             rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
             near = np.concatenate(
