@@ -480,7 +480,7 @@ class Message:
     checking is on the hot path: each type's ``__init__`` (_compile_init) tests its number
     fields in one compiled expression, which takes the messages whose numbers are already
     plain in-range floats and ints, and leaves any other to the field-by-field checkers.
-    Decoding goes through the same ``__init__``.
+    Decoding runs the same code on the unpacked map (``_decoded``).
     """
 
     __slots__ = ()

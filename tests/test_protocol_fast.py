@@ -350,3 +350,17 @@ def test_a_running_pack_builds_and_decodes_on_the_fast_path() -> None:
     assert any(s.neighbors for s in states) and any(s.vx for s in states)
     assert any(protocol.WheelCommand.decode(c).left for c in sent["cmd"])
     assert any("/beacon/" in key for key, _ in bus.sent)
+
+
+def test_a_message_type_must_be_a_slotted_dataclass() -> None:
+    """A message type whose fields are not slots (set where the compiled __init__ sets
+    them) refuses to construct, rather than construct unchecked."""
+    from dataclasses import dataclass
+
+    @dataclass(frozen=True)
+    class Loose(protocol.Message):
+        id: int
+
+    with pytest.raises(TypeError, match="slots=True"):
+        Loose(3)
+    assert protocol.Pose(**VALID[protocol.Pose]).id == 3
