@@ -64,6 +64,7 @@ class Layout:
     seed: int
     positions: np.ndarray
     polygon: np.ndarray
+    spacing: float = SPACING  # m between robots on average
 
 
 def square(side: float) -> np.ndarray:
@@ -71,16 +72,19 @@ def square(side: float) -> np.ndarray:
     return np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]])
 
 
-def make_layout(n: int, kind: str, seed: int, lloyd_iterations: int = 40) -> Layout:
-    """Random uniform positions, or near-CVT ones after Lloyd iterations (p <- c(p))."""
-    side = SPACING * np.sqrt(n)
+def make_layout(
+    n: int, kind: str, seed: int, lloyd_iterations: int = 40, spacing: float = SPACING
+) -> Layout:
+    """Random uniform positions, or near-CVT ones after Lloyd iterations (p <- c(p)), in a
+    square of side ``spacing`` (m) x sqrt(n)."""
+    side = spacing * np.sqrt(n)
     rng = np.random.default_rng(seed)
     positions = rng.uniform(0.0, side, size=(n, 2))
     polygon = square(side)
     if kind == "cvt":
         for _ in range(lloyd_iterations):
             positions = mass_centroid(positions, polygon)[1]
-    return Layout(kind, seed, positions, polygon)
+    return Layout(kind, seed, positions, polygon, spacing)
 
 
 def bench_density(side: float) -> Density:
@@ -353,7 +357,12 @@ def run_bench(
 # --- brain-tick: the end-to-end cost of one brain's control period in a packed process ---
 
 BRAIN_TICK_SIZES = (1, 50, 200, 500)  # brains per process
-BRAIN_TICK_TEAM = 500  # robots in the team the packs share (near-CVT, paper's density)
+BRAIN_TICK_TEAM = 500  # robots in the team the packs share (near-CVT)
+# m between them: the circle scenarios' (2 m square for 100 robots, circle-1000's 6.32 m
+# for 1000). The cost of a brain-tick grows with the density: within the safety filter's
+# radius (tvd.safety.SAFETY_RADIUS, 0.5 m) a brain follows ~16 AgentStates at 0.2 m, ~6 (its
+# Voronoi neighbours) at 0.5 m.
+BRAIN_TICK_SPACING = 0.2
 BRAIN_TICK_WARM = 25  # periods before timing: the first beacons found every neighbour, and
 # the local sets shrank from the beacons' whole tiles to the two-hop sets (~16 robots)
 BRAIN_TICK_ROUNDS = 6  # control periods timed
@@ -361,7 +370,7 @@ BRAIN_TICK_ROUNDS = 6  # control periods timed
 
 def brain_tick_domain(layout: Layout, t: float, seq: int) -> bytes:
     """The coordinator's Domain at mission time ``t`` as on the wire: the layout's square,
-    running, moving at 2 cm/s, tile size 2.5 spacings (as the coordinator picks it)."""
+    running, moving at 2 cm/s, tile size 2.5 of its spacings (as the coordinator picks it)."""
     from covswarm import protocol
 
     velocity = [0.02, 0.01]
@@ -373,7 +382,7 @@ def brain_tick_domain(layout: Layout, t: float, seq: int) -> bytes:
         vertices=(layout.polygon + np.array(velocity) * t).tolist(),
         velocities=[velocity] * len(layout.polygon),
         kappa=1.0,
-        tile_size=2.5 * SPACING,
+        tile_size=2.5 * layout.spacing,
     ).encode()
 
 
@@ -456,11 +465,13 @@ def run_brain_ticks(
     sample: int | None,
     progress=None,
     rate: float = LIVE_RATE,
+    spacing: float = BRAIN_TICK_SPACING,
 ) -> list[dict]:
     """One row per process size: the amortised brain-tick (time_brain_ticks) at ``rate``
-    Hz beside the local step alone (time_local_steps' p50 on the same layout). The warm-up
-    lasts as long in time at any rate; so do the periods timed, in whole state periods."""
-    layout = make_layout(team, "cvt", 0)
+    Hz beside the local step alone (time_local_steps' p50 on the same layout), the team
+    ``spacing`` m apart. The warm-up lasts as long in time at any rate; so do the periods
+    timed, in whole state periods."""
+    layout = make_layout(team, "cvt", 0, spacing=spacing)
     step_us, _ = time_local_steps(layout, sample)
     scale = max(1.0, rate / LIVE_RATE)
     warm, rounds = math.ceil(BRAIN_TICK_WARM * scale), math.ceil(BRAIN_TICK_ROUNDS * scale)
@@ -472,6 +483,7 @@ def run_brain_ticks(
                 "agents": team,
                 "layout": "brain-tick",
                 "rate_hz": rate,
+                "spacing_m": spacing,
                 "agents_per_process": size,
                 **row,
                 "local_step_p50_us": float(np.percentile(step_us, 50)),
@@ -488,13 +500,15 @@ def brain_tick_table(rows: list[dict]) -> Any:
 
     table = Table(title="covswarm bench --brain-tick: one brain's period, amortised per process")
     for name in (
-        "team", "rate Hz", "brains per process", "brain-tick us (wall)", "brain-tick us (CPU)",
-        "local step p50 us", "local step mean us", "rx per tick", "subscriptions per brain",
+        "team", "spacing m", "rate Hz", "brains per process", "brain-tick us (wall)",
+        "brain-tick us (CPU)", "local step p50 us", "local step mean us", "rx per tick",
+        "subscriptions per brain",
     ):  # fmt: skip
         table.add_column(name, justify="right")
     for row in rows:
         table.add_row(
             str(row["agents"]),
+            f"{row['spacing_m']:g}",
             f"{row['rate_hz']:g}",
             str(row["agents_per_process"]),
             f"{row['brain_tick_us']:.0f}",
@@ -757,6 +771,12 @@ def live_table(rows: list[dict]) -> Any:
     help="Control rate of the brains for --brain-tick, Hz (AgentStates at most every 0.1 s).",
 )
 @float_option(
+    "--brain-tick-spacing",
+    low=0.05,
+    default=BRAIN_TICK_SPACING,
+    help="Metres between the robots of --brain-tick's team (the circle scenarios': 0.2).",
+)
+@float_option(
     "--live-time-scale",
     low=0.0,
     low_open=True,
@@ -780,6 +800,7 @@ def bench_command(
     brain_tick_sizes: str,
     brain_tick_team: int,
     brain_tick_rate: float,
+    brain_tick_spacing: float,
 ) -> None:
     """Measure per-agent compute vs team size against the centralised baseline (and, with
     --live, what real distributed runs achieve; with --brain-tick, only what one brain's
@@ -802,6 +823,7 @@ def bench_command(
             min(sample, brain_tick_team),
             progress=lambda size: Console().log(f"{size} brains per process: done"),
             rate=brain_tick_rate,
+            spacing=brain_tick_spacing,
         )
         out.mkdir(parents=True, exist_ok=True)
         (out / "bench.json").write_text(json.dumps(tick_rows, indent=2, sort_keys=True) + "\n")

@@ -511,3 +511,21 @@ def test_a_receipt_time_never_precedes_the_pose_received() -> None:
         assert brain.pose is not None
         assert brain.robot_clock.bound >= 0.0, (brain.id, brain.robot_clock.bound)
         assert brain.pose_taken == brain.pose.stamp
+
+
+def test_bench_brain_tick_at_a_denser_team_and_a_faster_rate(tmp_path: Path) -> None:
+    """Within the safety filter's radius a brain follows more AgentStates in a denser team
+    (more received per tick), and at 30 Hz AgentStates still go out at ~10 Hz (fewer per
+    tick)."""
+    rows = {}
+    for spacing, rate in ((0.5, 10), (0.2, 10), (0.2, 30)):
+        out = tmp_path / f"bt-{spacing}-{rate}"
+        argv = ["--brain-tick", "--brain-tick-sizes", "30", "--brain-tick-team", "30"]
+        argv += ["--brain-tick-spacing", str(spacing), "--brain-tick-rate", str(rate)]
+        result = CliRunner().invoke(bench_command, [*argv, "--sample", "5", "--out", str(out)])
+        assert result.exit_code == 0, result.output
+        (row,) = json.loads((out / "bench.json").read_text())
+        assert (row["spacing_m"], row["rate_hz"]) == (spacing, rate)
+        rows[spacing, rate] = row["rx_per_brain_tick"]
+    assert rows[0.2, 10] > 1.5 * rows[0.5, 10]
+    assert rows[0.2, 30] < 0.6 * rows[0.2, 10]
