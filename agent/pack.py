@@ -97,13 +97,11 @@ RING_PER_TILE = 256
 # flood beyond it can push the real ones out.
 DOMAIN_RING = 16
 # Brains stepped together: their local steps in one batch, and their safety filters in
-# another. A batch costs a few hundred numpy calls whatever its size, and between two
-# batches a chunk's other work leaves their code and data cold: at 64 rather than 32 the
-# local steps took ~52 us of CPU per brain instead of ~68 and the whole brain-tick ~5 %
-# less (500 brains, 14:05 UTC 2026-11-27, load 7-8). A chunk's commands go out once all of
-# it has stepped, so the first brains of a chunk send theirs up to 64 brain-ticks later in
-# the period (~25 ms at 0.4 ms each); the deadline stays per brain.
-CHUNK = 64
+# another. 64 was measured against 32 (covswarm bench --brain-tick at the circle scenarios'
+# 0.2 m spacing, 14:55 UTC 2026-11-27, load 1.0): 441-468 -> 499-534 us of CPU per brain-tick
+# in packs of 50 (one chunk of 50 rather than 32 + 18), 394 -> 400 in packs of 500; and a
+# chunk's commands go out once all of it has stepped, later in the period.
+CHUNK = 32
 # The order in which a brain gets a tick's payloads (then by id and key): the world (the
 # domain is judged against it), the domain and its own pose first, as a process of its own
 # drained its subscribers.
