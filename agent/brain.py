@@ -535,8 +535,7 @@ class AgentBrain:
         packed brain's turn (covswarm.agent.pack): ~8 payloads a control period, most of
         them neighbours' AgentStates, each handed to the neighbourhood with what the
         process's decoder derived from it once (covswarm.agent.neighborhood.state_facts)."""
-        decoder, me = self.decoder, self.id
-        received, received_bytes = decoder.received, decoder.received_bytes
+        received, me = self.decoder.received, self.id
         max_age, skew, peer_clocks = self._max_age, self.config.max_clock_skew, self.peer_clocks
         states: list[HeardState] = []  # the current run of AgentStates, applied at its end
         accepted = 0
@@ -546,10 +545,7 @@ class AgentBrain:
                 self.neighborhood.on_agent_states(states)
                 states = []
             try:
-                if type(payload) is bytes:
-                    message, facts = received_bytes(kind, payload)
-                else:
-                    message, facts = received(kind, payload)
+                message, facts = received(kind, payload)
                 check_stamp(message.stamp, now_wall, max_age[kind], skew)
             except protocol.ProtocolError as exc:
                 self.drops.drop(exc.reason, f"{kind}: {exc}")

@@ -65,9 +65,8 @@ class MessageDecoder:
     """Bytes -> validated messages, with a bounded cache owned by this instance."""
 
     def __init__(self, cache_size: int = DECODE_CACHE) -> None:
-        # (kind, payload bytes) -> Received; ProtocolError if invalid (never cached). A
-        # brain's receive path calls it directly: one lookup per payload and brain.
-        self.received_bytes = lru_cache(maxsize=cache_size)(self._received_uncached)
+        # (kind, payload bytes) -> Received; ProtocolError if invalid (never cached).
+        self._received_bytes = lru_cache(maxsize=cache_size)(self._received_uncached)
         self._geometry_of = _ByIdentity(DOMAINS_REMEMBERED)
         self._world_of: tuple[protocol.World, World] | None = None
         self._overlap_of = _ByIdentity(DOMAINS_REMEMBERED)
@@ -79,9 +78,9 @@ class MessageDecoder:
 
     def received(self, kind: str, payload: object) -> Received:
         """The message of ``kind`` in ``payload`` and what a receiver takes from it besides
-        (Received); ProtocolError if invalid. Bytes are cached (``received_bytes``)."""
+        (Received); ProtocolError if invalid. Bytes are cached."""
         if type(payload) is bytes:
-            return self.received_bytes(kind, payload)
+            return self._received_bytes(kind, payload)
         return self._received_uncached(kind, payload)
 
     @staticmethod
