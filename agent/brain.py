@@ -35,7 +35,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from covswarm import protocol
-from covswarm.agent.decoding import MessageDecoder
+from covswarm.agent.decoding import Heard, MessageDecoder
 from covswarm.agent.faults import InboxItem
 from covswarm.agent.latency import ClockBound, CommandHistory
 from covswarm.agent.metrics import Counters, Percentiles, Rate
@@ -534,8 +534,10 @@ class AgentBrain:
         order, received at ``now``, ``now_wall``; the number accepted. One call for a
         packed brain's turn (covswarm.agent.pack): ~8 payloads a control period, most of
         them neighbours' AgentStates, each handed to the neighbourhood with what the
-        process's decoder derived from it once (covswarm.agent.neighborhood.state_facts)."""
-        received, me = self.decoder.received, self.id
+        process derived from it once (covswarm.agent.neighborhood.state_facts). A payload
+        may be a Heard (covswarm.agent.decoding): decoded already, by the process that
+        drained it."""
+        decoded, me = self.decoder.decoded, self.id
         max_age, skew, peer_clocks = self._max_age, self.config.max_clock_skew, self.peer_clocks
         states: list[HeardState] = []  # the current run of AgentStates, applied at its end
         accepted = 0
@@ -544,11 +546,17 @@ class AgentBrain:
             if states and kind != "state":
                 self.neighborhood.on_agent_states(states)
                 states = []
-            try:
-                message, facts = received(kind, payload)
-                check_stamp(message.stamp, now_wall, max_age[kind], skew)
-            except protocol.ProtocolError as exc:
-                self.drops.drop(exc.reason, f"{kind}: {exc}")
+            # A packed process's payloads come decoded (Heard), once for all their brains.
+            message, facts, error = (
+                payload.decoded if type(payload) is Heard else decoded(kind, payload)
+            )
+            if error is None:
+                try:
+                    check_stamp(message.stamp, now_wall, max_age[kind], skew)
+                except protocol.ProtocolError as exc:
+                    error = exc
+            if error is not None:
+                self.drops.drop(error.reason, f"{kind}: {error}")
                 continue
             if key_id is not None and message.id != key_id:
                 self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")

@@ -4,14 +4,14 @@ The brains of one process (``covswarm agent --ids``) share one subscription per 
 domain is subscribed once for all of them, each AgentState, pose and beacon tile once per
 process with the set of brains that follow it (its reference count: the subscription is
 undeclared when the last one stops following). Each sample is drained once per control
-tick and its payload handed to every brain that follows the key, as the same ``bytes``
-object, so the shared :class:`~covswarm.agent.decoding.MessageDecoder` decodes and
-validates it once (its hash is cached in the object). A brain still receives only the keys
-it follows itself, newest payload per key, in a canonical order (kind, id, key): what it
-would receive in a process of its own (tests/test_pack.py). Liveliness token changes are
-recorded once for the process (covswarm.agent.neighborhood.Liveliness), not once per
-brain; each brain takes them as applied after its turn's data, as a process of its own
-would.
+tick, decoded and validated then, once for the process, and handed to every brain that
+follows the key as the same :class:`~covswarm.agent.decoding.Heard` (its bytes, with what
+they decoded to or the ProtocolError they raised): a brain looks nothing up. A brain
+still receives only the keys it follows itself, newest payload per key, in a canonical
+order (kind, id, key): what it would receive in a process of its own (tests/test_pack.py).
+Liveliness token changes are recorded once for the process
+(covswarm.agent.neighborhood.Liveliness), not once per brain; each brain takes them as
+applied after its turn's data, as a process of its own would.
 
 Brains due together step together (:meth:`Pack.step`): ``chunk`` at a time, at one clock
 reading, each brain's step split in phases (AgentBrain.begin, the local steps of the
@@ -63,7 +63,7 @@ from covswarm.agent.brain import (
     filter_one,
     local_step_of,
 )
-from covswarm.agent.decoding import DECODE_CACHE
+from covswarm.agent.decoding import DECODE_CACHE, heard
 from covswarm.agent.faults import InboxItem, PoseImpairment
 from covswarm.agent.neighborhood import Liveliness
 from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, local_steps
@@ -332,7 +332,7 @@ class Pack:
             if (rid := self._key_id(skey)) is None:
                 malformed += 1
             else:
-                items.append((_slot(sub.kind, rid, key), (sub.kind, rid, payload)))
+                items.append((_slot(sub.kind, rid, key), (sub.kind, rid, heard(sub.kind, payload))))
         for bid in sub.followers:
             brain = self.brains[bid]
             pending = queues[bid]
@@ -355,7 +355,7 @@ class Pack:
         if last is None:
             return
         slot = sub.slot
-        item = (sub.kind, sub.key_id, last.payload.to_bytes())
+        item = (sub.kind, sub.key_id, heard(sub.kind, last.payload.to_bytes()))
         for bid in sub.followers:
             pending = queues[bid]
             if coalesced or slot in pending:  # rarely: one sample a tick, taken each tick
@@ -368,7 +368,7 @@ class Pack:
         while (sample := sub.source.try_recv()) is not None:
             self._every += 1
             slot = _slot(sub.kind, sub.key_id, f"{key}#{self._every:012d}")
-            item = (sub.kind, sub.key_id, sample.payload.to_bytes())
+            item = (sub.kind, sub.key_id, heard(sub.kind, sample.payload.to_bytes()))
             for bid in sub.followers:
                 queues[bid][slot] = item
 
