@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections import Counter
 from collections.abc import Callable
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import pytest
 from click.testing import CliRunner
 
 from covswarm import protocol
+from covswarm.agent import decoding
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.pack import LocalBus, Pack
@@ -370,6 +372,68 @@ def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() ->
     for bid, brain in pack.brains.items():
         assert brain.drops.counts["wrong_id"] == (bid < 2)
         assert brain.counters.coalesced == (bid < 2)
+
+
+def test_a_payload_is_decoded_once_per_process_whatever_its_followers(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """Five brains follow the same keys: each payload drained is decoded once for the
+    process, tick after tick, and every brain takes it as a lone brain takes its bytes (an
+    invalid one counted as a drop by each, with the lone brain's reason)."""
+    decodes: Counter[str] = Counter()
+    received = decoding._received
+
+    def counting(kind: str, payload: object) -> object:
+        decodes[kind] += 1
+        return received(kind, payload)
+
+    monkeypatch.setattr(decoding, "_received", counting)
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(i) for i in range(5)])
+    for bid in pack.brains:
+        pack.follow(bid, "state", frozenset({8, 9}))
+        pack.follow(bid, "beacon", frozenset({(0, 0)}))
+    domain = protocol.Domain(
+        seq=1,
+        stamp=WALL,
+        t=0.0,
+        state="running",
+        vertices=square(0.0),
+        velocities=[[0.0, 0.0]] * 4,
+        kappa=1.0,
+    )
+    payloads = [
+        ("domain", None, protocol.domain_key(SWARM), domain.encode()),
+        (
+            "state",
+            9,
+            protocol.agent_state_key(SWARM, 9),
+            protocol.AgentState(id=9, x=1.0, y=1.0, stamp=WALL, neighbors=[]).encode(),
+        ),
+        ("state", 8, protocol.agent_state_key(SWARM, 8), b'{"id": 8}'),  # invalid
+        (
+            "beacon",
+            7,
+            protocol.beacon_key(SWARM, 0, 0, 7),
+            protocol.Beacon(id=7, x=0.1, y=0.1, stamp=WALL).encode(),
+        ),
+    ]
+    for tick in range(1, 3):
+        for _, _, key, payload in payloads:
+            bus.put(key, payload)
+        pack.drain()
+        for bid in pack.brains:
+            pack.receive(bid, 0.1 * tick, WALL)
+        assert decodes == {"domain": tick, "state": 2 * tick, "beacon": tick}
+    lone = AgentBrain(5)
+    for tick in range(1, 3):
+        for kind, key_id, _, payload in payloads:
+            lone.receive(kind, payload, 0.1 * tick, WALL, key_id)
+    assert lone.drops.counts and lone.peer_clocks.keys() == {9}
+    for brain in pack.brains.values():
+        assert brain.drops.counts == lone.drops.counts
+        assert brain.peer_clocks.keys() == {9} and brain.domain == lone.domain
+        assert brain.counters.received == lone.counters.received == 8
 
 
 def test_a_brain_gets_its_payloads_by_kind_then_id_then_key() -> None:
