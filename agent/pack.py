@@ -107,16 +107,21 @@ CHUNK = 32
 # drained its subscribers.
 KIND_ORDER = {"world": 0, "domain": 1, "pose": 2, "state": 3, "beacon": 4}
 
-# Where a payload waits for a brain: (KIND_ORDER of its kind, the id in its key or -1, key),
-# one per key (per key and id in a beacon tile, per sample for the domain). Sorted as they
-# are, the slots give a brain its payloads in the canonical order, without a sort key.
-_Slot = tuple[int, int, str]
+# Where a payload waits for a brain: the KIND_ORDER of its kind, 1 + the id in its key (0
+# for none) in ID_DIGITS digits, then the key; one per key (per key and id in a beacon
+# tile, per sample for the domain). Sorted as they are, the slots give a brain its payloads
+# in the canonical order, without a sort key; as strings, not (kind, id, key) tuples, since
+# a string's hash is kept and strings sort by a plain comparison: a brain's ~19 slots a
+# tick, hashed twice each and sorted, took half the time (9 500 a tick in 500 brains).
+_Slot = str
+ID_DIGITS = len(str(protocol.MAX_ID + 1))
+_KEY_AT = 1 + ID_DIGITS  # where the key starts in a slot
 # brain -> {slot: (kind, id, payload)}: the newest payload per key for a brain
 _Queues = dict[int, dict[_Slot, InboxItem]]
 
 
 def _slot(kind: str, key_id: int | None, key: str) -> _Slot:
-    return KIND_ORDER[kind], -1 if key_id is None else key_id, key
+    return f"{KIND_ORDER[kind]}{0 if key_id is None else key_id + 1:0{ID_DIGITS}d}{key}"
 
 
 class Payload(Protocol):
@@ -268,7 +273,7 @@ class Pack:
             self.bus.unsubscribe(sub.source)
         # Unread payloads of an undeclared subscriber are lost to a process of its own too.
         pending = self._pending[bid]
-        for slot in [slot for slot in pending if slot[2] == key]:
+        for slot in [slot for slot in pending if slot[_KEY_AT:] == key]:
             del pending[slot]
 
     def follow(self, bid: int, kind: str, wanted: frozenset) -> None:
