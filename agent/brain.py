@@ -552,7 +552,7 @@ class AgentBrain:
             )
             if error is None:
                 try:
-                    check_stamp(message.stamp, now_wall, max_age[kind], skew)
+                    check_stamp(stamp := message.stamp, now_wall, max_age[kind], skew)
                 except protocol.ProtocolError as exc:
                     error = exc
             if error is not None:
@@ -568,7 +568,7 @@ class AgentBrain:
                     clock = peer_clocks[rid] = ClockBound()
                 # Dead reckoning counts from when the state was stamped, not from when it
                 # arrived: on our clock, within the bound on its sender's offset.
-                local = clock.add(now, now_wall, message.stamp)
+                local = clock.add(now, now_wall, stamp)
                 if rid != me:  # else our own state (on_agent_state)
                     lag = now_wall - local  # clamped to [0, MAX_PREDICTION] (NaN stays)
                     if lag > MAX_PREDICTION:
@@ -579,11 +579,11 @@ class AgentBrain:
                     accepted += 1
                 continue
             if kind == "pose" and message.id == me:
-                self.robot_clock.add(now, now_wall, message.stamp)
+                self.robot_clock.add(now, now_wall, stamp)
             if _HANDLERS[kind](self, message, now):
                 accepted += 1
                 if kind == "domain":
-                    self.coordinator_clock.add(now, now_wall, message.stamp)
+                    self.coordinator_clock.add(now, now_wall, stamp)
         if states:
             self.neighborhood.on_agent_states(states)
         return accepted
