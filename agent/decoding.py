@@ -1,9 +1,13 @@
 """Decoding of what an agent receives, shared by the brains of one process.
 
-Decoded messages are immutable and a function of their bytes alone, so the brains of one
-process (``covswarm agent --ids``) share one :class:`MessageDecoder`: each still receives
-every sample through its own subscriptions, but a pose that five of them follow, or the
-domain that all of them follow, is parsed and validated once.
+Decoded messages are immutable and a function of their bytes alone, so a pose that five
+brains of one process (``covswarm agent --ids``) follow, or the domain that all of them
+follow, is parsed and validated once: a packed process (covswarm.agent.pack) decodes each
+payload it drains (:func:`heard`) and hands its brains the :class:`Heard`, and brains
+handed plain bytes (one by one: :meth:`AgentBrain.receive`, deploy/netsim.py) share one
+:class:`MessageDecoder`, whose cache finds bytes decoded already. The decoder also
+remembers what the brains derive from the messages they share (a domain's geometry, a
+world's model).
 """
 
 from __future__ import annotations
