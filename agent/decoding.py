@@ -4,7 +4,7 @@ Decoded messages are immutable and a function of their bytes alone, so a pose th
 brains of one process (``covswarm agent --ids``) follow, or the domain that all of them
 follow, is parsed and validated once: a packed process (covswarm.agent.pack) decodes each
 payload it drains (:func:`heard`) and hands its brains the :class:`Heard`, and brains
-handed plain bytes (one by one: :meth:`AgentBrain.receive`, deploy/netsim.py) share one
+handed plain bytes (one by one: AgentBrain.receive, deploy/netsim.py) share one
 :class:`MessageDecoder`, whose cache finds bytes decoded already. The decoder also
 remembers what the brains derive from the messages they share (a domain's geometry, a
 world's model).
