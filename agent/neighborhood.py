@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from itertools import repeat
@@ -45,30 +45,37 @@ CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
-# What a receiver takes from an AgentState besides the message: its neighbours as a set and
-# its velocity vx, vy (m/s, 0 when absent) (state_facts).
-StateFacts = tuple[frozenset[int], float, float]
+# What a receiver takes from an AgentState besides the message (state_facts): its motion
+# x, y (m), vx, vy (m/s, 0 when absent); its neighbours as a set; its relay as id -> x, y,
+# vx, vy in the relay's order and the set of those ids (None, None without a relay).
+StateFacts = tuple[Reckoned, frozenset[int], dict[int, Reckoned] | None, frozenset[int] | None]
 # An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
-# StateFacts, and its receipt time (monotonic s).
+# StateFacts, and its receipt time (monotonic s). What a neighbourhood keeps of a robot's
+# own pose has the same shape: the Pose, its motion (x, y, 0, 0) alone, its receipt time.
 HeardState = tuple[protocol.AgentState, StateFacts, float]
+Heard = tuple[protocol.Message, tuple, float]
 
 
 def state_facts(state: protocol.AgentState) -> StateFacts:
     """What every receiver takes from ``state`` besides its fields: the same for all, so a
-    process of many brains derives it once per message (covswarm.agent.decoding)."""
-    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
+    process of many brains derives it once per message (covswarm.agent.decoding), and each
+    brain keeps the message, this and its receipt time as they are (no copy per brain)."""
+    motion = (state.x, state.y, state.vx or 0.0, state.vy or 0.0)
+    relay = state.relay
+    if relay is None:
+        return motion, frozenset(state.neighbors), None, None
+    # the relay's ids are distinct (protocol), so the dict holds every entry in order
+    entries = {rid: (x, y, vx, vy) for rid, x, y, vx, vy in relay}
+    return motion, frozenset(state.neighbors), entries, frozenset(entries)
 
 
 @dataclass(slots=True)
 class Track:
-    """Last known position of another robot, when (monotonic) it was received, and the
-    velocity its agent reported with it (0 for poses and beacons)."""
+    """Another robot's position from its last beacon, and when (monotonic) it arrived."""
 
     x: float
     y: float
     received: float
-    vx: float = 0.0
-    vy: float = 0.0
 
 
 def cell_reach(distance_to_centroid: float, area: float) -> float:
@@ -242,15 +249,17 @@ class Neighborhood:
         self.stale_timeout = stale_timeout
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
-        self.poses: dict[int, Track] = {}
-        self.state_tracks: dict[int, Track] = {}
+        # id -> the last Pose and AgentState heard of each robot, as Heard records (kept
+        # as received: a packed process's brains share the messages and their facts)
+        self.poses: dict[int, Heard] = {}
+        self.states: dict[int, HeardState] = {}
         self.beacons: dict[int, Track] = {}
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
         self._ledger = BeaconLedger(self.beacons, self._heard)
         self._choice: BeaconChoice | None = None  # the beacon-only candidates chosen last
-        self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
-        # relayer id -> (its AgentState.relay entries, when received)
-        self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
+        # relayer id -> its last AgentState, while that one has a relay (the order in which
+        # they gained one: the order of refresh()'s relay pass)
+        self.relays: dict[int, HeardState] = {}
         # id -> (x, y, vx, vy) of every candidate of the last step, reckoned to that step,
         # and the ids among them known first-hand (own pose or AgentState): what our
         # AgentState relays about our neighbours; its keys are the robots usable as
@@ -298,39 +307,36 @@ class Neighborhood:
 
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
-        self.poses[rid] = Track(pose.x, pose.y, now)
-        self._hear(((rid, now),))
+        heard = self.poses[rid] = (pose, ((pose.x, pose.y, 0.0, 0.0),), now)
+        self._hear((heard,))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.on_agent_states(((state, state_facts(state), now),))
 
-    def on_agent_states(self, states: Iterable[HeardState]) -> None:
+    def on_agent_states(self, states: Sequence[HeardState]) -> None:
         """AgentStates in order, each with its state_facts and receipt time: as
         :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
         control period, and this is the bulk of its receive path)."""
-        tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
+        records, relays = self.states, self.relays
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
-        heard = []
-        for state, (neighbours, vx, vy), now in states:
-            rid = state.id
-            tracks[rid] = Track(state.x, state.y, now, vx, vy)
-            heard.append((rid, now))
-            if revive:
-                self._revive(rid, "agent")
-            neighbor_sets[rid] = (neighbours, now)
-            relay = state.relay
-            if relay is None:
+        for heard in states:
+            rid = heard[0].id
+            records[rid] = heard
+            if heard[1][2] is None:
                 relays.pop(rid, None)
             else:
-                relays[rid] = (relay, now)
-        self._hear(heard)
+                relays[rid] = heard
+            if revive:
+                self._revive(rid, "agent")
+        self._hear(states)
 
-    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
-        """Robots' own poses or states arrived: (id, receipt time) each."""
+    def _hear(self, heard: Iterable[Heard]) -> None:
+        """Robots' own poses or states arrived (their records)."""
         times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
-        for rid, now in heard:
+        for message, _, now in heard:
+            rid = message.id
             times[rid] = now
             hear(rid, now)
             if asked:
@@ -437,38 +443,43 @@ class Neighborhood:
         fresh = now - self.stale_timeout
         limit = DEAD_RECKONING_LIMIT
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
-        tracks = self.state_tracks.items()
+        records: Iterable[tuple[int, Heard]] = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
-            chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
-            for rid, track in tracks:
-                received = track.received
-                if received >= fresh and (rid not in chosen or received > chosen[rid].received):
-                    chosen[rid] = track
-            tracks = chosen.items()
+            chosen = {rid: heard for rid, heard in self.poses.items() if heard[2] >= fresh}
+            for rid, heard in records:
+                received = heard[2]
+                if received >= fresh and (rid not in chosen or received > chosen[rid][2]):
+                    chosen[rid] = heard
+            records = chosen.items()
         reckoned: dict[int, Reckoned] = {}
-        for rid, track in tracks:
-            received = track.received
+        for rid, (_, facts, received) in records:
             if received >= fresh and rid not in dead:
                 lead = now - received
                 if lead > limit:
                     lead = limit
-                vx, vy = track.vx, track.vy
-                reckoned[rid] = (track.x + lead * vx, track.y + lead * vy, vx, vy)
+                x, y, vx, vy = facts[0]
+                reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
         # The loops below run over every robot known (~250 at the paper's density), each
         # control period: membership tests rather than dict.get calls, sets built at once.
+        # A relay names mostly robots known first-hand (our own neighbours'): the set
+        # difference (in C, over the relay's ids) leaves the few to reckon, in its order.
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
-        for relayer, (entries, received) in self.relays.items():
+        for relayer, (_, (_, _, entries, ids), received) in self.relays.items():
             if received < fresh or relayer in dead:
+                continue
+            new = ids - skip
+            if not new:
                 continue
             lead = now - received
             if lead > limit:
                 lead = limit
-            for rid, x, y, vx, vy in entries:
-                if rid not in skip and (rid not in relayed or relayed[rid] < received):
+            for rid in new if len(new) == 1 else [rid for rid in entries if rid in new]:
+                if rid not in relayed or relayed[rid] < received:
                     relayed[rid] = received
+                    x, y, vx, vy = entries[rid]
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
@@ -581,9 +592,9 @@ class Neighborhood:
         """Drop records well past their timeout: memory stays bounded, and the tables that
         every step walks hold only the robots heard from lately."""
         recent = 2.0 * max(self.stale_timeout, self.linger_period)
-        for table in (self.poses, self.state_tracks):
-            for rid in [rid for rid, t in table.items() if now - t.received > recent]:
-                del table[rid]
+        for records in (self.poses, self.states, self.relays):
+            for rid in [rid for rid, heard in records.items() if now - heard[2] > recent]:
+                del records[rid]
         ledger = self._ledger
         old = ledger.ids[: ledger.n][now - ledger.received[: ledger.n] > 2.0 * self.beacon_timeout]
         for rid in old.tolist():
@@ -593,9 +604,6 @@ class Neighborhood:
         deaths = self.liveliness.deaths
         for key in [key for key in self._revived if key not in deaths]:
             del self._revived[key]
-        for sets in (self.neighbor_sets, self.relays):
-            for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
-                del sets[rid]
         unheard = [rid for rid, t in self._heard.items() if t < now - 2.0 * self.beacon_timeout]
         for rid in unheard:
             del self._heard[rid]
@@ -632,11 +640,11 @@ class Neighborhood:
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
-        one_hop, sets, stale = self.one_hop, self.neighbor_sets, self.stale_timeout
+        one_hop, states, stale = self.one_hop, self.states, self.stale_timeout
         ids = set(one_hop)
         for rid in one_hop:
-            if rid in sets:
-                reported, received = sets[rid]
+            if rid in states:
+                _, (_, reported, _, _), received = states[rid]
                 if now - received <= stale:
                     ids |= reported
         ids.discard(self.me)
@@ -650,12 +658,9 @@ class Neighborhood:
         swarm)."""
         fresh = now - self.stale_timeout
         relays = self.relays
-        covered = {
-            entry[0]
-            for rid in self.one_hop
-            if rid in relays and relays[rid][1] >= fresh
-            for entry in relays[rid][0]
-        }
+        covered = set().union(  # the relays' id sets (StateFacts), in C
+            *[relays[r][1][3] for r in self.one_hop if r in relays and relays[r][2] >= fresh]
+        )
         wanted = self.one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 
@@ -666,12 +671,12 @@ class Neighborhood:
         no relay reached it and our last routine beacon may be 10 s away. Meanwhile both
         cells are wrong where they meet.
         """
-        fresh, me, sets = now - self.stale_timeout, self.me, self.neighbor_sets
+        fresh, me, states = now - self.stale_timeout, self.me, self.states
         since = self._unrequited
         unrequited = {}
         for rid in self.one_hop:
-            if rid in sets:
-                reported, received = sets[rid]
+            if rid in states:
+                _, (_, reported, _, _), received = states[rid]
                 if received >= fresh and me not in reported:
                     unrequited[rid] = since.get(rid, now)
         self._unrequited = unrequited

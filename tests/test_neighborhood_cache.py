@@ -19,7 +19,6 @@ from covswarm.agent.neighborhood import (
     DEAD_RECKONING_LIMIT,
     LOCAL_MARGIN,
     Neighborhood,
-    Track,
 )
 
 STALE, BEACON, LINGER = 0.5, 2.0, 0.4  # s: short, so that random steps cross every timeout
@@ -36,22 +35,23 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             dead.setdefault(rid, set()).add(role)
     fresh = now - nb.stale_timeout
     chosen = {}  # the freshest of pose and state, a pose on a tie
-    for tracks in (nb.poses, nb.state_tracks):
-        for rid, t in tracks.items():
-            if t.received >= fresh and (rid not in chosen or t.received > chosen[rid].received):
-                chosen[rid] = t
+    for records in (nb.poses, nb.states):  # (message, its facts: motion first, receipt)
+        for rid, (_, (motion, *_), t) in records.items():
+            if t >= fresh and (rid not in chosen or t > chosen[rid][1]):
+                chosen[rid] = (motion, t)
     reckoned = {}
-    for rid, t in chosen.items():
+    for rid, ((x, y, vx, vy), t) in chosen.items():
         if rid not in dead:
-            lead = min(now - t.received, DEAD_RECKONING_LIMIT)
-            reckoned[rid] = (t.x + lead * t.vx, t.y + lead * t.vy, t.vx, t.vy)
+            lead = min(now - t, DEAD_RECKONING_LIMIT)
+            reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
     first_hand = set(reckoned)
     newest: dict[int, float] = {}
-    for relayer, (entries, received) in nb.relays.items():
+    for relayer, (state, _, received) in nb.relays.items():  # the messages' own relays
         if received < fresh or relayer in dead:
             continue
+        assert state.relay is not None
         lead = min(now - received, DEAD_RECKONING_LIMIT)
-        for rid, x, y, vx, vy in entries:
+        for rid, x, y, vx, vy in state.relay:
             taken = rid in first_hand or rid in dead or rid == nb.me
             if not taken and newest.get(rid, -math.inf) < received:
                 newest[rid] = received
@@ -76,8 +76,8 @@ def two_hop_reference(nb: Neighborhood, now: float) -> set[int]:
     """Our one-hop neighbours and their neighbours reported within ``stale_timeout``."""
     ids = set(nb.one_hop)
     for rid in nb.one_hop:
-        if rid in nb.neighbor_sets and now - nb.neighbor_sets[rid][1] <= nb.stale_timeout:
-            ids |= nb.neighbor_sets[rid][0]
+        if rid in nb.states and now - nb.states[rid][2] <= nb.stale_timeout:
+            ids |= set(nb.states[rid][0].neighbors)
     return ids - {nb.me}
 
 
@@ -104,8 +104,8 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     covered = {
         entry[0]
         for rid in nb.one_hop
-        if rid in nb.relays and nb.relays[rid][1] >= fresh
-        for entry in nb.relays[rid][0]
+        if rid in nb.relays and nb.relays[rid][2] >= fresh
+        for entry in nb.relays[rid][0].relay
     }
     current = set(nb.one_hop) | (two_hop_reference(nb, now) - covered)
     since = {rid: t for rid, t in nb.wanted.items() if now - t <= nb.linger_period}
@@ -116,9 +116,9 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     omitting = {
         rid: earlier.get(rid, now)
         for rid in nb.one_hop
-        if rid in nb.neighbor_sets
-        and nb.neighbor_sets[rid][1] >= fresh
-        and nb.me not in nb.neighbor_sets[rid][0]
+        if rid in nb.states
+        and nb.states[rid][2] >= fresh
+        and nb.me not in nb.states[rid][0].neighbors
     }
     late = any(now - t >= ASYMMETRY_GRACE for t in omitting.values())
     assert nb.unrequited(now) == late and nb._unrequited == omitting
@@ -259,9 +259,9 @@ def test_relay_clamps_a_position_reckoned_past_the_wire_bounds() -> None:
     velocity as reported."""
     nb = Neighborhood(0, STALE, BEACON, LINGER)
     bound = protocol.MAX_COORD
-    nb.state_tracks[1] = Track(bound - 0.01, -bound + 0.01, 0.0, 0.2, -0.2)
-    nb.state_tracks[2] = Track(1.0, 2.0, 0.0, 0.1, 0.0)
-    nb._heard[1] = nb._heard[2] = 0.0
+    for rid, x, y, vx, vy in ((1, bound - 0.01, -bound + 0.01, 0.2, -0.2), (2, 1.0, 2.0, 0.1, 0.0)):
+        state = protocol.AgentState(id=rid, x=x, y=y, stamp=1.0, neighbors=(), vx=vx, vy=vy)
+        nb.on_agent_state(state, 0.0)
     nb.one_hop = frozenset({1, 2})
     nb.refresh(0.3)
     assert nb.reckoned[1][0] > bound and nb.reckoned[1][1] < -bound
