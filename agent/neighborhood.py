@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from itertools import repeat
@@ -45,28 +45,25 @@ CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
-# What a receiver takes from an AgentState besides the message (state_facts): its motion
-# x, y (m), vx, vy (m/s, 0 when absent); its neighbours as a set; its relay as id -> x, y,
-# vx, vy in the relay's order and the set of those ids (None, None without a relay).
-StateFacts = tuple[Reckoned, frozenset[int], dict[int, Reckoned] | None, frozenset[int] | None]
+# What a receiver takes from an AgentState besides the message: its neighbours as a set and
+# its velocity vx, vy (m/s, 0 when absent) (state_facts).
+StateFacts = tuple[frozenset[int], float, float]
 # An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
-# StateFacts, and its receipt time (monotonic s). What a neighbourhood keeps of a robot's
-# own pose has the same shape: the Pose, its motion (x, y, 0, 0) alone, its receipt time.
+# StateFacts, and its receipt time (monotonic s).
 HeardState = tuple[protocol.AgentState, StateFacts, float]
-Heard = tuple[protocol.Message, tuple, float]
+# What a Neighborhood keeps of a robot's last own pose or AgentState: x, y (m), when
+# received (monotonic s), vx, vy (m/s, 0 for a pose), and of a state its neighbours and
+# relay (None for a pose, relay None when it had none). One tuple per state a brain hears
+# (not a Track, a neighbour set and a relay): ~16 per brain and control period.
+Record = tuple[
+    float, float, float, float, float, frozenset[int] | None, tuple[RelayEntry, ...] | None
+]
 
 
 def state_facts(state: protocol.AgentState) -> StateFacts:
     """What every receiver takes from ``state`` besides its fields: the same for all, so a
-    process of many brains derives it once per message (covswarm.agent.decoding), and each
-    brain keeps the message, this and its receipt time as they are (no copy per brain)."""
-    motion = (state.x, state.y, state.vx or 0.0, state.vy or 0.0)
-    relay = state.relay
-    if relay is None:
-        return motion, frozenset(state.neighbors), None, None
-    # the relay's ids are distinct (protocol), so the dict holds every entry in order
-    entries = {rid: (x, y, vx, vy) for rid, x, y, vx, vy in relay}
-    return motion, frozenset(state.neighbors), entries, frozenset(entries)
+    process of many brains derives it once per message (covswarm.agent.decoding)."""
+    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
 
 
 @dataclass(slots=True)
@@ -249,17 +246,15 @@ class Neighborhood:
         self.stale_timeout = stale_timeout
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
-        # id -> the last Pose and AgentState heard of each robot, as Heard records (kept
-        # as received: a packed process's brains share the messages and their facts)
-        self.poses: dict[int, Heard] = {}
-        self.states: dict[int, HeardState] = {}
+        self.poses: dict[int, Record] = {}
+        self.states: dict[int, Record] = {}
         self.beacons: dict[int, Track] = {}
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
         self._ledger = BeaconLedger(self.beacons, self._heard)
         self._choice: BeaconChoice | None = None  # the beacon-only candidates chosen last
-        # relayer id -> its last AgentState, while that one has a relay (the order in which
-        # they gained one: the order of refresh()'s relay pass)
-        self.relays: dict[int, HeardState] = {}
+        # relayer id -> its record in ``states`` while its last AgentState had a relay (in
+        # the order they gained one: refresh()'s order of relays)
+        self.relays: dict[int, Record] = {}
         # id -> (x, y, vx, vy) of every candidate of the last step, reckoned to that step,
         # and the ids among them known first-hand (own pose or AgentState): what our
         # AgentState relays about our neighbours; its keys are the robots usable as
@@ -307,36 +302,38 @@ class Neighborhood:
 
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
-        heard = self.poses[rid] = (pose, ((pose.x, pose.y, 0.0, 0.0),), now)
-        self._hear((heard,))
+        self.poses[rid] = (pose.x, pose.y, now, 0.0, 0.0, None, None)
+        self._hear(((rid, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.on_agent_states(((state, state_facts(state), now),))
 
-    def on_agent_states(self, states: Sequence[HeardState]) -> None:
+    def on_agent_states(self, states: Iterable[HeardState]) -> None:
         """AgentStates in order, each with its state_facts and receipt time: as
         :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
         control period, and this is the bulk of its receive path)."""
         records, relays = self.states, self.relays
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
-        for heard in states:
-            rid = heard[0].id
-            records[rid] = heard
-            if heard[1][2] is None:
-                relays.pop(rid, None)
-            else:
-                relays[rid] = heard
+        heard = []
+        for state, (neighbours, vx, vy), now in states:
+            rid = state.id
+            relay = state.relay
+            record = records[rid] = (state.x, state.y, now, vx, vy, neighbours, relay)
+            heard.append((rid, now))
             if revive:
                 self._revive(rid, "agent")
-        self._hear(states)
+            if relay is None:
+                relays.pop(rid, None)
+            else:
+                relays[rid] = record
+        self._hear(heard)
 
-    def _hear(self, heard: Iterable[Heard]) -> None:
-        """Robots' own poses or states arrived (their records)."""
+    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
+        """Robots' own poses or states arrived: (id, receipt time) each."""
         times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
-        for message, _, now in heard:
-            rid = message.id
+        for rid, now in heard:
             times[rid] = now
             hear(rid, now)
             if asked:
@@ -443,43 +440,42 @@ class Neighborhood:
         fresh = now - self.stale_timeout
         limit = DEAD_RECKONING_LIMIT
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
-        records: Iterable[tuple[int, Heard]] = self.states.items()
+        records = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
-            chosen = {rid: heard for rid, heard in self.poses.items() if heard[2] >= fresh}
-            for rid, heard in records:
-                received = heard[2]
+            chosen = {rid: pose for rid, pose in self.poses.items() if pose[2] >= fresh}
+            for rid, record in records:
+                received = record[2]
                 if received >= fresh and (rid not in chosen or received > chosen[rid][2]):
-                    chosen[rid] = heard
+                    chosen[rid] = record
             records = chosen.items()
         reckoned: dict[int, Reckoned] = {}
-        for rid, (_, facts, received) in records:
+        # Fields by index, not unpacked: only those read are touched (a packed process's
+        # records are mostly out of the cache by its brain's step).
+        for rid, record in records:
+            received = record[2]
             if received >= fresh and rid not in dead:
                 lead = now - received
                 if lead > limit:
                     lead = limit
-                x, y, vx, vy = facts[0]
-                reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
+                vx, vy = record[3], record[4]
+                reckoned[rid] = (record[0] + lead * vx, record[1] + lead * vy, vx, vy)
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
         # The loops below run over every robot known (~250 at the paper's density), each
         # control period: membership tests rather than dict.get calls, sets built at once.
-        # A relay names mostly robots known first-hand (our own neighbours'): the set
-        # difference (in C, over the relay's ids) leaves the few to reckon, in its order.
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
-        for relayer, (_, (_, _, entries, ids), received) in self.relays.items():
+        for relayer, record in self.relays.items():
+            received = record[2]
             if received < fresh or relayer in dead:
                 continue
-            new = ids - skip
-            if not new:
-                continue
+            entries: tuple[RelayEntry, ...] = record[6]  # type: ignore[assignment]
             lead = now - received
             if lead > limit:
                 lead = limit
-            for rid in new if len(new) == 1 else [rid for rid in entries if rid in new]:
-                if rid not in relayed or relayed[rid] < received:
+            for rid, x, y, vx, vy in entries:
+                if rid not in skip and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
-                    x, y, vx, vy = entries[rid]
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
@@ -593,7 +589,7 @@ class Neighborhood:
         every step walks hold only the robots heard from lately."""
         recent = 2.0 * max(self.stale_timeout, self.linger_period)
         for records in (self.poses, self.states, self.relays):
-            for rid in [rid for rid, heard in records.items() if now - heard[2] > recent]:
+            for rid in [rid for rid, record in records.items() if now - record[2] > recent]:
                 del records[rid]
         ledger = self._ledger
         old = ledger.ids[: ledger.n][now - ledger.received[: ledger.n] > 2.0 * self.beacon_timeout]
@@ -644,9 +640,9 @@ class Neighborhood:
         ids = set(one_hop)
         for rid in one_hop:
             if rid in states:
-                _, (_, reported, _, _), received = states[rid]
-                if now - received <= stale:
-                    ids |= reported
+                record = states[rid]
+                if now - record[2] <= stale:
+                    ids |= record[5]  # type: ignore[arg-type]
         ids.discard(self.me)
         return frozenset(ids)
 
@@ -658,9 +654,12 @@ class Neighborhood:
         swarm)."""
         fresh = now - self.stale_timeout
         relays = self.relays
-        covered = set().union(  # the relays' id sets (StateFacts), in C
-            *[relays[r][1][3] for r in self.one_hop if r in relays and relays[r][2] >= fresh]
-        )
+        covered = {
+            entry[0]
+            for rid in self.one_hop
+            if rid in relays and relays[rid][2] >= fresh
+            for entry in relays[rid][6]  # type: ignore[union-attr]
+        }
         wanted = self.one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 
@@ -676,8 +675,8 @@ class Neighborhood:
         unrequited = {}
         for rid in self.one_hop:
             if rid in states:
-                _, (_, reported, _, _), received = states[rid]
-                if received >= fresh and me not in reported:
+                record = states[rid]
+                if record[2] >= fresh and me not in record[5]:  # type: ignore[operator]
                     unrequited[rid] = since.get(rid, now)
         self._unrequited = unrequited
         return bool(unrequited) and now - min(unrequited.values()) >= ASYMMETRY_GRACE

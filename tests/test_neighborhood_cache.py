@@ -35,10 +35,10 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             dead.setdefault(rid, set()).add(role)
     fresh = now - nb.stale_timeout
     chosen = {}  # the freshest of pose and state, a pose on a tie
-    for records in (nb.poses, nb.states):  # (message, its facts: motion first, receipt)
-        for rid, (_, (motion, *_), t) in records.items():
+    for records in (nb.poses, nb.states):  # x, y, received, vx, vy, neighbours, relay
+        for rid, (x, y, t, vx, vy, _, _) in records.items():
             if t >= fresh and (rid not in chosen or t > chosen[rid][1]):
-                chosen[rid] = (motion, t)
+                chosen[rid] = ((x, y, vx, vy), t)
     reckoned = {}
     for rid, ((x, y, vx, vy), t) in chosen.items():
         if rid not in dead:
@@ -46,12 +46,12 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
     first_hand = set(reckoned)
     newest: dict[int, float] = {}
-    for relayer, (state, _, received) in nb.relays.items():  # the messages' own relays
+    for relayer, (_, _, received, _, _, _, relay) in nb.relays.items():
         if received < fresh or relayer in dead:
             continue
-        assert state.relay is not None
+        assert relay is not None and nb.states[relayer][6] is relay
         lead = min(now - received, DEAD_RECKONING_LIMIT)
-        for rid, x, y, vx, vy in state.relay:
+        for rid, x, y, vx, vy in relay:
             taken = rid in first_hand or rid in dead or rid == nb.me
             if not taken and newest.get(rid, -math.inf) < received:
                 newest[rid] = received
@@ -77,7 +77,7 @@ def two_hop_reference(nb: Neighborhood, now: float) -> set[int]:
     ids = set(nb.one_hop)
     for rid in nb.one_hop:
         if rid in nb.states and now - nb.states[rid][2] <= nb.stale_timeout:
-            ids |= set(nb.states[rid][0].neighbors)
+            ids |= nb.states[rid][5]
     return ids - {nb.me}
 
 
@@ -105,7 +105,7 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
         entry[0]
         for rid in nb.one_hop
         if rid in nb.relays and nb.relays[rid][2] >= fresh
-        for entry in nb.relays[rid][0].relay
+        for entry in nb.relays[rid][6]
     }
     current = set(nb.one_hop) | (two_hop_reference(nb, now) - covered)
     since = {rid: t for rid, t in nb.wanted.items() if now - t <= nb.linger_period}
@@ -116,9 +116,7 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     omitting = {
         rid: earlier.get(rid, now)
         for rid in nb.one_hop
-        if rid in nb.states
-        and nb.states[rid][2] >= fresh
-        and nb.me not in nb.states[rid][0].neighbors
+        if rid in nb.states and nb.states[rid][2] >= fresh and nb.me not in nb.states[rid][5]
     }
     late = any(now - t >= ASYMMETRY_GRACE for t in omitting.values())
     assert nb.unrequited(now) == late and nb._unrequited == omitting
