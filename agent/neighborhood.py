@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from itertools import repeat
@@ -153,10 +153,11 @@ class Liveliness:
 
 class BeaconLedger:
     """The beacons of a :class:`Neighborhood` as arrays, slot i the i-th of its ``beacons``
-    (their order), beside when each robot's own pose or state was last heard: for
-    refresh()'s vectorised choice of the beacon-only candidates: walking ~250 beacons in
-    Python whenever the robots known otherwise changed (one control period in ten, 500
-    packed brains) was half of refresh()."""
+    (their order), beside when each robot's own pose or state was last heard (``heard``,
+    which Neighborhood._hear writes in its loop, a call less per state): for refresh()'s
+    vectorised choice of the beacon-only candidates: walking ~250 beacons in Python
+    whenever the robots known otherwise changed (one control period in ten, 500 packed
+    brains) was half of refresh()."""
 
     def __init__(self, beacons: dict[int, Track], heard: dict[int, float]) -> None:
         n = len(beacons)
@@ -188,12 +189,6 @@ class BeaconLedger:
         rows = self.rows
         rows[slot, 0], rows[slot, 1], self.received[slot] = x, y, received
         return slot
-
-    def hear(self, rid: int, now: float) -> None:
-        """Robot ``rid``'s own pose or state arrived at ``now``."""
-        slot = self.slot.get(rid)
-        if slot is not None:
-            self.heard[slot] = now
 
     def usable(self, oldest: float) -> np.ndarray:
         """(n,) bool: the beacons received since ``oldest`` s and after their robot's own
@@ -303,39 +298,41 @@ class Neighborhood:
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
         self.poses[rid] = (pose.x, pose.y, now, 0.0, 0.0, None, None)
-        self._hear(((rid, now),))
+        self._hear(((pose, None, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.on_agent_states(((state, state_facts(state), now),))
 
-    def on_agent_states(self, states: Iterable[HeardState]) -> None:
+    def on_agent_states(self, states: Sequence[HeardState]) -> None:
         """AgentStates in order, each with its state_facts and receipt time: as
         :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
         control period, and this is the bulk of its receive path)."""
         records, relays = self.states, self.relays
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
-        heard = []
         for state, (neighbours, vx, vy), now in states:
             rid = state.id
             relay = state.relay
             record = records[rid] = (state.x, state.y, now, vx, vy, neighbours, relay)
-            heard.append((rid, now))
             if revive:
                 self._revive(rid, "agent")
             if relay is None:
                 relays.pop(rid, None)
             else:
                 relays[rid] = record
-        self._hear(heard)
+        self._hear(states)
 
-    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
-        """Robots' own poses or states arrived: (id, receipt time) each."""
-        times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
-        for rid, now in heard:
+    def _hear(self, heard: Iterable[tuple[protocol.Message, object, float]]) -> None:
+        """Robots' own poses or states arrived: (message, anything, receipt time) each."""
+        times, asked, choice = self._heard, self.asked, self._choice
+        slots, ledger_heard = self._ledger.slot, self._ledger.heard  # the ledger's, inline
+        for message, _, now in heard:
+            rid = message.id
             times[rid] = now
-            hear(rid, now)
+            slot = slots.get(rid)
+            if slot is not None:
+                ledger_heard[slot] = now
             if asked:
                 asked.pop(rid, None)
             if choice is not None and rid in choice.rows:
