@@ -45,25 +45,49 @@ CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
-# What a receiver takes from an AgentState besides the message: its neighbours as a set and
-# its velocity vx, vy (m/s, 0 when absent) (state_facts).
-StateFacts = tuple[frozenset[int], float, float]
+# What a receiver takes from an AgentState besides the message (state_facts): its id, its
+# neighbours as a set, its velocity vx, vy (m/s, 0 when absent), its relay as id -> x, y,
+# vx, vy in the relay's order and the set of those ids (None, None without a relay); every
+# id the process's one int object for it (_ID).
+StateFacts = tuple[
+    int, frozenset[int], float, float, dict[int, Reckoned] | None, frozenset[int] | None
+]
 # An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
 # StateFacts, and its receipt time (monotonic s).
 HeardState = tuple[protocol.AgentState, StateFacts, float]
 # What a Neighborhood keeps of a robot's last own pose or AgentState: x, y (m), when
 # received (monotonic s), vx, vy (m/s, 0 for a pose), and of a state its neighbours and
-# relay (None for a pose, relay None when it had none). One tuple per state a brain hears
-# (not a Track, a neighbour set and a relay): ~16 per brain and control period.
+# relay as in StateFacts (None for a pose). One tuple per state a brain hears (not a Track,
+# a neighbour set and a relay): ~16 per brain and control period.
 Record = tuple[
-    float, float, float, float, float, frozenset[int] | None, tuple[RelayEntry, ...] | None
+    float,
+    float,
+    float,
+    float,
+    float,
+    frozenset[int] | None,
+    dict[int, Reckoned] | None,
+    frozenset[int] | None,
 ]
+# id -> the one int object for it in this process (at most protocol.MAX_ID + 1): the ids
+# of every message's facts, and so the keys of every brain's records, sets and candidates,
+# are the same objects, which set and dict lookups match by identity, without reading the
+# ints themselves (a packed process's brains find most of their data out of the cache).
+_ID: dict[int, int] = {}
 
 
 def state_facts(state: protocol.AgentState) -> StateFacts:
     """What every receiver takes from ``state`` besides its fields: the same for all, so a
     process of many brains derives it once per message (covswarm.agent.decoding)."""
-    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
+    one = _ID.setdefault
+    rid = one(state.id, state.id)
+    neighbours = frozenset(map(one, state.neighbors, state.neighbors))
+    vx, vy, relay = state.vx or 0.0, state.vy or 0.0, state.relay
+    if relay is None:
+        return rid, neighbours, vx, vy, None, None
+    # the relay's ids are distinct (protocol): the dict holds every entry, in order
+    entries = {one(r, r): (x, y, ex, ey) for r, x, y, ex, ey in relay}
+    return rid, neighbours, vx, vy, entries, frozenset(entries)
 
 
 @dataclass(slots=True)
@@ -297,7 +321,7 @@ class Neighborhood:
 
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
-        self.poses[rid] = (pose.x, pose.y, now, 0.0, 0.0, None, None)
+        self.poses[rid] = (pose.x, pose.y, now, 0.0, 0.0, None, None, None)
         self._hear(((pose, None, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
@@ -311,13 +335,11 @@ class Neighborhood:
         control period, and this is the bulk of its receive path)."""
         records, relays = self.states, self.relays
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
-        for state, (neighbours, vx, vy), now in states:
-            rid = state.id
-            relay = state.relay
-            record = records[rid] = (state.x, state.y, now, vx, vy, neighbours, relay)
+        for state, (rid, neighbours, vx, vy, entries, ids), now in states:
+            record = records[rid] = (state.x, state.y, now, vx, vy, neighbours, entries, ids)
             if revive:
                 self._revive(rid, "agent")
-            if relay is None:
+            if entries is None:
                 relays.pop(rid, None)
             else:
                 relays[rid] = record
@@ -461,18 +483,24 @@ class Neighborhood:
         skip.add(self.me)
         # The loops below run over every robot known (~250 at the paper's density), each
         # control period: membership tests rather than dict.get calls, sets built at once.
+        # A relay names mostly robots known first-hand (our own neighbours'): the set
+        # difference (in C, over its ids, by identity: _ID) leaves the few to reckon.
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
         for relayer, record in self.relays.items():
             received = record[2]
             if received < fresh or relayer in dead:
                 continue
-            entries: tuple[RelayEntry, ...] = record[6]  # type: ignore[assignment]
+            new = record[7] - skip  # type: ignore[operator]
+            if not new:
+                continue
             lead = now - received
             if lead > limit:
                 lead = limit
-            for rid, x, y, vx, vy in entries:
-                if rid not in skip and (rid not in relayed or relayed[rid] < received):
+            entries: dict[int, Reckoned] = record[6]  # type: ignore[assignment]
+            for rid in entries:  # in the relay's order
+                if rid in new and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
+                    x, y, vx, vy = entries[rid]
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
@@ -651,12 +679,9 @@ class Neighborhood:
         swarm)."""
         fresh = now - self.stale_timeout
         relays = self.relays
-        covered = {
-            entry[0]
-            for rid in self.one_hop
-            if rid in relays and relays[rid][2] >= fresh
-            for entry in relays[rid][6]  # type: ignore[union-attr]
-        }
+        covered = set().union(  # the relays' id sets, in C
+            *[relays[r][7] for r in self.one_hop if r in relays and relays[r][2] >= fresh]
+        )
         wanted = self.one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 

@@ -19,6 +19,7 @@ from covswarm.agent.neighborhood import (
     DEAD_RECKONING_LIMIT,
     LOCAL_MARGIN,
     Neighborhood,
+    state_facts,
 )
 
 STALE, BEACON, LINGER = 0.5, 2.0, 0.4  # s: short, so that random steps cross every timeout
@@ -35,8 +36,9 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             dead.setdefault(rid, set()).add(role)
     fresh = now - nb.stale_timeout
     chosen = {}  # the freshest of pose and state, a pose on a tie
-    for records in (nb.poses, nb.states):  # x, y, received, vx, vy, neighbours, relay
-        for rid, (x, y, t, vx, vy, _, _) in records.items():
+    # records: x, y, received, vx, vy, neighbours, relay (id -> x, y, vx, vy), relay ids
+    for records in (nb.poses, nb.states):
+        for rid, (x, y, t, vx, vy, *_) in records.items():
             if t >= fresh and (rid not in chosen or t > chosen[rid][1]):
                 chosen[rid] = ((x, y, vx, vy), t)
     reckoned = {}
@@ -46,12 +48,12 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
     first_hand = set(reckoned)
     newest: dict[int, float] = {}
-    for relayer, (_, _, received, _, _, _, relay) in nb.relays.items():
+    for relayer, (_, _, received, _, _, _, relay, ids) in nb.relays.items():
         if received < fresh or relayer in dead:
             continue
-        assert relay is not None and nb.states[relayer][6] is relay
+        assert relay is not None and nb.states[relayer][6] is relay and ids == set(relay)
         lead = min(now - received, DEAD_RECKONING_LIMIT)
-        for rid, x, y, vx, vy in relay:
+        for rid, (x, y, vx, vy) in relay.items():
             taken = rid in first_hand or rid in dead or rid == nb.me
             if not taken and newest.get(rid, -math.inf) < received:
                 newest[rid] = received
@@ -102,7 +104,7 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     # lingering
     fresh = now - nb.stale_timeout
     covered = {
-        entry[0]
+        entry
         for rid in nb.one_hop
         if rid in nb.relays and nb.relays[rid][2] >= fresh
         for entry in nb.relays[rid][6]
@@ -134,7 +136,9 @@ def _relay(rng: random.Random) -> tuple | None:
     if rng.random() < 0.2:
         return None
     ids = rng.sample(IDS, rng.randint(0, 5)) + [0] * (rng.random() < 0.2)  # 0: ourselves
-    return tuple((rid, *_xy(rng), *_v(rng)) for rid in sorted(ids))
+    if rng.random() < 0.5:  # agents relay by id; the order received is kept all the same
+        ids.sort()
+    return tuple((rid, *_xy(rng), *_v(rng)) for rid in ids)
 
 
 def _xy(rng: random.Random) -> tuple[float, float]:
@@ -264,3 +268,22 @@ def test_relay_clamps_a_position_reckoned_past_the_wire_bounds() -> None:
     nb.refresh(0.3)
     assert nb.reckoned[1][0] > bound and nb.reckoned[1][1] < -bound
     assert nb.relay() == [(1, bound, -bound, 0.2, -0.2), (2, 1.0 + 0.3 * 0.1, 2.0, 0.1, 0.0)]
+
+
+def test_state_facts_give_each_id_one_object() -> None:
+    """Two AgentStates decoded apart name their robots with the same int objects (what
+    makes refresh()'s set difference an identity test), as robots ids of equal value."""
+    ids = (300, 301, 40000)  # beyond the ints that Python shares anyway
+    facts = []
+    for x in (0.5, 0.7):
+        state = protocol.AgentState(
+            id=ids[0], x=x, y=0.0, stamp=1.0, neighbors=ids[1:],
+            relay=tuple((rid, x, 0.0, 0.0, 0.0) for rid in ids[2:0:-1]),
+        )  # fmt: skip
+        facts.append(state_facts(protocol.AgentState.decode(state.encode())))
+    (rid, neighbours, _, _, relay, relayed), (rid2, neighbours2, _, _, relay2, relayed2) = facts
+    assert rid == ids[0] and rid is rid2
+    assert neighbours == set(ids[1:]) and all(any(a is b for b in neighbours2) for a in neighbours)
+    assert list(relay) == [40000, 301] and list(relay2) == list(relay)
+    assert [a is b for a, b in zip(relay, relay2, strict=True)] == [True, True]
+    assert relayed == set(relay) and relay[301] == (0.5, 0.0, 0.0, 0.0)
