@@ -128,13 +128,16 @@ def clamp_position(x: float, y: float) -> tuple[float, float]:
     return min(max(x, -bound), bound), min(max(y, -bound), bound)
 
 
-def linger(since: dict[int, float], current: Iterable[int], now: float, period: float) -> set[int]:
+def linger(
+    since: dict[int, float], current: AbstractSet[int], now: float, period: float
+) -> set[int]:
     """``current`` plus the ids that were in it (``since``: id -> last seen) within ``period``
     s; updates ``since``."""
-    for rid in current:
-        since[rid] = now
-    for rid in [r for r, t in since.items() if now - t > period]:
-        del since[rid]
+    since.update(dict.fromkeys(current, now))
+    # Every id seen now when none lingers (most periods): no record to read for its age.
+    if len(since) > len(current) or not period >= 0.0:
+        for rid in [r for r, t in since.items() if now - t > period]:
+            del since[rid]
     return set(since)
 
 
