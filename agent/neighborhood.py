@@ -1,9 +1,9 @@
 """What one agent knows of the robots around it, and which of them it must listen to.
 
-Pure bookkeeping, no I/O: positions arrive as Tracks (from a robot's own pose or
-AgentState, a neighbour's relay, or a beacon), age out on receipt time (monotonic seconds,
-so clock skew between machines does not matter) and are dead-reckoned with the velocity
-they carry. From the Voronoi neighbours of the last control step (``one_hop``) and their
+Pure bookkeeping, no I/O: positions arrive from a robot's own pose or AgentState (kept as
+a Record), a neighbour's relay, or a beacon (a Track), age out on receipt time (monotonic
+seconds, so clock skew between machines does not matter) and are dead-reckoned with the
+velocity they carry. From the Voronoi neighbours of the last control step (``one_hop``) and their
 reported neighbours it derives the two-hop set whose AgentStates the agent subscribes to.
 """
 
