@@ -1,9 +1,9 @@
 """What one agent knows of the robots around it, and which of them it must listen to.
 
-Pure bookkeeping, no I/O: positions arrive as Tracks (from a robot's own pose or
-AgentState, a neighbour's relay, or a beacon), age out on receipt time (monotonic seconds,
-so clock skew between machines does not matter) and are dead-reckoned with the velocity
-they carry. From the Voronoi neighbours of the last control step (``one_hop``) and their
+Pure bookkeeping, no I/O: positions arrive from a robot's own pose or AgentState (kept as
+a Record), a neighbour's relay, or a beacon (a Track), age out on receipt time (monotonic
+seconds, so clock skew between machines does not matter) and are dead-reckoned with the
+velocity they carry. From the Voronoi neighbours of the last control step (``one_hop``) and their
 reported neighbours it derives the two-hop set whose AgentStates the agent subscribes to.
 """
 
@@ -12,7 +12,7 @@ from __future__ import annotations
 import bisect
 import itertools
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
 from collections.abc import Set as AbstractSet
 from dataclasses import dataclass
 from itertools import repeat
@@ -45,30 +45,58 @@ CONFIRMATION_RETRY = 10.0
 
 RelayEntry = tuple[int, float, float, float, float]  # id, x, y, vx, vy (AgentState.relay)
 Reckoned = tuple[float, float, float, float]  # x, y (m) at the step, vx, vy (m/s)
-# What a receiver takes from an AgentState besides the message: its neighbours as a set and
-# its velocity vx, vy (m/s, 0 when absent) (state_facts).
-StateFacts = tuple[frozenset[int], float, float]
+# What a receiver takes from an AgentState besides the message (state_facts): its id, its
+# neighbours as a set, its velocity vx, vy (m/s, 0 when absent), its relay as id -> x, y,
+# vx, vy in the relay's order and the set of those ids (None, None without a relay); every
+# id the process's one int object for it (_ID).
+StateFacts = tuple[
+    int, frozenset[int], float, float, dict[int, Reckoned] | None, frozenset[int] | None
+]
 # An AgentState as :meth:`Neighborhood.on_agent_states` takes it: the message, its
 # StateFacts, and its receipt time (monotonic s).
 HeardState = tuple[protocol.AgentState, StateFacts, float]
+# What a Neighborhood keeps of a robot's last own pose or AgentState: x, y (m), when
+# received (monotonic s), vx, vy (m/s, 0 for a pose), and of a state its neighbours and
+# relay as in StateFacts (None for a pose). One tuple per state a brain hears (not a Track,
+# a neighbour set and a relay): ~16 per brain and control period.
+Record = tuple[
+    float,
+    float,
+    float,
+    float,
+    float,
+    frozenset[int] | None,
+    dict[int, Reckoned] | None,
+    frozenset[int] | None,
+]
+# id -> the one int object for it in this process (at most protocol.MAX_ID + 1): the ids
+# of every message's facts, and so the keys of every brain's records, sets and candidates,
+# are the same objects, which set and dict lookups match by identity, without reading the
+# ints themselves (a packed process's brains find most of their data out of the cache).
+_ID: dict[int, int] = {}
 
 
 def state_facts(state: protocol.AgentState) -> StateFacts:
     """What every receiver takes from ``state`` besides its fields: the same for all, so a
     process of many brains derives it once per message (covswarm.agent.decoding)."""
-    return frozenset(state.neighbors), state.vx or 0.0, state.vy or 0.0
+    one = _ID.setdefault
+    rid = one(state.id, state.id)
+    neighbours = frozenset(map(one, state.neighbors, state.neighbors))
+    vx, vy, relay = state.vx or 0.0, state.vy or 0.0, state.relay
+    if relay is None:
+        return rid, neighbours, vx, vy, None, None
+    # the relay's ids are distinct (protocol): the dict holds every entry, in order
+    entries = {one(r, r): (x, y, ex, ey) for r, x, y, ex, ey in relay}
+    return rid, neighbours, vx, vy, entries, frozenset(entries)
 
 
 @dataclass(slots=True)
 class Track:
-    """Last known position of another robot, when (monotonic) it was received, and the
-    velocity its agent reported with it (0 for poses and beacons)."""
+    """Another robot's position from its last beacon, and when (monotonic) it arrived."""
 
     x: float
     y: float
     received: float
-    vx: float = 0.0
-    vy: float = 0.0
 
 
 def cell_reach(distance_to_centroid: float, area: float) -> float:
@@ -100,13 +128,16 @@ def clamp_position(x: float, y: float) -> tuple[float, float]:
     return min(max(x, -bound), bound), min(max(y, -bound), bound)
 
 
-def linger(since: dict[int, float], current: Iterable[int], now: float, period: float) -> set[int]:
+def linger(
+    since: dict[int, float], current: AbstractSet[int], now: float, period: float
+) -> set[int]:
     """``current`` plus the ids that were in it (``since``: id -> last seen) within ``period``
     s; updates ``since``."""
-    for rid in current:
-        since[rid] = now
-    for rid in [r for r, t in since.items() if now - t > period]:
-        del since[rid]
+    since.update(dict.fromkeys(current, now))
+    # Every id seen now when none lingers (most periods): no record to read for its age.
+    if len(since) > len(current) or not period >= 0.0:
+        for rid in [r for r, t in since.items() if now - t > period]:
+            del since[rid]
     return set(since)
 
 
@@ -149,10 +180,11 @@ class Liveliness:
 
 class BeaconLedger:
     """The beacons of a :class:`Neighborhood` as arrays, slot i the i-th of its ``beacons``
-    (their order), beside when each robot's own pose or state was last heard: for
-    refresh()'s vectorised choice of the beacon-only candidates: walking ~250 beacons in
-    Python whenever the robots known otherwise changed (one control period in ten, 500
-    packed brains) was half of refresh()."""
+    (their order), beside when each robot's own pose or state was last heard (``heard``,
+    which Neighborhood._hear writes in its loop, a call less per state): for refresh()'s
+    vectorised choice of the beacon-only candidates: walking ~250 beacons in Python
+    whenever the robots known otherwise changed (one control period in ten, 500 packed
+    brains) was half of refresh()."""
 
     def __init__(self, beacons: dict[int, Track], heard: dict[int, float]) -> None:
         n = len(beacons)
@@ -184,12 +216,6 @@ class BeaconLedger:
         rows = self.rows
         rows[slot, 0], rows[slot, 1], self.received[slot] = x, y, received
         return slot
-
-    def hear(self, rid: int, now: float) -> None:
-        """Robot ``rid``'s own pose or state arrived at ``now``."""
-        slot = self.slot.get(rid)
-        if slot is not None:
-            self.heard[slot] = now
 
     def usable(self, oldest: float) -> np.ndarray:
         """(n,) bool: the beacons received since ``oldest`` s and after their robot's own
@@ -242,15 +268,15 @@ class Neighborhood:
         self.stale_timeout = stale_timeout
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
-        self.poses: dict[int, Track] = {}
-        self.state_tracks: dict[int, Track] = {}
+        self.poses: dict[int, Record] = {}
+        self.states: dict[int, Record] = {}
         self.beacons: dict[int, Track] = {}
         self._heard: dict[int, float] = {}  # id -> last receipt of its own pose or state
         self._ledger = BeaconLedger(self.beacons, self._heard)
         self._choice: BeaconChoice | None = None  # the beacon-only candidates chosen last
-        self.neighbor_sets: dict[int, tuple[frozenset[int], float]] = {}
-        # relayer id -> (its AgentState.relay entries, when received)
-        self.relays: dict[int, tuple[tuple[RelayEntry, ...], float]] = {}
+        # relayer id -> its record in ``states`` while its last AgentState had a relay (in
+        # the order they gained one: refresh()'s order of relays)
+        self.relays: dict[int, Record] = {}
         # id -> (x, y, vx, vy) of every candidate of the last step, reckoned to that step,
         # and the ids among them known first-hand (own pose or AgentState): what our
         # AgentState relays about our neighbours; its keys are the robots usable as
@@ -298,41 +324,40 @@ class Neighborhood:
 
     def on_pose(self, pose: protocol.Pose, now: float) -> None:
         rid = pose.id
-        self.poses[rid] = Track(pose.x, pose.y, now)
-        self._hear(((rid, now),))
+        self.poses[rid] = (pose.x, pose.y, now, 0.0, 0.0, None, None, None)
+        self._hear(((pose, None, now),))
         if self.liveliness.deaths:
             self._revive(rid, "robot")
 
     def on_agent_state(self, state: protocol.AgentState, now: float) -> None:
         self.on_agent_states(((state, state_facts(state), now),))
 
-    def on_agent_states(self, states: Iterable[HeardState]) -> None:
+    def on_agent_states(self, states: Sequence[HeardState]) -> None:
         """AgentStates in order, each with its state_facts and receipt time: as
         :meth:`on_agent_state` one by one, in one call (a packed brain receives ~6 per
         control period, and this is the bulk of its receive path)."""
-        tracks, neighbor_sets, relays = self.state_tracks, self.neighbor_sets, self.relays
+        records, relays = self.states, self.relays
         revive = bool(self.liveliness.deaths)  # token changes apply between turns only
-        heard = []
-        for state, (neighbours, vx, vy), now in states:
-            rid = state.id
-            tracks[rid] = Track(state.x, state.y, now, vx, vy)
-            heard.append((rid, now))
+        for state, (rid, neighbours, vx, vy, entries, ids), now in states:
+            record = records[rid] = (state.x, state.y, now, vx, vy, neighbours, entries, ids)
             if revive:
                 self._revive(rid, "agent")
-            neighbor_sets[rid] = (neighbours, now)
-            relay = state.relay
-            if relay is None:
+            if entries is None:
                 relays.pop(rid, None)
             else:
-                relays[rid] = (relay, now)
-        self._hear(heard)
+                relays[rid] = record
+        self._hear(states)
 
-    def _hear(self, heard: Iterable[tuple[int, float]]) -> None:
-        """Robots' own poses or states arrived: (id, receipt time) each."""
-        times, hear, asked, choice = self._heard, self._ledger.hear, self.asked, self._choice
-        for rid, now in heard:
+    def _hear(self, heard: Iterable[tuple[protocol.Message, object, float]]) -> None:
+        """Robots' own poses or states arrived: (message, anything, receipt time) each."""
+        times, asked, choice = self._heard, self.asked, self._choice
+        slots, ledger_heard = self._ledger.slot, self._ledger.heard  # the ledger's, inline
+        for message, _, now in heard:
+            rid = message.id
             times[rid] = now
-            hear(rid, now)
+            slot = slots.get(rid)
+            if slot is not None:
+                ledger_heard[slot] = now
             if asked:
                 asked.pop(rid, None)
             if choice is not None and rid in choice.rows:
@@ -437,38 +462,48 @@ class Neighborhood:
         fresh = now - self.stale_timeout
         limit = DEAD_RECKONING_LIMIT
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
-        tracks = self.state_tracks.items()
+        records = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
-            chosen = {rid: track for rid, track in self.poses.items() if track.received >= fresh}
-            for rid, track in tracks:
-                received = track.received
-                if received >= fresh and (rid not in chosen or received > chosen[rid].received):
-                    chosen[rid] = track
-            tracks = chosen.items()
+            chosen = {rid: pose for rid, pose in self.poses.items() if pose[2] >= fresh}
+            for rid, record in records:
+                received = record[2]
+                if received >= fresh and (rid not in chosen or received > chosen[rid][2]):
+                    chosen[rid] = record
+            records = chosen.items()
         reckoned: dict[int, Reckoned] = {}
-        for rid, track in tracks:
-            received = track.received
+        # Fields by index, not unpacked: only those read are touched (a packed process's
+        # records are mostly out of the cache by its brain's step).
+        for rid, record in records:
+            received = record[2]
             if received >= fresh and rid not in dead:
                 lead = now - received
                 if lead > limit:
                     lead = limit
-                vx, vy = track.vx, track.vy
-                reckoned[rid] = (track.x + lead * vx, track.y + lead * vy, vx, vy)
+                vx, vy = record[3], record[4]
+                reckoned[rid] = (record[0] + lead * vx, record[1] + lead * vy, vx, vy)
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
         # The loops below run over every robot known (~250 at the paper's density), each
         # control period: membership tests rather than dict.get calls, sets built at once.
+        # A relay names mostly robots known first-hand (our own neighbours'): the set
+        # difference (in C, over its ids, by identity: _ID) leaves the few to reckon.
         relayed: dict[int, float] = {}  # id -> receipt time of the relay used
-        for relayer, (entries, received) in self.relays.items():
+        for relayer, record in self.relays.items():
+            received = record[2]
             if received < fresh or relayer in dead:
+                continue
+            new = record[7] - skip  # type: ignore[operator]
+            if not new:
                 continue
             lead = now - received
             if lead > limit:
                 lead = limit
-            for rid, x, y, vx, vy in entries:
-                if rid not in skip and (rid not in relayed or relayed[rid] < received):
+            entries: dict[int, Reckoned] = record[6]  # type: ignore[assignment]
+            for rid in entries:  # in the relay's order
+                if rid in new and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
+                    x, y, vx, vy = entries[rid]
                     reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
@@ -581,9 +616,9 @@ class Neighborhood:
         """Drop records well past their timeout: memory stays bounded, and the tables that
         every step walks hold only the robots heard from lately."""
         recent = 2.0 * max(self.stale_timeout, self.linger_period)
-        for table in (self.poses, self.state_tracks):
-            for rid in [rid for rid, t in table.items() if now - t.received > recent]:
-                del table[rid]
+        for records in (self.poses, self.states, self.relays):
+            for rid in [rid for rid, record in records.items() if now - record[2] > recent]:
+                del records[rid]
         ledger = self._ledger
         old = ledger.ids[: ledger.n][now - ledger.received[: ledger.n] > 2.0 * self.beacon_timeout]
         for rid in old.tolist():
@@ -593,9 +628,6 @@ class Neighborhood:
         deaths = self.liveliness.deaths
         for key in [key for key in self._revived if key not in deaths]:
             del self._revived[key]
-        for sets in (self.neighbor_sets, self.relays):
-            for rid in [rid for rid, (_, t) in sets.items() if now - t > recent]:
-                del sets[rid]
         unheard = [rid for rid, t in self._heard.items() if t < now - 2.0 * self.beacon_timeout]
         for rid in unheard:
             del self._heard[rid]
@@ -632,13 +664,13 @@ class Neighborhood:
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""
-        one_hop, sets, stale = self.one_hop, self.neighbor_sets, self.stale_timeout
+        one_hop, states, stale = self.one_hop, self.states, self.stale_timeout
         ids = set(one_hop)
         for rid in one_hop:
-            if rid in sets:
-                reported, received = sets[rid]
-                if now - received <= stale:
-                    ids |= reported
+            if rid in states:
+                record = states[rid]
+                if now - record[2] <= stale:
+                    ids |= record[5]  # type: ignore[arg-type]
         ids.discard(self.me)
         return frozenset(ids)
 
@@ -650,12 +682,9 @@ class Neighborhood:
         swarm)."""
         fresh = now - self.stale_timeout
         relays = self.relays
-        covered = {
-            entry[0]
-            for rid in self.one_hop
-            if rid in relays and relays[rid][1] >= fresh
-            for entry in relays[rid][0]
-        }
+        covered = set().union(  # the relays' id sets, in C
+            *[relays[r][7] for r in self.one_hop if r in relays and relays[r][2] >= fresh]
+        )
         wanted = self.one_hop | (self.two_hop(now) - covered)
         return linger(self.wanted, wanted, now, self.linger_period)
 
@@ -666,13 +695,13 @@ class Neighborhood:
         no relay reached it and our last routine beacon may be 10 s away. Meanwhile both
         cells are wrong where they meet.
         """
-        fresh, me, sets = now - self.stale_timeout, self.me, self.neighbor_sets
+        fresh, me, states = now - self.stale_timeout, self.me, self.states
         since = self._unrequited
         unrequited = {}
         for rid in self.one_hop:
-            if rid in sets:
-                reported, received = sets[rid]
-                if received >= fresh and me not in reported:
+            if rid in states:
+                record = states[rid]
+                if record[2] >= fresh and me not in record[5]:  # type: ignore[operator]
                     unrequited[rid] = since.get(rid, now)
         self._unrequited = unrequited
         return bool(unrequited) and now - min(unrequited.values()) >= ASYMMETRY_GRACE

@@ -114,17 +114,14 @@ def snapshot(brain: AgentBrain) -> str:
     """Everything the receive path writes, as text (NaN bounds compare equal so)."""
     nb = brain.neighborhood
     ledger = nb._ledger
-    tables = {"poses": nb.poses, "states": nb.state_tracks, "beacons": nb.beacons}
-    tracks = {
-        name: {rid: (t.x, t.y, t.received, t.vx, t.vy) for rid, t in table.items()}
-        for name, table in tables.items()
-    }
+    beacons = {rid: (t.x, t.y, t.received) for rid, t in nb.beacons.items()}
     return repr(
         (
             vars(brain.counters),
             brain.drops.counts,
-            tracks,
-            nb.neighbor_sets,
+            nb.poses,
+            nb.states,
+            beacons,
             nb.relays,
             nb._heard,
             nb.asked,
@@ -179,5 +176,5 @@ def test_receive_all_is_receive_one_by_one_and_the_reference(seed: int) -> None:
     drops = batched.drops.counts
     assert 0 < accepted < batched.counters.received
     assert all(drops[reason] > 0 for reason in ("stamp_future", "stamp_old", "wrong_id", "schema"))
-    assert batched.neighborhood.state_tracks and batched.neighborhood.beacons
+    assert batched.neighborhood.states and batched.neighborhood.beacons
     assert not math.isnan(batched.robot_clock.bound)

@@ -19,7 +19,7 @@ from covswarm.agent.neighborhood import (
     DEAD_RECKONING_LIMIT,
     LOCAL_MARGIN,
     Neighborhood,
-    Track,
+    state_facts,
 )
 
 STALE, BEACON, LINGER = 0.5, 2.0, 0.4  # s: short, so that random steps cross every timeout
@@ -36,22 +36,24 @@ def reference(nb: Neighborhood, now: float) -> tuple[dict, set, set, dict, dict]
             dead.setdefault(rid, set()).add(role)
     fresh = now - nb.stale_timeout
     chosen = {}  # the freshest of pose and state, a pose on a tie
-    for tracks in (nb.poses, nb.state_tracks):
-        for rid, t in tracks.items():
-            if t.received >= fresh and (rid not in chosen or t.received > chosen[rid].received):
-                chosen[rid] = t
+    # records: x, y, received, vx, vy, neighbours, relay (id -> x, y, vx, vy), relay ids
+    for records in (nb.poses, nb.states):
+        for rid, (x, y, t, vx, vy, *_) in records.items():
+            if t >= fresh and (rid not in chosen or t > chosen[rid][1]):
+                chosen[rid] = ((x, y, vx, vy), t)
     reckoned = {}
-    for rid, t in chosen.items():
+    for rid, ((x, y, vx, vy), t) in chosen.items():
         if rid not in dead:
-            lead = min(now - t.received, DEAD_RECKONING_LIMIT)
-            reckoned[rid] = (t.x + lead * t.vx, t.y + lead * t.vy, t.vx, t.vy)
+            lead = min(now - t, DEAD_RECKONING_LIMIT)
+            reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
     first_hand = set(reckoned)
     newest: dict[int, float] = {}
-    for relayer, (entries, received) in nb.relays.items():
+    for relayer, (_, _, received, _, _, _, relay, ids) in nb.relays.items():
         if received < fresh or relayer in dead:
             continue
+        assert relay is not None and nb.states[relayer][6] is relay and ids == set(relay)
         lead = min(now - received, DEAD_RECKONING_LIMIT)
-        for rid, x, y, vx, vy in entries:
+        for rid, (x, y, vx, vy) in relay.items():
             taken = rid in first_hand or rid in dead or rid == nb.me
             if not taken and newest.get(rid, -math.inf) < received:
                 newest[rid] = received
@@ -76,8 +78,8 @@ def two_hop_reference(nb: Neighborhood, now: float) -> set[int]:
     """Our one-hop neighbours and their neighbours reported within ``stale_timeout``."""
     ids = set(nb.one_hop)
     for rid in nb.one_hop:
-        if rid in nb.neighbor_sets and now - nb.neighbor_sets[rid][1] <= nb.stale_timeout:
-            ids |= nb.neighbor_sets[rid][0]
+        if rid in nb.states and now - nb.states[rid][2] <= nb.stale_timeout:
+            ids |= nb.states[rid][5]
     return ids - {nb.me}
 
 
@@ -102,10 +104,10 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     # lingering
     fresh = now - nb.stale_timeout
     covered = {
-        entry[0]
+        entry
         for rid in nb.one_hop
-        if rid in nb.relays and nb.relays[rid][1] >= fresh
-        for entry in nb.relays[rid][0]
+        if rid in nb.relays and nb.relays[rid][2] >= fresh
+        for entry in nb.relays[rid][6]
     }
     current = set(nb.one_hop) | (two_hop_reference(nb, now) - covered)
     since = {rid: t for rid, t in nb.wanted.items() if now - t <= nb.linger_period}
@@ -116,9 +118,7 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     omitting = {
         rid: earlier.get(rid, now)
         for rid in nb.one_hop
-        if rid in nb.neighbor_sets
-        and nb.neighbor_sets[rid][1] >= fresh
-        and nb.me not in nb.neighbor_sets[rid][0]
+        if rid in nb.states and nb.states[rid][2] >= fresh and nb.me not in nb.states[rid][5]
     }
     late = any(now - t >= ASYMMETRY_GRACE for t in omitting.values())
     assert nb.unrequited(now) == late and nb._unrequited == omitting
@@ -136,7 +136,9 @@ def _relay(rng: random.Random) -> tuple | None:
     if rng.random() < 0.2:
         return None
     ids = rng.sample(IDS, rng.randint(0, 5)) + [0] * (rng.random() < 0.2)  # 0: ourselves
-    return tuple((rid, *_xy(rng), *_v(rng)) for rid in sorted(ids))
+    if rng.random() < 0.5:  # agents relay by id; the order received is kept all the same
+        ids.sort()
+    return tuple((rid, *_xy(rng), *_v(rng)) for rid in ids)
 
 
 def _xy(rng: random.Random) -> tuple[float, float]:
@@ -259,10 +261,29 @@ def test_relay_clamps_a_position_reckoned_past_the_wire_bounds() -> None:
     velocity as reported."""
     nb = Neighborhood(0, STALE, BEACON, LINGER)
     bound = protocol.MAX_COORD
-    nb.state_tracks[1] = Track(bound - 0.01, -bound + 0.01, 0.0, 0.2, -0.2)
-    nb.state_tracks[2] = Track(1.0, 2.0, 0.0, 0.1, 0.0)
-    nb._heard[1] = nb._heard[2] = 0.0
+    for rid, x, y, vx, vy in ((1, bound - 0.01, -bound + 0.01, 0.2, -0.2), (2, 1.0, 2.0, 0.1, 0.0)):
+        state = protocol.AgentState(id=rid, x=x, y=y, stamp=1.0, neighbors=(), vx=vx, vy=vy)
+        nb.on_agent_state(state, 0.0)
     nb.one_hop = frozenset({1, 2})
     nb.refresh(0.3)
     assert nb.reckoned[1][0] > bound and nb.reckoned[1][1] < -bound
     assert nb.relay() == [(1, bound, -bound, 0.2, -0.2), (2, 1.0 + 0.3 * 0.1, 2.0, 0.1, 0.0)]
+
+
+def test_state_facts_give_each_id_one_object() -> None:
+    """Two AgentStates decoded apart name their robots with the same int objects (what
+    makes refresh()'s set difference an identity test), as robots ids of equal value."""
+    ids = (300, 301, 40000)  # beyond the ints that Python shares anyway
+    facts = []
+    for x in (0.5, 0.7):
+        state = protocol.AgentState(
+            id=ids[0], x=x, y=0.0, stamp=1.0, neighbors=ids[1:],
+            relay=tuple((rid, x, 0.0, 0.0, 0.0) for rid in ids[2:0:-1]),
+        )  # fmt: skip
+        facts.append(state_facts(protocol.AgentState.decode(state.encode())))
+    (rid, neighbours, _, _, relay, relayed), (rid2, neighbours2, _, _, relay2, relayed2) = facts
+    assert rid == ids[0] and rid is rid2
+    assert neighbours == set(ids[1:]) and all(any(a is b for b in neighbours2) for a in neighbours)
+    assert list(relay) == [40000, 301] and list(relay2) == list(relay)
+    assert [a is b for a, b in zip(relay, relay2, strict=True)] == [True, True]
+    assert relayed == set(relay) and relay[301] == (0.5, 0.0, 0.0, 0.0)
