@@ -69,6 +69,7 @@ import scipy.sparse
 import scipy.sparse.linalg
 
 from covswarm.tvd.coverage import (
+    PRUNED_CELLS,
     CellBatch,
     CoverageDomain,
     DensityModel,
@@ -78,6 +79,7 @@ from covswarm.tvd.coverage import (
     cell_jacobian_blocks,
     cell_rates,
     check_density,
+    concatenate_cells,
     jacobian_times,
     local_cells,
     make_domain,
@@ -799,15 +801,11 @@ def _batch_steps(
     """
     count = len(views.ids)
     points, candidates, mes = _stack(views)
-    # Our neighbours first (the half-plane intersection alone), then our cells and theirs
-    # in one pass, each among its own view's robots only.
-    of_view, column = np.nonzero(neighbor_candidates(points, mes, candidates, domain))
-    owners = np.concatenate((mes, candidates[of_view, column]))
+    cells, of_view = _view_cells(points, mes, candidates, domain)  # mass: area, until weighed
+    owners = cells.owners
     kappa = views.kappa[0]
-    if count > 1:  # each cell's own view's robots and gain
-        of_row = np.concatenate((np.arange(count), of_view))
-        candidates, kappa = candidates[of_row], np.array(views.kappa)[of_row]
-    cells = local_cells(points, owners, candidates, domain)  # mass: area, until weighed
+    if count > 1:  # each cell's own view's gain
+        kappa = np.array(views.kappa)[np.concatenate((np.arange(count), of_view))]
     batch = _weigh(cells, density)
     target, rate = _targets(batch, points, domain, feedforward, density)
     feedback = kappa * (target - as_complex(points)[owners])
@@ -858,6 +856,34 @@ def _batch_steps(
         )
         for k, (begin, end) in enumerate(zip([0, *ends[:-1]], ends, strict=True))
     ]
+
+
+def _view_cells(
+    points: np.ndarray, mes: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+) -> tuple[CellBatch, np.ndarray]:
+    """The cells of the views' own robots ``mes`` (V,), then those of their neighbours, each
+    among its own view's ``candidates`` (V, D) (or (1, D) for one view) only; and the view
+    (R,) of each neighbour's row. Mass: area.
+
+    The neighbours are found in one of two ways, the cheaper at that many views: below
+    PRUNED_CELLS views, by the half-plane intersection alone (``neighbor_candidates``, which
+    may add robots that only touch a cell; their rows are never read) and every cell built
+    in one pass; from PRUNED_CELLS on, as the robots our cells share an edge with, once our
+    cells are built (with pruned candidates: a few lines each instead of the whole view).
+    """
+    count = len(mes)
+    if count < PRUNED_CELLS:
+        of_view, column = np.nonzero(neighbor_candidates(points, mes, candidates, domain))
+        owners = np.concatenate((mes, candidates[of_view, column]))
+        if count > 1:  # each cell among its own view's robots
+            candidates = candidates[np.concatenate((np.arange(count), of_view))]
+        return local_cells(points, owners, candidates, domain), of_view
+    mine = local_cells(points, mes, candidates, domain)
+    of_view, column = np.nonzero(mine.shared)
+    if not len(of_view):
+        return mine, of_view
+    theirs = local_cells(points, mine.labels[of_view, column], candidates[of_view], domain)
+    return concatenate_cells([mine, theirs]), of_view
 
 
 def _stack(views: _Known) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -636,7 +636,7 @@ def build_cells_in_chunks(
         rows = candidates[s : s + BATCH_CELLS]
         width = max(int((rows >= 0).sum(axis=1).max()), 1)
         parts.append(build_cells(points, owners[s : s + BATCH_CELLS], rows[:, :width], domain))
-    return _concatenate(parts)
+    return concatenate_cells(parts)
 
 
 # Nearest robots of its view offered first to each cell by ``local_cells``; a cell that needs
@@ -689,7 +689,7 @@ def local_cells(
 _LINE_FIELDS = ("start", "end", "labels", "present")
 
 
-def _concatenate(parts: list[CellBatch]) -> CellBatch:
+def concatenate_cells(parts: list[CellBatch]) -> CellBatch:
     """The cells of ``parts`` in order, padded to the widest part's lines."""
     if len(parts) == 1:
         return parts[0]
@@ -707,8 +707,10 @@ def _widen(batch: CellBatch, name: str, width: int) -> np.ndarray:
     array = getattr(batch, name)
     if name not in _LINE_FIELDS or array.shape[1] == width:
         return array
-    pad = [(0, 0), (0, width - array.shape[1])] + [(0, 0)] * (array.ndim - 2)
-    return np.pad(array, pad, constant_values=False if array.dtype == bool else 0)
+    # Zeros (False) and a slice assignment: np.pad costs ~10x more at a local step's sizes.
+    wide = np.zeros((len(array), width, *array.shape[2:]), dtype=array.dtype)
+    wide[:, : array.shape[1]] = array
+    return wide
 
 
 def _replace(batch: CellBatch, rows: np.ndarray, rebuilt: CellBatch) -> CellBatch:
