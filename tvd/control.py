@@ -62,7 +62,8 @@ from __future__ import annotations
 import math
 from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass
-from itertools import accumulate
+from functools import lru_cache
+from itertools import accumulate, chain
 
 import numpy as np
 import scipy.sparse
@@ -673,10 +674,10 @@ def local_steps(
     sizes = [len(ids) for ids in orders]
     starts = list(accumulate(sizes, initial=0))
     steps: list = [None] * len(views)
-    for members in groups.values():
+    for key, members in groups.items():
         first = views[members[0]]
         try:
-            domain = make_domain(first.polygon, first.polygon_velocity)
+            domain = _domain_of(*key[:3])
         except ValueError as error:
             raise _named(error, members[0], first) from error
         if len(members) == len(views):  # one S for all (a pack's brains): no copy
@@ -693,6 +694,15 @@ def local_steps(
         for index, step in zip(members, group, strict=True):
             steps[index] = step
     return steps
+
+
+@lru_cache(maxsize=4)
+def _domain_of(shapes: tuple, polygon: bytes, velocity: bytes) -> CoverageDomain:
+    """``make_domain`` of S as ``local_steps`` keys it (shapes, float64 bytes): the brains of
+    a pack hold one S, so a tick validates and derives it once, not once per batch."""
+    return make_domain(
+        np.frombuffer(polygon).reshape(shapes[0]), np.frombuffer(velocity).reshape(shapes[1])
+    )
 
 
 def _named(error: Exception, index: int, view: LocalView) -> Exception:
@@ -841,21 +851,13 @@ def _batch_steps(
     centroid = as_vectors(mine.centroid)
     # Python lists: a few numpy calls for the whole batch, not per view. The neighbours'
     # labels (rows of the stacked points) row by row, each view's in turn, as robot ids.
-    every = [rid for ids in views.ids for rid in ids]
+    every = list(chain.from_iterable(views.ids))
     names = list(map(every.__getitem__, mine.labels[mine.shared].tolist()))
     ends = list(accumulate(mine.shared.sum(axis=1).tolist()))
+    neighbors = [frozenset(names[a:b]) for a, b in zip([0, *ends[:-1]], ends, strict=True)]
     masses, guards, areas = mine.mass.tolist(), guarded.tolist(), cells.mass[:count].tolist()
-    return [
-        LocalStep(
-            velocity=velocity[k],
-            neighbors=frozenset(names[begin:end]),
-            centroid=centroid[k],
-            mass=masses[k],
-            guarded=guards[k],
-            area=areas[k],
-        )
-        for k, (begin, end) in enumerate(zip([0, *ends[:-1]], ends, strict=True))
-    ]
+    # LocalStep(velocity, neighbors, centroid, mass, guarded, area), the arrays' rows.
+    return list(map(LocalStep, velocity, neighbors, centroid, masses, guards, areas))
 
 
 def _view_cells(

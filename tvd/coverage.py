@@ -663,7 +663,8 @@ def local_cells(
     width = candidates.shape[1]
     if width <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
-    candidates = np.broadcast_to(candidates, (len(owners), width))
+    if len(candidates) != len(owners):  # one row shared by every cell
+        candidates = np.broadcast_to(candidates, (len(owners), width))
     where = as_complex(points)
     distance = np.abs(where[candidates] - where[owners][:, None])
     distance[candidates < 0] = np.inf
