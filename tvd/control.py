@@ -804,10 +804,9 @@ def _batch_steps(
     Each view's points are a block of the points array, and each view's cells take only
     its block as candidates, so they are the cells of its own local diagram. The batch's
     rows: every view's own cell first (so that they are its leading rows, which a density
-    reuses its integrals for), then its neighbours' cells (found by the half-plane
-    intersection alone), which (I + J) needs the references of: r (TVD-D1), or
-    kappa (c - p) + rho (TVD-DA; a neighbour's row of J needs its neighbours' v, in the
-    two-hop view).
+    reuses its integrals for), then its neighbours' cells (``_view_cells``), which (I + J)
+    needs the references of: r (TVD-D1), or kappa (c - p) + rho (TVD-DA; a neighbour's
+    row of J needs its neighbours' v, in the two-hop view).
     """
     count = len(views.ids)
     points, candidates, mes = _stack(views)

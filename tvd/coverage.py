@@ -669,7 +669,8 @@ def local_cells(
     times as many, and so on, while a candidate left out is within twice the cell's radius
     (only a robot that near can cut it, as in ``team_cells``).
     """
-    width, first = candidates.shape[1], first or LOCAL_CANDIDATES
+    width = candidates.shape[1]
+    first = LOCAL_CANDIDATES if first is None else first
     if width <= first or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
     if len(candidates) != len(owners):  # one row shared by every cell
