@@ -131,7 +131,10 @@ def test_mixed_domains_densities_and_kappas_in_one_call() -> None:
         assert_same_steps(local_steps(views, law=law), one_by_one(views, law))
 
 
-def test_empty_cell_lone_robot_and_string_ids() -> None:
+# Once, and repeated into a batch of at least PRUNED_CELLS views of one S, which finds the
+# neighbours from the views' own cells instead (covswarm.tvd.control._view_cells).
+@pytest.mark.parametrize("copies", [1, -(-PRUNED_CELLS // 5)])
+def test_empty_cell_lone_robot_and_string_ids(copies: int) -> None:
     side = 3.0
     polygon = np.array([[0.0, 0.0], [side, 0.0], [side, side], [0.0, side]])
     velocity = moving(polygon)
@@ -147,10 +150,24 @@ def test_empty_cell_lone_robot_and_string_ids() -> None:
         LocalView("out", {"out": np.array([5.0, 5.0])}, polygon, velocity, KAPPA),
         LocalView("far", outside, polygon, velocity, KAPPA, bench_density(side)),
     ]
+    views = views[:5] * copies + views[5:]
     for law in ("d1", "da"):
         single = one_by_one(views, law)
         assert single[0].mass == 0.0 and single[1].mass == 0.0  # the cases are what they say
         assert single[3].neighbors == frozenset() and single[3].area == pytest.approx(side**2)
+        assert_same_steps(local_steps(views, law=law), single)
+
+
+def test_a_batch_where_nobody_has_neighbours() -> None:
+    """PRUNED_CELLS views of one S, each of a robot alone (one of them outside S): no
+    neighbours' cells to build."""
+    polygon = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [0.0, 1.0]])
+    velocity = moving(polygon)
+    spots = np.random.default_rng(4).uniform(-0.5, 2.5, size=(PRUNED_CELLS, 2))
+    views = [LocalView(i, {i: spot}, polygon, velocity, KAPPA) for i, spot in enumerate(spots)]
+    for law in ("d1", "da"):
+        single = one_by_one(views, law)
+        assert all(step.neighbors == frozenset() for step in single)
         assert_same_steps(local_steps(views, law=law), single)
 
 
