@@ -75,7 +75,14 @@ log = logging.getLogger("covswarm.agent")
 # generation and every 100th to the oldest, which holds every brain's tables: ~15 % of a
 # 500-brain tick (covswarm bench --brain-tick, 08:50 UTC 2026-11-27). Most of the brains'
 # garbage is freed by reference counting anyway; the collector only finds cycles.
-GC_YOUNG_THRESHOLD = 10_000
+# CPython counts allocations minus frees (never below 0): in a steady pack of 500 brains
+# the count hovers at 20-27 thousand (a brain's tables are rebuilt as the old ones are
+# freed), so at 10 000 it was crossed every ~3 ticks, and each young collection then walked
+# what had been allocated since and still lived, nearly every brain's state: 63 ms of CPU
+# each, ~45 us per brain-tick (17:06 UTC 2026-11-27, gc.callbacks, load 4.9). At 100 000
+# none ran in 375 ticks; the count grows only with what stays alive (caches filling up)
+# and with unreachable cycles, which it still bounds.
+GC_YOUNG_THRESHOLD = 100_000
 
 
 def collect_less() -> tuple[int, int, int]:
