@@ -272,11 +272,11 @@ def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
 @dataclass(frozen=True, slots=True)
 class Begun:
     """A control step up to its local step (AgentBrain.begin): the local view to step,
-    the robot's predicted pose (x, y, heading) it was built from, the step's clocks, and
-    the s of the step timer spent so far."""
+    the robot's predicted pose (x m, y m, heading rad) it was built from, the step's
+    clocks, and the s of the step timer spent so far."""
 
     view: LocalView
-    pose: np.ndarray
+    pose: tuple[float, float, float]
     now: float
     now_wall: float
     spent: float
@@ -864,7 +864,7 @@ class AgentBrain:
             self.safety_active += active > 0
             self.safety_relaxed += bool(relaxed)
             vx, vy = velocity
-            decision = self._wheels(vx, vy, float(filtering.begun.pose[2]))
+            decision = self._wheels(vx, vy, filtering.begun.pose[2])
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))
         self._step_us.add((filtering.spent + shared + self._clock() - started) * 1e6)
@@ -887,7 +887,7 @@ class AgentBrain:
         assert self.domain is not None
         config = self.config
         now = begun.now
-        x, y, heading = begun.pose.tolist()
+        x, y, heading = begun.pose
         self.counters.guarded += int(result.guarded and self.running)
         self.counters.cell_empty += int(result.mass <= 0.0 and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
@@ -930,14 +930,11 @@ class AgentBrain:
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
         return Decision(left, right, "running", (vx, vy), achieved)
 
-    def predicted_pose(self, target_wall: float) -> np.ndarray:
-        """(x, y, heading) of our robot at our wall time ``target_wall``: its last pose moved
-        along the commands sent since it was taken (covswarm.agent.latency), or as taken when
-        prediction is off or the pose is older than MAX_PREDICTION."""
-        return np.array(self._predicted(target_wall))
-
-    def _predicted(self, target_wall: float) -> tuple[float, float, float]:
-        """:meth:`predicted_pose` in plain floats (x m, y m, heading rad)."""
+    def predicted_pose(self, target_wall: float) -> tuple[float, float, float]:
+        """(x m, y m, heading rad) of our robot at our wall time ``target_wall``: its last
+        pose moved along the commands sent since it was taken (covswarm.agent.latency), or
+        as taken when prediction is off or the pose is older than MAX_PREDICTION. Plain
+        floats: the step reads them one by one, and numpy converts them once per batch."""
         pose = self.pose
         assert pose is not None
         horizon = target_wall - self.pose_taken
@@ -1115,7 +1112,7 @@ class AgentBrain:
         vx, vy = self.velocity
         bound = protocol.MAX_SPEED
         vx, vy = min(max(vx, -bound), bound), min(max(vy, -bound), bound)
-        x, y, _ = self._predicted(stamp)
+        x, y, _ = self.predicted_pose(stamp)
         x, y = clamp_position(x, y)
         return protocol.AgentState(
             id=self.id,
