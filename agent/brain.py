@@ -891,7 +891,8 @@ class AgentBrain:
         self.counters.guarded += int(result.guarded and self.running)
         self.counters.cell_empty += int(result.mass <= 0.0 and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
-        self.neighborhood.one_hop = frozenset(map(int, result.neighbors))
+        # The view's own ids (ints), as one frozenset: taken as it is, not copied.
+        self.neighborhood.one_hop = frozenset(result.neighbors)
         if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(begun.view.positions) - 1
