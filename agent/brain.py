@@ -375,6 +375,9 @@ class AgentBrain:
         self.pose_received = -math.inf
         self.pose_taken = -math.inf  # our wall time at which self.pose was taken
         self.history = CommandHistory(config.robot, config.cmd_timeout)
+        # m: what the safety filter keeps from other robots and from walls (config's, fixed)
+        self._safe_distance = body_safe_distance(config.robot.body_diameter, config.safety_margin)
+        self._wall_distance = wall_distance(config.robot.body_diameter, config.safety_margin)
         self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
         # Our clock minus the coordinator's, bounded from above: the held domain's age.
@@ -1025,12 +1028,12 @@ class AgentBrain:
             begun=begun,
             nominal=velocity,
             near=near,
-            safe_distance=body_safe_distance(config.robot.body_diameter, config.safety_margin),
+            safe_distance=self._safe_distance,
             gamma=gamma,
             velocity=self.velocity,
             obstacles=obstacles,
             workspace=self.workspace if world is not None else None,
-            obstacle_distance=wall_distance(config.robot.body_diameter, config.safety_margin),
+            obstacle_distance=self._wall_distance,
             obstacle_gamma=WALL_GAMMA_FRACTION * gamma,
         )
 
