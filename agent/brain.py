@@ -188,7 +188,7 @@ class AgentConfig:
     workspace: tuple[float, float, float, float] | None = None
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Decision:
     """Outcome of one control step: wheel speeds and why."""
 
@@ -209,15 +209,15 @@ def local_step_of(view: LocalView, config: AgentConfig) -> LocalStep | Exception
         return exc
 
 
-# The safety filter's answer for one robot: velocity (2,) m/s, rows tight, relaxed.
-SafeVelocity = tuple[np.ndarray, int, bool]
+# The safety filter's answer for one robot: velocity [vx, vy] m/s, rows tight, relaxed.
+SafeVelocity = tuple[list[float], int, bool]
 
 
-@dataclass
+@dataclass(slots=True)
 class Filtering:
     """A control step whose velocity awaits the safety filter (AgentBrain.conclude): the
-    inputs of covswarm.tvd.safety.safe_unicycle_velocities for this robot. nominal,
-    velocity (its last achieved one): (2,) m/s; near: (m, 4) the robots near it (x, y m,
+    inputs of covswarm.tvd.safety.safe_unicycle_velocities for this robot. nominal: (2,)
+    m/s; velocity: its last achieved one, (vx, vy) m/s; near: (m, 4) the robots near it (x, y m,
     vx, vy m/s); obstacles: the world's convex polygons near it; workspace: its box or
     None; distances m, gains 1/s; spent: s of the step timer so far, set by conclude once
     the inputs are built (not frozen: copying it with dataclasses.replace cost ~3 us)."""
@@ -227,7 +227,7 @@ class Filtering:
     near: np.ndarray
     safe_distance: float
     gamma: float
-    velocity: np.ndarray
+    velocity: tuple[float, float]
     obstacles: list[np.ndarray]
     workspace: tuple[float, float, float, float] | None
     obstacle_distance: float
@@ -258,7 +258,7 @@ def filter_all(filterings: list[Filtering]) -> list[SafeVelocity]:
         reach=SAFETY_RADIUS,
         obstacle_gamma=scalars[:, 3],
     )
-    return list(zip(velocities, active.tolist(), relaxed.tolist(), strict=True))
+    return list(zip(velocities.tolist(), active.tolist(), relaxed.tolist(), strict=True))
 
 
 def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
@@ -269,14 +269,14 @@ def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
         return exc
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class Begun:
     """A control step up to its local step (AgentBrain.begin): the local view to step,
-    the robot's predicted pose (x, y, heading) it was built from, the step's clocks, and
-    the s of the step timer spent so far."""
+    the robot's predicted pose (x m, y m, heading rad) it was built from, the step's
+    clocks, and the s of the step timer spent so far."""
 
     view: LocalView
-    pose: np.ndarray
+    pose: tuple[float, float, float]
     now: float
     now_wall: float
     spent: float
@@ -285,30 +285,30 @@ class Begun:
 # --- actions: what a tick asks the shell to do ---------------------------------------
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class SendCommand:
     command: protocol.WheelCommand
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PublishState:
     state: protocol.AgentState
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class PublishBeacon:
     tile: tuple[int, int]
     beacon: protocol.Beacon
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class FollowStates:
     """Be subscribed to exactly these robots' AgentStates."""
 
     ids: frozenset[int]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, slots=True)
 class FollowTiles:
     """Be subscribed to exactly these beacon tiles."""
 
@@ -375,6 +375,9 @@ class AgentBrain:
         self.pose_received = -math.inf
         self.pose_taken = -math.inf  # our wall time at which self.pose was taken
         self.history = CommandHistory(config.robot, config.cmd_timeout)
+        # m: what the safety filter keeps from other robots and from walls (config's, fixed)
+        self._safe_distance = body_safe_distance(config.robot.body_diameter, config.safety_margin)
+        self._wall_distance = wall_distance(config.robot.body_diameter, config.safety_margin)
         self.robot_clock = ClockBound()  # our clock minus our robot's, bounded from above
         self.peer_clocks: dict[int, ClockBound] = {}  # the same for each neighbour's agent
         # Our clock minus the coordinator's, bounded from above: the held domain's age.
@@ -384,7 +387,10 @@ class AgentBrain:
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
         # robot): they stay where they were, and the safety filter steers around them.
         self.obstacles: dict[int, tuple[float, float, float]] = {}
-        self._near_first_hand: dict[int, tuple[float, float]] = {}
+        # The last step's robots within SAFETY_RADIUS: those heard first-hand, and every
+        # one's id and row (x, y, vx, vy) of the neighbourhood's table, in table order.
+        self._near_first_hand: set[int] = set()
+        self._near_last: tuple[list[int], np.ndarray] = ([], np.zeros((0, 4)))
         self.domain: protocol.Domain | None = None
         self.density: Density | None = None  # the domain's density, validated (None: uniform)
         self.neighborhood = Neighborhood(
@@ -868,7 +874,8 @@ class AgentBrain:
             velocity, active, relaxed = safe
             self.safety_active += active > 0
             self.safety_relaxed += bool(relaxed)
-            decision = self._wheels(np.asarray(velocity, dtype=float), filtering.begun.pose)
+            vx, vy = velocity
+            decision = self._wheels(vx, vy, filtering.begun.pose[2])
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))
         self._step_us.add((filtering.spent + shared + self._clock() - started) * 1e6)
@@ -890,12 +897,13 @@ class AgentBrain:
     def _finish(self, begun: Begun, result: LocalStep) -> Decision | Filtering:
         assert self.domain is not None
         config = self.config
-        now, pose = begun.now, begun.pose
-        me = pose[:2]
+        now = begun.now
+        x, y, heading = begun.pose
         self.counters.guarded += int(result.guarded and self.running)
         self.counters.cell_empty += int(result.mass <= 0.0 and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
-        self.neighborhood.one_hop = frozenset(map(int, result.neighbors))
+        # The view's own ids (ints), as one frozenset: taken as it is, not copied.
+        self.neighborhood.one_hop = frozenset(result.neighbors)
         if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(begun.view.positions) - 1
@@ -903,7 +911,7 @@ class AgentBrain:
             # The area, not the mass: a density's mass overstates the cell's size (by the
             # bump's peak over the floor under a bump), and with it the local set.
             cx, cy = result.centroid.tolist()
-            self.reach = cell_reach(math.hypot(cx - me[0], cy - me[1]), result.area)
+            self.reach = cell_reach(math.hypot(cx - x, cy - y), result.area)
             self.radius = tile_radius(
                 self.reach, self.tile_size, self.radius, self.config.max_tile_radius
             )
@@ -916,34 +924,35 @@ class AgentBrain:
         if not (math.isfinite(vx) and math.isfinite(vy)):
             raise ValueError(f"non-finite velocity {velocity}")
         if config.safety:
-            return self._safety_inputs(begun, velocity)
-        return self._wheels(velocity, pose)
+            return self._safety_inputs(begun, velocity, x, y)
+        return self._wheels(vx, vy, heading)
 
-    def _wheels(self, velocity: np.ndarray, pose: np.ndarray) -> Decision:
-        """The running decision for ``velocity`` (2,) m/s from ``pose`` (x, y, heading)."""
+    def _wheels(self, vx: float, vy: float, heading: float) -> Decision:
+        """The running decision for the velocity (vx, vy) m/s from ``heading`` rad."""
         config = self.config
-        heading = float(pose[2])
-        vx, vy = velocity.tolist()
-        robot, distance = config.robot, config.projection_distance
-        left, right, capped = steer_one(heading, vx, vy, robot, distance, self._hold)
+        robot = config.robot
+        left, right, capped = steer_one(
+            heading, vx, vy, robot, config.projection_distance, self._hold
+        )
         self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
-        forward, _ = twist_from_wheels(left, right, config.robot.wheel_separation)
+        forward, _ = twist_from_wheels(left, right, robot.wheel_separation)
         achieved = (forward * math.cos(heading), forward * math.sin(heading))
         return Decision(left, right, "running", (vx, vy), achieved)
 
-    def predicted_pose(self, target_wall: float) -> np.ndarray:
-        """(x, y, heading) of our robot at our wall time ``target_wall``: its last pose moved
-        along the commands sent since it was taken (covswarm.agent.latency), or as taken when
-        prediction is off or the pose is older than MAX_PREDICTION."""
+    def predicted_pose(self, target_wall: float) -> tuple[float, float, float]:
+        """(x m, y m, heading rad) of our robot at our wall time ``target_wall``: its last
+        pose moved along the commands sent since it was taken (covswarm.agent.latency), or
+        as taken when prediction is off or the pose is older than MAX_PREDICTION. Plain
+        floats: the step reads them one by one, and numpy converts them once per batch."""
         pose = self.pose
         assert pose is not None
         horizon = target_wall - self.pose_taken
         if not self.config.prediction or not 0.0 < horizon <= MAX_PREDICTION:
-            return np.array([pose.x, pose.y, pose.theta])
-        return np.array(self.history.move(pose.x, pose.y, pose.theta, self.pose_taken, target_wall))
+            return pose.x, pose.y, pose.theta
+        return self.history.move(pose.x, pose.y, pose.theta, self.pose_taken, target_wall)
 
     def near_ids(self) -> set[int]:
         """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
@@ -968,36 +977,38 @@ class AgentBrain:
             # The nearest few only: forged ids must not cost a subscription each.
             nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
             unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
-        near = neighborhood.table_ids[neighborhood.within(x, y, SAFETY_RADIUS)]
-        return set(near.tolist()) | unconfirmed | set(self.obstacles)
+        near = set(neighborhood.table_ids[neighborhood.within(x, y, SAFETY_RADIUS)].tolist())
+        near |= unconfirmed
+        near.update(self.obstacles)
+        return near
 
-    def _safety_inputs(self, begun: Begun, velocity: np.ndarray) -> Filtering:
+    def _safety_inputs(self, begun: Begun, velocity: np.ndarray, x: float, y: float) -> Filtering:
         """What the safety filter (covswarm.tvd.safety) needs to filter ``velocity`` (2,)
-        m/s: the robots near us, i.e. the candidates (dead-reckoned, with their reported
-        velocities) and the obstacles we stopped hearing from (at rest where last known);
-        with a world, its obstacles and workspace walls near us too (a body radius plus
-        the margin)."""
+        m/s from (x, y) m (begun's pose): the robots near us, i.e. the candidates
+        (dead-reckoned, with their reported velocities) and the obstacles we stopped hearing
+        from (at rest where last known); with a world, its obstacles and workspace walls
+        near us too (a body radius plus the margin)."""
         config = self.config
-        now, pose = begun.now, begun.pose
-        me = pose[:2]
+        now = begun.now
         neighborhood = self.neighborhood
         reckoned = neighborhood.reckoned
-        inside = neighborhood.within(*me, SAFETY_RADIUS)
+        inside = neighborhood.within(x, y, SAFETY_RADIUS)
         near = neighborhood.table[inside]
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
         # path held robots back until they lost the domain (100-robot circle: e_a 5.7 m).
-        for rid, (x, y) in self._near_first_hand.items():
-            if rid not in reckoned:
-                self.obstacles[rid] = (x, y, now)
-        first_hand = neighborhood.first_hand
+        # (Set operations in C: the rows are turned into floats only for the rare robot
+        # that vanished, not for every near robot every step.)
+        gone = self._near_first_hand.difference(reckoned)
+        if gone:
+            last_ids, last_near = self._near_last
+            for rid, (x, y, _, _) in zip(last_ids, last_near.tolist(), strict=True):
+                if rid in gone:
+                    self.obstacles[rid] = (x, y, now)
         ids = neighborhood.table_ids[inside].tolist()
-        self._near_first_hand = {
-            rid: (x, y)
-            for rid, (x, y, _, _) in zip(ids, near.tolist(), strict=True)
-            if rid in first_hand
-        }
+        self._near_first_hand = neighborhood.first_hand.intersection(ids)
+        self._near_last = (ids, near)
         if self.obstacles:  # (seldom any: no scan of an empty table every step)
             dead = neighborhood.dead
             for rid in [
@@ -1009,7 +1020,7 @@ class AgentBrain:
         if self.obstacles:  # none is a candidate
             rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
             near = np.concatenate(
-                [near, rows[np.hypot(rows[:, 0] - me[0], rows[:, 1] - me[1]) <= SAFETY_RADIUS]]
+                [near, rows[np.hypot(rows[:, 0] - x, rows[:, 1] - y) <= SAFETY_RADIUS]]
             )
         # The world's obstacles and walls within SAFETY_RADIUS: a row each (none without a
         # world, so the filter is then exactly the robots' alone). Those whose bounding box
@@ -1019,19 +1030,18 @@ class AgentBrain:
         world = self.world
         obstacles: list[np.ndarray] = []
         if world is not None:
-            x, y = float(me[0]), float(me[1])
             nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
             obstacles = [world.obstacles[j].vertices for j in nearby]
         return Filtering(
             begun=begun,
             nominal=velocity,
             near=near,
-            safe_distance=body_safe_distance(config.robot.body_diameter, config.safety_margin),
+            safe_distance=self._safe_distance,
             gamma=gamma,
-            velocity=np.array(self.velocity),
+            velocity=self.velocity,
             obstacles=obstacles,
             workspace=self.workspace if world is not None else None,
-            obstacle_distance=wall_distance(config.robot.body_diameter, config.safety_margin),
+            obstacle_distance=self._wall_distance,
             obstacle_gamma=WALL_GAMMA_FRACTION * gamma,
         )
 
@@ -1114,7 +1124,8 @@ class AgentBrain:
         vx, vy = self.velocity
         bound = protocol.MAX_SPEED
         vx, vy = min(max(vx, -bound), bound), min(max(vy, -bound), bound)
-        x, y = clamp_position(*self.predicted_pose(stamp)[:2].tolist())
+        x, y, _ = self.predicted_pose(stamp)
+        x, y = clamp_position(x, y)
         return protocol.AgentState(
             id=self.id,
             x=x,

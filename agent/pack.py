@@ -75,7 +75,14 @@ log = logging.getLogger("covswarm.agent")
 # generation and every 100th to the oldest, which holds every brain's tables: ~15 % of a
 # 500-brain tick (covswarm bench --brain-tick, 08:50 UTC 2026-11-27). Most of the brains'
 # garbage is freed by reference counting anyway; the collector only finds cycles.
-GC_YOUNG_THRESHOLD = 10_000
+# CPython counts allocations minus frees (never below 0): in a steady pack of 500 brains
+# the count hovers at 20-27 thousand (a brain's tables are rebuilt as the old ones are
+# freed), so at 10 000 it was crossed every ~3 ticks, and each young collection then walked
+# what had been allocated since and still lived, nearly every brain's state: 63 ms of CPU
+# each, ~45 us per brain-tick (17:06 UTC 2026-11-27, gc.callbacks, load 4.9). At 100 000
+# none ran in 375 ticks; the count grows only with what stays alive (caches filling up)
+# and with unreachable cycles, which it still bounds.
+GC_YOUNG_THRESHOLD = 100_000
 
 
 def collect_less() -> tuple[int, int, int]:
@@ -480,25 +487,26 @@ class Pack:
         # each robot predicted ~10 mm ahead of where it was.
         self.take_own_poses(chunk)
         now, now_wall = clock(), wall()
+        brains = self.brains
         begun: dict[int, Begun] = {}
         filtering: dict[int, Filtering] = {}
         decisions: dict[int, Decision] = {}
+        groups: dict[tuple[bool, str], list[int]] = {}
         for bid in chunk:
+            brain = brains[bid]
             if clock() > deadline:
-                self._hold(self.brains[bid], clock(), wall())
+                self._hold(brain, clock(), wall())
                 continue
             self._held.discard(bid)
             self._stepped[bid] = now
             self.receive(bid, now, now_wall)
-            early = self.brains[bid].begin(now, now_wall)
-            if isinstance(early, Decision):
-                decisions[bid] = self.brains[bid].settle(early)
-            else:
+            early = brain.begin(now, now_wall)
+            if type(early) is Begun:
                 begun[bid] = early
-        groups: dict[tuple[bool, str], list[int]] = {}
-        for bid in begun:
-            config = self.brains[bid].config
-            groups.setdefault((config.feedforward, config.law), []).append(bid)
+                config = brain.config
+                groups.setdefault((config.feedforward, config.law), []).append(bid)
+            else:
+                decisions[bid] = brain.settle(early)
         for (feedforward, law), bids in groups.items():
             started = self._clock()
             try:
@@ -506,25 +514,25 @@ class Pack:
                     local_steps([begun[b].view for b in bids], feedforward, MAX_AMPLIFICATION, law)
                 )
             except Exception:  # noqa: BLE001 -- one bad view: step them one by one
-                results = [local_step_of(begun[b].view, self.brains[b].config) for b in bids]
+                results = [local_step_of(begun[b].view, brains[b].config) for b in bids]
                 for bid in bids:
-                    self.brains[bid].counters.batch_fallbacks += 1
+                    brains[bid].counters.batch_fallbacks += 1
             shared = (self._clock() - started) / len(bids)
             for bid, result in zip(bids, results, strict=True):
-                concluded = self.brains[bid].conclude(begun[bid], result, shared)
-                if isinstance(concluded, Filtering):
+                concluded = brains[bid].conclude(begun[bid], result, shared)
+                if type(concluded) is Filtering:
                     filtering[bid] = concluded
                 else:
                     decisions[bid] = concluded
         if filtering:
             self._filter(filtering, decisions)
         for bid in [bid for bid in chunk if bid in decisions]:  # in turn order
-            brain = self.brains[bid]
+            brain = brains[bid]
             for action in brain.actions(decisions[bid], now, now_wall):
                 self.carry_out(bid, action)
                 # A missed deadline: this period's command went out after the period ended
                 # (start-up, while processes are still launching, aside).
-                if isinstance(action, SendCommand) and brain.running and clock() > deadline:
+                if type(action) is SendCommand and brain.running and clock() > deadline:
                     brain.counters.overruns += 1
         return len(decisions)
 
