@@ -59,23 +59,25 @@ class ChildSpec:
 # unit of failure, as on real robots; 100 robots one per process took 9 minutes to start,
 # docs/scaling.md). Beyond, packing follows what holds real time, from the CPU cost of one
 # brain-tick (a brain's whole period in a packed process: draining, decoding, step, filter,
-# encoding, puts), BRAIN_TICK, measured by ``covswarm bench --brain-tick --brain-tick-sizes
-# 50,200,500`` (docs/scaling.md, "Brain-tick"): 0.52-0.71 ms of CPU for 50 to 500 brains per
-# process on this 2-core VM, twice, 2026-11-27 09:00-09:03 UTC, load 2.1-6.0 (main at
-# c2a33a3, brainbatch merged up to 111b82c; it was 1.7-1.9 ms before):
+# encoding, puts), BRAIN_TICK, as live runs measure it (the summary's "CPU per brain-tick
+# (live)", which adds Zenoh to ``covswarm bench --brain-tick``): 0.43-0.55 ms for 300 to
+# 1000 robots in packs of 150 to 500 on this 2-core VM, 2026-11-27 18:00-18:03 UTC, load
+# 1-2.7 (docs/scaling.md, "Half a millisecond a brain-tick"; it was 0.7 ms that morning):
 # - if the team fits, agents x rate x BRAIN_TICK within AGENT_SHARE of the cores (the rest
 #   is the robots', the router's and the coordinator's), one agent process per core, of
 #   at most PERIOD_SHARE / (rate x BRAIN_TICK) brains each: a process steps its brains one
-#   after the other, and that keeps its batch within half a period (71 at 10 Hz);
+#   after the other, and that keeps its batch within three quarters of a period (150 at 10
+#   Hz; at half a period, 300 robots ran in 3 processes of 100 rather than 2 of 150, and
+#   missed 2 % of their periods rather than none: more processes than cores take turns);
 # - if it does not, no packing holds the rate: one agent process per core, as many brains
 #   as it takes. Fewer processes start sooner (each costs its imports and ~80 MB) and share
 #   more decoding; the brains whose turn comes after a period's deadline hold (agent.pack)
 #   either way, and the launcher says which rate the machine could hold
 #   (:func:`capacity_note`).
 SOLO_PER_CORE = 8
-BRAIN_TICK = 0.7e-3  # s of CPU per brain and control period, packed (covswarm bench)
+BRAIN_TICK = 0.5e-3  # s of CPU per brain and control period, packed, live
 AGENT_SHARE = 0.8  # of the host's cores, for the agents
-PERIOD_SHARE = 0.5  # of a control period, for one process's batch of brains
+PERIOD_SHARE = 0.75  # of a control period, for one process's batch of brains
 
 
 def fits(agents: int, cores: int, rate: float) -> bool:

@@ -204,7 +204,7 @@ def test_auto_packing_holds_the_rate_where_the_team_fits_else_one_process_per_co
     elif agents * rate * BRAIN_TICK > AGENT_SHARE * cores:
         assert processes == cores  # nothing holds the rate: the fewest processes
         assert capacity_note(agents, cores, rate) is not None
-    else:  # every batch within half a period, as big as that allows, a process per core
+    else:  # every batch within PERIOD_SHARE of a period, as big as that allows
         assert k * rate * BRAIN_TICK <= PERIOD_SHARE
         assert (k + 1) * rate * BRAIN_TICK > PERIOD_SHARE or processes == cores
         assert processes >= cores and capacity_note(agents, cores, rate) is None

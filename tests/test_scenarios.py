@@ -327,3 +327,16 @@ def test_formation_100_is_the_formation_scaled_for_100_robots() -> None:
         np.testing.assert_allclose(big.density(t).phi(k * q), small.density(t).phi(q), rtol=1e-3)
         area_big, area_small = (shapely.Polygon(v).area for v in (v_big, v_small))
         assert area_big / 100 == pytest.approx(area_small / 20, rel=1e-3)
+
+
+@pytest.mark.parametrize("name", ["circle-400", "circle-1000"])
+def test_the_big_circle_scenarios_keep_the_papers_density_and_motion(name: str) -> None:
+    """scenarios/circle-400.toml and circle-1000.toml (the teams of docs/scaling.md): the
+    circle scenario's area per robot and centre motion, at their team sizes."""
+    paper = load_scenario("circle")
+    big = load_scenario(Path(__file__).parents[1] / "scenarios" / f"{name}.toml")
+    per_robot = shapely.Polygon(paper.domain(0.0)[0]).area / paper.agents
+    assert shapely.Polygon(big.domain(0.0)[0]).area / big.agents == pytest.approx(per_robot, 1e-3)
+    for t in (0.0, 7.0, 31.0):
+        centre = np.mean(big.domain(t)[0], axis=0)
+        assert centre == pytest.approx(np.mean(paper.domain(t)[0], axis=0), abs=1e-3)
