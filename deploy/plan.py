@@ -67,8 +67,8 @@ class ChildSpec:
 #   is the robots', the router's and the coordinator's), one agent process per core, of
 #   at most PERIOD_SHARE / (rate x BRAIN_TICK) brains each: a process steps its brains one
 #   after the other, and that keeps its batch within three quarters of a period (150 at 10
-#   Hz; at half a period, 300 robots ran in 3 processes of 100 rather than 2 of 150, and
-#   missed 2 % of their periods rather than none: more processes than cores take turns);
+#   Hz; at half a period, 300 robots ran in 3 processes of 100 rather than 2 of 150 and
+#   took 149 % of agent CPU rather than 129-138 %: more processes than cores take turns);
 # - if it does not, no packing holds the rate: one agent process per core, as many brains
 #   as it takes. Fewer processes start sooner (each costs its imports and ~80 MB) and share
 #   more decoding; the brains whose turn comes after a period's deadline hold (agent.pack)

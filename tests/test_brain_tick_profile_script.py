@@ -1,0 +1,43 @@
+"""scripts/brain_tick_profile.py: its pack runs the bench's brain-tick, and its shares count
+each sample inside Pack.tick once per phase its stack holds."""
+
+from __future__ import annotations
+
+import importlib.util
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "brain_tick_profile.py"
+
+
+def load_script():  # type: ignore[no-untyped-def]
+    spec = importlib.util.spec_from_file_location("brain_tick_profile", SCRIPT)
+    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
+    spec.loader.exec_module(module)  # type: ignore[union-attr]
+    return module
+
+
+def test_shares_count_the_samples_inside_a_tick_by_phase(tmp_path: Path) -> None:
+    raw = tmp_path / "raw.txt"
+    raw.write_text(
+        "<module> (a.py:1);Pack.tick (pack.py:9);AgentBrain.receive_all (brain.py:3) 6\n"
+        "<module> (a.py:1);Pack.tick (pack.py:9);Neighborhood.refresh (n.py:4);"
+        "Neighborhood.refresh (n.py:5) 3\n"
+        "<module> (a.py:1);Pack.tick (pack.py:9) 1\n"
+        "<module> (a.py:1);make_layout (bench.py:2);Neighborhood.refresh (n.py:4) 50\n"
+    )
+    shares = load_script().shares(raw)
+    assert shares["AgentBrain.receive_all"] == pytest.approx(60.0)
+    assert shares["Neighborhood.refresh"] == pytest.approx(30.0)  # once, not per frame
+    assert shares["local_steps"] == 0.0
+
+
+def test_the_inner_run_times_a_small_pack() -> None:
+    out = subprocess.run(
+        [sys.executable, str(SCRIPT), "--inner", "--brains", "12", "--ticks", "8"],
+        capture_output=True, text=True, check=True, timeout=120,
+    )  # fmt: skip
+    assert float(out.stdout.split()[0]) > 0.0
