@@ -1003,9 +1003,9 @@ class AgentBrain:
         gone = self._near_first_hand.difference(reckoned)
         if gone:
             last_ids, last_near = self._near_last
-            for rid, (x, y, _, _) in zip(last_ids, last_near.tolist(), strict=True):
+            for rid, (last_x, last_y, _, _) in zip(last_ids, last_near.tolist(), strict=True):
                 if rid in gone:
-                    self.obstacles[rid] = (x, y, now)
+                    self.obstacles[rid] = (last_x, last_y, now)
         ids = neighborhood.table_ids[inside].tolist()
         self._near_first_hand = neighborhood.first_hand.intersection(ids)
         self._near_last = (ids, near)

@@ -298,3 +298,42 @@ def test_a_robot_held_as_an_obstacle_is_still_followed_and_freed_by_its_next_sta
     state(3.5, 1.8)  # it was alive and moved on
     control(brain, 3.5)
     assert 1 not in brain.obstacles
+
+
+def test_the_safety_filter_takes_obstacles_around_our_robot_not_around_one_that_vanished() -> None:
+    # Robot 3 vanished first and is held where last heard, (0.2, 1.0). Our robot then moved
+    # to (0.8, 1.0), 0.6 m from it, beyond SAFETY_RADIUS: the filter must leave it out, also
+    # in the step where robot 1, last heard at (0.45, 1.0), 0.25 m from robot 3, vanishes.
+    assert brain_module.SAFETY_RADIUS == 0.5
+    brain = brain_at(0.5, 1.0)
+    for rid in (1, 3):
+        for role in ("agent", "robot"):
+            brain.on_liveliness(role, rid, True)
+    assert brain.receive("domain", domain(SQUARE, 1).encode(), now=0.0, now_wall=WALL)
+    near_rows: list[np.ndarray] = []
+    inputs = brain._safety_inputs
+
+    def recording(*args):  # type: ignore[no-untyped-def]
+        filtering = inputs(*args)
+        near_rows.append(filtering.near)
+        return filtering
+
+    brain._safety_inputs = recording  # type: ignore[method-assign]
+
+    def hear(now: float, ours: float, states: dict[int, float]) -> None:
+        pose = protocol.Pose(id=0, x=ours, y=1.0, theta=0.0, stamp=WALL + now, seq=int(now * 10))
+        assert brain.receive("pose", pose.encode(), now, WALL + now)
+        for rid, x in states.items():
+            state = protocol.AgentState(id=rid, x=x, y=1.0, stamp=WALL + now, neighbors=(0,))
+            assert brain.receive("state", state.encode(), now, WALL + now)
+        control(brain, now)
+
+    hear(0.0, 0.5, {1: 0.9, 3: 0.2})
+    hear(1.5, 0.5, {1: 0.9})  # robot 3 silent for longer than its state stays fresh
+    assert brain.obstacles[3][:2] == (0.2, 1.0)
+    hear(2.0, 0.8, {1: 0.45})
+    hear(3.5, 0.8, {})  # robot 1 silent too: it vanishes in this step
+    assert brain.obstacles[1][:2] == (0.45, 1.0)
+    assert len(near_rows) == 4
+    xs = near_rows[-1][:, 0].tolist()
+    assert 0.45 in xs and 0.2 not in xs, xs
