@@ -12,6 +12,7 @@ world's model).
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from functools import lru_cache
 
 import numpy as np
@@ -88,12 +89,17 @@ def heard(kind: str, payload: bytes) -> Heard:
     """``payload`` of ``kind`` as a Heard: decoded now, not cached (a process decodes each
     payload it drains once)."""
     out = Heard(payload)
-    try:
-        out.decoded = (*_received(kind, payload), None)
-    except protocol.ProtocolError as exc:
-        # Held until every follower has taken it: without the decoder's frames.
-        out.decoded = (None, None, exc.with_traceback(None))
+    out.decoded = _checked(_received, kind, payload)
     return out
+
+
+def _checked(received: Callable[[str, object], Received], kind: str, payload: object) -> Decoded:
+    """``received(kind, payload)`` as Decoded: the ProtocolError returned, not raised, and
+    without its frames (a Heard holds it until every follower has taken it)."""
+    try:
+        return (*received(kind, payload), None)
+    except protocol.ProtocolError as exc:
+        return None, None, exc.with_traceback(None)
 
 
 class MessageDecoder:
@@ -121,10 +127,7 @@ class MessageDecoder:
     def decoded(self, kind: str, payload: object) -> Decoded:
         """What a receiver checks of ``payload`` (Decoded): as :meth:`received` (bytes
         cached), the ProtocolError returned. A Heard carries its own (``Heard.decoded``)."""
-        try:
-            return (*self.received(kind, payload), None)
-        except protocol.ProtocolError as exc:
-            return None, None, exc
+        return _checked(self.received, kind, payload)
 
     def domain_geometry(self, domain: protocol.Domain) -> Density | None:
         """Check the domain's polygon and parse its density; ValueError if either is invalid.

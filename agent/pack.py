@@ -370,8 +370,9 @@ class Pack:
         item = (sub.kind, sub.key_id, heard(sub.kind, last.payload.to_bytes()))
         for bid in sub.followers:
             pending = queues[bid]
-            if coalesced or slot in pending:  # rarely: one sample a tick, taken each tick
-                self.brains[bid].counters.coalesced += coalesced + (slot in pending)
+            unread = slot in pending  # rarely: one sample a tick, taken each tick
+            if coalesced or unread:
+                self.brains[bid].counters.coalesced += coalesced + unread
             pending[slot] = item
 
     def _drain_every(self, key: str, sub: _Subscription, queues: _Queues) -> None:
