@@ -35,11 +35,12 @@ MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
 # Sized for a tick's worth of distinct payloads of a 100-brain process.
 DECODE_CACHE = 4096
 # Domains whose checks are remembered. Brains take their turns one after another, each
-# handed every domain sample of the tick (a pack hands all of them on, in order: up to its
-# ring of 16): remembering only the last one made every brain check them all again when a
-# tick brought two or more (below 20 Hz held, 40-60 us each: 11 % of an agent process at
-# 8 Hz held, scripts/live_cpu.py, 27 Nov 2026).
-DOMAINS_REMEMBERED = 16
+# handed every domain sample since its last turn (a pack hands all of them on, in order: up
+# to 16): remembering only the last one made every brain check them all again when a tick
+# brought two or more (below 20 Hz held, 40-60 us each: 11 % of an agent process at 8 Hz
+# held, scripts/live_cpu.py, 27 Nov 2026). Late brains (overload) each get the 16 newest at
+# their own turn, spread over seconds of a 20 Hz broadcast: 64 covers 3.2 s of them.
+DOMAINS_REMEMBERED = 64
 
 
 class _ByIdentity:

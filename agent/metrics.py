@@ -65,3 +65,6 @@ class Counters:
     # mission steps with no cell in S (the robot outside S, dominated by teammates: it aims
     # at S's centroid, covswarm.tvd.control); a robot stuck so dominates e_a
     cell_empty: int = 0
+    # mission steps that took neighbours' states as usable beyond the stale timeout, the
+    # brain's turns coming late (covswarm.agent.brain.AgentBrain.pace)
+    stale_stretched: int = 0

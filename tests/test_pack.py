@@ -18,7 +18,7 @@ from covswarm import protocol
 from covswarm.agent import decoding
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.pack import LocalBus, Pack
+from covswarm.agent.pack import DOMAIN_RING, LocalBus, Pack
 from covswarm.deploy.bench import bench_command
 from covswarm.tvd.coverage import aggregate_error
 
@@ -593,3 +593,31 @@ def test_bench_brain_tick_at_a_denser_team_and_a_faster_rate(tmp_path: Path) -> 
         rows[spacing, rate] = row["rx_per_brain_tick"]
     assert rows[0.2, 10] > 1.5 * rows[0.5, 10]
     assert rows[0.2, 30] < 0.6 * rows[0.2, 10]
+
+
+def test_a_late_brain_gets_the_newest_domains_its_own_ring_would_hold() -> None:
+    """A brain whose turn comes after several drains (overload) is handed the newest
+    DOMAIN_RING domain samples since its last turn, in arrival order, the older ones
+    counted as coalesced; a brain that took its turn in between gets only what came since."""
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1)])
+    seen: dict[int, list[bytes]] = {0: [], 1: []}
+    for bid in (0, 1):
+        _intercept(
+            pack.brains[bid], lambda kind, payload, key_id, bid=bid: seen[bid].append(payload)
+        )
+    sent = [f"domain {k}".encode() for k in range(3 * DOMAIN_RING + 5)]
+    for k, payload in enumerate(sent):
+        bus.put(protocol.domain_key(SWARM), payload)
+        if k % 3 == 2:  # a drain every three broadcasts, as at 20 Hz broadcast, ~7 Hz held
+            pack.drain()
+        if k == DOMAIN_RING:
+            pack.receive(1, 0.0, WALL)  # brain 1 takes a turn; brain 0 is late throughout
+    pack.drain()
+    for bid in (0, 1):
+        pack.receive(bid, 1.0, WALL)
+    assert seen[0] == sent[-DOMAIN_RING:]
+    assert pack.brains[0].counters.coalesced == len(sent) - DOMAIN_RING
+    # brain 1: the 15 drained by its first turn (fewer than the ring), then the newest
+    assert seen[1] == sent[:15] + sent[-DOMAIN_RING:]
+    assert pack.brains[1].counters.coalesced == len(sent) - 15 - DOMAIN_RING
