@@ -621,3 +621,31 @@ def test_a_late_brain_gets_the_newest_domains_its_own_ring_would_hold() -> None:
     # brain 1: the 15 drained by its first turn (fewer than the ring), then the newest
     assert seen[1] == sent[:15] + sent[-DOMAIN_RING:]
     assert pack.brains[1].counters.coalesced == len(sent) - 15 - DOMAIN_RING
+
+
+def test_a_payload_replaced_before_any_followers_turn_is_never_decoded(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A process drains every tick but decodes a payload when a follower first takes it:
+    poses that a newer pose replaced before their brain's turn (a late brain, its robot at
+    20 Hz) cost no decoding."""
+    decodes: Counter[str] = Counter()
+    received = decoding._received
+
+    def counting(kind: str, payload: object) -> object:
+        decodes[kind] += 1
+        return received(kind, payload)
+
+    monkeypatch.setattr(decoding, "_received", counting)
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(i) for i in range(3)])
+    for seq in range(6):  # six drains without a turn
+        for rid in range(3):
+            pose = protocol.Pose(id=rid, x=1.0, y=1.0, theta=0.0, stamp=WALL, seq=seq)
+            bus.put(protocol.pose_key(SWARM, rid), pose.encode())
+        pack.drain()
+    assert decodes == {}
+    pack.receive(1, 0.0, WALL)
+    assert decodes == {"pose": 1}
+    assert pack.brains[1].pose is not None and pack.brains[1].pose.seq == 5
+    assert pack.brains[1].counters.coalesced == 5
