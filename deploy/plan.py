@@ -77,12 +77,13 @@ class ChildSpec:
 SOLO_PER_CORE = 8
 BRAIN_TICK = 0.5e-3  # s of CPU per brain and control period, packed, live
 AGENT_SHARE = 0.8  # of the host's cores, for the agents
-# s of CPU per brain-tick of a process that cannot hold its rate: its brains take turns
+# s of CPU per brain-tick of a process far from holding its rate: its brains take turns
 # late, skip periods and stop their robots, and each turn takes in more at once (every
 # domain and beacon since the last one). Live, 1000 robots on this 2-core VM at 10 and at 3
 # Hz asked: 0.78-0.99 ms (held 1.2-1.7 Hz), 2026-11-27 19:58-20:10 UTC, load 1-4
-# (docs/scaling.md, "A thousand robots in real time"). The rate :func:`capacity_note`
-# expects; the time scale it suggests holds the rate, at BRAIN_TICK.
+# (docs/scaling.md, "A thousand robots in real time"); 400 robots, which held 8.0 of 10 Hz,
+# stayed at BRAIN_TICK. So :func:`capacity_note` expects a rate between the two; the time
+# scale it suggests holds the rate, at BRAIN_TICK.
 LATE_BRAIN_TICK = 1.0e-3
 PERIOD_SHARE = 0.75  # of a control period, for one process's batch of brains
 
@@ -117,9 +118,10 @@ def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0)
     return (
         f"{agents} brains at {rate:g} Hz (x{time_scale:g}: {wall_rate:g} Hz of wall time) "
         f"need ~{need:.1f} cores of agent CPU (~{1e3 * BRAIN_TICK:.1f} ms a brain-tick, "
-        f"covswarm bench --brain-tick); this host has {cores}: expect about "
-        f"{late / time_scale:.2g} Hz (late brains cost ~{1e3 * LATE_BRAIN_TICK:.1f} ms a "
-        f"brain-tick), or run at --time-scale {held / rate:.2g}"
+        f"covswarm bench --brain-tick); this host has {cores}: expect "
+        f"{late / time_scale:.2g}-{held / time_scale:.2g} Hz (the further from the rate, the "
+        f"lower: late brains cost up to ~{1e3 * LATE_BRAIN_TICK:.1f} ms a brain-tick), or "
+        f"run at --time-scale {held / rate:.2g}"
     )
 
 
