@@ -106,6 +106,7 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "batch_fallbacks": ("number", "batched local steps retaken one by one (a bad view)"),
     "turn_capped": ("number", "steps whose turn rate was capped for the period held"),
     "cell_empty": ("number", "mission steps with no cell in S (outside S, dominated)"),
+    "stale_stretched": ("number", "mission steps that kept neighbours past the stale timeout"),
     "mission_steps": ("number", "control steps while the mission ran"),
     "guarded": ("number", "steps the amplification guard rescaled"),
     "candidates": ("number", "robots known (dead-reckoned)"),
