@@ -43,6 +43,9 @@ class Roster:
         self._ids: dict[int, None] = {}  # distinct unexpected ids, in order of arrival
         self.confirmed: set[int] = set()  # admitted ids whose agent has held a token
         self.newcomers: set[int] = set()  # ids beyond the expected ones, admitted later
+        # expected | newcomers, kept up to date: asked of every AgentState (10 000 a second
+        # at 1000 robots), where building the union anew took a third of its handling.
+        self._admitted = self.expected
         # Unexpected ids: the roles whose token each holds now, and whether an agent of the
         # team named it as a neighbour; and what each was counted as (undone when admitted).
         self._held: dict[int, set[str]] = {}
@@ -68,14 +71,14 @@ class Roster:
     @property
     def admitted(self) -> frozenset[int]:
         """The ids that may be team members: the expected ones and admitted newcomers."""
-        return self.expected | self.newcomers
+        return self._admitted
 
     def admit_token(self, role: str, rid: int, alive: bool = True) -> bool:
         """Whether a liveliness change of ``role``'s token for ``rid`` (appeared when
         ``alive``) concerns the team (call before Liveness.update: a refused one changes no
         count, no team and no lost-process record). An agent token's appearance confirms
         its robot's poses. A newcomer admitted by it: :meth:`take_admitted`."""
-        if rid not in self.admitted:
+        if rid not in self._admitted:
             if len(self._held) < MAX_TRACKED_IDS or rid in self._held:
                 held = self._held.setdefault(rid, set())
                 (held.add if alive else held.discard)(role)
@@ -90,6 +93,7 @@ class Roster:
     def _admit_newcomer(self, rid: int) -> None:
         if {"agent", "robot"} <= self._held.get(rid, set()) and rid in self._vouched:
             self.newcomers.add(rid)
+            self._admitted = self.expected | self.newcomers
             self.confirmed.add(rid)
             for kind in self._counted.pop(rid, []):  # not unexpected after all
                 self.counts[kind] -= 1
@@ -113,12 +117,12 @@ class Roster:
 
     def admit_state(self, rid: int) -> bool:
         """Whether an AgentState (its stats) of ``rid`` counts: an admitted id."""
-        return rid in self.admitted or self._unexpected("state", rid)
+        return rid in self._admitted or self._unexpected("state", rid)
 
     def vouch(self, rid: int, neighbors: Iterable[int]) -> None:
         """Agent ``rid``'s AgentState names ``neighbors``: if ``rid`` is admitted, each of
         them that holds tokens is vouched for (see :meth:`admit_token`)."""
-        if rid not in self.admitted:
+        if not self._held or rid not in self._admitted:  # no unexpected token: nobody to vouch for
             return
         for other in neighbors:
             if other in self._held:
@@ -135,7 +139,7 @@ class Roster:
     def members(self, alive: Mapping[str, set[int]]) -> frozenset[int]:
         """The team now: admitted ids whose robot and agent both hold a token
         (monitor.team_of, restricted to the roster)."""
-        return frozenset(alive.get("robot", set()) & alive.get("agent", set()) & self.admitted)
+        return frozenset(alive.get("robot", set()) & alive.get("agent", set()) & self._admitted)
 
     @property
     def total(self) -> int:
