@@ -493,16 +493,19 @@ class CoordinatorCore:
         )
 
     def on_agent_state(self, payload: bytes) -> None:
-        """An agent's AgentState payload: its stats (about once a second) are kept."""
+        """An agent's AgentState payload: its stats (about once a second) are kept, its
+        neighbours vouch for newcomers (coordinator.team)."""
         try:
             state = AgentState.decode(payload)
         except ProtocolError:
             self.observed.rejected += 1
             return
-        self.roster.vouch(state.id, state.neighbors)
-        self._enter_newcomers(self._now, self._wall)
+        # Vouching never admits the sender itself: a state an unadmitted id sent is counted
+        # and vouches for nobody either way.
         if not self.roster.admit_state(state.id):
             return
+        if self.roster.vouch(state.id, state.neighbors):
+            self._enter_newcomers(self._now, self._wall)
         if state.stats is not None:
             self.observed.agent_stats[state.id] = dict(state.stats)
             if self.phase.state != DONE:  # the held rate is the mission's, not the hold's

@@ -90,7 +90,8 @@ class Roster:
             self.confirmed.add(rid)
         return True
 
-    def _admit_newcomer(self, rid: int) -> None:
+    def _admit_newcomer(self, rid: int) -> bool:
+        """Admit ``rid`` if its tokens are held and it was vouched for; whether it was."""
         if {"agent", "robot"} <= self._held.get(rid, set()) and rid in self._vouched:
             self.newcomers.add(rid)
             self._admitted = self.expected | self.newcomers
@@ -101,6 +102,8 @@ class Roster:
             self._held.pop(rid)
             self._vouched.discard(rid)
             self._promoted += [("robot", rid), ("agent", rid)]
+            return True
+        return False
 
     def take_admitted(self) -> list[tuple[str, int]]:
         """The (role, id) tokens, alive now, of the newcomers admitted since the last call:
@@ -119,15 +122,18 @@ class Roster:
         """Whether an AgentState (its stats) of ``rid`` counts: an admitted id."""
         return rid in self._admitted or self._unexpected("state", rid)
 
-    def vouch(self, rid: int, neighbors: Iterable[int]) -> None:
+    def vouch(self, rid: int, neighbors: Iterable[int]) -> bool:
         """Agent ``rid``'s AgentState names ``neighbors``: if ``rid`` is admitted, each of
-        them that holds tokens is vouched for (see :meth:`admit_token`)."""
+        them that holds tokens is vouched for (see :meth:`admit_token`). Whether a newcomer
+        was admitted (:meth:`take_admitted`)."""
+        admitted = False
         if not self._held or rid not in self._admitted:  # no unexpected token: nobody to vouch for
-            return
+            return admitted
         for other in neighbors:
             if other in self._held:
                 self._vouched.add(other)
-                self._admit_newcomer(other)
+                admitted |= self._admit_newcomer(other)
+        return admitted
 
     def admit_observations(self, observations: np.ndarray) -> np.ndarray:
         """The rows of ``observations`` ((n, k) array, robot id in column 0: the

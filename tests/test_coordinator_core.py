@@ -259,6 +259,20 @@ def test_agent_stats_are_kept_and_malformed_states_counted() -> None:
     assert core.observed.rejected == 1
 
 
+def test_a_state_naming_a_newcomer_enters_it_in_the_liveness_and_the_team() -> None:
+    """Robot 5 (beyond the team of 2) holds both tokens: it is a team member once an agent
+    of the team names it in a state, not when it names itself."""
+    core = make_core(agents=2)
+    join(core, [0, 1, 5])
+    assert core.observed.liveness.count("agent") == 2
+    core.on_agent_state(AgentState(5, 0.0, 0.0, WALL0, (0, 5)).encode())
+    assert core.observed.liveness.count("agent") == 2
+    core.on_agent_state(AgentState(1, 0.0, 0.0, WALL0, (0, 5)).encode())
+    assert core.observed.liveness.count("agent") == core.observed.liveness.count("robot") == 3
+    assert core.roster.members(core.observed.liveness.alive) == frozenset({0, 1, 5})
+    assert core.roster.summary()["counts"] == {}  # its tokens and state are not unexpected
+
+
 def test_a_resumed_core_continues_the_mission_time_and_replays_steering() -> None:
     first = make_core(duration=30.0)
     started = start(first)
