@@ -1,7 +1,7 @@
 """The coordinator as a sans-IO state machine: messages and the clock in, actions out.
 
 Feed it what the network delivered: :meth:`CoordinatorCore.on_liveliness` (a token's key
-appeared or vanished), :meth:`~CoordinatorCore.on_pose` and
+appeared or vanished), :meth:`~CoordinatorCore.on_pose` (or ``on_poses``, a batch) and
 :meth:`~CoordinatorCore.on_agent_state` (raw payloads), :meth:`~CoordinatorCore.on_steer`
 (a steering query's payload, answered at once with a :class:`ReplySteer`); once per
 broadcast period :meth:`~CoordinatorCore.tick` returns what to do, in order:
@@ -466,11 +466,21 @@ class CoordinatorCore:
 
     def on_pose(self, key: str, payload: bytes) -> None:
         """A robot's pose payload on ``key`` (decoded only when sampled or recorded)."""
-        self._pose_payloads[key] = payload
+        self.on_poses([(key, payload)])
+
+    def on_poses(self, received: list[tuple[str, bytes]]) -> None:
+        """(key, pose payload) pairs in the order received: :meth:`on_pose` of each, in bulk
+        (the link's batch of a tick, 1000 poses at 1000 robots: the dict and the backlog
+        take them in one call each, not a Python step per pose)."""
+        self._pose_payloads.update(received)
         if self.recorder is not None:  # (tick empties the backlog while waiting)
-            if len(self._pose_backlog) == self._pose_backlog.maxlen:
-                self.recording["backlog_overflow"] += 1
-            self._pose_backlog.append((key, payload))
+            backlog = self._pose_backlog
+            assert backlog.maxlen is not None
+            # Every pose appended to a full backlog pushes out its oldest.
+            self.recording["backlog_overflow"] += max(
+                0, len(received) - (backlog.maxlen - len(backlog))
+            )
+            backlog.extend(received)
 
     def on_domain_heard(self, payload: bytes) -> None:
         """A payload on the swarm's domain key: one of ours coming back, or a Domain some

@@ -99,8 +99,11 @@ class CoordinatorLink:
         core, wall = self.core, time.time()
         while (sample := self._alive.try_recv()) is not None:
             core.on_liveliness(str(sample.key_expr), sample.kind != self._delete, now, wall)
-        while (sample := self._poses.try_recv()) is not None:
-            core.on_pose(str(sample.key_expr), sample.payload.to_bytes())
+        # 20 000 poses a second at 1000 robots: the loop does no more than take them out.
+        received, take = [], self._poses.try_recv
+        while (sample := take()) is not None:
+            received.append((str(sample.key_expr), sample.payload.to_bytes()))
+        core.on_poses(received)
         while (sample := self._states.try_recv()) is not None:
             core.on_agent_state(sample.payload.to_bytes())
         while (sample := self._heard.try_recv()) is not None:

@@ -118,8 +118,7 @@ def main(agents: int, seconds: float, offload: bool, record: bool, state_rate: f
             time.sleep(max(0.0, began + k / RATE - time.monotonic()))
             t = now + k / RATE
             w0, c0 = time.monotonic(), time.thread_time()
-            for key, payload in zip(keys, payloads[k], strict=True):
-                core.on_pose(key, payload)
+            core.on_poses(list(zip(keys, payloads[k], strict=True)))  # the link's batch
             c1 = time.thread_time()
             for payload in states[k]:
                 core.on_agent_state(payload)

@@ -33,6 +33,7 @@ from covswarm.coordinator.steering import Refusal
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import AgentState, Pose, alive_key, pose_key
 from covswarm.protocol.steering import SteerReply, SteerRequest
+from covswarm.records.recorder import RunRecorder
 
 SWARM = "core-test"
 WALL0 = 1.7e9  # s since the epoch at now = 0
@@ -271,6 +272,29 @@ def test_a_state_naming_a_newcomer_enters_it_in_the_liveness_and_the_team() -> N
     assert core.observed.liveness.count("agent") == core.observed.liveness.count("robot") == 3
     assert core.roster.members(core.observed.liveness.alive) == frozenset({0, 1, 5})
     assert core.roster.summary()["counts"] == {}  # its tokens and state are not unexpected
+
+
+def test_a_batch_of_poses_is_taken_as_one_pose_at_a_time(tmp_path) -> None:
+    """on_poses (the link's batch of a tick) keeps each robot's newest payload and backlogs
+    every pose, counting those that push out older ones, as on_pose one by one does."""
+    pairs = [(pose_key(SWARM, i % 3), Pose(i % 3, 0.1 * i, 0.0, 0.0, WALL0 + i, i).encode())
+             for i in range(1500)]  # fmt: skip
+    cores = []
+    for batch in (True, False):
+        settings = make_core().settings
+        with RunRecorder(tmp_path / str(batch), run_metadata={}) as recorder:
+            core = CoordinatorCore(settings, recorder=recorder, cpu_clock=lambda: 0.0)
+            for chunk in (pairs[:1000], pairs[1000:1001], pairs[1001:]):
+                if batch:
+                    core.on_poses(chunk)
+                else:
+                    for key, payload in chunk:
+                        core.on_pose(key, payload)
+            cores.append(core)
+    batched, single = cores
+    assert batched._pose_payloads == single._pose_payloads
+    assert list(batched._pose_backlog) == list(single._pose_backlog) == pairs[-1024:]
+    assert batched.recording["backlog_overflow"] == single.recording["backlog_overflow"] == 476
 
 
 def test_a_resumed_core_continues_the_mission_time_and_replays_steering() -> None:
