@@ -18,7 +18,7 @@ from covswarm import protocol
 from covswarm.agent import decoding
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.pack import DOMAIN_RING, LocalBus, Pack
+from covswarm.agent.pack import DOMAIN_RING, RING_PER_KEY, LocalBus, Pack
 from covswarm.deploy.bench import bench_command
 from covswarm.tvd.coverage import aggregate_error
 
@@ -464,6 +464,7 @@ def test_a_brain_gets_its_payloads_by_kind_then_id_then_key() -> None:
     pack.follow(0, "state", frozenset({9, 3, 5}))  # 6 unfollowed before the brain's turn
     seen: list[tuple[str, int | None, bytes]] = []
     _intercept(pack.brains[0], lambda kind, payload, key_id: seen.append((kind, key_id, payload)))
+    pack.take_own_poses([0])  # as before its turn
     pack.receive(0, 0.0, WALL)
     assert seen == [
         ("world", None, b"world"),
@@ -626,9 +627,9 @@ def test_a_late_brain_gets_the_newest_domains_its_own_ring_would_hold() -> None:
 def test_a_payload_replaced_before_any_followers_turn_is_never_decoded(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    """A process drains every tick but decodes a payload when a follower first takes it:
-    poses that a newer pose replaced before their brain's turn (a late brain, its robot at
-    20 Hz) cost no decoding."""
+    """A process decodes a payload when a follower first takes it, and takes a brain's own
+    pose off the bus only before its turn: poses that a newer pose replaced before their
+    brain's turn (a late brain, its robot at 20 Hz) cost no decoding."""
     decodes: Counter[str] = Counter()
     received = decoding._received
 
@@ -645,7 +646,8 @@ def test_a_payload_replaced_before_any_followers_turn_is_never_decoded(
             bus.put(protocol.pose_key(SWARM, rid), pose.encode())
         pack.drain()
     assert decodes == {}
+    pack.take_own_poses([1])  # as before a turn: the newest in the ring (RING_PER_KEY)
     pack.receive(1, 0.0, WALL)
     assert decodes == {"pose": 1}
     assert pack.brains[1].pose is not None and pack.brains[1].pose.seq == 5
-    assert pack.brains[1].counters.coalesced == 5
+    assert pack.brains[1].counters.coalesced == RING_PER_KEY - 1
