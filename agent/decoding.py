@@ -13,7 +13,8 @@ world's model).
 from __future__ import annotations
 
 from collections.abc import Callable
-from functools import cached_property, lru_cache
+from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -75,6 +76,16 @@ def _received(kind: str, payload: object) -> Received:
     return message, state_facts(message) if kind == "state" else None  # type: ignore[arg-type]
 
 
+class _FirstRead:
+    """Heard.decoded: decoded on the first read, then kept as the instance's attribute (a
+    non-data descriptor: the attribute wins from then on). Not functools.cached_property,
+    which takes a lock on every first read up to Python 3.11."""
+
+    def __get__(self, heard: Any, owner: type | None = None) -> Decoded:
+        decoded = heard.__dict__["decoded"] = _checked(_received, heard.kind, heard.payload)
+        return decoded
+
+
 class Heard(bytes):
     """A payload as a packed process took it off the bus (covswarm.agent.pack), decoded and
     validated once for all the brains that follow its key: ``decoded`` (Decoded), computed
@@ -90,10 +101,7 @@ class Heard(bytes):
 
     kind: str
     payload: bytes
-
-    @cached_property
-    def decoded(self) -> Decoded:
-        return _checked(_received, self.kind, self.payload)
+    decoded: Decoded = _FirstRead()  # type: ignore[assignment]
 
 
 def heard(kind: str, payload: bytes) -> Heard:
