@@ -81,7 +81,9 @@ class _FirstRead:
     non-data descriptor: the attribute wins from then on). Not functools.cached_property,
     which takes a lock on every first read up to Python 3.11."""
 
-    def __get__(self, heard: Any, owner: type | None = None) -> Decoded:
+    def __get__(self, heard: Any, owner: type | None = None) -> Any:
+        if heard is None:
+            return self  # read on the class (introspection)
         decoded = heard.__dict__["decoded"] = _checked(_received, heard.kind, heard.payload)
         return decoded
 

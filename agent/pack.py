@@ -308,9 +308,8 @@ class Pack:
     def drain(self) -> None:
         """Take everything that arrived since the last drain, once for the whole process,
         and queue each payload for every brain that follows its key; but the brains' own
-        robots' poses, which :meth:`take_own_poses` takes right before their turns (the
-        ring keeps the newest: draining them every tick too cost ~5 % of a 500-brain
-        process, for brains most of which skip the tick when it is overloaded)."""
+        robots' poses, which :meth:`take_own_poses` takes right before their turns (their
+        rings keep the newest): in an overloaded process most brains skip the tick."""
         for bid, later in self._later.items():
             if later:
                 pending = self._pending[bid]
