@@ -659,20 +659,19 @@ def local_cells(
     owners: np.ndarray,
     candidates: np.ndarray,
     domain: CoverageDomain,
-    first: int | None = None,
+    first: int = LOCAL_CANDIDATES,
 ) -> CellBatch:
     """The cells of ``owners`` (K,), each among its own ``candidates`` (K, D) only, or (1, D)
     shared (robot indices in increasing order, -1 padding at the end of a row):
     ``build_cells``' cells.
 
     The half-plane intersection costs L^2 per cell for L lines, so each cell is first built
-    from its ``first`` (default LOCAL_CANDIDATES) nearest candidates (kept in index order,
-    so that coincident robots tie-break as with all of them), and rebuilt with more (see
-    LOCAL_GROWTH), and so on, while a candidate left out is within twice the cell's radius
-    (only a robot that near can cut it, as in ``team_cells``).
+    from its ``first`` nearest candidates (kept in index order, so that coincident robots
+    tie-break as with all of them), and rebuilt with more (see LOCAL_GROWTH), and so on,
+    while a candidate left out is within twice the cell's radius (only a robot that near
+    can cut it, as in ``team_cells``).
     """
     width = candidates.shape[1]
-    first = LOCAL_CANDIDATES if first is None else first
     if width <= first or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
     if len(candidates) != len(owners):  # one row shared by every cell
