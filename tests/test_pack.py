@@ -374,20 +374,26 @@ def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() ->
         assert brain.counters.coalesced == (bid < 2)
 
 
+@pytest.fixture
+def decodes(monkeypatch: pytest.MonkeyPatch) -> Counter[str]:
+    """Payloads decoded from now on, by kind (covswarm.agent.decoding's one decoder)."""
+    counts: Counter[str] = Counter()
+    received = decoding._received
+
+    def counting(kind: str, payload: object) -> object:
+        counts[kind] += 1
+        return received(kind, payload)
+
+    monkeypatch.setattr(decoding, "_received", counting)
+    return counts
+
+
 def test_a_payload_is_decoded_once_per_process_whatever_its_followers(
-    monkeypatch: pytest.MonkeyPatch,
+    decodes: Counter[str],
 ) -> None:
     """Five brains follow the same keys: each payload drained is decoded once for the
     process, tick after tick, and every brain takes it as a lone brain takes its bytes (an
     invalid one counted as a drop by each, with the lone brain's reason)."""
-    decodes: Counter[str] = Counter()
-    received = decoding._received
-
-    def counting(kind: str, payload: object) -> object:
-        decodes[kind] += 1
-        return received(kind, payload)
-
-    monkeypatch.setattr(decoding, "_received", counting)
     bus = LocalBus()
     pack = Pack(bus, SWARM, [AgentBrain(i) for i in range(5)])
     for bid in pack.brains:
@@ -625,19 +631,11 @@ def test_a_late_brain_gets_the_newest_domains_its_own_ring_would_hold() -> None:
 
 
 def test_a_payload_replaced_before_any_followers_turn_is_never_decoded(
-    monkeypatch: pytest.MonkeyPatch,
+    decodes: Counter[str],
 ) -> None:
     """A process decodes a payload when a follower first takes it, and takes a brain's own
     pose off the bus only before its turn: poses that a newer pose replaced before their
     brain's turn (a late brain, its robot at 20 Hz) cost no decoding."""
-    decodes: Counter[str] = Counter()
-    received = decoding._received
-
-    def counting(kind: str, payload: object) -> object:
-        decodes[kind] += 1
-        return received(kind, payload)
-
-    monkeypatch.setattr(decoding, "_received", counting)
     bus = LocalBus()
     pack = Pack(bus, SWARM, [AgentBrain(i) for i in range(3)])
     for seq in range(6):  # six drains without a turn
