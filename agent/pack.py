@@ -4,11 +4,12 @@ The brains of one process (``covswarm agent --ids``) share one subscription per 
 domain is subscribed once for all of them, each AgentState, pose and beacon tile once per
 process with the set of brains that follow it (its reference count: the subscription is
 undeclared when the last one stops following). Each sample is drained once per control
-tick, decoded and validated then, once for the process, and handed to every brain that
-follows the key as the same :class:`~covswarm.agent.decoding.Heard` (its bytes, with what
-they decoded to or the ProtocolError they raised): a brain looks nothing up. A brain
-still receives only the keys it follows itself, newest payload per key, in a canonical
-order (kind, id, key): what it would receive in a process of its own (tests/test_pack.py).
+tick (a brain's own pose right before its turn) and handed to every brain that follows the
+key as the same :class:`~covswarm.agent.decoding.Heard` (its bytes, decoded and validated
+once for the process when a follower first reads it, into the message or the ProtocolError
+it raised): a brain looks nothing up. A brain still receives only the keys it follows
+itself, newest payload per key (the newest DOMAIN_RING domains), in a canonical order
+(kind, id, key): what it would receive in a process of its own (tests/test_pack.py).
 Liveliness token changes are recorded once for the process
 (covswarm.agent.neighborhood.Liveliness), not once per brain; each brain takes them as
 applied after its turn's data, as a process of its own would.
