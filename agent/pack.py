@@ -28,7 +28,8 @@ covswarm.agent.brain.sampled_gain) until that step is ``hold_after`` s old (thre
 velocity 0 (:meth:`AgentBrain.hold`: the robot stops rather than overshoot). A process that
 cannot hold K steps per period thus steps its brains in turn at the rate it can hold, and
 each brain's ``rate_hz`` and ``late_held`` (the fraction of the mission's periods skipped)
-stats say so.
+stats say so. Its neighbours' brains then publish at that rate too: each brain is told the
+time since its last turn and judges their states by it (:meth:`AgentBrain.pace`).
 
 The bus (:class:`Bus`) is Zenoh in a live process (:class:`covswarm.agent.link.ZenohBus`)
 and :class:`LocalBus`, an in-memory router, in tests and ``covswarm bench --brain-tick``.
