@@ -180,10 +180,10 @@ class Pack:
     to every brain that follows the key.
 
     ``drain()`` once per control tick; then, a chunk at a time, ``take_own_poses()`` (its
-    robots' poses drained again, so the last of a batch controls from its robot's newest
-    pose), each brain's ``receive()`` at a clock read after that, ``brain.tick()`` and
-    ``carry_out()``; :meth:`tick` does all that with the overload rule of the module
-    docstring.
+    robots' poses, taken off the bus only then, so the last of a batch controls from its
+    robot's newest pose), each brain's ``receive()`` at a clock read after that,
+    ``brain.tick()`` and ``carry_out()``; :meth:`tick` does all that with the overload rule
+    of the module docstring.
     """
 
     def __init__(

@@ -80,7 +80,7 @@ AGENT_SHARE = 0.8  # of the host's cores, for the agents
 # s of CPU per brain-tick of a process far from holding its rate: its brains take turns
 # late, skip periods and stop their robots, and each turn takes in more at once (every
 # domain and beacon since the last one). Live, 1000 robots on this 2-core VM at 10 and at 3
-# Hz asked: 0.78-0.99 ms (held 1.2-1.7 Hz), 2026-11-27 19:58-20:10 UTC, load 1-4
+# Hz asked: 0.72-0.99 ms (held 1.2-2.0 Hz), 2026-11-27 19:58-20:31 UTC, load 1-4
 # (docs/scaling.md, "A thousand robots in real time"); 400 robots, which held 8.0 of 10 Hz,
 # stayed at BRAIN_TICK. So :func:`capacity_note` expects a rate between the two; the time
 # scale it suggests holds the rate, at BRAIN_TICK.
