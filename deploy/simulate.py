@@ -166,8 +166,10 @@ def simulate(
             positions = positions + dt * velocity
             centre_velocity = velocity
         else:
+            # Held for a step, as an agent's command is for its period (AgentBrain._hold):
+            # uncapped, a robot far from its goal at a long step spins instead of driving.
             wheels = wheel_speeds(
-                headings, velocity, projection_distance=projection_distance or DEFAULT_L
+                headings, velocity, projection_distance=projection_distance or DEFAULT_L, hold=dt
             )
             wheel_log[k] = wheels
             if safety:

@@ -215,3 +215,17 @@ def test_safety_holds_a_crowded_team_apart_at_a_cost_in_coverage() -> None:
     plain, safe = simulate(passage, duration=10.0), simulate(passage, duration=10.0, safety=True)
     assert safe.safety_active == 0
     np.testing.assert_array_equal(safe.trajectories, plain.trajectories)
+
+
+def test_unicycles_at_a_long_step_drive_rather_than_spin() -> None:
+    """A step's command is held for the step, and the turn rate capped for it as the agents
+    cap theirs (covswarm.tvd.drive.steer's hold): uncapped, 30 robots of the circle at 0.6 s
+    steps spun in place and fell behind S (second-half e_a 5.5 m; capped 0.70-0.76 m over
+    seeds 0-4, 28 Nov 2026)."""
+    from covswarm.mission.scenarios import circle
+
+    result = simulate(
+        circle(), agents=30, dt=0.6, duration=30.0, dynamics="unicycle",
+        projection_distance=0.05, seed=2,
+    )  # fmt: skip
+    assert steady_state_mean(result.t, result.error) < 1.5
