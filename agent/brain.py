@@ -690,6 +690,15 @@ class AgentBrain:
         """Whether the mission runs (by the last domain received)."""
         return self.domain is not None and self.domain.state == "running"
 
+    @property
+    def command_hold(self) -> float:
+        """s the last command was computed to stay in force (0: no cap known): the period
+        measured between this brain's last two mission steps, up to its robot's command
+        timeout. Its gain, its barrier's decay rate and its turn cap are all sampled for
+        it, so a packed process that stops the robot earlier (covswarm.agent.pack) drives
+        it less far than the step meant."""
+        return self._hold
+
     def pose_fresh(self, now: float) -> bool:
         """Whether our own robot's pose is known and younger than ``stale_timeout``."""
         return self.pose is not None and now - self.pose_received <= self.config.stale_timeout

@@ -23,9 +23,10 @@ Overload (issue 24, item 4): a brain whose turn comes after the end of the perio
 to step for does not step on that period's inputs as if they were fresh: it skips the
 period, and the next tick starts with it. Its robot runs on the command of its last step
 (as at a lower rate: the gain is sampled for the period actually held,
-covswarm.agent.brain.sampled_gain) until that step is ``hold_after`` s old (three periods in
-``covswarm agent``); then the brain commands (0, 0) once and says so in an AgentState of
-velocity 0 (:meth:`AgentBrain.hold`: the robot stops rather than overshoot). A process that
+covswarm.agent.brain.sampled_gain) until that step is older than ``hold_after`` (three
+periods in ``covswarm agent``) and than the hold its command was computed for; then the
+brain commands (0, 0) once and says so in an AgentState of velocity 0
+(:meth:`AgentBrain.hold`: the robot stops rather than overshoot). A process that
 cannot hold K steps per period thus steps its brains in turn at the rate it can hold, and
 each brain's ``rate_hz`` and ``late_held`` (the fraction of the mission's periods skipped)
 stats say so. Its neighbours' brains then publish at that rate too: each brain is told the
@@ -577,13 +578,23 @@ class Pack:
 
     def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
         """Brain's period is over before its turn: it skips this period (its robot runs on
-        the command of its last step, as at a lower rate), and once that step is more than
-        ``hold_after`` s old, stops its robot (once) rather than let it run on a command
-        computed from inputs that old."""
+        the command of its last step, as at a lower rate), and once that step is older
+        than ``hold_after`` s and than the hold its command was computed for
+        (AgentBrain.command_hold), stops its robot (once) rather than let it run on a
+        command computed from inputs that old.
+
+        Not before the command's own hold: a brain stepped every 0.6 s computes its gain,
+        barrier and turn for 0.6 s (up to the robot's command timeout), and stopping its
+        robot at ``hold_after`` (0.3 s at 10 Hz) drove it half as far as its step meant
+        while the coordinator paced S by the steps held: the team fell behind S and its
+        trailing robots out of it (netsim, circle of 100 with S at a sixth of its speed,
+        agents at 1.67 Hz: e_a's second half 1.78 m with robots stopped 0.3 s after each
+        command, 0.53 m at 0.5 s, 0.018 m at 0.9 s; 28 Nov 2026)."""
         if not brain.running:
             return  # before the mission the robots stand still anyway
         brain.counters.late += 1
-        if brain.id in self._held or now - self._stepped.get(brain.id, now) <= self.hold_after:
+        expired = max(self.hold_after, brain.command_hold)
+        if brain.id in self._held or now - self._stepped.get(brain.id, now) <= expired:
             return
         self._held.add(brain.id)
         for action in brain.hold(now, wall):

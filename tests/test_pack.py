@@ -317,6 +317,41 @@ def test_a_late_brain_skips_its_period_then_holds_its_robot(chunk: int) -> None:
         Pack(LocalBus(), SWARM, [AgentBrain(9)], hold_after=0.0)
 
 
+def test_a_late_brain_holds_its_robot_no_earlier_than_its_command_was_meant_for() -> None:
+    """Six brains at 0.15 s a turn in 0.1 s periods: each steps every ~0.65 s of the fake
+    clock. A command is computed to hold that gap up to the robot's command timeout
+    (command_hold), so with a 0.5 s timeout the robot is stopped only once its step is
+    older than 0.5 s, not at hold_after (0.3 s), where a 0.1 s timeout still stops it."""
+    n = 6
+
+    def hold_ages(cmd_timeout: float) -> tuple[list[float], float]:
+        """The age of the last step at every stop after a warm-up, and the largest
+        command_hold then."""
+        world = World(
+            [list(range(n))], layout(n, 5), speed=0.0, config=AgentConfig(cmd_timeout=cmd_timeout)
+        )
+        world.run(3)
+        world.run(12, cost=0.15)  # until every brain's hold reflects its late turns
+        pack, ages = world.packs[0], []
+        for brain in pack.brains.values():
+            hold = brain.hold
+
+            def recording(now, wall, brain=brain, hold=hold):  # type: ignore[no-untyped-def]
+                ages.append(now - pack._stepped[brain.id])
+                return hold(now, wall)
+
+            brain.hold = recording  # type: ignore[method-assign]
+        world.run(24, cost=0.15)
+        return ages, max(b.command_hold for b in pack.brains.values())
+
+    ages, hold = hold_ages(0.5)
+    assert hold == pytest.approx(0.5)
+    assert len(ages) >= n and min(ages) > 0.5
+    ages, hold = hold_ages(0.1)
+    assert hold == pytest.approx(0.1)
+    assert len(ages) >= n and 0.3 < min(ages) <= 0.4
+
+
 @pytest.mark.parametrize(("cost", "chunk"), [(0.0, 32), (0.01, 1), (0.03, 1), (0.3, 1), (0.03, 4)])
 def test_a_starved_process_slows_down_and_stays_together(cost: float, chunk: int) -> None:
     """Turns that cost ``cost`` s each (an injected delay: at 0.03 s three of the twelve
