@@ -11,8 +11,10 @@ import numpy as np
 import pytest
 
 from covswarm import protocol
+from covswarm.protocol.messages import MAX_ANGLE, MAX_COORD, MAX_SEQ, MAX_STAMP
 from covswarm.sim_robot.process import (
     REST_POSE_RATE,
+    PosePayloads,
     PoseSchedule,
     RobotSim,
     step_robots,
@@ -284,8 +286,101 @@ def test_robots_not_driven_yet_publish_at_the_rest_rate() -> None:
 def test_a_robot_counts_as_driven_from_its_first_moving_command() -> None:
     sim = RobotSim(1, (0.0, 0.0, 0.0))
     assert sim.on_command(command(0.0, 0.0), now=0.0, now_wall=STAMP)
+    assert sim.on_command(command(-0.0, 0.0), now=0.05, now_wall=STAMP)
     assert not sim.counters.driven  # zero wheels: the pose cannot change
     assert sim.on_command(command(0.0, 0.1), now=0.1, now_wall=STAMP)
     assert sim.counters.driven
     sim.on_command(command(0.0, 0.0), now=0.2, now_wall=STAMP)
     assert sim.counters.driven  # stays: a stopped robot moving again must not wait
+
+
+class _OneRobot:
+    """The reference for the command timeout and the elapsed time: one robot in plain
+    floats as RobotSim stepped it alone before step_robots took both as a batch (open
+    floor, tvd.drive.integrate_one)."""
+
+    def __init__(self, pose: tuple[float, float, float], cmd_timeout: float) -> None:
+        self.pose, self.wheels, self.cmd_timeout = pose, (0.0, 0.0), cmd_timeout
+        self.last_command: float | None = None
+        self.last_step, self.timeouts = 0.0, 0
+
+    def command(self, left: float, right: float, now: float) -> None:
+        if now != self.last_step:
+            self.step(now)
+        self.wheels, self.last_command = (left, right), now
+
+    def step(self, now: float) -> None:
+        commanded = self.last_command is not None and now - self.last_command <= self.cmd_timeout
+        if not commanded and self.wheels != (0.0, 0.0):
+            self.timeouts += 1
+            self.wheels = (0.0, 0.0)
+        dt = min(max(now - self.last_step, 0.0), self.cmd_timeout)
+        self.last_step = now
+        if dt > 0.0 and self.wheels != (0.0, 0.0):
+            self.pose = integrate_one(*self.pose, *self.wheels, dt)
+
+
+def test_ticks_time_out_and_cap_the_elapsed_time_as_one_robot_alone_did() -> None:
+    """Ticks with commands (step_with_commands) against :class:`_OneRobot` per robot: each
+    robot its own cmd_timeout, some never commanded, some commanded then silent, a tick
+    repeated, a clock step back and a stall longer than any timeout; poses to 1e-12, the
+    wheels and the timeouts counted."""
+    rng = np.random.default_rng(11)
+    n = 24
+    starts = [(*rng.uniform(-1, 1, 2), rng.uniform(-math.pi, math.pi)) for _ in range(n)]
+    timeouts = rng.uniform(0.15, 0.6, n)
+    sims = [
+        RobotSim(i, p, cmd_timeout=t, now=0.0)
+        for i, (p, t) in enumerate(zip(starts, timeouts, strict=True))
+    ]
+    refs = [_OneRobot(p, t) for p, t in zip(starts, timeouts, strict=True)]
+    times = (
+        [0.05 * k for k in range(1, 20)]
+        + [0.95, 0.94, 2.0]
+        + [2.0 + 0.07 * k for k in range(1, 15)]
+    )
+    for now in times:
+        received = []
+        for i in range(n):
+            if i % 5 != 0 and rng.random() < (0.5 if i % 3 else 0.1):
+                left, right = rng.uniform(-1.2, 1.2, 2)
+                received.append((sims[i], command(left, right, robot_id=i)))
+                refs[i].command(float(left), float(right), now)
+        poses = step_with_commands(sims, received, now, STAMP)
+        for ref in refs:
+            ref.step(now)
+        np.testing.assert_allclose(poses, [ref.pose for ref in refs], rtol=0, atol=1e-12)
+        assert [tuple(sim.wheels) for sim in sims] == [ref.wheels for ref in refs]
+    assert [sim.counters.timeouts for sim in sims] == [ref.timeouts for ref in refs]
+    assert sum(ref.timeouts for ref in refs) > n // 2  # the silences did stop wheels
+
+
+def test_pose_payloads_are_the_bytes_pose_encodes() -> None:
+    """Row by row Pose(...).encode(), or None where Pose refuses the row (bounds, NaN,
+    infinities) or the stamp or sequence number; ids and sequence numbers of every msgpack
+    int width."""
+    ids = [0, 1, 127, 128, 255, 256, 40000, 65535]
+    rng = np.random.default_rng(2)
+    poses = np.column_stack([rng.uniform(-20, 20, (len(ids), 2)), rng.uniform(-7, 7, len(ids))])
+    beyond = np.nextafter(MAX_COORD, np.inf)
+    edges = [
+        (-0.0, 0.0, -0.0), (MAX_COORD, -MAX_COORD, MAX_ANGLE), (0.0, 0.0, -MAX_ANGLE),
+        (beyond, 0.0, 0.0), (0.0, -beyond, 0.0), (0.0, 0.0, np.nextafter(MAX_ANGLE, np.inf)),
+        (np.nan, 0.0, 0.0), (0.0, np.inf, 0.0), (0.0, 0.0, -np.inf), (1e-300, -5e-324, 1.0),
+    ]  # fmt: skip
+    ids += list(range(1000, 1000 + len(edges)))
+    poses = np.vstack([poses, edges])
+    encoder = PosePayloads(ids)
+    stamps_seqs = [(STAMP, s) for s in (0, 127, 128, 255, 256, 65536, 2**32, MAX_SEQ)]
+    stamps_seqs += [(0.0, 7), (MAX_STAMP, 7), (-1.0, 7), (2 * MAX_STAMP, 7), (STAMP, -1)]
+    for stamp, seq in stamps_seqs:
+        want = []
+        for i, (x, y, theta) in zip(ids, poses.tolist(), strict=True):
+            try:
+                want.append(
+                    protocol.Pose(id=i, x=x, y=y, theta=theta, stamp=stamp, seq=seq).encode()
+                )
+            except protocol.ProtocolError:
+                want.append(None)
+        assert encoder.encode(poses, stamp, seq) == want
+    assert sum(p is None for p in encoder.encode(poses, STAMP, 1)) == 6
