@@ -128,10 +128,11 @@ def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0)
 def auto_robots_per_process(agents: int, cores: int) -> int:
     """Simulated robots per robot process under ``auto`` packing: one each while the brains
     have a process each (:func:`auto_per_process`), else one robot process per core. A
-    robot process steps its robots as one numpy batch (sim_robot.process.step_robots) and
-    puts ~1 us of CPU per robot-step into stepping, ~10 us into each pose it publishes, so
-    500 robots at 20 Hz take ~10 % of a core, while every process more costs its imports
-    (~0.5 s of CPU at start-up) and ~50 MB."""
+    robot process steps its robots and encodes their poses as numpy batches
+    (sim_robot.process.step_robots, PosePayloads), and its main thread spends ~1 us of CPU
+    per robot-step on stepping and a few more on each pose's put, so 500 robots at 20 Hz
+    take 10-14 % of a core (scripts/robot_cpu.py, 28 Nov 2026), while every process more
+    costs its imports (~0.5 s of CPU at start-up) and ~50 MB."""
     if agents <= SOLO_PER_CORE * max(cores, 1):
         return 1
     return -(-agents // max(cores, 1))
