@@ -587,8 +587,8 @@ class Pack:
         barrier and turn for 0.6 s (up to the robot's command timeout), and stopping its
         robot at ``hold_after`` (0.3 s at 10 Hz) drove it half as far as its step meant
         while the coordinator paced S by the steps held: the team fell behind S and its
-        trailing robots out of it (netsim, circle of 100 with S at a sixth of its speed,
-        agents at 1.67 Hz: e_a's second half 1.78 m with robots stopped 0.3 s after each
+        trailing robots out of it (scripts/held_commands.py: 100 agents at 1.67 Hz, S at a
+        sixth of its speed, e_a's second half 1.78 m with robots stopped 0.3 s after each
         command, 0.53 m at 0.5 s, 0.018 m at 0.9 s; 28 Nov 2026)."""
         if not brain.running:
             return  # before the mission the robots stand still anyway
