@@ -38,6 +38,7 @@ from covswarm.deploy.plan import (
     RunConfig,
     auto_robots_per_process,
     capacity_note,
+    command_timeout,
     console_spec,
     covswarm_argv,
     parse_per_process,
@@ -238,8 +239,9 @@ def run_swarm(run: RunConfig) -> None:
     console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
+    timeout = command_timeout(here, cores, run.rate, run.time_scale)
     if (note := capacity_note(here, cores, run.rate, run.time_scale)) is not None:
-        console.log(f"[yellow]warning: {note}")
+        console.log(f"[yellow]warning: {note}; robots keep a command for {timeout:.2g} s")
     with zenoh_session(
         run.connect, max(1000, 4 * n), run.router_listen, run.router_connect, secure=run.secure
     ) as (session, endpoint):  # fmt: skip
@@ -251,7 +253,7 @@ def run_swarm(run: RunConfig) -> None:
         )
         specs = plan_children(
             run, scenario, endpoint=endpoint, base=covswarm_argv(), ids=ids,
-            per_process=packing, robots_per_process=robot_packing,
+            per_process=packing, robots_per_process=robot_packing, cmd_timeout=timeout,
         )  # fmt: skip
         if run.foxglove is not None:
             port = "a free port (see the coordinator's log)" if run.foxglove == 0 else (

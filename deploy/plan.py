@@ -125,6 +125,29 @@ def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0)
     )
 
 
+# s: a simulated robot's command timeout (sim_robot.config.RobotConfig, and what its brain
+# assumes, agent.config.AgentProcessConfig): it stops when its brain has said nothing for
+# that long (a dead or stalled brain must not leave it driving).
+COMMAND_TIMEOUT = 0.5
+# A team that cannot hold its rate steps each brain every 1 / (held rate) s, and a robot
+# that stops at its command timeout before the next step drives less far than its step
+# meant while S is paced by the steps held (scripts/held_commands.py: 100 agents at 1.67
+# Hz, e_a's second half 0.53 m stopping 0.5 s after each command, 0.018 m at 0.9 s). So
+# the timeout covers this many of the gaps expected at the lower end of capacity_note.
+GAP_MARGIN = 1.5
+
+
+def command_timeout(agents: int, cores: int, rate: float, time_scale: float = 1.0) -> float:
+    """The robots' command timeout, s of mission time, for ``agents`` brains at ``rate`` Hz
+    of mission time run at ``time_scale`` on ``cores`` cores: COMMAND_TIMEOUT when they fit
+    (:func:`fits`), else GAP_MARGIN gaps between two steps at the lowest rate
+    :func:`capacity_note` expects (1000 robots on 2 cores: 1.6 Hz, 0.94 s)."""
+    if fits(agents, cores, rate * time_scale):
+        return COMMAND_TIMEOUT
+    late = AGENT_SHARE * max(cores, 1) / (agents * LATE_BRAIN_TICK) / time_scale
+    return max(COMMAND_TIMEOUT, GAP_MARGIN / min(late, rate))
+
+
 def auto_robots_per_process(agents: int, cores: int) -> int:
     """Simulated robots per robot process under ``auto`` packing: one each while the brains
     have a process each (:func:`auto_per_process`), else one robot process per core. A
@@ -241,12 +264,23 @@ def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> Coo
 
 
 def robot_config(
-    run: RunConfig, endpoint: str, group: Sequence[int], poses: np.ndarray, packed: bool
+    run: RunConfig,
+    endpoint: str,
+    group: Sequence[int],
+    poses: np.ndarray,
+    packed: bool,
+    cmd_timeout: float = COMMAND_TIMEOUT,
 ) -> RobotConfig:
     """The robot process of ``run`` simulating robots ``group``, at ``poses`` ((n, 3) x, y,
     heading of the full team): ``--id``/``--x``/``--y``/``--theta`` for one robot per
-    process, ``--ids`` and a ``--pose`` each when ``packed`` (a group of one included)."""
-    common = {"connect": (endpoint,), "swarm": run.swarm, "time_scale": run.time_scale}
+    process, ``--ids`` and a ``--pose`` each when ``packed`` (a group of one included);
+    stopping ``cmd_timeout`` s after a robot's last command (:func:`command_timeout`)."""
+    common = {
+        "connect": (endpoint,),
+        "swarm": run.swarm,
+        "time_scale": run.time_scale,
+        "cmd_timeout": cmd_timeout,
+    }
     if not packed:
         (i,) = group
         x, y, theta = (float(v) for v in poses[i])
@@ -262,13 +296,15 @@ def agent_config(
     group: Sequence[int],
     phase: float,
     packed: bool,
+    cmd_timeout: float = COMMAND_TIMEOUT,
 ) -> AgentProcessConfig:
     """The agent process of ``run`` running the brains of ``group`` (``--ids`` when
     ``packed``, else ``--id``), starting its control periods at ``phase`` of a period; the
-    scenario's bodies for its safety filter."""
+    scenario's bodies for its safety filter; its robots' command timeout."""
     one = not packed
     return AgentProcessConfig(
         connect=(endpoint,),
+        cmd_timeout=cmd_timeout,
         id=group[0] if one else None,
         ids=None if one else format_ids(list(group)),
         tick_phase=phase,
@@ -296,6 +332,7 @@ def plan_children(
     ids: Sequence[int] | None = None,
     per_process: int = 1,
     robots_per_process: int | None = None,
+    cmd_timeout: float = COMMAND_TIMEOUT,
 ) -> list[ChildSpec]:
     """Coordinator first (it must see everyone arrive), then robot i and agent i in turn.
 
@@ -311,7 +348,8 @@ def plan_children(
     ``robots_per_process`` (default ``per_process``) robots a robot process, which starts
     just before the first agent process of its robots; ``run.coordinator`` False leaves the
     coordinator to another host, ``run.robots`` "none" the robots to bridges (covswarm
-    bridge ros2) that join the swarm.
+    bridge ros2) that join the swarm. ``cmd_timeout``: the simulated robots' command
+    timeout, which their brains are told (:func:`command_timeout`).
     Agent process k of n gets ``--tick-phase k/n``: their batches of brains take turns
     within the control period instead of colliding on the cores at chance moments. Each
     child's command line is its config object's (runtime.options.config_argv).
@@ -333,11 +371,11 @@ def plan_children(
         members = tuple(group) if per_process > 1 else ()
         while robot_groups and robot_groups[0][0] <= group[-1]:
             hosted = robot_groups.pop(0)
-            robot = robot_config(run, endpoint, hosted, poses, robots > 1)
+            robot = robot_config(run, endpoint, hosted, poses, robots > 1, cmd_timeout)
             argv = (*base, "robot", *config_argv(robot))
             specs.append(ChildSpec("robot", hosted[0], argv, tuple(hosted) if robots > 1 else ()))
         phase = start // per_process / processes
-        agent = agent_config(run, scenario, endpoint, group, phase, per_process > 1)
+        agent = agent_config(run, scenario, endpoint, group, phase, per_process > 1, cmd_timeout)
         specs.append(ChildSpec("agent", group[0], (*base, "agent", *config_argv(agent)), members))
     return specs
 

@@ -19,6 +19,8 @@ from live_runs import launch, new_swarm, swarm_pids
 from covswarm.deploy.plan import (
     AGENT_SHARE,
     BRAIN_TICK,
+    COMMAND_TIMEOUT,
+    GAP_MARGIN,
     LATE_BRAIN_TICK,
     PERIOD_SHARE,
     SOLO_PER_CORE,
@@ -26,6 +28,7 @@ from covswarm.deploy.plan import (
     auto_per_process,
     auto_robots_per_process,
     capacity_note,
+    command_timeout,
     covswarm_argv,
     initial_poses,
     parse_per_process,
@@ -224,6 +227,30 @@ def test_the_capacity_note_says_what_rate_the_machine_holds() -> None:
     assert expected in slowed and f"--time-scale {held / 10:.2g}" in slowed
     assert capacity_note(1000, 2, 10.0, time_scale=0.5 * held / 10) is None
     assert capacity_note(100, 16, 10.0) is None
+
+
+def test_an_overloaded_teams_robots_keep_a_command_until_the_next_step() -> None:
+    """Robots that stop at their command timeout before their brain's next step drive less
+    far than the step meant (scripts/held_commands.py): when the team cannot hold its rate,
+    the timeout covers GAP_MARGIN gaps at the lowest rate capacity_note expects, and every
+    simulated robot and brain is told it."""
+    assert command_timeout(100, 16, 10.0) == COMMAND_TIMEOUT
+    late = AGENT_SHARE * 2 / (1000 * LATE_BRAIN_TICK)
+    assert command_timeout(1000, 2, 10.0) == pytest.approx(GAP_MARGIN / late)
+    assert 0.9 < command_timeout(1000, 2, 10.0) < 1.0  # 1.6 Hz, 2026-11-27: 1.66 held
+    held = AGENT_SHARE * 2 / (1000 * BRAIN_TICK)
+    assert command_timeout(1000, 2, 10.0, time_scale=0.5 * held / 10) == COMMAND_TIMEOUT
+    # In mission time: at a slower clock a step's gap is fewer mission seconds.
+    slowed = command_timeout(1000, 2, 10.0, time_scale=2 * held / 10)
+    assert slowed == pytest.approx(max(COMMAND_TIMEOUT, GAP_MARGIN * (2 * held / 10) / late))
+    run = RunConfig(scenario="passage", agents=6, swarm="s", out=Path("out"))
+    specs = plan_children(
+        run, load_scenario("passage"), endpoint="e", base=["covswarm"], cmd_timeout=0.9
+    )
+    for spec in specs[1:]:
+        assert _options(spec.argv, "--cmd-timeout") == ["0.9"], spec.argv
+    plain = plan_children(run, load_scenario("passage"), endpoint="e", base=["covswarm"])
+    assert all(_options(s.argv, "--cmd-timeout") in ([], ["0.5"]) for s in plain)
 
 
 def test_agents_per_process_is_a_positive_integer_or_auto() -> None:
