@@ -470,11 +470,13 @@ def _compile_reader(cls: type[Message], names: tuple[str, ...]) -> Callable[[Any
     keeping the locals ``names`` rather than setting fields, and for a field it does not
     keep, calling its checker's ``verify`` if it has one (the verdict, the value unbuilt)."""
     spec = cls._SPEC
-    assert names and set(names) <= spec.keys(), f"{cls.__name__}: no fields {names}"
-    # A check across fields takes the message, which read does not build.
-    assert cls._check_fields is Message._check_fields, f"{cls.__name__} checks across fields"
+    if not names or not set(names) <= spec.keys():
+        raise ValueError(f"{cls.__name__}: no fields {names}")
+    # A check across fields takes the message, which read does not build (and read would
+    # accept what decode refuses): not an assert, which python -O drops.
     own_decode = cls.decode.__func__ is not Message.decode.__func__  # type: ignore[attr-defined]
-    assert not own_decode, f"{cls.__name__} decodes its own way"
+    if cls._check_fields is not Message._check_fields or own_decode:
+        raise TypeError(f"{cls.__name__}: no reader (checks across fields, or its own decode)")
     assert all(name not in ("payload", "unpack", "checked") for name in spec)
     namespace, reads, test, values = _field_checks(cls)
     namespace.update(unpack=_unpack, checked=cls._checked_map)

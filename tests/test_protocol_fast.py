@@ -271,6 +271,16 @@ def test_fast_path_refuses_every_bad_number_inside(cls) -> None:
             assert _read_outcome(read, payload) == _decode_outcome(cls, [name], payload)
 
 
+def test_no_reader_of_a_type_that_checks_across_fields_or_decodes_its_own_way() -> None:
+    """A reader checks field by field: of a Domain (velocities as many as vertices) or a
+    World (its own compact decode) it would accept what decode refuses."""
+    for cls in (protocol.Domain, protocol.World):
+        with pytest.raises(TypeError):
+            cls.reader("seq")
+    with pytest.raises(ValueError):
+        protocol.Pose.reader("z")
+
+
 def test_decoded_stats_and_relay_are_copies() -> None:
     """The fast paths return new containers: a sender mutating its map or list afterwards
     does not change the message."""
