@@ -85,6 +85,12 @@ if TYPE_CHECKING:  # the recorder pulls in mcap and websockets; the core only ca
 
 log = logging.getLogger("covswarm.coordinator")
 
+# What the coordinator reads of an AgentState. Every field is checked as AgentState.decode
+# checks it (a malformed state is dropped and counted), but neither the message nor its
+# relay (neighbours' positions, which only agents read) is built: 10 000 states a second
+# at 1000 robots.
+_read_state = AgentState.reader("id", "stamp", "neighbors", "stats")
+
 # Own Domains remembered to recognise them when they come back (2.5 s at 20 Hz: far longer
 # than a loopback or LAN round trip).
 OWN_DOMAINS_KEPT = 50
@@ -506,20 +512,20 @@ class CoordinatorCore:
         """An agent's AgentState payload: its stats (about once a second) are kept, its
         neighbours vouch for newcomers (coordinator.team)."""
         try:
-            state = AgentState.decode(payload)
+            rid, stamp, neighbors, stats = _read_state(payload)
         except ProtocolError:
             self.observed.rejected += 1
             return
         # Vouching never admits the sender itself: a state an unadmitted id sent is counted
         # and vouches for nobody either way.
-        if not self.roster.admit_state(state.id):
+        if not self.roster.admit_state(rid):
             return
-        if self.roster.vouch(state.id, state.neighbors):
+        if self.roster.vouch(rid, neighbors):
             self._enter_newcomers(self._now, self._wall)
-        if state.stats is not None:
-            self.observed.agent_stats[state.id] = dict(state.stats)
+        if stats is not None:  # a map of its own (no message holds it)
+            self.observed.agent_stats[rid] = stats
             if self.phase.state != DONE:  # the held rate is the mission's, not the hold's
-                self.pace.report(state.id, state.stats, state.stamp)
+                self.pace.report(rid, stats, stamp)
 
     def on_steer(
         self, payload: bytes, now: float, wall: float, requester: str | None = None

@@ -7,8 +7,9 @@ just past a bound, huge ints, booleans, numpy scalars, ints for floats, strings,
 arrays and maps where numbers belong, and the same inside ids, relays, stats and
 vertices), go through the reference (the checkers alone, Message._fill_checked with the
 fast paths inside the checkers of ids, relays and stats turned off), through
-construction, through _from_map and through real msgpack bytes: all must accept with the
-same fields (same types too) or refuse with the same reason and message.
+construction, through _from_map and through real msgpack bytes (decode, and readers of some
+of the fields, Message.reader): all must accept with the same fields (same types too) or
+refuse with the same reason and message.
 """
 
 from __future__ import annotations
@@ -128,8 +129,8 @@ def _slow_fill(cls: type[protocol.Message], values: dict) -> protocol.Message:
     alone: with the fast paths inside the checkers of ids, relays and stats turned off."""
     message = object.__new__(cls)
     with (
-        patch.object(messages, "_plain_ids", lambda items: None),
-        patch.object(messages, "_plain_relay", lambda items: None),
+        patch.object(messages, "_plain_ids", lambda value, max_n: None),
+        patch.object(messages, "_plain_relay", lambda value, max_n: False),
         patch.object(messages, "_plain_stats", lambda value: False),
     ):
         message._fill_checked(values)
@@ -152,6 +153,28 @@ def _fast(cls: type[protocol.Message], values: dict) -> bool:
         except (protocol.ProtocolError, AssertionError):
             return False
     return not slow.called
+
+
+# The types a reader can read (Message.reader): no checks across fields.
+READABLE = [cls for cls in VALID if cls._check_fields is protocol.Message._check_fields]
+
+
+def _read_outcome(read, payload: bytes) -> tuple:
+    """("ok", the repr of the values the reader ``read`` returns) or ("refused", ...)."""
+    try:
+        values = read(payload)
+    except protocol.ProtocolError as exc:
+        return ("refused", exc.reason, str(exc))
+    return ("ok", repr(values))
+
+
+def _decode_outcome(cls: type[protocol.Message], names: list[str], payload: bytes) -> tuple:
+    """_read_outcome's, of the message decode returns."""
+    try:
+        message = cls.decode(payload)
+    except protocol.ProtocolError as exc:
+        return ("refused", exc.reason, str(exc))
+    return ("ok", repr(tuple(getattr(message, name) for name in names)))
 
 
 FAST = settings(
@@ -181,7 +204,12 @@ def test_fast_path_refuses_what_the_checkers_refuse(cls, data: st.DataObject) ->
         assert _outcome(lambda: cls.decode(payload))[:2] == ("refused", "undecodable")
         return
     unpacked.pop("v")
-    assert _outcome(lambda: cls.decode(payload)) == _outcome(lambda: _reference(cls, unpacked))
+    decoded = _outcome(lambda: cls.decode(payload))
+    assert decoded == _outcome(lambda: _reference(cls, unpacked))
+    if cls in READABLE:
+        names = data.draw(st.lists(st.sampled_from(list(cls._SPEC)), min_size=1, unique=True))
+        read = cls.reader(*names)
+        assert _read_outcome(read, payload) == _decode_outcome(cls, names, payload)
 
 
 @pytest.mark.parametrize("cls", list(VALID), ids=lambda cls: cls.__name__)
@@ -227,11 +255,30 @@ def _spoilt_inside(valid: dict) -> list[dict]:
 @pytest.mark.parametrize("cls", list(VALID), ids=lambda cls: cls.__name__)
 def test_fast_path_refuses_every_bad_number_inside(cls) -> None:
     """Each atom at every place inside ids, relays, stats, vertices and routes: the same
-    outcome by construction, by _from_map and by the checkers alone."""
+    outcome by construction, by _from_map and by the checkers alone; and, of the bytes, by
+    a reader of any one field (one that leaves out an AgentState's relay checks it without
+    building it) as by decode."""
+    readers = {name: cls.reader(name) for name in cls._SPEC} if cls in READABLE else {}
     for values in _spoilt_inside(VALID[cls]):
         reference = _outcome(lambda values=values: _reference(cls, values))
         assert _outcome(lambda values=values: cls._from_map({"v": 1, **values})) == reference
         assert _outcome(lambda values=values: cls(**values)) == reference
+        try:
+            payload = msgpack.packb({"v": 1, **values}, use_bin_type=True)
+        except (TypeError, ValueError, OverflowError):
+            continue  # numpy values and ints beyond 64 bits: not on the wire
+        for name, read in readers.items():
+            assert _read_outcome(read, payload) == _decode_outcome(cls, [name], payload)
+
+
+def test_no_reader_of_a_type_that_checks_across_fields_or_decodes_its_own_way() -> None:
+    """A reader checks field by field: of a Domain (velocities as many as vertices) or a
+    World (its own compact decode) it would accept what decode refuses."""
+    for cls in (protocol.Domain, protocol.World):
+        with pytest.raises(TypeError):
+            cls.reader("seq")
+    with pytest.raises(ValueError):
+        protocol.Pose.reader("z")
 
 
 def test_decoded_stats_and_relay_are_copies() -> None:
