@@ -17,7 +17,12 @@ from covswarm.tvd.control import LocalView, local_step, local_steps, team_step
 from covswarm.tvd.coverage import (
     LOCAL_CANDIDATES,
     PRUNED_CELLS,
+    CellBatch,
+    JacobianTerms,
+    apply_jacobian,
     build_cells,
+    jacobian_terms,
+    jacobian_times,
     local_cells,
     make_domain,
     neighbors,
@@ -236,6 +241,70 @@ def test_local_cells_rebuild_a_cell_whose_neighbour_is_not_among_the_nearest() -
         np.testing.assert_allclose(pruned.vertices(k), full.vertices(k), rtol=0, atol=1e-12)
     np.testing.assert_allclose(pruned.mass, full.mass, rtol=1e-12, atol=0)
     np.testing.assert_allclose(pruned.centroid, full.centroid, rtol=0, atol=1e-12)
+
+
+def degenerate_layout(kind: str, rng: np.random.Generator) -> np.ndarray:
+    """40 robots in or around the 6 x 4 m rectangle, (40, 2) m, as ``kind`` says."""
+    if kind == "uniform":
+        return rng.uniform([0.0, 0.0], [6.0, 4.0], size=(40, 2))
+    if kind == "outside":  # some robots outside S, with empty or sliver cells
+        return rng.uniform([-2.0, -1.0], [8.0, 5.0], size=(40, 2))
+    if kind == "clustered":  # tight clusters: long, thin boundary cells
+        centres = rng.uniform([0.5, 0.5], [5.5, 3.5], size=(4, 2))
+        return centres[rng.integers(0, 4, 40)] + rng.normal(0.0, 0.05, size=(40, 2))
+    if kind == "lattice":  # equidistant candidates, bisectors through shared vertices
+        x, y = np.meshgrid(np.arange(8) * 0.75 + 0.2, np.arange(5) * 0.75 + 0.3)
+        return np.stack([x.ravel(), y.ravel()], axis=1)
+    if kind == "collinear":
+        return np.stack([np.linspace(0.1, 5.9, 40), np.full(40, 2.0)], axis=1)
+    layout = rng.uniform([0.0, 0.0], [6.0, 4.0], size=(40, 2))  # "coincident"
+    layout[20:30] = layout[rng.integers(0, 20, 10)]
+    return layout
+
+
+@pytest.mark.parametrize(
+    "kind", ["uniform", "outside", "clustered", "lattice", "collinear", "coincident"]
+)
+@pytest.mark.parametrize("seed", range(3))
+def test_local_cells_equal_build_cells_with_every_candidate(kind: str, seed: int) -> None:
+    """The pruned cells (the nearest first, rebuilt while a left-out robot may reach a
+    vertex) are the cells of every candidate, to 1e-12, on random and degenerate layouts:
+    the same edges, neighbours, empty cells and coincident robots' tie-breaks."""
+    rng = np.random.default_rng(seed)
+    points = degenerate_layout(kind, rng)
+    domain = make_domain(np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]]))
+    owners = np.arange(len(points))
+    everyone = np.broadcast_to(owners, (len(points), len(points)))
+    pruned = local_cells(points, owners, everyone, domain)
+    full = build_cells(points, owners, everyone, domain)
+    np.testing.assert_array_equal(pruned.empty, full.empty)
+    for k in owners:
+        assert set(pruned.labels[k][pruned.shared[k]]) == set(full.labels[k][full.shared[k]])
+        np.testing.assert_allclose(pruned.vertices(k), full.vertices(k), rtol=0, atol=1e-12)
+    np.testing.assert_allclose(pruned.mass, full.mass, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(pruned.centroid, full.centroid, rtol=0, atol=1e-12)
+
+
+def test_jacobian_terms_of_some_rows_are_those_rows_terms() -> None:
+    """TVD-DA's second product reads the first rows of the batch's terms: the same numbers
+    as ``jacobian_times`` of those rows alone."""
+    rng = np.random.default_rng(5)
+    points = rng.uniform([0.0, 0.0], [6.0, 4.0], size=(40, 2))
+    domain = make_domain(np.array([[0.0, 0.0], [6.0, 0.0], [6.0, 4.0], [0.0, 4.0]]))
+    owners = np.arange(len(points))
+    cells = build_cells(points, owners, owners[None], domain)
+    own = rng.normal(size=40) + 1j * rng.normal(size=40)
+    others = np.where(cells.shared, own[np.maximum(cells.labels, 0)], 0.0)
+    terms = jacobian_terms(cells, points)
+    np.testing.assert_array_equal(
+        apply_jacobian(terms, own, others), jacobian_times(cells, points, own, others)
+    )
+    head = JacobianTerms(*(t[:12] for t in terms))
+    rows = CellBatch(**{f: getattr(cells, f)[:12] for f in CellBatch.__dataclass_fields__})
+    np.testing.assert_array_equal(
+        apply_jacobian(head, own[:12], others[:12]),
+        jacobian_times(rows, points, own[:12], others[:12]),
+    )
 
 
 def random_filter_cases(count: int, seed: int) -> dict:

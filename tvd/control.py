@@ -74,6 +74,8 @@ from covswarm.tvd.coverage import (
     CellBatch,
     CoverageDomain,
     DensityModel,
+    JacobianTerms,
+    apply_jacobian,
     as_complex,
     as_vectors,
     build_cells,
@@ -81,6 +83,7 @@ from covswarm.tvd.coverage import (
     cell_rates,
     check_density,
     concatenate_cells,
+    jacobian_terms,
     jacobian_times,
     local_cells,
     make_domain,
@@ -261,6 +264,9 @@ def _whole_domain(domain: CoverageDomain, density: DensityModel | None) -> tuple
 
 
 Blocks = tuple[np.ndarray, np.ndarray]
+# What a product with J of a batch's rows reads besides the vectors: a density's blocks,
+# the terms of uniform density's closed form.
+Prepared = Blocks | JacobianTerms
 
 
 def _jacobian_product(
@@ -269,16 +275,20 @@ def _jacobian_product(
     own: np.ndarray,
     others: np.ndarray,
     density: DensityModel | None,
-    blocks: Blocks | None,
+    blocks: Prepared | None,
 ) -> np.ndarray:
     """(J w)_i = sum_j dc_i/dp_j w_j for the batch's rows, (K,) complex.
 
     own: (K,) w_i; others: (K, L) w_j of the robot each line comes from (read on shared
-    edges only). Uniform density: closed form without blocks; else the density's blocks
+    edges only). Uniform density: closed form without blocks (``blocks``: its
+    JacobianTerms of these rows, computed here when None); else the density's blocks
     (``blocks``: (off, diagonal) of these rows, computed here when None).
     """
     if density is None:
-        return jacobian_times(batch, points, own, np.where(batch.shared, others, 0.0))
+        others = np.where(batch.shared, others, 0.0)
+        if blocks is None:
+            return jacobian_times(batch, points, own, others)
+        return apply_jacobian(blocks, own, others)
     if blocks is None:
         return density.jacobian_times(batch, points, own, others)
     off, diagonal = blocks
@@ -288,6 +298,21 @@ def _jacobian_product(
     )
 
 
+def _prepare(batch: CellBatch, points: np.ndarray, density: DensityModel | None) -> Prepared:
+    """What the products with J of ``batch`` read (TVD-DA takes two): the density's blocks,
+    or uniform density's JacobianTerms."""
+    if density is None:
+        return jacobian_terms(batch, points)
+    return density.jacobian_blocks(batch, points)
+
+
+def _head(blocks: Prepared, count: int) -> Prepared:
+    """``_prepare``'s arrays of the first ``count`` rows."""
+    if isinstance(blocks, JacobianTerms):
+        return JacobianTerms(*(terms[:count] for terms in blocks))
+    return blocks[0][:count], blocks[1][:count]
+
+
 def _neumann_rows(
     batch: CellBatch,
     points: np.ndarray,
@@ -295,7 +320,7 @@ def _neumann_rows(
     neighbor_values: np.ndarray,
     max_amplification: float,
     density: DensityModel | None,
-    blocks: Blocks | None = None,
+    blocks: Prepared | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rows of (I + J) w for the batch's robots, with the amplification guard.
 
@@ -392,7 +417,7 @@ def _team_da(
     """TVD-DA of the whole team: v(p) + (I + J) (kappa (c - p) + rho)."""
     if rate is None:
         return _team_d1(batch, points, feedback, max_amplification, density)
-    blocks = None if density is None else density.jacobian_blocks(batch, points)
+    blocks = _prepare(batch, points, density)
     field = _motion_field(domain, points, density)
     labels = np.maximum(batch.labels, 0)
     references = feedback + _residual(batch, points, rate, field, field[labels], density, blocks)
@@ -409,7 +434,7 @@ def _residual(
     own_field: np.ndarray,
     neighbor_field: np.ndarray,
     density: DensityModel | None,
-    blocks: Blocks | None,
+    blocks: Prepared | None,
 ) -> np.ndarray:
     """rho_i = dc_i/dt - v(p_i) + (J v)_i for the batch's rows, (K,) complex: what the affine
     guess v misses of TVD-C's feedforward (zero at a CVT of a similarity motion).
@@ -825,7 +850,7 @@ def _batch_steps(
         references = feedback + rate
     elif rate is not None:
         field = _motion_field(domain, points, density)
-        blocks = None if density is None else density.jacobian_blocks(batch, points)
+        blocks = _prepare(batch, points, density)
         references = feedback + _residual(
             batch,
             points,
@@ -844,7 +869,7 @@ def _batch_steps(
         by_robot[np.maximum(mine.labels, 0)],
         max_amplification,
         density,
-        None if blocks is None else (blocks[0][:count], blocks[1][:count]),
+        None if blocks is None else _head(blocks, count),
     )
     velocity = as_vectors(rows if field is None else field[mes] + rows)
     centroid = as_vectors(mine.centroid)
@@ -857,13 +882,6 @@ def _batch_steps(
     masses, guards, areas = mine.mass.tolist(), guarded.tolist(), cells.mass[:count].tolist()
     # LocalStep(velocity, neighbors, centroid, mass, guarded, area), the arrays' rows.
     return list(map(LocalStep, velocity, neighbors, centroid, masses, guards, areas))
-
-
-# Nearest robots of its view offered first to a view's own cell (``local_cells``' first):
-# twice its default, so that the own cells of a batch are seldom rebuilt (a round of numpy
-# calls for a few boundary cells), and the 32 or so own cells' wider lines cost little.
-# Measured on a 500-brain pack's batches: 2.5 % faster than 8.
-OWN_CANDIDATES = 16
 
 
 def _view_cells(
@@ -886,7 +904,7 @@ def _view_cells(
         if count > 1:  # each cell among its own view's robots
             candidates = candidates[np.concatenate((np.arange(count), of_view))]
         return local_cells(points, owners, candidates, domain), of_view
-    mine = local_cells(points, mes, candidates, domain, OWN_CANDIDATES)
+    mine = local_cells(points, mes, candidates, domain)
     of_view, column = np.nonzero(mine.shared)
     if not len(of_view):
         return mine, of_view

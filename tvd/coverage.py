@@ -649,6 +649,9 @@ LOCAL_CANDIDATES = 8
 # lines cost more there. Measured on a 500-brain pack's batches: 3 % faster from tick 25
 # on, 2 % slower in its first 16 ticks than 2x always (4x always: 8 % slower there).
 LOCAL_GROWTH = 4
+# Relative to the size of S: a robot left out of a cell whose bisector passes within this
+# of one of its vertices may cut it, and the cell is rebuilt with it (``_reached``).
+LOCAL_MARGIN = 1e-9
 # Fewer cells than this are built with every candidate at once: for one robot's step the
 # numpy calls of the pruning cost more than the arithmetic they save.
 PRUNED_CELLS = 32
@@ -659,20 +662,20 @@ def local_cells(
     owners: np.ndarray,
     candidates: np.ndarray,
     domain: CoverageDomain,
-    first: int = LOCAL_CANDIDATES,
 ) -> CellBatch:
     """The cells of ``owners`` (K,), each among its own ``candidates`` (K, D) only, or (1, D)
     shared (robot indices in increasing order, -1 padding at the end of a row):
     ``build_cells``' cells.
 
     The half-plane intersection costs L^2 per cell for L lines, so each cell is first built
-    from its ``first`` nearest candidates (kept in index order, so that coincident robots
-    tie-break as with all of them), and rebuilt with more (see LOCAL_GROWTH), and so on,
-    while a candidate left out is within twice the cell's radius (only a robot that near
-    can cut it, as in ``team_cells``).
+    from its LOCAL_CANDIDATES nearest candidates (kept in index order, so that coincident
+    robots tie-break as with all of them), and rebuilt with more (see LOCAL_GROWTH), and so
+    on, while a candidate left out may cut it: it is within twice the cell's radius (only a
+    robot that near can, as in ``team_cells``) and its bisector reaches one of the cell's
+    vertices (``_reached``), which spares most of the rounds that test alone would take.
     """
     width = candidates.shape[1]
-    if width <= first or len(owners) < PRUNED_CELLS:
+    if width <= LOCAL_CANDIDATES or len(owners) < PRUNED_CELLS:
         return build_cells_in_chunks(points, owners, candidates, domain)
     if len(candidates) != len(owners):  # one row shared by every cell
         candidates = np.broadcast_to(candidates, (len(owners), width))
@@ -681,7 +684,7 @@ def local_cells(
     distance[candidates < 0] = np.inf
     order = np.argsort(distance, axis=1)
     rows, batch = np.arange(len(owners)), None
-    unclosed, taken = rows, first
+    unclosed, taken = rows, LOCAL_CANDIDATES
     while len(unclosed):
         if taken >= width:
             cells = build_cells_in_chunks(points, owners[unclosed], candidates[unclosed], domain)
@@ -692,9 +695,42 @@ def local_cells(
         )
         batch = cells if batch is None else _replace(batch, unclosed, cells)
         beyond = distance[unclosed, order[unclosed, taken]]  # the nearest one left out
-        unclosed = unclosed[beyond <= 2.0 * cell_radius(cells, points) + domain.tol]
+        near = beyond <= 2.0 * cell_radius(cells, points) + domain.tol
+        if near.any():  # near enough to cut: does one of them reach a vertex?
+            left, rest = unclosed[near], order[unclosed[near], taken:]
+            near[near] = _reached(
+                cells.start[near],
+                cells.present[near],
+                where[owners[left]],
+                where[candidates[left[:, None], rest]],
+                distance[left[:, None], rest],
+                LOCAL_MARGIN * domain.size,
+            )
+        unclosed = unclosed[near]
         taken *= LOCAL_GROWTH if len(unclosed) < PRUNED_CELLS else 2
     return batch
+
+
+def _reached(
+    start: np.ndarray,
+    present: np.ndarray,
+    me: np.ndarray,
+    others: np.ndarray,
+    distance: np.ndarray,
+    margin: float,
+) -> np.ndarray:
+    """(U,) bool: may a robot of ``others`` cut each cell, built without them?
+
+    start, present: (U, W) the cells' vertices (complex, m) and which are; me: (U,) their
+    owners; others: (U, R) the robots left out and distance: (U, R) their distances from
+    the owner (inf for padding). Robot j's bisector cuts the cell only if a vertex v lies
+    beyond it, (v - p) . (q_j - p) > |q_j - p|^2 / 2; within ``margin`` (m) of it counts as
+    beyond, so that a robot said to miss the cell changes none of its pieces' bounds, and
+    so does a robot within 2 margin (a coincident rival may own the cell).
+    """
+    about = np.where(present, start - me[:, None], 0.0)[:, None, :]
+    reach = ((others - me[:, None]).conj()[:, :, None] * about).real.max(axis=2, initial=0.0)
+    return (reach > distance * (0.5 * distance - margin)).any(axis=1)
 
 
 # CellBatch fields with one entry per line, (K, L, ...); the others are per cell.
@@ -833,23 +869,51 @@ def jacobian_times(
     A = w + d / 2, B = w / 2 + d / 3. TVD-D1 needs only this product, at a fraction of the
     cost of the 2 x 2 blocks.
     """
+    return apply_jacobian(jacobian_terms(batch, points), own, others)
+
+
+class JacobianTerms(NamedTuple):
+    """What ``jacobian_times`` computes before it reads r, (K, L) each, complex unless said:
+    weight (real) |d| / (m_i |p_i - p_j|), 0 off shared edges; u; d; gap = p_i - p_j;
+    along_u = A; along_d = B; across = u + d / 2. The rows of a slice of each are the terms
+    of those rows.
+    """
+
+    weight: np.ndarray
+    u: np.ndarray
+    d: np.ndarray
+    gap: np.ndarray
+    along_u: np.ndarray
+    along_d: np.ndarray
+    across: np.ndarray
+
+
+def jacobian_terms(batch: CellBatch, points: np.ndarray) -> JacobianTerms:
+    """``jacobian_times``' terms of ``batch``: computed once for a batch whose product is
+    taken with several r (TVD-DA: its motion field v, then its references)."""
     # Plane vectors as complex numbers: a . b = Re(a conj(b)).
     where = as_complex(points)
     me = where[batch.owners][:, None]
     start = batch.start
     d = batch.end - start
-    gap = me - np.take(where, batch.labels, mode="wrap")  # polygon labels: masked below
+    gap = me - np.take(where, batch.labels, mode="wrap")  # polygon labels: masked by weight
     u = start - batch.centroid[:, None]
     w = start - me
+    half = 0.5 * d
+    weight = _shared_weight(batch, d, gap)
+    return JacobianTerms(weight, u, d, gap, w + half, 0.5 * w + d / 3.0, u + half)
+
+
+def apply_jacobian(terms: JacobianTerms, own: np.ndarray, others: np.ndarray) -> np.ndarray:
+    """``jacobian_times`` from its ``terms`` (K, L): own (K,), others (K, L) -> (K,)."""
     theirs = others.conj()
     delta = own.conj()[:, None] - theirs
-    half = 0.5 * d
-    terms = (
-        u * ((w + half) * delta).real
-        + d * ((0.5 * w + d / 3.0) * delta).real
-        - (u + half) * (gap * theirs).real
+    products = (
+        terms.u * (terms.along_u * delta).real
+        + terms.d * (terms.along_d * delta).real
+        - terms.across * (terms.gap * theirs).real
     )
-    return (_shared_weight(batch, d, gap) * terms).sum(axis=1)
+    return (terms.weight * products).sum(axis=1)
 
 
 def as_complex(vectors: np.ndarray) -> np.ndarray:
