@@ -125,10 +125,9 @@ def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0)
     )
 
 
-# s: a simulated robot's command timeout (sim_robot.config.RobotConfig, and what its brain
-# assumes, agent.config.AgentProcessConfig): it stops when its brain has said nothing for
-# that long (a dead or stalled brain must not leave it driving).
-COMMAND_TIMEOUT = 0.5
+# s: a simulated robot's command timeout, the one its brain assumes too: it stops when its
+# brain has said nothing for that long (a dead or stalled brain must not leave it driving).
+COMMAND_TIMEOUT = RobotConfig.cmd_timeout
 # A team that cannot hold its rate steps each brain every 1 / (held rate) s, and a robot
 # that stops at its command timeout before the next step drives less far than its step
 # meant while S is paced by the steps held (scripts/held_commands.py: 100 agents at 1.67

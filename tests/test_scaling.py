@@ -16,6 +16,7 @@ import numpy as np
 import pytest
 from live_runs import launch, new_swarm, swarm_pids
 
+from covswarm.agent.config import AgentProcessConfig
 from covswarm.deploy.plan import (
     AGENT_SHARE,
     BRAIN_TICK,
@@ -234,7 +235,7 @@ def test_an_overloaded_teams_robots_keep_a_command_until_the_next_step() -> None
     far than the step meant (scripts/held_commands.py): when the team cannot hold its rate,
     the timeout covers GAP_MARGIN gaps at the lowest rate capacity_note expects, and every
     simulated robot and brain is told it."""
-    assert command_timeout(100, 16, 10.0) == COMMAND_TIMEOUT
+    assert command_timeout(100, 16, 10.0) == COMMAND_TIMEOUT == AgentProcessConfig.cmd_timeout
     late = AGENT_SHARE * 2 / (1000 * LATE_BRAIN_TICK)
     assert command_timeout(1000, 2, 10.0) == pytest.approx(GAP_MARGIN / late)
     assert 0.9 < command_timeout(1000, 2, 10.0) < 1.0  # 1.6 Hz, 2026-11-27: 1.66 held
