@@ -104,6 +104,12 @@ def auto_per_process(agents: int, cores: int, rate: float = 10.0) -> int:
     return max(1, min(per_core, int(PERIOD_SHARE / (rate * BRAIN_TICK))))
 
 
+def late_rate(agents: int, cores: int) -> float:
+    """Hz of wall time that ``agents`` brains hold on ``cores`` cores when they do not fit:
+    the lower end of what :func:`capacity_note` expects (LATE_BRAIN_TICK)."""
+    return AGENT_SHARE * max(cores, 1) / (agents * LATE_BRAIN_TICK)
+
+
 def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0) -> str | None:
     """What the launcher says when ``agents`` brains at ``rate`` Hz of mission time, run at
     ``time_scale`` (mission s per wall s), do not fit ``cores`` cores (:func:`fits`); None
@@ -114,7 +120,7 @@ def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0)
     need = agents * wall_rate * BRAIN_TICK
     share = AGENT_SHARE * max(cores, 1)
     held = share / (agents * BRAIN_TICK)  # Hz of wall time that fit
-    late = share / (agents * LATE_BRAIN_TICK)  # Hz of wall time held when they do not
+    late = late_rate(agents, cores)
     return (
         f"{agents} brains at {rate:g} Hz (x{time_scale:g}: {wall_rate:g} Hz of wall time) "
         f"need ~{need:.1f} cores of agent CPU (~{1e3 * BRAIN_TICK:.1f} ms a brain-tick, "
@@ -143,7 +149,7 @@ def command_timeout(agents: int, cores: int, rate: float, time_scale: float = 1.
     :func:`capacity_note` expects (1000 robots on 2 cores: 1.6 Hz, 0.94 s)."""
     if fits(agents, cores, rate * time_scale):
         return COMMAND_TIMEOUT
-    late = AGENT_SHARE * max(cores, 1) / (agents * LATE_BRAIN_TICK) / time_scale
+    late = late_rate(agents, cores) / time_scale  # Hz of mission time
     return max(COMMAND_TIMEOUT, GAP_MARGIN / min(late, rate))
 
 

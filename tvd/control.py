@@ -275,23 +275,23 @@ def _jacobian_product(
     own: np.ndarray,
     others: np.ndarray,
     density: DensityModel | None,
-    blocks: Prepared | None,
+    prepared: Prepared | None,
 ) -> np.ndarray:
     """(J w)_i = sum_j dc_i/dp_j w_j for the batch's rows, (K,) complex.
 
     own: (K,) w_i; others: (K, L) w_j of the robot each line comes from (read on shared
-    edges only). Uniform density: closed form without blocks (``blocks``: its
-    JacobianTerms of these rows, computed here when None); else the density's blocks
-    (``blocks``: (off, diagonal) of these rows, computed here when None).
+    edges only). ``prepared`` (:func:`_prepare`, of these rows; computed here when None):
+    uniform density's JacobianTerms, for its closed form; else the density's blocks (off,
+    diagonal).
     """
     if density is None:
         others = np.where(batch.shared, others, 0.0)
-        if blocks is None:
+        if prepared is None:
             return jacobian_times(batch, points, own, others)
-        return apply_jacobian(blocks, own, others)
-    if blocks is None:
+        return apply_jacobian(prepared, own, others)
+    if prepared is None:
         return density.jacobian_times(batch, points, own, others)
-    off, diagonal = blocks
+    off, diagonal = prepared
     return as_complex(
         np.einsum("kab,kb->ka", diagonal, as_vectors(own))
         + np.einsum("klab,klb->ka", off, as_vectors(np.where(batch.shared, others, 0.0)))
@@ -306,11 +306,11 @@ def _prepare(batch: CellBatch, points: np.ndarray, density: DensityModel | None)
     return density.jacobian_blocks(batch, points)
 
 
-def _head(blocks: Prepared, count: int) -> Prepared:
+def _head(prepared: Prepared, count: int) -> Prepared:
     """``_prepare``'s arrays of the first ``count`` rows."""
-    if isinstance(blocks, JacobianTerms):
-        return JacobianTerms(*(terms[:count] for terms in blocks))
-    return blocks[0][:count], blocks[1][:count]
+    if isinstance(prepared, JacobianTerms):
+        return JacobianTerms(*(terms[:count] for terms in prepared))
+    return prepared[0][:count], prepared[1][:count]
 
 
 def _neumann_rows(
@@ -320,7 +320,7 @@ def _neumann_rows(
     neighbor_values: np.ndarray,
     max_amplification: float,
     density: DensityModel | None,
-    blocks: Prepared | None = None,
+    prepared: Prepared | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rows of (I + J) w for the batch's robots, with the amplification guard.
 
@@ -329,7 +329,7 @@ def _neumann_rows(
     and which were rescaled (K,) bool. Empty cells keep w_i.
     """
     others = np.where(batch.shared, neighbor_values, 0.0)
-    velocity = own + _jacobian_product(batch, points, own, others, density, blocks)
+    velocity = own + _jacobian_product(batch, points, own, others, density, prepared)
     scale = np.maximum(np.abs(own), np.abs(others).max(axis=1, initial=0.0))
     speed = np.abs(velocity)
     limit = max_amplification * scale
@@ -417,12 +417,12 @@ def _team_da(
     """TVD-DA of the whole team: v(p) + (I + J) (kappa (c - p) + rho)."""
     if rate is None:
         return _team_d1(batch, points, feedback, max_amplification, density)
-    blocks = _prepare(batch, points, density)
+    prepared = _prepare(batch, points, density)
     field = _motion_field(domain, points, density)
     labels = np.maximum(batch.labels, 0)
-    references = feedback + _residual(batch, points, rate, field, field[labels], density, blocks)
+    references = feedback + _residual(batch, points, rate, field, field[labels], density, prepared)
     rows, guarded = _neumann_rows(
-        batch, points, references, references[labels], max_amplification, density, blocks
+        batch, points, references, references[labels], max_amplification, density, prepared
     )
     return TeamStep(as_vectors(field + rows), guarded)
 
@@ -434,7 +434,7 @@ def _residual(
     own_field: np.ndarray,
     neighbor_field: np.ndarray,
     density: DensityModel | None,
-    blocks: Prepared | None,
+    prepared: Prepared | None,
 ) -> np.ndarray:
     """rho_i = dc_i/dt - v(p_i) + (J v)_i for the batch's rows, (K,) complex: what the affine
     guess v misses of TVD-C's feedforward (zero at a CVT of a similarity motion).
@@ -442,7 +442,7 @@ def _residual(
     own_field: (K,) v(p_i); neighbor_field: (K, L) v(p_j) of the robot each line comes from.
     An empty cell's row of J is zero, so its rho is dc_S/dt - v(p_i).
     """
-    product = _jacobian_product(batch, points, own_field, neighbor_field, density, blocks)
+    product = _jacobian_product(batch, points, own_field, neighbor_field, density, prepared)
     return rate - own_field + product
 
 
@@ -844,13 +844,13 @@ def _batch_steps(
     target, rate = _targets(batch, points, domain, feedforward, density)
     feedback = kappa * (target - as_complex(points)[owners])
     mine = _rows(batch, slice(0, count))
-    field = blocks = None
+    field = prepared = None
     references = feedback
     if rate is not None and law == "d1":
         references = feedback + rate
     elif rate is not None:
         field = _motion_field(domain, points, density)
-        blocks = _prepare(batch, points, density)
+        prepared = _prepare(batch, points, density)
         references = feedback + _residual(
             batch,
             points,
@@ -858,7 +858,7 @@ def _batch_steps(
             field[owners],
             field[np.maximum(batch.labels, 0)],
             density,
-            blocks,
+            prepared,
         )
     by_robot = np.zeros(len(points), dtype=np.complex128)
     by_robot[owners] = references
@@ -869,7 +869,7 @@ def _batch_steps(
         by_robot[np.maximum(mine.labels, 0)],
         max_amplification,
         density,
-        None if blocks is None else _head(blocks, count),
+        None if prepared is None else _head(prepared, count),
     )
     velocity = as_vectors(rows if field is None else field[mes] + rows)
     centroid = as_vectors(mine.centroid)
