@@ -589,7 +589,7 @@ class Pack:
         while the coordinator paced S by the steps held: the team fell behind S and its
         trailing robots out of it (scripts/held_commands.py: 100 agents at 1.67 Hz, S at a
         sixth of its speed, e_a's second half 1.78 m with robots stopped 0.3 s after each
-        command, 0.53 m at 0.5 s, 0.018 m at 0.9 s; 28 Nov 2026)."""
+        command, 0.53 m at 0.5 s, 0.019 m at 0.9 s; 28 Nov 2026)."""
         if not brain.running:
             return  # before the mission the robots stand still anyway
         brain.counters.late += 1

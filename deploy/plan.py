@@ -137,7 +137,7 @@ COMMAND_TIMEOUT = RobotConfig.cmd_timeout
 # A team that cannot hold its rate steps each brain every 1 / (held rate) s, and a robot
 # that stops at its command timeout before the next step drives less far than its step
 # meant while S is paced by the steps held (scripts/held_commands.py: 100 agents at 1.67
-# Hz, e_a's second half 0.53 m stopping 0.5 s after each command, 0.018 m at 0.9 s). So
+# Hz, e_a's second half 0.53 m stopping 0.5 s after each command, 0.019 m at 0.9 s). So
 # the timeout covers this many of the gaps expected at the lower end of capacity_note.
 GAP_MARGIN = 1.5
 
