@@ -37,7 +37,7 @@ import numpy as np
 from covswarm import protocol
 from covswarm.agent.decoding import Heard, MessageDecoder
 from covswarm.agent.faults import InboxItem
-from covswarm.agent.latency import ClockBound, CommandHistory
+from covswarm.agent.latency import HISTORY_SPAN, ClockBound, CommandHistory
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
     HeardState,
@@ -91,10 +91,17 @@ STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors o
 # two cores (27 Nov 2026); the control loop itself still runs at the asked rate on its own
 # pose.
 STATE_PERIOD = 0.1
-# s: a pose older than this (on our clock) is used as it is, not predicted (an agent whose
-# pose is that old stops its robot anyway: --stale-timeout); and the largest age a
-# neighbour's AgentState is dead-reckoned over.
+# s: the largest age a neighbour's AgentState is dead-reckoned over.
 MAX_PREDICTION = 1.0
+# s: the oldest our own robot's pose (by its stamp, on our clock) may be for a step to
+# steer from it: the span of the command history, which predicts the pose exactly over it
+# (covswarm.agent.latency). An older pose is not used as if fresh: the robot stops
+# (AgentBrain.begin, counted as ``pose_too_old``). Its receipt time does not tell: an
+# overloaded host handed 1000 robots' poses to their brains ~1 s after their stamps (p99
+# 1.2 s), and those over a 1 s limit were steered from unpredicted; the heading loop went
+# unstable and a tenth of the robots spun 40 turns and more (e_a 0.73 -> 14 m, 28 Nov
+# 2026). In covswarm.deploy.netsim the 10-robot passage with poses 1.1 s late went to 13 m.
+POSE_HORIZON = HISTORY_SPAN
 # How long a neighbour's AgentState stays usable when this brain's turns come late
 # (AgentBrain.pace): for STALE_TURNS times the time between two of our turns, at least
 # stale_timeout and at most STALE_STRETCH times it.
@@ -825,6 +832,9 @@ class AgentBrain:
             # agents already up would starve the ones still starting on a loaded machine.
             return Decision(0.0, 0.0, self.domain.state)
         self._last_idle_step = now
+        if not now_wall + self.config.command_latency - self.pose_taken <= POSE_HORIZON:
+            self.counters.pose_too_old += self.running
+            return Decision(0.0, 0.0, "pose-too-old")
         started = self._clock()
         assert self.pose is not None
         try:
@@ -978,12 +988,13 @@ class AgentBrain:
     def predicted_pose(self, target_wall: float) -> tuple[float, float, float]:
         """(x m, y m, heading rad) of our robot at our wall time ``target_wall``: its last
         pose moved along the commands sent since it was taken (covswarm.agent.latency), or
-        as taken when prediction is off or the pose is older than MAX_PREDICTION. Plain
-        floats: the step reads them one by one, and numpy converts them once per batch."""
+        as taken when prediction is off or the pose is older than POSE_HORIZON (a step
+        does not steer from such a pose: :meth:`begin`). Plain floats: the step reads them
+        one by one, and numpy converts them once per batch."""
         pose = self.pose
         assert pose is not None
         horizon = target_wall - self.pose_taken
-        if not self.config.prediction or not 0.0 < horizon <= MAX_PREDICTION:
+        if not self.config.prediction or not 0.0 < horizon <= POSE_HORIZON:
             return pose.x, pose.y, pose.theta
         return self.history.move(pose.x, pose.y, pose.theta, self.pose_taken, target_wall)
 
@@ -1138,6 +1149,7 @@ class AgentBrain:
             "turn_capped": c.turn_capped,
             "cell_empty": c.cell_empty,
             "stale_stretched": c.stale_stretched,
+            "pose_too_old": c.pose_too_old,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),

@@ -68,3 +68,6 @@ class Counters:
     # mission steps that took neighbours' states as usable beyond the stale timeout, the
     # brain's turns coming late (covswarm.agent.brain.AgentBrain.pace)
     stale_stretched: int = 0
+    # mission steps that stopped the robot because its newest pose was stamped longer ago
+    # than the command history predicts (covswarm.agent.brain.MAX_PREDICTION)
+    pose_too_old: int = 0

@@ -107,6 +107,10 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "turn_capped": ("number", "steps whose turn rate was capped for the period held"),
     "cell_empty": ("number", "mission steps with no cell in S (outside S, dominated)"),
     "stale_stretched": ("number", "mission steps that kept neighbours past the stale timeout"),
+    "pose_too_old": (
+        "number",
+        "mission steps that stopped the robot: its pose too old to steer from",
+    ),
     "mission_steps": ("number", "control steps while the mission ran"),
     "guarded": ("number", "steps the amplification guard rescaled"),
     "candidates": ("number", "robots known (dead-reckoned)"),

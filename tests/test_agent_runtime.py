@@ -86,6 +86,33 @@ def test_no_pose_or_no_domain_gives_zero() -> None:
     assert brain.step(5.0, WALL).reason == "no-pose"  # own pose went stale
 
 
+def test_a_pose_older_than_the_command_history_stops_the_robot() -> None:
+    # Received just now, stamped long ago: its receipt time says nothing of its age.
+    # Within the history's span the step steers from the pose predicted along the commands
+    # sent since; beyond it the robot stops and the step is counted (28 Nov 2026: steered
+    # from as if fresh, 1000 robots' heading loops went unstable).
+    brain = AgentBrain(0, AgentConfig(max_clock_skew=5.0))
+    brain.on_domain(domain(), now=0.0)
+    late = brain_module.POSE_HORIZON - 0.1
+    brain.on_pose(protocol.Pose(id=0, x=0.5, y=1.0, theta=0.0, stamp=WALL - late, seq=0), 0.0)
+    first = brain.step(0.0, WALL)
+    assert first.reason == "running" and first.left > 0.0
+    brain.command(first, WALL)  # sent: in the history
+    brain.on_pose(protocol.Pose(id=0, x=0.5, y=1.0, theta=0.0, stamp=WALL + 0.1 - late, seq=1), 0.1)
+    # moved on along the first command, not the pose as taken
+    assert brain.predicted_pose(WALL + 0.15)[0] > 0.5 + 1e-3
+    assert brain.step(0.1, WALL + 0.1).reason == "running"
+    assert brain.counters.pose_too_old == 0
+    too_old = brain_module.POSE_HORIZON + 0.1
+    brain.on_pose(
+        protocol.Pose(id=0, x=0.5, y=1.0, theta=0.0, stamp=WALL + 0.2 - too_old, seq=2), 0.2
+    )
+    decision = brain.step(0.2, WALL + 0.2)
+    assert (decision.reason, decision.left, decision.right) == ("pose-too-old", 0.0, 0.0)
+    assert brain.counters.pose_too_old == 1
+    assert brain.stats()["pose_too_old"] == 1
+
+
 def test_running_drives_toward_centroid() -> None:
     brain = brain_at(0.5, 1.0, theta=0.0)
     brain.on_domain(domain(), now=0.0)

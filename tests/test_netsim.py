@@ -50,3 +50,27 @@ def test_compensated_agents_keep_the_undelayed_error(undelayed: float, impairmen
 def test_without_prediction_a_late_pose_breaks_the_team(undelayed: float) -> None:
     error, _ = passage(pose_delay=0.3, prediction=False)
     assert error > 10 * undelayed  # measured without prediction: robots random-walk away
+
+
+def test_a_pose_over_a_second_late_is_predicted_not_steered_from_as_if_fresh(
+    undelayed: float,
+) -> None:
+    # Poses 1.2 s late (an overloaded host delivered 1000 robots' ~1 s late, p99 1.2 s)
+    # were accepted but not predicted beyond 1 s: measured 3.9 m (6 robots), against 0.072
+    # m predicted along the command history (covswarm.agent.brain.POSE_HORIZON); its
+    # neighbours' states arrive as late and are dead-reckoned at most 0.5 s.
+    error, physical = passage(pose_delay=1.2)
+    assert error < 0.3, (error, undelayed)
+    assert all(a["start"] < 1.0 for a in physical["close_approach_list"])
+
+
+def test_robots_whose_poses_are_too_old_to_predict_stop() -> None:
+    # Accepted (a clock skew allowance of 3 s) but older than the command history: the
+    # robots stop rather than steer from them, and each such step is counted.
+    result = run_netsim(
+        load_scenario("passage"), agents=AGENTS, duration=10.0,
+        config=AgentConfig(pose_delay=2.5, max_clock_skew=3.0),
+    )  # fmt: skip
+    moved = result.trajectories[-1] - result.trajectories[0]
+    assert float(abs(moved).max()) < 0.01
+    assert all(stats["pose_too_old"] > 0 for stats in result.stats.values())
