@@ -1098,9 +1098,14 @@ class AgentBrain:
             left = right = 0.0
         self._seq += 1
         self.history.add(stamp + self.config.command_latency, left, right)
-        if self.pose is not None:
+        if self.pose is not None and decision.reason == "running":
             # Pose-to-command latency: when the pose was taken (on our clock, within the
             # bound on our robot's offset: covswarm.agent.latency) to this command's stamp.
+            # Of commands steered from the pose only: a late brain's stop (covswarm.agent.
+            # pack) goes out up to a gap after its last pose, and counted, half the commands
+            # of 1000 robots on two cores read as ~1 s old poses, where the router delivered
+            # poses in 13 ms (p50) and the brains steered from them 25-80 ms after their
+            # stamps (scripts/transport_delays.py, 28 Nov 2026).
             self._pose_age_ms.add((stamp - self.pose_taken) * 1e3)
         if decision.reason == "running":
             if self._last_running_command is not None and self._saturated:

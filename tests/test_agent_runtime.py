@@ -113,6 +113,17 @@ def test_a_pose_older_than_the_command_history_stops_the_robot() -> None:
     assert brain.stats()["pose_too_old"] == 1
 
 
+def test_pose_age_is_that_of_commands_steered_from_the_pose() -> None:
+    # A late brain's stop goes out a gap after its last pose (covswarm.agent.pack): counted,
+    # half of an overloaded team's commands read as ~1 s old poses.
+    brain = brain_at(0.5, 1.0)  # its pose stamped WALL
+    brain.command(Decision(0.0, 0.0, "held"), WALL + 0.9)
+    assert brain.stats()["pose_age_ms_p50"] == 0.0  # none yet
+    brain.command(Decision(0.1, 0.1, "running"), WALL + 0.04)
+    brain.command(Decision(0.0, 0.0, "held"), WALL + 0.9)
+    assert brain.stats()["pose_age_ms_p99"] == pytest.approx(40.0)
+
+
 def test_running_drives_toward_centroid() -> None:
     brain = brain_at(0.5, 1.0, theta=0.0)
     brain.on_domain(domain(), now=0.0)
