@@ -76,6 +76,15 @@ DROP_REASONS = (
 )
 # Largest fraction of the gap to the centroid one control period may close (sampled_gain).
 MAX_STEP_FRACTION = 0.8
+# s: the longest control period a step is computed for (its gain, barrier and the time its
+# command must cover): a brain stepped less often (a stalled process) steps as if this were
+# its period. The longest for which its neighbours' states stay usable (STALE_STRETCH x the
+# default stale timeout, AgentBrain.pace).
+MAX_PERIOD = 4.0
+# The largest factor a step's velocity is scaled by for a command that stops early (period
+# over hold, AgentBrain._finish): a robot driven for under a quarter of each period is
+# compensated no further (its wheels saturate first at such speeds).
+MAX_DUTY = 4.0
 # Seconds between control steps while the mission is not running (neighbour bookkeeping).
 IDLE_STEP_PERIOD = 1.0
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
@@ -424,7 +433,8 @@ class AgentBrain:
         # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
-        self._period = 1.0  # s, the last control period (at most 1)
+        self._period = 1.0  # s, the last control period (at most MAX_PERIOD)
+        self._duty = 1.0  # the last period over the time its command was driven (>= 1)
         self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
@@ -866,7 +876,9 @@ class AgentBrain:
         )
         me = pose[:2]
         kappa = config.kappa if config.kappa is not None else self.domain.kappa
-        period = 1.0 if self._last_control is None else min(now_wall - self._last_control, 1.0)
+        period = (
+            1.0 if self._last_control is None else min(now_wall - self._last_control, MAX_PERIOD)
+        )
         if self._last_control is not None:
             kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
@@ -877,6 +889,9 @@ class AgentBrain:
         # no cap, rather than a first command that drives off along the start heading and
         # barely turns (a cap for a 0.5 s hold).
         self._hold = min(period, config.cmd_timeout) if self._was_running else 0.0
+        # A period longer than the hold: the robot stops before our next step (its command
+        # timeout), so the step's velocity is driven for the hold only (_finish).
+        self._duty = period / self._hold if period > self._hold > 0.0 else 1.0
         self._was_running = self.running
         others[self.id] = me
         view = LocalView(self.id, others, vertices, velocities, kappa, density)
@@ -963,6 +978,15 @@ class AgentBrain:
         if self.domain.state != "running":
             return Decision(0.0, 0.0, self.domain.state)
         velocity = np.asarray(result.velocity, dtype=float)
+        if self._duty > 1.0:
+            # The law's velocity is what to hold for the period; a robot that stops after
+            # the hold would cover hold / period of its move (its feedforward as well: a
+            # team whose robots stop halfway through each period lags S by half its
+            # motion, and trailing robots leave S). Driven period / hold as fast, it covers
+            # the period's move in the hold; the safety filter bounds the faster velocity
+            # and the wheels saturate as ever. At the asked rate the duty is 1.
+            velocity = velocity * min(self._duty, MAX_DUTY)
+            self.counters.duty_scaled += self.running
         vx, vy = velocity.tolist()
         if not (math.isfinite(vx) and math.isfinite(vy)):
             raise ValueError(f"non-finite velocity {velocity}")
@@ -1155,6 +1179,7 @@ class AgentBrain:
             "cell_empty": c.cell_empty,
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,
+            "duty_scaled": c.duty_scaled,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),

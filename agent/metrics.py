@@ -71,3 +71,6 @@ class Counters:
     # mission steps that stopped the robot because its newest pose was stamped longer ago
     # than the command history predicts (covswarm.agent.brain.MAX_PREDICTION)
     pose_too_old: int = 0
+    # mission steps whose velocity was scaled up because the robot's command times out
+    # before the next step (covswarm.agent.brain.MAX_DUTY)
+    duty_scaled: int = 0

@@ -177,6 +177,9 @@ def run_netsim(
             heapq.heappush(events, (now + 1.0 / DOMAIN_RATE, rank, what, index))
         else:
             brain = brains[index]
+            # What a packed process tells each brain (covswarm.agent.pack): the time since
+            # its previous turn, by which it judges its neighbours' states.
+            brain.pace(1.0 / rate)
             items = [(kind, key_id, payload) for (kind, key_id), payload in inbox[index].items()]
             inbox[index].clear()
             if impair[index] is not None:
