@@ -198,6 +198,9 @@ class AgentConfig:
     # time from a command's stamp to the wheels acting on it.
     prediction: bool = True
     cmd_timeout: float = 0.5
+    # The most a step's velocity is sped up for a command that times out before the next
+    # step (MAX_DUTY; 1: not at all, the robot covers hold / period of each move).
+    max_duty: float = MAX_DUTY
     command_latency: float = 0.0
     projection_distance: float = AGENT_PROJECTION_DISTANCE
     # Collision avoidance (covswarm.tvd.safety), on the robots' centres.
@@ -384,6 +387,8 @@ class AgentBrain:
     ) -> None:
         self.id = protocol.check_id(robot_id)
         self.config = config = config or AgentConfig()
+        if not config.max_duty >= 1.0:
+            raise ValueError(f"max_duty must be >= 1, got {config.max_duty!r}")
         if not 0.0 <= config.state_period < config.stale_timeout:
             raise ValueError(
                 f"state_period {config.state_period} s must be >= 0 and below the stale "
@@ -978,14 +983,14 @@ class AgentBrain:
         if self.domain.state != "running":
             return Decision(0.0, 0.0, self.domain.state)
         velocity = np.asarray(result.velocity, dtype=float)
-        if self._duty > 1.0:
+        if self._duty > 1.0 and self.config.max_duty > 1.0:
             # The law's velocity is what to hold for the period; a robot that stops after
             # the hold would cover hold / period of its move (its feedforward as well: a
             # team whose robots stop halfway through each period lags S by half its
             # motion, and trailing robots leave S). Driven period / hold as fast, it covers
             # the period's move in the hold; the safety filter bounds the faster velocity
             # and the wheels saturate as ever. At the asked rate the duty is 1.
-            velocity = velocity * min(self._duty, MAX_DUTY)
+            velocity = velocity * min(self._duty, self.config.max_duty)
             self.counters.duty_scaled += self.running
         vx, vy = velocity.tolist()
         if not (math.isfinite(vx) and math.isfinite(vy)):

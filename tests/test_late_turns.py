@@ -1,7 +1,9 @@
 """A brain whose turns come late (an overloaded process, covswarm.agent.pack) judges its
 neighbours' AgentStates against the pace it is stepped at (AgentBrain.pace): they keep
 their place in the local diagram for STALE_TURNS gaps between two of its turns, within
-[stale_timeout, STALE_STRETCH x stale_timeout], and at the asked rate nothing changes."""
+[stale_timeout, STALE_STRETCH x stale_timeout], and at the asked rate nothing changes.
+Its command, which the robot drops after its command timeout, covers the whole gap's
+move in the time it is driven (AgentBrain._finish, MAX_DUTY)."""
 
 from __future__ import annotations
 
@@ -9,15 +11,17 @@ import pytest
 from wire_samples import domain_message
 
 from covswarm import protocol
+from covswarm.agent import brain as brain_module
 from covswarm.agent.brain import STALE_STRETCH, STALE_TURNS, AgentBrain, AgentConfig
+from covswarm.deploy.netsim import run_netsim, steady_state
 
 WALL = 1.7e9
 SQUARE = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
 
 
-def running_brain() -> AgentBrain:
+def running_brain(**config: object) -> AgentBrain:
     """Brain 0 at (1, 1) with a running domain, at mission time 0."""
-    brain = AgentBrain(0, AgentConfig())
+    brain = AgentBrain(0, AgentConfig(**config))
     brain.receive("domain", domain_message(SQUARE, seq=1, stamp=WALL).encode(), 0.0, WALL)
     pose = protocol.Pose(id=0, x=1.0, y=1.0, theta=0.0, stamp=WALL, seq=1)
     brain.receive("pose", pose.encode(), 0.0, WALL, key_id=0)
@@ -62,3 +66,48 @@ def test_the_stretch_is_bounded_and_undone_when_turns_come_on_time_again() -> No
     brain.pace(0.1)
     assert brain.neighborhood.stale_timeout == stale
     assert not brain.receive("state", neighbour_state(WALL - 2.0), 0.0, WALL, key_id=1)
+
+
+@pytest.mark.parametrize("gap", [0.1, 1.8])
+def test_a_command_that_times_out_before_the_next_turn_is_driven_faster(gap: float) -> None:
+    # Two brains alike but for their robots' command timeout: 0.94 s, and 4 s (held for
+    # any gap here). Stepped twice, ``gap`` apart, from the same pose and domain.
+    velocities = []
+    for timeout in (0.94, 4.0):
+        brain = running_brain(cmd_timeout=timeout)
+        for k, t in enumerate((0.0, gap)):
+            pose = protocol.Pose(id=0, x=0.5, y=1.2, theta=0.0, stamp=WALL + t, seq=k + 2)
+            brain.receive("pose", pose.encode(), t, WALL + t, key_id=0)
+            decision = brain.step(t, WALL + t)
+        assert decision.reason == "running"
+        velocities.append(decision.velocity)
+        assert brain.counters.duty_scaled == int(gap > timeout)
+    scale = gap / 0.94 if gap > 0.94 else 1.0
+    # to the rounding of wall times near 1.7e9 s (2e-7 s): the gap measured is that close
+    assert velocities[0] == pytest.approx([scale * v for v in velocities[1]], rel=1e-6)
+
+
+def slow_team(max_duty: float) -> float:
+    """Second-half e_a of 30 agents stepped at 0.55 Hz whose robots stop 0.5 s after each
+    command, S circling at a twentieth of its speed (the coordinator's pace for such a
+    team), 60 s in covswarm.deploy.netsim (real brains and robot models, no Zenoh)."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
+    from held_commands import slowed_circle
+
+    scenario = slowed_circle(20.0, 60.0)
+    config = AgentConfig(cmd_timeout=0.5, max_duty=max_duty)
+    return steady_state(
+        run_netsim(scenario, agents=30, seed=0, rate=0.55, cmd_timeout=0.5, config=config)
+    )
+
+
+def test_a_team_whose_commands_time_out_early_keeps_up_with_s() -> None:
+    # Measured over seeds 0-2 (28 Nov 2026): 0.021-0.023 m, and 0.138-0.158 m when the
+    # robots covered only half a second of each 1.8 s move (max_duty 1: no speed-up).
+    compensated = slow_team(brain_module.MAX_DUTY)
+    uncompensated = slow_team(1.0)
+    assert compensated < 0.05
+    assert uncompensated > 3.0 * compensated
