@@ -1099,7 +1099,10 @@ class AgentBrain:
         # world, so the filter is then exactly the robots' alone). Those whose bounding box
         # is that near are handed over and the filter keeps the ones within its reach: the
         # same rows as World.nearby's, without computing every distance twice (~90 us).
-        gamma = barrier_gain(config.safety_gamma, self._period)
+        # Sampled for the time the velocity is driven: the period, or the hold when the
+        # robot stops before our next step (the velocity is then driven faster, _finish).
+        driven = self._hold if 0.0 < self._hold < self._period else self._period
+        gamma = barrier_gain(config.safety_gamma, driven)
         world = self.world
         obstacles: list[np.ndarray] = []
         if world is not None:

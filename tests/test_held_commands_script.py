@@ -21,7 +21,7 @@ def half_errors(*args: str) -> dict[float, float]:
 
 def test_robots_stopped_before_the_next_step_fall_behind_unless_driven_faster() -> None:
     """Agents at 1.67 Hz, S at a sixth of its speed (the pace of such a team), 30 agents,
-    40 s. Measured 28 Nov 2026, second-half e_a at stops of 0.3, 0.5 and 0.9 s: 0.071,
+    40 s. Measured 28 Nov 2026, second-half e_a at stops of 0.3, 0.5 and 0.9 s: 0.070,
     0.018 and 0.006 m with commands as computed (--max-duty 1), 0.017, 0.008 and 0.006 m
     driven faster (the default). The simulation is deterministic; the margins are for other BLAS
     kernels."""

@@ -105,7 +105,7 @@ def slow_team(max_duty: float) -> float:
 
 
 def test_a_team_whose_commands_time_out_early_keeps_up_with_s() -> None:
-    # Measured over seeds 0-2 (28 Nov 2026): 0.021-0.023 m, and 0.138-0.158 m when the
+    # Measured over seeds 0-2 (28 Nov 2026): 0.019-0.021 m, and 0.137-0.148 m when the
     # robots covered only half a second of each 1.8 s move (max_duty 1: no speed-up).
     compensated = slow_team(brain_module.MAX_DUTY)
     uncompensated = slow_team(1.0)
