@@ -105,11 +105,11 @@ MAX_PREDICTION = 1.0
 # s: the oldest our own robot's pose (by its stamp, on our clock) may be for a step to
 # steer from it: the span of the command history, which predicts the pose exactly over it
 # (covswarm.agent.latency). An older pose is not used as if fresh: the robot stops
-# (AgentBrain.begin, counted as ``pose_too_old``). Its receipt time does not tell: an
-# overloaded host handed 1000 robots' poses to their brains ~1 s after their stamps (p99
-# 1.2 s), and those over a 1 s limit were steered from unpredicted; the heading loop went
-# unstable and a tenth of the robots spun 40 turns and more (e_a 0.73 -> 14 m, 28 Nov
-# 2026). In covswarm.deploy.netsim the 10-robot passage with poses 1.1 s late went to 13 m.
+# (AgentBrain.begin, counted as ``pose_too_old``). Its receipt time does not tell: a pose
+# received late but stamped 1-1.5 s ago passes the stamp check (stale timeout plus clock
+# skew) and was steered from unpredicted when the prediction stopped at 1 s; the heading
+# loop over-steered, and in covswarm.deploy.netsim the 10-robot passage with poses 1.1 s
+# late went to e_a 13 m (0.11 m predicted, 28 Nov 2026).
 POSE_HORIZON = HISTORY_SPAN
 # How long a neighbour's AgentState stays usable when this brain's turns come late
 # (AgentBrain.pace): for STALE_TURNS times the time between two of our turns, at least
