@@ -119,7 +119,9 @@ def _run(brain: Brain, t0: float, t1: float, dt: float = 0.1) -> list[float]:
     speeds = []
     for now in np.arange(t0, t1, dt):
         pose = brain.pose
-        brain.on_pose(protocol.Pose(id=0, x=pose.x, y=pose.y, theta=0.0, stamp=WALL, seq=1), now)
+        brain.on_pose(
+            protocol.Pose(id=0, x=pose.x, y=pose.y, theta=0.0, stamp=WALL + float(now), seq=1), now
+        )
         decision = control(brain, now)
         assert decision.reason == "running"
         speeds.append(float(np.hypot(*decision.velocity)))
@@ -188,11 +190,13 @@ def _obstacle_run(token: bool) -> tuple[Brain, tuple[float, float]]:
         brain.on_liveliness("agent", 7, True)
     brain.on_beacon(protocol.Beacon(id=7, x=0.52, y=1.0, stamp=WALL), now=0.0)
     state = protocol.AgentState(id=8, x=0.4, y=1.12, stamp=WALL, neighbors=[])
-    for now in np.arange(0.0, 3.0, 0.1):
+    for now in np.arange(0.0, 3.05, 0.1):  # the robot held where it is, its pose fresh
         brain.on_agent_state(state, now=float(now))
-        brain.on_pose(protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL, seq=1), now)
-        control(brain, now)
-    return brain, control(brain, 3.0).velocity
+        brain.on_pose(
+            protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL + float(now), seq=1), now
+        )
+        decision = control(brain, now)
+    return brain, decision.velocity
 
 
 def test_a_beacon_with_a_live_agent_token_or_an_agent_state_stays_an_obstacle() -> None:
@@ -241,7 +245,9 @@ def test_a_beacon_only_robot_never_asked_for_stays_a_candidate() -> None:
     state = protocol.AgentState(id=8, x=1.0, y=1.0, stamp=WALL, neighbors=[0])
     for now in np.arange(0.0, 3.0, 0.1):
         brain.on_agent_state(state, now=float(now))
-        brain.on_pose(protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL, seq=1), now)
+        brain.on_pose(
+            protocol.Pose(id=0, x=0.4, y=1.0, theta=0.0, stamp=WALL + float(now), seq=1), now
+        )
         control(brain, now)
     assert 9 in brain.neighborhood.reckoned and 9 not in brain.neighborhood.asked
     assert brain.neighborhood.unconfirmed_total == 0

@@ -8,6 +8,7 @@ import sys
 import time
 from pathlib import Path
 
+import pytest
 from live_runs import open_router
 
 from covswarm import protocol
@@ -24,6 +25,7 @@ def p50(table: str, kind: str) -> list[float]:
     ]
 
 
+@pytest.mark.e2e
 def test_ages_are_told_by_kind_and_stops_apart_from_steering() -> None:
     import zenoh
 
