@@ -439,7 +439,6 @@ class AgentBrain:
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
         self._period = 1.0  # s, the last control period (at most MAX_PERIOD)
-        self._duty = 1.0  # the last period over the time its command was driven (>= 1)
         self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
@@ -894,9 +893,6 @@ class AgentBrain:
         # no cap, rather than a first command that drives off along the start heading and
         # barely turns (a cap for a 0.5 s hold).
         self._hold = min(period, config.cmd_timeout) if self._was_running else 0.0
-        # A period longer than the hold: the robot stops before our next step (its command
-        # timeout), so the step's velocity is driven for the hold only (_finish).
-        self._duty = period / self._hold if period > self._hold > 0.0 else 1.0
         self._was_running = self.running
         others[self.id] = me
         view = LocalView(self.id, others, vertices, velocities, kappa, density)
@@ -983,14 +979,14 @@ class AgentBrain:
         if self.domain.state != "running":
             return Decision(0.0, 0.0, self.domain.state)
         velocity = np.asarray(result.velocity, dtype=float)
-        if self._duty > 1.0 and self.config.max_duty > 1.0:
+        if self._period > self._hold > 0.0 and self.config.max_duty > 1.0:
             # The law's velocity is what to hold for the period; a robot that stops after
             # the hold would cover hold / period of its move (its feedforward as well: a
             # team whose robots stop halfway through each period lags S by half its
             # motion, and trailing robots leave S). Driven period / hold as fast, it covers
             # the period's move in the hold; the safety filter bounds the faster velocity
             # and the wheels saturate as ever. At the asked rate the duty is 1.
-            velocity = velocity * min(self._duty, self.config.max_duty)
+            velocity = velocity * min(self._period / self._hold, self.config.max_duty)
             self.counters.duty_scaled += self.running
         vx, vy = velocity.tolist()
         if not (math.isfinite(vx) and math.isfinite(vy)):

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import time
 from collections import defaultdict
+from collections.abc import Callable
 
 import click
 import numpy as np
@@ -68,6 +69,21 @@ def main(endpoint: str, swarm: str, ids: str, every: float, duration: float) -> 
         state = protocol.AgentState.decode(sample.payload.to_bytes())
         delays["state"].append(time.time() - state.stamp)
 
+    malformed = 0
+
+    def counted(handler: Callable[[zenoh.Sample], None]) -> Callable[[zenoh.Sample], None]:
+        """``handler``, with a payload that does not decode counted instead of raised."""
+
+        def receive(sample: zenoh.Sample) -> None:
+            nonlocal malformed
+            try:
+                handler(sample)
+            except protocol.ProtocolError:
+                malformed += 1
+
+        return receive
+
+    on_pose, on_command, on_state = counted(on_pose), counted(on_command), counted(on_state)
     with zenoh.open(session_config([endpoint])) as session:
         subscribers = []
         for rid in id_range(ids):
@@ -90,6 +106,8 @@ def main(endpoint: str, swarm: str, ids: str, every: float, duration: float) -> 
                     f"| {time.strftime('%H:%M:%S')} | {kind} | {len(values)} "
                     f"| {p10:.0f} | {p50:.0f} | {p90:.0f} | {p99:.0f} |"
                 )
+        if malformed:
+            click.echo(f"{malformed} malformed samples dropped")
         for subscriber in subscribers:
             subscriber.undeclare()
 
