@@ -489,7 +489,16 @@ class Pack:
         stepped = 0
         order = self.order
         for first in range(0, len(order), self.chunk):
-            stepped += self._step_chunk(order[first : first + self.chunk], clock, wall, deadline)
+            chunk = order[first : first + self.chunk]
+            if clock() > deadline:
+                # The period is over before this chunk's turn: its brains hold, their robots'
+                # poses left on the bus (a turn takes the newest; taken for brains that held,
+                # they were a seventh of an overloaded pack's CPU, 28 Nov 2026).
+                now, now_wall = clock(), wall()
+                for bid in chunk:
+                    self._hold(self.brains[bid], now, now_wall)
+                continue
+            stepped += self._step_chunk(chunk, clock, wall, deadline)
         shift = stepped if 0 < stepped < len(order) else 1
         self.order = order[shift:] + order[:shift]
         return stepped
@@ -593,8 +602,10 @@ class Pack:
         if not brain.running:
             return  # before the mission the robots stand still anyway
         brain.counters.late += 1
+        if brain.id in self._held:
+            return  # stopped already: most of an overloaded pack's brains, most periods
         expired = max(self.hold_after, brain.command_hold)
-        if brain.id in self._held or now - self._stepped.get(brain.id, now) <= expired:
+        if now - self._stepped.get(brain.id, now) <= expired:
             return
         self._held.add(brain.id)
         for action in brain.hold(now, wall):

@@ -49,6 +49,9 @@ QUICK_SIZES = (10, 30, 100, 300)
 SPACING = 0.5  # metres between robots on average: side = SPACING * sqrt(N)
 LIVE_SIZES = (10, 25, 50, 100)
 LIVE_RATE = 10.0  # Hz asked of every agent in the live runs
+# Hz: the robots' poses and the coordinator's domains (`covswarm robot --pose-rate`,
+# `covswarm coordinator --rate`: their defaults)
+LIVE_SEND_RATE = 20.0
 # Brains (robots) per agent (robot) process in the live runs: on a 2-core machine the
 # per-process cost (interpreter, imports, a Zenoh session and its threads, one more
 # client for the router to serve) is what a team of 100 cannot afford 100 times
@@ -389,12 +392,66 @@ def brain_tick_domain(layout: Layout, t: float, seq: int) -> bytes:
 BRAIN_TICK_WALL = 1.7e9  # s since the epoch at mission time 0 (a fixed, synthetic clock)
 
 
+class SpendingClock:
+    """A packed process's clock when it is ``late`` times short of CPU: each brain's step
+    (:meth:`charge`, around AgentBrain.begin) costs ``late`` / ``brains`` of a ``period``
+    s, so about ``brains`` / ``late`` brains step before each period's deadline and the
+    rest hold, which costs them next to nothing (covswarm.agent.pack.Pack.step)."""
+
+    def __init__(self, period: float, brains: int, late: float) -> None:
+        self.now, self.cost = 0.0, period * late / brains
+
+    def __call__(self) -> float:
+        return self.now
+
+    def wall(self) -> float:
+        """The wall clock (the bench's synthetic epoch + mission time)."""
+        return BRAIN_TICK_WALL + self.now
+
+    def charge(self, brain: Any) -> None:
+        """Make each of ``brain``'s steps cost its share of a period on this clock."""
+        begin = brain.begin
+
+        def charged(now: float, now_wall: float) -> Any:
+            self.now += self.cost
+            return begin(now, now_wall)
+
+        brain.begin = charged
+
+
+def sends_per_period(period: float, late: float) -> int:
+    """The poses of each robot and the domains the bench's team sends per control period
+    of ``period`` s: one at the asked rate; packs ``late`` > 1 times short of CPU get them
+    as live, at LIVE_SEND_RATE (the robots' and the coordinator's rates do not drop with
+    the agents')."""
+    return 1 if late <= 1.0 else max(1, round(LIVE_SEND_RATE * period))
+
+
+def publish_period(bus: Any, swarm: str, layout: Layout, k: int, period: float, sends: int) -> None:
+    """Put on ``bus`` (covswarm.agent.pack.LocalBus) what the coordinator and the robots of
+    ``layout`` send in control period ``k`` of ``period`` s, ``sends`` times each, evenly
+    spaced: the Domain (brain_tick_domain) and every robot's Pose at its layout position,
+    stamped at their times on the bench's synthetic clock. The bus forgets what was put."""
+    from covswarm import protocol
+
+    for j in range(sends):
+        t = (k + j / sends) * period
+        seq = k * sends + j
+        stamp = BRAIN_TICK_WALL + t
+        bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, seq + 1))
+        for rid, (x, y) in enumerate(layout.positions.tolist()):
+            pose = protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=stamp, seq=seq)
+            bus.put(protocol.pose_key(swarm, rid), pose.encode())
+    bus.sent.clear()
+
+
 def time_brain_ticks(
     per_process: int,
     layout: Layout,
     warm: int = BRAIN_TICK_WARM,
     rounds: int = BRAIN_TICK_ROUNDS,
     rate: float = LIVE_RATE,
+    late: float = 1.0,
 ) -> dict[str, float]:
     """Amortised cost of one brain-tick in packed processes of ``per_process`` brains.
 
@@ -411,8 +468,16 @@ def time_brain_ticks(
     put costs ~30 us of CPU in a live process), the robots, the coordinator. Returns wall and CPU
     (process_time) microseconds per brain-tick, the mean of ``rounds`` periods, and the
     messages each brain received per tick.
+
+    ``late`` > 1: the packs are that many times short of CPU (SpendingClock): each brain
+    steps about every ``late`` periods and holds in between, while the robots' poses and
+    the coordinator's domains come at 20 Hz as live (the robots' and the coordinator's
+    rates do not drop with the agents'). What a brain-tick then costs counts the payloads
+    that piled up since its last turn and each pack's drains, beacons and stats, which
+    come per second, over fewer brain-ticks: why a live overloaded run's CPU per
+    brain-tick (the run's summary) is several times the bench's. ``rounds`` and ``warm``
+    count periods; the warm-up runs every brain every period.
     """
-    from covswarm import protocol
     from covswarm.agent.brain import AgentBrain, AgentConfig
     from covswarm.agent.decoding import MessageDecoder
     from covswarm.agent.pack import LocalBus, Pack, collect_less
@@ -426,36 +491,39 @@ def time_brain_ticks(
         decoder = MessageDecoder()
         ids = range(first, min(first + per_process, n))
         packs.append(Pack(bus, swarm, [AgentBrain(i, config, decoder) for i in ids]))
-    poses = [
-        (protocol.pose_key(swarm, i), float(x), float(y))
-        for i, (x, y) in enumerate(layout.positions)
-    ]
     period = 1.0 / rate
+    clocks = [SpendingClock(period, len(pack.brains), late) for pack in packs]
+    sends = sends_per_period(period, late)
     wall_s = cpu_s = 0.0
-    received = 0
+    received = ticks = 0
     thresholds = collect_less()  # as the agent process does (covswarm.agent.main)
     for k in range(warm + rounds):
+        publish_period(bus, swarm, layout, k, period, sends)
         t = k * period
-        bus.put(protocol.domain_key(swarm), brain_tick_domain(layout, t, k + 1))
-        for rid, (key, x, y) in enumerate(poses):
-            pose = protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=BRAIN_TICK_WALL + t, seq=k)
-            bus.put(key, pose.encode())
-        bus.sent.clear()
         before = sum(b.counters.received for p in packs for b in p.brains.values())
         wall0, cpu0 = time.perf_counter(), time.process_time()
-        for pack in packs:
-            pack.tick(lambda t=t: t, lambda t=t: BRAIN_TICK_WALL + t, math.inf)
+        stepped = 0
+        for pack, clock in zip(packs, clocks, strict=True):
+            if k < warm or late <= 1.0:
+                stepped += pack.tick(lambda t=t: t, lambda t=t: BRAIN_TICK_WALL + t, math.inf)
+            else:
+                if k == warm:
+                    for brain in pack.brains.values():
+                        clock.charge(brain)
+                clock.now = t
+                stepped += pack.tick(clock, clock.wall, t + period)
         if k >= warm:
             wall_s += time.perf_counter() - wall0
             cpu_s += time.process_time() - cpu0
             received += sum(b.counters.received for p in packs for b in p.brains.values()) - before
+            ticks += stepped
     gc.set_threshold(*thresholds)
-    ticks = rounds * n
     return {
         "brain_tick_us": wall_s / ticks * 1e6,
         "brain_tick_cpu_us": cpu_s / ticks * 1e6,
         "rx_per_brain_tick": received / ticks,
         "subscriptions_per_brain": sum(p.subscriptions for p in packs) / n,
+        "turns_per_period": ticks / (rounds * n),
     }
 
 
@@ -466,24 +534,28 @@ def run_brain_ticks(
     progress=None,
     rate: float = LIVE_RATE,
     spacing: float = BRAIN_TICK_SPACING,
+    late: float = 1.0,
 ) -> list[dict]:
     """One row per process size: the amortised brain-tick (time_brain_ticks) at ``rate``
     Hz beside the local step alone (time_local_steps' p50 on the same layout), the team
-    ``spacing`` m apart. The warm-up lasts as long in time at any rate; so do the periods
-    timed, in whole state periods."""
+    ``spacing`` m apart, the packs ``late`` times short of CPU. The warm-up lasts as long
+    in time at any rate; so do the periods timed, in whole state periods, and ``late``
+    times as many when late (as many brain-ticks)."""
     layout = make_layout(team, "cvt", 0, spacing=spacing)
     step_us, _ = time_local_steps(layout, sample)
     scale = max(1.0, rate / LIVE_RATE)
     warm, rounds = math.ceil(BRAIN_TICK_WARM * scale), math.ceil(BRAIN_TICK_ROUNDS * scale)
+    rounds = math.ceil(rounds * late)
     rows = []
     for size in sizes:
-        row = time_brain_ticks(size, layout, warm=warm, rounds=rounds, rate=rate)
+        row = time_brain_ticks(size, layout, warm=warm, rounds=rounds, rate=rate, late=late)
         rows.append(
             {
                 "agents": team,
                 "layout": "brain-tick",
                 "rate_hz": rate,
                 "spacing_m": spacing,
+                "late": late,
                 "agents_per_process": size,
                 **row,
                 "local_step_p50_us": float(np.percentile(step_us, 50)),
@@ -500,9 +572,9 @@ def brain_tick_table(rows: list[dict]) -> Any:
 
     table = Table(title="covswarm bench --brain-tick: one brain's period, amortised per process")
     for name in (
-        "team", "spacing m", "rate Hz", "brains per process", "brain-tick us (wall)",
-        "brain-tick us (CPU)", "local step p50 us", "local step mean us", "rx per tick",
-        "subscriptions per brain",
+        "team", "spacing m", "rate Hz", "brains per process", "turns per period",
+        "brain-tick us (wall)", "brain-tick us (CPU)", "local step p50 us",
+        "local step mean us", "rx per tick", "subscriptions per brain",
     ):  # fmt: skip
         table.add_column(name, justify="right")
     for row in rows:
@@ -511,6 +583,7 @@ def brain_tick_table(rows: list[dict]) -> Any:
             f"{row['spacing_m']:g}",
             f"{row['rate_hz']:g}",
             str(row["agents_per_process"]),
+            f"{row['turns_per_period']:.2f}",
             f"{row['brain_tick_us']:.0f}",
             f"{row['brain_tick_cpu_us']:.0f}",
             f"{row['local_step_p50_us']:.0f}",
@@ -777,6 +850,13 @@ def live_table(rows: list[dict]) -> Any:
     help="Metres between the robots of --brain-tick's team (the circle scenarios': 0.2).",
 )
 @float_option(
+    "--brain-tick-late",
+    low=1.0,
+    default=1.0,
+    help="For --brain-tick: the packs this many times short of CPU (a brain steps about "
+    "every that many periods, poses and domains still at 20 Hz), as in an overloaded run.",
+)
+@float_option(
     "--live-time-scale",
     low=0.0,
     low_open=True,
@@ -801,6 +881,7 @@ def bench_command(
     brain_tick_team: int,
     brain_tick_rate: float,
     brain_tick_spacing: float,
+    brain_tick_late: float,
 ) -> None:
     """Measure per-agent compute vs team size against the centralised baseline (and, with
     --live, what real distributed runs achieve; with --brain-tick, only what one brain's
@@ -824,6 +905,7 @@ def bench_command(
             progress=lambda size: Console().log(f"{size} brains per process: done"),
             rate=brain_tick_rate,
             spacing=brain_tick_spacing,
+            late=brain_tick_late,
         )
         out.mkdir(parents=True, exist_ok=True)
         (out / "bench.json").write_text(json.dumps(tick_rows, indent=2, sort_keys=True) + "\n")

@@ -684,3 +684,48 @@ def test_a_payload_replaced_before_any_followers_turn_is_never_decoded(
     assert decodes == {"pose": 1}
     assert pack.brains[1].pose is not None and pack.brains[1].pose.seq == 5
     assert pack.brains[1].counters.coalesced == RING_PER_KEY - 1
+
+
+def test_a_chunk_whose_turn_comes_after_the_deadline_leaves_its_poses_on_the_bus(
+    decodes: Counter[str],
+) -> None:
+    """Turns of 0.03 s in 0.1 s periods, chunks of four: the first chunk steps, the period
+    is over before the second's turn, whose brains hold without taking their robots' poses
+    off the bus (none decoded); at their next turn each steps from its robot's newest."""
+    n = 8
+    world = World([list(range(n))], layout(n, 3), speed=0.0, chunk=4)
+    world.run(3)
+    pack = world.packs[0]
+    first, second = pack.order[:4], pack.order[4:]
+    decodes.clear()
+    world.run(1, cost=0.03)
+    assert [pack.brains[b].counters.late for b in first] == [0] * 4
+    assert [pack.brains[b].counters.late for b in second] == [1] * 4
+    assert decodes["pose"] == 4  # the first chunk's own poses only
+    assert pack.order[:4] == second  # the next period starts with them
+    world.run(1, cost=0.03)
+    for bid in second:
+        brain = pack.brains[bid]
+        assert brain.counters.late == 1 and brain.pose is not None
+        assert brain.pose.seq == world.round - 1  # its robot's newest pose
+
+
+def test_bench_brain_tick_of_an_overloaded_pack(tmp_path: Path) -> None:
+    """--brain-tick-late 6: each brain steps about every sixth period (turns per period
+    ~1/6), and with the poses and domains at 20 Hz piling up in between, a brain receives
+    more per turn than at the asked rate."""
+    rows = {}
+    for late in (1, 6):
+        out = tmp_path / f"late-{late}"
+        argv = ["--brain-tick", "--brain-tick-sizes", "30", "--brain-tick-team", "30"]
+        argv += ["--brain-tick-late", str(late), "--sample", "5", "--out", str(out)]
+        result = CliRunner().invoke(bench_command, argv)
+        assert result.exit_code == 0, result.output
+        (row,) = json.loads((out / "bench.json").read_text())
+        assert row["late"] == late
+        rows[late] = row
+    assert rows[1]["turns_per_period"] == 1.0
+    assert 1 / 9 < rows[6]["turns_per_period"] < 1 / 4
+    assert rows[6]["rx_per_brain_tick"] > 1.5 * rows[1]["rx_per_brain_tick"]
+    bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-late", "0.5"])
+    assert bad.exit_code != 0
