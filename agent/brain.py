@@ -40,6 +40,7 @@ from covswarm.agent.faults import InboxItem
 from covswarm.agent.latency import HISTORY_SPAN, ClockBound, CommandHistory
 from covswarm.agent.metrics import Counters, Percentiles, Rate
 from covswarm.agent.neighborhood import (
+    DEAD_RECKONING_LIMIT,
     HeardState,
     Neighborhood,
     cell_reach,
@@ -633,10 +634,21 @@ class AgentBrain:
         stale (27 Nov 2026). So their states stay usable for STALE_TURNS gaps, within
         [stale_timeout, STALE_STRETCH x stale_timeout]; steps so judged are counted
         (``stale_stretched``). At the asked rate (a gap of one period, below half the stale
-        timeout) nothing changes."""
+        timeout) nothing changes.
+
+        Their velocities are followed as long as their robots drive them: a command stays
+        in force for the gap, up to the robot's command timeout (the neighbours' brains
+        are paced as ours), where DEAD_RECKONING_LIMIT (0.5 s) alone
+        left every neighbour's reckoned position short of the real one by the rest of its
+        move (the velocity an AgentState reports is the sped-up one its robot drives for
+        the hold, AgentBrain._finish), and a robot behind its neighbours, seeing them
+        closer than they are, held back by its safety filter."""
         stale = self.config.stale_timeout
         horizon = min(max(stale, STALE_TURNS * gap), STALE_STRETCH * stale)
         self.neighborhood.stale_timeout = self._max_age["state"] = horizon
+        self.neighborhood.reckoning_limit = max(
+            DEAD_RECKONING_LIMIT, min(gap, self.config.cmd_timeout)
+        )
         self.counters.stale_stretched += horizon > stale and self.running
 
     def on_pose(self, pose: protocol.Pose, now: float) -> bool:

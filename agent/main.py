@@ -37,7 +37,8 @@ Neighbour discovery
   machines does not matter), else from the freshest neighbour's relay of it younger than
   that, else from its beacon while younger than ``--beacon-timeout``; older robots are
   dropped. All are dead-reckoned with the velocity they carry (what the robot's wheels
-  achieve, not the unsaturated command), for at most DEAD_RECKONING_LIMIT s per hop.
+  achieve, not the unsaturated command), for at most DEAD_RECKONING_LIMIT s per hop, or
+  for as long as a command stays in force when the brain is stepped late (AgentBrain.pace).
 - **Faults** (docs/faults.md): a robot whose agent's or robot's liveliness token is deleted
   (``alive/*/*``, changes only) leaves the local diagram at once; an agent whose own pose is
   stale commands (0, 0) and publishes no AgentState or beacon. ``--pose-loss`` /

@@ -250,7 +250,9 @@ class Neighborhood:
 
     Times are monotonic seconds of receipt. ``stale_timeout`` bounds a robot's own pose or
     AgentState and a relay; ``beacon_timeout`` a beacon; ``linger_period`` how long an id
-    stays subscribed after it left the two-hop set.
+    stays subscribed after it left the two-hop set; ``reckoning_limit`` how far ahead a
+    reported velocity is followed (DEAD_RECKONING_LIMIT, longer for a brain stepped
+    late: covswarm.agent.brain.AgentBrain.pace).
     """
 
     def __init__(
@@ -266,6 +268,7 @@ class Neighborhood:
         self.me = me
         self.confirmation = confirmation
         self.stale_timeout = stale_timeout
+        self.reckoning_limit = DEAD_RECKONING_LIMIT
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
         self.poses: dict[int, Record] = {}
@@ -455,12 +458,12 @@ class Neighborhood:
         than ``stale_timeout`` (a pose wins a tie); else the freshest relay of it in a
         neighbour's AgentState younger than that; else its beacon while younger than
         ``beacon_timeout``. Positions are dead-reckoned to ``now`` with the reported
-        velocity (at most DEAD_RECKONING_LIMIT s): a state is up to a control period old
+        velocity (at most ``reckoning_limit`` s): a state is up to a control period old
         when the next step reads it, and at 0.2 m/s that lag alone is a centimetre of
         error in every neighbour.
         """
         fresh = now - self.stale_timeout
-        limit = DEAD_RECKONING_LIMIT
+        limit = self.reckoning_limit
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
         records = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie

@@ -3,7 +3,9 @@ neighbours' AgentStates against the pace it is stepped at (AgentBrain.pace): the
 their place in the local diagram for STALE_TURNS gaps between two of its turns, within
 [stale_timeout, STALE_STRETCH x stale_timeout], and at the asked rate nothing changes.
 Its command, which the robot drops after its command timeout, covers the whole gap's
-move in the time it is driven (AgentBrain._finish, MAX_DUTY)."""
+move in the time it is driven (AgentBrain._finish, MAX_DUTY), and its neighbours' reported
+velocities are followed as long as their robots drive them (the gap, up to the command
+timeout)."""
 
 from __future__ import annotations
 
@@ -13,6 +15,7 @@ from wire_samples import domain_message
 from covswarm import protocol
 from covswarm.agent import brain as brain_module
 from covswarm.agent.brain import STALE_STRETCH, STALE_TURNS, AgentBrain, AgentConfig
+from covswarm.agent.neighborhood import DEAD_RECKONING_LIMIT
 from covswarm.deploy.netsim import run_netsim, steady_state
 
 WALL = 1.7e9
@@ -68,6 +71,24 @@ def test_the_stretch_is_bounded_and_undone_when_turns_come_on_time_again() -> No
     assert not brain.receive("state", neighbour_state(WALL - 2.0), 0.0, WALL, key_id=1)
 
 
+@pytest.mark.parametrize(
+    ("gap", "timeout", "followed"), [(0.1, 0.94, 0.5), (2.0, 0.94, 0.94), (0.7, 4.0, 0.7)]
+)
+def test_a_neighbours_velocity_is_followed_as_long_as_its_robot_drives_it(
+    gap: float, timeout: float, followed: float
+) -> None:
+    # Its state read 0.97 s after it arrived: within the stale timeout (1 s), past every
+    # span followed here. At the asked rate, DEAD_RECKONING_LIMIT (0.5 s); stepped every 2
+    # s, its command drives for the robot's command timeout (0.94 s); every 0.7 s, for 0.7.
+    brain = running_brain(cmd_timeout=timeout)
+    state = protocol.AgentState(id=1, x=1.3, y=1.0, vx=0.1, vy=-0.05, stamp=WALL, neighbors=(0,))
+    assert brain.receive("state", state.encode(), 0.0, WALL, key_id=1)
+    brain.pace(gap)
+    brain.neighborhood.refresh(0.97)
+    x, y, _, _ = brain.neighborhood.reckoned[1]
+    assert (x, y) == pytest.approx((1.3 + 0.1 * followed, 1.0 - 0.05 * followed))
+
+
 @pytest.mark.parametrize("gap", [0.1, 1.8])
 def test_a_command_that_times_out_before_the_next_turn_is_driven_faster(gap: float) -> None:
     # Two brains alike but for their robots' command timeout: 0.94 s, and 4 s (held for
@@ -111,3 +132,42 @@ def test_a_team_whose_commands_time_out_early_keeps_up_with_s() -> None:
     uncompensated = slow_team(1.0)
     assert compensated < 0.05
     assert uncompensated > 3.0 * compensated
+
+
+def dense_slow_team(monkeypatch: pytest.MonkeyPatch, follow: bool) -> float:
+    """Second-half e_a of 100 agents (the circle scenario's density) stepped at 0.5 Hz whose
+    robots stop 0.94 s after each command (as `covswarm run` sets for 1000 robots on two
+    cores), S circling at a twentieth of its speed, 60 s in netsim; ``follow`` False: the
+    neighbours' velocities followed for DEAD_RECKONING_LIMIT only, as before 28 Nov 2026."""
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parent.parent / "scripts"))
+    from held_commands import slowed_circle
+
+    if not follow:
+        pace = AgentBrain.pace
+
+        def short_reckoning(brain: AgentBrain, gap: float) -> None:
+            pace(brain, gap)
+            brain.neighborhood.reckoning_limit = DEAD_RECKONING_LIMIT
+
+        monkeypatch.setattr(AgentBrain, "pace", short_reckoning)
+    config = AgentConfig(cmd_timeout=0.94)
+    run = run_netsim(
+        slowed_circle(20.0, 60.0), agents=100, seed=0, rate=0.5, cmd_timeout=0.94, config=config
+    )
+    monkeypatch.undo()
+    return steady_state(run)
+
+
+def test_a_dense_slow_team_keeps_up_when_it_follows_its_neighbours_moves(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Measured (28 Nov 2026), seeds 0 and 1: 0.051 and 0.081 m following the whole move,
+    # 0.097 and 0.150 m following 0.5 s of it; over 120 s, seeds 0-2, 0.023-0.026 m
+    # against 0.058-0.079 m (scripts/held_commands.py --rate 0.5 --slow 20 --stops 0.94).
+    followed = dense_slow_team(monkeypatch, follow=True)
+    cut = dense_slow_team(monkeypatch, follow=False)
+    assert followed < 0.12
+    assert cut > 1.4 * followed
