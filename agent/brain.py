@@ -642,13 +642,16 @@ class AgentBrain:
         left every neighbour's reckoned position short of the real one by the rest of its
         move (the velocity an AgentState reports is the sped-up one its robot drives for
         the hold, AgentBrain._finish), and a robot behind its neighbours, seeing them
-        closer than they are, held back by its safety filter."""
+        closer than they are, held back by its safety filter. And when the gap is longer
+        than the command timeout, a neighbour heard longer ago than that has stopped: its
+        velocity is 0 to the safety filter, which otherwise let a robot close in on one it
+        took for moving away."""
         stale = self.config.stale_timeout
         horizon = min(max(stale, STALE_TURNS * gap), STALE_STRETCH * stale)
         self.neighborhood.stale_timeout = self._max_age["state"] = horizon
-        self.neighborhood.reckoning_limit = max(
-            DEAD_RECKONING_LIMIT, min(gap, self.config.cmd_timeout)
-        )
+        timeout = self.config.cmd_timeout
+        self.neighborhood.reckoning_limit = max(DEAD_RECKONING_LIMIT, min(gap, timeout))
+        self.neighborhood.at_rest_after = timeout if gap > timeout else math.inf
         self.counters.stale_stretched += horizon > stale and self.running
 
     def on_pose(self, pose: protocol.Pose, now: float) -> bool:

@@ -252,7 +252,9 @@ class Neighborhood:
     AgentState and a relay; ``beacon_timeout`` a beacon; ``linger_period`` how long an id
     stays subscribed after it left the two-hop set; ``reckoning_limit`` how far ahead a
     reported velocity is followed (DEAD_RECKONING_LIMIT, longer for a brain stepped
-    late: covswarm.agent.brain.AgentBrain.pace).
+    late: covswarm.agent.brain.AgentBrain.pace), and ``at_rest_after`` how long after its
+    stamp a robot is taken as stopped (velocity 0: its command timed out before the next;
+    never, unless brains are stepped less often than commands last).
     """
 
     def __init__(
@@ -269,6 +271,7 @@ class Neighborhood:
         self.confirmation = confirmation
         self.stale_timeout = stale_timeout
         self.reckoning_limit = DEAD_RECKONING_LIMIT
+        self.at_rest_after = math.inf
         self.beacon_timeout = beacon_timeout
         self.linger_period = linger_period
         self.poses: dict[int, Record] = {}
@@ -463,7 +466,7 @@ class Neighborhood:
         error in every neighbour.
         """
         fresh = now - self.stale_timeout
-        limit = self.reckoning_limit
+        limit, rest = self.reckoning_limit, self.at_rest_after
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
         records = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
@@ -480,10 +483,14 @@ class Neighborhood:
             received = record[2]
             if received >= fresh and rid not in dead:
                 lead = now - received
-                if lead > limit:
-                    lead = limit
                 vx, vy = record[3], record[4]
-                reckoned[rid] = (record[0] + lead * vx, record[1] + lead * vy, vx, vy)
+                if lead > limit:
+                    x, y = record[0] + limit * vx, record[1] + limit * vy
+                    if lead > rest:
+                        vx = vy = 0.0
+                    reckoned[rid] = (x, y, vx, vy)
+                else:
+                    reckoned[rid] = (record[0] + lead * vx, record[1] + lead * vy, vx, vy)
         first_hand = set(reckoned)
         skip = first_hand | dead.keys()
         skip.add(self.me)
@@ -500,6 +507,7 @@ class Neighborhood:
             if not new:
                 continue
             lead = now - received
+            moving = lead <= rest
             if lead > limit:
                 lead = limit
             entries: dict[int, Reckoned] = record[6]  # type: ignore[assignment]
@@ -507,7 +515,10 @@ class Neighborhood:
                 if rid in new and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
                     x, y, vx, vy = entries[rid]
-                    reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
+                    if moving:
+                        reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
+                    else:
+                        reckoned[rid] = (x + lead * vx, y + lead * vy, 0.0, 0.0)
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)

@@ -89,6 +89,36 @@ def test_a_neighbours_velocity_is_followed_as_long_as_its_robot_drives_it(
     assert (x, y) == pytest.approx((1.3 + 0.1 * followed, 1.0 - 0.05 * followed))
 
 
+@pytest.mark.parametrize(
+    ("gap", "timeout", "age", "moving"),
+    [
+        (2.0, 0.94, 0.5, True),
+        (2.0, 0.94, 1.5, False),
+        (0.7, 4.0, 0.97, True),
+        (0.1, 0.5, 0.9, True),
+    ],
+)
+def test_a_neighbour_heard_before_its_command_timed_out_has_stopped(
+    gap: float, timeout: float, age: float, moving: bool
+) -> None:
+    # Stepped every 2 s, robots stop 0.94 s after a command: a neighbour heard 1.5 s ago
+    # stands where its move ended, velocity 0 (to the safety filter, and as relayed). When
+    # commands outlast the gap (0.7 s, 4 s) or at the asked rate, a robot is never taken
+    # as stopped for its age (its states may be lost while its commands are not).
+    brain = running_brain(cmd_timeout=timeout)
+    state = protocol.AgentState(id=1, x=1.3, y=1.0, vx=0.1, vy=-0.05, stamp=WALL, neighbors=(0,))
+    assert brain.receive("state", state.encode(), 0.0, WALL, key_id=1)
+    brain.pace(gap)
+    brain.neighborhood.refresh(age)
+    x, y, vx, vy = brain.neighborhood.reckoned[1]
+    lead = min(age, brain.neighborhood.reckoning_limit)
+    assert (x, y) == pytest.approx((1.3 + 0.1 * lead, 1.0 - 0.05 * lead))
+    assert (vx, vy) == ((0.1, -0.05) if moving else (0.0, 0.0))
+    # the table the safety filter reads (covswarm.agent.brain._safety_inputs) says the same
+    row = brain.neighborhood.table[list(brain.neighborhood.table_ids).index(1)]
+    assert row.tolist() == pytest.approx([x, y, vx, vy])
+
+
 @pytest.mark.parametrize("gap", [0.1, 1.8])
 def test_a_command_that_times_out_before_the_next_turn_is_driven_faster(gap: float) -> None:
     # Two brains alike but for their robots' command timeout: 0.94 s, and 4 s (held for
