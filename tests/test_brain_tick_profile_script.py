@@ -4,21 +4,14 @@ holds."""
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+from script_modules import SCRIPTS, load_script
 
-SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "brain_tick_profile.py"
-
-
-def load_script():  # type: ignore[no-untyped-def]
-    spec = importlib.util.spec_from_file_location("brain_tick_profile", SCRIPT)
-    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module
+SCRIPT = SCRIPTS / "brain_tick_profile.py"
 
 
 def test_shares_count_the_samples_inside_a_tick_by_phase(tmp_path: Path) -> None:
@@ -34,7 +27,7 @@ def test_shares_count_the_samples_inside_a_tick_by_phase(tmp_path: Path) -> None
         "<module> (a.py:1);run_pack (p.py:5);Pack.tick (pack.py:9);"
         "AgentBrain.receive_all (brain.py:3) 40\n"
     )
-    shares = load_script().shares(raw)
+    shares = load_script("brain_tick_profile").shares(raw)
     assert shares["AgentBrain.receive_all"] == pytest.approx(60.0)
     assert shares["Neighborhood.refresh"] == pytest.approx(30.0)  # once, not per frame
     assert shares["local_steps"] == 0.0

@@ -3,23 +3,14 @@ it the robots farthest from their centroids carry (a straggler outside S shows).
 
 from __future__ import annotations
 
-import importlib.util
 from pathlib import Path
 
 import numpy as np
 import pytest
+from script_modules import load_script
 from shapely.geometry import Point, Polygon
 
 from covswarm.tvd.coverage import aggregate_error
-
-SCRIPT = Path(__file__).resolve().parent.parent / "scripts" / "error_shares.py"
-
-
-def load_script():  # type: ignore[no-untyped-def]
-    spec = importlib.util.spec_from_file_location("error_shares", SCRIPT)
-    module = importlib.util.module_from_spec(spec)  # type: ignore[arg-type]
-    spec.loader.exec_module(module)  # type: ignore[union-attr]
-    return module
 
 
 def write_run(folder: Path, frames: list[tuple[float, np.ndarray]], polygon: np.ndarray) -> None:
@@ -45,7 +36,7 @@ def test_e_a_and_the_stragglers_share(tmp_path: Path) -> None:
     early = np.vstack([inside, [[1.0, 1.0]]])
     late = np.vstack([inside + [0.1, 0.0], straggler])
     write_run(tmp_path, [(0.0, early), (1.0, late)], square)
-    rows = load_script().shares(tmp_path, [0.0, 1.0], top=1)
+    rows = load_script("error_shares").shares(tmp_path, [0.0, 1.0], top=1)
     assert [row["t"] for row in rows] == [0.0, 1.0]
     assert rows[0]["e_a"] == pytest.approx(aggregate_error(early, square), rel=1e-12)
     moved = square + [0.1, 0.0]
@@ -66,6 +57,6 @@ def test_a_robot_not_yet_recorded_is_left_out(tmp_path: Path) -> None:
     (tmp_path / "trajectories.csv").write_text(lines)
     write_domain = ["t,vertex,x,y"] + [f"0.0,{k},{x},{y}" for k, (x, y) in enumerate(square)]
     (tmp_path / "domain.csv").write_text("\n".join(write_domain) + "\n")
-    first, last = load_script().shares(tmp_path, [0.0, 1.0], top=1)
+    first, last = load_script("error_shares").shares(tmp_path, [0.0, 1.0], top=1)
     assert first["e_a"] == pytest.approx(aggregate_error(np.array([[0.25, 0.5]]), square))
     assert last["e_a"] == pytest.approx(0.0, abs=1e-12)  # two robots at their centroids

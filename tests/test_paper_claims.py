@@ -16,7 +16,6 @@ simulator.
 
 from __future__ import annotations
 
-import importlib.util
 import json
 import multiprocessing
 from concurrent.futures import ProcessPoolExecutor
@@ -24,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from script_modules import load_script
 
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import steady_state_mean
@@ -75,9 +75,7 @@ def test_feedforward_lowers_steady_state_error(name: str, law: str) -> None:
 
 ROOT = Path(__file__).resolve().parents[1]
 RESULTS = json.loads((ROOT / "docs" / "results.json").read_text(encoding="utf-8"))
-_spec = importlib.util.spec_from_file_location("results_script", ROOT / "scripts" / "results.py")
-results_script = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(results_script)
+results_script = load_script("results")
 
 # The bands. Spread measured on 2026-11-25 across three OpenBLAS kernels on one machine
 # (OPENBLAS_CORETYPE unset = SkylakeX, Haswell, Prescott; numpy 2.4.6, scipy 1.17.1): every

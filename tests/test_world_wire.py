@@ -3,7 +3,6 @@ trips, strict decoding with a reason, outward rounding checked with shapely, siz
 
 from __future__ import annotations
 
-import importlib.util
 import math
 import time
 from pathlib import Path
@@ -14,6 +13,7 @@ import pytest
 import shapely
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from script_modules import load_script
 
 from covswarm import protocol
 from covswarm.protocol.messages import MAX_OBSTACLES, MAX_WORLD_PAYLOAD, World
@@ -198,10 +198,7 @@ def test_lab_map_round_trips_and_is_small() -> None:
 
 
 def test_twenty_metre_map_is_small(tmp_path: Path) -> None:
-    spec = importlib.util.spec_from_file_location("world_size", ROOT / "scripts" / "world_size.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    sizes = module.sizes(tmp_path)
+    sizes = load_script("world_size").sizes(tmp_path)
     count, size = sizes["20 m x 20 m at 5 cm"]
     assert count >= 30 and size < 1024  # 508 bytes (docs/world.md)
     arena = world_from_map(tmp_path / "warehouse20.yaml")
