@@ -515,10 +515,10 @@ class Neighborhood:
                 if rid in new and (rid not in relayed or relayed[rid] < received):
                     relayed[rid] = received
                     x, y, vx, vy = entries[rid]
-                    if moving:
-                        reckoned[rid] = (x + lead * vx, y + lead * vy, vx, vy)
-                    else:
-                        reckoned[rid] = (x + lead * vx, y + lead * vy, 0.0, 0.0)
+                    x, y = x + lead * vx, y + lead * vy
+                    if not moving:
+                        vx = vy = 0.0
+                    reckoned[rid] = (x, y, vx, vy)
         head = np.fromiter(
             itertools.chain.from_iterable(reckoned.values()), dtype=float, count=4 * len(reckoned)
         ).reshape(-1, 4)
