@@ -34,7 +34,10 @@ from rich.console import Console
 from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.deploy.display import live_brain_tick, summary_table
+from covswarm.deploy.host_speed import measure_brain_tick
 from covswarm.deploy.plan import (
+    BRAIN_TICK,
+    SOLO_PER_CORE,
     RunConfig,
     auto_robots_per_process,
     capacity_note,
@@ -169,11 +172,32 @@ from covswarm.sim_robot.process import gather_drops
     low_open=True,
     help="Fastest a steered vertex of S may move, m/s [the coordinator's default].",
 )
+@float_option(
+    "--brain-tick",
+    low=0,
+    low_open=True,
+    help="s of CPU one brain-tick costs live on this host, for auto packing, the capacity "
+    "warning and the robots' command timeout [measured at launch for a team beyond 8 agents "
+    "per core: deploy/host_speed.py].",
+)
 @SECURE_OPTION
 def run_command(foxglove_port: int | None, **options: Any) -> None:
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
     # FOXGLOVE_OPTION (shared with covswarm coordinator) names its value foxglove_port.
     run_swarm(RunConfig(foxglove=foxglove_port, **options))
+
+
+def host_brain_tick(run: RunConfig, agents: int, cores: int, console: Console) -> float:
+    """s of CPU one brain-tick costs live here, for ``agents`` brains on ``cores`` cores:
+    ``--brain-tick``, else measured (deploy.host_speed, ~2 s) when they are beyond a process
+    per brain, else plan.BRAIN_TICK (a process per brain: packing is not in question)."""
+    if run.brain_tick is not None:
+        return run.brain_tick
+    if agents <= SOLO_PER_CORE * max(cores, 1):
+        return BRAIN_TICK
+    measured = measure_brain_tick()
+    console.log(measured.describe())
+    return measured.brain_tick
 
 
 def run_swarm(run: RunConfig) -> None:
@@ -206,8 +230,10 @@ def run_swarm(run: RunConfig) -> None:
     here = n if ids is None else len(ids)
     cores = len(os.sched_getaffinity(0))
     wall_rate = run.rate * run.time_scale  # control periods per second of wall time
+    console = Console()
+    brain_tick = host_brain_tick(run, here, cores, console)
     try:
-        packing = parse_per_process(run.agents_per_process, here, cores, wall_rate)
+        packing = parse_per_process(run.agents_per_process, here, cores, wall_rate, brain_tick)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
     robot_packing = packing
@@ -236,11 +262,10 @@ def run_swarm(run: RunConfig) -> None:
             raise click.UsageError(str(exc)) from None
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
-    console = Console()
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
-    timeout = command_timeout(here, cores, run.rate, run.time_scale)
-    if (note := capacity_note(here, cores, run.rate, run.time_scale)) is not None:
+    timeout = command_timeout(here, cores, run.rate, run.time_scale, brain_tick)
+    if (note := capacity_note(here, cores, run.rate, run.time_scale, brain_tick)) is not None:
         console.log(f"[yellow]warning: {note}; robots keep a command for {timeout:.2g} s")
     with zenoh_session(
         run.connect, max(1000, 4 * n), run.router_listen, run.router_connect, secure=run.secure
@@ -273,6 +298,7 @@ def run_swarm(run: RunConfig) -> None:
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
                         "agents_per_process": packing,
                         "robots_per_process": robot_packing,
+                        "brain_tick_s": brain_tick, "cmd_timeout_s": timeout,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
         result = run_processes(

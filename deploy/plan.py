@@ -59,75 +59,100 @@ class ChildSpec:
 # unit of failure, as on real robots; 100 robots one per process took 9 minutes to start,
 # docs/scaling.md). Beyond, packing follows what holds real time, from the CPU cost of one
 # brain-tick (a brain's whole period in a packed process: draining, decoding, step, filter,
-# encoding, puts), BRAIN_TICK, as live runs measure it (the summary's "CPU per brain-tick
-# (live)", which adds Zenoh to ``covswarm bench --brain-tick``): 0.43-0.55 ms for 300 to
-# 1000 robots in packs of 150 to 500 on this 2-core VM, 2026-11-27 18:00-18:03 UTC, load
-# 1-2.7 (docs/scaling.md, "Half a millisecond a brain-tick"; it was 0.7 ms that morning):
-# - if the team fits, agents x rate x BRAIN_TICK within AGENT_SHARE of the cores (the rest
-#   is the robots', the router's and the coordinator's), one agent process per core, of
-#   at most PERIOD_SHARE / (rate x BRAIN_TICK) brains each: a process steps its brains one
-#   after the other, and that keeps its batch within three quarters of a period (150 at 10
-#   Hz; at half a period, 300 robots ran in 3 processes of 100 rather than 2 of 150 and
-#   took 149 % of agent CPU rather than 129-138 %: more processes than cores take turns);
+# encoding, puts) as live runs measure it (the summary's "CPU per brain-tick (live)", which
+# adds Zenoh to ``covswarm bench --brain-tick``). That is the host's: the launcher measures
+# it (deploy.host_speed) and passes it to every function below as ``brain_tick``:
+# - if the team fits, agents x rate x brain_tick within the cores the rest of the run
+#   leaves them (:func:`agent_cores`), one agent process per core, of at most
+#   PERIOD_SHARE / (rate x brain_tick) brains each: a process steps its brains one after
+#   the other, and that keeps its batch within three quarters of a period (150 at 10 Hz
+#   and 0.5 ms; at half a period, 300 robots ran in 3 processes of 100 rather than 2 of
+#   150 and took 149 % of agent CPU rather than 129-138 %: more processes than cores take
+#   turns);
 # - if it does not, no packing holds the rate: one agent process per core, as many brains
 #   as it takes. Fewer processes start sooner (each costs its imports and ~80 MB) and share
 #   more decoding; the brains whose turn comes after a period's deadline hold (agent.pack)
 #   either way, and the launcher says which rate the machine could hold
 #   (:func:`capacity_note`).
 SOLO_PER_CORE = 8
-BRAIN_TICK = 0.5e-3  # s of CPU per brain and control period, packed, live
-AGENT_SHARE = 0.8  # of the host's cores, for the agents
-# s of CPU per brain-tick of a process far from holding its rate: its brains take turns
+# s of CPU per brain-tick where none was measured (a team small enough for a process per
+# brain, or a test's): 0.43-0.55 ms live for 300 to 1000 robots in packs of 150 to 500 on
+# this 2-core VM, 2026-11-27 18:00-18:03 UTC (docs/scaling.md, "Half a millisecond a
+# brain-tick").
+BRAIN_TICK = 0.5e-3
+# What the rest of a run takes from the agents' cores (:func:`agent_cores`): a fixed
+# OTHER_CORES (the router, the coordinator, the launcher, the system) and, per robot,
+# OTHER_TICKS brain-ticks of CPU a second (its simulated robot's steps and poses, the
+# coordinator's monitoring and recording of it, the router's forwarding). Live on this
+# 2-core VM, 29 Nov 2026: 1000 robots, 0.74-0.78 cores outside the agents at ~1 ms a
+# brain-tick (six runs of circle-1000, 28-29 Nov); 300 robots at --time-scale 0.3-0.4,
+# 0.30-0.34 cores (docs/scaling.md, "The launcher times the host").
+OTHER_CORES = 0.2
+OTHER_TICKS = 0.6
+# A process far from holding its rate costs more per brain-tick: its brains take turns
 # late, skip periods and stop their robots, and each turn takes in more at once (every
 # domain and beacon since the last one). Live, 1000 robots on this 2-core VM at 10 and at 3
-# Hz asked: 0.72-0.99 ms (held 1.2-2.0 Hz), 2026-11-27 19:58-20:31 UTC, load 1-4
+# Hz asked: 0.72-0.99 ms (held 1.2-2.0 Hz) against BRAIN_TICK, 2026-11-27 19:58-20:31 UTC
 # (docs/scaling.md, "A thousand robots in real time"); 400 robots, which held 8.0 of 10 Hz,
 # stayed at BRAIN_TICK. So :func:`capacity_note` expects a rate between the two; the time
-# scale it suggests holds the rate, at BRAIN_TICK.
-LATE_BRAIN_TICK = 1.0e-3
+# scale it suggests holds the rate, at the brain-tick.
+LATE_PER_BRAIN_TICK = 2.0
 PERIOD_SHARE = 0.75  # of a control period, for one process's batch of brains
 
 
-def fits(agents: int, cores: int, rate: float) -> bool:
-    """Whether ``agents`` brains at ``rate`` Hz (of wall time) fit ``cores`` cores."""
-    return agents * rate * BRAIN_TICK <= AGENT_SHARE * max(cores, 1)
+def agent_cores(agents: int, cores: int, brain_tick: float = BRAIN_TICK) -> float:
+    """Cores of ``cores`` left to ``agents`` brains by the rest of their run (OTHER_CORES,
+    OTHER_TICKS brain-ticks of ``brain_tick`` s per robot and second), at least a quarter."""
+    cores = max(cores, 1)
+    return max(cores - OTHER_CORES - OTHER_TICKS * agents * brain_tick, 0.25 * cores)
 
 
-def auto_per_process(agents: int, cores: int, rate: float = 10.0) -> int:
+def fits(agents: int, cores: int, rate: float, brain_tick: float = BRAIN_TICK) -> bool:
+    """Whether ``agents`` brains at ``rate`` Hz (of wall time) fit ``cores`` cores, a
+    brain-tick costing ``brain_tick`` s of CPU."""
+    return agents * rate * brain_tick <= agent_cores(agents, cores, brain_tick)
+
+
+def auto_per_process(
+    agents: int, cores: int, rate: float = 10.0, brain_tick: float = BRAIN_TICK
+) -> int:
     """Brains per agent process for ``agents`` brains at ``rate`` Hz (wall time) on a host
-    with ``cores`` cores (the rule above)."""
+    with ``cores`` cores where a brain-tick costs ``brain_tick`` s (the rule above)."""
     if agents <= SOLO_PER_CORE * max(cores, 1):
         return 1
     per_core = -(-agents // max(cores, 1))
-    if not fits(agents, cores, rate):
+    if not fits(agents, cores, rate, brain_tick):
         return per_core
-    return max(1, min(per_core, int(PERIOD_SHARE / (rate * BRAIN_TICK))))
+    return max(1, min(per_core, int(PERIOD_SHARE / (rate * brain_tick))))
 
 
-def late_rate(agents: int, cores: int) -> float:
+def late_rate(agents: int, cores: int, brain_tick: float = BRAIN_TICK) -> float:
     """Hz of wall time that ``agents`` brains hold on ``cores`` cores when they do not fit:
-    the lower end of what :func:`capacity_note` expects (LATE_BRAIN_TICK)."""
-    return AGENT_SHARE * max(cores, 1) / (agents * LATE_BRAIN_TICK)
+    the lower end of what :func:`capacity_note` expects (LATE_PER_BRAIN_TICK)."""
+    share = agent_cores(agents, cores, brain_tick)
+    return share / (agents * LATE_PER_BRAIN_TICK * brain_tick)
 
 
-def capacity_note(agents: int, cores: int, rate: float, time_scale: float = 1.0) -> str | None:
+def capacity_note(
+    agents: int, cores: int, rate: float, time_scale: float = 1.0, brain_tick: float = BRAIN_TICK
+) -> str | None:
     """What the launcher says when ``agents`` brains at ``rate`` Hz of mission time, run at
-    ``time_scale`` (mission s per wall s), do not fit ``cores`` cores (:func:`fits`); None
-    when they do."""
+    ``time_scale`` (mission s per wall s), do not fit ``cores`` cores at ``brain_tick`` s
+    of CPU a brain-tick (:func:`fits`); None when they do."""
     wall_rate = rate * time_scale
-    if fits(agents, cores, wall_rate):
+    if fits(agents, cores, wall_rate, brain_tick):
         return None
-    need = agents * wall_rate * BRAIN_TICK
-    share = AGENT_SHARE * max(cores, 1)
-    held = share / (agents * BRAIN_TICK)  # Hz of wall time that fit
-    late = late_rate(agents, cores)
+    need = agents * wall_rate * brain_tick
+    share = agent_cores(agents, cores, brain_tick)
+    held = share / (agents * brain_tick)  # Hz of wall time that fit
+    late = late_rate(agents, cores, brain_tick)
     return (
         f"{agents} brains at {rate:g} Hz (x{time_scale:g}: {wall_rate:g} Hz of wall time) "
-        f"need ~{need:.1f} cores of agent CPU (~{1e3 * BRAIN_TICK:.1f} ms a brain-tick, "
-        f"covswarm bench --brain-tick); this host has {cores}: expect "
+        f"need ~{need:.1f} cores of agent CPU (~{1e3 * brain_tick:.3g} ms a brain-tick); "
+        f"this host has {cores}: expect "
         f"{late / time_scale:.2g}-{held / time_scale:.2g} Hz (the further from the rate, the "
-        f"lower: late brains cost up to ~{1e3 * LATE_BRAIN_TICK:.1f} ms a brain-tick), or "
-        f"run at --time-scale {held / rate:.2g}"
+        f"lower: late brains cost up to ~{1e3 * LATE_PER_BRAIN_TICK * brain_tick:.3g} ms a "
+        f"brain-tick), or run at --time-scale {held / rate:.2g}"
     )
 
 
@@ -138,18 +163,28 @@ COMMAND_TIMEOUT = RobotConfig.cmd_timeout
 # that stops at its command timeout before the next step drives less far than its step
 # meant while S is paced by the steps held (scripts/held_commands.py: 100 agents at 1.67
 # Hz, e_a's second half 0.53 m stopping 0.5 s after each command, 0.019 m at 0.9 s). So
-# the timeout covers this many of the gaps expected at the lower end of capacity_note.
+# the timeout covers this many of the gaps expected at the lower end of capacity_note, at
+# BRAIN_TICK: not at the host's brain-tick, which on a slower host makes it cover every gap.
+# A brain then speeds up a command that stops before its next step (agent.brain.MAX_DUTY),
+# and robots that stopped and robots that drove the whole gap differ: 1000 robots on 2
+# cores, 29 Nov 2026, one run each, held 0.81 Hz stopping 1.0 s after each command (e_a's
+# second half 0.050 m, 5 close approaches) and 0.49 Hz stopping at 2.8 s (the measured
+# brain-tick's: 2.87 m, 44 robots outside S, 44 close approaches; docs/scaling.md, "The
+# launcher times the host").
 GAP_MARGIN = 1.5
 
 
-def command_timeout(agents: int, cores: int, rate: float, time_scale: float = 1.0) -> float:
+def command_timeout(
+    agents: int, cores: int, rate: float, time_scale: float = 1.0, brain_tick: float = BRAIN_TICK
+) -> float:
     """The robots' command timeout, s of mission time, for ``agents`` brains at ``rate`` Hz
     of mission time run at ``time_scale`` on ``cores`` cores: COMMAND_TIMEOUT when they fit
-    (:func:`fits`), else GAP_MARGIN gaps between two steps at the lowest rate
-    :func:`capacity_note` expects (1000 robots on 2 cores: 1.6 Hz, 0.94 s)."""
-    if fits(agents, cores, rate * time_scale):
+    at ``brain_tick`` s a brain-tick (:func:`fits`), else GAP_MARGIN gaps between two steps
+    at the lowest rate :func:`capacity_note` expects at BRAIN_TICK (1000 robots on 2 cores:
+    1.5 Hz, 1.0 s)."""
+    if fits(agents, cores, rate * time_scale, brain_tick):
         return COMMAND_TIMEOUT
-    late = late_rate(agents, cores) / time_scale  # Hz of mission time
+    late = late_rate(agents, cores) / time_scale  # Hz of mission time, at BRAIN_TICK
     return max(COMMAND_TIMEOUT, GAP_MARGIN / min(late, rate))
 
 
@@ -166,14 +201,21 @@ def auto_robots_per_process(agents: int, cores: int) -> int:
     return -(-agents // max(cores, 1))
 
 
-def parse_per_process(text: str, agents: int, cores: int | None = None, rate: float = 10.0) -> int:
+def parse_per_process(
+    text: str,
+    agents: int,
+    cores: int | None = None,
+    rate: float = 10.0,
+    brain_tick: float = BRAIN_TICK,
+) -> int:
     """``--agents-per-process``: a positive integer, or "auto" (:func:`auto_per_process` for
     ``agents`` brains at ``rate`` Hz of wall time on ``cores`` cores, default the cores this
-    process may run on). ValueError with the reason for anything else."""
+    process may run on, a brain-tick costing ``brain_tick`` s). ValueError with the reason
+    for anything else."""
     if text.strip().lower() == "auto":
         if cores is None:
             cores = len(os.sched_getaffinity(0))
-        return auto_per_process(agents, cores, rate)
+        return auto_per_process(agents, cores, rate, brain_tick)
     try:
         value = int(text)
     except ValueError:
@@ -241,6 +283,9 @@ class RunConfig:
     secure: Path | None = None
     pace: bool = True  # the coordinator slows the script to what the agents hold
     fault_step_delay: float = 0.0  # s of sleep per agent step (agent.faults.delay_steps)
+    # s of CPU a brain-tick costs live on this host; None: measured at launch when the team
+    # is beyond a process per brain (deploy.host_speed), else BRAIN_TICK
+    brain_tick: float | None = None
 
 
 # Options of a run that its coordinator and agents take as they are, under the same name.

@@ -53,7 +53,9 @@ def split_packing_team(cores: int) -> tuple[int, float]:
     """(agents, rate Hz): the smallest team whose auto packing on ``cores`` cores puts its
     brains in processes of several, smaller than its robot processes (deploy.plan), at the
     first rate from 10 Hz up (doubling) where that team has at most 40 robots per core: a
-    faster rate packs fewer brains a process, so the team stays small whatever BRAIN_TICK."""
+    faster rate packs fewer brains a process, so the team stays small whatever the brain-tick
+    (deploy.plan.BRAIN_TICK: a run of that team says ``--brain-tick``, or its launcher would
+    measure its own, deploy.host_speed)."""
     for rate in (10.0, 20.0, 40.0, 80.0, 160.0):
         for agents in range(2, 40 * cores + 1):
             brains = auto_per_process(agents, cores, rate)

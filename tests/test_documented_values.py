@@ -19,6 +19,7 @@ import pytest
 from covswarm.agent import brain, neighborhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator import core as coordinator_core
+from covswarm.deploy import host_speed, plan
 from covswarm.deploy.cli import main
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import messages
@@ -67,6 +68,12 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("more than 80 % of its gap", lambda: brain.MAX_STEP_FRACTION, 0.8),
     ("(at most `MAX_DUTY` = 4;", lambda: AgentConfig().max_duty, 4.0),
     ("periods count up to 4 s", lambda: brain.MAX_PERIOD, 4.0),
+    ("1.6 is kept, 1.3-2.2 over", lambda: host_speed.LIVE_PER_BENCH, 1.6),
+    ("one pack of 100 brains over the bench's team", lambda: host_speed.CALIBRATION_BRAINS, 100),
+    ("(1.0 s for 1000 robots on 2 cores;",
+     lambda: round(plan.command_timeout(1000, 2, 10.0), 2), 1.0),
+    ("1.0 s for 1000 robots on two cores",
+     lambda: round(plan.command_timeout(1000, 2, 10.0), 2), 1.0),
     ("over the command history's whole span (2 s)", lambda: brain.POSE_HORIZON, 2.0),
     ("once its pose is 1 s old", lambda: AgentConfig().stale_timeout, 1.0),
     ("extrapolate the last domain for 1 s", lambda: AgentConfig().max_extrapolation, 1.0),

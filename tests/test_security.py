@@ -17,6 +17,7 @@ import pytest
 from live_runs import alive_tokens, open_router, split_packing_team
 
 from covswarm import protocol
+from covswarm.deploy.plan import BRAIN_TICK
 from covswarm.protocol.security import make_test_credentials, read_identities
 from covswarm.protocol.session import session_config
 
@@ -158,7 +159,8 @@ def test_an_auto_packed_secure_run_presents_exactly_its_group_certificates(tmp_p
     folder = make_test_credentials(tmp_path / "secure", ids=[])
     out = tmp_path / "run"
     argv = [COVSWARM, "run", "--secure", str(folder), "--agents", str(agents), "--rate", str(rate)]
-    argv += ["--duration", "2", "--out", str(out)]
+    # The brain-tick split_packing_team planned with, not this host's (deploy.host_speed).
+    argv += ["--duration", "2", "--out", str(out), "--brain-tick", str(BRAIN_TICK)]
 
     def one_core() -> None:  # in the launcher before exec: it and its children on one core
         os.sched_setaffinity(0, {min(os.sched_getaffinity(0))})
