@@ -1,0 +1,40 @@
+"""The stragglers of 1000 robots are the mission's under the agents' robot model and safety
+filter, not the distribution's (docs/scaling.md, "Which covswarm sim to compare with").
+
+circle-1000 stepped in one process at 10 Hz (covswarm.deploy.simulate), unicycles, the first
+21 s: while S turns at t = 15-21 s, robots steered 5 cm ahead of their axle as the agents
+are (agent.brain.AGENT_PROJECTION_DISTANCE) and filtered for collisions fall behind its
+trailing edge, as in the live run at 0.11x real time; without the filter, or steered 3 cm
+ahead, far fewer do. Measured mean e_a over t = 15-21 s, 29 Nov 2026: 0.389 m (5 cm,
+filter), 0.019 m (5 cm, no filter), 0.064 m (3 cm, filter); the bounds are a quarter of
+those ratios.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE
+from covswarm.deploy.simulate import simulate
+from covswarm.mission.scenario_files import load_scenario
+
+SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "circle-1000.toml"
+
+
+def turning_error(projection_distance: float, safety: bool) -> float:
+    """Mean e_a (m) over t = 15-21 s of circle-1000 at 10 Hz with unicycles."""
+    result = simulate(
+        load_scenario(str(SCENARIO)), dt=0.1, duration=21.0, dynamics="unicycle",
+        projection_distance=projection_distance, safety=safety,
+    )  # fmt: skip
+    turning = (result.t >= 15.0) & (result.t <= 21.0)
+    return float(np.mean(result.error[turning]))
+
+
+def test_the_agents_robot_model_and_filter_leave_robots_behind_a_turning_domain() -> None:
+    agents = turning_error(AGENT_PROJECTION_DISTANCE, safety=True)
+    assert AGENT_PROJECTION_DISTANCE == 0.05
+    assert agents > 5.0 * turning_error(AGENT_PROJECTION_DISTANCE, safety=False)
+    assert agents > 1.5 * turning_error(0.03, safety=True)
