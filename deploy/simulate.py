@@ -70,8 +70,12 @@ def simulate(
     prior: str = "affine",
     projection_distance: float | None = None,
     safety: bool = False,
+    headings: float | None = None,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
+
+    headings: the unicycles' initial heading, rad, the same for every robot (None: uniform
+    at random per robot, from the seed, as ``covswarm run`` places them).
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
@@ -115,8 +119,13 @@ def simulate(
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
+    start_heading = headings
     # Headings from their own stream so positions match the single-integrator run.
     headings = np.random.default_rng([seed, 1]).uniform(-np.pi, np.pi, size=n)
+    if start_heading is not None:
+        if not math.isfinite(start_heading):
+            raise ValueError(f"headings must be a finite angle, not {start_heading!r}")
+        headings = np.full(n, float(start_heading))
     if dynamics == "single":
         headings = np.zeros(n)
 
