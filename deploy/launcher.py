@@ -176,9 +176,9 @@ from covswarm.sim_robot.process import gather_drops
     "--brain-tick",
     low=0,
     low_open=True,
-    help="s of CPU one brain-tick costs live on this host, for auto packing, the capacity "
-    "warning and the robots' command timeout [measured at launch for a team beyond 8 agents "
-    "per core: deploy/host_speed.py].",
+    help="s of CPU one brain-tick costs live on this host, for auto packing and the capacity "
+    "warning (and whether robots keep commands for late steps) [measured at launch for a "
+    "team beyond 8 agents per core: deploy/host_speed.py].",
 )
 @SECURE_OPTION
 def run_command(foxglove_port: int | None, **options: Any) -> None:

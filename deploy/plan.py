@@ -94,8 +94,9 @@ OTHER_TICKS = 0.6
 # domain and beacon since the last one). Live, 1000 robots on this 2-core VM at 10 and at 3
 # Hz asked: 0.72-0.99 ms (held 1.2-2.0 Hz) against BRAIN_TICK, 2026-11-27 19:58-20:31 UTC
 # (docs/scaling.md, "A thousand robots in real time"); 400 robots, which held 8.0 of 10 Hz,
-# stayed at BRAIN_TICK. So :func:`capacity_note` expects a rate between the two; the time
-# scale it suggests holds the rate, at the brain-tick.
+# stayed at BRAIN_TICK. On 29 Nov, 2.31-2.45 ms live against 1.08 ms measured at launch
+# (docs/scaling.md, "The launcher times the host"). So :func:`capacity_note` expects a rate
+# between the two; the time scale it suggests holds the rate, at the brain-tick.
 LATE_PER_BRAIN_TICK = 2.0
 PERIOD_SHARE = 0.75  # of a control period, for one process's batch of brains
 
