@@ -70,12 +70,12 @@ def simulate(
     prior: str = "affine",
     projection_distance: float | None = None,
     safety: bool = False,
-    headings: float | None = None,
+    heading: float | None = None,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
-    headings: the unicycles' initial heading, rad, the same for every robot (None: uniform
-    at random per robot, from the seed, as ``covswarm run`` places them).
+    heading: the unicycles' initial heading, rad, the same for every robot (None: uniform at
+    random per robot, from the seed, as ``covswarm run`` places them).
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
@@ -119,13 +119,12 @@ def simulate(
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
-    start_heading = headings
     # Headings from their own stream so positions match the single-integrator run.
     headings = np.random.default_rng([seed, 1]).uniform(-np.pi, np.pi, size=n)
-    if start_heading is not None:
-        if not math.isfinite(start_heading):
-            raise ValueError(f"headings must be a finite angle, not {start_heading!r}")
-        headings = np.full(n, float(start_heading))
+    if heading is not None:
+        if not math.isfinite(heading):
+            raise ValueError(f"heading must be a finite angle, not {heading!r}")
+        headings = np.full(n, float(heading))
     if dynamics == "single":
         headings = np.zeros(n)
 
@@ -231,6 +230,7 @@ def build_summary(
     safety: bool = False,
     projection_distance: float | None = None,
     goals: Sequence[Sequence[float]] = (),
+    heading: float | None = None,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
     every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
@@ -279,6 +279,8 @@ def build_summary(
                 if dynamics == "unicycle"
                 else None
             ),
+            # rad, every unicycle's at the start (None: at random per robot)
+            "heading": heading if dynamics == "unicycle" else None,
             "steps": int(result.t.size - 1),
             "guards": guard_counts(result),
             # Every step, not only the recorded ones: a touch between two frames still counts.
@@ -388,6 +390,11 @@ def world_line(summary: dict[str, Any]) -> str:
     help="Filter velocities for collision avoidance as covswarm run's agents do (off here by "
     "default, as in the paper).",
 )
+@float_option(
+    "--heading",
+    help="Unicycles: every robot's initial heading, rad [uniform at random per robot, from "
+    "--seed, as covswarm run places them].",
+)
 def sim_command(
     scenario_name: str,
     agents: int | None,
@@ -404,6 +411,7 @@ def sim_command(
     compare: bool,
     projection_distance: float | None,
     safety: bool,
+    heading: float | None,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -426,6 +434,8 @@ def sim_command(
         scenario = load_scenario(scenario_name)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    if heading is not None and not math.isfinite(heading):
+        raise click.BadParameter(f"a finite angle in rad, not {heading}", param_hint="--heading")
     options = {
         "agents": scenario.agents if agents is None else agents,
         "law": law,
@@ -438,6 +448,7 @@ def sim_command(
         "prior": prior,
         "safety": safety,
         "projection_distance": projection_distance,
+        "heading": heading,
     }
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])

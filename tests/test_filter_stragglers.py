@@ -13,6 +13,7 @@ ratios.
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 
@@ -26,11 +27,11 @@ from covswarm.mission.scenario_files import load_scenario
 SCENARIO = Path(__file__).resolve().parents[1] / "scenarios" / "circle-1000.toml"
 
 
-def turning_error(projection_distance: float, safety: bool, headings: float | None = None) -> float:
+def turning_error(projection_distance: float, safety: bool, heading: float | None = None) -> float:
     """Mean e_a (m) over t = 15-21 s of circle-1000 at 10 Hz with unicycles."""
     result = simulate(
         load_scenario(str(SCENARIO)), dt=0.1, duration=21.0, dynamics="unicycle",
-        projection_distance=projection_distance, safety=safety, headings=headings,
+        projection_distance=projection_distance, safety=safety, heading=heading,
     )  # fmt: skip
     turning = (result.t >= 15.0) & (result.t <= 21.0)
     return float(np.mean(result.error[turning]))
@@ -44,11 +45,27 @@ def test_the_agents_robot_model_and_filter_leave_robots_behind_a_turning_domain(
     # Where they come from: robots at S's trailing edge that start facing away from its
     # motion fall out while they turn, and the filter keeps them out. Started facing the
     # way S moves (+y), the same team leaves next to none behind.
-    assert agents > 3.0 * turning_error(AGENT_PROJECTION_DISTANCE, True, headings=math.pi / 2)
+    assert agents > 3.0 * turning_error(AGENT_PROJECTION_DISTANCE, True, heading=math.pi / 2)
 
 
 def test_a_start_heading_is_a_finite_angle() -> None:
     with pytest.raises(ValueError, match="finite angle"):
-        simulate(load_scenario("passage"), dynamics="unicycle", duration=0.1, headings=math.nan)
-    result = simulate(load_scenario("passage"), dynamics="unicycle", duration=0.1, headings=1.0)
+        simulate(load_scenario("passage"), dynamics="unicycle", duration=0.1, heading=math.nan)
+    result = simulate(load_scenario("passage"), dynamics="unicycle", duration=0.1, heading=1.0)
     assert np.all(result.headings[0] == 1.0)
+
+
+def test_covswarm_sim_starts_every_unicycle_at_the_heading_given(tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from covswarm.deploy.simulate import sim_command
+
+    args = ["--scenario", "passage", "--dynamics", "unicycle", "--duration", "0.2"]
+    refused = CliRunner().invoke(sim_command, [*args, "--heading", "nan"])
+    assert refused.exit_code == 2 and "finite angle" in refused.output
+    out = tmp_path / "sim"
+    done = CliRunner().invoke(sim_command, [*args, "--heading", "0.5", "--out", str(out)])
+    assert done.exit_code == 0, done.output
+    assert json.loads((out / "summary.json").read_text())["heading"] == 0.5
+    first = np.loadtxt(out / "trajectories.csv", delimiter=",", skiprows=1)
+    assert np.allclose(first[first[:, 0] == 0.0][:, 4], 0.5)
