@@ -230,6 +230,12 @@ def run_swarm(run: RunConfig) -> None:
     here = n if ids is None else len(ids)
     cores = len(os.sched_getaffinity(0))
     wall_rate = run.rate * run.time_scale  # control periods per second of wall time
+    duration = scenario.duration if run.duration is None else run.duration
+    try:
+        check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    # Timed once the cheap checks passed: a refused run does not wait for it.
     console = Console()
     brain_tick = host_brain_tick(run, here, cores, console)
     try:
@@ -239,11 +245,6 @@ def run_swarm(run: RunConfig) -> None:
     robot_packing = packing
     if run.agents_per_process.strip().lower() == "auto":
         robot_packing = auto_robots_per_process(here, cores)
-    duration = scenario.duration if run.duration is None else run.duration
-    try:
-        check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
-    except ValueError as exc:
-        raise click.BadParameter(str(exc), param_hint="--scenario") from None
     out_dir = run.out
     if out_dir is None:
         out_dir = Path("runs") / f"run-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"

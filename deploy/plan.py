@@ -144,9 +144,8 @@ def capacity_note(
     if fits(agents, cores, wall_rate, brain_tick):
         return None
     need = agents * wall_rate * brain_tick
-    share = agent_cores(agents, cores, brain_tick)
-    held = share / (agents * brain_tick)  # Hz of wall time that fit
-    late = late_rate(agents, cores, brain_tick)
+    held = agent_cores(agents, cores, brain_tick) / (agents * brain_tick)  # Hz that fit
+    late = held / LATE_PER_BRAIN_TICK  # late_rate's
     return (
         f"{agents} brains at {rate:g} Hz (x{time_scale:g}: {wall_rate:g} Hz of wall time) "
         f"need ~{need:.1f} cores of agent CPU (~{1e3 * brain_tick:.3g} ms a brain-tick); "
