@@ -33,6 +33,7 @@ import click
 from covswarm.protocol.keys import check_swarm, steer_key
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.steering import SteerReply, SteerRequest
+from covswarm.runtime.options import FiniteFloat
 
 
 class SteerTimeout(TimeoutError):
@@ -137,7 +138,7 @@ NO_ANSWER_EXIT = 3  # no coordinator answered
 @click.option("--swarm", required=True, help="Swarm name of the running mission.")
 @click.option("--translate", "translate_", metavar="DX,DY", help="Move S by (DX, DY) m.")
 @click.option("--rotate", type=float, metavar="DEG", help="Turn S by DEG degrees (CCW).")
-@click.option("--scale", type=click.FloatRange(min=0, min_open=True), help="Scale S by F.")
+@click.option("--scale", type=FiniteFloat(min=0, min_open=True), help="Scale S by F.")
 @click.option(
     "--polygon",
     metavar='"X,Y;X,Y;..."',
@@ -148,14 +149,10 @@ NO_ANSWER_EXIT = 3  # no coordinator answered
 )
 @click.option("--about", metavar="X,Y", help="Fixed point of --rotate/--scale [S's centroid].")
 @click.option(
-    "--duration", type=click.FloatRange(min=0, min_open=True), help="Seconds the motion takes."
+    "--duration", type=FiniteFloat(min=0, min_open=True), help="Seconds the motion takes."
 )
-@click.option(
-    "--speed", type=click.FloatRange(min=0, min_open=True), help="m/s of S's fastest vertex."
-)
-@click.option(
-    "--timeout", type=click.FloatRange(min=0, min_open=True), default=2.0, show_default=True
-)
+@click.option("--speed", type=FiniteFloat(min=0, min_open=True), help="m/s of S's fastest vertex.")
+@click.option("--timeout", type=FiniteFloat(min=0, min_open=True), default=2.0, show_default=True)
 @SECURE_OPTION
 def steer_command(
     connect: Sequence[str],

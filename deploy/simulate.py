@@ -434,8 +434,6 @@ def sim_command(
         scenario = load_scenario(scenario_name)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
-    if heading is not None and not math.isfinite(heading):
-        raise click.BadParameter(f"a finite angle in rad, not {heading}", param_hint="--heading")
     options = {
         "agents": scenario.agents if agents is None else agents,
         "law": law,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -12,9 +13,21 @@ import click
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
 from covswarm.protocol.keys import MAX_ID, parse_ids
 
+
+class FiniteFloat(click.FloatRange):
+    """A float option's type: a finite number in the range (click's FloatRange lets "nan",
+    which fails every comparison, and "inf" through to the code behind the option)."""
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        number = super().convert(value, param, ctx)
+        if not math.isfinite(number):
+            self.fail(f"{value!r} is not a finite number", param, ctx)
+        return number
+
+
 MAX_CLOCK_SKEW_OPTION = click.option(
     "--max-clock-skew",
-    type=click.FloatRange(min=0.0),
+    type=FiniteFloat(min=0.0),
     default=MAX_CLOCK_SKEW,
     show_default=True,
     help="Drop messages stamped more than this (s) ahead of this process's clock.",
@@ -23,7 +36,7 @@ MAX_CLOCK_SKEW_OPTION = click.option(
 
 TIME_SCALE_OPTION = click.option(
     "--time-scale",
-    type=click.FloatRange(min=0.0, min_open=True),
+    type=FiniteFloat(min=0.0, min_open=True),
     default=1.0,
     show_default=True,
     help="Mission seconds per wall second (< 1: slower than real time, for big simulations); "
@@ -48,7 +61,7 @@ def float_option(
     default shown in --help where it has one. ``extra`` goes to ``click.option`` as is."""
     return click.option(
         *decls,
-        type=click.FloatRange(low, high, min_open=low_open, max_open=high_open),
+        type=FiniteFloat(low, high, min_open=low_open, max_open=high_open),
         default=default,
         show_default=default is not None,
         help=help,

@@ -62,7 +62,7 @@ def test_covswarm_sim_starts_every_unicycle_at_the_heading_given(tmp_path: Path)
 
     args = ["--scenario", "passage", "--dynamics", "unicycle", "--duration", "0.2"]
     refused = CliRunner().invoke(sim_command, [*args, "--heading", "nan"])
-    assert refused.exit_code == 2 and "finite angle" in refused.output
+    assert refused.exit_code == 2 and "not a finite number" in refused.output
     out = tmp_path / "sim"
     done = CliRunner().invoke(sim_command, [*args, "--heading", "0.5", "--out", str(out)])
     assert done.exit_code == 0, done.output

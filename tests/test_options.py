@@ -18,6 +18,7 @@ from covswarm.runtime.options import (
 @click.command()
 @float_option("--gain", low=0.0, low_open=True, high=2.0, default=1.0, help="A gain.")
 @float_option("--phase", low=0.0, high=1.0, high_open=True)
+@float_option("--angle")
 @switch_option("fast", "Go fast.")
 @law_option("The law.")
 @id_options("Several ids.")
@@ -33,7 +34,7 @@ def test_defaults_and_values_parse() -> None:
     done = run()
     assert done.exit_code == 0, done.output
     defaults = [("fast", True), ("gain", 1.0), ("id", None), ("ids", None), ("law", "da")]
-    assert done.output.strip() == repr([*defaults, ("phase", None)])
+    assert done.output.strip() == repr([("angle", None), *defaults, ("phase", None)])
     done = run("--gain", "2", "--phase", "0", "--no-fast", "--law", "d1", "--id", "7")
     assert done.exit_code == 0, done.output
     assert "('fast', False)" in done.output and "('gain', 2.0)" in done.output
@@ -56,6 +57,19 @@ def test_defaults_and_values_parse() -> None:
 def test_out_of_range_values_are_refused(args: tuple[str, str]) -> None:
     done = run(*args)
     assert done.exit_code == 2 and "Invalid value" in done.output, done.output
+
+
+@pytest.mark.parametrize(
+    ("option", "value"),
+    [("--angle", "nan"), ("--angle", "NaN"), ("--angle", "inf"), ("--angle", "-inf"),
+     ("--gain", "nan"), ("--phase", "nan")],
+)  # fmt: skip
+def test_a_float_option_is_a_finite_number(option: str, value: str) -> None:
+    """Bounded or not: "nan" fails every comparison with a bound, and "inf" passes a
+    missing one, so both would reach the code behind the option."""
+    done = run(option, value)
+    assert done.exit_code == 2 and "is not a finite number" in done.output, done.output
+    assert run("--angle", "-3.5").exit_code == 0
 
 
 def test_help_shows_defaults_only_where_there_are_some() -> None:
