@@ -26,6 +26,7 @@ from covswarm.records.recorder import (
     ROBOTS_TOPIC,
 )
 from covswarm.records.scene import ROBOT_DIAMETER, ROBOT_LIFETIME
+from covswarm.runtime.options import FiniteFloat
 
 HEADING_LENGTH = 0.15  # m, the heading arrow drawn on each robot
 
@@ -249,14 +250,14 @@ def render(
 )
 @click.option(
     "--fps",
-    type=click.FloatRange(min=0, min_open=True, max=60),
+    type=FiniteFloat(min=0, min_open=True, max=60),
     default=10.0,
     show_default=True,
     help="Frames per second of the animation.",
 )
 @click.option(
     "--speed",
-    type=click.FloatRange(min=0, min_open=True),
+    type=FiniteFloat(min=0, min_open=True),
     default=1.0,
     show_default=True,
     help="Mission seconds per second of animation.",

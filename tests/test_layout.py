@@ -23,7 +23,7 @@ ALLOWED: dict[str, set[str]] = {
     "runtime": {"protocol"},
     "world": {"tvd", "protocol"},
     "mission": {"tvd", "world"},
-    "records": {"tvd", "protocol", "mission", "world"},
+    "records": {"tvd", "protocol", "runtime", "mission", "world"},
     "agent": {"tvd", "protocol", "runtime", "world"},
     "sim_robot": {"tvd", "protocol", "runtime", "world"},
     "bridge": {"tvd", "protocol", "runtime", "mission"},

@@ -169,6 +169,18 @@ def test_replay_refuses_a_folder_without_a_record(tmp_path: Path) -> None:
     assert result.exit_code != 0 and "cannot read" in result.output
 
 
+@pytest.mark.parametrize(
+    ("option", "value"), [("--fps", "nan"), ("--speed", "nan"), ("--speed", "inf")]
+)
+def test_replay_refuses_a_rate_that_is_not_a_finite_number(
+    tmp_path: Path, option: str, value: str
+) -> None:
+    """Refused before the record is read: click's FloatRange alone let "nan" through (it
+    fails every comparison with a bound) and "inf" past a missing upper bound."""
+    result = CliRunner().invoke(replay_command, [str(tmp_path), option, value])
+    assert result.exit_code == 2 and "is not a finite number" in result.output, result.output
+
+
 def test_steering_events_keep_their_time_and_the_file_stays_ordered(tmp_path: Path) -> None:
     with RunRecorder(tmp_path, run_metadata={"scenario": "unit"}) as recorder:
         recorder.poses(1.0, [0], np.array([[0.0, 0.0, 0.0]]))
