@@ -461,12 +461,16 @@ class Neighborhood:
         than ``stale_timeout`` (a pose wins a tie); else the freshest relay of it in a
         neighbour's AgentState younger than that; else its beacon while younger than
         ``beacon_timeout``. Positions are dead-reckoned to ``now`` with the reported
-        velocity (at most ``reckoning_limit`` s): a state is up to a control period old
-        when the next step reads it, and at 0.2 m/s that lag alone is a centimetre of
-        error in every neighbour.
+        velocity (at most ``reckoning_limit`` s, and ``at_rest_after``, when its robot
+        stopped, its velocity then 0: first-hand or relayed alike): a state is up to a
+        control period old when the next step reads it, and at 0.2 m/s that lag alone is a
+        centimetre of error in every neighbour.
         """
         fresh = now - self.stale_timeout
-        limit, rest = self.reckoning_limit, self.at_rest_after
+        rest = self.at_rest_after
+        # A position is reckoned as far as its velocity is followed and its robot drives it:
+        # one heard longer than ``rest`` ago stopped then.
+        limit = min(self.reckoning_limit, rest)
         dead = self.dead = self._dead() if self.liveliness.deaths else {}
         records = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie

@@ -96,6 +96,7 @@ def test_a_neighbours_velocity_is_followed_as_long_as_its_robot_drives_it(
         (2.0, 0.94, 1.5, False),
         (0.7, 4.0, 0.97, True),
         (0.1, 0.5, 0.9, True),
+        (2.0, 0.3, 0.4, False),  # stopped before the reckoning limit (0.5 s)
     ],
 )
 def test_a_neighbour_heard_before_its_command_timed_out_has_stopped(
@@ -111,12 +112,35 @@ def test_a_neighbour_heard_before_its_command_timed_out_has_stopped(
     brain.pace(gap)
     brain.neighborhood.refresh(age)
     x, y, vx, vy = brain.neighborhood.reckoned[1]
-    lead = min(age, brain.neighborhood.reckoning_limit)
+    neighborhood = brain.neighborhood
+    lead = min(age, neighborhood.reckoning_limit, neighborhood.at_rest_after)
     assert (x, y) == pytest.approx((1.3 + 0.1 * lead, 1.0 - 0.05 * lead))
     assert (vx, vy) == ((0.1, -0.05) if moving else (0.0, 0.0))
     # the table the safety filter reads (covswarm.agent.brain._safety_inputs) says the same
     row = brain.neighborhood.table[list(brain.neighborhood.table_ids).index(1)]
     assert row.tolist() == pytest.approx([x, y, vx, vy])
+
+
+@pytest.mark.parametrize("age", [0.2, 0.4, 0.6, 1.5])
+def test_a_relayed_neighbour_stops_when_a_first_hand_one_does(age: float) -> None:
+    # Commands time out after 0.3 s, before the reckoning limit (0.5 s): robot 1 heard
+    # first-hand and robot 2 relayed by it, both driving (0.1, -0.05) m/s when stamped, are
+    # reckoned alike, to when they stopped and at rest since.
+    brain = running_brain(cmd_timeout=0.3)
+    state = protocol.AgentState(
+        id=1, x=1.3, y=1.0, vx=0.1, vy=-0.05, stamp=WALL, neighbors=(0, 2),
+        relay=((2, 1.6, 1.0, 0.1, -0.05),),
+    )  # fmt: skip
+    assert brain.receive("state", state.encode(), 0.0, WALL, key_id=1)
+    brain.pace(2.0)
+    neighborhood = brain.neighborhood
+    neighborhood.refresh(age)
+    assert 1 in neighborhood.first_hand and 2 not in neighborhood.first_hand
+    lead = min(age, 0.3)
+    for rid, x in ((1, 1.3), (2, 1.6)):
+        rx, ry, vx, vy = neighborhood.reckoned[rid]
+        assert (rx, ry) == pytest.approx((x + 0.1 * lead, 1.0 - 0.05 * lead))
+        assert (vx, vy) == ((0.1, -0.05) if age <= 0.3 else (0.0, 0.0))
 
 
 @pytest.mark.parametrize("gap", [0.1, 1.8])
