@@ -187,17 +187,19 @@ def run_command(foxglove_port: int | None, **options: Any) -> None:
     run_swarm(RunConfig(foxglove=foxglove_port, **options))
 
 
-def host_brain_tick(run: RunConfig, agents: int, cores: int, console: Console) -> float:
-    """s of CPU one brain-tick costs live here, for ``agents`` brains on ``cores`` cores:
-    ``--brain-tick``, else measured (deploy.host_speed, ~2 s) when they are beyond a process
-    per brain, else plan.BRAIN_TICK (a process per brain: packing is not in question)."""
+def host_brain_tick(run: RunConfig, agents: int, cores: int, console: Console) -> tuple[float, str]:
+    """s of CPU one brain-tick costs live here, for ``agents`` brains on ``cores`` cores,
+    and where the figure comes from (launch.json's ``brain_tick_source``): "given"
+    (``--brain-tick``), else "measured" (deploy.host_speed, ~2 s) when they are beyond a
+    process per brain, else "reference" (plan.BRAIN_TICK: a process per brain, packing is
+    not in question)."""
     if run.brain_tick is not None:
-        return run.brain_tick
+        return run.brain_tick, "given"
     if agents <= SOLO_PER_CORE * max(cores, 1):
-        return BRAIN_TICK
+        return BRAIN_TICK, "reference"
     measured = measure_brain_tick()
     console.log(measured.describe())
-    return measured.brain_tick
+    return measured.brain_tick, "measured"
 
 
 def run_swarm(run: RunConfig) -> None:
@@ -237,7 +239,7 @@ def run_swarm(run: RunConfig) -> None:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
     # Timed once the cheap checks passed: a refused run does not wait for it.
     console = Console()
-    brain_tick = host_brain_tick(run, here, cores, console)
+    brain_tick, brain_tick_source = host_brain_tick(run, here, cores, console)
     try:
         packing = parse_per_process(run.agents_per_process, here, cores, wall_rate, brain_tick)
     except ValueError as exc:
@@ -299,7 +301,8 @@ def run_swarm(run: RunConfig) -> None:
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
                         "agents_per_process": packing,
                         "robots_per_process": robot_packing,
-                        "brain_tick_s": brain_tick, "cmd_timeout_s": timeout,
+                        "brain_tick_s": brain_tick, "brain_tick_source": brain_tick_source,
+                        "cmd_timeout_s": timeout,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
         result = run_processes(

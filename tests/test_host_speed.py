@@ -29,12 +29,13 @@ def _console() -> tuple[Console, io.StringIO]:
 
 def test_the_launcher_measures_only_a_team_beyond_a_process_per_brain() -> None:
     console, out = _console()
-    assert host_brain_tick(RunConfig(), 16, 2, console) == BRAIN_TICK  # a process per brain
+    # a process per brain
+    assert host_brain_tick(RunConfig(), 16, 2, console) == (BRAIN_TICK, "reference")
     assert out.getvalue() == ""
-    assert host_brain_tick(RunConfig(brain_tick=2e-3), 1000, 2, console) == 2e-3  # as told
+    assert host_brain_tick(RunConfig(brain_tick=2e-3), 1000, 2, console) == (2e-3, "given")
     assert out.getvalue() == ""
-    measured = host_brain_tick(RunConfig(), 17, 2, console)
-    assert measured > 0.0 and "this host: ~" in out.getvalue()
+    measured, source = host_brain_tick(RunConfig(), 17, 2, console)
+    assert measured > 0.0 and source == "measured" and "this host: ~" in out.getvalue()
 
 
 def test_a_slower_host_packs_as_its_brain_tick_says() -> None:

@@ -316,6 +316,7 @@ def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> No
         assert launcher.wait(timeout=120) == 0, (out.parent / "packed.launcher.log").read_text()
     planned = json.loads((out / "launch.json").read_text())
     assert planned["agents_per_process"] == 3 and planned["brain_tick_s"] == 0.2
+    assert planned["brain_tick_source"] == "given"
     cores = len(os.sched_getaffinity(0))
     timeout = command_timeout(6, cores, 10.0, 0.5, brain_tick=0.2)
     assert planned["cmd_timeout_s"] == timeout == COMMAND_TIMEOUT
