@@ -48,9 +48,23 @@ from covswarm.agent.neighborhood import (
     tile_radius,
 )
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW, STAMP_REASONS, DropLog, RateLimit, check_stamp
-from covswarm.tvd.control import MAX_AMPLIFICATION, LocalStep, LocalView, local_steps
+from covswarm.tvd.control import (
+    MAX_AMPLIFICATION,
+    AffineField,
+    LocalStep,
+    LocalView,
+    affine_field,
+    field_directions,
+    local_steps,
+)
 from covswarm.tvd.density import Density
-from covswarm.tvd.drive import KHEPERA_IV, DiffDrive, steer_one, twist_from_wheels
+from covswarm.tvd.drive import (
+    KHEPERA_IV,
+    DiffDrive,
+    steer_one,
+    turn_in_place,
+    twist_from_wheels,
+)
 from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
@@ -443,6 +457,8 @@ class AgentBrain:
         self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
+        # The domain whose start velocities were fitted last, and their field (_standing).
+        self._start_field: tuple[protocol.Domain, AffineField] | None = None
         self._next_stats = -math.inf
         self._last_exchange = -math.inf  # ``now`` of the last neighbour exchange (exchange_due)
         self._last_actions = -math.inf  # ``now`` of the last period's actions (exchange_due)
@@ -858,7 +874,7 @@ class AgentBrain:
         if self.domain.state != "running" and now - self._last_idle_step < IDLE_STEP_PERIOD:
             # Before the mission the step only keeps the neighbour sets warm: at 10 Hz,
             # agents already up would starve the ones still starting on a loaded machine.
-            return Decision(0.0, 0.0, self.domain.state)
+            return self._standing(now_wall)
         self._last_idle_step = now
         if not now_wall + self.config.command_latency - self.pose_taken <= POSE_HORIZON:
             self.counters.pose_too_old += self.running
@@ -991,7 +1007,7 @@ class AgentBrain:
         else:
             self.reach = None
         if self.domain.state != "running":
-            return Decision(0.0, 0.0, self.domain.state)
+            return self._standing(begun.now_wall)
         velocity = np.asarray(result.velocity, dtype=float)
         if self._period > self._hold > 0.0 and self.config.max_duty > 1.0:
             # The law's velocity is what to hold for the period; a robot that stops after
@@ -1008,6 +1024,38 @@ class AgentBrain:
         if config.safety:
             return self._safety_inputs(begun, velocity, x, y)
         return self._wheels(vx, vy, heading)
+
+    def _standing(self, now_wall: float) -> Decision:
+        """The decision of a step while the mission does not run: hold still, but while it
+        waits for a start that moves S, turn in place to face where S will carry the robot
+        (the domain's start velocities' affine field at its position, as TVD-DA's
+        feedforward guesses it): a robot that can only drive forwards and starts facing
+        away falls behind while it turns, and a team's trailing edge then starts outside S
+        and stays there, held off by the safety filter (1000 robots: 97-99 % of e_a^2,
+        docs/scaling.md). Not from a pose older than the prediction holds."""
+        domain = self.domain
+        assert domain is not None
+        start = domain.start_velocities
+        latency = self.config.command_latency
+        if (
+            domain.state != "waiting"
+            or start is None
+            or self.pose is None
+            or not now_wall + latency - self.pose_taken <= POSE_HORIZON
+        ):
+            return Decision(0.0, 0.0, domain.state)
+        field = self._start_field
+        if field is None or field[0] is not domain:
+            field = self._start_field = (domain, affine_field(domain.vertices, start))
+        x, y, heading = self.predicted_pose(now_wall + latency)
+        direction = float(field_directions(field[1], np.array(((x, y),)))[0])
+        config = self.config
+        # (0, 0) facing it already, or where S barely moves (NaN)
+        left, right = turn_in_place(heading, direction, config.cmd_timeout, config.robot)
+        if left == right:
+            return Decision(0.0, 0.0, domain.state)
+        self.counters.aligning += 1
+        return Decision(left, right, "aligning")
 
     def _wheels(self, vx: float, vy: float, heading: float) -> Decision:
         """The running decision for the velocity (vx, vy) m/s from ``heading`` rad."""
@@ -1198,6 +1246,7 @@ class AgentBrain:
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,
             "duty_scaled": c.duty_scaled,
+            "aligning": c.aligning,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
             "candidates": len(self.neighborhood.reckoned),

@@ -74,3 +74,6 @@ class Counters:
     # mission steps whose velocity was scaled up because the robot's command times out
     # before the next step (covswarm.agent.brain.MAX_DUTY)
     duty_scaled: int = 0
+    # steps before the mission that turned the robot in place to face S's first motion
+    # (covswarm.agent.brain.AgentBrain._standing)
+    aligning: int = 0

@@ -678,6 +678,9 @@ class CoordinatorCore:
         tau, pace = (self.pace.tau, self.pace.pace) if state != WAITING else (0.0, 1.0)
         vertices, velocities = self.steering.domain(tau)
         density = self.settings.scenario.density(tau)
+        start = None
+        if state == WAITING and np.any(velocities):
+            start = velocities  # how S will move at the start: robots turn to face it
         if state != RUNNING:
             velocities = np.zeros_like(velocities)  # held still while waiting / done
             density = None if density is None else density.frozen()
@@ -694,6 +697,7 @@ class CoordinatorCore:
             kappa=self.settings.kappa,
             density=None if density is None else density.to_dict(),
             tile_size=self.settings.tile_size,
+            start_velocities=start,
         )
         self._seq += 1
         self._published.append((domain.seq, domain.stamp))

@@ -48,12 +48,13 @@ START_WALL = 1.7e9  # s: the simulated epoch (stamps must look like wall time)
 @dataclass
 class NetsimResult:
     """t (T,), e_a (T,), trajectories (T, n, 2), wheels (T, n, 2) (the commands held at each
-    sample), and the agents' last stats."""
+    sample), headings (T, n) rad, and the agents' last stats."""
 
     t: np.ndarray
     error: np.ndarray
     trajectories: np.ndarray
     wheels: np.ndarray
+    headings: np.ndarray
     stats: dict[int, dict] = field(default_factory=dict)
 
 
@@ -135,6 +136,7 @@ def run_netsim(
     t_log: list[float] = []
     e_log: list[float] = []
     traj: list[np.ndarray] = []
+    heading_log: list[np.ndarray] = []
     wheel_log: list[np.ndarray] = []
     next_sample = warmup
     while events:
@@ -158,11 +160,12 @@ def run_netsim(
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
             vertices, velocities = scenario.domain(mission_t)
+            start = velocities if state == "waiting" and np.any(velocities) else None
             if state != "running":
                 velocities = np.zeros_like(velocities)
             payload = protocol.Domain(
                 seq=seq, stamp=wall, t=mission_t, state=state, vertices=vertices,
-                velocities=velocities, kappa=scenario.kappa,
+                velocities=velocities, kappa=scenario.kappa, start_velocities=start,
             ).encode()  # fmt: skip
             seq += 1
             for i in range(n):
@@ -172,6 +175,7 @@ def run_netsim(
                 t_log.append(mission_t)
                 e_log.append(aggregate_error(positions, vertices))
                 traj.append(positions)
+                heading_log.append(np.array([r.pose[2] for r in robots]))
                 wheel_log.append(wheels.copy())
                 next_sample += SAMPLE_PERIOD
             heapq.heappush(events, (now + 1.0 / DOMAIN_RATE, rank, what, index))
@@ -210,8 +214,9 @@ def run_netsim(
             heapq.heappush(events, (now + 1.0 / rate, rank, what, index))
     stats = defaultdict(dict, {b.id: b.stats() for b in brains})
     return NetsimResult(
-        np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log), dict(stats)
-    )
+        np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log),
+        np.array(heading_log), dict(stats),
+    )  # fmt: skip
 
 
 def steady_state(result: NetsimResult) -> float:

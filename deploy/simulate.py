@@ -71,11 +71,15 @@ def simulate(
     projection_distance: float | None = None,
     safety: bool = False,
     heading: float | None = None,
+    face_start: bool = False,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
     heading: the unicycles' initial heading, rad, the same for every robot (None: uniform at
-    random per robot, from the seed, as ``covswarm run`` places them).
+    random per robot, from the seed, as ``covswarm run`` places them). face_start: each
+    unicycle starts facing S's motion at the start where it stands
+    (covswarm.tvd.control.field_directions, its random heading where S barely moves), as
+    ``covswarm run``'s robots turn to while the mission waits (covswarm.agent.brain).
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
@@ -124,7 +128,13 @@ def simulate(
     if heading is not None:
         if not math.isfinite(heading):
             raise ValueError(f"heading must be a finite angle, not {heading!r}")
+        if face_start:
+            raise ValueError("a heading for every robot, or each facing S's start: not both")
         headings = np.full(n, float(heading))
+    if face_start:
+        vertices, velocities = scenario.domain(0.0)
+        facing = control.field_directions(control.affine_field(vertices, velocities), positions)
+        headings = np.where(np.isnan(facing), headings, facing)
     if dynamics == "single":
         headings = np.zeros(n)
 
@@ -231,6 +241,7 @@ def build_summary(
     projection_distance: float | None = None,
     goals: Sequence[Sequence[float]] = (),
     heading: float | None = None,
+    face_start: bool = False,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
     every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
@@ -279,8 +290,9 @@ def build_summary(
                 if dynamics == "unicycle"
                 else None
             ),
-            # rad, every unicycle's at the start (None: at random per robot)
-            "heading": heading if dynamics == "unicycle" else None,
+            # rad, every unicycle's at the start (None: at random per robot), or "start":
+            # each facing S's motion at the start
+            "heading": (None if dynamics != "unicycle" else "start" if face_start else heading),
             "steps": int(result.t.size - 1),
             "guards": guard_counts(result),
             # Every step, not only the recorded ones: a touch between two frames still counts.
@@ -395,6 +407,12 @@ def world_line(summary: dict[str, Any]) -> str:
     help="Unicycles: every robot's initial heading, rad [uniform at random per robot, from "
     "--seed, as covswarm run places them].",
 )
+@click.option(
+    "--face-start",
+    is_flag=True,
+    help="Unicycles: each robot starts facing S's motion at the start, as covswarm run's "
+    "robots turn to while the mission waits.",
+)
 def sim_command(
     scenario_name: str,
     agents: int | None,
@@ -412,6 +430,7 @@ def sim_command(
     projection_distance: float | None,
     safety: bool,
     heading: float | None,
+    face_start: bool,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -428,6 +447,8 @@ def sim_command(
     from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
 
+    if heading is not None and face_start:
+        raise click.UsageError("--heading or --face-start, not both")
     if compare and no_feedforward:
         raise click.UsageError("--compare already runs without feedforward; drop --no-feedforward")
     try:
@@ -447,6 +468,7 @@ def sim_command(
         "safety": safety,
         "projection_distance": projection_distance,
         "heading": heading,
+        "face_start": face_start,
     }
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])

@@ -48,7 +48,7 @@ MAX_PAYLOAD = 8192  # bytes; the largest valid message (64-vertex Domain) is ~2.
 MAX_VERTICES = 64
 MAX_NEIGHBORS = 256
 MAX_RELAY = 64  # relayed neighbour positions per AgentState (~2.6 kB at most)
-MAX_STATS = 48  # stat entries per AgentState (with 64 relays, well under MAX_PAYLOAD)
+MAX_STATS = 64  # stat entries per AgentState (~2.8 kB, with 64 relays well under MAX_PAYLOAD)
 MAX_STAT_NAME = 32
 MAX_COORD = 1.0e4  # m: positions and vertices
 MAX_SPEED = 1.0e2  # m/s: velocities an agent reports
@@ -720,6 +720,11 @@ class Domain(Message):
     agent must use the same one, or agents on different grids miss each other's beacons,
     so the coordinator chooses it for the whole swarm and broadcasts it here; optional on
     the wire, absent means DEFAULT_TILE_SIZE.
+
+    start_velocities: while the mission waits (``velocities`` all 0: S holds still), the
+    vertex velocities S will have when it starts, so that robots that can only drive
+    forwards turn to face S's first motion beforehand (covswarm.agent.brain); optional on
+    the wire, absent when S will not move at the start (a steered mission) and once it runs.
     """
 
     seq: int
@@ -731,6 +736,7 @@ class Domain(Message):
     kappa: float
     density: dict[str, Any] | None = None
     tile_size: float | None = None
+    start_velocities: tuple[tuple[float, float], ...] | None = None
 
     _SPEC: ClassVar[dict[str, Checker]] = {
         "seq": _SEQ,
@@ -742,14 +748,17 @@ class Domain(Message):
         "kappa": _positive(MAX_KAPPA),
         "density": _optional(_density),
         "tile_size": _optional(_positive(MAX_TILE_SIZE)),
+        "start_velocities": _optional(_points(3, MAX_VERTICES, MAX_VERTEX_SPEED)),
     }
-    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"density", "tile_size"})
+    _OPTIONAL: ClassVar[frozenset[str]] = frozenset({"density", "tile_size", "start_velocities"})
 
     def _check_fields(self) -> None:
-        if len(self.velocities) != len(self.vertices):
-            raise ProtocolError(
-                f"Domain: {len(self.velocities)} velocities for {len(self.vertices)} vertices"
-            )
+        for name in ("velocities", "start_velocities"):
+            values = getattr(self, name)
+            if values is not None and len(values) != len(self.vertices):
+                raise ProtocolError(
+                    f"Domain: {len(values)} {name} for {len(self.vertices)} vertices"
+                )
 
 
 @dataclass(frozen=True, slots=True)

@@ -110,17 +110,30 @@ def test_domain_broadcasts_carry_s_its_velocities_and_a_rising_sequence() -> Non
     np.testing.assert_allclose(waiting.vertices, vertices)
     assert np.abs(np.array(velocities)).max() > 0  # S moves, but not while waiting
     np.testing.assert_array_equal(waiting.velocities, np.zeros_like(velocities))
+    # how it will move at the start: robots turn to face it while they wait
+    np.testing.assert_allclose(waiting.start_velocities, velocities)
     assert waiting.kappa == 2.0 and waiting.tile_size == 0.5
     started = start(core)
     now = started + 0.8
     domain = of(PublishDomain, core.tick(now, WALL0 + now))[0].domain
     vertices, velocities = scenario.domain(0.8)
     assert domain.t == pytest.approx(0.8) and domain.state == RUNNING
+    assert domain.start_velocities is None
     np.testing.assert_allclose(domain.vertices, vertices)
     np.testing.assert_allclose(domain.velocities, velocities)
     assert domain.seq == core._seq - 1 and domain.seq > waiting.seq
     decoded = type(domain).decode(domain.encode())  # what the shell puts on the wire
     assert decoded == domain
+
+
+def test_a_mission_that_starts_still_announces_no_start_motion() -> None:
+    settings = CoordinatorSettings(
+        scenario=load_scenario("live"), swarm=SWARM, agents=1, duration=3.0, kappa=2.0,
+        rate=20.0, sample_rate=10.0, feedforward=True, tile_size=0.5,
+    )  # fmt: skip
+    core = CoordinatorCore(settings, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0)
+    waiting = of(PublishDomain, core.tick(0.0, WALL0))[0].domain
+    assert waiting.state == WAITING and waiting.start_velocities is None
 
 
 def test_steering_is_refused_while_waiting_and_accepted_once_running() -> None:

@@ -2,17 +2,22 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 
 from covswarm.tvd.drive import (
     DEFAULT_PROJECTION_DISTANCE,
     KHEPERA_IV,
+    TURN_RATE,
+    TURN_TOLERANCE,
     DiffDrive,
     integrate,
     integrate_one,
     steer,
     steer_one,
+    turn_in_place,
     wheel_speeds,
 )
 
@@ -177,3 +182,59 @@ def test_steer_one_is_steer_for_one_robot() -> None:
             steer_one(0.0, 0.1, 0.0, **bad)
         with pytest.raises(ValueError):
             steer(np.zeros(1), np.array([[0.1, 0.0]]), **bad)
+
+
+def _error(heading: float, direction: float) -> float:
+    return math.remainder(direction - heading, math.tau)
+
+
+def test_a_turn_in_place_takes_the_shorter_way_and_keeps_the_centre() -> None:
+    left, right = turn_in_place(0.0, 1.0, 0.5)
+    assert left == -right and right > 0.0  # counter-clockwise: the right rim forwards
+    left, right = turn_in_place(0.0, -1.0, 0.5)
+    assert right < 0.0
+    left, right = turn_in_place(3.0, -3.0, 0.5)  # 0.28 rad the short way, across +-pi
+    assert right > 0.0
+    x, y, heading = integrate_one(0.3, -0.2, 3.0, left, right, 0.1)
+    assert (x, y) == pytest.approx((0.3, -0.2), abs=1e-12)
+    assert heading > 3.0
+    assert turn_in_place(1.0, 1.0 + 0.9 * TURN_TOLERANCE, 0.5) == (0.0, 0.0)
+    for bad in ((math.nan, 1.0, 0.5), (0.0, math.inf, 0.5), (0.0, 1.0, 0.0), (0.0, 1.0, -1.0)):
+        assert turn_in_place(*bad) == (0.0, 0.0)
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_a_turn_held_alone_stops_facing_the_direction_never_past_it(seed: int) -> None:
+    """A command that nothing follows turns the robot by its error over the hold (up to
+    TURN_RATE) until the robot drops it: facing the direction, or short of it when capped;
+    never beyond."""
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        heading, direction = rng.uniform(-math.pi, math.pi, 2)
+        hold = float(rng.uniform(0.2, 2.0))
+        left, right = turn_in_place(float(heading), float(direction), hold)
+        _, _, after = integrate_one(0.0, 0.0, float(heading), left, right, hold)
+        before = _error(heading, direction)
+        if abs(before) <= TURN_TOLERANCE:
+            assert after == heading
+            continue
+        turned = _error(heading, after)
+        assert turned == pytest.approx(
+            math.copysign(min(abs(before), TURN_RATE * hold), before), abs=1e-9
+        )
+
+
+def test_turns_sent_every_period_face_the_direction_without_overshoot() -> None:
+    """Stepped at 10 Hz from the pose a period old (a period of latency), as a waiting
+    brain does, from every start: within the tolerance in under 2 s, the error never
+    changing sign beyond it."""
+    hold, period = 0.5, 0.1
+    for start in np.linspace(-math.pi, math.pi, 73):
+        heading, seen, direction = float(start), float(start), 0.7
+        sign = math.copysign(1.0, _error(heading, direction))
+        for _ in range(20):
+            left, right = turn_in_place(seen, direction, hold)
+            seen = heading
+            _, _, heading = integrate_one(0.0, 0.0, heading, left, right, period)
+            assert sign * _error(heading, direction) > -TURN_TOLERANCE
+        assert abs(_error(heading, direction)) <= TURN_TOLERANCE

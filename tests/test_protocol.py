@@ -233,6 +233,28 @@ def test_domain_tile_size_and_state_stats_are_optional() -> None:
         AgentState.decode(packed({**wire(slim), "stats": [1]}))
 
 
+def test_domain_start_velocities_are_optional_and_one_per_vertex() -> None:
+    """How S will move at the start rides on a waiting Domain: absent on the wire when
+    None, round-trips otherwise, checked point by point and against the vertices."""
+    still = SAMPLES[2]
+    assert "start_velocities" not in wire(still) and still.start_velocities is None
+    fields = {**wire(still), "start_velocities": [[0.0, 0.2]] * len(still.vertices)}
+    del fields["v"]
+    moving = Domain(**fields)
+    assert moving.start_velocities == ((0.0, 0.2),) * len(still.vertices)
+    assert Domain.decode(moving.encode()) == moving
+    n = len(still.vertices)
+    for bad, reason in (
+        ([[0.0, 0.2]] * (n - 1), f"{n - 1} start_velocities for {n} vertices"),
+        ([[0.0, math.nan]] * n, "not finite"),
+        ([[0.0, 1e6]] * n, "outside"),
+        ([[0.0]] * n, r"expected \[x, y\]"),
+        (0.2, "expected an array"),
+    ):
+        with pytest.raises(ProtocolError, match=reason):
+            Domain.decode(packed({**wire(still), "start_velocities": bad}))
+
+
 def test_agent_state_relay() -> None:
     """Relayed neighbour positions: optional, round-trip, every entry checked (the fast path
     for plain msgpack lists and the slow one with the reason agree)."""

@@ -46,6 +46,7 @@ VALID: dict[type[protocol.Message], dict] = {
     protocol.Domain: {
         "seq": 2, "stamp": WALL, "t": 1.5, "state": "running", "vertices": SQUARE,
         "velocities": [[0.1, 0.0]] * 4, "kappa": 1.0, "density": None, "tile_size": 2.0,
+        "start_velocities": [[0.0, 0.2]] * 4,
     },
     protocol.Status: {
         "stamp": WALL, "t": 1.5, "state": "running", "error": 0.25, "alive_agents": 4,

@@ -179,6 +179,23 @@ def _fit(domain: CoverageDomain) -> AffineField:
     )
 
 
+# m/s: where S's affine field is slower than this, it gives no direction to face
+# (:func:`field_directions`: near the centre of a turning S, or anywhere in a still one).
+MIN_FIELD_SPEED = 0.005
+
+
+def field_directions(
+    field: AffineField, points: np.ndarray, min_speed: float = MIN_FIELD_SPEED
+) -> np.ndarray:
+    """The direction, rad, of ``field`` at ``points`` (P, 2) m: (P,), NaN where it is slower
+    than ``min_speed`` m/s (or not finite). What a robot that drives forwards faces to be
+    carried along with S (covswarm.agent.brain: robots turn to face S's start motion while
+    the mission waits)."""
+    velocity = field(np.asarray(points, dtype=float))
+    directions = np.arctan2(velocity[:, 1], velocity[:, 0])
+    return np.where(np.hypot(velocity[:, 0], velocity[:, 1]) >= min_speed, directions, np.nan)
+
+
 def motion_field(
     polygon: np.ndarray,
     polygon_velocity: np.ndarray,

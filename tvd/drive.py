@@ -150,6 +150,37 @@ def steer_one(
     return left, right, capped
 
 
+# Turning in place toward a direction (:func:`turn_in_place`): at most TURN_RATE (rad/s:
+# rims at +-0.17 m/s on a Khepera IV), and nothing within TURN_TOLERANCE (rad).
+TURN_RATE = math.pi
+TURN_TOLERANCE = 0.1
+
+
+def turn_in_place(
+    heading: float,
+    direction: float,
+    hold: float,
+    robot: DiffDrive = KHEPERA_IV,
+    max_rate: float = TURN_RATE,
+    tolerance: float = TURN_TOLERANCE,
+) -> tuple[float, float]:
+    """Rim speeds (left, right) m/s that turn a robot about its axle centre from
+    ``heading`` toward ``direction`` (rad), the shorter way, at the heading error over
+    ``hold`` (s the command stays in force if nothing follows it: the robot's command
+    timeout), up to ``max_rate`` rad/s; (0, 0) within ``tolerance`` rad of it or for
+    non-finite input. Held alone, the command turns the robot no further than to face
+    ``direction``, however late the next one comes; sent every period, it closes the error
+    by period / hold each time. The centre does not move: no one's safety is at stake."""
+    if not (math.isfinite(heading) and math.isfinite(direction) and hold > 0.0):
+        return 0.0, 0.0
+    error = math.remainder(direction - heading, math.tau)
+    if abs(error) <= tolerance:
+        return 0.0, 0.0
+    rate = max(-max_rate, min(max_rate, error / hold))
+    rim = 0.5 * rate * robot.wheel_separation
+    return -rim, rim
+
+
 def twist_from_wheels(
     left: float | np.ndarray, right: float | np.ndarray, wheel_separation: float
 ) -> tuple[float | np.ndarray, float | np.ndarray]:
