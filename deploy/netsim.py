@@ -72,8 +72,13 @@ def run_netsim(
     warmup: float = 2.0,
     robot_model: DiffDrive | None = None,
     command_delay: float = 0.0,
+    announce_start: bool = True,
 ) -> NetsimResult:
     """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
+
+    announce_start: the waiting Domains carry S's start velocities, as the coordinator's do,
+    and the robots turn to face S's motion before it starts (False: a coordinator that does
+    not say, the robots start as placed).
 
     The mission starts after ``warmup`` s of "waiting" broadcasts (neighbour discovery, as in
     a real start). clock_skew: s added to the robots' pose stamps (their host's clock ahead).
@@ -160,7 +165,8 @@ def run_netsim(
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
             vertices, velocities = scenario.domain(mission_t)
-            start = velocities if state == "waiting" and np.any(velocities) else None
+            announced = announce_start and state == "waiting" and np.any(velocities)
+            start = velocities if announced else None
             if state != "running":
                 velocities = np.zeros_like(velocities)
             payload = protocol.Domain(
