@@ -601,7 +601,9 @@ class Pack:
         sixth of its speed, e_a's second half 1.78 m with robots stopped 0.3 s after each
         command, 0.53 m at 0.5 s, 0.019 m at 0.9 s; 28 Nov 2026)."""
         if not brain.running:
-            return  # before the mission the robots stand still anyway
+            # Before the mission a robot stands still or turns in place, on a command that
+            # turns it no further than to face S's start however long it holds.
+            return
         brain.counters.late += 1
         if brain.id in self._held:
             return  # stopped already: most of an overloaded pack's brains, most periods
