@@ -166,7 +166,7 @@ def simulate(
             law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
         )  # fmt: skip
-        velocity = aim = step.velocity
+        velocity = step.velocity
         guarded += int(step.guarded.sum())
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
@@ -187,9 +187,8 @@ def simulate(
             # Held for a step, as an agent's command is for its period (AgentBrain._hold):
             # uncapped, a robot far from its goal at a long step spins instead of driving.
             wheels = wheel_speeds(
-                headings, velocity, projection_distance=projection_distance or DEFAULT_L,
-                hold=dt, aims=aim,
-            )  # fmt: skip
+                headings, velocity, projection_distance=projection_distance or DEFAULT_L, hold=dt
+            )
             wheel_log[k] = wheels
             if safety:
                 forward, _ = twist_from_wheels(

@@ -177,21 +177,6 @@ def test_steer_one_is_steer_for_one_robot() -> None:
             assert np.all(np.isfinite(wheels))
             assert np.all(wheels[40:70] == 0.0)  # a non-finite input stops the robot
     assert capped_seen > 100  # the cap was exercised
-    # Aimed elsewhere than the velocity (a filter's clipped forward speed): the same again.
-    aims = velocities + rng.normal(0.0, 0.5, (n, 2))
-    aims[100:110] = np.nan
-    wheels, capped = steer(headings, velocities, KHEPERA_IV, L, holds, aims)
-    assert np.array_equal(steer(headings, velocities, KHEPERA_IV, L, holds, velocities)[0],
-                          steer(headings, velocities, KHEPERA_IV, L, holds)[0])  # fmt: skip
-    for k in range(n):
-        left, right, cap = steer_one(
-            float(headings[k]), *velocities[k].tolist(), KHEPERA_IV, L, float(holds[k]),
-            tuple(aims[k].tolist()),
-        )  # fmt: skip
-        np.testing.assert_allclose([left, right], wheels[k], rtol=1e-12, atol=1e-15)
-        assert cap == bool(capped[k]), k
-    with pytest.raises(ValueError, match="aims"):
-        steer(np.zeros(2), np.zeros((2, 2)), aims=np.zeros((3, 2)))
     for bad in ({"projection_distance": 0.0}, {"hold": -0.1}, {"hold": float("nan")}):
         with pytest.raises(ValueError):
             steer_one(0.0, 0.1, 0.0, **bad)
@@ -253,27 +238,3 @@ def test_turns_sent_every_period_face_the_direction_without_overshoot() -> None:
             _, _, heading = integrate_one(0.0, 0.0, heading, left, right, period)
             assert sign * _error(heading, direction) > -TURN_TOLERANCE
         assert abs(_error(heading, direction)) <= TURN_TOLERANCE
-
-
-@pytest.mark.parametrize("aimed", [True, False])
-def test_a_robot_blocked_ahead_turns_to_its_aim_and_stays(aimed: bool) -> None:
-    """A filter for unicycles clips only the forward speed (here to 0: robots ahead) and
-    keeps the sideways part of the nominal velocity. Steered toward that filtered velocity,
-    square to the heading at every step, the robot swings a quarter turn about its aim each
-    period with its wheels at their limit; steered toward the aim, it faces it within a few
-    periods and stops turning."""
-    nominal = np.array([-2.0, 1.0])  # an empty cell's pull toward S's centroid, m/s
-    heading, period = 0.3, 0.1
-    errors, peaks = [], []
-    for _ in range(40):
-        e = np.array([math.cos(heading), math.sin(heading)])
-        blocked = nominal - (nominal @ e) * e  # forward speed clipped to 0
-        aim = tuple(nominal.tolist()) if aimed else None
-        left, right, _ = steer_one(heading, *blocked.tolist(), KHEPERA_IV, 0.05, period, aim)
-        _, _, heading = integrate_one(0.0, 0.0, heading, left, right, period)
-        errors.append(abs(_error(heading, math.atan2(nominal[1], nominal[0]))))
-        peaks.append(max(abs(left), abs(right)))
-    if aimed:
-        assert max(errors[10:]) < 1e-6 and max(peaks[10:]) < 1e-6
-    else:
-        assert min(errors[10:]) > 0.5 and min(peaks[10:]) > 0.5 * KHEPERA_IV.max_wheel_speed

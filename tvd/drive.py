@@ -52,11 +52,10 @@ def wheel_speeds(
     robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
     hold: float | np.ndarray = 0.0,
-    aims: np.ndarray | None = None,
 ) -> np.ndarray:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity:
     :func:`steer`'s wheels."""
-    return steer(headings, velocities, robot, projection_distance, hold, aims)[0]
+    return steer(headings, velocities, robot, projection_distance, hold)[0]
 
 
 def steer(
@@ -65,15 +64,13 @@ def steer(
     robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
     hold: float | np.ndarray = 0.0,
-    aims: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity, and
     which robots' turn rate was capped for ``hold``.
 
     headings: (n,) rad; velocities: (n, 2) m/s; hold: s the command will stay in force,
-    scalar or (n,) (0: not known, no cap); aims: (n, 2) m/s, the velocities the robots
-    want before a safety filter bounded their forward speed (None: ``velocities``).
-    Returns wheels (n, 2) [left, right] and capped (n,) bool.
+    scalar or (n,) (0: not known, no cap). Returns wheels (n, 2) [left, right] and
+    capped (n,) bool.
 
     Forward speed v = vx cos th + vy sin th, turn rate w = (-vx sin th + vy cos th) / l.
     That turn rate is the derivative of a continuous loop: held for ``hold`` s it turns the
@@ -82,16 +79,10 @@ def steer(
     the velocity's direction by more than it was off, and a robot far from its goal spins
     in place instead of driving (issue 24: an overloaded team, ~3 Hz, left robots behind
     spinning). So |w| is capped at |e| / hold: the held command at most turns the robot to
-    face the velocity. The velocity to face is the aim: a filter for unicycles
-    (covswarm.tvd.safety.unicycle_rows) bounds only the forward speed and keeps the
-    sideways part, so a robot blocked ahead (forward speed clipped to 0) was asked for a
-    velocity square to its heading at every step, a quarter turn each time: it swung about
-    its aim and spun at the wheels' limit for as long as it stayed blocked (1000 robots:
-    one straggler outside S for 21 s, docs/scaling.md). Capped by the angle to the aim, it
-    turns to face where it wants to go and stops turning there. Saturation then scales both
-    wheels of a robot by the same factor so the curvature (the path) is kept and only the
-    speed along it drops. A robot with a non-finite heading or velocity gets (0, 0): a
-    stopped robot is safer than a NaN on the wire.
+    face the velocity. Saturation then scales both wheels of a robot by the same factor so
+    the curvature (the path) is kept and only the speed along it drops. A robot with a
+    non-finite heading or velocity gets (0, 0): a stopped robot is safer than a NaN on the
+    wire.
     """
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
@@ -102,9 +93,6 @@ def steer(
     hold = np.broadcast_to(np.asarray(hold, dtype=float), headings.shape)
     if not np.all(hold >= 0.0):
         raise ValueError(f"hold must be >= 0 s, got {hold}")
-    aims = velocities if aims is None else np.asarray(aims, dtype=float).reshape(-1, 2)
-    if aims.shape != velocities.shape:
-        raise ValueError(f"{aims.shape[0]} aims for {velocities.shape[0]} velocities")
     half_track = 0.5 * robot.wheel_separation
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         # non-finite rows are zeroed below
@@ -113,10 +101,8 @@ def steer(
         v = vx * cos + vy * sin
         lateral = -vx * sin + vy * cos
         w = lateral / projection_distance
-        # |e| / hold, e the angle to the aim, and no cap (inf) where the hold is not known
-        ax, ay = aims[:, 0], aims[:, 1]
-        error = np.arctan2(-ax * sin + ay * cos, ax * cos + ay * sin)
-        limit = np.where(hold > 0.0, np.abs(error) / hold, np.inf)
+        # |e| / hold, and no cap (inf) where the hold is not known
+        limit = np.where(hold > 0.0, np.abs(np.arctan2(lateral, v)) / hold, np.inf)
         capped = np.abs(w) > limit
         w = np.where(capped, np.copysign(limit, w), w)
         wheels = np.stack([v - w * half_track, v + w * half_track], axis=1)
@@ -132,14 +118,12 @@ def steer(
 def steer_one(
     heading: float, vx: float, vy: float, robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE, hold: float = 0.0,
-    aim: tuple[float, float] | None = None,
 ) -> tuple[float, float, bool]:  # fmt: skip
     """:func:`steer` for one robot in plain floats: rim speeds (left, right) m/s for the
     planar velocity (vx, vy) m/s from ``heading`` rad, and whether the turn rate was capped
-    for ``hold`` s toward ``aim`` (m/s; None: (vx, vy)); the same arithmetic, guards and
-    errors. An agent steers its one robot every step, where numpy's per-call overhead was
-    ~40 us of steer's cost for a single row (tests/test_drive_model.py checks both agree
-    on random, capped and non-finite input)."""
+    for ``hold`` s; the same arithmetic, guards and errors. An agent steers its one robot
+    every step, where numpy's per-call overhead was ~40 us of steer's cost for a single row
+    (tests/test_drive_model.py checks both agree on random, capped and non-finite input)."""
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
     if not hold >= 0.0:
@@ -152,12 +136,7 @@ def steer_one(
     w = lateral / projection_distance
     capped = False
     if hold > 0.0:
-        if aim is None:
-            error = math.atan2(lateral, v)
-        else:
-            ax, ay = aim
-            error = math.atan2(-ax * sin + ay * cos, ax * cos + ay * sin)
-        limit = abs(error) / hold
+        limit = abs(math.atan2(lateral, v)) / hold
         if abs(w) > limit:
             capped, w = True, math.copysign(limit, w)
     half_track = 0.5 * robot.wheel_separation
