@@ -138,7 +138,10 @@ class Watch:
         self.swarm = swarm
         self.poses: dict[int, list[tuple[float, float, float]]] = {}  # id -> [(wall, x, y)]
         self.cmds: dict[int, list[tuple[float, float, float]]] = {}  # id -> [(wall, l, r)]
-        self.states: list[tuple[float, int, list[int]]] = []  # (wall, id, neighbours)
+        # (stamp, id, neighbours): when its agent sent it, by the stamp (the same host's
+        # clock), not when this watcher's callback ran, which lags by seconds on a loaded
+        # machine (a state listing a robot killed 2.0 s earlier, read in the full suite)
+        self.states: list[tuple[float, int, list[int]]] = []
         self.domain_t: list[tuple[float, float, str]] = []  # (wall, mission t, state)
         self._lock = threading.Lock()
         self.session = zenoh.open(protocol.session_config([endpoint]))
@@ -162,7 +165,7 @@ class Watch:
     def _state(self, sample) -> None:
         m = protocol.AgentState.decode(sample.payload.to_bytes())
         with self._lock:
-            self.states.append((time.time(), m.id, list(m.neighbors)))
+            self.states.append((m.stamp, m.id, list(m.neighbors)))
 
     def _domain(self, sample) -> None:
         m = protocol.Domain.decode(sample.payload.to_bytes())
@@ -183,7 +186,7 @@ class Watch:
         return float(np.mean([self.displacement(i, start, end) for i in ids])) / (end - start)
 
     def last_neighbor_mention(self, dead: int) -> float:
-        """Wall time of the last AgentState (of another agent) that listed ``dead``."""
+        """Stamp (wall time) of the last AgentState (of another agent) that listed ``dead``."""
         with self._lock:
             return max((w for w, i, nb in self.states if i != dead and dead in nb), default=0.0)
 
