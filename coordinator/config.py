@@ -45,3 +45,6 @@ class CoordinatorConfig:
     # The agents' control rate (Hz): what their reported rates are held against (pacing).
     agent_rate: float = 10.0
     pace: bool = True  # slow the mission's script to what the team holds (coordinator.pace)
+    # m: the deploy hold (coordinator.pace): S waits at S(0) until e_a is this low
+    deploy_error: float | None = None
+    deploy_timeout: float = 60.0  # s of mission time the deploy hold lasts at most

@@ -52,7 +52,7 @@ from covswarm.coordinator.monitor import (
     mean_pose_time,
     positions_at,
 )
-from covswarm.coordinator.pace import Pace, ScriptClock, paced_density
+from covswarm.coordinator.pace import Pace, ScriptClock, deploy_release, paced_density
 from covswarm.coordinator.steering import (
     Limits,
     MotionCheck,
@@ -147,6 +147,16 @@ class CoordinatorSettings:
     max_domain_speed: float | None = None  # m/s, steered vertices (None: derived from kappa)
     agent_rate: float = 10.0  # Hz the agents were asked to step at (coordinator.pace)
     pace: bool = True  # slow the script to what the team holds (coordinator.pace)
+    # m: hold the script at S(0) from the start until e_a is this low (the deploy hold,
+    # coordinator.pace), at most deploy_timeout s of mission time; None: no hold
+    deploy_error: float | None = None
+    deploy_timeout: float = 60.0
+
+    @property
+    def script_ends(self) -> bool:
+        """Whether the mission ends when the script's tau reaches the duration (paced or
+        deployed first), not when the mission time does."""
+        return self.pace or self.deploy_error is not None
 
     @classmethod
     def from_config(cls, config: CoordinatorConfig, scenario: Scenario) -> CoordinatorSettings:
@@ -169,6 +179,8 @@ class CoordinatorSettings:
             max_domain_speed=config.max_domain_speed,
             agent_rate=config.agent_rate,
             pace=config.pace,
+            deploy_error=config.deploy_error,
+            deploy_timeout=config.deploy_timeout,
         )
 
     @cached_property
@@ -355,10 +367,12 @@ class CoordinatorCore:
         # S(t) = S_script(tau(t)): the script slows down to what the team holds, and the
         # mission ends when tau reaches the duration (coordinator.pace); without pacing
         # tau = t and the phase ends the mission itself.
-        self.pace = Pace(settings.agent_rate, enabled=settings.pace)
+        self.pace = Pace(
+            settings.agent_rate, enabled=settings.pace, deploying=settings.deploy_error is not None
+        )
         self.observed = Observed(roster=self.roster, pace=self.pace)
         self.phase = MissionPhase(
-            math.inf if settings.pace else settings.duration, settle=START_SETTLE
+            math.inf if settings.script_ends else settings.duration, settle=START_SETTLE
         )
         world = settings.scenario.world
         # S never touches the arena: every steered motion is swept against it first.
@@ -427,6 +441,8 @@ class CoordinatorCore:
         self.observed.started_wall = started_wall
         if script is not None:
             self.pace.resume(script)
+        else:
+            self.pace.deploying = False  # tau = t: as if the script had run from the start
         if journal:
             log.info("resumed %d steering requests", self.steering.replay(journal))
 
@@ -549,6 +565,8 @@ class CoordinatorCore:
         actions: list[Action] = []
         if reply.accepted:
             log.info("steering at t = %.2f s: %s", t, record.request)
+            if running and self.pace.deploying:  # the operator takes over from the hold
+                self._end_deploy_hold(t, "steered")
             actions.append(JournalSteering(self.steering.journal_line()))
         else:
             log.warning("steering request refused at t = %.2f s: %s", t, reply.reason)
@@ -601,12 +619,14 @@ class CoordinatorCore:
             log.info("team ready: mission started")
             actions.append(MissionStarted(settings.swarm, wall))
         t = phase.mission_time(now)
+        if state == RUNNING and self.pace.deploying:
+            self._end_deploy_hold(t)
         if state != WAITING:
             slowed = self.pace.pace < 1.0
             tau = self.pace.advance(t, self._team, end=settings.duration)
             if slowed != (self.pace.pace < 1.0):
                 self._log_pace(t)
-            if state == RUNNING and settings.pace and tau >= settings.duration:
+            if state == RUNNING and settings.script_ends and tau >= settings.duration:
                 phase.stop(now)  # the script's end: done from this tick
                 state = DONE
         polygon, domain = self._domain(state, t)
@@ -656,6 +676,21 @@ class CoordinatorCore:
         if finished:
             actions.append(Finished(started=True))
         return actions
+
+    def _end_deploy_hold(self, t: float, reason: str | None = None) -> None:
+        """Release the script at mission time ``t`` when the team has spread over S(0)
+        (coordinator.pace.deploy_release on the latest e_a sample) or ``reason`` says so."""
+        settings, record = self.settings, self.observed.record
+        latest = (record.t[-1], record.error[-1]) if record.t else None
+        if reason is None and settings.deploy_error is not None:
+            reason = deploy_release(t, latest, settings.deploy_error, settings.deploy_timeout)
+        if reason is None:
+            return
+        self.pace.release(t, reason, None if latest is None else latest[1])
+        error = "no sample" if latest is None else f"e_a {latest[1]:.4f} m"
+        (log.warning if reason == "timed out" else log.info)(
+            "t = %.1f s: the deploy hold ends (%s, %s): S starts moving", t, reason, error
+        )
 
     def _log_pace(self, t: float) -> None:
         """Say that the script starts or stops running slower than the clock (an

@@ -190,6 +190,21 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     "Slow the mission's script down to the rate the agents hold (an overloaded machine); "
     "--no-pace: S runs at the script's speed whatever they hold.",
 )
+@float_option(
+    "--deploy-error",
+    low=0,
+    low_open=True,
+    help="Deploy first: S waits at S(0) from the start until e_a is this low (m), so the "
+    "team spreads over it before it moves; the script then runs its whole duration "
+    "[no deploy hold].",
+)
+@float_option(
+    "--deploy-timeout",
+    low=0,
+    low_open=True,
+    default=60.0,
+    help="Longest deploy hold, s of mission time (S then moves whatever e_a).",
+)
 @FOXGLOVE_OPTION
 @click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")
 @TIME_SCALE_OPTION

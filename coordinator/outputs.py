@@ -171,6 +171,15 @@ def build_summary(
         wheels=agent_wheel_figures(observed.agent_stats, record.t[-1]),
         ids=record.robot_ids(),
     )
+    pace = observed.pace
+    if pace is not None and pace.released is not None:
+        # The script's part: a deploy hold's e_a is the team spreading over a still S(0).
+        scripted = t >= pace.released[0]
+        summary["steady_state_error_mean"] = (
+            steady_state_mean(t[scripted], np.array(record.error)[scripted])
+            if scripted.any()
+            else math.nan
+        )
     return {
         **summary,
         "agents": settings.agents,  # the team asked for, not the robots seen at the end

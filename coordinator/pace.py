@@ -31,12 +31,18 @@ FULL of the rate holds it: a brain stepping 4 of 5 periods never holds its robot
 (covswarm.agent.pack holds it after three missed periods in a row) and its gain is
 sampled for the period it holds, so the script need not wait for it.
 
-PACE_FLOOR rather than a pause at pace 0: a mission on a machine that holds nothing still
-ends (after at most 1 / PACE_FLOOR its duration), and S moving at 5 % of its speed is
-nearly still for robots that step even rarely. tau between two ticks is linear in t with
-the slope broadcast at the first (what the agents extrapolate), so :meth:`Pace.script_time`
-gives S at any past mission time exactly as broadcast (an e_a sample placed at its poses'
-time).
+A deploy hold (``deploying``): the script waits at tau = 0, pace 0, from the mission's
+start until the coordinator releases it (:func:`deploy_release`: the team's e_a at or below
+a target, or a timeout), so that the team first spreads over S(0) to its CVT, as a team is
+deployed before an operator moves it; pacing applies from the release on. It is the one
+pause at pace 0.
+
+PACE_FLOOR rather than a pause at pace 0 for an overloaded team: a mission on a machine
+that holds nothing still ends (after at most 1 / PACE_FLOOR its duration), and S moving at
+5 % of its speed is nearly still for robots that step even rarely. tau between two ticks
+is linear in t with the slope broadcast at the first (what the agents extrapolate), so
+:meth:`Pace.script_time` gives S at any past mission time exactly as broadcast (an e_a
+sample placed at its poses' time).
 """
 
 from __future__ import annotations
@@ -94,6 +100,18 @@ def next_pace(pace: float, target: float, dt: float) -> float:
     return pace
 
 
+def deploy_release(
+    t: float, error: tuple[float, float] | None, target: float, timeout: float
+) -> str | None:
+    """Why the deploy hold ends at mission time ``t`` (s), or None while it holds:
+    "converged" once the latest e_a sample of the hold, ``error`` = (its mission time s,
+    e_a m; None: none yet), is at or below ``target`` m; else "timed out" once ``t`` >=
+    ``timeout``."""
+    if error is not None and error[1] <= target:
+        return "converged"
+    return "timed out" if t >= timeout else None
+
+
 def paced_density(density: Density, pace: float, t: float) -> Density:
     """``density`` (the script's phi at tau) with its rates scaled by ``pace`` and stamped
     with mission time ``t``: what an agent advances with mission time (d phi / dt)."""
@@ -119,6 +137,8 @@ class Pace:
 
     asked: float
     enabled: bool = True
+    # Held at tau = 0 (pace 0) until :meth:`release` (the module docstring's deploy hold).
+    deploying: bool = False
     pace: float = 1.0
     tau: float = 0.0
     # tau(t) at every tick of the mission: mission time, script time, pace from then on
@@ -130,10 +150,22 @@ class Pace:
     _reports: dict[int, deque[tuple[float, float]]] = field(default_factory=dict)
     # per agent: (stamp, mission_steps) of its first report of the mission and its latest
     _span: dict[int, tuple[tuple[float, float], tuple[float, float]]] = field(default_factory=dict)
+    # the deploy hold's end: mission time (s), why (deploy_release), e_a (m) then; None while
+    # it holds or without one
+    released: tuple[float, str, float | None] | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.asked) and self.asked > 0.0):
             raise ValueError(f"the asked control rate must be positive, got {self.asked!r}")
+        if self.deploying:
+            self.pace = 0.0
+
+    def release(self, t: float, reason: str, error: float | None) -> None:
+        """End the deploy hold at mission time ``t``: the script runs from the next
+        :meth:`advance` on (``released`` then holds its time), at the pace the team holds."""
+        if self.deploying:
+            self.deploying = False
+            self.released = (t, reason, error)
 
     def report(self, ident: int, stats: Mapping[str, float], stamp: float) -> None:
         """Agent ``ident``'s stats, stamped ``stamp`` (its mission-scaled wall clock, s)."""
@@ -163,9 +195,15 @@ class Pace:
         if self.t_log:
             dt = t - self.t_log[-1]
             self.tau = min(self.tau + self.pace * dt, end)
-            if self.enabled:
+            if self.deploying:
+                pass  # pace 0 until released
+            elif self.pace == 0.0:  # released since the last tick: no ramp from 0
+                self.pace = self.target(team) if self.enabled else 1.0
+                if self.released is not None:  # S moves from this tick on
+                    self.released = (t, *self.released[1:])
+            elif self.enabled:
                 self.pace = next_pace(self.pace, self.target(team), dt)
-        else:
+        elif not self.deploying:
             self.tau = min(t, end)  # the mission's first tick (0, or a resumed mission's t)
         self.t_log.append(t)
         self.tau_log.append(self.tau)
@@ -181,6 +219,7 @@ class Pace:
         moves tau on from ``clock.tau`` at ``clock.pace`` (what the agents extrapolated
         meanwhile), not from the mission time."""
         self.tau, self.pace = clock.tau, clock.pace
+        self.deploying = clock.pace == 0.0  # the first one stopped during its deploy hold
         self.t_log, self.tau_log, self.pace_log = [clock.t], [clock.tau], [clock.pace]
 
     def script_time(self, t: float) -> float:
@@ -198,6 +237,8 @@ class Pace:
         if not self.t_log or tau <= self.tau_log[0]:
             return tau if not self.t_log else self.t_log[0] - (self.tau_log[0] - tau)
         k = int(np.searchsorted(self.tau_log, tau, side="right")) - 1
+        if self.pace_log[k] == 0.0:
+            return math.inf  # still in the deploy hold: the script has not got there
         return self.t_log[k] + (tau - self.tau_log[k]) / self.pace_log[k]
 
     def summary(self, stats: Mapping[int, Mapping[str, float]], mission_t: float) -> dict:
@@ -209,7 +250,10 @@ class Pace:
         come about once a second, so its latest is up to a second older than the end),
         over the whole mission for one that reported only once; periods_missed: 1 - held /
         asked (the team's mean); late_held: the agents' mean share of periods skipped by a
-        late turn; missed_deadline: their mean share of commands sent after their period.
+        late turn; missed_deadline: their mean share of commands sent after their period;
+        pace_min, pace_mean: over the script's part of the mission, after a deploy hold
+        ("deploy": its length hold_s, released_because (None: it held to the end) and
+        e_a then, m).
         """
         held = []
         for ident, s in stats.items():
@@ -224,8 +268,18 @@ class Pace:
             values = [float(s[name]) for s in stats.values() if name in s]
             return float(np.mean(values)) if values else None
 
-        paces = np.array(self.pace_log) if self.pace_log else np.ones(1)
+        # The script's part of the mission: after the deploy hold, if any (deploy key).
+        hold = self.released[0] if self.released else (mission_t if self.deploying else 0.0)
+        paces = np.array([p for t, p in zip(self.t_log, self.pace_log, strict=True) if t >= hold])
+        paces = paces if paces.size else np.ones(1)
         reached = self.tau_log[-1] if self.tau_log else 0.0
+        scripted = mission_t - hold
+        deploy = {}
+        if self.released or self.deploying:
+            why, error = self.released[1:] if self.released else (None, None)
+            deploy = {
+                "deploy": {"hold_s": hold, "released_because": why, "error_at_release": error}
+            }
         return {
             "enabled": self.enabled,
             "asked_rate_hz": self.asked,
@@ -235,9 +289,10 @@ class Pace:
             "late_held": mean("late_held"),
             "missed_deadline": mean("missed_deadline"),
             "pace_min": float(paces.min()),
-            "pace_mean": reached / mission_t if mission_t > 0.0 else 1.0,
+            "pace_mean": reached / scripted if scripted > 0.0 else 1.0,
             "script_time": reached,
             "mission_time": mission_t,
+            **deploy,
         }
 
 
@@ -254,8 +309,12 @@ class ScriptClock:
     def __post_init__(self) -> None:
         if not (math.isfinite(self.t) and math.isfinite(self.tau) and self.tau >= 0.0):
             raise ValueError(f"a script clock needs finite times, got {self.t!r}, {self.tau!r}")
-        if not PACE_FLOOR <= self.pace <= 1.0:
-            raise ValueError(f"a pace must be in [{PACE_FLOOR}, 1], got {self.pace!r}")
+        held = self.pace == 0.0 and self.tau == 0.0  # a deploy hold (Pace.deploying)
+        if not (held or PACE_FLOOR <= self.pace <= 1.0):
+            raise ValueError(
+                f"a pace must be in [{PACE_FLOOR}, 1] (0 only at script time 0), "
+                f"got {self.pace!r} at {self.tau!r}"
+            )
 
     def to_json(self, swarm: str) -> str:
         return json.dumps({"swarm": swarm, "t": self.t, "script_t": self.tau, "pace": self.pace})
@@ -292,4 +351,7 @@ def pace_sentence(pace: Mapping[str, Any]) -> str:
     )
     if not pace["enabled"]:
         ran = f"pacing off: {ran}"
+    if (deploy := pace.get("deploy")) is not None:
+        why = deploy["released_because"] or "never released"
+        ran = f"{ran}, after a deploy hold of {deploy['hold_s']:.1f} s ({why})"
     return f"{rate}; {ran}"

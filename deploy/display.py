@@ -49,7 +49,9 @@ def render(progress: Progress) -> Any:
     table.add_row("phase", status.state)
     script = status.t if status.script_t is None else status.script_t
     text = f"{script:.1f} / {progress.duration:.1f} s"
-    if status.pace is not None and status.pace < 1.0:  # an overloaded team: S slowed down
+    if status.pace == 0.0:  # the deploy hold (coordinator.pace): S waits at S(0)
+        text += " (deploying: the team spreads over S(0) before S moves)"
+    elif status.pace is not None and status.pace < 1.0:  # an overloaded team: S slowed down
         text += f" at {status.pace:.2f}x (the agents do not hold their rate)"
     table.add_row("mission", bar(script, progress.duration, text))
     table.add_row("e_a", "-" if status.error is None else f"{status.error:.4f} m")

@@ -140,6 +140,21 @@ from covswarm.sim_robot.process import gather_drops
     "The coordinator slows the mission down to the rate the agents hold (--no-pace: S keeps "
     "the script's speed).",
 )
+@float_option(
+    "--deploy-error",
+    low=0,
+    low_open=True,
+    help="Deploy first: S waits at S(0) from the start until e_a is this low (m), so the "
+    "team spreads over it before it moves; the script then runs its whole duration "
+    "[no deploy hold].",
+)
+@float_option(
+    "--deploy-timeout",
+    low=0,
+    low_open=True,
+    default=60.0,
+    help="Longest deploy hold, s of mission time (S then moves whatever e_a).",
+)
 @switch_option("safety", "Agents filter for collisions (--no-safety: they run without the filter).")
 @switch_option(
     "prediction",

@@ -282,6 +282,8 @@ class RunConfig:
     max_domain_speed: float | None = None
     secure: Path | None = None
     pace: bool = True  # the coordinator slows the script to what the agents hold
+    deploy_error: float | None = None  # m: the coordinator's deploy hold (coordinator.pace)
+    deploy_timeout: float = 60.0  # s: the longest deploy hold
     fault_step_delay: float = 0.0  # s of sleep per agent step (agent.faults.delay_steps)
     # s of CPU a brain-tick costs live on this host; None: measured at launch when the team
     # is beyond a process per brain (deploy.host_speed), else BRAIN_TICK
@@ -308,7 +310,7 @@ def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> Coo
         kappa=scenario.kappa if run.kappa is None else run.kappa,
         agent_rate=run.rate,
         **_passed_on(run, "swarm", "out", "scenario", "max_domain_speed", "record", "foxglove"),
-        **_passed_on(run, "pace"),
+        **_passed_on(run, "pace", "deploy_error", "deploy_timeout"),
         **_passed_on(run, "seed", *_EVERY_CHILD),
     )
 

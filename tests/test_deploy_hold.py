@@ -1,0 +1,242 @@
+"""The deploy hold (coordinator.pace, ``--deploy-error``), sans-IO: S waits at S(0) from the
+mission's start until the team's e_a is low enough (or a timeout, or an operator's steering
+request), then the script runs its whole duration with the exact velocities."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+from live_runs import launch, new_swarm, swarm_pids
+
+from covswarm.coordinator.config import CoordinatorConfig
+from covswarm.coordinator.core import (
+    DONE,
+    RUNNING,
+    CoordinatorCore,
+    CoordinatorSettings,
+    PublishDomain,
+    PublishStatus,
+)
+from covswarm.coordinator.outputs import build_summary
+from covswarm.coordinator.pace import Pace, ScriptClock, deploy_release, pace_sentence
+from covswarm.deploy.plan import RunConfig, coordinator_config
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.protocol import Pose, alive_key, pose_key
+from covswarm.protocol.steering import SteerRequest
+from covswarm.runtime.options import config_argv
+from covswarm.tvd.coverage import aggregate_error, mass_centroid
+
+SWARM = "deploy-test"
+WALL0 = 1.7e9
+TICK = 0.05  # s: the core's broadcast period (20 Hz)
+
+
+def make_core(deploy_error: float | None, timeout: float = 60.0, duration: float = 4.0, n=6):
+    settings = CoordinatorSettings(
+        scenario=load_scenario("circle"), swarm=SWARM, agents=n, duration=duration,
+        kappa=2.0, rate=1 / TICK, sample_rate=10.0, feedforward=True, tile_size=0.5,
+        agent_rate=10.0, deploy_error=deploy_error, deploy_timeout=timeout,
+    )  # fmt: skip
+    core = CoordinatorCore(settings, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0)
+    for i in range(n):
+        for role in ("robot", "agent"):
+            core.on_liveliness(alive_key(SWARM, role, i), True, 0.0, WALL0)
+    return core
+
+
+def lloyd(points: np.ndarray, polygon: np.ndarray, iterations: int) -> np.ndarray:
+    """``iterations`` Lloyd steps (each robot to its cell's centroid) in ``polygon``."""
+    for _ in range(iterations):
+        points = mass_centroid(points, polygon)[1]
+    return points
+
+
+def start_points(core: CoordinatorCore, iterations: int) -> np.ndarray:
+    """The team bunched off-centre in S(0), after ``iterations`` Lloyd steps."""
+    polygon = core.settings.scenario.domain(0.0)[0]
+    centre = polygon.mean(axis=0)
+    rng = np.random.default_rng(3)
+    points = centre + 0.05 * rng.standard_normal((core.settings.agents, 2)) + [0.15, 0.0]
+    return lloyd(points, polygon, iterations)
+
+
+def run(core: CoordinatorCore, points: np.ndarray, until: float, now: float = 0.0) -> tuple:
+    """Tick ``core`` every TICK to ``until`` with the team standing at ``points``;
+    (now, [(now, actions)])."""
+    ticks = []
+    while now < until - 1e-9:
+        now = round(now + TICK, 9)
+        for i, (x, y) in enumerate(points):
+            pose = Pose(id=i, x=float(x), y=float(y), theta=0.0, stamp=WALL0 + now, seq=0)
+            core.on_pose(pose_key(SWARM, i), pose.encode())
+        ticks.append((now, core.tick(now, WALL0 + now)))
+        if core.phase.state == DONE:
+            break
+    return now, ticks
+
+
+def domains(ticks: list) -> list:
+    return [
+        (now, a.domain) for now, actions in ticks for a in actions if isinstance(a, PublishDomain)
+    ]
+
+
+def test_deploy_release_says_why_the_hold_ends() -> None:
+    assert deploy_release(1.0, None, 0.01, 5.0) is None
+    assert deploy_release(1.0, (0.9, 0.02), 0.01, 5.0) is None
+    assert deploy_release(1.0, (0.9, 0.01), 0.01, 5.0) == "converged"
+    assert deploy_release(5.0, (4.9, 0.02), 0.01, 5.0) == "timed out"
+    assert deploy_release(5.0, None, 0.01, 5.0) == "timed out"
+    assert deploy_release(1.0, (0.9, math.nan), 0.01, 5.0) is None  # NaN never converges
+
+
+def test_a_held_script_waits_at_zero_then_runs_from_the_release() -> None:
+    pace = Pace(asked=10.0, deploying=True)
+    for t in (0.0, 0.5):
+        assert pace.advance(t, []) == 0.0 and pace.pace == 0.0
+    assert pace.mission_time(0.3) == math.inf  # not reached while held
+    pace.release(0.9, "converged", 0.004)  # between ticks (a steering request)
+    assert pace.advance(1.0, []) == 0.0  # the hold lasted to the next tick
+    assert pace.pace == 1.0  # no ramp up from 0: the team's pace at once
+    assert pace.released == (1.0, "converged", 0.004)  # when S started to move
+    assert pace.advance(1.5, []) == pytest.approx(0.5)
+    assert pace.advance(2.0, []) == pytest.approx(1.0)
+    # script_time and mission_time are inverse across the hold's end
+    for tau in (0.1, 0.4, 0.5, 0.8):
+        assert pace.script_time(pace.mission_time(tau)) == pytest.approx(tau)
+    assert pace.script_time(0.7) == 0.0
+    summary = pace.summary({}, 2.0)
+    assert summary["deploy"] == {
+        "hold_s": 1.0, "released_because": "converged", "error_at_release": 0.004
+    }  # fmt: skip
+    assert summary["pace_mean"] == pytest.approx(1.0)  # 1 s of script in the 1 s after
+    assert summary["pace_min"] == 1.0  # the hold is not an overloaded team
+    assert "after a deploy hold of 1.0 s (converged)" in pace_sentence(summary)
+
+
+def test_a_script_clock_at_pace_zero_is_a_hold_and_resumes_held() -> None:
+    clock = ScriptClock(3.0, 0.0, 0.0)
+    assert ScriptClock.from_json(clock.to_json(SWARM), SWARM) == clock
+    with pytest.raises(ValueError, match="0 only at script time 0"):
+        ScriptClock(3.0, 0.5, 0.0)
+    pace = Pace(asked=10.0)
+    pace.resume(clock)
+    assert pace.deploying
+    assert pace.advance(4.0, []) == 0.0 and pace.pace == 0.0
+
+
+def test_the_team_far_from_its_cvt_holds_s_still_until_it_converges() -> None:
+    core = make_core(deploy_error=0.01)
+    polygon0 = core.settings.scenario.domain(0.0)[0]
+    bunched = start_points(core, 0)
+    assert aggregate_error(bunched, polygon0) > 0.05
+    now, ticks = run(core, bunched, 3.0)  # the mission starts after START_SETTLE (1.5 s)
+    held = core.phase.mission_time(now)
+    assert held > 1.0
+    assert core.phase.state == RUNNING and core.pace.deploying
+    for _, domain in domains(ticks):
+        np.testing.assert_allclose(domain.vertices, polygon0, atol=1e-12)
+        assert not np.any(domain.velocities)
+    statuses = [a.status for _, acts in ticks for a in acts if isinstance(a, PublishStatus)]
+    assert statuses[-1].pace == 0.0 and statuses[-1].script_t == 0.0
+    # The team reaches S(0)'s CVT (Lloyd's iterations): released at the next samples.
+    settled = lloyd(bunched, polygon0, 200)
+    assert aggregate_error(settled, polygon0) < 0.01
+    now, ticks = run(core, settled, now + 1.0, now)
+    assert not core.pace.deploying
+    released_at, why, error = core.pace.released
+    assert why == "converged" and error <= 0.01 and held < released_at < held + 0.5
+    # From there S moves as the script says, with its exact velocities.
+    later = [(t, d) for t, d in domains(ticks) if d.t > released_at + 0.2]
+    t, domain = later[-1]
+    tau = core.pace.script_time(domain.t)
+    assert tau == pytest.approx(domain.t - released_at, abs=TICK + 1e-9)
+    vertices, velocities = core.settings.scenario.domain(tau)
+    np.testing.assert_allclose(domain.vertices, vertices, atol=1e-9)
+    np.testing.assert_allclose(domain.velocities, velocities, atol=1e-9)
+    # The mission lasts the hold and the script's whole duration.
+    now, ticks = run(core, settled, now + 10.0, now)
+    assert core.phase.state == DONE
+    assert core.phase.mission_time(now) == pytest.approx(released_at + 4.0, abs=2 * TICK)
+
+
+def test_a_hold_times_out_and_the_summary_says_so() -> None:
+    core = make_core(deploy_error=1e-4, timeout=1.0)
+    bunched = start_points(core, 0)
+    now, _ = run(core, bunched, 10.0)
+    assert core.phase.state == DONE
+    released_at, why, error = core.pace.released
+    assert why == "timed out" and released_at == pytest.approx(1.0, abs=TICK + 1e-9)
+    assert error == pytest.approx(core.observed.record.error[0], rel=0.2)
+    summary = build_summary(core.settings, core.observed)
+    assert summary["pace"]["deploy"]["released_because"] == "timed out"
+    t, e = np.array(core.observed.record.t), np.array(core.observed.record.error)
+    scripted = t >= released_at
+    expected = np.mean(e[scripted][t[scripted] >= t[scripted][0] + 0.5 * (t[-1] - t[scripted][0])])
+    assert summary["steady_state_error_mean"] == pytest.approx(expected)
+
+
+def test_a_steering_request_ends_the_hold() -> None:
+    core = make_core(deploy_error=1e-4, timeout=30.0)
+    now, _ = run(core, start_points(core, 0), 2.5)
+    assert core.phase.state == RUNNING and core.pace.deploying
+    request = SteerRequest(kind="translate", dx=0.1, dy=0.0, duration=2.0)
+    actions = core.on_steer(request.encode(), now, WALL0 + now)
+    assert actions[0].accepted
+    assert core.pace.released[1] == "steered"
+    # S then moves as steered from script time 0.
+    now, ticks = run(core, start_points(core, 0), now + 1.0, now)
+    last = domains(ticks)[-1][1]
+    np.testing.assert_allclose(last.vertices, core.steering.domain(core.pace.tau)[0])
+    assert np.abs(last.vertices - core.settings.scenario.domain(0.0)[0]).max() > 0.02
+
+
+def test_without_a_deploy_error_there_is_no_hold() -> None:
+    core = make_core(deploy_error=None)
+    run(core, start_points(core, 0), 2.0)
+    assert not core.pace.deploying and core.pace.released is None
+    assert core.pace.tau > 0.3
+    assert "deploy" not in core.pace.summary({}, 1.0)
+
+
+def test_covswarm_run_passes_the_hold_to_its_coordinator() -> None:
+    scenario = load_scenario("circle")
+    run_config = RunConfig(swarm="s", out=Path("out"), deploy_error=0.02, deploy_timeout=30.0)
+    config = coordinator_config(run_config, scenario, "tcp/127.0.0.1:1")
+    assert (config.deploy_error, config.deploy_timeout) == (0.02, 30.0)
+    argv = config_argv(config)
+    assert argv[argv.index("--deploy-error") + 1] == "0.02"
+    assert CoordinatorConfig(swarm="s", out=config.out).deploy_error is None
+
+
+@pytest.mark.e2e
+def test_a_live_team_spreads_over_s0_before_s_moves(tmp_path: Path) -> None:
+    """5 robots over real Zenoh sessions: the agents reach S(0)'s CVT while S waits, then
+    the script runs its whole duration (the hold measured 2.9 s for 10 robots)."""
+    swarm, out = new_swarm(), tmp_path / "deploy"
+    hold_args = ("--deploy-error", "0.02", "--deploy-timeout", "30")
+    team = ("--agents", "5", "--scenario", "circle", "--duration", "3")
+    with launch(out, *team, *hold_args, swarm=swarm) as launcher:
+        assert launcher.wait(timeout=150) == 0, (tmp_path / "deploy.launcher.log").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    deploy = summary["pace"]["deploy"]
+    assert deploy["released_because"] == "converged", deploy
+    assert deploy["error_at_release"] <= 0.02 < 0.25 * summary["initial_error"]
+    hold = deploy["hold_s"]
+    assert 0.3 < hold < 30.0
+    assert summary["pace"]["script_time"] == pytest.approx(3.0)
+    assert summary["mission_time"] == pytest.approx(hold + 3.0, abs=0.5)
+    # S stood at S(0) through the hold, and had left it at the end.
+    rows = np.loadtxt(out / "domain.csv", delimiter=",", skiprows=1)
+    polygon0 = load_scenario("circle").domain(0.0)[0]
+    held = rows[rows[:, 0] < hold - 0.1]
+    assert len(held) >= len(polygon0)
+    np.testing.assert_allclose(held[:, 2:], polygon0[held[:, 1].astype(int)], atol=1e-4)
+    final = rows[rows[:, 0] == rows[-1, 0]]
+    assert np.abs(final[:, 2:] - polygon0[final[:, 1].astype(int)]).max() > 0.05
+    assert "after a deploy hold of" in (tmp_path / "deploy.launcher.log").read_text()
+    assert swarm_pids(swarm) == set()
