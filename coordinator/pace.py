@@ -34,8 +34,9 @@ sampled for the period it holds, so the script need not wait for it.
 A deploy hold (``deploying``): the script waits at tau = 0, pace 0, from the mission's
 start until the coordinator releases it (:func:`deploy_release`: the team's e_a at or below
 a target, or a timeout), so that the team first spreads over S(0) to its CVT, as a team is
-deployed before an operator moves it; pacing applies from the release on. It is the one
-pause at pace 0.
+deployed before an operator moves it. S then starts gently: its pace rises from 0 to 1
+over DEPLOY_RAMP s (:func:`ramp_pace`; lower if the team holds less), for robots that stand
+still facing anywhere; pacing applies from then on. It is the one pause at pace 0.
 
 PACE_FLOOR rather than a pause at pace 0 for an overloaded team: a mission on a machine
 that holds nothing still ends (after at most 1 / PACE_FLOOR its duration), and S moving at
@@ -65,6 +66,9 @@ RISE_BAND = 0.05  # ... and rises only towards one this far above it
 RISE_RATE = 0.1  # pace per s of mission time: from 0.4 back to 1 in 6 s
 SLOW_QUANTILE = 0.1  # the team's figure: the slowest tenth of its members
 HELD_WINDOW = 2.0  # s of an agent's reports its held rate is measured over
+# s: after a deploy hold S starts gently, its pace rising from 0 to 1 over this long, so
+# that robots standing still, facing anywhere, turn to its motion before it is fast
+DEPLOY_RAMP = 2.0
 
 
 def held_fraction(
@@ -110,6 +114,13 @@ def deploy_release(
     if error is not None and error[1] <= target:
         return "converged"
     return "timed out" if t >= timeout else None
+
+
+def ramp_pace(since: float) -> float:
+    """The pace ``since`` s after a deploy hold ended (the end of a period that began
+    then: what the period is broadcast with): linear from 0 to 1 over DEPLOY_RAMP s, at
+    least PACE_FLOOR."""
+    return min(1.0, max(PACE_FLOOR, since / DEPLOY_RAMP))
 
 
 def paced_density(density: Density, pace: float, t: float) -> Density:
@@ -197,10 +208,11 @@ class Pace:
             self.tau = min(self.tau + self.pace * dt, end)
             if self.deploying:
                 pass  # pace 0 until released
-            elif self.pace == 0.0:  # released since the last tick: no ramp from 0
-                self.pace = self.target(team) if self.enabled else 1.0
-                if self.released is not None:  # S moves from this tick on
-                    self.released = (t, *self.released[1:])
+            elif self.pace == 0.0 and self.released is not None:  # released since the last tick
+                self.released = (t, *self.released[1:])  # S moves from this tick on
+                self.pace = self._ramp(t, dt, team)
+            elif self.released is not None and t - self.released[0] < DEPLOY_RAMP:
+                self.pace = self._ramp(t, dt, team)
             elif self.enabled:
                 self.pace = next_pace(self.pace, self.target(team), dt)
         elif not self.deploying:
@@ -209,6 +221,12 @@ class Pace:
         self.tau_log.append(self.tau)
         self.pace_log.append(self.pace)
         return self.tau
+
+    def _ramp(self, t: float, dt: float, team: Iterable[int]) -> float:
+        """The pace from ``t`` on while S starts after the deploy hold (ramp_pace; the
+        team's, if lower), ``dt`` s after the last tick (the period's length to expect)."""
+        ramp = ramp_pace(t - self.released[0] + dt)
+        return min(ramp, self.target(team)) if self.enabled else ramp
 
     def clock(self) -> ScriptClock | None:
         """Where the script's clock stands at the last tick (None before the mission)."""

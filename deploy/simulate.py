@@ -48,6 +48,9 @@ class SimResult:
     safety_active: int = 0  # robot-steps on which the safety filter changed the velocity
     safety_relaxed: int = 0  # robot-steps on which it could not hold every pair (boxed in)
     contact_stops: int = 0  # robot-steps on which an obstacle or wall stopped a robot
+    # the deploy hold's end: t (s), why (coordinator.pace.deploy_release), e_a (m) then;
+    # None without a hold
+    released: tuple[float, str, float] | None = None
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -72,6 +75,8 @@ def simulate(
     safety: bool = False,
     heading: float | None = None,
     face_start: bool = False,
+    deploy_error: float | None = None,
+    deploy_timeout: float = 60.0,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
@@ -80,6 +85,9 @@ def simulate(
     unicycle starts facing S's motion at the start where it stands
     (covswarm.tvd.control.field_directions, its random heading where S barely moves), as
     ``covswarm run``'s robots turn to while the mission waits (covswarm.agent.brain).
+    deploy_error (m), deploy_timeout (s): the deploy hold of ``covswarm run --deploy-error``
+    (covswarm.coordinator.pace): S(0) held still until e_a is at most deploy_error, at most
+    deploy_timeout s, then the script's whole duration (``SimResult.released``).
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
@@ -91,6 +99,7 @@ def simulate(
     or not (covswarm.world.contact.stop_at_contacts on each step's move, the chord of a
     unicycle's arc); a run that never touches one is exactly what it was without them.
     """
+    from covswarm.coordinator.pace import deploy_release, paced_density, ramp_pace
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
@@ -138,10 +147,19 @@ def simulate(
     if dynamics == "single":
         headings = np.zeros(n)
 
-    t = np.arange(steps + 1) * dt
-    error = np.empty(steps + 1)
-    trajectories = np.empty((steps + 1, n, 2))
-    heading_log = np.empty((steps + 1, n))
+    # The deploy hold (coordinator.pace): S(0) still until e_a <= deploy_error, at most
+    # hold_steps steps; then the script's steps. Samples are appended: the hold's length is
+    # not known in advance.
+    holding = deploy_error is not None
+    if holding and not (math.isfinite(deploy_error) and deploy_error > 0 and deploy_timeout > 0):
+        raise ValueError("deploy_error and deploy_timeout must be positive")
+    hold_steps = round(deploy_timeout / dt) if holding else 0
+    released: tuple[float, str, float] | None = None
+    t_log: list[float] = []
+    error_log: list[float] = []
+    trajectory_log: list[np.ndarray] = []
+    heading_log: list[np.ndarray] = []
+    wheel_rows: list[np.ndarray] = []
     polygons: list[np.ndarray] = []
     guarded = fallbacks = safety_active = safety_relaxed = contact_stops = 0
     world = scenario.world
@@ -152,15 +170,36 @@ def simulate(
     }
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
     safe_distance = body_safe_distance(scenario.robot_diameter)
-    wheel_log = np.full((steps + 1, n, 2), np.nan) if dynamics == "unicycle" else None
-    for k in range(steps + 1):
-        polygon, polygon_velocity = scenario.domain(t[k])
-        density = scenario.density(t[k])
+    k = scripted = 0  # steps taken, of them the script's
+    tau = 0.0
+    while True:
+        tk = k * dt
+        pace = 1.0
+        if released is None:
+            tau = scripted * dt
+        else:  # S starts gently after the hold, as the coordinator starts it (ramp_pace)
+            pace = ramp_pace(tk - released[0] + dt)
+        polygon, polygon_velocity = scenario.domain(tau)
+        density = scenario.density(tau)
+        if pace < 1.0:
+            polygon_velocity = polygon_velocity * pace
+            density = None if density is None else paced_density(density, pace, tau)
         polygons.append(polygon)
-        trajectories[k] = positions
-        heading_log[k] = headings
-        error[k] = aggregate_error(positions, polygon, density)
-        if k == steps:
+        t_log.append(tk)
+        trajectory_log.append(positions.copy())
+        heading_log.append(np.array(headings, dtype=float))
+        error_log.append(aggregate_error(positions, polygon, density))
+        if holding:
+            why = deploy_release(tk, (tk, error_log[-1]), deploy_error, hold_steps * dt)
+            if why is None:
+                polygon_velocity = np.zeros_like(polygon_velocity)
+                density = None if density is None else density.frozen()
+            else:
+                holding, released = False, (tk, why, error_log[-1])
+                pace = ramp_pace(dt)
+                polygon_velocity = polygon_velocity * pace
+                density = None if density is None else paced_density(density, pace, tau)
+        if scripted == steps if released is None else tau >= duration - 1e-9 * dt:
             break
         step = control.team_step(
             law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
@@ -170,7 +209,7 @@ def simulate(
         guarded += int(step.guarded.sum())
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
-            raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {t[k]:.4g} s")
+            raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {tk:.4g} s")
         if safety:
             velocity, active, relaxed = team_safe_velocities(
                 positions, velocity, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
@@ -189,7 +228,7 @@ def simulate(
             wheels = wheel_speeds(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L, hold=dt
             )
-            wheel_log[k] = wheels
+            wheel_rows.append(wheels)
             if safety:
                 forward, _ = twist_from_wheels(
                     wheels[:, 0], wheels[:, 1], KHEPERA_IV.wheel_separation
@@ -202,11 +241,21 @@ def simulate(
         # A robot stopped by a wall still turns (a disk turning in place moves nothing).
         positions, hit = stop_at_contacts(start, positions, 0.5 * scenario.robot_diameter, world)
         contact_stops += int(np.count_nonzero(hit))
+        k += 1
+        scripted += not holding
+        if released is not None:
+            tau = min(tau + pace * dt, duration)
         if progress is not None:
-            progress(k + 1, steps)
+            progress(scripted, steps)
+    wheel_log = None
+    if dynamics == "unicycle":  # the last sample commands nothing
+        wheel_log = np.concatenate(
+            [np.array(wheel_rows).reshape(-1, n, 2), np.full((1, n, 2), np.nan)]
+        )
     return SimResult(
-        t, error, trajectories, heading_log, polygons, positions, guarded, fallbacks, wheel_log,
-        safety_active, safety_relaxed, contact_stops,
+        np.array(t_log), np.array(error_log), np.array(trajectory_log), np.array(heading_log),
+        polygons, positions, guarded, fallbacks, wheel_log, safety_active, safety_relaxed,
+        contact_stops, released,
     )  # fmt: skip
 
 
@@ -242,6 +291,8 @@ def build_summary(
     goals: Sequence[Sequence[float]] = (),
     heading: float | None = None,
     face_start: bool = False,
+    deploy_error: float | None = None,
+    deploy_timeout: float = 60.0,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
     every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
@@ -312,6 +363,17 @@ def build_summary(
             },
         }
     )
+    if result.released is not None:
+        # As covswarm run's summary (coordinator.pace): e_a's steady state is the script's.
+        hold, why, error = result.released
+        scripted = result.t >= hold
+        summary["steady_state_error_mean"] = steady_state_mean(
+            result.t[scripted], result.error[scripted]
+        )
+        summary["deploy"] = {
+            "error": deploy_error, "timeout": deploy_timeout, "hold_s": float(hold),
+            "released_because": why, "error_at_release": float(error),
+        }  # fmt: skip
     if law == "c":
         from covswarm.tvd.control import DAMPING
 
@@ -413,6 +475,20 @@ def world_line(summary: dict[str, Any]) -> str:
     help="Unicycles: each robot starts facing S's motion at the start, as covswarm run's "
     "robots turn to while the mission waits.",
 )
+@float_option(
+    "--deploy-error",
+    low=0,
+    low_open=True,
+    help="Deploy first, as covswarm run --deploy-error: S(0) held still until e_a is this "
+    "low (m), then the script's whole duration [no deploy hold].",
+)
+@float_option(
+    "--deploy-timeout",
+    low=0,
+    low_open=True,
+    default=60.0,
+    help="Longest deploy hold, s.",
+)
 def sim_command(
     scenario_name: str,
     agents: int | None,
@@ -431,6 +507,8 @@ def sim_command(
     safety: bool,
     heading: float | None,
     face_start: bool,
+    deploy_error: float | None,
+    deploy_timeout: float,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -469,6 +547,8 @@ def sim_command(
         "projection_distance": projection_distance,
         "heading": heading,
         "face_start": face_start,
+        "deploy_error": deploy_error,
+        "deploy_timeout": deploy_timeout,
     }
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])
@@ -516,7 +596,7 @@ def sim_command(
         error_compare=results[1].error if compare else None,
         obstacles=list(scenario.obstacles),
         workspace=scenario.workspace,
-        density=scenario.density(results[0].t[-1]),
+        density=scenario.density(options["duration"]),  # the script's end
     )
     stride = record_simulation(
         out_dir, t=results[0].t, error=results[0].error, trajectories=results[0].trajectories,
@@ -540,6 +620,11 @@ def sim_command(
     console.print(
         f"\nfinal e_a {summary['final_error']:.4g} m; wall time {elapsed:.1f} s (CPU {cpu:.1f} s)"
     )
+    if (deploy := summary.get("deploy")) is not None:
+        console.print(
+            f"deploy hold {deploy['hold_s']:.1f} s ({deploy['released_because']}, e_a "
+            f"{deploy['error_at_release']:.4g} m), then the script's {options['duration']:g} s"
+        )
     console.print(physical_line(summary))
     console.print(world_line(summary))
     console.print(

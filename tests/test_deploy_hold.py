@@ -22,8 +22,19 @@ from covswarm.coordinator.core import (
     PublishStatus,
 )
 from covswarm.coordinator.outputs import build_summary
-from covswarm.coordinator.pace import Pace, ScriptClock, deploy_release, pace_sentence
+from covswarm.coordinator.pace import (
+    DEPLOY_RAMP,
+    PACE_FLOOR,
+    Pace,
+    ScriptClock,
+    deploy_release,
+    pace_sentence,
+    ramp_pace,
+)
 from covswarm.deploy.plan import RunConfig, coordinator_config
+from covswarm.deploy.simulate import build_summary as build_sim_summary
+from covswarm.deploy.simulate import simulate
+from covswarm.mission.report import steady_state_mean
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import Pose, alive_key, pose_key
 from covswarm.protocol.steering import SteerRequest
@@ -101,21 +112,40 @@ def test_a_held_script_waits_at_zero_then_runs_from_the_release() -> None:
     assert pace.mission_time(0.3) == math.inf  # not reached while held
     pace.release(0.9, "converged", 0.004)  # between ticks (a steering request)
     assert pace.advance(1.0, []) == 0.0  # the hold lasted to the next tick
-    assert pace.pace == 1.0  # no ramp up from 0: the team's pace at once
     assert pace.released == (1.0, "converged", 0.004)  # when S started to move
-    assert pace.advance(1.5, []) == pytest.approx(0.5)
-    assert pace.advance(2.0, []) == pytest.approx(1.0)
+    # S starts gently: the pace of each period is the ramp's at its end (0.5 s periods).
+    taus, paces = [], [pace.pace]
+    for t in (1.5, 2.0, 2.5, 3.0, 3.5):
+        taus.append(pace.advance(t, []))
+        paces.append(pace.pace)
+    assert paces == pytest.approx([ramp_pace(0.5 * k) for k in range(1, 7)])
+    assert paces[-2:] == [1.0, 1.0]
+    assert taus == pytest.approx(np.cumsum([0.5 * p for p in paces[:5]]))
     # script_time and mission_time are inverse across the hold's end
-    for tau in (0.1, 0.4, 0.5, 0.8):
+    for tau in (0.1, 0.4, 0.5, 0.8, 1.5):
         assert pace.script_time(pace.mission_time(tau)) == pytest.approx(tau)
     assert pace.script_time(0.7) == 0.0
-    summary = pace.summary({}, 2.0)
+    summary = pace.summary({}, 3.5)
     assert summary["deploy"] == {
         "hold_s": 1.0, "released_because": "converged", "error_at_release": 0.004
     }  # fmt: skip
-    assert summary["pace_mean"] == pytest.approx(1.0)  # 1 s of script in the 1 s after
-    assert summary["pace_min"] == 1.0  # the hold is not an overloaded team
+    assert summary["pace_mean"] == pytest.approx(taus[-1] / 2.5)  # over the 2.5 s after
     assert "after a deploy hold of 1.0 s (converged)" in pace_sentence(summary)
+
+
+def test_s_starts_gently_after_the_hold() -> None:
+    assert ramp_pace(0.0) == PACE_FLOOR  # a valid pace from the first period
+    assert ramp_pace(0.5 * DEPLOY_RAMP) == pytest.approx(0.5)
+    assert ramp_pace(DEPLOY_RAMP) == ramp_pace(3 * DEPLOY_RAMP) == 1.0
+    # A team that holds less than the ramp is paced by what it holds.
+    pace = Pace(asked=10.0, deploying=True)
+    pace.advance(0.0, [])
+    pace.report(0, {"rate_hz": 3.0}, 100.0)
+    pace.release(0.0, "converged", 0.01)
+    pace.advance(0.5, [0])
+    assert pace.pace == pytest.approx(min(ramp_pace(0.5), 0.3))
+    pace.advance(1.5, [0])
+    assert pace.pace == pytest.approx(0.3)
 
 
 def test_a_script_clock_at_pace_zero_is_a_hold_and_resumes_held() -> None:
@@ -150,18 +180,22 @@ def test_the_team_far_from_its_cvt_holds_s_still_until_it_converges() -> None:
     assert not core.pace.deploying
     released_at, why, error = core.pace.released
     assert why == "converged" and error <= 0.01 and held < released_at < held + 0.5
-    # From there S moves as the script says, with its exact velocities.
-    later = [(t, d) for t, d in domains(ticks) if d.t > released_at + 0.2]
-    t, domain = later[-1]
-    tau = core.pace.script_time(domain.t)
-    assert tau == pytest.approx(domain.t - released_at, abs=TICK + 1e-9)
-    vertices, velocities = core.settings.scenario.domain(tau)
-    np.testing.assert_allclose(domain.vertices, vertices, atol=1e-9)
-    np.testing.assert_allclose(domain.velocities, velocities, atol=1e-9)
-    # The mission lasts the hold and the script's whole duration.
+    # From there S moves as the script says, with its exact velocities at the ramp's pace.
+    now, more = run(core, settled, now + DEPLOY_RAMP + 0.5, now)
+    after = [d for _, d in domains(ticks + more) if d.t >= released_at]
+    paces = [core.pace.pace_log[core.pace.t_log.index(d.t)] for d in after]
+    assert paces[0] < 0.1 and paces[-1] == 1.0 and np.all(np.diff(paces) >= 0)
+    for _, domain in domains(ticks + more):
+        tau = core.pace.script_time(domain.t)
+        k = core.pace.t_log.index(domain.t)
+        vertices, velocities = core.settings.scenario.domain(tau)
+        np.testing.assert_allclose(domain.vertices, vertices, atol=1e-9)
+        np.testing.assert_allclose(domain.velocities, velocities * core.pace.pace_log[k], atol=1e-9)
+    # The mission lasts the hold, the ramp's lost half and the script's whole duration.
     now, ticks = run(core, settled, now + 10.0, now)
     assert core.phase.state == DONE
-    assert core.phase.mission_time(now) == pytest.approx(released_at + 4.0, abs=2 * TICK)
+    expected = released_at + 0.5 * DEPLOY_RAMP + 4.0
+    assert core.phase.mission_time(now) == pytest.approx(expected, abs=2 * TICK)
 
 
 def test_a_hold_times_out_and_the_summary_says_so() -> None:
@@ -229,7 +263,7 @@ def test_a_live_team_spreads_over_s0_before_s_moves(tmp_path: Path) -> None:
     hold = deploy["hold_s"]
     assert 0.3 < hold < 30.0
     assert summary["pace"]["script_time"] == pytest.approx(3.0)
-    assert summary["mission_time"] == pytest.approx(hold + 3.0, abs=0.5)
+    assert summary["mission_time"] == pytest.approx(hold + 0.5 * DEPLOY_RAMP + 3.0, abs=0.5)
     # S stood at S(0) through the hold, and had left it at the end.
     rows = np.loadtxt(out / "domain.csv", delimiter=",", skiprows=1)
     polygon0 = load_scenario("circle").domain(0.0)[0]
@@ -240,3 +274,38 @@ def test_a_live_team_spreads_over_s0_before_s_moves(tmp_path: Path) -> None:
     assert np.abs(final[:, 2:] - polygon0[final[:, 1].astype(int)]).max() > 0.05
     assert "after a deploy hold of" in (tmp_path / "deploy.launcher.log").read_text()
     assert swarm_pids(swarm) == set()
+
+
+def test_covswarm_sim_holds_s0_as_the_coordinator_does() -> None:
+    scenario = load_scenario("circle")
+    common = {"agents": 6, "duration": 2.0, "dt": 0.05, "dynamics": "single", "seed": 1}
+    plain = simulate(scenario, **common)
+    assert plain.released is None
+    # A hold the team already meets ends before the first step; S then starts gently.
+    met = simulate(scenario, deploy_error=10.0, **common)
+    assert met.released == (0.0, "converged", plain.error[0])
+    np.testing.assert_array_equal(met.trajectories[0], plain.trajectories[0])
+    first = ramp_pace(0.05) * 0.05
+    np.testing.assert_allclose(met.polygons[1], scenario.domain(first)[0], atol=1e-12)
+    assert met.t[-1] == pytest.approx(2.0 + 0.5 * DEPLOY_RAMP, abs=0.05)
+    held = simulate(scenario, deploy_error=0.02, **common)
+    hold, why, error = held.released
+    assert why == "converged" and error <= 0.02 < plain.error[0] and hold > 0.2
+    during = held.t < hold - 1e-9
+    for k in np.flatnonzero(during):
+        np.testing.assert_array_equal(held.polygons[k], scenario.domain(0.0)[0])
+    assert held.error[during][-1] < 0.5 * held.error[0]  # the team spread over S(0)
+    # Then the script's whole duration, S as scripted from tau = 0.
+    assert held.t[-1] == pytest.approx(hold + 2.0 + 0.5 * DEPLOY_RAMP, abs=0.05)
+    np.testing.assert_allclose(held.polygons[-1], scenario.domain(2.0)[0], atol=1e-12)
+    timed_out = simulate(scenario, deploy_error=1e-9, deploy_timeout=0.5, **common)
+    assert timed_out.released[:2] == (pytest.approx(0.5), "timed out")
+    summary = build_sim_summary(
+        scenario, held, law="da", feedforward=True, kappa=scenario.kappa, dt=0.05,
+        duration=2.0, seed=1, dynamics="single", deploy_error=0.02,
+    )  # fmt: skip
+    assert summary["deploy"]["hold_s"] == hold
+    scripted = held.t >= hold
+    assert summary["steady_state_error_mean"] == pytest.approx(
+        steady_state_mean(held.t[scripted], held.error[scripted])
+    )

@@ -19,6 +19,7 @@ import pytest
 from covswarm.agent import brain, neighborhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator import core as coordinator_core
+from covswarm.coordinator import pace
 from covswarm.deploy import host_speed, plan
 from covswarm.deploy.cli import main
 from covswarm.mission.scenario_files import load_scenario
@@ -82,6 +83,11 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("every 250 ms, backing off to 1 s", lambda: reconnect("period_init_ms"), 250),
     ("every 250 ms, backing off to 1 s", lambda: reconnect("period_max_ms"), 1000),
     ("control rate (10 Hz)", lambda: option_default("run", "rate"), 10.0),
+    ("over `DEPLOY_RAMP` (2 s,", lambda: pace.DEPLOY_RAMP, 2.0),
+    ("after `--deploy-timeout` s (60 by default)",
+     lambda: option_default("run", "deploy_timeout"), 60.0),
+    ("after `--deploy-timeout` s (60 by default)",
+     lambda: option_default("sim", "deploy_timeout"), 60.0),
     ("This is the default run (`passage`, 10 robots, 45 s)",
      lambda: option_default("run", "scenario") == "passage", True),
     ("This is the default run (`passage`, 10 robots, 45 s)",
