@@ -17,6 +17,7 @@ from pathlib import Path
 MISSION_FILE = "mission.json"  # in --out: the start wall time, for --resume
 STEERING_JOURNAL = "steering.jsonl"  # in --out: accepted steering requests, for --resume
 SCRIPT_FILE = "script.json"  # in --out: where the script's clock stands, for --resume
+DEPLOY_TIMEOUT = 60.0  # s of mission time a deploy hold lasts at most, by default
 
 
 @dataclass(frozen=True)
@@ -47,4 +48,4 @@ class CoordinatorConfig:
     pace: bool = True  # slow the mission's script to what the team holds (coordinator.pace)
     # m: the deploy hold (coordinator.pace): S waits at S(0) until e_a is this low
     deploy_error: float | None = None
-    deploy_timeout: float = 60.0  # s of mission time the deploy hold lasts at most
+    deploy_timeout: float = DEPLOY_TIMEOUT

@@ -39,7 +39,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from covswarm.coordinator.config import CoordinatorConfig
+from covswarm.coordinator.config import DEPLOY_TIMEOUT, CoordinatorConfig
 from covswarm.coordinator.monitor import (
     DONE,
     RUNNING,
@@ -150,7 +150,7 @@ class CoordinatorSettings:
     # m: hold the script at S(0) from the start until e_a is this low (the deploy hold,
     # coordinator.pace), at most deploy_timeout s of mission time; None: no hold
     deploy_error: float | None = None
-    deploy_timeout: float = 60.0
+    deploy_timeout: float = DEPLOY_TIMEOUT
 
     @property
     def script_ends(self) -> bool:

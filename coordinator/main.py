@@ -24,6 +24,7 @@ import zenoh
 
 from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.config import (
+    DEPLOY_TIMEOUT,
     MISSION_FILE,
     SCRIPT_FILE,
     STEERING_JOURNAL,
@@ -56,6 +57,7 @@ from covswarm.runtime.options import (
     TIME_SCALE_OPTION,
     agents_option,
     connect_option,
+    deploy_options,
     float_option,
     law_option,
     out_option,
@@ -190,21 +192,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     "Slow the mission's script down to the rate the agents hold (an overloaded machine); "
     "--no-pace: S runs at the script's speed whatever they hold.",
 )
-@float_option(
-    "--deploy-error",
-    low=0,
-    low_open=True,
-    help="Deploy first: S waits at S(0) from the start until e_a is this low (m), so the "
-    "team spreads over it before it moves; the script then runs its whole duration "
-    "[no deploy hold].",
-)
-@float_option(
-    "--deploy-timeout",
-    low=0,
-    low_open=True,
-    default=60.0,
-    help="Longest deploy hold, s of mission time (S then moves whatever e_a).",
-)
+@deploy_options(DEPLOY_TIMEOUT)
 @FOXGLOVE_OPTION
 @click.option("--seed", type=int, help="Seed of the robots' start (recorded in run.mcap only).")
 @TIME_SCALE_OPTION

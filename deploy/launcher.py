@@ -32,6 +32,7 @@ import click
 from rich.console import Console
 
 from covswarm.coordinator.broadcastable import check_broadcastable
+from covswarm.coordinator.config import DEPLOY_TIMEOUT
 from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.deploy.display import live_brain_tick, summary_table
 from covswarm.deploy.host_speed import measure_brain_tick
@@ -60,6 +61,7 @@ from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
     TIME_SCALE_OPTION,
     agents_option,
+    deploy_options,
     float_option,
     law_option,
     out_option,
@@ -140,21 +142,7 @@ from covswarm.sim_robot.process import gather_drops
     "The coordinator slows the mission down to the rate the agents hold (--no-pace: S keeps "
     "the script's speed).",
 )
-@float_option(
-    "--deploy-error",
-    low=0,
-    low_open=True,
-    help="Deploy first: S waits at S(0) from the start until e_a is this low (m), so the "
-    "team spreads over it before it moves; the script then runs its whole duration "
-    "[no deploy hold].",
-)
-@float_option(
-    "--deploy-timeout",
-    low=0,
-    low_open=True,
-    default=60.0,
-    help="Longest deploy hold, s of mission time (S then moves whatever e_a).",
-)
+@deploy_options(DEPLOY_TIMEOUT)
 @switch_option("safety", "Agents filter for collisions (--no-safety: they run without the filter).")
 @switch_option(
     "prediction",

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from covswarm.agent.config import AgentProcessConfig
-from covswarm.coordinator.config import CoordinatorConfig
+from covswarm.coordinator.config import DEPLOY_TIMEOUT, CoordinatorConfig
 from covswarm.mission.scenarios import Scenario
 from covswarm.protocol.keys import format_ids
 from covswarm.protocol.security import SINGLE_ROLES, identity_name
@@ -283,7 +283,7 @@ class RunConfig:
     secure: Path | None = None
     pace: bool = True  # the coordinator slows the script to what the agents hold
     deploy_error: float | None = None  # m: the coordinator's deploy hold (coordinator.pace)
-    deploy_timeout: float = 60.0  # s: the longest deploy hold
+    deploy_timeout: float = DEPLOY_TIMEOUT  # s: the longest deploy hold
     fault_step_delay: float = 0.0  # s of sleep per agent step (agent.faults.delay_steps)
     # s of CPU a brain-tick costs live on this host; None: measured at launch when the team
     # is beyond a process per brain (deploy.host_speed), else BRAIN_TICK

@@ -23,10 +23,17 @@ from typing import Any
 import click
 import numpy as np
 
+from covswarm.coordinator.config import DEPLOY_TIMEOUT
 from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
-from covswarm.runtime.options import agents_option, float_option, law_option, out_option
+from covswarm.runtime.options import (
+    agents_option,
+    deploy_options,
+    float_option,
+    law_option,
+    out_option,
+)
 from covswarm.tvd.control import LAWS, PRIORS
 
 DYNAMICS = ("single", "unicycle")
@@ -76,7 +83,7 @@ def simulate(
     heading: float | None = None,
     face_start: bool = False,
     deploy_error: float | None = None,
-    deploy_timeout: float = 60.0,
+    deploy_timeout: float = DEPLOY_TIMEOUT,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
@@ -292,7 +299,7 @@ def build_summary(
     heading: float | None = None,
     face_start: bool = False,
     deploy_error: float | None = None,
-    deploy_timeout: float = 60.0,
+    deploy_timeout: float = DEPLOY_TIMEOUT,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
     every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
@@ -475,20 +482,7 @@ def world_line(summary: dict[str, Any]) -> str:
     help="Unicycles: each robot starts facing S's motion at the start, as covswarm run's "
     "robots turn to while the mission waits.",
 )
-@float_option(
-    "--deploy-error",
-    low=0,
-    low_open=True,
-    help="Deploy first, as covswarm run --deploy-error: S(0) held still until e_a is this "
-    "low (m), then the script's whole duration [no deploy hold].",
-)
-@float_option(
-    "--deploy-timeout",
-    low=0,
-    low_open=True,
-    default=60.0,
-    help="Longest deploy hold, s.",
-)
+@deploy_options(DEPLOY_TIMEOUT)
 def sim_command(
     scenario_name: str,
     agents: int | None,

@@ -69,6 +69,27 @@ def float_option(
     )
 
 
+def deploy_options(timeout: float) -> Decorator:
+    """``--deploy-error`` and ``--deploy-timeout`` (default ``timeout`` s): the deploy hold
+    (covswarm.coordinator.pace) of covswarm coordinator, covswarm run and covswarm sim."""
+    error_option = float_option(
+        "--deploy-error",
+        low=0,
+        low_open=True,
+        help="Deploy first: S waits at S(0) from the start until e_a is this low (m), so the "
+        "team spreads over it before it moves; the script then runs its whole duration "
+        "[no deploy hold].",
+    )
+    timeout_option = float_option(
+        "--deploy-timeout",
+        low=0,
+        low_open=True,
+        default=timeout,
+        help="Longest deploy hold, s of mission time (S then moves whatever e_a).",
+    )
+    return lambda command: error_option(timeout_option(command))
+
+
 def switch_option(name: str, help: str, *, default: bool = True, **extra: Any) -> Decorator:
     """A ``--name/--no-name`` pair (``config_argv`` writes every bool field that way)."""
     return click.option(f"--{name}/--no-{name}", default=default, help=help, **extra)
