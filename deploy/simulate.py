@@ -212,7 +212,7 @@ def simulate(
             law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
         )  # fmt: skip
-        velocity = step.velocity
+        velocity = aim = step.velocity
         guarded += int(step.guarded.sum())
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
@@ -233,8 +233,9 @@ def simulate(
             # Held for a step, as an agent's command is for its period (AgentBrain._hold):
             # uncapped, a robot far from its goal at a long step spins instead of driving.
             wheels = wheel_speeds(
-                headings, velocity, projection_distance=projection_distance or DEFAULT_L, hold=dt
-            )
+                headings, velocity, projection_distance=projection_distance or DEFAULT_L,
+                hold=dt, aims=aim,
+            )  # fmt: skip
             wheel_rows.append(wheels)
             if safety:
                 forward, _ = twist_from_wheels(

@@ -10,6 +10,9 @@ import pytest
 from covswarm.tvd.drive import (
     DEFAULT_PROJECTION_DISTANCE,
     KHEPERA_IV,
+    PASS_ANGLE,
+    PASS_BELOW,
+    PASS_STOPPED,
     TURN_RATE,
     TURN_TOLERANCE,
     DiffDrive,
@@ -177,6 +180,29 @@ def test_steer_one_is_steer_for_one_robot() -> None:
             assert np.all(np.isfinite(wheels))
             assert np.all(wheels[40:70] == 0.0)  # a non-finite input stops the robot
     assert capped_seen > 100  # the cap was exercised
+    # Aimed elsewhere than the velocity (a filter's clipped forward speed): the same again,
+    # with rows held back to every fraction of the aim's forward speed (veering or not).
+    aims = velocities + rng.normal(0.0, 0.5, (n, 2))
+    aims[100:110] = np.nan
+    e = np.stack([np.cos(headings[200:400]), np.sin(headings[200:400])], axis=1)
+    ahead = np.abs(rng.normal(0.0, 1.0, 200))
+    aims[200:400] = velocities[200:400] + (ahead * rng.uniform(0.0, 1.2, 200))[:, None] * e
+    velocities[200:210] += 1e-3 * e[:10]  # forward speeds just above the aim's
+    wheels, capped = steer(headings, velocities, KHEPERA_IV, L, holds, aims)
+    plain = steer(headings, velocities, KHEPERA_IV, L, holds)[0]
+    veered = np.any(wheels[200:400] != plain[200:400], axis=1)
+    assert 50 < np.count_nonzero(veered) < 200
+    assert np.array_equal(steer(headings, velocities, KHEPERA_IV, L, holds, velocities)[0],
+                          steer(headings, velocities, KHEPERA_IV, L, holds)[0])  # fmt: skip
+    for k in range(n):
+        left, right, cap = steer_one(
+            float(headings[k]), *velocities[k].tolist(), KHEPERA_IV, L, float(holds[k]),
+            tuple(aims[k].tolist()),
+        )  # fmt: skip
+        np.testing.assert_allclose([left, right], wheels[k], rtol=1e-12, atol=1e-15)
+        assert cap == bool(capped[k]), k
+    with pytest.raises(ValueError, match="aims"):
+        steer(np.zeros(2), np.zeros((2, 2)), aims=np.zeros((3, 2)))
     for bad in ({"projection_distance": 0.0}, {"hold": -0.1}, {"hold": float("nan")}):
         with pytest.raises(ValueError):
             steer_one(0.0, 0.1, 0.0, **bad)
@@ -238,3 +264,111 @@ def test_turns_sent_every_period_face_the_direction_without_overshoot() -> None:
             _, _, heading = integrate_one(0.0, 0.0, heading, left, right, period)
             assert sign * _error(heading, direction) > -TURN_TOLERANCE
         assert abs(_error(heading, direction)) <= TURN_TOLERANCE
+
+
+@pytest.mark.parametrize("aimed", [True, False])
+def test_a_robot_blocked_ahead_turns_to_its_aim_and_stays(aimed: bool) -> None:
+    """A filter for unicycles clips only the forward speed (here to 0: robots ahead) and
+    keeps the sideways part of the nominal velocity. Steered toward that filtered velocity,
+    square to the heading at every step, the robot swings a quarter turn about its aim each
+    period with its wheels at their limit; steered toward the aim, it faces it within a few
+    periods and stops turning."""
+    nominal = np.array([-2.0, 1.0])  # an empty cell's pull toward S's centroid, m/s
+    heading, period = 0.3, 0.1
+    errors, peaks = [], []
+    for _ in range(40):
+        e = np.array([math.cos(heading), math.sin(heading)])
+        blocked = nominal - (nominal @ e) * e  # forward speed clipped to 0
+        aim = tuple(nominal.tolist()) if aimed else None
+        left, right, _ = steer_one(heading, *blocked.tolist(), KHEPERA_IV, 0.05, period, aim)
+        _, _, heading = integrate_one(0.0, 0.0, heading, left, right, period)
+        errors.append(abs(_error(heading, math.atan2(nominal[1], nominal[0]))))
+        peaks.append(max(abs(left), abs(right)))
+    if aimed:
+        assert max(errors[10:]) < 1e-6 and max(peaks[10:]) < 1e-6
+    else:
+        assert min(errors[10:]) > 0.5 and min(peaks[10:]) > 0.5 * KHEPERA_IV.max_wheel_speed
+
+
+def _held_back(heading: float, nominal: np.ndarray, ratio: float) -> np.ndarray:
+    """``nominal`` with its forward part from ``heading`` cut to ``ratio`` of it, as a
+    filter for unicycles bounds it (the sideways part kept)."""
+    e = np.array([math.cos(heading), math.sin(heading)])
+    return nominal - (1.0 - ratio) * (nominal @ e) * e
+
+
+@pytest.mark.parametrize("ratio", [0.0, 0.02, 0.1, 0.3, 0.6, 1.0])
+def test_a_robot_held_back_settles_left_of_its_aim_without_swinging(ratio: float) -> None:
+    """Its forward speed cut to ``ratio`` of the aim's every period, a robot turns to a
+    heading PASS_ANGLE * g(ratio) left of its aim (none when stopped dead or not held
+    back) and holds it: the turn never reverses, the wheels stop turning it and drive the
+    forward speed the filter left (up to their limit), where the swing saturated them."""
+    nominal = np.array([-2.0, 1.0])  # m/s
+    aim = math.atan2(nominal[1], nominal[0])
+    veer = PASS_ANGLE * min(1.0, ratio / PASS_STOPPED) * max(0.0, 1.0 - ratio / PASS_BELOW)
+    assert (veer > 0.0) == (0.0 < ratio < PASS_BELOW)
+    heading, period, turns = aim - 0.4, 0.1, []
+    for _ in range(40):
+        velocity = _held_back(heading, nominal, ratio)
+        left, right, _ = steer_one(
+            heading, *velocity.tolist(), KHEPERA_IV, 0.05, period, tuple(nominal.tolist())
+        )
+        _, _, after = integrate_one(0.0, 0.0, heading, left, right, period)
+        turns.append(math.remainder(after - heading, math.tau))
+        heading = after
+    assert all(turn >= -1e-12 for turn in turns)  # toward the left veer, never back
+    assert abs(_error(heading, aim + veer)) < 1e-3
+    forward = min(ratio * float(np.hypot(*nominal)) * math.cos(veer), KHEPERA_IV.max_wheel_speed)
+    assert abs(right - left) < 1e-3 and abs(0.5 * (left + right) - forward) < 1e-3
+
+
+def _pass(aimed: bool, lead_speed: float) -> tuple[np.ndarray, float, int, float]:
+    """A robot 3 m from its goal (nominal 3 m/s per m of it: an empty cell's pull) behind a
+    robot 0.3 m ahead on the same line driving ``lead_speed`` m/s toward it, both filtered
+    for each other as covswarm sim does, 10 s at 10 Hz: the follower's track, its distance
+    to the goal at the end, its turn reversals of more than 0.2 rad a period (swings) and
+    the closest the two came (m)."""
+    from covswarm.tvd.safety import (
+        DEFAULT_GAMMA,
+        SAFETY_RADIUS,
+        barrier_gain,
+        body_safe_distance,
+        team_safe_velocities,
+    )
+
+    dt, goal = 0.1, np.array([3.0, 0.0])
+    poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    centre = np.zeros((2, 2))
+    track, swings, last, closest = [], 0, 0.0, np.inf
+    for _ in range(100):
+        nominal = np.array([3.0 * (goal - poses[0, :2]), [lead_speed, 0.0]])
+        velocity, _, _ = team_safe_velocities(
+            poses[:, :2], nominal, body_safe_distance(KHEPERA_IV.body_diameter),
+            barrier_gain(DEFAULT_GAMMA, dt), SAFETY_RADIUS, headings=poses[:, 2],
+            velocities=centre,
+        )  # fmt: skip
+        wheels = steer(poses[:, 2], velocity, KHEPERA_IV, 0.05, dt, nominal if aimed else None)[0]
+        wheels[1] = lead_speed  # the leader drives straight on
+        forward = wheels.mean(axis=1)
+        centre = forward[:, None] * np.stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])], axis=1)
+        after = integrate(poses, wheels, dt)
+        turn = math.remainder(after[0, 2] - poses[0, 2], math.tau)
+        swings += abs(turn) > 0.2 and abs(last) > 0.2 and turn * last < 0.0
+        last, poses = turn, after
+        track.append(poses[0, :2].copy())
+        closest = min(closest, float(np.hypot(*(poses[0, :2] - poses[1, :2]))))
+    return np.array(track), float(np.hypot(*(goal - poses[0, :2]))), swings, closest
+
+
+@pytest.mark.parametrize("lead_speed", [0.05, 0.1])
+def test_a_robot_behind_a_slower_one_passes_it_on_the_left(lead_speed: float) -> None:
+    """Facing its goal behind a robot that drives there slower, a robot that only faced its
+    aim would follow it at its pace (as the swing's cap does on this exact line: no
+    sideways part to swing by). Held back, it veers left, passes and reaches the goal,
+    without swinging and without closing on the other robot."""
+    track, left, swings, closest = _pass(True, lead_speed)
+    assert left < 0.05 and swings == 0
+    assert track[:, 1].max() > 0.1 and track[:, 1].min() > -0.01  # passed on its left
+    assert closest > 0.15  # the filter's safe distance (0.16 m) less its sampling slack
+    behind, followed, _, _ = _pass(False, lead_speed)
+    assert followed > 1.5 and np.abs(behind[:, 1]).max() < 1e-6

@@ -31,6 +31,16 @@ import numpy as np
 
 DEFAULT_PROJECTION_DISTANCE = 0.03  # m; see the module docstring for how it was chosen
 MAX_WHEEL_SPEED = 0.8  # m/s rim speed; the Khepera IV is quoted 0.8-1.0 m/s
+# A robot that a safety filter holds back while it still moves passes on the left of its
+# aim (:func:`steer`): by up to PASS_ANGLE rad, most where its forward speed is cut to
+# PASS_STOPPED of what it asks for, none below that (stopped dead: it faces its aim and
+# waits) nor from PASS_BELOW up; it turns toward that heading by PASS_DAMPING of the angle
+# each period. Picked on circle-1000 (covswarm sim, 3 seeds, with and without --face-start)
+# and tests/test_overload_heading.py's starved team; docs/scaling.md has the figures.
+PASS_ANGLE = 1.0
+PASS_BELOW = 0.5
+PASS_STOPPED = 0.05
+PASS_DAMPING = 0.5
 
 
 @dataclass(frozen=True)
@@ -52,10 +62,11 @@ def wheel_speeds(
     robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
     hold: float | np.ndarray = 0.0,
+    aims: np.ndarray | None = None,
 ) -> np.ndarray:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity:
     :func:`steer`'s wheels."""
-    return steer(headings, velocities, robot, projection_distance, hold)[0]
+    return steer(headings, velocities, robot, projection_distance, hold, aims)[0]
 
 
 def steer(
@@ -64,13 +75,15 @@ def steer(
     robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
     hold: float | np.ndarray = 0.0,
+    aims: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity, and
     which robots' turn rate was capped for ``hold``.
 
     headings: (n,) rad; velocities: (n, 2) m/s; hold: s the command will stay in force,
-    scalar or (n,) (0: not known, no cap). Returns wheels (n, 2) [left, right] and
-    capped (n,) bool.
+    scalar or (n,) (0: not known, no cap); aims: (n, 2) m/s, the velocities the robots
+    want before a safety filter bounded their forward speed (None: ``velocities``).
+    Returns wheels (n, 2) [left, right] and capped (n,) bool.
 
     Forward speed v = vx cos th + vy sin th, turn rate w = (-vx sin th + vy cos th) / l.
     That turn rate is the derivative of a continuous loop: held for ``hold`` s it turns the
@@ -79,10 +92,32 @@ def steer(
     the velocity's direction by more than it was off, and a robot far from its goal spins
     in place instead of driving (issue 24: an overloaded team, ~3 Hz, left robots behind
     spinning). So |w| is capped at |e| / hold: the held command at most turns the robot to
-    face the velocity. Saturation then scales both wheels of a robot by the same factor so
-    the curvature (the path) is kept and only the speed along it drops. A robot with a
-    non-finite heading or velocity gets (0, 0): a stopped robot is safer than a NaN on the
-    wire.
+    face the velocity.
+
+    The velocity to face is the aim, not the filtered velocity: a filter for unicycles
+    (covswarm.tvd.safety.unicycle_rows) bounds only the forward speed and keeps the
+    sideways part, so a robot blocked ahead (forward speed clipped to 0) was asked for a
+    velocity square to its heading at every step, a quarter turn each time: it swung about
+    its aim with its wheels at their limit for as long as it stayed blocked (circle-1000 in
+    covswarm sim: 48 robot-s saturated, a straggler outside S for 21 s, docs/scaling.md).
+    Capped by the angle to the aim it faces where it wants to go and stops turning there.
+    But a robot that only ever faces its aim follows the robot ahead of it at that robot's
+    pace, a file that the swing had broken up (tests/test_overload_heading.py's starved
+    team, all heading for one point: e_a 0.60 m against 0.25 m). So a robot held back while
+    it still moves, its forward speed v cut to a fraction r = v / a of the aim's forward
+    part a, aims PASS_ANGLE * g(r) to the left of its aim, g(r) = min(1, r / PASS_STOPPED)
+    * max(0, 1 - r / PASS_BELOW): it passes a slower robot ahead, and all on the same side
+    (to the side of each one's heading, robots following one another veered into each
+    other and stayed there: circle-1000's e_a rose to 30 m). Not held back (r >=
+    PASS_BELOW: following a team that moves, as S's trailing edge does) or stopped dead
+    (r = 0: boxed in, where a veer only points the robot at the next robot along) it faces
+    its aim. Toward a veered heading it turns PASS_DAMPING of the angle per period: r
+    changes with the heading, and a full turn each period swung between the aim and the
+    veer. The turn rate toward a veered aim a' is |a| sin(e') / l, capped as above.
+
+    Saturation then scales both wheels of a robot by the same factor so the curvature (the
+    path) is kept and only the speed along it drops. A robot with a non-finite heading or
+    velocity gets (0, 0): a stopped robot is safer than a NaN on the wire.
     """
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
@@ -93,6 +128,9 @@ def steer(
     hold = np.broadcast_to(np.asarray(hold, dtype=float), headings.shape)
     if not np.all(hold >= 0.0):
         raise ValueError(f"hold must be >= 0 s, got {hold}")
+    aims = velocities if aims is None else np.asarray(aims, dtype=float).reshape(-1, 2)
+    if aims.shape != velocities.shape:
+        raise ValueError(f"{aims.shape[0]} aims for {velocities.shape[0]} velocities")
     half_track = 0.5 * robot.wheel_separation
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         # non-finite rows are zeroed below
@@ -101,8 +139,20 @@ def steer(
         v = vx * cos + vy * sin
         lateral = -vx * sin + vy * cos
         w = lateral / projection_distance
-        # |e| / hold, and no cap (inf) where the hold is not known
-        limit = np.where(hold > 0.0, np.abs(np.arctan2(lateral, v)) / hold, np.inf)
+        # e the angle to the aim, veered to the left by a robot held back (see above)
+        ax, ay = aims[:, 0], aims[:, 1]
+        ahead = ax * cos + ay * sin
+        error = np.arctan2(-ax * sin + ay * cos, ahead)
+        ratio = np.where(ahead > 0.0, v / np.where(ahead > 0.0, ahead, 1.0), 1.0)
+        veer = PASS_ANGLE * (
+            np.clip(ratio / PASS_STOPPED, 0.0, 1.0) * np.clip(1.0 - ratio / PASS_BELOW, 0.0, 1.0)
+        )
+        veering = veer > 0.0
+        error = np.where(veering, error + veer, error)
+        w = np.where(veering, np.hypot(ax, ay) * np.sin(error) / projection_distance, w)
+        # |e| / hold (damped toward a veer), and no cap (inf) where the hold is not known
+        limit = np.abs(error) / np.where(hold > 0.0, hold, np.nan)
+        limit = np.where(hold > 0.0, np.where(veering, PASS_DAMPING * limit, limit), np.inf)
         capped = np.abs(w) > limit
         w = np.where(capped, np.copysign(limit, w), w)
         wheels = np.stack([v - w * half_track, v + w * half_track], axis=1)
@@ -118,12 +168,14 @@ def steer(
 def steer_one(
     heading: float, vx: float, vy: float, robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE, hold: float = 0.0,
+    aim: tuple[float, float] | None = None,
 ) -> tuple[float, float, bool]:  # fmt: skip
     """:func:`steer` for one robot in plain floats: rim speeds (left, right) m/s for the
     planar velocity (vx, vy) m/s from ``heading`` rad, and whether the turn rate was capped
-    for ``hold`` s; the same arithmetic, guards and errors. An agent steers its one robot
-    every step, where numpy's per-call overhead was ~40 us of steer's cost for a single row
-    (tests/test_drive_model.py checks both agree on random, capped and non-finite input)."""
+    for ``hold`` s toward ``aim`` (m/s; None: (vx, vy)); the same arithmetic, guards and
+    errors. An agent steers its one robot every step, where numpy's per-call overhead was
+    ~40 us of steer's cost for a single row (tests/test_drive_model.py checks both agree
+    on random, capped and non-finite input)."""
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
     if not hold >= 0.0:
@@ -134,9 +186,24 @@ def steer_one(
     v = vx * cos + vy * sin
     lateral = -vx * sin + vy * cos
     w = lateral / projection_distance
+    damping = 1.0
+    if aim is None:
+        error = math.atan2(lateral, v)
+    else:
+        ax, ay = aim
+        ahead = ax * cos + ay * sin
+        error = math.atan2(-ax * sin + ay * cos, ahead)
+        ratio = v / ahead if ahead > 0.0 else 1.0
+        veer = PASS_ANGLE * (
+            min(max(ratio / PASS_STOPPED, 0.0), 1.0) * min(max(1.0 - ratio / PASS_BELOW, 0.0), 1.0)
+        )
+        if veer > 0.0:
+            error += veer
+            w = math.hypot(ax, ay) * math.sin(error) / projection_distance
+            damping = PASS_DAMPING
     capped = False
     if hold > 0.0:
-        limit = abs(math.atan2(lateral, v)) / hold
+        limit = damping * (abs(error) / hold)
         if abs(w) > limit:
             capped, w = True, math.copysign(limit, w)
     half_track = 0.5 * robot.wheel_separation
