@@ -622,9 +622,10 @@ class CoordinatorCore:
         if state == RUNNING and self.pace.deploying:
             self._end_deploy_hold(t)
         if state != WAITING:
-            slowed = self.pace.pace < 1.0
+            # The hold and S's gentle start are not a team that cannot hold its rate.
+            slowed = self.pace.pace < 1.0 and not self.pace.starting
             tau = self.pace.advance(t, self._team, end=settings.duration)
-            if slowed != (self.pace.pace < 1.0):
+            if slowed != (self.pace.pace < 1.0 and not self.pace.starting):
                 self._log_pace(t)
             if state == RUNNING and settings.script_ends and tau >= settings.duration:
                 phase.stop(now)  # the script's end: done from this tick

@@ -5,6 +5,7 @@ request), then the script runs its whole duration with the exact velocities."""
 from __future__ import annotations
 
 import json
+import logging
 import math
 from pathlib import Path
 
@@ -148,6 +149,17 @@ def test_s_starts_gently_after_the_hold() -> None:
     assert pace.pace == pytest.approx(0.3)
 
 
+def test_without_pacing_s_reaches_full_speed_after_the_ramp() -> None:
+    pace = Pace(asked=10.0, enabled=False, deploying=True)
+    pace.advance(0.0, [])
+    pace.release(0.0, "converged", 0.01)
+    for t in (0.3, 1.0, 1.5, 1.6):  # irregular ticks: the ramp's last pace below 1
+        pace.advance(t, [])
+        assert pace.starting and pace.pace < 1.0
+    pace.advance(2.6, [])  # 2.3 s after the hold's end
+    assert pace.pace == 1.0 and not pace.starting
+
+
 def test_a_script_clock_at_pace_zero_is_a_hold_and_resumes_held() -> None:
     clock = ScriptClock(3.0, 0.0, 0.0)
     assert ScriptClock.from_json(clock.to_json(SWARM), SWARM) == clock
@@ -159,7 +171,10 @@ def test_a_script_clock_at_pace_zero_is_a_hold_and_resumes_held() -> None:
     assert pace.advance(4.0, []) == 0.0 and pace.pace == 0.0
 
 
-def test_the_team_far_from_its_cvt_holds_s_still_until_it_converges() -> None:
+def test_the_team_far_from_its_cvt_holds_s_still_until_it_converges(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    caplog.set_level(logging.INFO, logger="covswarm.coordinator")
     core = make_core(deploy_error=0.01)
     polygon0 = core.settings.scenario.domain(0.0)[0]
     bunched = start_points(core, 0)
@@ -194,6 +209,9 @@ def test_the_team_far_from_its_cvt_holds_s_still_until_it_converges() -> None:
     # The mission lasts the hold, the ramp's lost half and the script's whole duration.
     now, ticks = run(core, settled, now + 10.0, now)
     assert core.phase.state == DONE
+    # Said once, and the hold and the ramp are not taken for a team that cannot keep up.
+    assert caplog.text.count("the deploy hold ends (converged") == 1
+    assert "do not hold" not in caplog.text and "hold their rate again" not in caplog.text
     expected = released_at + 0.5 * DEPLOY_RAMP + 4.0
     assert core.phase.mission_time(now) == pytest.approx(expected, abs=2 * TICK)
 
