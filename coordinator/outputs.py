@@ -52,14 +52,18 @@ def mission_summary(
     crowding: Crowding,
     wheels: dict[str, Any],
     ids: list[int] | None = None,
+    script_start: float | None = None,
 ) -> dict[str, Any]:
     """The summary.json keys every run has, ``covswarm sim``'s and ``covswarm run``'s alike.
 
     t: (T,) s; error: (T,) m, e_a at t; final_positions: (n, 2) m and final_polygon (k, 2)
     m at the last sample; trajectories: (T, n, 2) m (NaN where a robot is absent), robots
     ``ids`` (default 0..n-1); ``wheels``: the wheel-speed figures
-    (mission.physical.wheel_figures' keys, measured or reported by the agents).
+    (mission.physical.wheel_figures' keys, measured or reported by the agents);
+    ``script_start``: s, when S started moving after a deploy hold (coordinator.pace):
+    the steady-state e_a is over the script's part, not the team spreading over a still S(0).
     """
+    scripted = np.ones(t.shape, dtype=bool) if script_start is None else t >= script_start
     return {
         "scenario": scenario.name,
         "agents": int(final_positions.shape[0]),
@@ -68,7 +72,9 @@ def mission_summary(
         "kappa": float(kappa),
         "duration": float(duration),
         "dynamics": dynamics,
-        "steady_state_error_mean": steady_state_mean(t, error),
+        "steady_state_error_mean": (
+            steady_state_mean(t[scripted], error[scripted]) if scripted.any() else math.nan
+        ),
         "final_error": float(error[-1]),
         "initial_error": float(error[0]),
         "neighbor_histogram": neighbor_histogram(final_positions, final_polygon),
@@ -170,16 +176,9 @@ def build_summary(
         crowding=settings.crowding,
         wheels=agent_wheel_figures(observed.agent_stats, record.t[-1]),
         ids=record.robot_ids(),
-    )
-    pace = observed.pace
-    if pace is not None and pace.released is not None:
-        # The script's part: a deploy hold's e_a is the team spreading over a still S(0).
-        scripted = t >= pace.released[0]
-        summary["steady_state_error_mean"] = (
-            steady_state_mean(t[scripted], np.array(record.error)[scripted])
-            if scripted.any()
-            else math.nan
-        )
+        script_start=None if observed.pace is None or observed.pace.released is None
+        else observed.pace.released[0],
+    )  # fmt: skip
     return {
         **summary,
         "agents": settings.agents,  # the team asked for, not the robots seen at the end

@@ -164,14 +164,12 @@ class Pace:
     # the deploy hold's end: mission time (s), why (deploy_release), e_a (m) then; None while
     # it holds or without one
     released: tuple[float, str, float | None] | None = None
-    # whether the pace is the deploy hold's or its ramp's (S starting), not the team's
-    starting: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.asked) and self.asked > 0.0):
             raise ValueError(f"the asked control rate must be positive, got {self.asked!r}")
         if self.deploying:
-            self.pace, self.starting = 0.0, True
+            self.pace = 0.0
 
     def release(self, t: float, reason: str, error: float | None) -> None:
         """End the deploy hold at mission time ``t``: the script runs from the next
@@ -208,16 +206,15 @@ class Pace:
         if self.t_log:
             dt = t - self.t_log[-1]
             self.tau = min(self.tau + self.pace * dt, end)
-            self.starting = True
             if self.deploying:
                 pass  # pace 0 until released
-            elif self.pace == 0.0 and self.released is not None:  # released since the last tick
-                self.released = (t, *self.released[1:])  # S moves from this tick on
-                self.pace = self._ramp(t, dt, team)
-            elif self.released is not None and t - self.released[0] < DEPLOY_RAMP:
+            elif self.released is not None and (
+                self.pace == 0.0 or t - self.released[0] < DEPLOY_RAMP
+            ):
+                if self.pace == 0.0:  # released since the last tick: S moves from this one on
+                    self.released = (t, *self.released[1:])
                 self.pace = self._ramp(t, dt, team)
             else:
-                self.starting = False
                 self.pace = next_pace(self.pace, self.target(team), dt) if self.enabled else 1.0
         elif not self.deploying:
             self.tau = min(t, end)  # the mission's first tick (0, or a resumed mission's t)
@@ -225,6 +222,18 @@ class Pace:
         self.tau_log.append(self.tau)
         self.pace_log.append(self.pace)
         return self.tau
+
+    @property
+    def starting(self) -> bool:
+        """Whether the pace since the last tick is the deploy hold's or its ramp's (S
+        starting), not the team's."""
+        if self.deploying:
+            return True
+        return (
+            self.released is not None
+            and bool(self.t_log)
+            and self.t_log[-1] - self.released[0] < DEPLOY_RAMP
+        )
 
     def _ramp(self, t: float, dt: float, team: Iterable[int]) -> float:
         """The pace from ``t`` on while S starts after the deploy hold (ramp_pace; the
@@ -241,7 +250,7 @@ class Pace:
         moves tau on from ``clock.tau`` at ``clock.pace`` (what the agents extrapolated
         meanwhile), not from the mission time."""
         self.tau, self.pace = clock.tau, clock.pace
-        self.deploying = self.starting = clock.pace == 0.0  # stopped during its deploy hold
+        self.deploying = clock.pace == 0.0  # the first one stopped during its deploy hold
         self.t_log, self.tau_log, self.pace_log = [clock.t], [clock.tau], [clock.pace]
 
     def script_time(self, t: float) -> float:

@@ -181,16 +181,10 @@ def simulate(
     tau = 0.0
     while True:
         tk = k * dt
-        pace = 1.0
         if released is None:
             tau = scripted * dt
-        else:  # S starts gently after the hold, as the coordinator starts it (ramp_pace)
-            pace = ramp_pace(tk - released[0] + dt)
         polygon, polygon_velocity = scenario.domain(tau)
         density = scenario.density(tau)
-        if pace < 1.0:
-            polygon_velocity = polygon_velocity * pace
-            density = None if density is None else paced_density(density, pace, tau)
         polygons.append(polygon)
         t_log.append(tk)
         trajectory_log.append(positions.copy())
@@ -198,14 +192,18 @@ def simulate(
         error_log.append(aggregate_error(positions, polygon, density))
         if holding:
             why = deploy_release(tk, (tk, error_log[-1]), deploy_error, hold_steps * dt)
-            if why is None:
-                polygon_velocity = np.zeros_like(polygon_velocity)
-                density = None if density is None else density.frozen()
-            else:
+            if why is not None:
                 holding, released = False, (tk, why, error_log[-1])
-                pace = ramp_pace(dt)
+        if holding:
+            polygon_velocity = np.zeros_like(polygon_velocity)
+            density = None if density is None else density.frozen()
+        elif released is not None:  # S starts gently, as the coordinator starts it (ramp_pace)
+            pace = ramp_pace(tk - released[0] + dt)
+            if pace < 1.0:
                 polygon_velocity = polygon_velocity * pace
                 density = None if density is None else paced_density(density, pace, tau)
+        else:
+            pace = 1.0
         if scripted == steps if released is None else tau >= duration - 1e-9 * dt:
             break
         step = control.team_step(
@@ -338,6 +336,7 @@ def build_summary(
             if result.wheels is not None
             else dict.fromkeys(("max_wheel_speed_used", "saturated_time", "saturated_fraction"))
         ),
+        script_start=None if result.released is None else result.released[0],
     )
     summary.update(
         {
@@ -372,12 +371,7 @@ def build_summary(
         }
     )
     if result.released is not None:
-        # As covswarm run's summary (coordinator.pace): e_a's steady state is the script's.
         hold, why, error = result.released
-        scripted = result.t >= hold
-        summary["steady_state_error_mean"] = steady_state_mean(
-            result.t[scripted], result.error[scripted]
-        )
         summary["deploy"] = {
             "error": deploy_error, "timeout": deploy_timeout, "hold_s": float(hold),
             "released_because": why, "error_at_release": float(error),
