@@ -147,6 +147,12 @@ def arena_summary(
     return summary
 
 
+def script_start(observed: Observed) -> float | None:
+    """Mission time (s) S started moving after a deploy hold (coordinator.pace), or None."""
+    pace = observed.pace
+    return None if pace is None or pace.released is None else pace.released[0]
+
+
 def build_summary(
     settings: CoordinatorSettings,
     observed: Observed,
@@ -176,9 +182,8 @@ def build_summary(
         crowding=settings.crowding,
         wheels=agent_wheel_figures(observed.agent_stats, record.t[-1]),
         ids=record.robot_ids(),
-        script_start=None if observed.pace is None or observed.pace.released is None
-        else observed.pace.released[0],
-    )  # fmt: skip
+        script_start=script_start(observed),
+    )
     return {
         **summary,
         "agents": settings.agents,  # the team asked for, not the robots seen at the end
@@ -245,6 +250,7 @@ def write_run_outputs(
         )
         if record.t
         else None,
+        script_start=script_start(observed),
     )
     if observed.domain_t:
         write_domain_csv(

@@ -586,6 +586,7 @@ def sim_command(
         obstacles=list(scenario.obstacles),
         workspace=scenario.workspace,
         density=scenario.density(options["duration"]),  # the script's end
+        script_start=None if results[0].released is None else results[0].released[0],
     )
     stride = record_simulation(
         out_dir, t=results[0].t, error=results[0].error, trajectories=results[0].trajectories,

@@ -46,12 +46,15 @@ def write_outputs(
     obstacles: list[Box] | tuple[Box, ...] = (),
     workspace: Box | None = None,
     density: Any = None,
+    script_start: float | None = None,
 ) -> Path:
     """Write the four output files and return the folder.
 
     t, error, error_compare: (T,); trajectories: (T, n, 2), NaN where a robot's position is
     unknown; polygons: T arrays (k, 2), the domain at each sample; density: phi at the last
-    sample (covswarm.tvd.density.Density, shaded under the final domain), None when uniform.
+    sample (covswarm.tvd.density.Density, shaded under the final domain), None when uniform;
+    script_start: s, when S started moving after a deploy hold (error.png's steady-state
+    window is then the second half of what follows, as summary.json's), None without one.
     """
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -68,7 +71,7 @@ def write_outputs(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig = _error_figure(plt, t, error, compare)
+    fig = _error_figure(plt, t, error, compare, script_start)
     _mark_steering(fig.axes[0], summary.get("steering", ()))
     fig.savefig(out / "error.png", dpi=120)
     plt.close(fig)
@@ -103,14 +106,26 @@ def _write_csv(path: Path, t: np.ndarray, error: np.ndarray, compare: np.ndarray
         writer.writerows([repr(float(v)) for v in row] for row in zip(*columns, strict=True))
 
 
-def _error_figure(plt: Any, t: np.ndarray, error: np.ndarray, compare: np.ndarray | None) -> Any:
+def _error_figure(
+    plt: Any,
+    t: np.ndarray,
+    error: np.ndarray,
+    compare: np.ndarray | None,
+    script_start: float | None = None,
+) -> Any:
     fig, ax = plt.subplots(figsize=(8, 4.5), layout="constrained")
     curves = [("with $\\partial c/\\partial t$", error, "tab:blue", "-")]
     if compare is not None:
         curves.append(("without $\\partial c/\\partial t$", compare, "tab:red", ":"))
-    t_half = t[0] + 0.5 * (t[-1] - t[0])
+    scripted = np.ones(t.shape, dtype=bool) if script_start is None else t >= script_start
+    if not scripted.any():
+        scripted[:] = True  # held to the end: the whole run
+    start = t[scripted][0]
+    t_half = start + 0.5 * (t[-1] - start)
+    if start > t[0]:
+        ax.axvspan(t[0], start, color="tab:green", alpha=0.08, zorder=0, label="deploy hold")
     for label, values, color, style in curves:
-        mean = steady_state_mean(t, values)
+        mean = steady_state_mean(t[scripted], values[scripted])
         ax.plot(t, values, color=color, linestyle=style, linewidth=1.4, label=label)
         ax.hlines(mean, t_half, t[-1], colors=color, linestyles="--", linewidth=1.0)
         ax.annotate(
