@@ -198,7 +198,8 @@ def simulate(
             polygon_velocity = np.zeros_like(polygon_velocity)
             density = None if density is None else density.frozen()
         elif released is not None:  # S starts gently, as the coordinator starts it (ramp_pace)
-            pace = ramp_pace(tk - released[0] + dt)
+            # the last step ends on the script's end: S moves only what is left of it
+            pace = min(ramp_pace(tk - released[0] + dt), (duration - tau) / dt)
             if pace < 1.0:
                 polygon_velocity = polygon_velocity * pace
                 density = None if density is None else paced_density(density, pace, tau)

@@ -318,6 +318,10 @@ def test_covswarm_sim_holds_s0_as_the_coordinator_does() -> None:
     # Then the script's whole duration, S as scripted from tau = 0.
     assert held.t[-1] == pytest.approx(hold + 2.0 + 0.5 * DEPLOY_RAMP, abs=0.05)
     np.testing.assert_allclose(held.polygons[-1], scenario.domain(2.0)[0], atol=1e-12)
+    # The last step moves S only to the script's end, and the robots with it: no jump.
+    rover = simulate(scenario, agents=20, duration=8.0, dynamics="unicycle", deploy_error=0.02)
+    # (measured: the last sample 0.98x the one before; 1.09x when S stopped short of it)
+    assert rover.error[-1] < 1.04 * rover.error[-2]
     timed_out = simulate(scenario, deploy_error=1e-9, deploy_timeout=0.5, **common)
     assert timed_out.released[:2] == (pytest.approx(0.5), "timed out")
     summary = build_sim_summary(
