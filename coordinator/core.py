@@ -52,7 +52,13 @@ from covswarm.coordinator.monitor import (
     mean_pose_time,
     positions_at,
 )
-from covswarm.coordinator.pace import Pace, ScriptClock, deploy_release, paced_density
+from covswarm.coordinator.pace import (
+    Pace,
+    ScriptClock,
+    broadcast_motion,
+    deploy_release,
+    paced_density,
+)
 from covswarm.coordinator.steering import (
     Limits,
     MotionCheck,
@@ -714,15 +720,9 @@ class CoordinatorCore:
         tau, pace = (self.pace.tau, self.pace.pace) if state != WAITING else (0.0, 1.0)
         vertices, velocities = self.steering.domain(tau)
         density = self.settings.scenario.density(tau)
-        start = None
-        if state == WAITING and np.any(velocities):
-            start = velocities  # how S will move at the start: robots turn to face it
-        if state != RUNNING:
-            velocities = np.zeros_like(velocities)  # held still while waiting / done
-            density = None if density is None else density.frozen()
-        else:
-            velocities = velocities * pace
-            density = None if density is None else paced_density(density, pace, t)
+        velocities, start = broadcast_motion(state, velocities, pace)
+        if density is not None:
+            density = paced_density(density, pace, t) if state == RUNNING else density.frozen()
         domain = Domain(
             seq=self._seq,
             stamp=self.stamp(self._wall),

@@ -57,6 +57,7 @@ from typing import Any
 
 import numpy as np
 
+from covswarm.coordinator.monitor import RUNNING, WAITING
 from covswarm.tvd.density import Density
 
 PACE_FLOOR = 0.05  # slowest pace: the mission lasts at most 20x its script
@@ -121,6 +122,22 @@ def ramp_pace(since: float) -> float:
     then: what the period is broadcast with): linear from 0 to 1 over DEPLOY_RAMP s, at
     least PACE_FLOOR."""
     return min(1.0, max(PACE_FLOOR, since / DEPLOY_RAMP))
+
+
+def broadcast_motion(
+    state: str, velocities: np.ndarray, pace: float = 1.0
+) -> tuple[np.ndarray, np.ndarray | None]:
+    """What a Domain of mission ``state`` says of S's motion: the vertex velocities (n, 2)
+    m/s it broadcasts, and its start velocities (protocol.Domain.start_velocities) or None.
+
+    ``velocities``: the script's S_script'(tau) (n, 2) m/s. Only a running S moves, at
+    ``pace`` times them. While the mission waits S holds still and announces the motion it
+    will start with (None when it starts still), so that robots turn to face it beforehand
+    (covswarm.agent.brain); once done it holds still and announces nothing."""
+    if state == RUNNING:
+        return velocities * pace, None
+    start = velocities if state == WAITING and np.any(velocities) else None
+    return np.zeros_like(velocities), start
 
 
 def paced_density(density: Density, pace: float, t: float) -> Density:

@@ -36,6 +36,7 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import PoseImpairment
+from covswarm.coordinator.pace import broadcast_motion
 from covswarm.mission.scenarios import Scenario
 from covswarm.tvd.drive import DiffDrive
 
@@ -165,10 +166,9 @@ def run_netsim(
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
             vertices, velocities = scenario.domain(mission_t)
-            announced = announce_start and state == "waiting" and np.any(velocities)
-            start = velocities if announced else None
-            if state != "running":
-                velocities = np.zeros_like(velocities)
+            velocities, start = broadcast_motion(state, velocities)
+            if not announce_start:
+                start = None
             payload = protocol.Domain(
                 seq=seq, stamp=wall, t=mission_t, state=state, vertices=vertices,
                 velocities=velocities, kappa=scenario.kappa, start_velocities=start,

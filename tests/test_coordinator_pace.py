@@ -23,6 +23,7 @@ from covswarm.coordinator.pace import (
     RISE_RATE,
     Pace,
     ScriptClock,
+    broadcast_motion,
     held_fraction,
     next_pace,
     pace_sentence,
@@ -305,3 +306,16 @@ def test_the_held_rate_is_measured_up_to_each_agents_last_report() -> None:
     single = Pace(asked=10.0)
     single.report(0, {"mission_steps": 26.0}, 100.0)
     assert single.summary({0: {"mission_steps": 26.0}}, 5.2)["held_rate_hz"] == pytest.approx(5.0)
+
+
+def test_only_a_running_s_moves_and_a_waiting_one_announces_its_start() -> None:
+    moving = np.array([[0.1, 0.0], [0.1, 0.05], [0.0, 0.2]])
+    velocities, start = broadcast_motion("running", moving, 0.25)
+    np.testing.assert_array_equal(velocities, 0.25 * moving)
+    assert start is None
+    velocities, start = broadcast_motion("waiting", moving, 0.25)
+    assert not np.any(velocities) and velocities.shape == moving.shape
+    np.testing.assert_array_equal(start, moving)  # the script's, not paced
+    assert broadcast_motion("waiting", np.zeros((3, 2)))[1] is None  # S starts still
+    velocities, start = broadcast_motion("done", moving)
+    assert not np.any(velocities) and start is None
