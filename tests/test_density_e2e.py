@@ -33,11 +33,13 @@ def test_a_run_with_a_moving_density_follows_it_at_the_control_rate(tmp_path: Pa
     # Agents that ignored the density would settle on the uniform centroids: e_a against phi
     # 0.19 m over the second half (measured in simulation); with it the run ends where the
     # in-process simulation of the same robots ends (same seed, law and unicycle model:
-    # 0.024 m with TVD-D1, 0.017 m with TVD-DA; the run measured 0.023 m with TVD-D1).
+    # 0.024 m with TVD-D1, 0.017 m with TVD-DA). Live with TVD-DA, 16 runs on 29 Nov 2026
+    # (the code of that morning and of the day before, interleaved): 0.0165 to 0.0274 m,
+    # mean 0.022; the band is that spread's width above the simulation, far below 0.19 m.
     scenario = load_scenario("formation")
     sim = simulate(
         scenario, agents=agents, duration=duration, law=summary["law"], dynamics="unicycle", seed=0
     )
     expected = steady_state_mean(sim.t, sim.error)
-    assert summary["steady_state_error_mean"] == pytest.approx(expected, rel=0.25, abs=0.01)
+    assert summary["steady_state_error_mean"] == pytest.approx(expected, abs=0.015)
     assert swarm_pids(swarm) == set()
