@@ -19,6 +19,17 @@ def running_in_ci() -> bool:
     return os.environ.get("CI", "").strip().lower() in {"1", "true", "yes"}
 
 
+@pytest.hookimpl(tryfirst=True)  # before pytest-xdist reads the groups
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Two workers (pytest-xdist, pyproject's addopts ``-n 2 --dist loadgroup``), each taking
+    whole groups: every end-to-end test in one group, so they run one at a time as they were
+    measured (each runs a machine's worth of processes and checks their rates and errors),
+    beside the other tests grouped by module (a module's fixtures are then built once)."""
+    for item in items:
+        group = "e2e" if item.get_closest_marker("e2e") else item.nodeid.partition("::")[0]
+        item.add_marker(pytest.mark.xdist_group(group))
+
+
 @pytest.fixture(scope="session")
 def require() -> Callable[[bool, str], None]:
     """require(condition, reason): skip (here) or fail (under CI) when ``condition`` is false."""

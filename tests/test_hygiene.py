@@ -161,7 +161,7 @@ def test_documented_python_examples_parse_and_their_imports_exist() -> None:
 PRETEND_NOT_ROOT = """
 import os, sys, pytest
 os.geteuid = lambda: 1000  # as a contributor who is not root sees it
-sys.exit(pytest.main(["-q", "-rs", "-p", "no:cacheprovider", sys.argv[1]]))
+sys.exit(pytest.main(["-q", "-rs", "-p", "no:cacheprovider", "-n", "0", sys.argv[1]]))
 """
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import multiprocessing
+import os
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
@@ -100,10 +101,12 @@ def figures_of(options: dict) -> dict:
 
 @pytest.fixture(scope="module")
 def sims() -> dict[str, dict]:
-    """Figures of every run of docs/results.json, each distinct option set once, two at a
-    time (CI has 2 cores; spawned workers, since this process may hold other tests' threads)."""
+    """Figures of every run of docs/results.json, each distinct option set once, in a
+    spawned process (this one may hold other tests' threads); two at a time when the
+    end-to-end tests do not run beside them (pytest -n 0: tests/conftest.py)."""
     distinct = {json.dumps(options, sort_keys=True): options for options in RUNS.values()}
-    with ProcessPoolExecutor(2, mp_context=multiprocessing.get_context("spawn")) as pool:
+    workers = 1 if os.environ.get("PYTEST_XDIST_WORKER") else 2
+    with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
         futures = {key: pool.submit(figures_of, options) for key, options in distinct.items()}
         done = {key: future.result() for key, future in futures.items()}
     return {name: done[json.dumps(options, sort_keys=True)] for name, options in RUNS.items()}
