@@ -11,12 +11,15 @@
 - The README's and docs' Python examples parse, and everything they import exists.
 - ``pytest -q`` as a user who is not root skips the multi-host test with its reason, and
   fails it under CI=true (tests/conftest.py ``require``).
+- The suite's two workers keep the end-to-end tests on one of them, one at a time, and each
+  other module on one worker (docs/development.md).
 """
 
 from __future__ import annotations
 
 import ast
 import os
+import re
 import subprocess
 import sys
 from pathlib import Path
@@ -177,3 +180,44 @@ def test_the_multihost_test_skips_for_non_root_and_fails_in_ci(ci: bool) -> None
     else:
         assert done.returncode == 0 and "1 skipped" in done.stdout, done.stdout
         assert "needs root" in done.stdout
+
+
+GROUPED_MODULE = """
+import os, pathlib, pytest
+
+def record(name):
+    pathlib.Path(__file__).with_name(name).write_text(os.environ["PYTEST_XDIST_WORKER"])
+
+@pytest.mark.e2e
+@pytest.mark.parametrize("k", range(4))
+def test_live(k):
+    record(f"{MODULE}-live-{k}")
+
+@pytest.mark.parametrize("k", range(4))
+def test_unit(k):
+    record(f"{MODULE}-unit-{k}")
+"""
+
+
+def test_end_to_end_tests_share_one_worker_and_each_module_stays_on_one(tmp_path: Path) -> None:
+    """tests/conftest.py's groups as pytest-xdist carries them out with the installed pytest
+    and pyproject's addopts (on pytest 9.2 it silently drops them: each test alone)."""
+    pyproject = (ROOT / "pyproject.toml").read_text(encoding="utf-8")
+    addopts = re.search(r'^addopts = "(.*)"$', pyproject, re.MULTILINE)
+    assert addopts is not None
+    (tmp_path / "conftest.py").write_text((TESTS / "conftest.py").read_text(encoding="utf-8"))
+    for module in ("a", "b"):
+        (tmp_path / f"test_{module}.py").write_text(f"MODULE = {module!r}\n{GROUPED_MODULE}")
+    done = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *addopts[1].split(),
+         "-o", "markers=e2e: live", str(tmp_path)],
+        cwd=tmp_path, capture_output=True, text=True, timeout=120,
+    )  # fmt: skip
+    assert done.returncode == 0, done.stdout + done.stderr
+
+    def workers(pattern: str) -> list[str]:
+        return [path.read_text() for path in tmp_path.glob(pattern)]
+
+    assert len(workers("*-live-*")) == 8 and len(set(workers("*-live-*"))) == 1
+    assert len(set(workers("a-unit-*"))) == 1 and len(set(workers("b-unit-*"))) == 1
+    assert len(set(workers("*-*-*"))) == 2  # and both workers did work
