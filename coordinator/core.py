@@ -628,10 +628,9 @@ class CoordinatorCore:
         if state == RUNNING and self.pace.deploying:
             self._end_deploy_hold(t)
         if state != WAITING:
-            # The hold and S's gentle start are not a team that cannot hold its rate.
-            slowed = self.pace.pace < 1.0 and not self.pace.starting
+            slowed = self.pace.slowed
             tau = self.pace.advance(t, self._team, end=settings.duration)
-            if slowed != (self.pace.pace < 1.0 and not self.pace.starting):
+            if slowed != self.pace.slowed:
                 self._log_pace(t)
             if state == RUNNING and settings.script_ends and tau >= settings.duration:
                 phase.stop(now)  # the script's end: done from this tick

@@ -252,6 +252,12 @@ class Pace:
             and self.t_log[-1] - self.released[0] < DEPLOY_RAMP
         )
 
+    @property
+    def slowed(self) -> bool:
+        """Whether S runs slower than its script because the team does not hold its rate
+        (not because it is starting)."""
+        return self.pace < 1.0 and not self.starting
+
     def _ramp(self, t: float, dt: float, team: Iterable[int]) -> float:
         """The pace from ``t`` on while S starts after the deploy hold (ramp_pace; the
         team's, if lower), ``dt`` s after the last tick (the period's length to expect)."""

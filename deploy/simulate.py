@@ -63,6 +63,11 @@ class SimResult:
     def final_polygon(self) -> np.ndarray:
         return self.polygons[-1]
 
+    @property
+    def script_start(self) -> float | None:
+        """t (s) S started moving after the deploy hold; None without a hold."""
+        return None if self.released is None else self.released[0]
+
 
 def simulate(
     scenario: Scenario,
@@ -195,16 +200,15 @@ def simulate(
             if why is not None:
                 holding, released = False, (tk, why, error_log[-1])
         if holding:
-            polygon_velocity = np.zeros_like(polygon_velocity)
-            density = None if density is None else density.frozen()
+            pace = 0.0  # S held at S(0), as the coordinator holds it
         elif released is not None:  # S starts gently, as the coordinator starts it (ramp_pace)
             # the last step ends on the script's end: S moves only what is left of it
             pace = min(ramp_pace(tk - released[0] + dt), (duration - tau) / dt)
-            if pace < 1.0:
-                polygon_velocity = polygon_velocity * pace
-                density = None if density is None else paced_density(density, pace, tau)
         else:
             pace = 1.0
+        if pace < 1.0:
+            polygon_velocity = polygon_velocity * pace
+            density = None if density is None else paced_density(density, pace, tau)
         if scripted == steps if released is None else tau >= duration - 1e-9 * dt:
             break
         step = control.team_step(
@@ -337,7 +341,7 @@ def build_summary(
             if result.wheels is not None
             else dict.fromkeys(("max_wheel_speed_used", "saturated_time", "saturated_fraction"))
         ),
-        script_start=None if result.released is None else result.released[0],
+        script_start=result.script_start,
     )
     summary.update(
         {
@@ -587,7 +591,7 @@ def sim_command(
         obstacles=list(scenario.obstacles),
         workspace=scenario.workspace,
         density=scenario.density(options["duration"]),  # the script's end
-        script_start=None if results[0].released is None else results[0].released[0],
+        script_start=results[0].script_start,
     )
     stride = record_simulation(
         out_dir, t=results[0].t, error=results[0].error, trajectories=results[0].trajectories,
