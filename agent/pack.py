@@ -112,6 +112,15 @@ DOMAIN_RING = 16
 # in packs of 50 (one chunk of 50 rather than 32 + 18), 394 -> 400 in packs of 500; and a
 # chunk's commands go out once all of it has stepped, later in the period.
 CHUNK = 32
+# The phases of a packed process's tick whose clock time it adds up (Pack.spent): what a
+# brain-tick costs, split without a profiler (covswarm bench --brain-tick). "drain": taking
+# the tick's samples off the bus; "receive": a brain's payloads handed over and applied
+# (decoding, shared per process, included); "begin": its neighbourhood reckoned and its
+# local view built; "local steps" and "filter": its share of the chunk's batched local steps
+# and safety filters (the math); "conclude": the step's bookkeeping between the two;
+# "actions": its command, AgentState, beacon and follows, encoded and put; "hold": a brain
+# whose turn came after its period ended (Pack._hold).
+PHASES = ("drain", "receive", "begin", "local steps", "conclude", "filter", "actions", "hold")
 # The order in which a brain gets a tick's payloads (then by id and key): the world (the
 # domain is judged against it), the domain and its own pose first, as a process of its own
 # drained its subscribers.
@@ -203,7 +212,9 @@ class Pack:
         if chunk < 1:
             raise ValueError(f"chunk must be at least 1, got {chunk!r}")
         self.hold_after, self.chunk = hold_after, chunk
-        self._clock = clock  # only times the batched local steps (the brains' step timers)
+        # Times the batched local steps and filters (the brains' step timers) and the phases.
+        self._clock = clock
+        self.spent = dict.fromkeys(PHASES, 0.0)  # s of ``clock`` in each phase, all ticks
         self._stepped: dict[int, float] = {}  # brain -> clock of its last turn
         self.bus, self.swarm = bus, swarm
         self.brains = {brain.id: brain for brain in brains}
@@ -470,7 +481,9 @@ class Pack:
 
     def tick(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
         """One control period of the whole process: :meth:`drain`, then :meth:`step`."""
+        started = self._clock()
         self.drain()
+        self.spent["drain"] += self._clock() - started
         return self.step(clock, wall, deadline)
 
     def step(self, clock: Callable[[], float], wall: Callable[[], float], deadline: float) -> int:
@@ -520,6 +533,8 @@ class Pack:
         # robot clock running ahead of ours (ClockBound), so every later pose counted as
         # that much older: at 100 robots in packs of 32 on two loaded cores, -26 to -90 ms,
         # each robot predicted ~10 mm ahead of where it was.
+        spent, timer = self.spent, self._clock
+        started = timer()
         self.take_own_poses(chunk)
         now, now_wall = clock(), wall()
         brains = self.brains
@@ -527,6 +542,8 @@ class Pack:
         filtering: dict[int, Filtering] = {}
         decisions: dict[int, Decision] = {}
         groups: dict[tuple[bool, str], list[int]] = {}
+        beginning = 0.0
+        holding = spent["hold"]
         for bid in chunk:
             brain = brains[bid]
             if clock() > deadline:
@@ -536,15 +553,21 @@ class Pack:
             brain.pace(now - self._stepped.get(bid, now))
             self._stepped[bid] = now
             self.receive(bid, now, now_wall)
+            began = timer()
             early = brain.begin(now, now_wall)
+            beginning += timer() - began
             if type(early) is Begun:
                 begun[bid] = early
                 config = brain.config
                 groups.setdefault((config.feedforward, config.law), []).append(bid)
             else:
                 decisions[bid] = brain.settle(early)
+        # The rest of the loop (poses taken, paces) counts as receiving; holds as holds.
+        holding = spent["hold"] - holding
+        spent["receive"] += timer() - started - beginning - holding
+        spent["begin"] += beginning
         for (feedforward, law), bids in groups.items():
-            started = self._clock()
+            started = timer()
             try:
                 results: list[LocalStep | Exception] = list(
                     local_steps([begun[b].view for b in bids], feedforward, MAX_AMPLIFICATION, law)
@@ -553,15 +576,19 @@ class Pack:
                 results = [local_step_of(begun[b].view, brains[b].config) for b in bids]
                 for bid in bids:
                     brains[bid].counters.batch_fallbacks += 1
-            shared = (self._clock() - started) / len(bids)
+            stepped = timer()
+            spent["local steps"] += stepped - started
+            shared = (stepped - started) / len(bids)
             for bid, result in zip(bids, results, strict=True):
                 concluded = brains[bid].conclude(begun[bid], result, shared)
                 if type(concluded) is Filtering:
                     filtering[bid] = concluded
                 else:
                     decisions[bid] = concluded
+            spent["conclude"] += timer() - stepped
         if filtering:
             self._filter(filtering, decisions)
+        started = timer()
         for bid in [bid for bid in chunk if bid in decisions]:  # in turn order
             brain = brains[bid]
             for action in brain.actions(decisions[bid], now, now_wall):
@@ -570,6 +597,7 @@ class Pack:
                 # (start-up, while processes are still launching, aside).
                 if type(action) is SendCommand and brain.running and clock() > deadline:
                     brain.counters.overruns += 1
+        spent["actions"] += timer() - started
         return len(decisions)
 
     def _filter(self, filtering: dict[int, Filtering], decisions: dict[int, Decision]) -> None:
@@ -582,9 +610,12 @@ class Pack:
             safe = [filter_one(f) for f in filtering.values()]
             for bid in filtering:
                 self.brains[bid].counters.batch_fallbacks += 1
-        shared = (self._clock() - started) / len(filtering)
+        filtered = self._clock()
+        self.spent["filter"] += filtered - started
+        shared = (filtered - started) / len(filtering)
         for (bid, inputs), answer in zip(filtering.items(), safe, strict=True):
             decisions[bid] = self.brains[bid].drive(inputs, answer, shared)
+        self.spent["conclude"] += self._clock() - filtered
 
     def _hold(self, brain: AgentBrain, now: float, wall: float) -> None:
         """Brain's period is over before its turn: it skips this period (its robot runs on
@@ -600,6 +631,13 @@ class Pack:
         trailing robots out of it (scripts/held_commands.py: 100 agents at 1.67 Hz, S at a
         sixth of its speed, e_a's second half 1.78 m with robots stopped 0.3 s after each
         command, 0.53 m at 0.5 s, 0.019 m at 0.9 s; 28 Nov 2026)."""
+        started = self._clock()
+        try:
+            self._hold_unless_stopped(brain, now, wall)
+        finally:
+            self.spent["hold"] += self._clock() - started
+
+    def _hold_unless_stopped(self, brain: AgentBrain, now: float, wall: float) -> None:
         if not brain.running:
             # Before the mission a robot stands still or turns in place, on a command that
             # turns it no further than to face S's start however long it holds.

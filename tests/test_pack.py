@@ -16,9 +16,10 @@ from click.testing import CliRunner
 
 from covswarm import protocol
 from covswarm.agent import decoding
+from covswarm.agent import pack as pack_module
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder
-from covswarm.agent.pack import DOMAIN_RING, RING_PER_KEY, LocalBus, Pack
+from covswarm.agent.pack import DOMAIN_RING, PHASES, RING_PER_KEY, LocalBus, Pack
 from covswarm.deploy.bench import bench_command
 from covswarm.tvd.coverage import aggregate_error
 
@@ -49,7 +50,7 @@ class World:
 
     The robots sit still but for the commands they get (unicycle, integrated over each
     period); the domain translates along x at ``speed`` m/s. ``packing``: the ids of each
-    process.
+    process; ``timer``: the packs' clock (Pack's ``clock``: step timers and phases).
     """
 
     def __init__(
@@ -60,6 +61,7 @@ class World:
         config: AgentConfig | dict[int, AgentConfig] | None = None,
         hold_after: float = 0.3,
         chunk: int = 32,
+        timer: Callable[[], float] = lambda: 0.0,
     ) -> None:
         self.bus = LocalBus()
         self.positions = positions.astype(float).copy()
@@ -79,9 +81,7 @@ class World:
             ]
             for brain in brains:
                 self._record(brain)
-            self.packs.append(
-                Pack(self.bus, SWARM, brains, hold_after, chunk=chunk, clock=lambda: 0.0)
-            )
+            self.packs.append(Pack(self.bus, SWARM, brains, hold_after, chunk=chunk, clock=timer))
         self.round = 0
         self.sent_commands: list[protocol.WheelCommand] = []
         self.sent_states: list[protocol.AgentState] = []
@@ -385,6 +385,14 @@ def test_bench_brain_tick_reports_every_process_size(tmp_path: Path) -> None:
         assert row["rx_per_brain_tick"] >= 2.0  # at least its pose and the domain
     # A process of 15 brains subscribes once per key: fewer subscriptions per brain.
     assert packed["subscriptions_per_brain"] < alone["subscriptions_per_brain"] / 2
+    # Where each brain-tick went: every phase, within the tick's time, the math among them.
+    for row in (alone, packed):
+        split = row["phase_us"]
+        assert set(split) == set(PHASES) and min(split.values()) >= 0.0
+        assert sum(split.values()) <= row["brain_tick_us"] * (1 + 1e-9)
+        assert split["local steps"] > 0.0 and split["receive"] > 0.0
+    assert (out / "brain-tick.png").stat().st_size > 0
+    assert "where a brain-tick goes" in result.output
     bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-sizes", "0"])
     assert bad.exit_code != 0 and "positive sizes" in bad.output
 
@@ -729,3 +737,47 @@ def test_bench_brain_tick_of_an_overloaded_pack(tmp_path: Path) -> None:
     assert rows[6]["rx_per_brain_tick"] > 1.5 * rows[1]["rx_per_brain_tick"]
     bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-late", "0.5"])
     assert bad.exit_code != 0
+
+
+def test_each_phase_of_a_tick_is_timed_where_it_runs(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Pack.spent adds up the packs' clock by phase: each stand-in below advances the clock
+    by its own amount when it runs, so each phase must hold exactly its own amounts, once
+    per call (no phase counted in another, none twice); a brain whose turn comes after the
+    deadline counts as a hold."""
+    timer = [0.0]
+    calls: Counter[str] = Counter()
+
+    def advancing(name: str, seconds: float, real: Callable) -> Callable:
+        def run(*args, **kwargs):  # type: ignore[no-untyped-def]
+            calls[name] += 1
+            timer[0] += seconds
+            return real(*args, **kwargs)
+
+        return run
+
+    costs = {"drain": 13.0, "receive": 2.0, "begin": 3.0, "local steps": 5.0}
+    costs |= {"conclude": 19.0, "filter": 7.0, "actions": 11.0, "hold": 23.0}
+    for name, owner, attribute in (
+        ("drain", Pack, "drain"),
+        ("receive", AgentBrain, "receive_all"),
+        ("begin", AgentBrain, "begin"),
+        ("conclude", AgentBrain, "conclude"),
+        ("actions", AgentBrain, "actions"),
+        ("hold", Pack, "_hold_unless_stopped"),
+        ("local steps", pack_module, "local_steps"),
+        ("filter", pack_module, "filter_all"),
+    ):
+        real = getattr(owner, attribute)
+        monkeypatch.setattr(owner, attribute, advancing(name, costs[name], real))
+    n = 5
+    world = World([list(range(n))], layout(n, 3), config={}, chunk=2, timer=lambda: timer[0])
+    (pack,) = world.packs
+    for k in range(4):
+        t = 0.1 * k
+        world.publish(t)
+        deadline = math.inf if k < 3 else t - 1.0  # the last period is over before it starts
+        pack.tick(lambda t=t: t, lambda t=t: WALL + t, deadline)
+        world._move(0.1)
+        world.round += 1
+    assert calls["filter"] > 0 and calls["hold"] == n  # the safety filter ran, all held once
+    assert pack.spent == {phase: costs[phase] * calls[phase] for phase in PHASES}
