@@ -49,3 +49,4 @@ class CoordinatorConfig:
     # m: the deploy hold (coordinator.pace): S waits at S(0) until e_a is this low
     deploy_error: float | None = None
     deploy_timeout: float = DEPLOY_TIMEOUT
+    deploy_kappa: float | None = None  # 1/s: the gain broadcast during the hold (None: kappa)

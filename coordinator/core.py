@@ -56,6 +56,7 @@ from covswarm.coordinator.pace import (
     Pace,
     ScriptClock,
     broadcast_motion,
+    check_deploy_kappa,
     deploy_release,
     paced_density,
 )
@@ -157,6 +158,9 @@ class CoordinatorSettings:
     # coordinator.pace), at most deploy_timeout s of mission time; None: no hold
     deploy_error: float | None = None
     deploy_timeout: float = DEPLOY_TIMEOUT
+    # 1/s: the gain broadcast while the hold lasts (S still: Lloyd's iterations, which the
+    # mission's gain, chosen for tracking, takes ~3x as many periods over); None: kappa
+    deploy_kappa: float | None = None
 
     @property
     def script_ends(self) -> bool:
@@ -166,7 +170,9 @@ class CoordinatorSettings:
 
     @classmethod
     def from_config(cls, config: CoordinatorConfig, scenario: Scenario) -> CoordinatorSettings:
-        """``config`` against ``scenario`` (loaded from ``config.scenario``)."""
+        """``config`` against ``scenario`` (loaded from ``config.scenario``); ValueError for a
+        deploy hold's gain without a hold (check_deploy_kappa)."""
+        check_deploy_kappa(config.deploy_error, config.deploy_kappa)
         agents = scenario.agents if config.agents is None else config.agents
         return cls(
             scenario=scenario,
@@ -187,6 +193,7 @@ class CoordinatorSettings:
             pace=config.pace,
             deploy_error=config.deploy_error,
             deploy_timeout=config.deploy_timeout,
+            deploy_kappa=config.deploy_kappa,
         )
 
     @cached_property
@@ -729,7 +736,7 @@ class CoordinatorCore:
             state=state,
             vertices=vertices,
             velocities=velocities,
-            kappa=self.settings.kappa,
+            kappa=self._kappa(state),
             density=None if density is None else density.to_dict(),
             tile_size=self.settings.tile_size,
             start_velocities=start,
@@ -737,6 +744,14 @@ class CoordinatorCore:
         self._seq += 1
         self._published.append((domain.seq, domain.stamp))
         return vertices, domain
+
+    def _kappa(self, state: str) -> float:
+        """The gain to broadcast: the deploy hold's while S holds still at S(0) for the team
+        to spread over it (settings.deploy_kappa, when given), else the mission's."""
+        settings = self.settings
+        if state == RUNNING and self.pace.deploying and settings.deploy_kappa is not None:
+            return settings.deploy_kappa
+        return settings.kappa
 
     @cached_property
     def map_payload(self) -> bytes | None:

@@ -76,9 +76,9 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     try:
         scenario = load_scenario(config.scenario)
         check_swarm(config.swarm)
+        settings = CoordinatorSettings.from_config(config, scenario)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    settings = CoordinatorSettings.from_config(config, scenario)
     try:
         check_broadcastable(scenario, settings.kappa, settings.duration)
     except ValueError as exc:

@@ -153,6 +153,17 @@ def script_start(observed: Observed) -> float | None:
     return None if pace is None or pace.released is None else pace.released[0]
 
 
+def pace_summary(settings: CoordinatorSettings, observed: Observed) -> dict[str, Any]:
+    """The run's pace (coordinator.pace.Pace.summary), its deploy hold with the gain the
+    agents were broadcast while it held (settings.deploy_kappa, else kappa)."""
+    assert observed.pace is not None
+    pace = observed.pace.summary(observed.agent_stats, observed.record.t[-1])
+    if "deploy" in pace:
+        gain = settings.kappa if settings.deploy_kappa is None else settings.deploy_kappa
+        pace["deploy"]["kappa"] = gain
+    return pace
+
+
 def build_summary(
     settings: CoordinatorSettings,
     observed: Observed,
@@ -201,11 +212,7 @@ def build_summary(
         "foreign_domains": observed.foreign_domains,
         "error_samples_clipped": observed.clipped_samples,
         "tile_size": settings.tile_size,
-        **(
-            {}
-            if observed.pace is None
-            else {"pace": observed.pace.summary(observed.agent_stats, record.t[-1])}
-        ),
+        **({} if observed.pace is None else {"pace": pace_summary(settings, observed)}),
         "started_wall": observed.started_wall,
         **arena_summary(settings, observed, steering),
         **({} if observed.roster is None else {"unexpected": observed.roster.summary()}),

@@ -117,6 +117,16 @@ def deploy_release(
     return "timed out" if t >= timeout else None
 
 
+def check_deploy_kappa(deploy_error: float | None, deploy_kappa: float | None) -> None:
+    """ValueError for a gain of the deploy hold (1/s) without a hold, or not positive."""
+    if deploy_kappa is None:
+        return
+    if deploy_error is None:
+        raise ValueError("--deploy-kappa is the deploy hold's gain: it needs --deploy-error")
+    if not (math.isfinite(deploy_kappa) and deploy_kappa > 0.0):
+        raise ValueError(f"the deploy hold's gain must be positive, not {deploy_kappa!r}")
+
+
 def ramp_pace(since: float) -> float:
     """The pace ``since`` s after a deploy hold ended (the end of a period that began
     then: what the period is broadcast with): linear from 0 to 1 over DEPLOY_RAMP s, at

@@ -34,6 +34,7 @@ from rich.console import Console
 from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.config import DEPLOY_TIMEOUT
 from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
+from covswarm.coordinator.pace import check_deploy_kappa
 from covswarm.deploy.display import live_brain_tick, summary_table
 from covswarm.deploy.host_speed import measure_brain_tick
 from covswarm.deploy.plan import (
@@ -47,6 +48,7 @@ from covswarm.deploy.plan import (
     covswarm_argv,
     parse_per_process,
     plan_children,
+    scenario_kappa,
     team_size,
 )
 from covswarm.deploy.router import free_port, zenoh_session
@@ -237,9 +239,13 @@ def run_swarm(run: RunConfig) -> None:
     wall_rate = run.rate * run.time_scale  # control periods per second of wall time
     duration = scenario.duration if run.duration is None else run.duration
     try:
-        check_broadcastable(scenario, scenario.kappa if run.kappa is None else run.kappa, duration)
+        check_broadcastable(scenario, scenario_kappa(run, scenario), duration)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    try:
+        check_deploy_kappa(run.deploy_error, run.deploy_kappa)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
     # Timed once the cheap checks passed: a refused run does not wait for it.
     console = Console()
     brain_tick, brain_tick_source = host_brain_tick(run, here, cores, console)

@@ -284,6 +284,7 @@ class RunConfig:
     pace: bool = True  # the coordinator slows the script to what the agents hold
     deploy_error: float | None = None  # m: the coordinator's deploy hold (coordinator.pace)
     deploy_timeout: float = DEPLOY_TIMEOUT  # s: the longest deploy hold
+    deploy_kappa: float | None = None  # 1/s: the gain during the hold (None: kappa)
     fault_step_delay: float = 0.0  # s of sleep per agent step (agent.faults.delay_steps)
     # s of CPU a brain-tick costs live on this host; None: measured at launch when the team
     # is beyond a process per brain (deploy.host_speed), else BRAIN_TICK
@@ -307,10 +308,10 @@ def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> Coo
         connect=(endpoint,),
         agents=team_size(run, scenario),
         duration=scenario.duration if run.duration is None else run.duration,
-        kappa=scenario.kappa if run.kappa is None else run.kappa,
+        kappa=scenario_kappa(run, scenario),
         agent_rate=run.rate,
         **_passed_on(run, "swarm", "out", "scenario", "max_domain_speed", "record", "foxglove"),
-        **_passed_on(run, "pace", "deploy_error", "deploy_timeout"),
+        **_passed_on(run, "pace", "deploy_error", "deploy_timeout", "deploy_kappa"),
         **_passed_on(run, "seed", *_EVERY_CHILD),
     )
 
@@ -360,7 +361,9 @@ def agent_config(
         id=group[0] if one else None,
         ids=None if one else format_ids(list(group)),
         tick_phase=phase,
-        kappa=scenario.kappa if run.kappa is None else run.kappa,
+        # With a gain of its own for the deploy hold, the agents take the one broadcast
+        # with the domain (the coordinator's: the hold's, then the mission's).
+        kappa=None if run.deploy_kappa is not None else scenario_kappa(run, scenario),
         pose_seed=run.seed,
         body_diameter=scenario.robot_diameter,
         workspace=scenario.workspace,
@@ -368,6 +371,11 @@ def agent_config(
         **_passed_on(run, "prediction", "safety"),
         **_passed_on(run, "fault_step_delay", *_EVERY_CHILD),
     )
+
+
+def scenario_kappa(run: RunConfig, scenario: Scenario) -> float:
+    """The mission's gain of ``run``: --kappa, else the scenario's."""
+    return scenario.kappa if run.kappa is None else run.kappa
 
 
 def team_size(run: RunConfig, scenario: Scenario) -> int:

@@ -89,6 +89,7 @@ def simulate(
     face_start: bool = False,
     deploy_error: float | None = None,
     deploy_timeout: float = DEPLOY_TIMEOUT,
+    deploy_kappa: float | None = None,
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
@@ -99,7 +100,8 @@ def simulate(
     ``covswarm run``'s robots turn to while the mission waits (covswarm.agent.brain).
     deploy_error (m), deploy_timeout (s): the deploy hold of ``covswarm run --deploy-error``
     (covswarm.coordinator.pace): S(0) held still until e_a is at most deploy_error, at most
-    deploy_timeout s, then the script's whole duration (``SimResult.released``).
+    deploy_timeout s, then the script's whole duration (``SimResult.released``), with
+    deploy_kappa (1/s; None: kappa) the gain while it holds, as the coordinator broadcasts.
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
@@ -111,7 +113,12 @@ def simulate(
     or not (covswarm.world.contact.stop_at_contacts on each step's move, the chord of a
     unicycle's arc); a run that never touches one is exactly what it was without them.
     """
-    from covswarm.coordinator.pace import deploy_release, paced_density, ramp_pace
+    from covswarm.coordinator.pace import (
+        check_deploy_kappa,
+        deploy_release,
+        paced_density,
+        ramp_pace,
+    )
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
@@ -165,6 +172,7 @@ def simulate(
     holding = deploy_error is not None
     if holding and not (math.isfinite(deploy_error) and deploy_error > 0 and deploy_timeout > 0):
         raise ValueError("deploy_error and deploy_timeout must be positive")
+    check_deploy_kappa(deploy_error, deploy_kappa)
     hold_steps = round(deploy_timeout / dt) if holding else 0
     released: tuple[float, str, float] | None = None
     t_log: list[float] = []
@@ -211,8 +219,9 @@ def simulate(
             density = None if density is None else paced_density(density, pace, tau)
         if scripted == steps if released is None else tau >= duration - 1e-9 * dt:
             break
+        gain = deploy_kappa if holding and deploy_kappa is not None else kappa
         step = control.team_step(
-            law, positions, polygon, polygon_velocity, kappa, feedforward=feedforward,
+            law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
         )  # fmt: skip
         velocity = aim = step.velocity
@@ -304,6 +313,7 @@ def build_summary(
     face_start: bool = False,
     deploy_error: float | None = None,
     deploy_timeout: float = DEPLOY_TIMEOUT,
+    deploy_kappa: float | None = None,
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
     every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
@@ -380,6 +390,7 @@ def build_summary(
         summary["deploy"] = {
             "error": deploy_error, "timeout": deploy_timeout, "hold_s": float(hold),
             "released_because": why, "error_at_release": float(error),
+            "kappa": kappa if deploy_kappa is None else deploy_kappa,
         }  # fmt: skip
     if law == "c":
         from covswarm.tvd.control import DAMPING
@@ -503,6 +514,7 @@ def sim_command(
     face_start: bool,
     deploy_error: float | None,
     deploy_timeout: float,
+    deploy_kappa: float | None,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -515,6 +527,7 @@ def sim_command(
     )
 
     from covswarm.coordinator.broadcastable import check_broadcastable
+    from covswarm.coordinator.pace import check_deploy_kappa
     from covswarm.mission.report import write_outputs
     from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
@@ -543,11 +556,16 @@ def sim_command(
         "face_start": face_start,
         "deploy_error": deploy_error,
         "deploy_timeout": deploy_timeout,
+        "deploy_kappa": deploy_kappa,
     }
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    try:
+        check_deploy_kappa(deploy_error, deploy_kappa)
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
     results: list[SimResult] = []

@@ -70,8 +70,9 @@ def float_option(
 
 
 def deploy_options(timeout: float) -> Decorator:
-    """``--deploy-error`` and ``--deploy-timeout`` (default ``timeout`` s): the deploy hold
-    (covswarm.coordinator.pace) of covswarm coordinator, covswarm run and covswarm sim."""
+    """``--deploy-error``, ``--deploy-timeout`` (default ``timeout`` s) and ``--deploy-kappa``:
+    the deploy hold (covswarm.coordinator.pace) of covswarm coordinator, covswarm run and
+    covswarm sim."""
     error_option = float_option(
         "--deploy-error",
         low=0,
@@ -87,7 +88,15 @@ def deploy_options(timeout: float) -> Decorator:
         default=timeout,
         help="Longest deploy hold, s of mission time (S then moves whatever e_a).",
     )
-    return lambda command: error_option(timeout_option(command))
+    kappa_option = float_option(
+        "--deploy-kappa",
+        low=0,
+        low_open=True,
+        help="The gain during the deploy hold (S still: Lloyd's iterations, each control "
+        "period closing this x the period of the gap to the centroid, at most 0.8 of it in "
+        "an agent) [the mission's kappa].",
+    )
+    return lambda command: error_option(timeout_option(kappa_option(command)))
 
 
 def switch_option(name: str, help: str, *, default: bool = True, **extra: Any) -> Decorator:

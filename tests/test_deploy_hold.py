@@ -11,33 +11,39 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from click.testing import CliRunner
 from live_runs import launch, new_swarm, swarm_pids
 
+from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.coordinator.config import CoordinatorConfig
 from covswarm.coordinator.core import (
     DONE,
     RUNNING,
+    WAITING,
     CoordinatorCore,
     CoordinatorSettings,
     PublishDomain,
     PublishStatus,
 )
+from covswarm.coordinator.main import coordinator_command
 from covswarm.coordinator.outputs import build_summary
 from covswarm.coordinator.pace import (
     DEPLOY_RAMP,
     PACE_FLOOR,
     Pace,
     ScriptClock,
+    check_deploy_kappa,
     deploy_release,
     pace_sentence,
     ramp_pace,
 )
-from covswarm.deploy.plan import RunConfig, coordinator_config
+from covswarm.deploy.launcher import run_command
+from covswarm.deploy.plan import RunConfig, agent_config, coordinator_config
 from covswarm.deploy.simulate import build_summary as build_sim_summary
-from covswarm.deploy.simulate import simulate
+from covswarm.deploy.simulate import sim_command, simulate
 from covswarm.mission.report import steady_state_mean
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.protocol import Pose, alive_key, pose_key
+from covswarm.protocol import Domain, Pose, alive_key, pose_key
 from covswarm.protocol.steering import SteerRequest
 from covswarm.runtime.options import config_argv
 from covswarm.tvd.coverage import aggregate_error, mass_centroid
@@ -47,11 +53,18 @@ WALL0 = 1.7e9
 TICK = 0.05  # s: the core's broadcast period (20 Hz)
 
 
-def make_core(deploy_error: float | None, timeout: float = 60.0, duration: float = 4.0, n=6):
+def make_core(
+    deploy_error: float | None,
+    timeout: float = 60.0,
+    duration: float = 4.0,
+    n: int = 6,
+    deploy_kappa: float | None = None,
+) -> CoordinatorCore:
     settings = CoordinatorSettings(
         scenario=load_scenario("circle"), swarm=SWARM, agents=n, duration=duration,
         kappa=2.0, rate=1 / TICK, sample_rate=10.0, feedforward=True, tile_size=0.5,
         agent_rate=10.0, deploy_error=deploy_error, deploy_timeout=timeout,
+        deploy_kappa=deploy_kappa,
     )  # fmt: skip
     core = CoordinatorCore(settings, cost_clock=lambda: 0.0, cpu_clock=lambda: 0.0)
     for i in range(n):
@@ -267,16 +280,18 @@ def test_covswarm_run_passes_the_hold_to_its_coordinator() -> None:
 
 @pytest.mark.e2e
 def test_a_live_team_spreads_over_s0_before_s_moves(tmp_path: Path) -> None:
-    """5 robots over real Zenoh sessions: the agents reach S(0)'s CVT while S waits, then
-    the script runs its whole duration (the hold measured 2.9 s for 10 robots)."""
+    """5 robots over real Zenoh sessions: the agents reach S(0)'s CVT while S waits, at the
+    hold's own gain (the agents take the one broadcast), then the script runs its whole
+    duration (the hold measured 2.9 s for 10 robots at the scenario's gain)."""
     swarm, out = new_swarm(), tmp_path / "deploy"
-    hold_args = ("--deploy-error", "0.02", "--deploy-timeout", "30")
+    hold_args = ("--deploy-error", "0.02", "--deploy-timeout", "30", "--deploy-kappa", "6")
     team = ("--agents", "5", "--scenario", "circle", "--duration", "3")
     with launch(out, *team, *hold_args, swarm=swarm) as launcher:
         assert launcher.wait(timeout=150) == 0, (tmp_path / "deploy.launcher.log").read_text()
     summary = json.loads((out / "summary.json").read_text())
     deploy = summary["pace"]["deploy"]
     assert deploy["released_because"] == "converged", deploy
+    assert deploy["kappa"] == 6.0  # the agents were broadcast the hold's gain
     assert deploy["error_at_release"] <= 0.02 < 0.25 * summary["initial_error"]
     hold = deploy["hold_s"]
     assert 0.3 < hold < 30.0
@@ -333,3 +348,113 @@ def test_covswarm_sim_holds_s0_as_the_coordinator_does() -> None:
     assert summary["steady_state_error_mean"] == pytest.approx(
         steady_state_mean(held.t[scripted], held.error[scripted])
     )
+
+
+def test_the_hold_broadcasts_its_own_gain_then_the_missions() -> None:
+    """--deploy-kappa: the Domains of the hold carry its gain, those before the mission and
+    after the hold the mission's; the summary says which gain the hold ran at."""
+    core = make_core(deploy_error=0.01, deploy_kappa=7.5)
+    polygon0 = core.settings.scenario.domain(0.0)[0]
+    bunched = start_points(core, 0)
+    now, ticks = run(core, bunched, 3.0)
+    assert core.pace.deploying
+    assert {(d.state, d.kappa) for _, d in domains(ticks)} == {(WAITING, 2.0), (RUNNING, 7.5)}
+    now, more = run(core, lloyd(bunched, polygon0, 200), now + 1.0, now)
+    released_at = core.pace.released[0]
+    gains = {d.kappa for _, d in domains(more) if d.t > released_at + 1e-9}
+    assert gains == {2.0}
+    assert {d.kappa for _, d in domains(more) if d.t < released_at - 1e-9} <= {7.5}
+    assert build_summary(core.settings, core.observed)["pace"]["deploy"]["kappa"] == 7.5
+    plain = make_core(deploy_error=0.01)
+    _, ticks = run(plain, bunched, 3.0)
+    assert {d.kappa for _, d in domains(ticks)} == {2.0}
+    assert build_summary(plain.settings, plain.observed)["pace"]["deploy"]["kappa"] == 2.0
+
+
+def test_a_deploy_gain_needs_a_hold_and_is_positive(tmp_path: Path) -> None:
+    check_deploy_kappa(None, None)
+    check_deploy_kappa(0.05, None)
+    check_deploy_kappa(0.05, 8.0)
+    with pytest.raises(ValueError, match="needs --deploy-error"):
+        check_deploy_kappa(None, 8.0)
+    for bad in (0.0, -1.0, math.nan, math.inf):
+        with pytest.raises(ValueError, match="positive"):
+            check_deploy_kappa(0.05, bad)
+    scenario = load_scenario("circle")
+    with pytest.raises(ValueError, match="needs --deploy-error"):
+        simulate(scenario, agents=3, duration=0.1, deploy_kappa=8.0)
+    config = CoordinatorConfig(swarm="s", out=tmp_path, deploy_kappa=8.0)
+    with pytest.raises(ValueError, match="needs --deploy-error"):
+        CoordinatorSettings.from_config(config, scenario)
+    # Each command says so before it starts anything.
+    for command, argv in (
+        (sim_command, ["--scenario", "circle", "--agents", "3", "--out", str(tmp_path / "s")]),
+        (run_command, ["--agents", "3", "--out", str(tmp_path / "r")]),
+        (
+            coordinator_command,
+            ["--swarm", "s", "--connect", "tcp/127.0.0.1:1", "--out", str(tmp_path / "c")],
+        ),
+    ):
+        result = CliRunner().invoke(command, [*argv, "--deploy-kappa", "8"])
+        assert result.exit_code == 2 and "needs --deploy-error" in result.output, result.output
+    assert not any(tmp_path.iterdir())
+
+
+def test_with_a_deploy_gain_the_agents_take_the_broadcast_one() -> None:
+    """covswarm run --deploy-kappa: its coordinator broadcasts the hold's gain, and its agents
+    are started without a gain of their own so that they take the broadcast one."""
+    scenario = load_scenario("circle")
+    endpoint = "tcp/127.0.0.1:1"
+    held = RunConfig(swarm="s", out=Path("out"), deploy_error=0.02, deploy_kappa=8.0)
+    coordinator = coordinator_config(held, scenario, endpoint)
+    argv = config_argv(coordinator)
+    assert argv[argv.index("--deploy-kappa") + 1] == "8.0"
+    assert argv[argv.index("--kappa") + 1] == str(scenario.kappa)
+    agents = agent_config(held, scenario, endpoint, [0, 1], 0.0, True)
+    assert agents.kappa is None and "--kappa" not in config_argv(agents)
+    plain = RunConfig(swarm="s", out=Path("out"), deploy_error=0.02)
+    assert agent_config(plain, scenario, endpoint, [0, 1], 0.0, True).kappa == scenario.kappa
+    assert "--deploy-kappa" not in config_argv(coordinator_config(plain, scenario, endpoint))
+
+
+def test_a_brain_without_a_gain_of_its_own_steps_with_the_broadcast_one() -> None:
+    """The hold's gain reaches the law: a brain started without --kappa steps with the
+    kappa of the Domain it holds; one started with it keeps its own."""
+    square = [[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]]
+    views = {}
+    for own, broadcast in ((None, 1.0), (None, 6.0), (2.0, 6.0)):
+        brain = AgentBrain(0, AgentConfig(kappa=own))
+        brain.on_pose(Pose(id=0, x=0.5, y=1.0, theta=0.0, stamp=WALL0, seq=0), now=0.0)
+        domain = Domain(
+            seq=1, stamp=WALL0, t=0.0, state=RUNNING, vertices=square,
+            velocities=[[0.0, 0.0]] * 4, kappa=broadcast,
+        )  # fmt: skip
+        assert brain.on_domain(domain, now=0.0)
+        begun = brain.begin(0.05, WALL0 + 0.05)
+        views[own, broadcast] = begun.view.kappa
+    assert views == {(None, 1.0): 1.0, (None, 6.0): 6.0, (2.0, 6.0): 2.0}
+
+
+def test_covswarm_sim_holds_at_the_deploy_gain_then_runs_at_the_missions() -> None:
+    """simulate(deploy_kappa=K): the hold is the hold at gain K (the same steps, to the bit,
+    as a run at gain K throughout), the script after it runs at the mission's gain; a team
+    of 20 at a mission's gain of 2 holds 3-4x shorter at 8 (measured over seeds 0-2:
+    3.9 / 6.2 / 4.1 s against 1.3 / 1.9 / 1.2 s)."""
+    scenario = load_scenario("circle")
+    common = {"agents": 20, "duration": 1.0, "dt": 0.1, "dynamics": "unicycle", "seed": 1}
+    common |= {"deploy_error": 0.03}
+    slow = simulate(scenario, kappa=2.0, **common)
+    held = simulate(scenario, kappa=2.0, deploy_kappa=8.0, **common)
+    fast = simulate(scenario, kappa=8.0, **common)
+    assert slow.released[1] == held.released[1] == "converged"
+    assert held.released == fast.released and held.released[0] < 0.5 * slow.released[0]
+    hold = round(held.released[0] / 0.1)
+    np.testing.assert_array_equal(held.trajectories[: hold + 1], fast.trajectories[: hold + 1])
+    assert np.abs(held.trajectories[hold + 2] - fast.trajectories[hold + 2]).max() > 1e-6
+    same = simulate(scenario, kappa=8.0, deploy_kappa=8.0, **common)
+    np.testing.assert_array_equal(same.trajectories, fast.trajectories)
+    summary = build_sim_summary(
+        scenario, held, law="da", feedforward=True, kappa=2.0, dt=0.1, duration=1.0, seed=1,
+        dynamics="unicycle", deploy_error=0.03, deploy_kappa=8.0,
+    )  # fmt: skip
+    assert summary["deploy"]["kappa"] == 8.0 and summary["kappa"] == 2.0
