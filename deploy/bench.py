@@ -637,7 +637,7 @@ def plot_brain_ticks(rows: list[dict], path: Path) -> None:
 
     phases = [phase for phase in PHASES if phase in rows[0]["phase_us"]]
     labels = [str(row["agents_per_process"]) for row in rows]
-    fig, ax = plt.subplots(figsize=(8, 2.0 + 0.5 * len(rows)))
+    fig, ax = plt.subplots(figsize=(8, 1.2 + 0.5 * len(rows)))
     left = np.zeros(len(rows))
     for phase in phases:
         widths = np.array([row["phase_us"][phase] for row in rows])
@@ -649,9 +649,9 @@ def plot_brain_ticks(rows: list[dict], path: Path) -> None:
     ax.text(BRAIN_TICK_TARGET_US, len(rows) - 0.5, f" {BRAIN_TICK_TARGET_US:.0f} us", fontsize=8)
     ax.set_xlabel("wall us per brain-tick")
     ax.set_ylabel("brains per process")
-    ax.legend(fontsize=7, ncol=5, loc="upper center", bbox_to_anchor=(0.5, -0.3))
+    ax.legend(fontsize=7, ncol=5, loc="upper center", bbox_to_anchor=(0.5, -0.45))
     fig.tight_layout()
-    fig.savefig(path, dpi=120)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
 
 
