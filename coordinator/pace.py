@@ -58,6 +58,7 @@ from typing import Any
 import numpy as np
 
 from covswarm.coordinator.monitor import RUNNING, WAITING
+from covswarm.protocol.messages import MAX_KAPPA
 from covswarm.tvd.density import Density
 
 PACE_FLOOR = 0.05  # slowest pace: the mission lasts at most 20x its script
@@ -118,13 +119,17 @@ def deploy_release(
 
 
 def check_deploy_kappa(deploy_error: float | None, deploy_kappa: float | None) -> None:
-    """ValueError for a gain of the deploy hold (1/s) without a hold, or not positive."""
+    """ValueError for a gain of the deploy hold (1/s) without a hold, or that a Domain
+    cannot carry (not positive, or above protocol.messages.MAX_KAPPA)."""
     if deploy_kappa is None:
         return
     if deploy_error is None:
         raise ValueError("--deploy-kappa is the deploy hold's gain: it needs --deploy-error")
-    if not (math.isfinite(deploy_kappa) and deploy_kappa > 0.0):
-        raise ValueError(f"the deploy hold's gain must be positive, not {deploy_kappa!r}")
+    if not 0.0 < deploy_kappa <= MAX_KAPPA:  # NaN too; a Domain carries at most MAX_KAPPA
+        raise ValueError(
+            f"the deploy hold's gain must be positive and at most {MAX_KAPPA:g}, "
+            f"not {deploy_kappa!r}"
+        )
 
 
 def ramp_pace(since: float) -> float:

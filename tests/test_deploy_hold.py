@@ -377,7 +377,7 @@ def test_a_deploy_gain_needs_a_hold_and_is_positive(tmp_path: Path) -> None:
     check_deploy_kappa(0.05, 8.0)
     with pytest.raises(ValueError, match="needs --deploy-error"):
         check_deploy_kappa(None, 8.0)
-    for bad in (0.0, -1.0, math.nan, math.inf):
+    for bad in (0.0, -1.0, math.nan, math.inf, 1.0e4):
         with pytest.raises(ValueError, match="positive"):
             check_deploy_kappa(0.05, bad)
     scenario = load_scenario("circle")
