@@ -233,7 +233,9 @@ class Decision:
 
     left: float
     right: float
-    reason: str  # "running", "aligning" (turning in place before the start) or why it holds still
+    # "running", "aligning" (turning in place before S starts), "aligned" (facing S's start
+    # at the end of a deploy hold) or why it holds still
+    reason: str
     velocity: tuple[float, float] = (0.0, 0.0)  # m/s, the control law's (after the filter)
     # m/s: what the (saturated) wheels give the robot's centre, v (cos th, sin th)
     achieved: tuple[float, float] = (0.0, 0.0)
@@ -871,6 +873,11 @@ class AgentBrain:
             return Decision(0.0, 0.0, "no-pose")
         if self.domain is None:
             return Decision(0.0, 0.0, "no-domain")
+        if self.domain.state == "running" and self.domain.start_velocities is not None:
+            # S holds still at the end of a deploy hold, announcing its start: face it, and
+            # take the first step after as the mission's first (no period measured yet).
+            self._was_running, self._last_control = False, None
+            return self._standing(now_wall)
         if self.domain.state != "running" and now - self._last_idle_step < IDLE_STEP_PERIOD:
             # Before the mission the step only keeps the neighbour sets warm: at 10 Hz,
             # agents already up would starve the ones still starting on a loaded machine.
@@ -1027,8 +1034,9 @@ class AgentBrain:
         return self._wheels(vx, vy, heading)
 
     def _standing(self, now_wall: float) -> Decision:
-        """The decision of a step while the mission does not run: hold still, but while it
-        waits for a start that moves S, turn in place to face where S will carry the robot
+        """The decision of a step while the mission does not run, or S holds still at the
+        end of a deploy hold (covswarm.coordinator.pace.DEPLOY_ALIGN): hold still, but while
+        it waits for a start that moves S, turn in place to face where S will carry the robot
         (the domain's start velocities' affine field at its position, as TVD-DA's
         feedforward guesses it): a robot that can only drive forwards and starts facing
         away falls behind while it turns, and a team's trailing edge then starts outside S
@@ -1039,13 +1047,15 @@ class AgentBrain:
         assert domain is not None
         start = domain.start_velocities
         latency = self.config.command_latency
+        # A still running S is waited for too ("aligned", not a running step's command).
+        waited = "aligned" if domain.state == "running" else domain.state
         if (
-            domain.state != "waiting"
+            domain.state == "done"
             or start is None
             or self.pose is None
             or not now_wall + latency - self.pose_taken <= POSE_HORIZON
         ):
-            return Decision(0.0, 0.0, domain.state)
+            return Decision(0.0, 0.0, waited)
         field = self._start_field
         if field is None or field[0] is not domain:
             field = self._start_field = (domain, affine_field(domain.vertices, start))
@@ -1055,7 +1065,7 @@ class AgentBrain:
         # (0, 0) facing it already, or where S barely moves (NaN)
         left, right = turn_in_place(heading, direction, config.cmd_timeout, config.robot)
         if left == right:
-            return Decision(0.0, 0.0, domain.state)
+            return Decision(0.0, 0.0, waited)
         self.counters.aligning += 1
         return Decision(left, right, "aligning")
 

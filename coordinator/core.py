@@ -53,6 +53,7 @@ from covswarm.coordinator.monitor import (
     positions_at,
 )
 from covswarm.coordinator.pace import (
+    DEPLOY_ALIGN,
     Pace,
     ScriptClock,
     broadcast_motion,
@@ -691,19 +692,30 @@ class CoordinatorCore:
         return actions
 
     def _end_deploy_hold(self, t: float, reason: str | None = None) -> None:
-        """Release the script at mission time ``t`` when the team has spread over S(0)
-        (coordinator.pace.deploy_release on the latest e_a sample) or ``reason`` says so."""
-        settings, record = self.settings, self.observed.record
+        """Release the script at mission time ``t``: at once when ``reason`` says so (an
+        operator steered), else DEPLOY_ALIGN s after the team has spread over S(0) or the
+        hold timed out (coordinator.pace.deploy_release on the latest e_a sample), S held
+        still meanwhile for the robots to face its start (Pace.align)."""
+        settings, record, pace = self.settings, self.observed.record, self.pace
         latest = (record.t[-1], record.error[-1]) if record.t else None
+        error = None if latest is None else latest[1]
         if reason is None and settings.deploy_error is not None:
-            reason = deploy_release(t, latest, settings.deploy_error, settings.deploy_timeout)
+            if pace.aligned_from is None:
+                reason = deploy_release(t, latest, settings.deploy_error, settings.deploy_timeout)
+                if reason is None:
+                    return
+                pace.align(t, reason, error)
+                said = "no sample" if latest is None else f"e_a {latest[1]:.4f} m"
+                (log.warning if reason == "timed out" else log.info)(
+                    "t = %.1f s: the deploy hold ends (%s, %s): the robots face S's start "
+                    "for %g s, then S starts moving", t, reason, said, DEPLOY_ALIGN
+                )  # fmt: skip
+            since, reason, error = pace.aligned_from
+            if t - since < DEPLOY_ALIGN - 1e-9:
+                return
         if reason is None:
             return
-        self.pace.release(t, reason, None if latest is None else latest[1])
-        error = "no sample" if latest is None else f"e_a {latest[1]:.4f} m"
-        (log.warning if reason == "timed out" else log.info)(
-            "t = %.1f s: the deploy hold ends (%s, %s): S starts moving", t, reason, error
-        )
+        pace.release(t, reason, error)
 
     def _log_pace(self, t: float) -> None:
         """Say that the script starts or stops running slower than the clock (an
@@ -726,7 +738,7 @@ class CoordinatorCore:
         tau, pace = (self.pace.tau, self.pace.pace) if state != WAITING else (0.0, 1.0)
         vertices, velocities = self.steering.domain(tau)
         density = self.settings.scenario.density(tau)
-        velocities, start = broadcast_motion(state, velocities, pace)
+        velocities, start = broadcast_motion(state, velocities, pace, self.pace.aligning)
         if density is not None:
             density = paced_density(density, pace, t) if state == RUNNING else density.frozen()
         domain = Domain(

@@ -34,9 +34,13 @@ sampled for the period it holds, so the script need not wait for it.
 A deploy hold (``deploying``): the script waits at tau = 0, pace 0, from the mission's
 start until the coordinator releases it (:func:`deploy_release`: the team's e_a at or below
 a target, or a timeout), so that the team first spreads over S(0) to its CVT, as a team is
-deployed before an operator moves it. S then starts gently: its pace rises from 0 to 1
-over DEPLOY_RAMP s (:func:`ramp_pace`; lower if the team holds less), for robots that stand
-still facing anywhere; pacing applies from then on. It is the one pause at pace 0.
+deployed before an operator moves it. Once it may end, S stays still DEPLOY_ALIGN s more
+while the Domain announces the motion S will start with (:meth:`Pace.align`,
+:func:`broadcast_motion`), so that the robots, standing at their centroids facing wherever
+their last moves left them, turn in place to face it (covswarm.agent.brain), as they do
+before the mission. S then starts gently: its pace rises from 0 to 1 over DEPLOY_RAMP s
+(:func:`ramp_pace`; lower if the team holds less); pacing applies from then on. It is the
+one pause at pace 0.
 
 PACE_FLOOR rather than a pause at pace 0 for an overloaded team: a mission on a machine
 that holds nothing still ends (after at most 1 / PACE_FLOOR its duration), and S moving at
@@ -57,7 +61,7 @@ from typing import Any
 
 import numpy as np
 
-from covswarm.coordinator.monitor import RUNNING, WAITING
+from covswarm.coordinator.monitor import DONE, RUNNING
 from covswarm.protocol.messages import MAX_KAPPA
 from covswarm.tvd.density import Density
 
@@ -71,6 +75,13 @@ HELD_WINDOW = 2.0  # s of an agent's reports its held rate is measured over
 # s: after a deploy hold S starts gently, its pace rising from 0 to 1 over this long, so
 # that robots standing still, facing anywhere, turn to its motion before it is fast
 DEPLOY_RAMP = 2.0
+# s: once the deploy hold may end, S stays still this long more, announcing its start
+# motion, for the robots to turn to face it: at release they faced wherever their last
+# moves left them, and e_a rose from 0.05 to 0.16 m while they turned (300 robots,
+# circle-400, covswarm sim, seeds 0 and 1), 0.05 when they faced S's motion. An agent's
+# turn in place closes period / command timeout of its heading error a period (0.2 at 10
+# Hz): 89 % of it in 1 s.
+DEPLOY_ALIGN = 1.0
 
 
 def held_fraction(
@@ -140,18 +151,19 @@ def ramp_pace(since: float) -> float:
 
 
 def broadcast_motion(
-    state: str, velocities: np.ndarray, pace: float = 1.0
+    state: str, velocities: np.ndarray, pace: float = 1.0, aligning: bool = False
 ) -> tuple[np.ndarray, np.ndarray | None]:
     """What a Domain of mission ``state`` says of S's motion: the vertex velocities (n, 2)
     m/s it broadcasts, and its start velocities (protocol.Domain.start_velocities) or None.
 
     ``velocities``: the script's S_script'(tau) (n, 2) m/s. Only a running S moves, at
-    ``pace`` times them. While the mission waits S holds still and announces the motion it
-    will start with (None when it starts still), so that robots turn to face it beforehand
+    ``pace`` times them. While the mission waits, and at the end of a deploy hold
+    (``aligning``: :meth:`Pace.align`), S holds still and announces the motion it will start
+    with (None when it starts still), so that robots turn to face it beforehand
     (covswarm.agent.brain); once done it holds still and announces nothing."""
-    if state == RUNNING:
+    if state == RUNNING and not aligning:
         return velocities * pace, None
-    start = velocities if state == WAITING and np.any(velocities) else None
+    start = velocities if state != DONE and np.any(velocities) else None
     return np.zeros_like(velocities), start
 
 
@@ -196,6 +208,8 @@ class Pace:
     # the deploy hold's end: mission time (s), why (deploy_release), e_a (m) then; None while
     # it holds or without one
     released: tuple[float, str, float | None] | None = None
+    # when the hold could end (the same three), S then held DEPLOY_ALIGN s more (align)
+    aligned_from: tuple[float, str, float | None] | None = None
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.asked) and self.asked > 0.0):
@@ -209,6 +223,19 @@ class Pace:
         if self.deploying:
             self.deploying = False
             self.released = (t, reason, error)
+
+    def align(self, t: float, reason: str, error: float | None) -> tuple[float, str, float | None]:
+        """The deploy hold may end at mission time ``t`` (``reason``, e_a ``error`` m): S holds
+        still DEPLOY_ALIGN s more, announcing its start motion (:attr:`aligning`). Returns
+        when, why and at what e_a it first could end (a later call changes nothing)."""
+        if self.aligned_from is None:
+            self.aligned_from = (t, reason, error)
+        return self.aligned_from
+
+    @property
+    def aligning(self) -> bool:
+        """Whether the hold may end and S holds still for the robots to face its start."""
+        return self.deploying and self.aligned_from is not None
 
     def report(self, ident: int, stats: Mapping[str, float], stamp: float) -> None:
         """Agent ``ident``'s stats, stamped ``stamp`` (its mission-scaled wall clock, s)."""
@@ -321,8 +348,8 @@ class Pace:
         asked (the team's mean); late_held: the agents' mean share of periods skipped by a
         late turn; missed_deadline: their mean share of commands sent after their period;
         pace_min, pace_mean: over the script's part of the mission, after a deploy hold
-        ("deploy": its length hold_s, released_because (None: it held to the end) and
-        e_a then, m).
+        ("deploy": its length hold_s, released_because (None: it held to the end), e_a
+        then, m, and aligned_s: how long of it S held for the robots to face its start).
         """
         held = []
         for ident, s in stats.items():
@@ -346,8 +373,14 @@ class Pace:
         deploy = {}
         if self.released or self.deploying:
             why, error = self.released[1:] if self.released else (None, None)
+            aligned = 0.0 if self.aligned_from is None else hold - self.aligned_from[0]
             deploy = {
-                "deploy": {"hold_s": hold, "released_because": why, "error_at_release": error}
+                "deploy": {
+                    "hold_s": hold,
+                    "released_because": why,
+                    "error_at_release": error,
+                    "aligned_s": aligned,
+                }
             }
         return {
             "enabled": self.enabled,

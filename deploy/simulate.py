@@ -101,7 +101,10 @@ def simulate(
     deploy_error (m), deploy_timeout (s): the deploy hold of ``covswarm run --deploy-error``
     (covswarm.coordinator.pace): S(0) held still until e_a is at most deploy_error, at most
     deploy_timeout s, then the script's whole duration (``SimResult.released``), with
-    deploy_kappa (1/s; None: kappa) the gain while it holds, as the coordinator broadcasts.
+    deploy_kappa (1/s; None: kappa) the gain while it holds, as the coordinator broadcasts;
+    once it may end, S holds still DEPLOY_ALIGN s more while the unicycles turn in place to
+    face S's start, as the agents do (covswarm.tvd.drive.turn_in_place, held for the robots'
+    command timeout).
 
     progress(step, steps) is called after every step. damping, prior: TVD-C's (law "c";
     covswarm.tvd.control.team_step), damping None (not given) for covswarm.tvd.control.DAMPING,
@@ -114,15 +117,23 @@ def simulate(
     unicycle's arc); a run that never touches one is exactly what it was without them.
     """
     from covswarm.coordinator.pace import (
+        DEPLOY_ALIGN,
         check_deploy_kappa,
         deploy_release,
         paced_density,
         ramp_pace,
     )
+    from covswarm.deploy.plan import COMMAND_TIMEOUT
     from covswarm.tvd import control
     from covswarm.tvd.coverage import aggregate_error
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
-    from covswarm.tvd.drive import KHEPERA_IV, integrate, twist_from_wheels, wheel_speeds
+    from covswarm.tvd.drive import (
+        KHEPERA_IV,
+        integrate,
+        turn_in_place,
+        twist_from_wheels,
+        wheel_speeds,
+    )
     from covswarm.tvd.safety import (
         DEFAULT_GAMMA,
         SAFETY_RADIUS,
@@ -175,6 +186,8 @@ def simulate(
     check_deploy_kappa(deploy_error, deploy_kappa)
     hold_steps = round(deploy_timeout / dt) if holding else 0
     released: tuple[float, str, float] | None = None
+    aligned: tuple[float, str, float] | None = None  # when the hold could end, why, e_a
+    facing: np.ndarray | None = None  # (n,) rad: S's start motion at each robot
     t_log: list[float] = []
     error_log: list[float] = []
     trajectory_log: list[np.ndarray] = []
@@ -203,10 +216,15 @@ def simulate(
         trajectory_log.append(positions.copy())
         heading_log.append(np.array(headings, dtype=float))
         error_log.append(aggregate_error(positions, polygon, density))
-        if holding:
+        if holding and aligned is None:
             why = deploy_release(tk, (tk, error_log[-1]), deploy_error, hold_steps * dt)
             if why is not None:
-                holding, released = False, (tk, why, error_log[-1])
+                aligned = (tk, why, error_log[-1])
+                start_vertices, start_velocities = scenario.domain(0.0)
+                start_field = control.affine_field(start_vertices, start_velocities)
+                facing = control.field_directions(start_field, positions)
+        if holding and aligned is not None and tk - aligned[0] >= DEPLOY_ALIGN - 1e-9 * dt:
+            holding, released = False, (tk, aligned[1], aligned[2])
         if holding:
             pace = 0.0  # S held at S(0), as the coordinator holds it
         elif released is not None:  # S starts gently, as the coordinator starts it (ramp_pace)
@@ -219,6 +237,19 @@ def simulate(
             density = None if density is None else paced_density(density, pace, tau)
         if scripted == steps if released is None else tau >= duration - 1e-9 * dt:
             break
+        if holding and aligned is not None:  # S still a while more: face its start
+            if dynamics != "single":
+                assert facing is not None
+                pairs = zip(headings.tolist(), facing.tolist(), strict=True)
+                wheels = np.array([turn_in_place(h, d, COMMAND_TIMEOUT) for h, d in pairs])
+                wheel_rows.append(wheels)
+                poses = integrate(np.column_stack([positions, headings]), wheels, dt)
+                headings = poses[:, 2]  # turning in place: the centres stay
+            centre_velocity = np.zeros((n, 2))
+            k += 1
+            if progress is not None:
+                progress(scripted, steps)
+            continue
         gain = deploy_kappa if holding and deploy_kappa is not None else kappa
         step = control.team_step(
             law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,

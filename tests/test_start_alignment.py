@@ -146,3 +146,24 @@ def test_the_simulation_can_start_its_robots_facing_s_motion() -> None:
         simulate(
             scenario, agents=2, duration=0.1, dynamics="unicycle", heading=0.0, face_start=True
         )
+
+
+def test_at_the_end_of_a_deploy_hold_a_running_robot_faces_s_start_then_steps() -> None:
+    """A running S held still that announces its start (the end of a deploy hold,
+    covswarm.coordinator.pace.DEPLOY_ALIGN): the robot turns in place to face it instead of
+    stepping the law, and says "aligned" once it does; the step after S starts is the
+    mission's first (no period measured yet, so its command is not capped to one)."""
+    up = ((0.0, 0.2),) * 4
+    decision = waiting_brain(up, theta=-0.5 * math.pi, state="running").step(0.0, WALL)
+    assert decision.reason == "aligning" and decision.left == -decision.right != 0.0
+    brain = waiting_brain(up, theta=0.5 * math.pi, state="running")
+    for k in range(3):  # steps of the law before (as in the hold) change nothing
+        decision = brain.step(0.1 * k, WALL + 0.1 * k)
+        assert (decision.left, decision.right, decision.reason) == (0.0, 0.0, "aligned")
+    released = protocol.Domain(
+        seq=2, stamp=WALL + 0.3, t=0.3, state="running", vertices=SQUARE, velocities=up,
+        kappa=1.0,
+    )  # fmt: skip
+    assert brain.receive("domain", released.encode(), 0.3, WALL + 0.3)
+    decision = brain.step(0.3, WALL + 0.3)
+    assert decision.reason == "running" and brain.command_hold == 0.0
