@@ -721,10 +721,11 @@ class Domain(Message):
     so the coordinator chooses it for the whole swarm and broadcasts it here; optional on
     the wire, absent means DEFAULT_TILE_SIZE.
 
-    start_velocities: while the mission waits (``velocities`` all 0: S holds still), the
+    start_velocities: while the mission waits, and for the last second of a deploy hold
+    (``velocities`` all 0: S holds still; covswarm.coordinator.pace.DEPLOY_ALIGN), the
     vertex velocities S will have when it starts, so that robots that can only drive
     forwards turn to face S's first motion beforehand (covswarm.agent.brain); optional on
-    the wire, absent when S will not move at the start (a steered mission) and once it runs.
+    the wire, absent when S will not move at the start (a steered mission) and once it moves.
     """
 
     seq: int
