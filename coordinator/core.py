@@ -56,6 +56,7 @@ from covswarm.coordinator.pace import (
     DEPLOY_ALIGN,
     Pace,
     ScriptClock,
+    aligned_by,
     broadcast_motion,
     check_deploy_kappa,
     deploy_release,
@@ -162,6 +163,11 @@ class CoordinatorSettings:
     # 1/s: the gain broadcast while the hold lasts (S still: Lloyd's iterations, which the
     # mission's gain, chosen for tracking, takes ~3x as many periods over); None: kappa
     deploy_kappa: float | None = None
+
+    @property
+    def hold_kappa(self) -> float:
+        """The gain (1/s) broadcast while the deploy hold lasts: deploy_kappa, else kappa."""
+        return self.kappa if self.deploy_kappa is None else self.deploy_kappa
 
     @property
     def script_ends(self) -> bool:
@@ -711,7 +717,7 @@ class CoordinatorCore:
                     "for %g s, then S starts moving", t, reason, said, DEPLOY_ALIGN
                 )  # fmt: skip
             since, reason, error = pace.aligned_from
-            if t - since < DEPLOY_ALIGN - 1e-9:
+            if not aligned_by(t, since):
                 return
         if reason is None:
             return
@@ -760,10 +766,9 @@ class CoordinatorCore:
     def _kappa(self, state: str) -> float:
         """The gain to broadcast: the deploy hold's while S holds still at S(0) for the team
         to spread over it (settings.deploy_kappa, when given), else the mission's."""
-        settings = self.settings
-        if state == RUNNING and self.pace.deploying and settings.deploy_kappa is not None:
-            return settings.deploy_kappa
-        return settings.kappa
+        if state == RUNNING and self.pace.deploying:
+            return self.settings.hold_kappa
+        return self.settings.kappa
 
     @cached_property
     def map_payload(self) -> bytes | None:

@@ -159,8 +159,7 @@ def pace_summary(settings: CoordinatorSettings, observed: Observed) -> dict[str,
     assert observed.pace is not None
     pace = observed.pace.summary(observed.agent_stats, observed.record.t[-1])
     if "deploy" in pace:
-        gain = settings.kappa if settings.deploy_kappa is None else settings.deploy_kappa
-        pace["deploy"]["kappa"] = gain
+        pace["deploy"]["kappa"] = settings.hold_kappa
     return pace
 
 

@@ -129,6 +129,12 @@ def deploy_release(
     return "timed out" if t >= timeout else None
 
 
+def aligned_by(t: float, since: float) -> bool:
+    """Whether S, held still from mission time ``since`` (s) for the robots to face its
+    start, has been so DEPLOY_ALIGN s by ``t`` (to rounding: ticks and steps add up)."""
+    return t - since >= DEPLOY_ALIGN - 1e-9
+
+
 def check_deploy_kappa(deploy_error: float | None, deploy_kappa: float | None) -> None:
     """ValueError for a gain of the deploy hold (1/s) without a hold, or that a Domain
     cannot carry (not positive, or above protocol.messages.MAX_KAPPA)."""
@@ -224,13 +230,12 @@ class Pace:
             self.deploying = False
             self.released = (t, reason, error)
 
-    def align(self, t: float, reason: str, error: float | None) -> tuple[float, str, float | None]:
+    def align(self, t: float, reason: str, error: float | None) -> None:
         """The deploy hold may end at mission time ``t`` (``reason``, e_a ``error`` m): S holds
-        still DEPLOY_ALIGN s more, announcing its start motion (:attr:`aligning`). Returns
-        when, why and at what e_a it first could end (a later call changes nothing)."""
+        still DEPLOY_ALIGN s more, announcing its start motion (:attr:`aligning`); a later
+        call changes nothing."""
         if self.aligned_from is None:
             self.aligned_from = (t, reason, error)
-        return self.aligned_from
 
     @property
     def aligning(self) -> bool:

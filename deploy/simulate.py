@@ -117,7 +117,7 @@ def simulate(
     unicycle's arc); a run that never touches one is exactly what it was without them.
     """
     from covswarm.coordinator.pace import (
-        DEPLOY_ALIGN,
+        aligned_by,
         check_deploy_kappa,
         deploy_release,
         paced_density,
@@ -170,9 +170,11 @@ def simulate(
         if face_start:
             raise ValueError("a heading for every robot, or each facing S's start: not both")
         headings = np.full(n, float(heading))
+    # S's motion at the start, which a robot faces before it (face_start, the deploy hold's
+    # end): the direction at each point, NaN where S barely moves.
+    start_field = control.affine_field(*scenario.domain(0.0))
     if face_start:
-        vertices, velocities = scenario.domain(0.0)
-        facing = control.field_directions(control.affine_field(vertices, velocities), positions)
+        facing = control.field_directions(start_field, positions)
         headings = np.where(np.isnan(facing), headings, facing)
     if dynamics == "single":
         headings = np.zeros(n)
@@ -220,10 +222,8 @@ def simulate(
             why = deploy_release(tk, (tk, error_log[-1]), deploy_error, hold_steps * dt)
             if why is not None:
                 aligned = (tk, why, error_log[-1])
-                start_vertices, start_velocities = scenario.domain(0.0)
-                start_field = control.affine_field(start_vertices, start_velocities)
                 facing = control.field_directions(start_field, positions)
-        if holding and aligned is not None and tk - aligned[0] >= DEPLOY_ALIGN - 1e-9 * dt:
+        if holding and aligned is not None and aligned_by(tk, aligned[0]):
             holding, released = False, (tk, aligned[1], aligned[2])
         if holding:
             pace = 0.0  # S held at S(0), as the coordinator holds it
