@@ -60,6 +60,7 @@ from covswarm.coordinator.pace import (
     broadcast_motion,
     check_deploy_kappa,
     deploy_release,
+    hold_gain,
     paced_density,
 )
 from covswarm.coordinator.steering import (
@@ -754,7 +755,7 @@ class CoordinatorCore:
             state=state,
             vertices=vertices,
             velocities=velocities,
-            kappa=self._kappa(state),
+            kappa=self._kappa(state, t),
             density=None if density is None else density.to_dict(),
             tile_size=self.settings.tile_size,
             start_velocities=start,
@@ -763,12 +764,14 @@ class CoordinatorCore:
         self._published.append((domain.seq, domain.stamp))
         return vertices, domain
 
-    def _kappa(self, state: str) -> float:
-        """The gain to broadcast: the deploy hold's while S holds still at S(0) for the team
-        to spread over it (settings.deploy_kappa, when given), else the mission's."""
+    def _kappa(self, state: str, t: float) -> float:
+        """The gain to broadcast at mission time ``t``: the deploy hold's while S holds still
+        at S(0) for the team to spread over it (settings.deploy_kappa, when given, ramped
+        up to from the mission's: coordinator.pace.hold_gain), else the mission's."""
+        settings = self.settings
         if state == RUNNING and self.pace.deploying:
-            return self.settings.hold_kappa
-        return self.settings.kappa
+            return hold_gain(t, settings.kappa, settings.hold_kappa)
+        return settings.kappa
 
     @cached_property
     def map_payload(self) -> bytes | None:

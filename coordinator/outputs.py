@@ -19,7 +19,7 @@ from covswarm.coordinator.monitor import (
     losses_summary,
     team_changes_summary,
 )
-from covswarm.coordinator.pace import Pace, ScriptClock
+from covswarm.coordinator.pace import Pace, ScriptClock, gain_ramp
 from covswarm.coordinator.steering import Steering
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.physical import agent_wheel_figures, physical_summary
@@ -155,11 +155,13 @@ def script_start(observed: Observed) -> float | None:
 
 def pace_summary(settings: CoordinatorSettings, observed: Observed) -> dict[str, Any]:
     """The run's pace (coordinator.pace.Pace.summary), its deploy hold with the gain the
-    agents were broadcast while it held (settings.deploy_kappa, else kappa)."""
+    agents were broadcast while it held (settings.deploy_kappa, else kappa) and the s it
+    took to reach it from the mission's (coordinator.pace.gain_ramp)."""
     assert observed.pace is not None
     pace = observed.pace.summary(observed.agent_stats, observed.record.t[-1])
     if "deploy" in pace:
         pace["deploy"]["kappa"] = settings.hold_kappa
+        pace["deploy"]["kappa_ramp_s"] = gain_ramp(settings.kappa, settings.hold_kappa)
     return pace
 
 

@@ -82,6 +82,11 @@ DEPLOY_RAMP = 2.0
 # turn in place closes period / command timeout of its heading error a period (0.2 at 10
 # Hz): 89 % of it in 1 s.
 DEPLOY_ALIGN = 1.0
+# s: a deploy hold at a gain of its own above the mission's (--deploy-kappa) starts at the
+# mission's and ramps up to it over this long (hold_gain): robots standing far from their
+# centroids at the start, at gain 8 at once, saturated their wheels (2.6-3.6 robot-s in
+# 300 live robots) and brought a pair within a body 0.3-0.7 s in, in two runs of three.
+DEPLOY_GAIN_RAMP = 1.0
 
 
 def held_fraction(
@@ -147,6 +152,22 @@ def check_deploy_kappa(deploy_error: float | None, deploy_kappa: float | None) -
             f"the deploy hold's gain must be positive and at most {MAX_KAPPA:g}, "
             f"not {deploy_kappa!r}"
         )
+
+
+def gain_ramp(kappa: float, hold_kappa: float) -> float:
+    """s a deploy hold's gain ``hold_kappa`` (1/s, --deploy-kappa) takes to reach from the
+    mission's ``kappa``: DEPLOY_GAIN_RAMP when it is higher, else 0 (it holds from the
+    start)."""
+    return DEPLOY_GAIN_RAMP if hold_kappa > kappa else 0.0
+
+
+def hold_gain(t: float, kappa: float, hold_kappa: float) -> float:
+    """The gain (1/s) of a deploy hold at mission time ``t`` (s; it holds from t = 0):
+    ``hold_kappa``, reached from ``kappa`` linearly over :func:`gain_ramp` s."""
+    ramp = gain_ramp(kappa, hold_kappa)
+    if ramp <= 0.0 or t >= ramp:
+        return hold_kappa
+    return kappa + (hold_kappa - kappa) * max(t, 0.0) / ramp
 
 
 def ramp_pace(since: float) -> float:

@@ -120,6 +120,7 @@ def simulate(
         aligned_by,
         check_deploy_kappa,
         deploy_release,
+        hold_gain,
         paced_density,
         ramp_pace,
     )
@@ -250,7 +251,9 @@ def simulate(
             if progress is not None:
                 progress(scripted, steps)
             continue
-        gain = deploy_kappa if holding and deploy_kappa is not None else kappa
+        gain = kappa
+        if holding and deploy_kappa is not None:
+            gain = hold_gain(tk, kappa, deploy_kappa)
         step = control.team_step(
             law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
@@ -355,6 +358,7 @@ def build_summary(
     # Deferred: coordinator.outputs pulls in matplotlib (mission.report), which simulate()
     # alone (covswarm bench, the tests) never needs.
     from covswarm.coordinator.outputs import mission_summary
+    from covswarm.coordinator.pace import gain_ramp
     from covswarm.mission.physical import wheel_figures
     from covswarm.mission.report import steady_state_mean
     from covswarm.mission.world_metrics import world_summary
@@ -418,10 +422,11 @@ def build_summary(
     )
     if result.released is not None:
         hold, why, error = result.released
+        hold_kappa = kappa if deploy_kappa is None else deploy_kappa
         summary["deploy"] = {
             "error": deploy_error, "timeout": deploy_timeout, "hold_s": float(hold),
             "released_because": why, "error_at_release": float(error),
-            "kappa": kappa if deploy_kappa is None else deploy_kappa,
+            "kappa": hold_kappa, "kappa_ramp_s": gain_ramp(kappa, hold_kappa),
         }  # fmt: skip
     if law == "c":
         from covswarm.tvd.control import DAMPING

@@ -30,12 +30,15 @@ from covswarm.coordinator.main import coordinator_command
 from covswarm.coordinator.outputs import build_summary
 from covswarm.coordinator.pace import (
     DEPLOY_ALIGN,
+    DEPLOY_GAIN_RAMP,
     DEPLOY_RAMP,
     PACE_FLOOR,
     Pace,
     ScriptClock,
     check_deploy_kappa,
     deploy_release,
+    gain_ramp,
+    hold_gain,
     pace_sentence,
     ramp_pace,
 )
@@ -50,6 +53,7 @@ from covswarm.protocol.steering import SteerRequest
 from covswarm.runtime.options import config_argv
 from covswarm.tvd.control import affine_field, field_directions
 from covswarm.tvd.coverage import aggregate_error, mass_centroid
+from covswarm.tvd.drive import KHEPERA_IV
 
 SWARM = "deploy-test"
 WALL0 = 1.7e9
@@ -373,24 +377,51 @@ def test_covswarm_sim_holds_s0_as_the_coordinator_does() -> None:
 
 
 def test_the_hold_broadcasts_its_own_gain_then_the_missions() -> None:
-    """--deploy-kappa: the Domains of the hold carry its gain, those before the mission and
-    after the hold the mission's; the summary says which gain the hold ran at."""
+    """--deploy-kappa: the Domains of the hold carry its gain, reached from the mission's
+    linearly over DEPLOY_GAIN_RAMP s of mission time; those before the mission and after
+    the hold carry the mission's; the summary says which gain the hold ran at and its ramp."""
     core = make_core(deploy_error=0.01, deploy_kappa=7.5)
     polygon0 = core.settings.scenario.domain(0.0)[0]
     bunched = start_points(core, 0)
     now, ticks = run(core, bunched, 3.0)
     assert core.pace.deploying
-    assert {(d.state, d.kappa) for _, d in domains(ticks)} == {(WAITING, 2.0), (RUNNING, 7.5)}
+    held = [d for _, d in domains(ticks) if d.state == RUNNING]
+    assert {d.kappa for _, d in domains(ticks) if d.state == WAITING} == {2.0}
+    for d in held:  # the ramp, written out
+        assert d.kappa == pytest.approx(2.0 + 5.5 * min(1.0, d.t / DEPLOY_GAIN_RAMP), abs=1e-12)
+    assert min(d.kappa for d in held) < 2.5 and {7.5} < {d.kappa for d in held}
+    assert any(2.5 < d.kappa < 7.0 for d in held)
     now, more = run(core, lloyd(bunched, polygon0, 200), now + 1.0 + DEPLOY_ALIGN, now)
     released_at = core.pace.released[0]
     gains = {d.kappa for _, d in domains(more) if d.t > released_at + 1e-9}
     assert gains == {2.0}
     assert {d.kappa for _, d in domains(more) if d.t < released_at - 1e-9} <= {7.5}
-    assert build_summary(core.settings, core.observed)["pace"]["deploy"]["kappa"] == 7.5
+    deploy = build_summary(core.settings, core.observed)["pace"]["deploy"]
+    assert deploy["kappa"] == 7.5 and deploy["kappa_ramp_s"] == DEPLOY_GAIN_RAMP
     plain = make_core(deploy_error=0.01)
     _, ticks = run(plain, bunched, 3.0)
     assert {d.kappa for _, d in domains(ticks)} == {2.0}
-    assert build_summary(plain.settings, plain.observed)["pace"]["deploy"]["kappa"] == 2.0
+    deploy = build_summary(plain.settings, plain.observed)["pace"]["deploy"]
+    assert deploy["kappa"] == 2.0 and deploy["kappa_ramp_s"] == 0.0
+
+
+def test_the_holds_gain_ramps_up_from_the_missions_and_never_down() -> None:
+    """hold_gain against the ramp written out, at random times and gains: from the mission's
+    kappa at t = 0 to the hold's at DEPLOY_GAIN_RAMP, the hold's from then on; a hold's gain
+    at or below the mission's holds from the start (no ramp)."""
+    rng = np.random.default_rng(7)
+    for _ in range(200):
+        kappa, hold = rng.uniform(0.5, 20.0, 2)
+        t = rng.uniform(-1.0, 3.0 * DEPLOY_GAIN_RAMP)
+        if hold > kappa:
+            expected = kappa + (hold - kappa) * float(np.clip(t / DEPLOY_GAIN_RAMP, 0.0, 1.0))
+            assert gain_ramp(kappa, hold) == DEPLOY_GAIN_RAMP
+        else:
+            expected = hold
+            assert gain_ramp(kappa, hold) == 0.0
+        assert hold_gain(t, kappa, hold) == pytest.approx(expected, rel=1e-12)
+    assert hold_gain(0.0, 3.0, 8.0) == 3.0 and hold_gain(DEPLOY_GAIN_RAMP, 3.0, 8.0) == 8.0
+    assert hold_gain(0.0, 3.0, 3.0) == 3.0 and hold_gain(0.0, 8.0, 3.0) == 3.0
 
 
 def test_a_deploy_gain_needs_a_hold_and_is_positive(tmp_path: Path) -> None:
@@ -457,15 +488,22 @@ def test_a_brain_without_a_gain_of_its_own_steps_with_the_broadcast_one() -> Non
     assert views == {(None, 1.0): 1.0, (None, 6.0): 6.0, (2.0, 6.0): 2.0}
 
 
-def test_covswarm_sim_holds_at_the_deploy_gain_then_runs_at_the_missions() -> None:
-    """simulate(deploy_kappa=K): the hold is the hold at gain K (the same steps, to the bit,
-    as a run at gain K throughout), the script after it runs at the mission's gain; a team
-    of 20 at a mission's gain of 2 holds 3-4x shorter at 8 (measured over seeds 0-2:
-    3.9 / 6.2 / 4.1 s against 1.3 / 1.9 / 1.2 s)."""
+def test_covswarm_sim_holds_at_the_deploy_gain_then_runs_at_the_missions(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """simulate(deploy_kappa=K): without its ramp the hold is the hold at gain K (the same
+    steps, to the bit, as a run at gain K throughout), the script after it runs at the
+    mission's gain; a team of 20 at a mission's gain of 2 holds 3-4x shorter at 8
+    (measured over seeds 0-2: 3.9 / 6.2 / 4.1 s against 1.3 / 1.9 / 1.2 s). With it, the
+    hold's first step is the mission's gain's (hold_gain at t = 0)."""
     scenario = load_scenario("circle")
     common = {"agents": 20, "duration": 1.0, "dt": 0.1, "dynamics": "unicycle", "seed": 1}
     common |= {"deploy_error": 0.03}
+    ramped = simulate(scenario, kappa=2.0, deploy_kappa=8.0, **common)
     slow = simulate(scenario, kappa=2.0, **common)
+    np.testing.assert_array_equal(ramped.trajectories[:2], slow.trajectories[:2])
+    assert np.abs(ramped.trajectories[2] - slow.trajectories[2]).max() > 1e-6
+    monkeypatch.setattr(pace_module, "DEPLOY_GAIN_RAMP", 0.0)
     held = simulate(scenario, kappa=2.0, deploy_kappa=8.0, **common)
     fast = simulate(scenario, kappa=8.0, **common)
     assert slow.released[1] == held.released[1] == "converged"
@@ -480,6 +518,33 @@ def test_covswarm_sim_holds_at_the_deploy_gain_then_runs_at_the_missions() -> No
         dynamics="unicycle", deploy_error=0.03, deploy_kappa=8.0,
     )  # fmt: skip
     assert summary["deploy"]["kappa"] == 8.0 and summary["kappa"] == 2.0
+    assert summary["deploy"]["kappa_ramp_s"] == 0.0
+
+
+def test_the_holds_gain_ramp_spares_the_wheels(monkeypatch: pytest.MonkeyPatch) -> None:
+    """At 4x the mission's gain at once, robots standing far from their centroids saturate
+    their wheels in the hold's first second; ramped up over DEPLOY_GAIN_RAMP they barely do,
+    and the hold is about as long. 20 robots, circle at kappa 2, --deploy-kappa 8, the
+    safety filter on, seeds 0-2 measured: 5.5 / 3.6 / 2.7 robot-s of saturated wheels at
+    once, 0.8 / 0.1 / 0.0 ramped; holds 2.1 / 1.9 / 2.1 s against 2.2 / 2.1 / 1.8 s."""
+    scenario = load_scenario("circle")
+    common = {"agents": 20, "kappa": 2.0, "deploy_kappa": 8.0, "duration": 0.5, "dt": 0.1}
+    common |= {"dynamics": "unicycle", "projection_distance": 0.05, "safety": True}
+    common |= {"deploy_error": 0.05, "seed": 1}
+
+    def hold_saturation(result) -> float:  # type: ignore[no-untyped-def]
+        """Robot-s of the hold with a wheel at its limit."""
+        limit = KHEPERA_IV.max_wheel_speed
+        hold = result.t[: len(result.wheels)] <= result.released[0]
+        peak = np.nanmax(np.abs(result.wheels[hold]), axis=2)
+        return float(np.count_nonzero(peak >= limit - 1e-9) * 0.1)
+
+    ramped = simulate(scenario, **common)
+    monkeypatch.setattr(pace_module, "DEPLOY_GAIN_RAMP", 0.0)
+    at_once = simulate(scenario, **common)
+    assert hold_saturation(at_once) >= 2.0
+    assert hold_saturation(ramped) <= 0.5
+    assert ramped.released[0] <= 1.5 * at_once.released[0]
 
 
 def test_unicycles_face_s_start_before_it_moves_after_the_hold(
