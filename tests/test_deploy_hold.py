@@ -552,11 +552,12 @@ def test_unicycles_face_s_start_before_it_moves_after_the_hold(
 ) -> None:
     """Once the hold may end, S holds still DEPLOY_ALIGN s while the unicycles turn in
     place to face the motion it will start with (no centre moves), so that as S starts
-    they do not fall behind it while they turn: 30 robots at kappa 3, seeds 0-2 measured,
-    e_a in the 3 s after the release 0.016-0.019 m with it, 0.024-0.029 m without (its peak
-    then 1.3-1.8x e_a at the release; with it, e_a at the release is the peak)."""
+    they do not fall behind it while they turn: 30 robots at kappa 3, seeds 0-9 measured
+    (29 Nov 2026), e_a at the release is the peak of the 3 s after it with it; without, that
+    peak is 1.29-1.85x e_a at the release (seed 2: 1.84x) and the mean 1.3-2.1x (seed 2:
+    1.6x)."""
     scenario = load_scenario("circle")
-    common = {"agents": 30, "kappa": 3.0, "duration": 4.0, "dt": 0.1, "seed": 1}
+    common = {"agents": 30, "kappa": 3.0, "duration": 4.0, "dt": 0.1, "seed": 2}
     common |= {"dynamics": "unicycle", "deploy_error": 0.03}
 
     def after_release(result) -> np.ndarray:  # type: ignore[no-untyped-def]
