@@ -797,9 +797,8 @@ class AgentBrain:
         if beacon is not None:
             actions.append(PublishBeacon(*beacon))
         if exchange:
-            wanted = self.neighborhood.wanted_state_ids(now)
-            if self.config.safety:
-                wanted |= self.near_ids()
+            near, kept = self.near_ids() if self.config.safety else (set(), set())
+            wanted = self.neighborhood.wanted_state_ids(now, near) | kept
             self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
             actions.append(FollowStates(frozenset(wanted)))
             actions.append(FollowTiles(self.wanted_tiles()))
@@ -1101,21 +1100,24 @@ class AgentBrain:
             return pose.x, pose.y, pose.theta
         return self.history.move(pose.x, pose.y, pose.theta, self.pose_taken, target_wall)
 
-    def near_ids(self) -> set[int]:
-        """Robots known within SAFETY_RADIUS of ours (the safety filter needs their
-        AgentStates whether or not they are Voronoi neighbours), and those there known only
-        from beacons and left out for want of confirmation: a real one's AgentState then
-        confirms it (covswarm.agent.neighborhood.BEACON_CONFIRMATION). And the robots held
-        as obstacles: one alive that moved on leaves the obstacle set with its next state.
+    def near_ids(self) -> tuple[set[int], set[int]]:
+        """The robots whose AgentStates the safety filter needs, as (near, kept).
+
+        ``near``: the robots known within SAFETY_RADIUS of ours, Voronoi neighbours or not:
+        followed unless a fresh relay carries them (Neighborhood.wanted_state_ids).
+        ``kept``: followed whatever carries them. Those there known only from beacons and
+        left out for want of confirmation: a real one's AgentState then confirms it
+        (covswarm.agent.neighborhood.BEACON_CONFIRMATION). And the robots held as
+        obstacles: one alive that moved on leaves the obstacle set with its next state.
         Unfollowed, it stayed a phantom where last heard for OBSTACLE_MEMORY: a robot left
         behind outside S (empty cell, no neighbours, no subscriptions) was fenced in by its
         former neighbours' phantoms, wheels saturated against them, for the rest of the
         mission (100-robot circle on a loaded machine: 13-19 robots, e_a 2.9 m)."""
+        kept = set(self.obstacles)
         if self.pose is None:
-            return set(self.obstacles)
+            return set(), kept
         x, y = self.pose.x, self.pose.y
         neighborhood = self.neighborhood
-        unconfirmed: set[int] = set()
         if neighborhood.unconfirmed:
             distance = {
                 rid: math.hypot(ux - x, uy - y)
@@ -1123,11 +1125,9 @@ class AgentBrain:
             }
             # The nearest few only: forged ids must not cost a subscription each.
             nearest = sorted((d, rid) for rid, d in distance.items() if d <= SAFETY_RADIUS)
-            unconfirmed = {rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED]}
+            kept.update(rid for _, rid in nearest[:MAX_UNCONFIRMED_FOLLOWED])
         near = set(neighborhood.table_ids[neighborhood.within(x, y, SAFETY_RADIUS)].tolist())
-        near |= unconfirmed
-        near.update(self.obstacles)
-        return near
+        return near, kept
 
     def _safety_inputs(self, begun: Begun, velocity: np.ndarray, x: float, y: float) -> Filtering:
         """What the safety filter (covswarm.tvd.safety) needs to filter ``velocity`` (2,)

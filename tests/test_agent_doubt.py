@@ -170,7 +170,7 @@ def test_unconfirmed_robots_nearby_are_followed_and_taken_back_when_confirmed() 
     assert not brain.neighborhood.reckoned.keys() & brain.neighborhood.unconfirmed.keys()
     # Their AgentStates are followed (the nearest few): a real robot among them, whose
     # state was late, confirms itself with it and is a candidate (and obstacle) again.
-    followed = brain.near_ids() & brain.neighborhood.unconfirmed.keys()
+    followed = brain.near_ids()[1] & brain.neighborhood.unconfirmed.keys()
     assert len(followed) == brain_module.MAX_UNCONFIRMED_FOLLOWED
     real = min(followed)
     beacon = brain.neighborhood.beacons[real]

@@ -331,6 +331,35 @@ def test_two_hop_robots_without_a_relay_get_a_subscription() -> None:
     assert brain.neighborhood.wanted_state_ids(0.3) == {1, 2, 3}
 
 
+def test_robots_near_a_filtering_brain_are_followed_unless_a_relay_carries_them() -> None:
+    """With the safety filter on, a brain follows the AgentStates of the robots within
+    SAFETY_RADIUS that no fresh relay of a neighbour carries; those a relay carries stay in
+    its table (the filter's input) from the relay, with their velocities, unfollowed."""
+    brain = brain_at(0.0, 0.0, linger=0.0, safety=True)
+    brain.neighborhood.one_hop = frozenset({1})
+    relay = ((0, 0.0, 0.0, 0.0, 0.0), (2, 0.3, 0.1, 0.05, 0.0))
+    state = protocol.AgentState(id=1, x=0.2, y=0.0, stamp=WALL, neighbors=(0, 2), relay=relay)
+    brain.on_agent_state(state, now=0.0)
+    alone = protocol.AgentState(id=4, x=0.35, y=-0.1, stamp=WALL, neighbors=())
+    brain.on_agent_state(alone, now=0.0)  # near, no neighbour of ours, in no relay
+    brain.neighborhood.refresh(0.1)
+    near, kept = brain.near_ids()
+    assert near == {1, 2, 4} and not kept
+    actions = brain.actions(Decision(0.0, 0.0, "test"), 0.1, WALL + 0.1)
+    (follow,) = [a for a in actions if isinstance(a, brain_module.FollowStates)]
+    assert follow.ids == {1, 4}  # 2 comes in 1's relay
+    x, y, vx, vy = brain.neighborhood.reckoned[2]
+    assert (x, y, vx, vy) == pytest.approx((0.3 + 0.1 * 0.05, 0.1, 0.05, 0.0))
+    without = brain_at(0.0, 0.0, linger=0.0, safety=False)  # near robots are nothing to it
+    without.neighborhood.one_hop = frozenset({1})
+    without.on_agent_state(state, now=0.0)
+    without.on_agent_state(alone, now=0.0)
+    without.neighborhood.refresh(0.1)
+    actions = without.actions(Decision(0.0, 0.0, "test"), 0.1, WALL + 0.1)
+    (follow,) = [a for a in actions if isinstance(a, brain_module.FollowStates)]
+    assert follow.ids == {1}
+
+
 @pytest.mark.parametrize("listed_back", [False, True])
 def test_a_neighbor_that_leaves_us_out_gets_an_early_beacon(listed_back: bool) -> None:
     brain = AgentBrain(0, AgentConfig(beacon_period=10.0, stale_timeout=10.0))

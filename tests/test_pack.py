@@ -628,9 +628,11 @@ def test_a_receipt_time_never_precedes_the_pose_received() -> None:
 
 
 def test_bench_brain_tick_at_a_denser_team_and_a_faster_rate(tmp_path: Path) -> None:
-    """Within the safety filter's radius a brain follows more AgentStates in a denser team
-    (more received per tick), and at 30 Hz AgentStates still go out at ~10 Hz (fewer per
-    tick)."""
+    """A denser team puts more robots within the safety filter's radius, but a brain follows
+    the AgentStates only of those no neighbour's relay carries: it receives about as much
+    per tick at 0.2 m spacing as at 0.5 m (6.9 against 6.6 payloads, 29 Nov 2026; 1.5x and
+    more when it followed every robot within the radius). At 30 Hz AgentStates still go out
+    at ~10 Hz (fewer per tick)."""
     rows = {}
     for spacing, rate in ((0.5, 10), (0.2, 10), (0.2, 30)):
         out = tmp_path / f"bt-{spacing}-{rate}"
@@ -641,7 +643,7 @@ def test_bench_brain_tick_at_a_denser_team_and_a_faster_rate(tmp_path: Path) -> 
         (row,) = json.loads((out / "bench.json").read_text())
         assert (row["spacing_m"], row["rate_hz"]) == (spacing, rate)
         rows[spacing, rate] = row["rx_per_brain_tick"]
-    assert rows[0.2, 10] > 1.5 * rows[0.5, 10]
+    assert rows[0.2, 10] < 1.25 * rows[0.5, 10]
     assert rows[0.2, 30] < 0.6 * rows[0.2, 10]
 
 
