@@ -1234,13 +1234,15 @@ class AgentBrain:
     def stats(self) -> dict[str, float | int]:
         """Measurements and counters for AgentState.stats (names <= 32 chars)."""
         c = self.counters
+        step_p50, step_p99 = self._step_us.get(0.50, 0.99)
+        age_p50, age_p99 = self._pose_age_ms.get(0.50, 0.99)
         return {
             "rate_hz": round(self._rates[0], 3),
-            "step_us_p50": round(self._step_us.get(0.50), 1),
-            "step_us_p99": round(self._step_us.get(0.99), 1),
+            "step_us_p50": round(step_p50, 1),
+            "step_us_p99": round(step_p99, 1),
             "rx_per_s": round(self._rates[1], 1),
-            "pose_age_ms_p50": round(self._pose_age_ms.get(0.50), 2),
-            "pose_age_ms_p99": round(self._pose_age_ms.get(0.99), 2),
+            "pose_age_ms_p50": round(age_p50, 2),
+            "pose_age_ms_p99": round(age_p99, 2),
             # our clock minus our robot's is at most this (includes the fastest transit)
             "robot_clock_bound_ms": _ms(self.robot_clock.bound),
             "safety_active": self.safety_active,
