@@ -94,7 +94,8 @@ def deploy_options(timeout: float) -> Decorator:
         low_open=True,
         help="The gain during the deploy hold (S still: Lloyd's iterations, each control "
         "period closing this x the period of the gap to the centroid, at most 0.8 of it in "
-        "an agent) [the mission's kappa].",
+        "an agent); above the mission's, reached from it over the hold's first second "
+        "[the mission's kappa].",
     )
     return lambda command: error_option(timeout_option(kappa_option(command)))
 
