@@ -314,6 +314,7 @@ def test_a_live_team_spreads_over_s0_before_s_moves(tmp_path: Path) -> None:
     deploy = summary["pace"]["deploy"]
     assert deploy["released_because"] == "converged", deploy
     assert deploy["kappa"] == 6.0  # the agents were broadcast the hold's gain
+    assert deploy["kappa_ramp_s"] == 0.0  # below circle's 8: from the hold's start
     assert deploy["error_at_release"] <= 0.02 < 0.25 * summary["initial_error"]
     hold = deploy["hold_s"]
     assert 0.3 < hold < 30.0
