@@ -34,8 +34,10 @@ sampled for the period it holds, so the script need not wait for it.
 A deploy hold (``deploying``): the script waits at tau = 0, pace 0, from the mission's
 start until the coordinator releases it (:func:`deploy_release`: the team's e_a at or below
 a target, or a timeout), so that the team first spreads over S(0) to its CVT, as a team is
-deployed before an operator moves it. Once it may end, S stays still DEPLOY_ALIGN s more
-while the Domain announces the motion S will start with (:meth:`Pace.align`,
+deployed before an operator moves it. The hold may run at a gain of its own
+(--deploy-kappa), reached from the mission's over DEPLOY_GAIN_RAMP s when higher
+(:func:`hold_gain`). Once it may end, S stays still DEPLOY_ALIGN s more while the Domain
+announces the motion S will start with (:meth:`Pace.align`,
 :func:`broadcast_motion`), so that the robots, standing at their centroids facing wherever
 their last moves left them, turn in place to face it (covswarm.agent.brain), as they do
 before the mission. S then starts gently: its pace rises from 0 to 1 over DEPLOY_RAMP s
