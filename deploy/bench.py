@@ -362,12 +362,16 @@ def run_bench(
 BRAIN_TICK_SIZES = (1, 50, 200, 500)  # brains per process
 BRAIN_TICK_TEAM = 500  # robots in the team the packs share (near-CVT)
 # m between them: the circle scenarios' (2 m square for 100 robots, circle-1000's 6.32 m
-# for 1000). The cost of a brain-tick grows with the density: within the safety filter's
-# radius (tvd.safety.SAFETY_RADIUS, 0.5 m) a brain follows ~16 AgentStates at 0.2 m, ~6 (its
-# Voronoi neighbours) at 0.5 m.
+# for 1000). The cost of a brain-tick grows with the density: the local diagrams and safety
+# filters hold more robots (a brain follows the AgentStates of ~7, its Voronoi neighbours
+# and the robots within the filter's radius that no neighbour's relay carries).
 BRAIN_TICK_SPACING = 0.2
-BRAIN_TICK_WARM = 25  # periods before timing: the first beacons found every neighbour, and
-# the local sets shrank from the beacons' whole tiles to the two-hop sets (~16 robots)
+# Periods before timing: the first beacons find every neighbour (~1 s), the local sets
+# shrink from the beacons' whole tiles to the two-hop sets, and the states a brain followed
+# before its neighbours' relays came stop coming (~3 s); the timed periods are then the
+# steady state of a mission. At 25 the last of those was timed, where following fewer
+# states (29 Nov 2026) saved nothing yet, and 0.8-0.9x from 40 on (docs/scaling.md).
+BRAIN_TICK_WARM = 40
 BRAIN_TICK_ROUNDS = 6  # control periods timed
 
 
