@@ -187,6 +187,7 @@ def simulate(
     if holding and not (math.isfinite(deploy_error) and deploy_error > 0 and deploy_timeout > 0):
         raise ValueError("deploy_error and deploy_timeout must be positive")
     check_deploy_kappa(deploy_error, deploy_kappa)
+    hold_kappa = kappa if deploy_kappa is None else deploy_kappa
     hold_steps = round(deploy_timeout / dt) if holding else 0
     released: tuple[float, str, float] | None = None
     aligned: tuple[float, str, float] | None = None  # when the hold could end, why, e_a
@@ -251,9 +252,7 @@ def simulate(
             if progress is not None:
                 progress(scripted, steps)
             continue
-        gain = kappa
-        if holding and deploy_kappa is not None:
-            gain = hold_gain(tk, kappa, deploy_kappa)
+        gain = hold_gain(tk, kappa, hold_kappa) if holding else kappa
         step = control.team_step(
             law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
