@@ -526,8 +526,9 @@ def test_the_holds_gain_ramp_spares_the_wheels(monkeypatch: pytest.MonkeyPatch) 
     """At 4x the mission's gain at once, robots standing far from their centroids saturate
     their wheels in the hold's first second; ramped up over DEPLOY_GAIN_RAMP they barely do,
     and the hold is about as long. 20 robots, circle at kappa 2, --deploy-kappa 8, the
-    safety filter on, seeds 0-2 measured: 5.5 / 3.6 / 2.7 robot-s of saturated wheels at
-    once, 0.8 / 0.1 / 0.0 ramped; holds 2.1 / 1.9 / 2.1 s against 2.2 / 2.1 / 1.8 s."""
+    safety filter on, seeds 0-7 measured (29 Nov 2026): 3.3-6.2 robot-s of saturated wheels
+    at once, 0.0-0.8 ramped, at most 0.14x as much in every seed; holds 1.8-2.4 s ramped,
+    1.7-2.2 s at once, at most 1.22x as long."""
     scenario = load_scenario("circle")
     common = {"agents": 20, "kappa": 2.0, "deploy_kappa": 8.0, "duration": 0.5, "dt": 0.1}
     common |= {"dynamics": "unicycle", "projection_distance": 0.05, "safety": True}
@@ -544,7 +545,7 @@ def test_the_holds_gain_ramp_spares_the_wheels(monkeypatch: pytest.MonkeyPatch) 
     monkeypatch.setattr(pace_module, "DEPLOY_GAIN_RAMP", 0.0)
     at_once = simulate(scenario, **common)
     assert hold_saturation(at_once) >= 2.0
-    assert hold_saturation(ramped) <= 0.5
+    assert hold_saturation(ramped) <= 0.3 * hold_saturation(at_once)
     assert ramped.released[0] <= 1.5 * at_once.released[0]
 
 
