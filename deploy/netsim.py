@@ -74,6 +74,7 @@ def run_netsim(
     robot_model: DiffDrive | None = None,
     command_delay: float = 0.0,
     announce_start: bool = True,
+    poses: np.ndarray | None = None,
 ) -> NetsimResult:
     """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
 
@@ -87,6 +88,8 @@ def run_netsim(
     (``config.robot``), to measure how model error degrades the agents' prediction.
     command_delay: s between a command's stamp and when the robot acts on it, on top of
     ``transit`` (a slow actuator or command link, which the agents do not see).
+    poses: the robots' start poses, (n, 3) x, y (m), heading (rad); None: the scenario's,
+    as ``covswarm run`` places them (covswarm.deploy.plan.initial_poses).
     """
     from covswarm.deploy.plan import initial_poses
     from covswarm.sim_robot.process import RobotSim
@@ -95,7 +98,10 @@ def run_netsim(
     n = scenario.agents if agents is None else agents
     duration = scenario.duration if duration is None else duration
     config = config or AgentConfig()
-    poses = initial_poses(scenario, n, seed)
+    if poses is None:
+        poses = initial_poses(scenario, n, seed)
+    elif np.shape(poses) != (n, 3):
+        raise ValueError(f"poses must be ({n}, 3) x, y, heading, not {np.shape(poses)}")
     decoder = MessageDecoder()
     robots = [
         RobotSim(
