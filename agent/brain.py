@@ -1179,7 +1179,7 @@ class AgentBrain:
         gamma = barrier_gain(config.safety_gamma, driven)
         world = self.world
         obstacles: list[np.ndarray] = []
-        if world is not None:
+        if world is not None and world.obstacles:  # a workspace alone: walls, no search
             nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
             obstacles = [world.obstacles[j].vertices for j in nearby]
         return Filtering(
