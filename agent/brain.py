@@ -888,7 +888,12 @@ class AgentBrain:
         started = self._clock()
         assert self.pose is not None
         try:
-            relevant = self.neighborhood.relevant(now, (self.pose.x, self.pose.y), self.reach)
+            # Our pose and S are predicted to when the command will act (command_latency):
+            # so are the others, or each robot sees the one ahead of it that much closer and
+            # the one behind as much farther (a column S set moving lost its order).
+            relevant = self.neighborhood.relevant(
+                now, (self.pose.x, self.pose.y), self.reach, self.config.command_latency
+            )
             return self._view(relevant, now, now_wall, started)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self._failed(exc)
@@ -1156,6 +1161,10 @@ class AgentBrain:
         ids = neighborhood.table_ids[inside].tolist()
         self._near_first_hand = neighborhood.first_hand.intersection(ids)
         self._near_last = (ids, near)
+        latency = config.command_latency
+        if latency:  # where they will be when our command acts, as our own pose (begin)
+            near = near.copy()
+            near[:, :2] += latency * near[:, 2:4]
         if self.obstacles:  # (seldom any: no scan of an empty table every step)
             dead = neighborhood.dead
             for rid in [
@@ -1176,7 +1185,10 @@ class AgentBrain:
         # Sampled for the time the velocity is driven: the period, or the hold when the
         # robot stops before our next step (the velocity is then driven faster, _finish).
         driven = self._hold if 0.0 < self._hold < self._period else self._period
-        gamma = barrier_gain(config.safety_gamma, driven)
+        # Over the span from what we know to the end of that drive: a command acts
+        # command_latency s after it is computed, and what the others decided meanwhile is
+        # not in the shares of the pairs' conditions, which can then disagree.
+        gamma = barrier_gain(config.safety_gamma, driven + latency)
         world = self.world
         obstacles: list[np.ndarray] = []
         if world is not None and world.obstacles:  # a workspace alone: walls, no search

@@ -244,7 +244,9 @@ def run_agents(
     low=0.0,
     high=0.5,
     default=0.0,
-    help="Known time from a command's stamp to the wheels acting on it, s.",
+    help="Known time from a command's stamp to the wheels acting on it, s: the agent "
+    "looks that far ahead at its robot, S and the others; at most the measured one "
+    "(docs/real-robots.md).",
 )
 @float_option(
     "--projection-distance",

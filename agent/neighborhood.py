@@ -661,10 +661,11 @@ class Neighborhood:
                 asked.setdefault(rid, now)
 
     def relevant(
-        self, now: float, me: tuple[float, float], reach: float | None
+        self, now: float, me: tuple[float, float], reach: float | None, ahead: float = 0.0
     ) -> dict[int, tuple[float, float]]:
-        """The candidates (id -> x, y m, as last reckoned: :meth:`refresh`) that can matter
-        to our control, to keep the local diagram small.
+        """The candidates (id -> x, y m, as last reckoned: :meth:`refresh`, and ``ahead`` s
+        further with their velocities) that can matter to our control, to keep the local
+        diagram small.
 
         The two-hop set (neighbours' reported neighbours) plus every robot within
         LOCAL_MARGIN x our cell's reach (m) around ``me``: our cell is cut only within
@@ -675,10 +676,17 @@ class Neighborhood:
         """
         reckoned = self.reckoned
         if reach is None:
-            return {rid: (x, y) for rid, (x, y, _, _) in reckoned.items()}
-        ids = self.table_ids[self.within(*me, LOCAL_MARGIN * reach)].tolist()
-        ids += self.two_hop(now) & reckoned.keys()
-        return {rid: reckoned[rid][:2] for rid in ids}
+            ids = list(reckoned)
+        else:
+            ids = self.table_ids[self.within(*me, LOCAL_MARGIN * reach)].tolist()
+            ids += self.two_hop(now) & reckoned.keys()
+        if not ahead:
+            return {rid: reckoned[rid][:2] for rid in ids}
+        moved = {}
+        for rid in ids:
+            x, y, vx, vy = reckoned[rid]
+            moved[rid] = (x + ahead * vx, y + ahead * vy)
+        return moved
 
     def two_hop(self, now: float) -> frozenset[int]:
         """One-hop neighbours plus their fresh reported neighbours, without ourselves."""

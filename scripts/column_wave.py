@@ -17,8 +17,7 @@ Parts: ``headway`` (spacings, speeds and ramps); ``oracle`` (each brain's safety
 given the true current velocities of the robots near it instead of the ones their
 AgentStates reported: whether the age of those velocities matters); ``latency`` (every
 message 0.001-0.1 s late, the commands up to 0.1 s later still, the agents told a command
-latency of 0-0.2 s; with a latency told, also with every brain reckoning its neighbours
-to the time its command will act, as it does its own pose and S: a patch, not main's).
+latency of 0-0.2 s).
 """
 
 from __future__ import annotations
@@ -36,7 +35,6 @@ from test_following_gap import SAFE, column, headway  # noqa: E402
 
 from covswarm.agent import brain as brain_module  # noqa: E402
 from covswarm.agent.brain import AgentConfig  # noqa: E402
-from covswarm.agent.neighborhood import Neighborhood  # noqa: E402
 from covswarm.deploy.netsim import run_netsim  # noqa: E402
 from covswarm.sim_robot import process as robot_process  # noqa: E402
 from covswarm.tvd.drive import KHEPERA_IV, twist_from_wheels  # noqa: E402
@@ -68,29 +66,14 @@ def _true_velocities(self, begun, velocity, x, y):
     return filtering
 
 
-_refresh = Neighborhood.refresh
-
-
 def run(
-    spacing,
-    speed,
-    ramp,
-    seed,
-    transit=0.001,
-    latency=0.0,
-    oracle=False,
-    command_delay=0.0,
-    ahead=False,
+    spacing, speed, ramp, seed, transit=0.001, latency=0.0, oracle=False, command_delay=0.0
 ) -> dict:
-    """One run; ``ahead``: every brain reckons its neighbours to the time its command will
-    act (``latency`` s ahead), as it does its own pose and S (a patch, not main's)."""
     scenario, poses, shift = column(spacing, speed, ramp=ramp, duration=ramp + 6.0)
     ROBOTS.clear()
     robot_process.RobotSim, real = _Registered, robot_process.RobotSim
     if oracle:
         brain_module.AgentBrain._safety_inputs = _true_velocities
-    if ahead:
-        Neighborhood.refresh = lambda self, now: _refresh(self, now + latency)
     try:
         result = run_netsim(
             scenario,
@@ -103,7 +86,6 @@ def run(
     finally:
         robot_process.RobotSim = real
         brain_module.AgentBrain._safety_inputs = _safety_inputs
-        Neighborhood.refresh = _refresh
     y = result.trajectories[-1][:, 1]
     lags = shift(float(result.t[-1])) - (y - poses[:, 1])
     apart = np.linalg.norm(result.trajectories[:, :, None] - result.trajectories[:, None], axis=-1)
@@ -185,19 +167,11 @@ def main() -> None:
             (0.1, 0.0, 0.1),
             (0.1, 0.0, 0.2),
         ):
-            for ahead in (False, True) if latency > 0.0 else (False,):
-                runs = [
-                    run(0.165, 0.19, 2.0, seed, transit, latency, command_delay=delay, ahead=ahead)
-                    for seed in seeds
-                ]
-                where = "the command's time" if ahead else "now"
-                rows.append([f"{transit}", f"{delay}", f"{latency}", where, *summary(runs)])
-        header = [
-            "every message late (s)",
-            "commands later still (s)",
-            "--command-latency (s)",
-            "neighbours reckoned to",
-        ]
+            runs = [
+                run(0.165, 0.19, 2.0, seed, transit, latency, command_delay=delay) for seed in seeds
+            ]
+            rows.append([f"{transit}", f"{delay}", f"{latency}", *summary(runs)])
+        header = ["every message late (s)", "commands later still (s)", "--command-latency (s)"]
         table([*header, *measured], rows)
 
 
