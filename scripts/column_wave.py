@@ -31,11 +31,9 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from test_following_gap import SAFE, column, headway  # noqa: E402
+from test_following_gap import SAFE, headway, pair_distances, run_column  # noqa: E402
 
 from covswarm.agent import brain as brain_module  # noqa: E402
-from covswarm.agent.brain import AgentConfig  # noqa: E402
-from covswarm.deploy.netsim import run_netsim  # noqa: E402
 from covswarm.sim_robot import process as robot_process  # noqa: E402
 from covswarm.tvd.drive import KHEPERA_IV, twist_from_wheels  # noqa: E402
 from covswarm.tvd.safety import SAFETY_RADIUS  # noqa: E402
@@ -69,28 +67,20 @@ def _true_velocities(self, begun, velocity, x, y):
 def run(
     spacing, speed, ramp, seed, transit=0.001, latency=0.0, oracle=False, command_delay=0.0
 ) -> dict:
-    scenario, poses, shift = column(spacing, speed, ramp=ramp, duration=ramp + 6.0)
     ROBOTS.clear()
     robot_process.RobotSim, real = _Registered, robot_process.RobotSim
     if oracle:
         brain_module.AgentBrain._safety_inputs = _true_velocities
     try:
-        result = run_netsim(
-            scenario,
-            poses=poses,
-            seed=seed,
-            transit=transit,
-            command_delay=command_delay,
-            config=AgentConfig(command_latency=latency),
+        result, poses, shift = run_column(
+            spacing, speed, seed, ramp, transit, command_delay, latency
         )
     finally:
         robot_process.RobotSim = real
         brain_module.AgentBrain._safety_inputs = _safety_inputs
     y = result.trajectories[-1][:, 1]
     lags = shift(float(result.t[-1])) - (y - poses[:, 1])
-    apart = np.linalg.norm(result.trajectories[:, :, None] - result.trajectories[:, None], axis=-1)
-    first, second = np.triu_indices(len(y), 1)
-    pairs = apart[:, first, second]
+    pairs = pair_distances(result.trajectories)
     sample = float(np.diff(result.t).mean())
     return {
         "gaps": np.diff(y)[::-1],  # front to tail

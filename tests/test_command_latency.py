@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_following_gap import SAFE, column
+from test_following_gap import SAFE, column, pair_distances, run_column
 
 from covswarm.agent import brain as brain_module
 from covswarm.agent.brain import AgentConfig, filter_one
@@ -47,19 +47,10 @@ def test_a_column_told_the_latency_keeps_its_distance(
     after they are computed, the agents told so: nobody comes within the safe distance
     (measured over seeds 0-4: 0.1624 m at the closest; before the agents looked ahead at
     their neighbours too, 0.1512 m, and the column lost its order)."""
-    scenario, poses, _ = column(0.165, 0.19)
-    result = run_netsim(
-        scenario,
-        poses=poses,
-        seed=seed,
-        transit=transit,
-        command_delay=command_delay,
-        config=AgentConfig(command_latency=0.1),
+    result, _, _ = run_column(
+        0.165, 0.19, seed, transit=transit, command_delay=command_delay, latency=0.1
     )
-    positions = result.trajectories
-    apart = np.linalg.norm(positions[:, :, None] - positions[:, None], axis=-1)
-    first, second = np.triu_indices(len(poses), 1)
-    assert apart[:, first, second].min() >= SAFE - 1e-3
+    assert pair_distances(result.trajectories).min() >= SAFE - 1e-3
 
 
 @pytest.mark.parametrize(("latency", "gain"), [(0.0, 10.0), (0.1, 5.0), (0.3, 2.5)])

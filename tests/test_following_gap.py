@@ -11,11 +11,13 @@ starts opens link by link, and its tail lags (n - 1) (d* - spacing) behind its h
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 
 import numpy as np
 import pytest
 
-from covswarm.deploy.netsim import run_netsim
+from covswarm.agent.brain import AgentConfig
+from covswarm.deploy.netsim import NetsimResult, run_netsim
 from covswarm.mission.scenario_files import scenario_from_dict
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.tvd.safety import DEFAULT_GAMMA, body_safe_distance, pair_constraints
@@ -54,6 +56,14 @@ def test_the_split_caps_a_followers_closing_speed_whatever_the_pair_drives(seed:
         assert b_faster[0] == pytest.approx(b[0], rel=1e-12)
 
 
+def pair_distances(trajectories: np.ndarray) -> np.ndarray:
+    """(T, n (n - 1) / 2) m: the distance of every pair of robots at every sample of
+    ``trajectories`` (T, n, 2)."""
+    apart = np.linalg.norm(trajectories[:, :, None] - trajectories[:, None], axis=-1)
+    first, second = np.triu_indices(trajectories.shape[1], 1)
+    return apart[:, first, second]
+
+
 def column(spacing: float, speed: float, rows: int = 7, ramp: float = 2.0, duration: float = 8.0):
     """A one-robot-wide S of ``rows`` cells ``spacing`` m tall, a robot at each cell's centre
     facing S's motion (+y): S's speed ramps from 0 to ``speed`` over ``ramp`` s (knots of a
@@ -84,6 +94,31 @@ def column(spacing: float, speed: float, rows: int = 7, ramp: float = 2.0, durat
     return scenario, poses, shift
 
 
+def run_column(
+    spacing: float,
+    speed: float,
+    seed: int,
+    ramp: float = 2.0,
+    transit: float = 0.001,
+    command_delay: float = 0.0,
+    latency: float = 0.0,
+) -> tuple[NetsimResult, np.ndarray, Callable[[float], float]]:
+    """The agents' closed loop (covswarm.deploy.netsim) over :func:`column` for 6 s after S
+    reached ``speed``: every message ``transit`` s late, the commands ``command_delay`` s
+    later still, the agents told a command latency of ``latency`` s. Returns the result,
+    the start poses and S's shift at t."""
+    scenario, poses, shift = column(spacing, speed, ramp=ramp, duration=ramp + 6.0)
+    result = run_netsim(
+        scenario,
+        poses=poses,
+        seed=seed,
+        transit=transit,
+        command_delay=command_delay,
+        config=AgentConfig(command_latency=latency),
+    )
+    return result, poses, shift
+
+
 @pytest.mark.parametrize(
     ("spacing", "speed"),
     [(0.165, 0.19), (0.165, 0.10), (0.19, 0.19)],
@@ -94,8 +129,7 @@ def test_a_column_opens_to_the_filters_headway_and_no_further(spacing: float, sp
     gap of a column that stood closer than d*(v) is d*(v) (measured over seeds 0-4: within
     0.4 mm), and its tail lags the head by the links' openings; a column that stood farther
     apart keeps its spacing and barely lags. Nobody comes within the safe distance."""
-    scenario, poses, shift = column(spacing, speed)
-    result = run_netsim(scenario, poses=poses, seed=1)
+    result, poses, shift = run_column(spacing, speed, seed=1)
     y = result.trajectories[-1][:, 1]  # robot 0 at the tail
     gaps = np.diff(y)
     lag = shift(float(result.t[-1])) - (y - poses[:, 1])
@@ -107,8 +141,4 @@ def test_a_column_opens_to_the_filters_headway_and_no_further(spacing: float, sp
     else:
         assert np.all(np.abs(gaps - spacing) < 3e-3), gaps
         assert np.all(np.abs(lag) < 0.01), lag
-    positions = result.trajectories
-    apart = np.linalg.norm(positions[:, :, None] - positions[:, None], axis=-1)
-    first, second = np.triu_indices(len(y), 1)
-    closest = apart[:, first, second].min()
-    assert closest >= SAFE - 1e-3
+    assert pair_distances(result.trajectories).min() >= SAFE - 1e-3
