@@ -151,6 +151,14 @@ from covswarm.sim_robot.process import gather_drops
     "--no-prediction: agents control from poses as received, not predicted to the command's time.",
 )
 @float_option(
+    "--command-latency",
+    low=0.0,
+    high=0.5,
+    default=0.0,
+    help="Every agent's --command-latency: the robots' known time from a command's stamp to "
+    "the wheels acting on it, s; at most the measured one (docs/real-robots.md).",
+)
+@float_option(
     "--startup-timeout",
     low=0,
     low_open=True,

@@ -274,6 +274,7 @@ class RunConfig:
     pose_delay: float = 0.0
     safety: bool = True
     prediction: bool = True
+    command_latency: float = 0.0  # s from a command's stamp to the wheels acting on it
     startup_timeout: float = 300.0
     foxglove: int | None = None
     record: bool = True
@@ -368,7 +369,7 @@ def agent_config(
         body_diameter=scenario.robot_diameter,
         workspace=scenario.workspace,
         **_passed_on(run, "swarm", "rate", "state_period", "pose_loss", "pose_delay"),
-        **_passed_on(run, "prediction", "safety"),
+        **_passed_on(run, "prediction", "safety", "command_latency"),
         **_passed_on(run, "fault_step_delay", *_EVERY_CHILD),
     )
 

@@ -84,6 +84,7 @@ def test_a_planned_childs_command_line_parses_back_into_its_config() -> None:
         agents=5, seed=4, swarm="s", out=Path("out"), rate=7.5, feedforward=False,
         law="d1", time_scale=0.5, pose_loss=0.2, pose_delay=0.05, safety=False,
         prediction=False, foxglove=0, record=False, max_domain_speed=0.3,
+        command_latency=0.1,
     )  # fmt: skip
     endpoint = "tcp/127.0.0.1:7447"
     poses = [[0.1 * i, -0.2, 0.3] for i in range(5)]
@@ -102,13 +103,16 @@ def test_a_planned_childs_command_line_parses_back_into_its_config() -> None:
     assert (agent.pose_loss, agent.pose_delay, agent.pose_seed) == (0.2, 0.05, 4)
     assert not (agent.safety or agent.prediction or agent.feedforward)
     assert agent.brain().pose_loss == 0.2 and agent.brain().robot.body_diameter == 0.14
+    assert agent.command_latency == agent.brain().command_latency == 0.1
     specs = plan_children(run, scenario, endpoint=endpoint, base=("covswarm",))
     assert "--pose-loss" in specs[2].argv and "--no-record" in specs[0].argv
 
 
 def test_the_run_command_line_parses_into_a_run_config() -> None:
     argv = ["--agents", "4", "--no-feedforward", "--pose-loss", "0.1", "--ids", "0-1",
-            "--no-coordinator", "--swarm", "x", "--foxglove", "9000"]  # fmt: skip
+            "--no-coordinator", "--swarm", "x", "--foxglove", "9000",
+            "--command-latency", "0.05"]  # fmt: skip
     run = RunConfig(**parsed(run_command, argv))
     assert (run.agents, run.feedforward, run.pose_loss, run.ids) == (4, False, 0.1, "0-1")
+    assert run.command_latency == 0.05
     assert (run.coordinator, run.swarm, run.foxglove) == (False, "x", 9000)
