@@ -31,7 +31,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from test_following_gap import SAFE, headway, pair_distances, run_column  # noqa: E402
+from columns import SAFE, headway, pair_distances, run_column  # noqa: E402
 
 from covswarm.agent import brain as brain_module  # noqa: E402
 from covswarm.sim_robot import process as robot_process  # noqa: E402

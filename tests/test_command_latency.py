@@ -7,7 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from test_following_gap import SAFE, column, pair_distances, run_column
+from columns import SAFE, column, pair_distances, run_column
 
 from covswarm.agent import brain as brain_module
 from covswarm.agent.brain import AgentConfig, filter_one
