@@ -31,9 +31,10 @@ TURNS = {"toward S's start": 0.0, "a quarter turn left of it": 0.5 * math.pi, "a
 def after_release(seed: int, agents: int, turn: float | None) -> np.ndarray:
     """e_a's mean in each window after the release; ``turn``: rad added to the direction
     the robots face during the hold's last second (None: no such second)."""
-    facing = drive.turn_in_place
-    pace.DEPLOY_ALIGN, align = (0.0 if turn is None else pace.DEPLOY_ALIGN), pace.DEPLOY_ALIGN
-    if turn:
+    facing, align = drive.turn_in_place, pace.DEPLOY_ALIGN
+    if turn is None:
+        pace.DEPLOY_ALIGN = 0.0
+    elif turn:
         drive.turn_in_place = lambda heading, direction, hold, *rest: facing(
             heading, direction + turn, hold, *rest
         )

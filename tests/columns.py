@@ -31,7 +31,7 @@ def pair_distances(trajectories: np.ndarray) -> np.ndarray:
     return apart[:, first, second]
 
 
-def column(spacing: float, speed: float, rows: int = 7, ramp: float = 2.0, duration: float = 8.0):
+def column(spacing: float, speed: float, ramp: float, duration: float, rows: int = 7):
     """A one-robot-wide S of ``rows`` cells ``spacing`` m tall, a robot at each cell's centre
     facing S's motion (+y): S's speed ramps from 0 to ``speed`` over ``ramp`` s (knots of a
     keyframes scenario). Returns (scenario, poses (rows, 3), S's shift at t (m))."""
@@ -69,12 +69,13 @@ def run_column(
     transit: float = 0.001,
     command_delay: float = 0.0,
     latency: float = 0.0,
+    after: float = 6.0,
 ) -> tuple[NetsimResult, np.ndarray, Callable[[float], float]]:
-    """The agents' closed loop (covswarm.deploy.netsim) over :func:`column` for 6 s after S
-    reached ``speed``: every message ``transit`` s late, the commands ``command_delay`` s
+    """The agents' closed loop (covswarm.deploy.netsim) over :func:`column` for ``after`` s
+    after S reached ``speed``: every message ``transit`` s late, the commands ``command_delay`` s
     later still, the agents told a command latency of ``latency`` s. Returns the result,
     the start poses and S's shift at t."""
-    scenario, poses, shift = column(spacing, speed, ramp=ramp, duration=ramp + 6.0)
+    scenario, poses, shift = column(spacing, speed, ramp, ramp + after)
     result = run_netsim(
         scenario,
         poses=poses,

@@ -7,12 +7,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from columns import SAFE, column, pair_distances, run_column
+from columns import SAFE, pair_distances, run_column
 
 from covswarm.agent import brain as brain_module
-from covswarm.agent.brain import AgentConfig, filter_one
+from covswarm.agent.brain import filter_one
 from covswarm.agent.neighborhood import Neighborhood
-from covswarm.deploy.netsim import run_netsim
 
 
 @pytest.mark.parametrize("seed", range(3))
@@ -67,8 +66,7 @@ def test_the_barrier_is_sampled_over_the_period_and_the_latency(
         return filter_one(filtering)
 
     monkeypatch.setattr(brain_module, "filter_one", recording)
-    scenario, poses, _ = column(0.165, 0.19, ramp=0.5, duration=1.5)
-    run_netsim(scenario, poses=poses, config=AgentConfig(command_latency=latency))
+    run_column(0.165, 0.19, 0, ramp=0.5, latency=latency, after=1.0)
     assert len(gains) > 50
     # the first mission step of each brain has no period measured yet (1 s: gain 1 / (1 + L))
     assert np.median(gains) == pytest.approx(gain, rel=1e-6)
