@@ -72,6 +72,7 @@ from covswarm.tvd.safety import (
     barrier_gain,
     body_safe_distance,
     safe_unicycle_velocities,
+    unseen_speed_limit,
     wall_distance,
 )
 from covswarm.world.model import World
@@ -105,6 +106,16 @@ IDLE_STEP_PERIOD = 1.0
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
 # a whole team starting at once costs each agent one beacon per second, not per tick.
 BEACON_MIN_PERIOD = 1.0
+# m: a robot whose cell is empty (outside S, on its way in) beacons whenever it has moved
+# this far since its last beacon. Such a robot has no Voronoi neighbours to follow its
+# AgentStates or relay it, and a routine beacon every 10 s left it where it started in
+# everyone's tables: robots driving into S side by side at the wheels' top speed saw each
+# other there and collided (20 robots deployed from a 6 m square into a 1 m S at 10 Hz:
+# two seeds of three, closest 0.110 and 0.052 m; scripts/approach_safety.py). It is the
+# position error the speed limit allows for (covswarm.tvd.safety.unseen_speed_limit):
+# at 0.08 m that limit is 0.87 m/s at 10 Hz, above the wheels' top speed with the period's
+# jitter, so a 10 Hz team without a command latency is never slowed by it.
+BEACON_MOVE = 0.08
 STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
 # s: the least time between two AgentStates (AgentConfig.state_period), and between two
 # choices of the AgentStates and beacon tiles to follow (AgentBrain.exchange_due). At 10 Hz
@@ -452,6 +463,7 @@ class AgentBrain:
         self._failure_log = RateLimit()
         self._local = 0  # robots in the last local diagram besides ourselves
         self._last_beacon = -math.inf
+        self._beacon_at: tuple[float, float] | None = None  # (x, y) m of our last beacon
         # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
@@ -1030,6 +1042,21 @@ class AgentBrain:
             # and the wheels saturate as ever. At the asked rate the duty is 1.
             velocity = velocity * min(self._period / self._hold, self.config.max_duty)
             self.counters.duty_scaled += self.running
+        if config.safety and self._hold > 0.0:
+            # No faster than the robots we do not filter against yet can be avoided at:
+            # the wheels' top speed at 10 Hz, less for longer steps or a command latency.
+            limit = unseen_speed_limit(
+                SAFETY_RADIUS,
+                self._safe_distance,
+                BEACON_MOVE,
+                self._hold,
+                config.command_latency,
+            )
+            speed = math.hypot(*velocity.tolist())
+            # (above the wheels' top speed they saturate first, in the same direction)
+            if speed > limit and limit < config.robot.max_wheel_speed:
+                velocity = velocity * (limit / speed)
+                self.counters.speed_limited += self.running
         vx, vy = velocity.tolist()
         if not (math.isfinite(vx) and math.isfinite(vy)):
             raise ValueError(f"non-finite velocity {velocity}")
@@ -1276,6 +1303,7 @@ class AgentBrain:
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,
             "duty_scaled": c.duty_scaled,
+            "speed_limited": c.speed_limited,
             "aligning": c.aligning,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,
@@ -1317,25 +1345,29 @@ class AgentBrain:
         Due every ``beacon_period``, or BEACON_MIN_PERIOD after the last one once another
         agent's liveliness token appeared (a newcomer, or a whole team starting, must find
         its neighbours, and they it, without waiting for the next routine beacon) or a
-        neighbour kept leaving us out of its neighbours (Neighborhood.unrequited).
+        neighbour kept leaving us out of its neighbours (Neighborhood.unrequited); and
+        while our cell is empty, whenever the robot has moved BEACON_MOVE since the last.
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the
         swarm's tile size.
         """
-        tile_size = self.tile_size
-        if (
-            tile_size is None
-            or not self.pose_fresh(now)
-            or now - self._last_beacon
-            < (BEACON_MIN_PERIOD if self._beacon_due else self.config.beacon_period)
+        tile_size, pose, last = self.tile_size, self.pose, self._beacon_at
+        if tile_size is None or pose is None or not self.pose_fresh(now):
+            return None
+        if now - self._last_beacon < (
+            BEACON_MIN_PERIOD if self._beacon_due else self.config.beacon_period
+        ) and (
+            self.reach is not None
+            or last is None
+            or math.hypot(pose.x - last[0], pose.y - last[1]) < BEACON_MOVE
         ):
             return None
-        assert self.pose is not None
         self._last_beacon = now
         self._beacon_due = False
-        tile = protocol.tile_of(self.pose.x, self.pose.y, tile_size)
-        return tile, protocol.Beacon(id=self.id, x=self.pose.x, y=self.pose.y, stamp=stamp)
+        self._beacon_at = (pose.x, pose.y)
+        tile = protocol.tile_of(pose.x, pose.y, tile_size)
+        return tile, protocol.Beacon(id=self.id, x=pose.x, y=pose.y, stamp=stamp)
 
 
 _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {

@@ -77,6 +77,9 @@ class Counters:
     # mission steps whose velocity was scaled up because the robot's command times out
     # before the next step (covswarm.agent.brain.MAX_DUTY)
     duty_scaled: int = 0
+    # mission steps whose velocity was cut to the speed at which a robot the safety filter
+    # does not see yet can still be avoided (covswarm.tvd.safety.unseen_speed_limit)
+    speed_limited: int = 0
     # steps before the mission that turned the robot in place to face S's first motion
     # (covswarm.agent.brain.AgentBrain._standing)
     aligning: int = 0

@@ -112,6 +112,7 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
         "mission steps that stopped the robot: its pose too old to steer from",
     ),
     "duty_scaled": ("number", "mission steps sped up for a command that times out early"),
+    "speed_limited": ("number", "mission steps slowed for robots the filter may not see yet"),
     "aligning": ("number", "steps before the mission that turned the robot to face S's start"),
     "mission_steps": ("number", "control steps while the mission ran"),
     "guarded": ("number", "steps the amplification guard rescaled"),

@@ -142,10 +142,12 @@ def starved_team(cost: float, n: int = 12, rounds: int = 60) -> list[float]:
 
 def test_a_starved_team_still_drives_into_its_domain() -> None:
     """At ~3.3 Hz (measured: e_a 4.16 m at the start, after 3 / 6 s 3.34 / 3.00 m without
-    the cap, the robots spinning where they started; 1.46 / 0.25 m with it) the team
-    converges as at 10 Hz (0.48 / 0.19 m), only later."""
+    the cap, the robots spinning where they started) the team converges as at 10 Hz (0.55 /
+    0.17 m), only later: 2.50 / 0.95 m, driving no faster than the 0.29 m/s at which a robot
+    a 0.3 s step has not seen yet can still be avoided (covswarm.tvd.safety.
+    unseen_speed_limit; 1.46 / 0.25 m at top speed, 29 Nov 2026)."""
     fed, starved = starved_team(0.0), starved_team(0.03)
     assert fed[0] == starved[0] > 4.0
     assert fed[-1] < 0.3
-    assert starved[30] < 0.5 * starved[0]
-    assert starved[-1] < 0.4
+    assert starved[30] < 0.7 * starved[0]
+    assert starved[-1] < 0.35 * starved[0]

@@ -57,6 +57,7 @@ Pure numpy, no I/O. Distances in m, velocities in m/s, gamma in 1/s.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
@@ -82,7 +83,8 @@ FEASIBILITY_TOL = 1e-9  # m^2/s: slack allowed on a row when checking a candidat
 # speed (0.8 m/s each) close in two 10 Hz periods (0.32 m). Farther is not safer, only
 # dearer: at 1 m, a 100-robot circle run (0.2 m spacing) followed ~75 states per agent,
 # 436 messages/s, missed 18 % of its deadlines and lost the domain (e_a 2.3 m); at 0.5 m the
-# followed set is about the two-hop set, which the coverage step follows anyway.
+# followed set is about the two-hop set, which the coverage step follows anyway. Slower
+# steps or a command latency are covered by driving slower instead (unseen_speed_limit).
 SAFETY_RADIUS = 0.5
 
 
@@ -119,6 +121,28 @@ def barrier_gain(gamma: float, period: float) -> float:
     if period <= 0.0:
         return gamma
     return min(gamma, 1.0 / period)
+
+
+def unseen_speed_limit(
+    radius: float, safe_distance: float, position_error: float, hold: float, latency: float
+) -> float:
+    """m/s: the fastest a robot may drive so that no robot it does not filter against yet
+    comes within ``safe_distance`` m before its next command acts.
+
+    A robot filters against the robots it knows within ``radius`` m (SAFETY_RADIUS), each
+    known to within ``position_error`` m plus what it drove since it last said where it
+    was (once per step: at most v ``hold``). One known farther away is at least
+    radius - position_error - v hold away; until our next command acts, ``hold`` s of
+    driving and ``latency`` s of commands in flight later, each of the two closes at
+    most v (hold + latency). Both at speed v stay apart by the safe distance while
+    radius - position_error - D >= v (3 hold + 2 latency); the next step has the other
+    robot among its rows, and the barrier keeps the pair apart from there (module
+    docstring). ``hold``: s each command drives (a control period, or the robot's
+    command timeout when steps come later); 0 or less: no limit (inf)."""
+    span = 3.0 * hold + 2.0 * latency
+    if span <= 0.0:
+        return math.inf
+    return max(radius - position_error - safe_distance, 0.0) / span
 
 
 def pair_constraints(
