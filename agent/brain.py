@@ -106,16 +106,22 @@ IDLE_STEP_PERIOD = 1.0
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
 # a whole team starting at once costs each agent one beacon per second, not per tick.
 BEACON_MIN_PERIOD = 1.0
-# m: a robot whose cell is empty (outside S, on its way in) beacons whenever it has moved
-# this far since its last beacon. Such a robot has no Voronoi neighbours to follow its
-# AgentStates or relay it, and a routine beacon every 10 s left it where it started in
-# everyone's tables: robots driving into S side by side at the wheels' top speed saw each
-# other there and collided (20 robots deployed from a 6 m square into a 1 m S at 10 Hz:
-# two seeds of three, closest 0.110 and 0.052 m; scripts/approach_safety.py). It is the
+# m: a robot that drives through S rather than with it (AgentBrain._driving_through: its
+# cell empty, outside S on its way in, or faster than S moves) beacons whenever it has
+# moved this far since its last beacon. A routine beacon every 10 s left such a robot where
+# it started in everyone's tables, and nobody followed its AgentStates: robots driving into
+# S side by side at the wheels' top speed saw each other there and collided (20 robots
+# deployed from a 6 m square into a 1 m S at 10 Hz: two seeds of three, closest 0.110 and
+# 0.052 m; scripts/approach_safety.py). It is the
 # position error the speed limit allows for (covswarm.tvd.safety.unseen_speed_limit):
 # at 0.08 m that limit is 0.87 m/s at 10 Hz, above the wheels' top speed with the period's
 # jitter, so a 10 Hz team without a command latency is never slowed by it.
 BEACON_MOVE = 0.08
+# m/s: a robot driving this much faster than S's fastest point moves among its teammates
+# rather than with them (converging on its centroid, a straggler catching up) and beacons
+# as it moves (AgentBrain._driving_through); riding S it does not, which would cost a team
+# moving at 0.19 m/s a beacon per robot every 0.4 s.
+BEACON_SLACK = 0.1
 STATS_PERIOD = 1.0  # s between two AgentStates that carry the stats (monitors only read them)
 # s: the least time between two AgentStates (AgentConfig.state_period), and between two
 # choices of the AgentStates and beacon tiles to follow (AgentBrain.exchange_due). At 10 Hz
@@ -1339,6 +1345,17 @@ class AgentBrain:
             relay=self.neighborhood.relay(),
         )
 
+    def _driving_through(self) -> bool:
+        """Whether our robot drives other than S carries it: its cell is empty (outside S,
+        on its way in), or it drives faster than any point of S moves by BEACON_SLACK
+        (S's motion is affine: its fastest point is a vertex). Its teammates' tables then
+        lose track of it between routine beacons; riding S with its neighbours, it keeps
+        its place among them."""
+        if self.reach is None:
+            return True
+        carried = max((math.hypot(vx, vy) for vx, vy in self.domain.velocities), default=0.0)
+        return math.hypot(*self.velocity) > carried + BEACON_SLACK
+
     def beacon(self, now: float, stamp: float) -> tuple[tuple[int, int], protocol.Beacon] | None:
         """(tile, Beacon) if one is due at ``now``, else None.
 
@@ -1358,9 +1375,9 @@ class AgentBrain:
         if now - self._last_beacon < (
             BEACON_MIN_PERIOD if self._beacon_due else self.config.beacon_period
         ) and (
-            self.reach is not None
-            or last is None
+            last is None
             or math.hypot(pose.x - last[0], pose.y - last[1]) < BEACON_MOVE
+            or not self._driving_through()
         ):
             return None
         self._last_beacon = now

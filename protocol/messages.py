@@ -805,7 +805,7 @@ class AgentState(Message):
 @dataclass(frozen=True, slots=True)
 class Beacon(Message):
     """Agent -> agents in nearby tiles: "I am here" for neighbour discovery (every 10 s,
-    early when a teammate appears, and as its robot moves while its cell is empty)."""
+    early when a teammate appears, and as its robot moves while it drives through S)."""
 
     id: int
     x: float

@@ -1,7 +1,7 @@
 """Robots driving into S from outside it: how close they come, at which step rates and
 command latencies, and how much the unseen-speed limit slows them.
 
-Usage: .venv/bin/python scripts/approach_safety.py [--seeds 3] [--out DIR]
+Usage: .venv/bin/python scripts/approach_safety.py [--seeds 3] [--out DIR] [--cost]
 
 Two stress cases, each in the agents' closed loop of covswarm.deploy.netsim (real brains
 and robot models; the commands ``latency`` s late and the agents told so), S a still
@@ -16,11 +16,16 @@ Prints a markdown table per case (min over seeds of the closest two robots came,
 0.1 s samples at which two touched, closer than the 0.14 m body, summed over seeds; the
 mission steps slowed by covswarm.tvd.safety.unseen_speed_limit, mean over seeds; e_a at the
 end, mean, m) and writes approach_safety.json to ``--out``. docs/real-robots.md quotes it.
+
+``--cost``: what the moving beacons cost a team that rides S, instead: the beacons each
+robot sent in 20 s of the 100-robot circle (S translating at 0.19 m/s, 10 Hz), and the
+share of the robots that beaconed in each second, per seed.
 """
 
 from __future__ import annotations
 
 import argparse
+import collections
 import json
 import sys
 from dataclasses import asdict
@@ -31,6 +36,10 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 from approaches import approach, ring, scattered  # noqa: E402
+
+from covswarm.agent import brain as brain_module  # noqa: E402
+from covswarm.deploy.netsim import run_netsim, steady_state  # noqa: E402
+from covswarm.mission.scenario_files import load_scenario  # noqa: E402
 
 RATES = (10.0, 5.0, 2.0)  # Hz
 LATENCIES = (0.0, 0.1, 0.3)  # s
@@ -49,11 +58,39 @@ def cases(seeds: int):
                 yield "ring", robots, rate, latency, runs
 
 
+def beacon_cost(seeds: int) -> None:
+    """Print the beacons per robot of 20 s of the 100-robot circle, per seed."""
+    sent: collections.Counter[int] = collections.Counter()
+    beacon = brain_module.AgentBrain.beacon
+
+    def counted(self, now, stamp):  # type: ignore[no-untyped-def]
+        out = beacon(self, now, stamp)
+        sent[int(now)] += out is not None
+        return out
+
+    brain_module.AgentBrain.beacon = counted  # type: ignore[method-assign]
+    scenario = load_scenario("circle")
+    print("| seed | beacons per robot in 20 s | robots beaconing per second (%) | e_a (m) |")
+    print("|---|---|---|---|")
+    for seed in range(seeds):
+        sent.clear()
+        result = run_netsim(scenario, duration=20.0, seed=seed)
+        shares = [100.0 * sent[k] / scenario.agents for k in sorted(sent)]
+        print(
+            f"| {seed} | {sum(sent.values()) / scenario.agents:.2f} "
+            f"| {' '.join(f'{s:.0f}' for s in shares)} | {steady_state(result):.4f} |"
+        )
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
     parser.add_argument("--out", type=Path, default=Path("approach-safety"))
+    parser.add_argument("--cost", action="store_true", help="the beacons of a team riding S")
     args = parser.parse_args()
+    if args.cost:
+        beacon_cost(args.seeds)
+        return
     rows = []
     for case, robots, rate, latency, runs in cases(args.seeds):
         seen = [approach(p, side, seed, rate, latency) for p, side, seed in runs]

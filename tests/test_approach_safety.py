@@ -1,6 +1,6 @@
-"""Robots driving into S from outside it never touch: while its cell is empty a robot
-beacons as it moves (covswarm.agent.brain.BEACON_MOVE), and no robot drives faster than
-one its safety filter does not see yet can still be avoided at
+"""Robots driving into S from outside it never touch: while its cell is empty or it drives
+through S, a robot beacons as it moves (covswarm.agent.brain.BEACON_MOVE), and no robot
+drives faster than one its safety filter does not see yet can still be avoided at
 (covswarm.tvd.safety.unseen_speed_limit). Closed loops: covswarm.deploy.netsim."""
 
 from __future__ import annotations
@@ -43,7 +43,7 @@ def test_a_ten_hz_team_without_latency_is_never_slowed() -> None:
     assert unseen_speed_limit(SAFETY_RADIUS, SAFE, BEACON_MOVE, 0.5, 0.0) < 0.2
 
 
-def _brain_outside(x: float) -> AgentBrain:
+def _brain_at(x: float) -> AgentBrain:
     """A brain whose robot stands at (x, 1) m, with S the 2 m square at the origin."""
     brain = AgentBrain(0, AgentConfig(beacon_period=10.0, stale_timeout=10.0))
     brain.on_pose(protocol.Pose(id=0, x=x, y=1.0, theta=0.0, stamp=WALL, seq=0), now=0.0)
@@ -52,27 +52,36 @@ def _brain_outside(x: float) -> AgentBrain:
     return brain
 
 
-@pytest.mark.parametrize("outside", [True, False])
-def test_a_robot_beacons_as_it_moves_while_its_cell_is_empty(outside: bool) -> None:
-    """Outside S (a neighbour at (0.3, 1) m holds all of it: our cell is empty) a beacon
-    goes out each BEACON_MOVE of motion; inside, only the routine one every beacon period."""
-    x = -1.0 if outside else 0.5
-    brain = _brain_outside(x)
+@pytest.mark.parametrize(
+    ("x", "step", "sent"),
+    [
+        (-1.0, 0.03, [0.09, 0.18, 0.27]),  # outside S: our cell is empty
+        (0.5, 0.03, [0.09, 0.18, 0.27]),  # inside, driving to its centroid at ~0.7 m/s
+        (1.4333, 0.01, []),  # inside, at its centroid: moved 0.1 m, driving < 0.1 m/s
+    ],
+)
+def test_a_robot_beacons_as_it_moves_among_its_teammates(
+    x: float, step: float, sent: list[float]
+) -> None:
+    """S the 2 m square, still, a neighbour at (0.3, 1) m: left of x = -0.3 our cell is
+    empty, and (1.433, 1) m is our centroid. A robot outside S, or driving faster than S
+    moves by BEACON_SLACK, beacons each BEACON_MOVE it moves; one that rides S (here: stands
+    on its centroid, nudged) only every beacon period."""
+    brain = _brain_at(x)
     neighbour = protocol.AgentState(id=1, x=0.3, y=1.0, stamp=WALL, neighbors=(0,))
     brain.on_agent_state(neighbour, now=0.0)
     brain.step(0.1, WALL + 0.1)
-    assert (brain.reach is None) == outside
     assert brain.beacon(0.1, WALL + 0.1) is not None  # the first one, at once
-    sent = []
-    for k in range(1, 11):  # 0.03 m per period towards S
+    moved = []
+    for k in range(1, 11):
         t = 0.1 + 0.1 * k
-        moved = protocol.Pose(id=0, x=x + 0.03 * k, y=1.0, theta=0.0, stamp=WALL + t, seq=k)
-        brain.on_pose(moved, now=t)
+        pose = protocol.Pose(id=0, x=x + step * k, y=1.0, theta=0.0, stamp=WALL + t, seq=k)
+        brain.on_pose(pose, now=t)
         brain.on_agent_state(neighbour, now=t)
         brain.step(t, WALL + t)
         if brain.beacon(t, WALL + t) is not None:
-            sent.append(round(0.03 * k, 2))
-    assert sent == ([0.09, 0.18, 0.27] if outside else [])
+            moved.append(round(step * k, 2))
+    assert moved == sent
 
 
 @pytest.mark.parametrize("seed", [1, 2])
