@@ -293,10 +293,12 @@ class Pack:
         if not sub.followers:
             del self._subs[key]
             self.bus.unsubscribe(sub.source)
-        # Unread payloads of an undeclared subscriber are lost to a process of its own too.
-        pending = self._pending[bid]
-        for slot in [slot for slot in pending if slot[_KEY_AT:] == key]:
-            del pending[slot]
+        # Unread payloads of an undeclared subscriber are lost to a process of its own too:
+        # those queued for its next turn, and those set aside for it when a teammate began
+        # following the key earlier in this tick (_follow).
+        for queue in (self._pending[bid], self._later[bid]):
+            for slot in [slot for slot in queue if slot[_KEY_AT:] == key]:
+                del queue[slot]
 
     def follow(self, bid: int, kind: str, wanted: frozenset) -> None:
         """Brain ``bid`` follows exactly ``wanted``: robot ids (kind "state") or tiles

@@ -589,8 +589,32 @@ def test_a_token_change_is_recorded_once_for_the_process_and_applied_as_alone() 
         dropped = all(3 not in ids for ids in known(packed).values())
         assert dropped == (not alive)  # back with its next state
     assert packed.packs[0].liveliness.serial == serial + 2  # once each, for all six
-    for world in (packed, alone):  # every brain owes the newcomer an early beacon
-        assert all(b._beacon_due for p in world.packs for b in p.brains.values())
+    # Every brain owes the newcomer an early beacon, or sent one in the newcomer's period
+    # (a robot driving through S beacons as it moves).
+    last = (packed.round - 1) * 0.1
+    for world in (packed, alone):
+        brains = [b for p in world.packs for b in p.brains.values()]
+        assert all(b._beacon_due or b._last_beacon == last for b in brains)
+
+
+def test_a_brain_that_stops_following_gets_nothing_set_aside_for_it() -> None:
+    """Brains 0 and 1 follow robot 5's AgentState when it arrives; brain 2 then begins to
+    follow it too (the state is set aside for 0 and 1: not 2's, its own subscriber would
+    not have had it), and brain 0 stops. Its own subscriber's unread state would be lost
+    with it: only brain 1 gets it. Brain 0 got it anyway (a follow pattern of the moving
+    beacons broke tests/test_packed_brains_get_and_do_what_lone_brains_do)."""
+    bus = LocalBus()
+    pack = Pack(bus, SWARM, [AgentBrain(0), AgentBrain(1), AgentBrain(2)])
+    for bid in (0, 1):
+        pack.follow(bid, "state", frozenset({5}))
+    state = protocol.AgentState(id=5, x=1.0, y=1.0, stamp=WALL, neighbors=())
+    bus.put(protocol.agent_state_key(SWARM, 5), state.encode())
+    pack.follow(2, "state", frozenset({5}))
+    pack.follow(0, "state", frozenset())
+    pack.drain()
+    got = {bid: list(pack._pending[bid]) for bid in (0, 1, 2)}
+    assert not got[0] and not got[2]
+    assert len(got[1]) == 1
 
 
 def test_a_receipt_time_never_precedes_the_pose_received() -> None:
