@@ -112,10 +112,10 @@ BEACON_MIN_PERIOD = 1.0
 # it started in everyone's tables, and nobody followed its AgentStates: robots driving into
 # S side by side at the wheels' top speed saw each other there and collided (20 robots
 # deployed from a 6 m square into a 1 m S at 10 Hz: two seeds of three, closest 0.110 and
-# 0.052 m; scripts/approach_safety.py). It is the
-# position error the speed limit allows for (covswarm.tvd.safety.unseen_speed_limit):
-# at 0.08 m that limit is 0.87 m/s at 10 Hz, above the wheels' top speed with the period's
-# jitter, so a 10 Hz team without a command latency is never slowed by it.
+# 0.052 m; scripts/approach_safety.py). It is the position error the speed limit allows
+# for (covswarm.tvd.safety.unseen_speed_limit): at 0.08 m that limit is 0.87 m/s at 10 Hz,
+# above the wheels' top speed with the period's jitter, so a 10 Hz team without a command
+# latency is never slowed by it.
 BEACON_MOVE = 0.08
 # m/s: a robot driving this much faster than S's fastest point moves among its teammates
 # rather than with them (converging on its centroid, a straggler catching up) and beacons
@@ -1353,6 +1353,7 @@ class AgentBrain:
         its place among them."""
         if self.reach is None:
             return True
+        assert self.domain is not None  # a beacon needs its tile size
         carried = max((math.hypot(vx, vy) for vx, vy in self.domain.velocities), default=0.0)
         return math.hypot(*self.velocity) > carried + BEACON_SLACK
 
@@ -1363,7 +1364,8 @@ class AgentBrain:
         agent's liveliness token appeared (a newcomer, or a whole team starting, must find
         its neighbours, and they it, without waiting for the next routine beacon) or a
         neighbour kept leaving us out of its neighbours (Neighborhood.unrequited); and
-        while our cell is empty, whenever the robot has moved BEACON_MOVE since the last.
+        whenever the robot has moved BEACON_MOVE since the last while it drives through S
+        rather than with it (:meth:`_driving_through`).
 
         None while our own pose is stale: a robot that stopped reporting (dead) must not be
         kept alive in the others' diagrams by its brain; and before the domain gives the
