@@ -185,10 +185,10 @@ class Watch:
             ids = list(self.poses)
         return float(np.mean([self.displacement(i, start, end) for i in ids])) / (end - start)
 
-    def last_neighbor_mention(self, dead: int) -> float:
-        """Stamp (wall time) of the last AgentState (of another agent) that listed ``dead``."""
+    def neighbor_mentions(self, dead: int) -> list[tuple[float, int]]:
+        """(stamp, sender) of every AgentState of another agent that listed ``dead``."""
         with self._lock:
-            return max((w for w, i, nb in self.states if i != dead and dead in nb), default=0.0)
+            return [(w, i) for w, i, nb in self.states if i != dead and dead in nb]
 
     def close(self) -> None:
         for sub in self._subs:
@@ -294,10 +294,14 @@ def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
             # Robot 1's living agent commanded (0, 0) once its pose was stale (1 s).
             late = [c for c in watch.cmds[1] if killed_robot + 1.2 < c[0] < killed_robot + 4.0]
             assert late and all(left == 0.0 and right == 0.0 for _, left, right in late)
-            # The others dropped both from their neighbourhoods (liveliness: at once).
-            assert watch.last_neighbor_mention(3) < killed_brain + 0.5
-            assert watch.last_neighbor_mention(1) < killed_robot + 0.5
     summary = json.loads((out / "summary.json").read_text())
+    # The others dropped both from their neighbourhoods (liveliness: at once). On failure:
+    # who still named them and how long after the kill, and when the coordinator saw the
+    # tokens go (this failed twice in full local runs, at 1.9 and 2.1 s: the stale path).
+    for dead, killed in ((3, killed_brain), (1, killed_robot)):
+        late = [(round(w - killed, 2), i) for w, i in watch.neighbor_mentions(dead)]
+        late = [mention for mention in late if mention[0] >= 0.5]
+        assert not late, (dead, late, summary["team_changes"], summary["lost_processes"])
     changes = [(c["lost"], c["joined"]) for c in summary["team_changes"]]
     assert changes == [([3], []), ([1], []), ([], [5])], summary["team_changes"]
     for change in summary["team_changes"]:
