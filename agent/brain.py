@@ -1058,11 +1058,13 @@ class AgentBrain:
                 self._hold,
                 config.command_latency,
             )
-            speed = math.hypot(*velocity.tolist())
-            # (above the wheels' top speed they saturate first, in the same direction)
-            if speed > limit and limit < config.robot.max_wheel_speed:
-                velocity = velocity * (limit / speed)
-                self.counters.speed_limited += self.running
+            # (above the wheels' top speed they saturate first, in the same direction: at
+            # 10 Hz without a latency, every step)
+            if limit < config.robot.max_wheel_speed:
+                speed = math.hypot(*velocity.tolist())
+                if speed > limit:
+                    velocity = velocity * (limit / speed)
+                    self.counters.speed_limited += self.running
         vx, vy = velocity.tolist()
         if not (math.isfinite(vx) and math.isfinite(vy)):
             raise ValueError(f"non-finite velocity {velocity}")

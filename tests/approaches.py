@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from columns import pair_distances
 
 from covswarm.agent.brain import AgentConfig
 from covswarm.deploy.netsim import run_netsim
@@ -86,8 +87,7 @@ def approach(
         config=AgentConfig(command_latency=latency),
         announce_start=False,
     )
-    first, second = np.triu_indices(len(poses), 1)
-    apart = np.linalg.norm(result.trajectories[:, first] - result.trajectories[:, second], axis=-1)
+    apart = pair_distances(result.trajectories)
     return Approach(
         closest=float(apart.min()),
         touching=int((apart < BODY).any(axis=1).sum()),

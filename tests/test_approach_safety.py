@@ -10,15 +10,15 @@ import math
 import numpy as np
 import pytest
 from approaches import BODY, approach, ring, scattered
+from columns import SAFE
 from wire_samples import domain_message
 
 from covswarm import protocol
 from covswarm.agent.brain import BEACON_MOVE, AgentBrain, AgentConfig
 from covswarm.tvd.drive import KHEPERA_IV
-from covswarm.tvd.safety import SAFETY_RADIUS, body_safe_distance, unseen_speed_limit
+from covswarm.tvd.safety import SAFETY_RADIUS, unseen_speed_limit
 
 WALL = 1.7e9
-SAFE = body_safe_distance(KHEPERA_IV.body_diameter)
 
 
 def test_the_limit_is_where_the_worst_approach_ends_at_the_safe_distance() -> None:
