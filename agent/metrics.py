@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import bisect
+import math
 from collections import deque
 from dataclasses import dataclass
 
@@ -10,21 +12,30 @@ TIMING_SAMPLES = 256  # step durations kept for the p50/p99
 
 
 class Percentiles:
-    """Rolling percentiles of the last ``TIMING_SAMPLES`` values."""
+    """Rolling percentiles of the last ``TIMING_SAMPLES`` values (non-finite ones are not
+    kept: they have no rank)."""
 
     def __init__(self) -> None:
-        self._values: deque[float] = deque(maxlen=TIMING_SAMPLES)
+        self._values: deque[float] = deque()  # in arrival order, to evict the oldest
+        self._ordered: list[float] = []  # the same values, sorted
 
     def add(self, value: float) -> None:
+        if not math.isfinite(value):
+            return
+        # Kept sorted as they come (a bisection and a short memmove each) rather than sorted
+        # on each read: a brain stepping a few times a second reports its stats on most of
+        # its steps, and sorting two windows of 256 each time was 4 % of an overloaded live
+        # agent process's samples (1000 robots at 1.4 Hz, py-spy, 30 Nov 2026).
+        if len(self._values) == TIMING_SAMPLES:
+            del self._ordered[bisect.bisect_left(self._ordered, self._values.popleft())]
         self._values.append(value)
+        bisect.insort(self._ordered, value)
 
     def get(self, *qs: float) -> tuple[float, ...]:
-        """The ``qs`` quantiles (each 0..1) of the values kept, from one sort (a brain reports
-        two of each once a second: four sorts of 256 were 2.6 % of a live agent process's
-        CPU); 0 each before any."""
-        if not self._values:
+        """The ``qs`` quantiles (each 0..1) of the values kept; 0 each before any."""
+        ordered = self._ordered
+        if not ordered:
             return (0.0,) * len(qs)
-        ordered = sorted(self._values)
         last = len(ordered) - 1
         return tuple(ordered[min(last, int(q * len(ordered)))] for q in qs)
 

@@ -173,6 +173,11 @@ class Liveliness:
         first = bisect.bisect_right(self._appeared, since, key=lambda entry: entry[0])
         return [rid for _, rid in self._appeared[first:]]
 
+    @property
+    def kept(self) -> int:
+        """Appearances kept (those :meth:`trim` has not forgotten yet)."""
+        return len(self._appeared)
+
     def trim(self, upto: int) -> None:
         """Forget the appearances up to change number ``upto`` (every follower has them)."""
         del self._appeared[: bisect.bisect_right(self._appeared, upto, key=lambda e: e[0])]

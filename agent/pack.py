@@ -335,8 +335,11 @@ class Pack:
         for key, sub in self._subs.items():
             if sub.kind != "pose":
                 self._drain_subscription(key, sub, self._pending)
-        # What every brain has caught up on is not needed any more.
-        self.liveliness.trim(min(brain.neighborhood.mark for brain in self.brains.values()))
+        # What every brain has caught up on is not needed any more (their marks read only
+        # when there is something to forget: a pass over every brain each tick, 2 % of an
+        # overloaded pack's samples, scripts/brain_tick_profile.py --late 7, 30 Nov 2026).
+        if self.liveliness.kept:
+            self.liveliness.trim(min(brain.neighborhood.mark for brain in self.brains.values()))
         while (change := self._token_changes.try_recv()) is not None:
             try:
                 role, rid = protocol.parse_alive_key(change[0], self.swarm)
