@@ -325,16 +325,14 @@ class Pack:
         """Take everything that arrived since the last drain, once for the whole process,
         and queue each payload for every brain that follows its key; but the brains' own
         robots' poses, which :meth:`take_own_poses` takes right before their turns (their
-        rings keep the newest): in an overloaded process most brains skip the tick."""
-        for bid, later in self._later.items():
-            if later:
-                pending = self._pending[bid]
-                self.brains[bid].counters.coalesced += len(later.keys() & pending.keys())
-                pending.update(later)
-                later.clear()
-        for key, sub in self._subs.items():
-            if sub.kind != "pose":
-                self._drain_subscription(key, sub, self._pending)
+        rings keep the newest): in an overloaded process most brains skip the tick.
+
+        Token changes before the data: a payload that reached the process before a change
+        (the last state of a process that has just died) is then drained in the same tick
+        and applied before its brain catches up on the change (:meth:`receive`). Drained
+        after the data, one that landed in between was applied at the brain's next turn,
+        as news heard after the deletion, and revived the dead process until it went stale
+        (tests/test_liveliness_race.py)."""
         # What every brain has caught up on is not needed any more (their marks read only
         # when there is something to forget: a pass over every brain each tick, 2 % of an
         # overloaded pack's samples, scripts/brain_tick_profile.py --late 7, 30 Nov 2026).
@@ -346,6 +344,15 @@ class Pack:
             except ValueError:
                 continue  # not a key of ours; nothing to count it against
             self.liveliness.change(role, rid, change[1])
+        for bid, later in self._later.items():
+            if later:
+                pending = self._pending[bid]
+                self.brains[bid].counters.coalesced += len(later.keys() & pending.keys())
+                pending.update(later)
+                later.clear()
+        for key, sub in self._subs.items():
+            if sub.kind != "pose":
+                self._drain_subscription(key, sub, self._pending)
 
     def _drain_subscription(self, key: str, sub: _Subscription, queues: _Queues) -> None:
         """Queue what ``sub`` holds for its followers in ``queues``: its newest sample (one
