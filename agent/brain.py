@@ -1335,12 +1335,16 @@ class AgentBrain:
         vx, vy = min(max(vx, -bound), bound), min(max(vy, -bound), bound)
         x, y, _ = self.predicted_pose(stamp)
         x, y = clamp_position(x, y)
+        # Our neighbours of the last step that reckoned them; never one whose token has
+        # vanished since: a step that ends early (or a hold) leaves the set as it was, and
+        # a brain starved for a second or two went on naming a dead robot to the team.
+        one_hop, dead = self.neighborhood.one_hop, self.neighborhood.dead_now()
         return protocol.AgentState(
             id=self.id,
             x=x,
             y=y,
             stamp=stamp,
-            neighbors=sorted(self.neighborhood.one_hop),
+            neighbors=sorted(one_hop - dead.keys() if dead else one_hop),
             stats=self.stats() if stats else None,
             vx=vx,
             vy=vy,

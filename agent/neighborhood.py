@@ -435,6 +435,11 @@ class Neighborhood:
             self._revived[rid, role] = self.mark
             self._revivals += 1
 
+    def dead_now(self) -> dict[int, set[str]]:
+        """:attr:`dead` brought up to the token changes recorded so far (and kept)."""
+        self.dead = self._dead() if self.liveliness.deaths else {}
+        return self.dead
+
     def _dead(self) -> dict[int, set[str]]:
         """id -> roles whose liveliness token vanished and that nothing revived since: the
         last one while no token changed and no data revived a robot."""
@@ -476,7 +481,7 @@ class Neighborhood:
         # A position is reckoned as far as its velocity is followed and its robot drives it:
         # one heard longer than ``rest`` ago stopped then.
         limit = min(self.reckoning_limit, rest)
-        dead = self.dead = self._dead() if self.liveliness.deaths else {}
+        dead = self.dead_now()
         records = self.states.items()
         if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
             chosen = {rid: pose for rid, pose in self.poses.items() if pose[2] >= fresh}

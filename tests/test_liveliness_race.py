@@ -107,3 +107,31 @@ def test_a_robot_token_deleted_unseen_keeps_it_out_against_its_living_agents_sta
         t = 0.1 * k
         bus.put(key, _state(1, WALL + t))  # agent 1 lives on (its pose fresh for 1 s)
         assert 1 not in _turn(pack, brain, t)
+
+
+def test_a_brain_that_has_not_stepped_since_a_death_does_not_name_the_dead_robot() -> None:
+    """Robot 1 is a Voronoi neighbour at a step; its token vanishes; the brain's next
+    AgentStates come without a step in between (a hold in an overloaded pack, or a step
+    that ends early: the neighbour set stays as the last full step found it): they do not
+    name robot 1 and still name robot 2."""
+    brain = AgentBrain(0)
+    square = [[-2.0, -2.0], [2.0, -2.0], [2.0, 2.0], [-2.0, 2.0]]
+    brain.on_domain(
+        protocol.Domain(seq=0, stamp=WALL, t=0.0, state="running", vertices=square,
+                        velocities=[[0.0, 0.0]] * 4, kappa=1.0),
+        0.0,
+    )  # fmt: skip
+    brain.on_pose(protocol.Pose(id=0, x=0.0, y=0.0, theta=0.0, stamp=WALL, seq=0), 0.0)
+    for rid, (x, y) in {1: (1.0, 0.0), 2: (-1.0, 0.0)}.items():
+        brain.on_pose(protocol.Pose(id=rid, x=x, y=y, theta=0.0, stamp=WALL, seq=0), 0.0)
+    assert brain.step(0.0, WALL).reason != "error"
+    assert brain.neighborhood.one_hop == {1, 2}
+    brain.on_liveliness("robot", 1, alive=False)
+    assert brain.neighborhood.one_hop == {1, 2}  # no step since
+    held = [a.state for a in brain.hold(0.05, WALL + 0.05) if hasattr(a, "state")]
+    assert [state.neighbors for state in held] == [(2,)]
+    state = brain.agent_state(WALL + 0.1)
+    assert state is not None and tuple(state.neighbors) == (2,)
+    brain.on_liveliness("robot", 1, alive=True)  # back: named again until the next step
+    state = brain.agent_state(WALL + 0.2)
+    assert state is not None and tuple(state.neighbors) == (1, 2)
