@@ -61,6 +61,7 @@ from covswarm.tvd.density import Density
 from covswarm.tvd.drive import (
     KHEPERA_IV,
     DiffDrive,
+    pass_sides,
     steer_one,
     turn_in_place,
     twist_from_wheels,
@@ -994,7 +995,14 @@ class AgentBrain:
             self.safety_relaxed += bool(relaxed)
             vx, vy = velocity
             aim = filtering.nominal.tolist()  # where it wants to go: the turn's cap and veer
-            decision = self._wheels(vx, vy, filtering.begun.pose[2], (aim[0], aim[1]))
+            x, y, heading = filtering.begun.pose
+            # Held back (only by an active row: else it drives its aim), it passes on the
+            # side away from the robot that holds it back.
+            side = 1.0
+            if active:
+                near = filtering.near[:, :2]
+                side = float(pass_sides((x, y), filtering.nominal, near, SAFETY_RADIUS)[0])
+            decision = self._wheels(vx, vy, heading, (aim[0], aim[1]), side)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))
         self._step_us.add((filtering.spent + shared + self._clock() - started) * 1e6)
@@ -1109,7 +1117,12 @@ class AgentBrain:
         return Decision(left, right, "aligning")
 
     def _wheels(
-        self, vx: float, vy: float, heading: float, aim: tuple[float, float] | None = None
+        self,
+        vx: float,
+        vy: float,
+        heading: float,
+        aim: tuple[float, float] | None = None,
+        side: float = 1.0,
     ) -> Decision:
         """The running decision for the velocity (vx, vy) m/s from ``heading`` rad, turning
         toward ``aim`` (the velocity before the safety filter, faced, or passed on the left
@@ -1117,7 +1130,7 @@ class AgentBrain:
         config = self.config
         robot = config.robot
         left, right, capped = steer_one(
-            heading, vx, vy, robot, config.projection_distance, self._hold, aim
+            heading, vx, vy, robot, config.projection_distance, self._hold, aim, side
         )
         self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports

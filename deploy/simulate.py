@@ -131,6 +131,7 @@ def simulate(
     from covswarm.tvd.drive import (
         KHEPERA_IV,
         integrate,
+        pass_sides,
         turn_in_place,
         twist_from_wheels,
         wheel_speeds,
@@ -277,9 +278,14 @@ def simulate(
         else:
             # Held for a step, as an agent's command is for its period (AgentBrain._hold):
             # uncapped, a robot far from its goal at a long step spins instead of driving.
+            sides = None
+            if safety:  # held back only by an active row; passing away from who holds it
+                sides = np.ones(n)
+                held = np.flatnonzero(active)
+                sides[held] = pass_sides(positions[held], aim[held], positions, SAFETY_RADIUS)
             wheels = wheel_speeds(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L,
-                hold=dt, aims=aim,
+                hold=dt, aims=aim, sides=sides,
             )  # fmt: skip
             wheel_rows.append(wheels)
             if safety:

@@ -18,6 +18,7 @@ from covswarm.tvd.drive import (
     DiffDrive,
     integrate,
     integrate_one,
+    pass_sides,
     steer,
     steer_one,
     turn_in_place,
@@ -372,3 +373,52 @@ def test_a_robot_behind_a_slower_one_passes_it_on_the_left(lead_speed: float) ->
     assert closest > 0.15  # the filter's safe distance (0.16 m) less its sampling slack
     behind, followed, _, _ = _pass(False, lead_speed)
     assert followed > 1.5 and np.abs(behind[:, 1]).max() < 1e-6
+
+
+def test_pass_sides_turn_away_from_the_nearest_robot_ahead() -> None:
+    """pass_sides against a loop over the others: the nearest robot within the radius with a
+    positive projection on the aim holds the robot back; -1 (pass on the right) when it
+    lies left of the aim, +1 otherwise and when none is ahead; a robot at the very
+    position is itself. Random teams, with robots exactly at the radius and behind."""
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        n, m = int(rng.integers(1, 6)), int(rng.integers(0, 12))
+        positions = rng.uniform(-1.0, 1.0, (n, 2))
+        aims = rng.normal(0.0, 1.0, (n, 2))
+        others = np.vstack([rng.uniform(-1.0, 1.0, (m, 2)), positions[:1]])
+        radius = float(rng.uniform(0.2, 1.5))
+        sides = pass_sides(positions, aims, others, radius)
+        for i in range(n):
+            best, side = math.inf, 1.0
+            for other in others:
+                rel = other - positions[i]
+                d2 = float(rel @ rel)
+                if 0.0 < d2 <= radius**2 and float(rel @ aims[i]) > 0.0 and d2 < best:
+                    best = d2
+                    left = aims[i][0] * rel[1] - aims[i][1] * rel[0] > 0.0
+                    side = -1.0 if left else 1.0
+            assert sides[i] == side
+    assert pass_sides(np.zeros((2, 2)), np.ones((2, 2)), np.zeros((0, 2)), 0.5).tolist() == [1, 1]
+
+
+@pytest.mark.parametrize("ratio", [0.02, 0.1, 0.3])
+def test_a_robot_held_back_veers_to_the_side_it_is_given(ratio: float) -> None:
+    """side -1 mirrors side +1 about the aim: the robot settles PASS_ANGLE * g(ratio) to
+    the right of its aim instead of the left, and steer's sides do what steer_one's side
+    does."""
+    nominal = np.array([-2.0, 1.0])
+    aim = math.atan2(nominal[1], nominal[0])
+    veer = PASS_ANGLE * min(1.0, ratio / PASS_STOPPED) * max(0.0, 1.0 - ratio / PASS_BELOW)
+    for side in (1.0, -1.0):
+        heading = aim
+        for _ in range(40):
+            velocity = _held_back(heading, nominal, ratio)
+            left, right, _ = steer_one(
+                heading, *velocity.tolist(), KHEPERA_IV, 0.05, 0.1, tuple(nominal.tolist()), side
+            )
+            batch = steer(
+                [heading], velocity[None], KHEPERA_IV, 0.05, 0.1, nominal[None], np.array([side])
+            )[0][0]
+            np.testing.assert_allclose([left, right], batch, rtol=1e-12, atol=1e-15)
+            heading = integrate_one(0.0, 0.0, heading, left, right, 0.1)[2]
+        assert abs(_error(heading, aim + side * veer)) < 1e-3

@@ -31,8 +31,9 @@ import numpy as np
 
 DEFAULT_PROJECTION_DISTANCE = 0.03  # m; see the module docstring for how it was chosen
 MAX_WHEEL_SPEED = 0.8  # m/s rim speed; the Khepera IV is quoted 0.8-1.0 m/s
-# A robot that a safety filter holds back while it still moves passes on the left of its
-# aim (:func:`steer`): by up to PASS_ANGLE rad, most where its forward speed is cut to
+# A robot that a safety filter holds back while it still moves passes beside its aim, on
+# the side away from the robot that holds it back (:func:`steer`, :func:`pass_sides`): by
+# up to PASS_ANGLE rad, most where its forward speed is cut to
 # PASS_STOPPED of what it asks for, none below that (stopped dead: it faces its aim and
 # waits) nor from PASS_BELOW up; it turns toward that heading by PASS_DAMPING of the angle
 # each period. Picked on circle-1000 (covswarm sim, 3 seeds, with and without --face-start)
@@ -63,10 +64,11 @@ def wheel_speeds(
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
     hold: float | np.ndarray = 0.0,
     aims: np.ndarray | None = None,
+    sides: np.ndarray | None = None,
 ) -> np.ndarray:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity:
     :func:`steer`'s wheels."""
-    return steer(headings, velocities, robot, projection_distance, hold, aims)[0]
+    return steer(headings, velocities, robot, projection_distance, hold, aims, sides)[0]
 
 
 def steer(
@@ -76,13 +78,15 @@ def steer(
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE,
     hold: float | np.ndarray = 0.0,
     aims: np.ndarray | None = None,
+    sides: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity, and
     which robots' turn rate was capped for ``hold``.
 
     headings: (n,) rad; velocities: (n, 2) m/s; hold: s the command will stay in force,
     scalar or (n,) (0: not known, no cap); aims: (n, 2) m/s, the velocities the robots
-    want before a safety filter bounded their forward speed (None: ``velocities``).
+    want before a safety filter bounded their forward speed (None: ``velocities``); sides:
+    (n,) +1 or -1, the side each robot held back passes on (None: all +1, the left).
     Returns wheels (n, 2) [left, right] and capped (n,) bool.
 
     Forward speed v = vx cos th + vy sin th, turn rate w = (-vx sin th + vy cos th) / l.
@@ -105,10 +109,15 @@ def steer(
     pace, a file that the swing had broken up (tests/test_overload_heading.py's starved
     team, all heading for one point: e_a 0.60 m against 0.25 m). So a robot held back while
     it still moves, its forward speed v cut to a fraction r = v / a of the aim's forward
-    part a, aims PASS_ANGLE * g(r) to the left of its aim, g(r) = min(1, r / PASS_STOPPED)
-    * max(0, 1 - r / PASS_BELOW): it passes a slower robot ahead, and all on the same side
-    (to the side of each one's heading, robots following one another veered into each
-    other and stayed there: circle-1000's e_a rose to 30 m). Not held back (r >=
+    part a, aims PASS_ANGLE * g(r) beside its aim, g(r) = min(1, r / PASS_STOPPED)
+    * max(0, 1 - r / PASS_BELOW): it passes a slower robot ahead. To the left (``sides``
+    +1, the default) or the right (-1): :func:`pass_sides` picks the side away from the
+    robot holding it back. Always to the left, a robot whose blocker was ahead on its left
+    turned into it and trailed it at its pace: behind S's trailing edge, robots left
+    outside stayed out (circle-1000, covswarm sim with the agents' robot model and filter,
+    seeds 0-7: e_a's second half 0.066 m on average, 0.039 m passing away; scripts/
+    pass_side.py). (To the side of each one's heading, robots following one another
+    veered into each other and stayed there: circle-1000's e_a rose to 30 m.) Not held back (r >=
     PASS_BELOW: following a team that moves, as S's trailing edge does) or stopped dead
     (r = 0: boxed in, where a veer only points the robot at the next robot along) it faces
     its aim. Toward a veered heading it turns PASS_DAMPING of the angle per period: r
@@ -148,6 +157,8 @@ def steer(
             np.clip(ratio / PASS_STOPPED, 0.0, 1.0) * np.clip(1.0 - ratio / PASS_BELOW, 0.0, 1.0)
         )
         veering = veer > 0.0
+        if sides is not None:
+            veer = veer * np.asarray(sides, dtype=float).reshape(-1)
         error = np.where(veering, error + veer, error)
         w = np.where(veering, np.hypot(ax, ay) * np.sin(error) / projection_distance, w)
         # |e| / hold (damped toward a veer), and no cap (inf) where the hold is not known
@@ -168,7 +179,7 @@ def steer(
 def steer_one(
     heading: float, vx: float, vy: float, robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE, hold: float = 0.0,
-    aim: tuple[float, float] | None = None,
+    aim: tuple[float, float] | None = None, side: float = 1.0,
 ) -> tuple[float, float, bool]:  # fmt: skip
     """:func:`steer` for one robot in plain floats: rim speeds (left, right) m/s for the
     planar velocity (vx, vy) m/s from ``heading`` rad, and whether the turn rate was capped
@@ -198,7 +209,7 @@ def steer_one(
             min(max(ratio / PASS_STOPPED, 0.0), 1.0) * min(max(1.0 - ratio / PASS_BELOW, 0.0), 1.0)
         )
         if veer > 0.0:
-            error += veer
+            error += side * veer
             w = math.hypot(ax, ay) * math.sin(error) / projection_distance
             damping = PASS_DAMPING
     capped = False
@@ -311,3 +322,27 @@ def integrate_one(
         y + chord * math.sin(mid),
         (heading + turn + math.pi) % (2.0 * math.pi) - math.pi,
     )
+
+
+def pass_sides(
+    positions: np.ndarray, aims: np.ndarray, others: np.ndarray, radius: float
+) -> np.ndarray:
+    """(n,) the side each robot held back passes on (:func:`steer`'s ``sides``): +1 left,
+    -1 right, away from the robot that holds it back: the nearest of ``others`` (m, 2) m
+    within ``radius`` m ahead of it along its aim (positions, aims: (n, 2) m, m/s; a robot
+    of ``others`` at its own position is itself). Left when none is ahead."""
+    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    aims = np.asarray(aims, dtype=float).reshape(-1, 2)
+    others = np.asarray(others, dtype=float).reshape(-1, 2)
+    sides = np.ones(len(positions))
+    if len(others) == 0:
+        return sides
+    rel = others[None, :, :] - positions[:, None, :]  # (n, m, 2)
+    d2 = np.einsum("nmk,nmk->nm", rel, rel)
+    ahead = np.einsum("nmk,nk->nm", rel, aims)
+    d2 = np.where((d2 > 0.0) & (d2 <= radius * radius) & (ahead > 0.0), d2, np.inf)
+    nearest = np.argmin(d2, axis=1)
+    rows = np.arange(len(positions))
+    blocker = rel[rows, nearest]
+    left = aims[:, 0] * blocker[:, 1] - aims[:, 1] * blocker[:, 0] > 0.0
+    return np.where(np.isfinite(d2[rows, nearest]) & left, -1.0, 1.0)
