@@ -323,12 +323,15 @@ def test_a_robot_held_back_settles_left_of_its_aim_without_swinging(ratio: float
     assert abs(right - left) < 1e-3 and abs(0.5 * (left + right) - forward) < 1e-3
 
 
-def _pass(aimed: bool, lead_speed: float) -> tuple[np.ndarray, float, int, float]:
+def _pass(
+    aimed: bool, lead_speed: float, offset: float = 0.0, away: bool = False
+) -> tuple[np.ndarray, float, int, float]:
     """A robot 3 m from its goal (nominal 3 m/s per m of it: an empty cell's pull) behind a
-    robot 0.3 m ahead on the same line driving ``lead_speed`` m/s toward it, both filtered
-    for each other as covswarm sim does, 10 s at 10 Hz: the follower's track, its distance
-    to the goal at the end, its turn reversals of more than 0.2 rad a period (swings) and
-    the closest the two came (m)."""
+    robot 0.3 m ahead and ``offset`` m to its left driving ``lead_speed`` m/s toward it,
+    both filtered for each other as covswarm sim does, 10 s at 10 Hz, passing on the left
+    or (``away``) on the side pass_sides gives: the follower's track, its distance to the
+    goal at the end, its turn reversals of more than 0.2 rad a period (swings) and the
+    closest the two came (m)."""
     from covswarm.tvd.safety import (
         DEFAULT_GAMMA,
         SAFETY_RADIUS,
@@ -338,7 +341,7 @@ def _pass(aimed: bool, lead_speed: float) -> tuple[np.ndarray, float, int, float
     )
 
     dt, goal = 0.1, np.array([3.0, 0.0])
-    poses = np.array([[0.0, 0.0, 0.0], [0.3, 0.0, 0.0]])
+    poses = np.array([[0.0, 0.0, 0.0], [0.3, offset, 0.0]])
     centre = np.zeros((2, 2))
     track, swings, last, closest = [], 0, 0.0, np.inf
     for _ in range(100):
@@ -348,7 +351,9 @@ def _pass(aimed: bool, lead_speed: float) -> tuple[np.ndarray, float, int, float
             barrier_gain(DEFAULT_GAMMA, dt), SAFETY_RADIUS, headings=poses[:, 2],
             velocities=centre,
         )  # fmt: skip
-        wheels = steer(poses[:, 2], velocity, KHEPERA_IV, 0.05, dt, nominal if aimed else None)[0]
+        sides = pass_sides(poses[:, :2], nominal, poses[:, :2], SAFETY_RADIUS) if away else None
+        aims = nominal if aimed else None
+        wheels = steer(poses[:, 2], velocity, KHEPERA_IV, 0.05, dt, aims, sides)[0]
         wheels[1] = lead_speed  # the leader drives straight on
         forward = wheels.mean(axis=1)
         centre = forward[:, None] * np.stack([np.cos(poses[:, 2]), np.sin(poses[:, 2])], axis=1)
@@ -373,6 +378,22 @@ def test_a_robot_behind_a_slower_one_passes_it_on_the_left(lead_speed: float) ->
     assert closest > 0.15  # the filter's safe distance (0.16 m) less its sampling slack
     behind, followed, _, _ = _pass(False, lead_speed)
     assert followed > 1.5 and np.abs(behind[:, 1]).max() < 1e-6
+
+
+@pytest.mark.parametrize("offset", [0.03, 0.05, 0.1])
+def test_a_robot_held_back_by_one_ahead_on_its_left_passes_it_on_the_right(
+    offset: float,
+) -> None:
+    """The slower robot ahead a few centimetres to the left: veering left turns the
+    follower into it, and it trails it at its pace (2.3 m from its goal after 10 s; how
+    robots behind S's trailing edge stayed out). Passing away from it (pass_sides), it
+    passes on the right and reaches its goal, without swinging or closing in."""
+    track, left, swings, closest = _pass(True, 0.05, offset, away=True)
+    assert left < 0.05 and swings == 0
+    assert track[:, 1].min() < -0.1 and track[:, 1].max() < 0.01  # passed on its right
+    assert closest > 0.15
+    _, trailing, _, _ = _pass(True, 0.05, offset, away=False)
+    assert trailing > 1.5
 
 
 def test_pass_sides_turn_away_from_the_nearest_robot_ahead() -> None:
