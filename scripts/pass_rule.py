@@ -16,6 +16,7 @@ the seeds. docs/scaling.md quotes it (~10 s a run at 1000 robots).
 from __future__ import annotations
 
 import argparse
+from typing import Any
 
 import numpy as np
 
@@ -25,6 +26,25 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.tvd import drive
 
 SETTINGS = [(0.0, 0.5)] + [(a, b) for a in (0.5, 1.0, 1.5) for b in (0.3, 0.5, 0.8)]
+
+
+def figures(scenario: Any, agents: int, seed: int) -> tuple[float, float, int]:
+    """One run of the module docstring's ``covswarm sim`` with the constants as set: e_a's
+    second-half mean (m), the saturated wheels (robot-s) and the close approaches."""
+    result = simulate(
+        scenario,
+        agents=agents,
+        dt=0.1,
+        dynamics="unicycle",
+        projection_distance=0.05,
+        safety=True,
+        seed=seed,
+    )
+    error = float(result.error[result.t >= 0.5 * result.t[-1]].mean())
+    assert result.wheels is not None
+    wheels = wheel_figures(result.t, result.wheels, drive.KHEPERA_IV.max_wheel_speed)
+    close = len(proximity(result.t, result.trajectories, scenario.robot_diameter)[2])
+    return error, wheels["saturated_time"], close
 
 
 def main() -> None:
@@ -45,20 +65,10 @@ def main() -> None:
             drive.PASS_ANGLE, drive.PASS_BELOW = angle, below
             errors, saturated, close = [], 0.0, 0
             for seed in range(args.seeds):
-                result = simulate(
-                    scenario,
-                    agents=args.agents,
-                    dt=0.1,
-                    dynamics="unicycle",
-                    projection_distance=0.05,
-                    safety=True,
-                    seed=seed,
-                )
-                errors.append(result.error[result.t >= 0.5 * result.t[-1]].mean())
-                assert result.wheels is not None
-                wheels = wheel_figures(result.t, result.wheels, drive.KHEPERA_IV.max_wheel_speed)
-                saturated += wheels["saturated_time"]
-                close += len(proximity(result.t, result.trajectories, scenario.robot_diameter)[2])
+                error, wheels, approaches = figures(scenario, args.agents, seed)
+                errors.append(error)
+                saturated += wheels
+                close += approaches
             e = np.array(errors)
             name = " (main)" if (angle, below) == main_setting else ""
             cells = [

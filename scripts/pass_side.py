@@ -17,9 +17,8 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+from pass_rule import figures  # this folder's: the same sim run and figures
 
-from covswarm.deploy.simulate import simulate
-from covswarm.mission.physical import proximity, wheel_figures
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.tvd import drive
 
@@ -44,24 +43,9 @@ def main() -> None:
         for seed in range(args.seeds):
             for name, rule in (("left", always_left), ("away", away)):
                 drive.pass_sides = rule
-                result = simulate(
-                    scenario,
-                    agents=args.agents,
-                    dt=0.1,
-                    dynamics="unicycle",
-                    projection_distance=0.05,
-                    safety=True,
-                    seed=seed,
-                )
-                error = float(result.error[result.t >= 0.5 * result.t[-1]].mean())
+                error, saturated, close = figures(scenario, args.agents, seed)
                 errors[name].append(error)
-                assert result.wheels is not None
-                wheels = wheel_figures(result.t, result.wheels, drive.KHEPERA_IV.max_wheel_speed)
-                close = len(proximity(result.t, result.trajectories, scenario.robot_diameter)[2])
-                print(
-                    f"| {seed} | {name} | {error:.4f} | {wheels['saturated_time']:.1f} | {close} |",
-                    flush=True,
-                )
+                print(f"| {seed} | {name} | {error:.4f} | {saturated:.1f} | {close} |", flush=True)
     finally:
         drive.pass_sides = away
     for name, values in errors.items():
