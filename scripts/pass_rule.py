@@ -47,12 +47,17 @@ def figures(scenario: Any, agents: int, seed: int) -> tuple[float, float, int]:
     return error, wheels["saturated_time"], close
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+def arguments(doc: str) -> argparse.Namespace:
+    """--seeds, --agents and --scenario, as a script's documentation ``doc`` gives them."""
+    parser = argparse.ArgumentParser(description=doc.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=8)
     parser.add_argument("--agents", type=int, default=1000)
     parser.add_argument("--scenario", default="scenarios/circle-1000.toml")
-    args = parser.parse_args()
+    return parser.parse_args()
+
+
+def main() -> None:
+    args = arguments(__doc__)
     scenario = load_scenario(args.scenario)
     main_setting = (drive.PASS_ANGLE, drive.PASS_BELOW)
     print(

@@ -14,10 +14,8 @@ means. docs/scaling.md quotes it (~15 s a run at 1000 robots).
 
 from __future__ import annotations
 
-import argparse
-
 import numpy as np
-from pass_rule import figures  # this folder's: the same sim run and figures
+from pass_rule import arguments, figures  # this folder's: the same options and sim run
 
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.tvd import drive
@@ -29,11 +27,7 @@ def always_left(positions: np.ndarray, *_: object) -> np.ndarray:
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--seeds", type=int, default=8)
-    parser.add_argument("--agents", type=int, default=1000)
-    parser.add_argument("--scenario", default="scenarios/circle-1000.toml")
-    args = parser.parse_args()
+    args = arguments(__doc__)
     scenario = load_scenario(args.scenario)
     away = drive.pass_sides
     print("| seed | passes | e_a 2nd half (m) | saturated (robot-s) | close approaches |")
