@@ -1125,7 +1125,7 @@ class AgentBrain:
         side: float = 1.0,
     ) -> Decision:
         """The running decision for the velocity (vx, vy) m/s from ``heading`` rad, turning
-        toward ``aim`` (the velocity before the safety filter, faced, or passed on the left
+        toward ``aim`` (the velocity before the safety filter, faced, or passed on ``side``
         while the filter holds the robot back: covswarm.tvd.drive.steer; None: (vx, vy))."""
         config = self.config
         robot = config.robot

@@ -400,7 +400,7 @@ def test_pass_sides_turn_away_from_the_nearest_robot_ahead() -> None:
     """pass_sides against a loop over the others: the nearest robot within the radius with a
     positive projection on the aim holds the robot back; -1 (pass on the right) when it
     lies left of the aim, +1 otherwise and when none is ahead; a robot at the very
-    position is itself. Random teams, with robots exactly at the radius and behind."""
+    position is itself. Random teams, the robot itself among the others."""
     rng = np.random.default_rng(5)
     for _ in range(200):
         n, m = int(rng.integers(1, 6)), int(rng.integers(0, 12))

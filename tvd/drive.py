@@ -33,11 +33,11 @@ DEFAULT_PROJECTION_DISTANCE = 0.03  # m; see the module docstring for how it was
 MAX_WHEEL_SPEED = 0.8  # m/s rim speed; the Khepera IV is quoted 0.8-1.0 m/s
 # A robot that a safety filter holds back while it still moves passes beside its aim, on
 # the side away from the robot that holds it back (:func:`steer`, :func:`pass_sides`): by
-# up to PASS_ANGLE rad, most where its forward speed is cut to
-# PASS_STOPPED of what it asks for, none below that (stopped dead: it faces its aim and
-# waits) nor from PASS_BELOW up; it turns toward that heading by PASS_DAMPING of the angle
-# each period. Picked on circle-1000 (covswarm sim, 3 seeds, with and without --face-start)
-# and tests/test_overload_heading.py's starved team; docs/scaling.md has the figures.
+# up to PASS_ANGLE rad, most where its forward speed is cut to PASS_STOPPED of what it asks
+# for, none below that (stopped dead: it faces its aim and waits) nor from PASS_BELOW up;
+# it turns toward that heading by PASS_DAMPING of the angle each period. Picked on
+# circle-1000 (covswarm sim, 3 seeds, with and without --face-start) and
+# tests/test_overload_heading.py's starved team; docs/scaling.md has the figures.
 PASS_ANGLE = 1.0
 PASS_BELOW = 0.5
 PASS_STOPPED = 0.05
@@ -117,12 +117,12 @@ def steer(
     outside stayed out (circle-1000, covswarm sim with the agents' robot model and filter,
     seeds 0-7: e_a's second half 0.066 m on average, 0.039 m passing away; scripts/
     pass_side.py). (To the side of each one's heading, robots following one another
-    veered into each other and stayed there: circle-1000's e_a rose to 30 m.) Not held back (r >=
-    PASS_BELOW: following a team that moves, as S's trailing edge does) or stopped dead
-    (r = 0: boxed in, where a veer only points the robot at the next robot along) it faces
-    its aim. Toward a veered heading it turns PASS_DAMPING of the angle per period: r
-    changes with the heading, and a full turn each period swung between the aim and the
-    veer. The turn rate toward a veered aim a' is |a| sin(e') / l, capped as above.
+    veered into each other and stayed there: circle-1000's e_a rose to 30 m.) Not held
+    back (r >= PASS_BELOW: following a team that moves, as S's trailing edge does) or
+    stopped dead (r = 0: boxed in, where a veer only points the robot at the next robot
+    along) it faces its aim. Toward a veered heading it turns PASS_DAMPING of the angle per
+    period: r changes with the heading, and a full turn each period swung between the aim
+    and the veer. The turn rate toward a veered aim a' is |a| sin(e') / l, capped as above.
 
     Saturation then scales both wheels of a robot by the same factor so the curvature (the
     path) is kept and only the speed along it drops. A robot with a non-finite heading or
