@@ -10,7 +10,8 @@ SIGTERM. Children die with the launcher even if it is SIGKILLed (PR_SET_PDEATHSI
 Scaling (docs/scaling.md): ``--agents-per-process K`` packs K brains into one agent
 process and K robots into one robot process; ``auto`` packs by what holds real time
 (deploy.plan.auto_per_process) and hosts a big team's robots in one process per core;
-``--time-scale`` runs mission time slower than wall time. Robot and agent processes run at
+``--time-scale`` runs mission time slower than wall time (``auto``: as slow as this host
+needs to hold the rate, deploy.plan.holding_time_scale). Robot and agent processes run at
 a lower priority than the launcher (its embedded router) and the coordinator, which serve
 them all (deploy.processes.CHILD_NICE). A team spread over several hosts runs one
 ``covswarm run`` per host with the same ``--swarm``, ``--agents`` and ``--seed``:
@@ -46,6 +47,7 @@ from covswarm.deploy.plan import (
     command_timeout,
     console_spec,
     covswarm_argv,
+    holding_time_scale,
     parse_per_process,
     plan_children,
     scenario_kappa,
@@ -61,7 +63,7 @@ from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
-    TIME_SCALE_OPTION,
+    RUN_TIME_SCALE_OPTION,
     agents_option,
     deploy_options,
     float_option,
@@ -130,7 +132,7 @@ from covswarm.sim_robot.process import gather_drops
     "or auto (one each up to 8 agents per core on this host, else one agent process per "
     "core, split further where a batch would not hold the rate; deploy/plan.py).",
 )
-@TIME_SCALE_OPTION
+@RUN_TIME_SCALE_OPTION
 @pose_loss_option("Fault injection: every agent drops this fraction of received poses (seeded).")
 @pose_delay_option("Fault injection: every agent receives poses this many s late.")
 @float_option(
@@ -224,6 +226,11 @@ def run_swarm(run: RunConfig) -> None:
         raise click.UsageError("--robots none needs --swarm, the name the bridges join")
     if run.connect is not None and (run.router_listen or run.router_connect):
         raise click.UsageError("--connect joins a router: no --router-listen/--router-connect")
+    if run.time_scale is None and (run.ids is not None or not run.coordinator):
+        raise click.UsageError(
+            "--time-scale auto times this host alone: a team over several hosts needs one "
+            "number on all of them"
+        )
     if run.console and run.console_port and not port_is_free(run.console_port):
         raise click.UsageError(f"--console-port: 127.0.0.1:{run.console_port} is already in use")
     if run.foxglove is not None and not run.coordinator:
@@ -244,7 +251,6 @@ def run_swarm(run: RunConfig) -> None:
         raise click.BadParameter(f"ids go up to {ids[-1]} in a team of {n}", param_hint="--ids")
     here = n if ids is None else len(ids)
     cores = len(os.sched_getaffinity(0))
-    wall_rate = run.rate * run.time_scale  # control periods per second of wall time
     duration = scenario.duration if run.duration is None else run.duration
     try:
         check_broadcastable(scenario, scenario_kappa(run, scenario), duration)
@@ -257,6 +263,13 @@ def run_swarm(run: RunConfig) -> None:
     # Timed once the cheap checks passed: a refused run does not wait for it.
     console = Console()
     brain_tick, brain_tick_source = host_brain_tick(run, here, cores, console)
+    if run.time_scale is None:
+        run = replace(run, time_scale=holding_time_scale(here, cores, run.rate, brain_tick))
+        console.log(
+            f"--time-scale auto: {run.time_scale:g} ({here} brains at {run.rate:g} Hz, "
+            f"~{1e3 * brain_tick:.3g} ms a brain-tick, {cores} cores)"
+        )
+    wall_rate = run.rate * run.time_scale  # control periods per second of wall time
     try:
         packing = parse_per_process(run.agents_per_process, here, cores, wall_rate, brain_tick)
     except ValueError as exc:
@@ -319,6 +332,7 @@ def run_swarm(run: RunConfig) -> None:
                         "agents_per_process": packing,
                         "robots_per_process": robot_packing,
                         "brain_tick_s": brain_tick, "brain_tick_source": brain_tick_source,
+                        "time_scale": run.time_scale,
                         "cmd_timeout_s": timeout,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip

@@ -44,6 +44,31 @@ TIME_SCALE_OPTION = click.option(
 )
 
 
+class TimeScaleOrAuto(FiniteFloat):
+    """``covswarm run --time-scale``'s type: a positive finite number, or "auto" (None: the
+    launcher picks the scale the host holds, covswarm.deploy.plan.holding_time_scale)."""
+
+    name = "number|auto"
+
+    def __init__(self) -> None:
+        super().__init__(min=0.0, min_open=True)
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if value is None or (isinstance(value, str) and value.strip().lower() == "auto"):
+            return None
+        return super().convert(value, param, ctx)
+
+
+RUN_TIME_SCALE_OPTION = click.option(
+    "--time-scale",
+    type=TimeScaleOrAuto(),
+    default="1",
+    show_default=True,
+    help="Mission seconds per wall second (< 1: slower than real time, for big simulations), "
+    "or auto: the scale at which this host holds --rate for the team (timed at launch).",
+)
+
+
 Decorator = Callable[[Callable[..., Any]], Callable[..., Any]]
 
 

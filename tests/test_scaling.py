@@ -22,6 +22,7 @@ from covswarm.deploy.plan import (
     BRAIN_TICK,
     COMMAND_TIMEOUT,
     GAP_MARGIN,
+    HOLDING_SHARE,
     LATE_PER_BRAIN_TICK,
     OTHER_CORES,
     OTHER_TICKS,
@@ -34,6 +35,8 @@ from covswarm.deploy.plan import (
     capacity_note,
     command_timeout,
     covswarm_argv,
+    fits,
+    holding_time_scale,
     initial_poses,
     parse_per_process,
     plan_children,
@@ -240,15 +243,54 @@ def test_the_capacity_note_says_what_rate_the_machine_holds(tick: float) -> None
     held = share / (1000 * tick)  # Hz at which 1000 brains fit 2 cores
     late = share / (1000 * LATE_PER_BRAIN_TICK * tick)  # Hz they hold when they do not
     assert late < held
-    assert f"expect {late:.2g}-{held:.2g} Hz" in note and f"--time-scale {held / 10:.2g}" in note
+    scale = holding_time_scale(1000, 2, 10.0, tick)
+    assert f"expect {late:.2g}-{held:.2g} Hz" in note
+    assert f"--time-scale {scale:g} (or auto)" in note
     assert f"~{1e3 * tick:.3g} ms a brain-tick" in note
     # Already slowed (but not enough): the rate expected is in mission time, and the time
     # scale suggested is the one that holds 10 Hz of it, not a factor on the one given.
     slowed = capacity_note(1000, 2, 10.0, time_scale=2 * held / 10, brain_tick=tick)
     expected = f"expect {late / (2 * held / 10):.2g}-5 Hz"
-    assert expected in slowed and f"--time-scale {held / 10:.2g}" in slowed
+    assert expected in slowed and f"--time-scale {scale:g} (or auto)" in slowed
     assert capacity_note(1000, 2, 10.0, time_scale=0.5 * held / 10, brain_tick=tick) is None
     assert capacity_note(100, 16, 10.0, brain_tick=tick) is None
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_the_time_scale_auto_picks_holds_the_rate_with_room_to_spare(seed: int) -> None:
+    """holding_time_scale: 1 for a team that fits in real time; else a scale at which it
+    fits, HOLDING_SHARE of the one at which it would just fit, rounded down to two
+    significant digits (so within 10 % below it). Random teams, hosts and brain-ticks."""
+    rng = np.random.default_rng(seed)
+    for _ in range(200):
+        agents, cores = int(rng.integers(1, 3000)), int(rng.integers(1, 17))
+        rate, tick = float(rng.choice([5.0, 10.0, 30.0])), float(10 ** rng.uniform(-4.5, -1.5))
+        scale = holding_time_scale(agents, cores, rate, tick)
+        if fits(agents, cores, rate, tick):
+            assert scale == 1.0
+            continue
+        just = agent_cores(agents, cores, tick) / (agents * tick) / rate  # fits exactly
+        assert 0.9 * HOLDING_SHARE * just <= scale <= HOLDING_SHARE * just < 1.0
+        assert float(f"{scale:.2g}") == scale  # two significant digits, as the note says it
+        assert fits(agents, cores, rate * scale, tick)
+        assert capacity_note(agents, cores, rate, scale, tick) is None
+        assert command_timeout(agents, cores, rate, scale, tick) == COMMAND_TIMEOUT
+    # What held on this VM (30 Nov 2026, launcher 0.53 ms): 0.2x held 10 Hz, 0.28x 8.6 Hz.
+    assert holding_time_scale(1000, 2, 10.0, 0.532e-3) == 0.19
+
+
+def test_time_scale_auto_is_one_hosts_own() -> None:
+    from click.testing import CliRunner
+
+    from covswarm.deploy.launcher import run_command
+
+    for extra in (["--ids", "0-4", "--agents", "10"], ["--no-coordinator"]):
+        argv = ["--time-scale", "auto", "--swarm", "s", *extra]
+        result = CliRunner().invoke(run_command, argv)
+        assert result.exit_code == 2 and "needs one number on all of them" in result.output
+    for bad in ("0", "-1", "nan", "fast"):
+        result = CliRunner().invoke(run_command, ["--time-scale", bad, "--swarm", "s"])
+        assert result.exit_code == 2 and "--time-scale" in result.output, result.output
 
 
 def test_the_capacity_note_expects_what_1000_robots_held_on_this_vm() -> None:
@@ -347,6 +389,28 @@ def test_packed_processes_on_a_slow_clock_cover_the_domain(tmp_path: Path) -> No
     assert 0.0 < resources["brain_tick_s"] < 0.05
     assert resources["robots_per_process"] == {"coordinator": [1], "robot": [3, 3],
                                                "agent": [3, 3]}  # fmt: skip
+    assert swarm_pids(swarm) == set()
+
+
+@pytest.mark.e2e
+def test_a_run_at_time_scale_auto_holds_its_rate_at_the_scale_it_picked(tmp_path: Path) -> None:
+    """``--time-scale auto`` with a brain-tick as if 3 brains at 10 Hz needed ~3 cores: the
+    launcher picks holding_time_scale's scale, says so, hands it to every process, and the
+    team holds 10 Hz of mission time without a capacity warning."""
+    swarm, out = new_swarm(), tmp_path / "auto"
+    argv = ("--agents", "3", "--scenario", "passage", "--duration", "3", "--time-scale", "auto")
+    with launch(out, *argv, "--brain-tick", "0.1", swarm=swarm) as launcher:
+        assert launcher.wait(timeout=120) == 0, (out.parent / "auto.launcher.log").read_text()
+    scale = holding_time_scale(3, len(os.sched_getaffinity(0)), 10.0, 0.1)
+    planned = json.loads((out / "launch.json").read_text())
+    assert planned["time_scale"] == scale
+    children = planned["argv"][:]  # the coordinator's, the robots' and the agents'
+    assert all(_options(child, "--time-scale") == [repr(scale)] for child in children)
+    said = " ".join((out.parent / "auto.launcher.log").read_text().split())
+    assert f"--time-scale auto: {scale:g} (3 brains at 10 Hz, ~100 ms a" in said
+    assert "warning: 3 brains" not in said
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["pace"]["held_rate_hz"] > 9.5 and summary["mission_time"] >= 3.0 - 1e-6
     assert swarm_pids(swarm) == set()
 
 
