@@ -57,9 +57,13 @@ class ZenohBus:
         return self.session.liveliness().declare_token(key)
 
     def liveliness(self, selector: str) -> _TokenChanges:
-        # No history: only changes from now on matter.
+        # With history: the tokens alive now come first, as appearances. Without it, a
+        # token being declared while the subscriber was (a team starting in waves) was
+        # sometimes never undeclared to it when its process was killed: one agent in ~60 of
+        # test_faults' dead-robot test kept naming the dead robot until its data went stale
+        # (2 s), against none in 54 with history (30 Nov 2026, docs/faults.md).
         return _TokenChanges(
             self.session.liveliness().declare_subscriber(
-                selector, zenoh.handlers.RingChannel(LIVELINESS_RING)
+                selector, zenoh.handlers.RingChannel(LIVELINESS_RING), history=True
             )
         )
