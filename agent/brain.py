@@ -193,6 +193,13 @@ MAX_UNCONFIRMED_FOLLOWED = 8
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
 # last known position for the safety filter this long after it left the coverage step.
 OBSTACLE_MEMORY = 30.0
+# s: the oldest beacon of a robot known only from beacons that the safety filter takes as a
+# robot there (AgentBrain._safety_inputs). A robot driving through S beacons every
+# BEACON_MOVE (0.08 m) of its move: this spans its beacons from 0.16 m/s up. One riding S
+# beacons every beacon_period (10 s) and is then up to ~2 m on: its old spot is a phantom
+# at rest, which the team behind it ran into. Such a robot is followed (near_ids) and
+# enters the filter with its AgentState.
+BEACON_TRUST = 0.5
 # m: the near-identity mapping's projection distance the agents use. The heading loop it
 # closes has gain |u| / l (1/s); with a residual, uncompensated latency tau it is stable only
 # while tau |u| / l < pi / 2. Measured (scripts/projection_distance.py: deploy.netsim,
@@ -1193,6 +1200,7 @@ class AgentBrain:
         neighborhood = self.neighborhood
         reckoned = neighborhood.reckoned
         inside = neighborhood.within(x, y, SAFETY_RADIUS)
+        inside = neighborhood.fresh_rows(inside, now, BEACON_TRUST)
         near = neighborhood.table[inside]
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went

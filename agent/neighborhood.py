@@ -632,6 +632,26 @@ class Neighborhood:
         choice.current = not self.asked
         return choice.rows, choice.table, choice.ids, unconfirmed
 
+    def fresh_rows(self, rows: np.ndarray, now: float, horizon: float) -> np.ndarray:
+        """``rows`` (increasing indices into ``table``) without the robots known only from
+        a beacon that arrived more than ``horizon`` s before ``now`` while their AgentState
+        is on its way: not asked for yet, or asked for less than ``confirmation`` s ago
+        (AgentBrain._safety_inputs). Such a beacon says where its robot was; a robot riding
+        S has moved on, and its AgentState, asked for as it comes near (ask), says where it
+        is. One whose state does not come (a live agent token keeps it a candidate) is a
+        row again from then on."""
+        first = int(np.searchsorted(rows, len(self._head_ids)))  # the beacon-only rows on
+        if first == len(rows):
+            return rows
+        beacons, asked, confirmation = self.beacons, self.asked, self.confirmation
+        stale = [
+            k
+            for k, rid in enumerate(self.table_ids[rows[first:]].tolist(), start=first)
+            if (track := beacons.get(rid)) is None
+            or (now - track.received > horizon and now - asked.get(rid, now) <= confirmation)
+        ]
+        return np.delete(rows, stale) if stale else rows
+
     def within(self, x: float, y: float, radius: float) -> np.ndarray:
         """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
         distance = self._distances.get((x, y))

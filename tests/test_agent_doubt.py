@@ -132,12 +132,19 @@ def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time
     brain = brain_at(0.4, 1.0)
     assert brain.on_domain(domain(SQUARE, 1), now=0.0)
     _ring(brain, (0.4, 1.0), now=0.0, first_id=100)
-    confirm = neighborhood.BEACON_CONFIRMATION
-    held = _run(brain, 0.0, confirm - 0.15)
-    # The phantoms count while unconfirmed: the robot, inside their ring, barely moves
-    # (the barrier condition with 0.12 m < the safe distance permits no approach).
+    confirm, trust = neighborhood.BEACON_CONFIRMATION, brain_module.BEACON_TRUST
+    held = _run(brain, 0.0, trust)
+    # The phantoms count in the safety filter while their beacons are fresh: the robot,
+    # inside their ring, barely moves (the barrier condition with 0.12 m < the safe
+    # distance permits no approach).
     assert max(held) < 0.05
     active = brain.safety_active
+    # Then they are beacons older than BEACON_TRUST whose AgentStates are awaited: no rows
+    # of the filter (where a robot was, not where it is), still candidates of the diagram
+    # until the confirmation time.
+    _run(brain, trust + 0.1, confirm - 0.15)
+    assert brain.safety_active == active
+    assert len(brain.neighborhood.reckoned) == 36
     free = _run(brain, confirm + 0.05, 3.0)
     # Past the confirmation time the phantoms are out of the diagram and the filter: it
     # heads for its centroid (0.6 m away) at the law's speed.

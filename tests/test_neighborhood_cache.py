@@ -130,6 +130,18 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
         for x, y, vx, vy in [reckoned[rid]]
     ][: protocol.MAX_RELAY]
     assert nb.relay() == expected
+    # fresh_rows: rows within a radius, less the beacon-only robots whose beacon is older
+    # than the horizon and whose AgentState is awaited (not asked for, or asked for less
+    # than the confirmation time ago)
+    rows = nb.within(*me, rng.uniform(0.0, 3.0))
+    horizon = rng.choice((0.0, 0.3, 1.0))
+    kept = [
+        row for row, rid in zip(rows.tolist(), nb.table_ids[rows].tolist(), strict=True)
+        if rid not in nb.beacon_only
+        or now - nb.beacons[rid].received <= horizon
+        or now - nb.asked.get(rid, now) > nb.confirmation
+    ]  # fmt: skip
+    assert nb.fresh_rows(rows, now, horizon).tolist() == kept
 
 
 def _relay(rng: random.Random) -> tuple | None:
