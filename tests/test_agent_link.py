@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import time
 
+import pytest
 import zenoh
 from live_runs import new_swarm, open_router
 
@@ -26,6 +27,7 @@ def _changes(source: object, count: int, timeout: float = 5.0) -> list[tuple[str
     return got
 
 
+@pytest.mark.e2e
 def test_the_tokens_alive_when_an_agent_starts_come_first_and_their_deletions_follow() -> None:
     """A robot's token declared before the agent process subscribes reaches it as an
     appearance, and its deletion follows. Subscribed for changes only, such a token was
