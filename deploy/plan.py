@@ -128,6 +128,12 @@ def auto_per_process(
     return max(1, min(per_core, int(PERIOD_SHARE / (rate * brain_tick))))
 
 
+def fitting_rate(agents: int, cores: int, brain_tick: float = BRAIN_TICK) -> float:
+    """Hz (of wall time) at which ``agents`` brains would just fit ``cores`` cores, a
+    brain-tick costing ``brain_tick`` s of CPU (:func:`agent_cores`)."""
+    return agent_cores(agents, cores, brain_tick) / (agents * brain_tick)
+
+
 def late_rate(agents: int, cores: int, brain_tick: float = BRAIN_TICK) -> float:
     """Hz of wall time that ``agents`` brains hold on ``cores`` cores when they do not fit:
     the lower end of what :func:`capacity_note` expects (LATE_PER_BRAIN_TICK)."""
@@ -145,7 +151,7 @@ def capacity_note(
     if fits(agents, cores, wall_rate, brain_tick):
         return None
     need = agents * wall_rate * brain_tick
-    held = agent_cores(agents, cores, brain_tick) / (agents * brain_tick)  # Hz that fit
+    held = fitting_rate(agents, cores, brain_tick)
     late = held / LATE_PER_BRAIN_TICK  # late_rate's
     return (
         f"{agents} brains at {rate:g} Hz (x{time_scale:g}: {wall_rate:g} Hz of wall time) "
@@ -176,8 +182,7 @@ def holding_time_scale(
     which they would just fit, rounded down to two significant digits."""
     if fits(agents, cores, rate, brain_tick):
         return 1.0
-    held = agent_cores(agents, cores, brain_tick) / (agents * brain_tick)  # Hz that fit
-    scale = HOLDING_SHARE * held / rate
+    scale = HOLDING_SHARE * fitting_rate(agents, cores, brain_tick) / rate
     digits = 1 - math.floor(math.log10(scale))
     return math.floor(scale * 10**digits) / 10**digits
 
