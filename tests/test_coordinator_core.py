@@ -39,6 +39,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import AgentState, Pose, ProtocolError, alive_key, messages, pose_key
 from covswarm.protocol.steering import SteerReply, SteerRequest
 from covswarm.records.recorder import RunRecorder
+from covswarm.tvd.coverage import aggregate_error
 
 SWARM = "core-test"
 WALL0 = 1.7e9  # s since the epoch at now = 0
@@ -242,10 +243,10 @@ def test_the_team_changes_once_per_tick_and_tokens_gone_after_done_are_not_losse
 def test_done_at_the_duration_with_a_final_sample_then_finished_after_the_hold() -> None:
     core = make_core(duration=1.0)
     started = start(core)
-    for i in range(2):
-        pose = Pose(id=i, x=0.1 * i, y=0.0, theta=0.0, stamp=WALL0, seq=0)
-        core.on_pose(pose_key(SWARM, i), pose.encode())
     end = started + 1.0
+    for i in range(2):  # taken at the end
+        pose = Pose(id=i, x=0.1 * i, y=0.0, theta=0.0, stamp=WALL0 + end, seq=0)
+        core.on_pose(pose_key(SWARM, i), pose.encode())
     actions = core.tick(end, WALL0 + end)
     domain = of(PublishDomain, actions)[0].domain
     assert domain.state == DONE and domain.t == pytest.approx(1.0)
@@ -516,6 +517,37 @@ def test_an_offloaded_sample_enters_the_record_once_done_with_the_inline_value()
         tick(worker, 6)
         assert worker.observed.record.t == inline.observed.record.t[:1]
         assert worker.observed.record.error == inline.observed.record.error[:1]
+
+
+def test_the_final_e_a_sample_takes_every_robot_at_its_time_against_s_then() -> None:
+    # The last sample is taken in the tick the mission ends, the robots still riding S:
+    # placed at their poses' time as the others are, not read as behind S(now) each.
+    core = make_core(agents=3, duration=1.0)
+    started = start(core)
+    centre = core.settings.scenario.domain(0.0)[0].mean(axis=0)
+    offsets = np.array([[-0.5, 0.2], [0.3, -0.4], [0.1, 0.5]])
+    phases = (0.03, 0.04, 0.045)
+    now, k = started, 0
+    while core.phase.state != DONE:
+        k += 1
+        now = round(started + 0.05 * k, 10)
+        for i, phase in enumerate(phases):
+            stamp = WALL0 + now - phase
+            t = stamp - WALL0 - started  # the mission time the pose was taken at
+            x, y = core.settings.scenario.domain(t)[0].mean(axis=0) - centre + offsets[i]
+            pose = Pose(id=i, x=x, y=y, theta=0.0, stamp=stamp, seq=k)
+            core.on_pose(pose_key(SWARM, i), pose.encode())
+        core.tick(now, WALL0 + now)
+    record = core.observed.record
+    assert record.t[-1] == pytest.approx(now - started - np.mean(phases), abs=1e-6)
+    polygon = core.settings.scenario.domain(record.t[-1])[0]
+    np.testing.assert_allclose(record.polygons[-1], polygon, atol=1e-12)
+    # Each robot where it was at that time (moved along its last poses' velocity, S turning
+    # slowly enough over 45 ms for a straight line to hold to 0.1 mm).
+    at = polygon.mean(axis=0) - centre + offsets
+    positions = np.array([record.positions[-1][i] for i in range(3)])
+    np.testing.assert_allclose(positions, at, atol=1e-4)
+    assert record.error[-1] == pytest.approx(aggregate_error(at, polygon), abs=1e-4)
 
 
 def test_an_e_a_sample_takes_every_robot_at_the_sample_time() -> None:

@@ -17,6 +17,7 @@ from covswarm.coordinator.core import (
     PublishStatus,
     RecordScriptClock,
 )
+from covswarm.coordinator.monitor import MAX_POSE_AGE
 from covswarm.coordinator.pace import (
     DROP_BAND,
     PACE_FLOOR,
@@ -179,8 +180,13 @@ def test_the_mission_ends_when_the_script_does_and_the_summary_says_what_was_hel
     assert core.pace.tau == pytest.approx(4.0)
     last = domains(ticks)[-1][1]
     np.testing.assert_allclose(last.vertices, core.settings.scenario.domain(4.0)[0])
-    # The final e_a sample is against S at the script's end, not at the mission's.
-    np.testing.assert_allclose(core.observed.record.polygons[-1], last.vertices)
+    # The final e_a sample is against S on the script's clock, not the mission's: at the
+    # script time of its poses (stamped long ago: the sample is placed MAX_POSE_AGE back).
+    record = core.observed.record
+    assert record.t[-1] == pytest.approx(mission - MAX_POSE_AGE)
+    script = core.pace.script_time(record.t[-1])
+    assert 4.0 - MAX_POSE_AGE <= script < 4.0
+    np.testing.assert_allclose(record.polygons[-1], core.settings.scenario.domain(script)[0])
     summary = core.pace.summary(core.observed.agent_stats, mission)
     assert summary["held_rate_hz"] == pytest.approx(2.0, rel=0.1)
     assert summary["periods_missed"] == pytest.approx(0.8, abs=0.03)
