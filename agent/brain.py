@@ -1199,8 +1199,10 @@ class AgentBrain:
         now = begun.now
         neighborhood = self.neighborhood
         reckoned = neighborhood.reckoned
-        inside = neighborhood.within(x, y, SAFETY_RADIUS)
-        inside = neighborhood.fresh_rows(inside, now, BEACON_TRUST)
+        within = neighborhood.within(x, y, SAFETY_RADIUS)
+        inside = neighborhood.fresh_rows(within, now, BEACON_TRUST)
+        if len(inside) < len(within) and self.running:
+            self.counters.beacon_doubted += len(within) - len(inside)
         near = neighborhood.table[inside]
         # Only a robot we heard first-hand nearby and then not at all is an obstacle: one
         # that merely left our candidates as the team moved on (its relays and states went
@@ -1333,6 +1335,7 @@ class AgentBrain:
             "pose_too_old": c.pose_too_old,
             "duty_scaled": c.duty_scaled,
             "speed_limited": c.speed_limited,
+            "beacon_doubted": c.beacon_doubted,
             "aligning": c.aligning,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,

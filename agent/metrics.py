@@ -91,6 +91,10 @@ class Counters:
     # mission steps whose velocity was cut to the speed at which a robot the safety filter
     # does not see yet can still be avoided (covswarm.tvd.safety.unseen_speed_limit)
     speed_limited: int = 0
+    # robots left out of the safety filter during the mission, summed over steps: known only
+    # from a beacon older than BEACON_TRUST while their AgentState is awaited
+    # (covswarm.agent.neighborhood.Neighborhood.fresh_rows)
+    beacon_doubted: int = 0
     # steps before the mission that turned the robot in place to face S's first motion
     # (covswarm.agent.brain.AgentBrain._standing)
     aligning: int = 0

@@ -139,11 +139,13 @@ def test_phantom_beacons_hold_a_robot_still_no_longer_than_the_confirmation_time
     # distance permits no approach).
     assert max(held) < 0.05
     active = brain.safety_active
+    assert brain.stats()["beacon_doubted"] == 0
     # Then they are beacons older than BEACON_TRUST whose AgentStates are awaited: no rows
     # of the filter (where a robot was, not where it is), still candidates of the diagram
-    # until the confirmation time.
-    _run(brain, trust + 0.1, confirm - 0.15)
+    # until the confirmation time; each left out is counted, every step.
+    doubted = _run(brain, trust + 0.1, confirm - 0.15)
     assert brain.safety_active == active
+    assert brain.stats()["beacon_doubted"] == 36 * len(doubted)
     assert len(brain.neighborhood.reckoned) == 36
     free = _run(brain, confirm + 0.05, 3.0)
     # Past the confirmation time the phantoms are out of the diagram and the filter: it
