@@ -349,6 +349,8 @@ class World:
     def nearby(self, point: np.ndarray, radius: float) -> list[np.ndarray]:
         """The obstacles (each (k, 2) CCW vertices) within ``radius`` m of ``point`` (2,):
         prefiltered by bounding boxes, then by exact distance."""
+        if not self.obstacles:  # a workspace alone: asked for every robot at every step
+            return []
         q = np.asarray(point, dtype=float).reshape(2)
         rows = self.candidates((q[0], q[0], q[1], q[1]), radius)
         if len(rows) == 0:
