@@ -220,11 +220,14 @@ def simulate(
         t_log.append(tk)
         trajectory_log.append(positions.copy())
         heading_log.append(np.array(headings, dtype=float))
-        error_log.append(aggregate_error(positions, polygon, density))
+        # e_a at these positions: the control step's cells give it (TeamStep.error); the
+        # steps that take none tessellate for it.
+        error = None
         if holding and aligned is None:
-            why = deploy_release(tk, (tk, error_log[-1]), deploy_error, hold_steps * dt)
+            error = aggregate_error(positions, polygon, density)
+            why = deploy_release(tk, (tk, error), deploy_error, hold_steps * dt)
             if why is not None:
-                aligned = (tk, why, error_log[-1])
+                aligned = (tk, why, error)
                 facing = control.field_directions(start_field, positions)
         if holding and aligned is not None and aligned_by(tk, aligned[0]):
             holding, released = False, (tk, aligned[1], aligned[2])
@@ -238,9 +241,15 @@ def simulate(
         if pace < 1.0:
             polygon_velocity = polygon_velocity * pace
             density = None if density is None else paced_density(density, pace, tau)
-        if scripted == steps if released is None else tau >= duration - 1e-9 * dt:
+        finished = scripted == steps if released is None else tau >= duration - 1e-9 * dt
+        facing_only = holding and aligned is not None  # S still a while more: face its start
+        if finished or facing_only:
+            error_log.append(
+                aggregate_error(positions, polygon, density) if error is None else error
+            )
+        if finished:
             break
-        if holding and aligned is not None:  # S still a while more: face its start
+        if facing_only:
             if dynamics != "single":
                 assert facing is not None
                 pairs = zip(headings.tolist(), facing.tolist(), strict=True)
@@ -258,6 +267,7 @@ def simulate(
             law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
         )  # fmt: skip
+        error_log.append(step.error if error is None else error)
         velocity = aim = step.velocity
         guarded += int(step.guarded.sum())
         fallbacks += int(step.fallback)

@@ -161,6 +161,26 @@ def centroids(positions, polygon, density):
     return coverage.mass_centroid(positions, polygon, density)[1]
 
 
+@pytest.mark.parametrize("law", ["c", "d1", "da"])
+def test_a_team_step_gives_e_a_of_the_positions_it_stepped_from(law: str) -> None:
+    # covswarm sim logs this rather than tessellating again: shapely's centroids for a
+    # uniform density, the library's own e_a (checked against dblquad) with one.
+    rng = np.random.default_rng(11)
+    for case in range(6):
+        polygon = random_convex_polygon(rng)
+        positions = random_robots(rng, polygon, int(rng.integers(2, 25)))
+        velocity = rng.normal(size=polygon.shape) * 0.1 * scale_of(polygon)
+        if case % 2:
+            density = moving_density(rng, polygon)
+            expected = coverage.aggregate_error(positions, polygon, density)
+        else:
+            density = None
+            centroid = reference_centroids(positions, polygon)
+            expected = float(np.linalg.norm(positions - centroid))
+        step = control.team_step(law, positions, polygon, velocity, 2.0, density=density)
+        assert step.error == pytest.approx(expected, rel=1e-9, abs=1e-12 * scale_of(polygon))
+
+
 @pytest.mark.parametrize("case", ["vertexwise", "density", "both"])
 def test_residual_term_against_finite_differences(case: str) -> None:
     """v(p) + (I + J)(kappa (c - p) + rho) with rho = dc/dt - (I - J) v(p): dc/dt and the

@@ -61,7 +61,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable, Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 from itertools import accumulate, chain
 
@@ -127,12 +127,15 @@ class TeamStep:
 
     velocity: (n, 2) m/s; guarded: (n,) rows rescaled by the amplification guard;
     fallback: the team-wide fallback was taken (exact TVD-C: guarded TVD-D1 instead; damped
-    TVD-C: the solve failed, so only the prior is fed forward).
+    TVD-C: the solve failed, so only the prior is fed forward); error: e_a = ||p - c(p, t)||
+    (m) at the positions stepped from, of the cells the step used (as
+    covswarm.tvd.coverage.aggregate_error; NaN when not computed).
     """
 
     velocity: np.ndarray
     guarded: np.ndarray
     fallback: bool = False
+    error: float = math.nan
 
 
 @dataclass(frozen=True)
@@ -394,13 +397,19 @@ def team_step(
     feedback = kappa * (target - as_complex(points))
     if law == "d1":
         references = feedback if rate is None else feedback + rate
-        return _team_d1(batch, points, references, max_amplification, density)
-    if law == "da":
-        return _team_da(batch, points, domain, feedback, rate, max_amplification, density)
-    if damping == 0.0:
-        return _team_c_exact(batch, points, feedback, rate, max_amplification, density)
-    field = as_complex(_fit(domain)(points)) if prior == "affine" else None
-    return _team_c_damped(batch, points, feedback, rate, max_amplification, density, damping, field)
+        step = _team_d1(batch, points, references, max_amplification, density)
+    elif law == "da":
+        step = _team_da(batch, points, domain, feedback, rate, max_amplification, density)
+    elif damping == 0.0:
+        step = _team_c_exact(batch, points, feedback, rate, max_amplification, density)
+    else:
+        field = as_complex(_fit(domain)(points)) if prior == "affine" else None
+        step = _team_c_damped(
+            batch, points, feedback, rate, max_amplification, density, damping, field
+        )
+    # e_a of these cells: a simulator's log then needs no tessellation of its own.
+    error = float(np.linalg.norm(points - as_vectors(batch.centroid)))
+    return replace(step, error=error)
 
 
 def _team_d1(
