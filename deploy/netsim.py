@@ -10,6 +10,23 @@ their rate with a random phase each; a message is delivered ``transit`` s after 
 sent. Wall and monotonic clocks are one simulated clock (``clock_skew`` shifts the robots'
 stamps to emulate another host).
 
+Delivery is Zenoh's pub/sub without history, on the keys a live agent subscribes to
+(covswarm.agent.pack): its robot's pose, the domain, the AgentStates of the robots its
+brain follows (FollowStates) and the beacon tiles it follows (FollowTiles; a beacon goes
+out on its sender's tile, and comes back to the sender if it follows that tile). A
+message reaches the agents that follow its key when it arrives, ``transit`` s after it
+was put; a follow or unfollow takes effect when the brain asks, right after its step, as
+a live process (un)declares its subscriber then. So a newly followed robot is known
+first-hand only from its next AgentState, and what an agent had not read of a key when it
+stopped following it is lost, as an undeclared subscriber's ring is (Pack._unfollow). A
+subscriber's declaration is taken to reach the publishers at once: a message put up to
+``transit`` s before an agent followed its key, still on its way, reaches it. Liveliness
+tokens likewise: the robots' live from the start, an agent's from when its brain declares
+it (DeclareAlive, once it has its robot's pose), and every agent takes the token change
+``transit`` s later, after its turn's data. A brain beacons early for an agent it does
+not know yet: with every token there from the start, those beacons would go out before
+anyone followed a tile, and a team would meet its neighbours only at the routine beacons.
+
 What it is for: measuring how latency, loss and the agents' options change e_a in seconds
 of CPU rather than a minute of a loaded machine per run, deterministically, to choose
 parameters (see covswarm.agent.latency and scripts/latency_table.py). What it is not: a
@@ -29,7 +46,9 @@ from covswarm import protocol
 from covswarm.agent.brain import (
     AgentBrain,
     AgentConfig,
+    DeclareAlive,
     FollowStates,
+    FollowTiles,
     PublishBeacon,
     PublishState,
     SendCommand,
@@ -44,6 +63,14 @@ ROBOT_RATE = 20.0  # Hz, poses (as covswarm robot)
 DOMAIN_RATE = 20.0  # Hz (as covswarm coordinator)
 SAMPLE_PERIOD = 0.1  # s between e_a samples
 START_WALL = 1.7e9  # s: the simulated epoch (stamps must look like wall time)
+
+# A key an agent subscribes to: ("pose", robot id), ("domain", None), ("state", robot id),
+# ("beacon", (tx, ty)), a beacon tile (every robot's key in it), or ("alive", None), the
+# agents' liveliness tokens.
+Topic = tuple[str, object]
+# Where a message waits for its agent's turn: (kind, the id in its key, its topic), one per
+# key (per key and sender in a beacon tile), as a live subscriber's newest sample per key.
+Slot = tuple[str, int | None, Topic]
 
 
 @dataclass
@@ -118,22 +145,51 @@ def run_netsim(
         else None
         for i in range(n)
     ]
+    # The robots' tokens live from the start; an agent's from when its brain declares it.
     for brain in brains:
         for other in range(n):
             if other != brain.id:
-                brain.on_liveliness("agent", other, True)
                 brain.on_liveliness("robot", other, True)
-    follows: list[frozenset[int]] = [frozenset()] * n
-    # Per agent: key -> newest undelivered (kind, key id, payload), as a ring of one per key.
-    inbox: list[dict[tuple[str, int | None], bytes]] = [{} for _ in range(n)]
-    pending: list[tuple[float, int, int, str, int | None, bytes]] = []  # (due, order, to, ...)
+    # Who follows each topic, and what each agent follows ("state": ids, "beacon": tiles).
+    subscribers: dict[Topic, set[int]] = {
+        ("domain", None): set(range(n)),
+        ("alive", None): set(range(n)),
+    }
+    for i in range(n):
+        subscribers[("pose", i)] = {i}
+    follows: list[dict[str, frozenset]] = [
+        {"state": frozenset(), "beacon": frozenset()} for _ in range(n)
+    ]
+    # Per agent: the newest unread payload per slot, and the agents whose tokens appeared.
+    inbox: list[dict[Slot, bytes]] = [{} for _ in range(n)]
+    appeared: list[list[int]] = [[] for _ in range(n)]
+    pending: list[tuple[float, int, Topic, str, int | None, bytes]] = []  # (due, order, ...)
     order = 0
     commands: list[tuple[float, int, int, bytes]] = []  # (due, order, robot, payload)
 
-    def send(due: float, to: int, kind: str, key_id: int | None, payload: bytes) -> None:
+    def send(due: float, topic: Topic, kind: str, key_id: int | None, payload: bytes) -> None:
         nonlocal order
-        heapq.heappush(pending, (due, order, to, kind, key_id, payload))
+        heapq.heappush(pending, (due, order, topic, kind, key_id, payload))
         order += 1
+
+    def follow(index: int, kind: str, wanted: frozenset) -> None:
+        """Agent ``index`` follows exactly ``wanted`` of ``kind`` from now on; the unread
+        payloads of the topics it leaves are dropped."""
+        held = follows[index][kind]
+        if wanted == held:
+            return
+        box = inbox[index]
+        for item in held - wanted:
+            topic = (kind, item)
+            followers = subscribers[topic]
+            followers.discard(index)
+            if not followers:
+                del subscribers[topic]
+            for slot in [slot for slot in box if slot[2] == topic]:
+                del box[slot]
+        for item in wanted - held:
+            subscribers.setdefault((kind, item), set()).add(index)
+        follows[index][kind] = wanted
 
     rng = np.random.default_rng([seed, 7])
     agent_phase = rng.uniform(0.0, 1.0 / rate, n)
@@ -159,8 +215,12 @@ def run_netsim(
             due, _, to, payload = heapq.heappop(commands)
             robots[to].on_command(payload, due, START_WALL + due)
         while pending and pending[0][0] <= now:
-            _, _, to, kind, key_id, payload = heapq.heappop(pending)
-            inbox[to][(kind, key_id)] = payload
+            _, _, topic, kind, key_id, payload = heapq.heappop(pending)
+            for to in subscribers.get(topic, ()):
+                if kind == "alive":
+                    appeared[to].append(key_id)
+                else:
+                    inbox[to][(kind, key_id, topic)] = payload
         wall = START_WALL + now
         mission_t = min(max(now - warmup, 0.0), duration)
         state = "waiting" if now < warmup else ("running" if now < end else "done")
@@ -168,7 +228,7 @@ def run_netsim(
             for robot in robots:
                 robot.step(now)
                 pose = robot.pose_message(wall + clock_skew, int(round(now * ROBOT_RATE)))
-                send(now + transit, robot.id, "pose", robot.id, pose.encode())
+                send(now + transit, ("pose", robot.id), "pose", robot.id, pose.encode())
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
             vertices, velocities = scenario.domain(mission_t)
@@ -180,8 +240,7 @@ def run_netsim(
                 velocities=velocities, kappa=scenario.kappa, start_velocities=start,
             ).encode()  # fmt: skip
             seq += 1
-            for i in range(n):
-                send(now + transit, i, "domain", None, payload)
+            send(now + transit, ("domain", None), "domain", None, payload)
             if state == "running" and now >= next_sample - 1e-9:
                 positions = np.array([r.pose[:2] for r in robots])
                 t_log.append(mission_t)
@@ -196,14 +255,16 @@ def run_netsim(
             # What a packed process tells each brain (covswarm.agent.pack): the time since
             # its previous turn, by which it judges its neighbours' states.
             brain.pace(1.0 / rate)
-            items = [(kind, key_id, payload) for (kind, key_id), payload in inbox[index].items()]
+            items = [(kind, key_id, payload) for (kind, key_id, _), payload in inbox[index].items()]
             inbox[index].clear()
             if impair[index] is not None:
                 items = impair[index].filter(items, now)
             for kind, key_id, payload in items:
-                if kind == "state" and key_id not in follows[index]:
-                    continue
                 brain.receive(kind, payload, now, wall, key_id)
+            # Token changes after the turn's data, as a packed process applies them.
+            for other in appeared[index]:
+                brain.on_liveliness("agent", other, True)
+            appeared[index].clear()
             for action in brain.tick(now, wall):
                 if isinstance(action, SendCommand):
                     command = action.command
@@ -213,16 +274,16 @@ def run_netsim(
                     order += 1
                 elif isinstance(action, PublishState):
                     payload = action.state.encode()
-                    for j in range(n):
-                        if j != index:
-                            send(now + transit, j, "state", index, payload)
+                    send(now + transit, ("state", index), "state", index, payload)
                 elif isinstance(action, PublishBeacon):
                     payload = action.beacon.encode()
-                    for j in range(n):
-                        if j != index:
-                            send(now + transit, j, "beacon", index, payload)
+                    send(now + transit, ("beacon", action.tile), "beacon", index, payload)
                 elif isinstance(action, FollowStates):
-                    follows[index] = action.ids
+                    follow(index, "state", action.ids)
+                elif isinstance(action, FollowTiles):
+                    follow(index, "beacon", action.tiles)
+                elif isinstance(action, DeclareAlive):
+                    send(now + transit, ("alive", None), "alive", index, b"")
             heapq.heappush(events, (now + 1.0 / rate, rank, what, index))
     stats = defaultdict(dict, {b.id: b.stats() for b in brains})
     return NetsimResult(
