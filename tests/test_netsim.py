@@ -40,9 +40,9 @@ def test_compensated_agents_keep_the_undelayed_error(undelayed: float, impairmen
     error, physical = passage(**impairment)
     # A clock ahead is corrected only to within the least receipt delay the agent sees: it
     # takes poses at its tick, whose phase to the robots' 20 Hz it keeps (0-50 ms). Measured
-    # 0.0130 m against 0.0085 m undelayed (1.52x; 0.0103 against 0.0130 while S itself ran
-    # that phase behind, covswarm.agent.latency).
-    assert error <= (1.6 if "clock_skew" in impairment else 1.5) * undelayed, (error, undelayed)
+    # 1.53x the undelayed error here (seed 0), 1.19-1.64x over seeds 0-4 (netsim delivering
+    # as Zenoh does, 30 Nov 2026; 1.11-1.51x before), so the band is the spread's top.
+    assert error <= (1.7 if "clock_skew" in impairment else 1.5) * undelayed, (error, undelayed)
     # No robots closer than a diameter after the start (robots start apart).
     assert all(a["start"] < 1.0 for a in physical["close_approach_list"])
 
@@ -56,9 +56,11 @@ def test_a_pose_over_a_second_late_is_predicted_not_steered_from_as_if_fresh(
     undelayed: float,
 ) -> None:
     # Poses 1.2 s late (an overloaded host delivered 1000 robots' ~1 s late, p99 1.2 s)
-    # were accepted but not predicted beyond 1 s: measured 3.9 m (6 robots), against 0.072
-    # m predicted along the command history (covswarm.agent.brain.POSE_HORIZON); its
-    # neighbours' states arrive as late and are dead-reckoned at most 0.5 s.
+    # were accepted but not predicted beyond 1 s: measured 3.9 m (6 robots), against 0.054
+    # m predicted along the command history (covswarm.agent.brain.POSE_HORIZON; 0.050-0.067
+    # m over seeds 0-4, 30 Nov 2026); its neighbours' states arrive as late and are
+    # dead-reckoned at most 0.5 s. Closest approach after the start here 0.252 m; one of
+    # seeds 0-4 (3) has one at 0.125 m, 1.4 s in (docs/scaling.md, "Phantom beacons").
     error, physical = passage(pose_delay=1.2)
     assert error < 0.3, (error, undelayed)
     assert all(a["start"] < 1.0 for a in physical["close_approach_list"])
