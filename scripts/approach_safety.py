@@ -85,7 +85,7 @@ def beacon_cost(seeds: int) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--seeds", type=int, default=3)
-    parser.add_argument("--out", type=Path, default=Path("approach-safety"))
+    parser.add_argument("--out", type=Path, default=Path("runs/approach-safety"))
     parser.add_argument("--cost", action="store_true", help="the beacons of a team riding S")
     args = parser.parse_args()
     if args.cost:
