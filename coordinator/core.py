@@ -246,6 +246,14 @@ class Observed:
     domain_polygons: list[np.ndarray] = field(default_factory=list)
     # The script's clock tau(t) and what the agents held (None only outside a core).
     pace: Pace | None = None
+    # Mission time (s) at which the mission ended (done); None while it runs. The last e_a
+    # sample is placed at its poses' time, a little before.
+    ended: float | None = None
+
+    def mission_time(self) -> float:
+        """How long the mission ran, s of mission time: until it ended, else until the last
+        e_a sample."""
+        return self.ended if self.ended is not None else self.record.t[-1]
 
 
 # -- actions (what the shell carries out) --------------------------------------------------
@@ -666,6 +674,7 @@ class CoordinatorCore:
         done_now = state == DONE and self._done_since is None
         if done_now:
             self._done_since = now
+            self.observed.ended = t
             self._collect_sample(wait=True)
             # The final error, at the end of the mission, before the outputs are written.
             self._pending = self._start_sample(t, run_inline)

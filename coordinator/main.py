@@ -139,7 +139,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     except OSError as exc:  # a full disk: the mission is over, its records stay readable
         log.error("%s %s: %s", OUTPUTS_NOT_WRITTEN, config.out, exc.strerror or exc)
         raise SystemExit(1) from None
-    pace = core.pace.summary(core.observed.agent_stats, core.observed.record.t[-1])
+    pace = core.pace.summary(core.observed.agent_stats, core.observed.mission_time())
     log.info("%s", pace_sentence(pace))
     log.info("wrote %s", config.out)
 

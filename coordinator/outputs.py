@@ -158,7 +158,7 @@ def pace_summary(settings: CoordinatorSettings, observed: Observed) -> dict[str,
     agents were broadcast while it held (settings.deploy_kappa, else kappa) and the s it
     took to reach it from the mission's (coordinator.pace.gain_ramp)."""
     assert observed.pace is not None
-    pace = observed.pace.summary(observed.agent_stats, observed.record.t[-1])
+    pace = observed.pace.summary(observed.agent_stats, observed.mission_time())
     if "deploy" in pace:
         pace["deploy"]["kappa"] = settings.hold_kappa
         pace["deploy"]["kappa_ramp_s"] = gain_ramp(settings.kappa, settings.hold_kappa)
@@ -192,14 +192,14 @@ def build_summary(
         final_polygon=record.polygons[-1],
         trajectories=record.trajectories(),
         crowding=settings.crowding,
-        wheels=agent_wheel_figures(observed.agent_stats, record.t[-1]),
+        wheels=agent_wheel_figures(observed.agent_stats, observed.mission_time()),
         ids=record.robot_ids(),
         script_start=script_start(observed),
     )
     return {
         **summary,
         "agents": settings.agents,  # the team asked for, not the robots seen at the end
-        "mission_time": record.t[-1],
+        "mission_time": observed.mission_time(),
         "samples": len(record.t),
         "alive_at_end": {
             "agents": observed.liveness.count("agent"),

@@ -540,6 +540,9 @@ def test_the_final_e_a_sample_takes_every_robot_at_its_time_against_s_then() -> 
         core.tick(now, WALL0 + now)
     record = core.observed.record
     assert record.t[-1] == pytest.approx(now - started - np.mean(phases), abs=1e-6)
+    # The mission itself ran until the tick it ended (the summary's mission_time).
+    assert core.observed.mission_time() == pytest.approx(now - started, abs=1e-9)
+    assert core.observed.mission_time() >= 1.0 > record.t[-1]
     polygon = core.settings.scenario.domain(record.t[-1])[0]
     np.testing.assert_allclose(record.polygons[-1], polygon, atol=1e-12)
     # Each robot where it was at that time (moved along its last poses' velocity, S turning
