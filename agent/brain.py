@@ -481,6 +481,9 @@ class AgentBrain:
         # An early beacon is owed: a teammate appeared, or a neighbour does not know us.
         self._beacon_due = False
         self._last_control: float | None = None  # wall time of the last control step
+        # s between this brain's turns (pace; 0: not told): the period the first mission
+        # step's command will be held for, before a mission step has measured one.
+        self._gap = 0.0
         self._period = 1.0  # s, the last control period (at most MAX_PERIOD)
         self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
         self._was_running = False  # whether the last step that reached _view was a mission's
@@ -689,6 +692,7 @@ class AgentBrain:
         2026). When the gap is longer than the command timeout, a neighbour heard longer
         ago than that has stopped: its velocity is 0 to the safety filter, which otherwise
         let a robot close in on one it took for moving away (docs/scaling.md)."""
+        self._gap = gap
         stale = self.config.stale_timeout
         horizon = min(max(stale, STALE_TURNS * gap), STALE_STRETCH * stale)
         self.neighborhood.stale_timeout = self._max_age["state"] = horizon
@@ -950,16 +954,27 @@ class AgentBrain:
         period = (
             1.0 if self._last_control is None else min(now_wall - self._last_control, MAX_PERIOD)
         )
+        first = not self._was_running and self.running and 0.0 < self._gap < period
+        if first:
+            # The first mission step follows an idle one, up to IDLE_STEP_PERIOD ago (or a
+            # deploy hold's end): that is not the period its command will be held for. Taken
+            # for it, every robot's first command had the gain sampled down to 0.8/s, the
+            # barrier to ~1/s and no turn cap, and the team started most of a period late
+            # (deploy.netsim circle-400, seeds 0-2: e_a at 0.2 s 0.49/0.45 against covswarm
+            # sim's 0.41/0.39 from the same poses facing S; mean over 1-5 s 0.130/0.171/0.127
+            # -> 0.103/0.139/0.100, the simulator's 0.095/0.118/0.102). The time between
+            # our turns is the period it will be held for, as for every later step.
+            period = self._gap
         if self._last_control is not None:
             kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
         self._period = period
         # s the coming command is expected to stay in force (covswarm.tvd.drive.steer): the
-        # period measured between two mission steps, up to the robot's command timeout. None
-        # measured yet (the first mission step follows an idle one, up to a second ago): 0,
-        # no cap, rather than a first command that drives off along the start heading and
-        # barely turns (a cap for a 0.5 s hold).
-        self._hold = min(period, config.cmd_timeout) if self._was_running else 0.0
+        # period measured between two mission steps, up to the robot's command timeout; on
+        # the first mission step, the time between our turns (above). Neither known (a
+        # brain not paced): 0, no cap, rather than a first command that drives off along
+        # the start heading and barely turns (a cap for a 0.5 s hold).
+        self._hold = min(period, config.cmd_timeout) if self._was_running or first else 0.0
         self._was_running = self.running
         others[self.id] = me
         view = LocalView(self.id, others, vertices, velocities, kappa, density)

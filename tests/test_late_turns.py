@@ -226,3 +226,27 @@ def test_a_dense_slow_team_keeps_up_when_it_follows_its_neighbours_moves(
     cut = dense_slow_team(monkeypatch, follow=False)
     assert followed < 0.12
     assert cut > 1.4 * followed
+
+
+@pytest.mark.parametrize("gap", [0.1, 0.3, None])
+def test_the_first_mission_step_is_held_for_the_time_between_turns(gap: float | None) -> None:
+    # Before the mission a brain steps once a second (IDLE_STEP_PERIOD): its first mission
+    # step comes up to a second after the last, which is not the period its command will be
+    # held for. Paced (a packed process tells each brain the time between its turns), the
+    # first step takes that time, as every later one; not paced (0), as before.
+    brain = AgentBrain(0, AgentConfig(kappa=3.0))
+    waiting = domain_message(SQUARE, seq=1, stamp=WALL, state="waiting")
+    brain.receive("domain", waiting.encode(), 0.0, WALL)
+    for k, t in enumerate((0.0, 0.9)):
+        pose = protocol.Pose(id=0, x=0.5, y=1.2, theta=0.0, stamp=WALL + t, seq=k + 1)
+        brain.receive("pose", pose.encode(), t, WALL + t, key_id=0)
+        if gap is not None:
+            brain.pace(gap)
+        if k == 1:  # the mission starts
+            running = domain_message(SQUARE, seq=2, stamp=WALL + t)
+            brain.receive("domain", running.encode(), t, WALL + t)
+        begun = brain.begin(t, WALL + t)
+    assert brain.running
+    period = 0.9 if gap is None else gap
+    assert begun.view.kappa == pytest.approx(brain_module.sampled_gain(3.0, period), rel=1e-6)
+    assert brain._hold == (0.0 if gap is None else pytest.approx(gap, rel=1e-6))
