@@ -122,6 +122,10 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "state_subs": ("number", "AgentState subscriptions"),
     "tile_radius": ("number", "beacon tiles listened to around the agent's own"),
     "beacon_unconfirmed": ("number", "beacon-only robots left out, never confirmed (total)"),
+    "beacon_doubted": (
+        "number",
+        "filter rows left out: robots known from an old beacon, state awaited (robot-steps)",
+    ),
 }
 _STAT_PROPERTIES = {
     name: {"type": kind, "description": text} for name, (kind, text) in AGENT_STATS_FIELDS.items()
