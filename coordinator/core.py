@@ -824,12 +824,11 @@ class CoordinatorCore:
             return None
         ids = sorted(positions)
         record = self.observed.record
-        measured, script = t, self.pace.tau
         points = np.array([positions[i] for i in ids])
-        # The final sample too (taken in the tick the mission ends, the robots still moving
-        # with S): against S(now) its poses, ~50 ms old and taken at different times, read
-        # as a robot behind S each; the 1000-robot run's last e_a was 0.054 m where the
-        # samples before it were 0.026 m (30 Nov 2026).
+        # The final sample too, taken in the tick the mission ends with the robots still
+        # moving with S: against S(now), poses ~50 ms old and taken at different times read
+        # as robots behind S (the 1000-robot run's last e_a was 0.054 m, the samples before
+        # it 0.026 m).
         obs, wall_now = self.observed, self.stamp(self._wall)
         stamps = np.array([obs.pose_stamps[i] for i in ids])
         when = mean_pose_time(t, wall_now, stamps)

@@ -441,7 +441,7 @@ def team_safe_velocities(
         pairs = tree.query_pairs(radius, output_type="ndarray")
         owner = np.concatenate([pairs[:, 0], pairs[:, 1]])
         other = np.concatenate([pairs[:, 1], pairs[:, 0]])[np.argsort(owner, kind="stable")]
-        cuts = np.searchsorted(np.sort(owner), np.arange(1, n))
+        cuts = np.cumsum(np.bincount(owner, minlength=n))[:-1]
         return safe_unicycle_velocities(
             positions,
             nominal,
