@@ -10,8 +10,8 @@ honour, and agents see nothing else of a robot:
   to start if another process already claims the same id (runtime.claims.claim).
 
 The robot integrates its kinematics (tvd.drive.integrate, exact arcs; the robots of a
-process as one numpy batch, :func:`step_robots`) at ``--rate`` from the last valid command
-and stops its wheels when no valid command arrived for
+process as one numpy batch, :func:`step_robots`) at ``--rate`` from the last valid command,
+each command acting from its stamp within the step (:func:`step_with_commands`), and stops its wheels when no valid command arrived for
 ``--cmd-timeout`` seconds (an agent that dies or stalls must not leave its robot driving).
 Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
 than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` plus that
@@ -127,17 +127,26 @@ class RobotSim:
         self._last_step = now
 
     def on_command(self, payload: object, now: float, now_wall: float) -> bool:
-        """Apply a raw WheelCommand payload received at ``now`` (monotonic) and ``now_wall``
-        (s since the epoch); False if it was dropped."""
-        command = accept_command(
-            payload, self.id, now_wall, self.cmd_timeout, self.max_clock_skew, self.drops
-        )
+        """Apply a raw WheelCommand payload that arrived at ``now`` (monotonic) and
+        ``now_wall`` (s since the epoch), from then on; False if it was dropped."""
+        command = self.accept(payload, now_wall)
         if command is None:
             return False
-        # The old command drives until now, the new one from now on (not back to the last
-        # step: a command must not act before it arrived, which agents predicting their
-        # robot's pose from the commands they sent rely on). Stepped to ``now`` already (a
-        # process's tick, :func:`step_with_commands`): nothing to drive.
+        self.apply(command, now)
+        return True
+
+    def accept(self, payload: object, now_wall: float) -> protocol.WheelCommand | None:
+        """A raw WheelCommand payload decoded and checked at ``now_wall`` (s since the
+        epoch; protocol.inbound.accept_command), or None, the drop counted."""
+        return accept_command(
+            payload, self.id, now_wall, self.cmd_timeout, self.max_clock_skew, self.drops
+        )
+
+    def apply(self, command: protocol.WheelCommand, now: float) -> None:
+        """Drive ``command``'s wheels from ``now`` (monotonic s) on: the old wheels until
+        then. Not back to the last step: a command must not act before it arrived, which
+        the agents predicting their robot from the commands they sent rely on. Stepped to
+        ``now`` already (:func:`step_with_commands`): nothing to drive."""
         if now != self._last_step:
             self.step(now)
         # Decoding guarantees finite speeds; the model clamps them to this robot's limit.
@@ -146,7 +155,6 @@ class RobotSim:
         self.counters.driven = self.counters.driven or moving
         self._last_command = now
         self.counters.commands += 1
-        return True
 
     def step(self, now: float) -> np.ndarray:
         """Drive from the previous step to ``now``; returns the new pose (x, y, heading).
@@ -232,10 +240,11 @@ class PosePayloads:
         ]
 
 
-def step_robots(sims: Sequence[RobotSim], now: float) -> np.ndarray:
-    """Drive every robot of ``sims`` from its previous step to ``now`` as one numpy batch
-    (tvd.drive.integrate, exact arcs, each with its own elapsed time and wheels); returns
-    their (n, 3) poses (x m, y m, heading rad), row k of ``sims[k]``, which also holds it.
+def step_robots(sims: Sequence[RobotSim], now: float | np.ndarray) -> np.ndarray:
+    """Drive every robot of ``sims`` from its previous step to ``now`` (monotonic s: one time
+    for all, or (n,), one per robot) as one numpy batch (tvd.drive.integrate, exact arcs,
+    each with its own elapsed time and wheels); returns their (n, 3) poses (x m, y m,
+    heading rad), row k of ``sims[k]``, which also holds it.
 
     Per robot this is :meth:`RobotSim.step`: the command timeout, the elapsed time capped at
     ``cmd_timeout``, no motion for a robot stepped already at ``now`` (its command arrived
@@ -257,8 +266,8 @@ def step_robots(sims: Sequence[RobotSim], now: float) -> np.ndarray:
         sims[k].counters.timeouts += 1
         sims[k].wheels = np.zeros(2)
         turning[k] = False
-    for sim in sims:
-        sim._last_step = now
+    for sim, stepped in zip(sims, np.broadcast_to(now, n).tolist(), strict=True):
+        sim._last_step = stepped
     dts = np.minimum(np.maximum(since_step, 0.0), timeouts)
     # Robots with stopped wheels stay where they are (no arc, no contact check): before the
     # mission, that is every robot.
@@ -291,22 +300,49 @@ def step_with_commands(
     now: float,
     now_wall: float,
 ) -> np.ndarray:
-    """One tick of a robot process at ``now`` (monotonic; ``now_wall``: s since the epoch):
-    every robot of ``sims`` driven to ``now`` on the wheels it had, as one batch
-    (:func:`step_robots`), then ``received``, the tick's raw WheelCommand payloads as
-    (robot, payload) pairs in arrival order, applied (:meth:`RobotSim.on_command`); returns
-    the (n, 3) poses at ``now``.
+    """One tick of a robot process at ``now`` (monotonic; ``now_wall``: s since the epoch,
+    the same instant): ``received``, the raw WheelCommand payloads read since the last tick
+    as (robot, payload) pairs in arrival order, each applied from its arrival
+    (:meth:`RobotSim.apply`, its robot driven on the old wheels up to then); then every
+    robot of ``sims`` driven to ``now`` as one batch (:func:`step_robots`). Returns the
+    (n, 3) poses at ``now``.
 
-    The same as applying each command, then stepping the batch: every command of a tick
-    arrives at ``now``, and on_command drives its robot on the old wheels up to its arrival,
-    which the batch has done already. Stepping a robot alone for each command cost a numpy
-    batch of one per command: with 50 robots commanded at 30 Hz, half a robot process's
-    CPU.
+    A command read at a tick arrived since the last one, when is not known: reading each on
+    arrival (a Zenoh callback per command) doubled a robot process's CPU. Its stamp, the
+    agent's clock when it sent it, is taken instead, bounded by the robot's last step and
+    ``now``: on one host the arrival follows by the transit, a fraction of a millisecond;
+    across hosts by the transit and the clocks' offset (up to ``max_clock_skew``, and never
+    outside the tick). A real robot acts on a command as it arrives, and so do the agents
+    predicting it from the commands they sent (agent.latency); acting at the next 20 Hz tick
+    added 0-50 ms of latency they are not told of.
+
+    The same as applying each command alone from its arrival, then stepping the batch: the
+    commands go in rounds (each robot's first command of the tick, its second, ...), each
+    round's robots driven to their arrivals as one batch. One robot stepped alone per
+    command cost a numpy batch of one per command: with 50 robots commanded at 30 Hz, half
+    a robot process's CPU.
     """
-    poses = step_robots(sims, now)
+    pending = []
     for sim, payload in received:
-        sim.on_command(payload, now, now_wall)
-    return poses
+        command = sim.accept(payload, now_wall)
+        if command is not None:
+            pending.append((sim, command))
+    while pending:
+        first: list[tuple[RobotSim, protocol.WheelCommand]] = []
+        later: list[tuple[RobotSim, protocol.WheelCommand]] = []
+        seen: set[int] = set()
+        for item in pending:
+            (later if id(item[0]) in seen else first).append(item)
+            seen.add(id(item[0]))
+        arrivals = [
+            min(max(now - (now_wall - command.stamp), sim._last_step), now)
+            for sim, command in first
+        ]
+        step_robots([sim for sim, _ in first], np.array(arrivals))
+        for (sim, command), arrival in zip(first, arrivals, strict=True):
+            sim.apply(command, arrival)
+        pending = later
+    return step_robots(sims, now)
 
 
 class WorldHeld:
@@ -451,7 +487,6 @@ def run_robots(
                     for sim, _, commands in links
                     for sample in iter(commands.try_recv, None)
                 ]
-                # The poses at ``now``: commands arriving at ``now`` change wheels, not poses.
                 poses = step_with_commands(sims, received, now, wall)
                 if not publish:
                     continue
@@ -502,9 +537,10 @@ def parse_pose(text: str) -> tuple[float, float, float]:
     multiple=True,
     help="With --ids: initial x,y,theta of each robot, in the order of the ids [0,0,0].",
 )
-# Integration is exact over a step (constant wheels drive an arc), so stepping at the pose
-# rate loses nothing but up to one period of command latency, and on a machine hosting
-# hundreds of robots every saved tick is CPU the agents need.
+# Integration is exact over a step (constant wheels drive an arc) and each command acts from
+# its stamp within the step (step_with_commands), so stepping at the pose rate loses
+# nothing, and on a machine hosting hundreds of robots every saved tick is CPU the agents
+# need.
 @options.float_option("--rate", low=1.0, default=20.0)
 @options.float_option("--pose-rate", low=0.1, default=20.0)
 @options.float_option("--cmd-timeout", low=0.01, default=0.5)

@@ -26,9 +26,9 @@ from covswarm.world.model import World
 STAMP = 1.7e9
 
 
-def command(left: float, right: float, robot_id: int = 1) -> bytes:
+def command(left: float, right: float, robot_id: int = 1, stamp: float = STAMP) -> bytes:
     return protocol.WheelCommand(
-        id=robot_id, left=left, right=right, stamp=STAMP, seq=1, pose_stamp=STAMP
+        id=robot_id, left=left, right=right, stamp=stamp, seq=1, pose_stamp=STAMP
     ).encode()
 
 
@@ -230,37 +230,49 @@ def test_a_batch_stops_at_walls_as_one_robot_does() -> None:
 
 
 def _tick_history(sims: list[RobotSim], tick, seed: int) -> list[np.ndarray]:
-    """Ticks every 0.05 s; on each, some robots receive one or two commands (none after
-    0.9 s, so they time out), handed to ``tick(sims, received, now)``; the (n, 3) poses
-    after each tick."""
+    """Ticks every 0.05 s, the wall clock at STAMP + the monotonic one; on each, some robots
+    receive one or two commands (none after 0.9 s, so they time out), sent at random times
+    since the last tick (some exactly at it or at the tick), handed to ``tick(sims,
+    received, now)`` in the order sent as (robot, payload, sent); the (n, 3) poses after
+    each tick."""
     rng = np.random.default_rng([seed, 2])
     out = []
     for k in range(1, 30):
         now = 0.05 * k
-        received = [
-            (sim, command(*rng.uniform(-1.2, 1.2, 2), robot_id=sim.id))
-            for sim in sims
-            for _ in range(rng.choice(3, p=[0.5, 0.3, 0.2]) if now < 0.9 else 0)
-        ]
+        received = []
+        for sim in sims:
+            for _ in range(rng.choice(3, p=[0.5, 0.3, 0.2]) if now < 0.9 else 0):
+                sent = rng.choice([now - 0.05, now, now - rng.uniform(0.0, 0.05)])
+                wheels = rng.uniform(-1.2, 1.2, 2)
+                received.append((sim, command(*wheels, robot_id=sim.id, stamp=STAMP + sent), sent))
+        received.sort(key=lambda item: item[2])
         out.append(tick(sims, received, now))
     return out
 
 
 def _command_then_step(sims: list[RobotSim], received: list, now: float) -> np.ndarray:
-    """The reference: each command drives its robot alone up to its arrival, then the
-    batch steps the rest."""
-    for sim, payload in received:
-        assert sim.on_command(payload, now, STAMP)
+    """The reference: each command drives its robot alone up to its arrival (when sent,
+    read off the wall clock as the robot does: at 1.7e9 s its resolution is 2e-7 s) and
+    changes its wheels there, then the batch steps the rest."""
+    for sim, payload, sent in received:
+        arrival = min(max(now - ((STAMP + now) - (STAMP + sent)), sim._last_step), now)
+        assert sim.on_command(payload, arrival, STAMP + sent)
     return step_robots(sims, now)
 
 
 @pytest.mark.parametrize("world", [None, World((-1.0, 1.0, -1.0, 1.0))])
-def test_a_tick_steps_the_batch_then_applies_its_commands(world: World | None) -> None:
-    """step_with_commands (one batch, then the commands) drives every robot as applying
-    each command alone and then stepping does: poses to 1e-12, and the same commands,
-    timeouts and wall stops counted."""
+def test_a_tick_applies_each_command_from_its_stamp(world: World | None) -> None:
+    """step_with_commands (rounds of commands, each round's robots driven to their
+    commands' stamps as one batch, then the whole batch to the tick) drives every robot as
+    applying each command alone when it was sent and then stepping does: poses to 1e-12,
+    and the same commands, timeouts and wall stops counted."""
     ticked, reference = _fleet(30, 4, world), _fleet(30, 4, world)
-    got = _tick_history(ticked, lambda s, r, now: step_with_commands(s, r, now, STAMP), 4)
+
+    def tick(sims: list[RobotSim], received: list, now: float) -> np.ndarray:
+        pairs = [(sim, payload) for sim, payload, _ in received]
+        return step_with_commands(sims, pairs, now, STAMP + now)
+
+    got = _tick_history(ticked, tick, 4)
     want = _tick_history(reference, _command_then_step, 4)
     for a, b in zip(got, want, strict=True):
         np.testing.assert_allclose(a, b, rtol=0, atol=1e-12)
@@ -353,6 +365,35 @@ def test_ticks_time_out_and_cap_the_elapsed_time_as_one_robot_alone_did() -> Non
         assert [tuple(sim.wheels) for sim in sims] == [ref.wheels for ref in refs]
     assert [sim.counters.timeouts for sim in sims] == [ref.timeouts for ref in refs]
     assert sum(ref.timeouts for ref in refs) > n // 2  # the silences did stop wheels
+
+
+def test_a_command_acts_from_its_stamp_within_the_tick() -> None:
+    """A command stamped 30 ms after one tick drives its robot on the old wheels for those
+    30 ms and on its own for the 20 ms to the next (exact arcs, integrate_one); one stamped
+    before the last tick (a clock behind) acts from that tick, one stamped after this tick
+    (a clock ahead) from this tick."""
+
+    def tick(robot: RobotSim, left: float, right: float, sent: float, now: float) -> np.ndarray:
+        payload = command(left, right, stamp=STAMP + sent)
+        return step_with_commands([robot], [(robot, payload)], now, STAMP + now)[0]
+
+    sim = RobotSim(1, (0.0, 0.0, 0.0), now=0.0)
+    tick(sim, 0.1, 0.1, 0.0, 0.0)
+    pose = tick(sim, 0.05, 0.15, 0.08, 0.1)
+    want = integrate_one(*integrate_one(0.0, 0.0, 0.0, 0.1, 0.1, 0.08), 0.05, 0.15, 0.02)
+    # 1e-7 m: the wall clock's resolution at 1.7e9 s (2e-7 s) at 0.15 m/s
+    np.testing.assert_allclose(pose, want, rtol=0, atol=1e-7)
+    behind, ahead = RobotSim(1, (0.0, 0.0, 0.0), now=0.0), RobotSim(1, (0.0, 0.0, 0.0), now=0.0)
+    for robot in (behind, ahead):
+        tick(robot, 0.1, 0.1, 0.0, 0.0)
+    tick(behind, 0.0, 0.2, -0.01, 0.05)
+    tick(ahead, 0.0, 0.2, 0.07, 0.05)
+    want_behind = integrate_one(0.0, 0.0, 0.0, 0.0, 0.2, 0.05)
+    np.testing.assert_allclose(behind.pose, want_behind, rtol=0, atol=1e-12)
+    want_ahead = integrate_one(0.0, 0.0, 0.0, 0.1, 0.1, 0.05)
+    np.testing.assert_allclose(ahead.pose, want_ahead, rtol=0, atol=1e-12)
+    assert ahead.wheels.tolist() == [0.0, 0.2]  # from the tick on
+    assert behind.counters.commands == ahead.counters.commands == 2
 
 
 def test_pose_payloads_are_the_bytes_pose_encodes() -> None:
