@@ -11,8 +11,9 @@ honour, and agents see nothing else of a robot:
 
 The robot integrates its kinematics (tvd.drive.integrate, exact arcs; the robots of a
 process as one numpy batch, :func:`step_robots`) at ``--rate`` from the last valid command,
-each command acting from its stamp within the step (:func:`step_with_commands`), and stops its wheels when no valid command arrived for
-``--cmd-timeout`` seconds (an agent that dies or stalls must not leave its robot driving).
+each command acting from its stamp within the step (:func:`step_with_commands`), and
+stops its wheels when no valid command arrived for ``--cmd-timeout`` seconds (an agent
+that dies or stalls must not leave its robot driving).
 Invalid commands (undecodable, wrong id, out-of-range or non-finite speeds, stamped more
 than ``--max-clock-skew`` ahead of this clock or older than ``--cmd-timeout`` plus that
 skew) are dropped, counted per reason and logged rate-limited (protocol.inbound); they
