@@ -13,14 +13,31 @@ from covswarm.agent.brain import AgentConfig
 from covswarm.deploy.netsim import NetsimResult, run_netsim
 from covswarm.mission.scenario_files import scenario_from_dict
 from covswarm.tvd.drive import KHEPERA_IV
-from covswarm.tvd.safety import DEFAULT_GAMMA, body_safe_distance
+from covswarm.tvd.safety import (
+    DEFAULT_GAMMA,
+    RECEDE_SHARE,
+    RECEDE_SLACK,
+    body_safe_distance,
+)
 
 SAFE = body_safe_distance(KHEPERA_IV.body_diameter)  # 0.16 m
 
 
+def recede_cap(safe: float = SAFE, gamma: float = DEFAULT_GAMMA) -> float:
+    """The most a receding neighbour adds to a robot's bound: gamma (D^2 - (D - slack)^2) / 2."""
+    return 0.5 * gamma * (safe**2 - (safe - RECEDE_SLACK) ** 2)
+
+
 def headway(speed: float, safe: float = SAFE, gamma: float = DEFAULT_GAMMA) -> float:
-    """d*(v): the least gap at which the split lets a robot follow another at ``speed``."""
-    return speed / gamma + math.sqrt((speed / gamma) ** 2 + safe**2)
+    """d*(v): the least gap at which the split lets a robot follow another at ``speed``.
+
+    Following at v the follower's row reads 2 d v <= gamma (d^2 - D^2) + min(RECEDE_SHARE
+    2 d v, cap): d must clear both roots, 2 d v (1 - RECEDE_SHARE) = gamma (d^2 - D^2) and
+    2 d v - cap = gamma (d^2 - D^2)."""
+    shared = (1.0 - RECEDE_SHARE) * speed / gamma
+    uncapped = shared + math.sqrt(shared**2 + safe**2)
+    capped = speed + math.sqrt(speed**2 + gamma * (gamma * safe**2 - recede_cap(safe, gamma)))
+    return max(uncapped, capped / gamma)
 
 
 def pair_distances(trajectories: np.ndarray) -> np.ndarray:

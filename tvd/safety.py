@@ -23,9 +23,17 @@ command, the neighbour's reported one), each takes half of the *change* instead:
 and the two halves (robot j's row has a_ji = -a_ij, the same v_i, v_j, so c_ji = -c_ij) still
 sum to the pair's condition. The clip keeps both bounds in [0, gamma h]: u = 0 meets every
 row while h >= 0, so the QP is never infeasible for robots that are apart, and neither robot
-is asked to flee. With v = 0 it is the Robotarium's split. Each robot then solves a QP in
-the plane, min |u - u_hat|^2 subject to one such row per neighbour, here exactly (see
-:func:`closest_feasible`), never by an iterative solver.
+is asked to flee. With v = 0 it is the Robotarium's split.
+
+The clip still caps a follower's closing speed at gamma h / (2 d) whatever its leader does,
+so a robot also adds RECEDE_SHARE of a neighbour's reported speed away from it,
+a_ij . v_j when positive, to its bound, at most gamma (D_s^2 - (D_s - RECEDE_SLACK)^2) / 2
+(:func:`pair_constraints`). Not the guarantee below at D_s: a neighbour that stops (or
+reports a stale velocity) lets the pair close inside D_s; but with both credits so capped
+the two rows sum to the condition on D_s - RECEDE_SLACK, which the guarantee then keeps.
+
+Each robot then solves a QP in the plane, min |u - u_hat|^2 subject to one such row per
+neighbour, here exactly (see :func:`closest_feasible`), never by an iterative solver.
 
 Differential-drive robots (:func:`unicycle_rows`): the wheels move the axle centre p only
 along the heading e, with speed v = e . u for the steered velocity u (covswarm.tvd.drive),
@@ -86,6 +94,33 @@ FEASIBILITY_TOL = 1e-9  # m^2/s: slack allowed on a row when checking a candidat
 # followed set is about the two-hop set, which the coverage step follows anyway. Slower
 # steps or a command latency are covered by driving slower instead (unseen_speed_limit).
 SAFETY_RADIUS = 0.5
+# Fraction of a neighbour's speed away from us (its reported velocity along the pair,
+# a_ij . v_j when positive) that a robot may add to its bound (pair_constraints): the
+# split's clip alone caps a follower's closing speed at gamma h / (2 d) whatever its leader
+# does, so a robot behind another at S's speed (0.19 m/s) could not hold under 0.18 m
+# (gamma 10) and, once behind S, did not catch up (circle-1000, covswarm sim, unicycles at
+# 10 Hz, seeds 0-2: e_a's second-half mean 0.037 m without, 0.020 m with).
+RECEDE_SHARE = 0.5
+# m: how far inside the safe distance D that credit can take a pair, whatever the neighbour
+# then does (stops dead, or its reported velocity is stale or wrong): each robot's credit
+# is at most gamma (D^2 - (D - RECEDE_SLACK)^2) / 2, so a pair's two rows still sum to the
+# sampled barrier condition on |p_i - p_j| >= D - RECEDE_SLACK (module docstring). Part of
+# DEFAULT_MARGIN; a single follower uses about half of it (a leader standing still while
+# reported receding at 0.8 m/s: closest 0.153 m at D = 0.16; uncapped, 0.120 m).
+RECEDE_SLACK = 0.015
+
+
+def _recede_credit(
+    a: np.ndarray, v_other: np.ndarray, share: np.ndarray, safe_distance, gamma
+) -> np.ndarray:
+    """Each row's extra bound for a neighbour moving away: RECEDE_SHARE max(a . v_j, 0), at
+    most gamma (D^2 - (D - RECEDE_SLACK)^2) / 2, and none for a pair without a share left
+    (h <= 0). a: (m, 2) rows; v_other: (m, 2) m/s; share, safe_distance, gamma: (m,) or
+    scalars."""
+    away = np.maximum(np.einsum("ij,ij->i", a, v_other), 0.0)
+    inner = np.maximum(safe_distance - RECEDE_SLACK, 0.0)
+    cap = 0.5 * gamma * (safe_distance**2 - inner**2)
+    return np.where(share > 0.0, np.minimum(RECEDE_SHARE * away, cap), 0.0)
 
 
 @dataclass(frozen=True)
@@ -173,6 +208,9 @@ def pair_constraints(
             mean = mean + 0.5 * np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
         share = np.maximum(b, 0.0)
         b = b + np.clip(np.einsum("ij,ij->i", A, mean), -share, share)
+        if neighbor_velocities is not None:
+            theirs = np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
+            b = b + _recede_credit(A, theirs, share, safe_distance, gamma)
     return A, b
 
 
@@ -635,6 +673,7 @@ def _pair_rows(
     q = np.concatenate([np.zeros((0, 2)), *arrays])
     keep = ok[owner] & np.isfinite(q).all(axis=1)
     mean = np.zeros((len(q), 2))
+    vq = np.zeros((len(q), 2))
     if neighbor_velocities is not None:
         theirs = [np.asarray(x, dtype=float).reshape(-1, 2) for x in neighbor_velocities]
         vq = np.concatenate([np.zeros((0, 2)), *theirs])
@@ -644,13 +683,14 @@ def _pair_rows(
         own = np.asarray(velocities, dtype=float).reshape(-1, 2)
         own = np.where(np.isfinite(own).all(axis=1)[:, None], own, 0.0)
         mean = 0.5 * own[owner] + mean
-    owner, q, mean = owner[keep], q[keep], mean[keep]
+    owner, q, mean, vq = owner[keep], q[keep], mean[keep], vq[keep]
     offset = p[owner] - q
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance[owner] ** 2
     a = -2.0 * offset
     half = 0.5 * gamma[owner] * h
     share = np.maximum(half, 0.0)
     b = half + np.clip(np.einsum("ij,ij->i", a, mean), -share, share)
+    b = b + _recede_credit(a, vq, share, safe_distance[owner], gamma[owner])
     return owner, a, b, share
 
 
