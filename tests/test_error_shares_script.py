@@ -60,3 +60,23 @@ def test_a_robot_not_yet_recorded_is_left_out(tmp_path: Path) -> None:
     first, last = load_script("error_shares").shares(tmp_path, [0.0, 1.0], top=1)
     assert first["e_a"] == pytest.approx(aggregate_error(np.array([[0.25, 0.5]]), square))
     assert last["e_a"] == pytest.approx(0.0, abs=1e-12)  # two robots at their centroids
+
+
+def test_interpolated_between_records_as_at_the_time_itself(tmp_path: Path) -> None:
+    """--interpolate: robots recorded at 0 and 1 s and S at 0 and 1 s, read at 0.3 s, give
+    the e_a of the positions and S linear between them (the robots' straight moves and S's
+    translation are linear, so that is the e_a at 0.3 s); the latest pose and the nearest S
+    give another."""
+    square = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    rng = np.random.default_rng(7)
+    start = rng.uniform(0.2, 1.8, (9, 2))
+    end = start + rng.normal(0.0, 0.1, (9, 2))
+    write_run(tmp_path, [(0.0, start), (1.0, end)], square)
+    script = load_script("error_shares")
+    (row,) = script.shares(tmp_path, [], top=1, seconds=[0.3], interpolate=True)
+    between = 0.7 * start + 0.3 * end
+    assert row["t"] == 0.3
+    assert row["e_a"] == pytest.approx(aggregate_error(between, square + [0.03, 0.0]), rel=1e-12)
+    (latest,) = script.shares(tmp_path, [], top=1, seconds=[0.3])
+    assert latest["e_a"] == pytest.approx(aggregate_error(start, square), rel=1e-12)
+    assert abs(latest["e_a"] - row["e_a"]) > 1e-3
