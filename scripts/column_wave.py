@@ -8,10 +8,10 @@ of S facing +y; S's speed ramps from 0 to ``speed`` over ``ramp`` s; the agents'
 of covswarm.deploy.netsim (real brains and robot models, every message ``transit`` s late).
 Prints markdown tables (mean over seeds, the range in brackets) of, 6 s after S reached
 its speed, the gaps between consecutive robots against the filter's headway
-d*(v) (tests/columns.py: the split's clip and the receding credit) and the lags behind S (m), front to tail;
-the closest two robots ever came (m) and for how long two were within the safe distance
-(pair-seconds); the body diameter is 0.14 m. docs/scaling.md and docs/real-robots.md
-quote it.
+d*(v) (tests/columns.py: the split's clip and the receding credit) and the lags behind S
+(m), front to tail; the closest two robots ever came (m) and for how long two were within
+the safe distance (pair-seconds); the body diameter is 0.14 m. docs/scaling.md and
+docs/real-robots.md quote it.
 
 Parts: ``headway`` (spacings, speeds and ramps); ``oracle`` (each brain's safety filter
 given the true current velocities of the robots near it instead of the ones their
