@@ -48,15 +48,25 @@ def latest_positions(rows: np.ndarray, t: float) -> np.ndarray:
     return positions
 
 
-def interpolated_positions(rows: np.ndarray, t: float) -> np.ndarray:
-    """(n, 2) m: each robot's position at ``t``, linear between its records around it, its
-    first or last record beyond them, NaN for a robot first recorded after ``t`` (rows: t,
-    id, x, y, theta, as read_trajectories gives them, in time order); robot ids 0..n-1."""
+def robot_tracks(rows: np.ndarray) -> list[np.ndarray | None]:
+    """Each robot's rows (t, id, x, y, theta) in time order, by id (None: never recorded);
+    ``rows`` as read_trajectories gives them, in time order; robot ids 0..n-1."""
     ids = rows[:, 1].astype(int)
-    positions = np.full((int(ids.max()) + 1, 2), np.nan)
-    for robot in np.unique(ids).tolist():
-        own = rows[ids == robot]
-        if own[0, 0] <= t:
+    order = np.argsort(ids, kind="stable")  # by robot, each still in time order
+    present, starts = np.unique(ids[order], return_index=True)
+    tracks: list[np.ndarray | None] = [None] * (int(ids.max()) + 1)
+    for robot, track in zip(present.tolist(), np.split(rows[order], starts[1:]), strict=True):
+        tracks[robot] = track
+    return tracks
+
+
+def interpolated_positions(tracks: list[np.ndarray | None], t: float) -> np.ndarray:
+    """(n, 2) m: each robot's position at ``t``, linear between its records around it, its
+    first or last record beyond them, NaN for a robot first recorded after ``t`` (tracks:
+    :func:`robot_tracks`)."""
+    positions = np.full((len(tracks), 2), np.nan)
+    for robot, own in enumerate(tracks):
+        if own is not None and own[0, 0] <= t:
             positions[robot] = [np.interp(t, own[:, 0], own[:, k]) for k in (2, 3)]
     return positions
 
@@ -95,9 +105,10 @@ def shares(
     times, polygons = read_domains(run_dir / DOMAIN_FILE)
     out = []
     instants = seconds if seconds is not None else [f * rows[:, 0].max() for f in at]
+    tracks = robot_tracks(rows) if interpolate else []
     for t in instants:
         if interpolate:
-            positions, polygon = interpolated_positions(rows, t), domain_at(times, polygons, t)
+            positions, polygon = interpolated_positions(tracks, t), domain_at(times, polygons, t)
         else:
             positions = latest_positions(rows, t)
             polygon = polygons[int(np.argmin(np.abs(times - t)))]

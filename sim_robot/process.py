@@ -267,8 +267,12 @@ def step_robots(sims: Sequence[RobotSim], now: float | np.ndarray) -> np.ndarray
         sims[k].counters.timeouts += 1
         sims[k].wheels = np.zeros(2)
         turning[k] = False
-    for sim, stepped in zip(sims, np.broadcast_to(now, n).tolist(), strict=True):
-        sim._last_step = stepped
+    if isinstance(now, np.ndarray):
+        for sim, stepped in zip(sims, now.tolist(), strict=True):
+            sim._last_step = stepped
+    else:
+        for sim in sims:
+            sim._last_step = now
     dts = np.minimum(np.maximum(since_step, 0.0), timeouts)
     # Robots with stopped wheels stay where they are (no arc, no contact check): before the
     # mission, that is every robot.

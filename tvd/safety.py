@@ -111,7 +111,11 @@ RECEDE_SLACK = 0.015
 
 
 def _recede_credit(
-    a: np.ndarray, v_other: np.ndarray, share: np.ndarray, safe_distance, gamma
+    a: np.ndarray,
+    v_other: np.ndarray,
+    share: np.ndarray,
+    safe_distance: float | np.ndarray,
+    gamma: float | np.ndarray,
 ) -> np.ndarray:
     """Each row's extra bound for a neighbour moving away: RECEDE_SHARE max(a . v_j, 0), at
     most gamma (D^2 - (D - RECEDE_SLACK)^2) / 2, and none for a pair without a share left
@@ -204,12 +208,13 @@ def pair_constraints(
         mean = np.zeros((len(A), 2))
         if velocity is not None:
             mean = mean + 0.5 * np.asarray(velocity, dtype=float).reshape(1, 2)
-        if neighbor_velocities is not None:
-            mean = mean + 0.5 * np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
-        share = np.maximum(b, 0.0)
-        b = b + np.clip(np.einsum("ij,ij->i", A, mean), -share, share)
+        theirs = None
         if neighbor_velocities is not None:
             theirs = np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
+            mean = mean + 0.5 * theirs
+        share = np.maximum(b, 0.0)
+        b = b + np.clip(np.einsum("ij,ij->i", A, mean), -share, share)
+        if theirs is not None:
             b = b + _recede_credit(A, theirs, share, safe_distance, gamma)
     return A, b
 
@@ -673,7 +678,7 @@ def _pair_rows(
     q = np.concatenate([np.zeros((0, 2)), *arrays])
     keep = ok[owner] & np.isfinite(q).all(axis=1)
     mean = np.zeros((len(q), 2))
-    vq = np.zeros((len(q), 2))
+    vq = None
     if neighbor_velocities is not None:
         theirs = [np.asarray(x, dtype=float).reshape(-1, 2) for x in neighbor_velocities]
         vq = np.concatenate([np.zeros((0, 2)), *theirs])
@@ -683,14 +688,15 @@ def _pair_rows(
         own = np.asarray(velocities, dtype=float).reshape(-1, 2)
         own = np.where(np.isfinite(own).all(axis=1)[:, None], own, 0.0)
         mean = 0.5 * own[owner] + mean
-    owner, q, mean, vq = owner[keep], q[keep], mean[keep], vq[keep]
+    owner, q, mean = owner[keep], q[keep], mean[keep]
     offset = p[owner] - q
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance[owner] ** 2
     a = -2.0 * offset
     half = 0.5 * gamma[owner] * h
     share = np.maximum(half, 0.0)
     b = half + np.clip(np.einsum("ij,ij->i", a, mean), -share, share)
-    b = b + _recede_credit(a, vq, share, safe_distance[owner], gamma[owner])
+    if vq is not None:
+        b = b + _recede_credit(a, vq[keep], share, safe_distance[owner], gamma[owner])
     return owner, a, b, share
 
 
