@@ -102,6 +102,27 @@ MAX_PERIOD = 4.0
 # over hold, AgentBrain._finish): a robot driven for under a quarter of each period is
 # compensated no further (its wheels saturate first at such speeds).
 MAX_DUTY = 4.0
+# rad: a command that, held for as long as its robot may drive it (the robot's command
+# timeout: the next turn may come that late), would turn the robot by more than this turns
+# it in place instead, at the same rate; it drives from the next step on (AgentBrain.
+# _wheels). The safety filter bounds the speed along the heading at the step; a command
+# held ~1 s that also turns the robot (up to the whole angle to its aim, covswarm.tvd.drive.
+# steer) moves its centre on an arc those rows do not bound. covswarm.deploy.netsim, brains
+# stepped every 0.45-1.15 s, robots stopping 1 s after a command, S 8x slower, the start
+# held for coordinator.monitor.START_ROUNDS (30 Nov 2026): circle-1000 seed 3, a robot
+# 0.140 m from a neighbour it knew exactly, backing at 0.034 m/s while turning 1.2 rad,
+# swept to 0.128 m; circle-400 seed 2, backing at 0.029 m/s and turning 1.0 rad, to
+# 0.1397 m. With this rule neither (0.140 and 0.1403 m; 22-66 steps turned in place in
+# 6000-15000 mission steps); mean e_a over the first 5 s 0.426 m against 0.418 m without
+# the rule (seed 3). Judged over the expected hold rather than the timeout, 1 rad left the
+# 0.1397 m pair (seed 2: 3 steps turned, that mean 0.298 m against 0.300 m), and 0.5 rad
+# removed it but turned 111 steps and raised that mean to 0.316 m.
+ARC_TURN = 1.0
+# s: the rule above applies only to commands expected to be held longer than this (brains
+# stepped at ~3 Hz or slower). Without this bound (the rule judged over the hold) circle-100
+# at 10 Hz in netsim, seed 0, turned in place twice and ended 10 s at e_a 0.0074 m against
+# 0.0057 m; with it, seeds 0-2 at 10 Hz are unchanged to the bit.
+ARC_HOLD = 0.3
 # Seconds between control steps while the mission is not running (neighbour bookkeeping).
 IDLE_STEP_PERIOD = 1.0
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
@@ -954,7 +975,7 @@ class AgentBrain:
         period = (
             1.0 if self._last_control is None else min(now_wall - self._last_control, MAX_PERIOD)
         )
-        first = not self._was_running and self.running and 0.0 < self._gap < period
+        first = not self._was_running and self.running and self._gap > 0.0
         if first:
             # The first mission step follows an idle one, up to IDLE_STEP_PERIOD ago (or a
             # deploy hold's end): that is not the period its command will be held for. Taken
@@ -963,8 +984,13 @@ class AgentBrain:
             # (deploy.netsim circle-400, seeds 0-2: e_a at 0.2 s 0.49/0.45 against covswarm
             # sim's 0.41/0.39 from the same poses facing S; mean over 1-5 s 0.130/0.171/0.127
             # -> 0.103/0.139/0.100, the simulator's 0.095/0.118/0.102). The time between
-            # our turns is the period it will be held for, as for every later step.
-            period = self._gap
+            # our turns is the period it will be held for, as for every later step. (Also
+            # when the idle step was our last turn: the period measured on the wall clock is
+            # then the gap, a hair shorter or longer; a step that took it for longer than
+            # the gap went without a hold, so without the turn cap, the unseen-speed limit
+            # or ARC_TURN, and at ~1.25 Hz a robot backing from a neighbour 0.140 m away
+            # swung round 1.2 rad to 0.128 m: circle-1000, netsim, seed 3, ARC_TURN.)
+            period = min(self._gap, MAX_PERIOD)
         if self._last_control is not None:
             kappa = sampled_gain(kappa, period)
         self._last_control = now_wall
@@ -1155,6 +1181,11 @@ class AgentBrain:
             heading, vx, vy, robot, config.projection_distance, self._hold, aim, side
         )
         self.counters.turn_capped += capped
+        if self._hold > ARC_HOLD:
+            turn = (right - left) / robot.wheel_separation * config.cmd_timeout
+            if abs(turn) > ARC_TURN:  # turn in place at the same rate, drive from the next step
+                left, right = 0.5 * (left - right), 0.5 * (right - left)
+                self.counters.arc_turned += 1
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
@@ -1345,6 +1376,7 @@ class AgentBrain:
             "step_errors": c.step_errors,
             "batch_fallbacks": c.batch_fallbacks,
             "turn_capped": c.turn_capped,
+            "arc_turned": c.arc_turned,
             "cell_empty": c.cell_empty,
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,

@@ -76,6 +76,9 @@ class Counters:
     # mission steps whose turn rate was capped so that the command, held until the next
     # step, turns the robot no further than to face its velocity (covswarm.tvd.drive.steer)
     turn_capped: int = 0
+    # mission steps whose command, held until the next step, would have turned the robot by
+    # more than ARC_TURN: it turned in place instead (covswarm.agent.brain.ARC_TURN)
+    arc_turned: int = 0
     # mission steps with no cell in S (the robot outside S, dominated by teammates: it aims
     # at S's centroid, covswarm.tvd.control); a robot stuck so dominates e_a
     cell_empty: int = 0

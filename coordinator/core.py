@@ -43,14 +43,17 @@ from covswarm.coordinator.config import DEPLOY_TIMEOUT, CoordinatorConfig
 from covswarm.coordinator.monitor import (
     DONE,
     RUNNING,
+    START_SETTLE,
     WAITING,
     ErrorRecord,
+    ExchangeGaps,
     Liveness,
     MissionPhase,
     TeamChange,
     clip_sample_time,
     mean_pose_time,
     positions_at,
+    start_settle,
 )
 from covswarm.coordinator.pace import (
     DEPLOY_ALIGN,
@@ -106,10 +109,6 @@ _read_state = AgentState.reader("id", "stamp", "neighbors", "stats")
 OWN_DOMAINS_KEPT = 50
 
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
-# s the whole team holds its tokens before the mission starts: every agent has then had its
-# early beacons (within a second of the last token) and knows the robots next to it, which
-# its safety filter needs before its robot moves (coordinator.monitor.MissionPhase.settle).
-START_SETTLE = 1.5
 STATUS_PERIOD = 0.5  # s
 WORLD_PERIOD = 1.0  # s between World broadcasts: a late joiner has the arena within this
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
@@ -403,6 +402,9 @@ class CoordinatorCore:
         self.phase = MissionPhase(
             math.inf if settings.script_ends else settings.duration, settle=START_SETTLE
         )
+        # Each agent's round of the neighbour exchange while waiting: the start waits for
+        # START_ROUNDS of the slowest (coordinator.monitor.start_settle), not only 1.5 s.
+        self.exchange = ExchangeGaps()
         world = settings.scenario.world
         # S never touches the arena: every steered motion is swept against it first.
         checks = tuple(steer_checks)
@@ -565,6 +567,8 @@ class CoordinatorCore:
         # and vouches for nobody either way.
         if not self.roster.admit_state(rid):
             return
+        if self.phase.state == WAITING:
+            self.exchange.add(rid, stamp)
         if self.roster.vouch(rid, neighbors):
             self._enter_newcomers(self._now, self._wall)
         if stats is not None:  # a map of its own (no message holds it)
@@ -638,6 +642,8 @@ class CoordinatorCore:
         if stopping:
             phase.stop(now)
         before = phase.state
+        if before == WAITING:
+            phase.settle = start_settle(self.exchange.slowest())
         state = phase.update(now, self.team_ready())
         if state == WAITING and stopping:
             log.info("stopped before the mission started")
@@ -645,7 +651,12 @@ class CoordinatorCore:
         actions: list[Action] = []
         if before == WAITING and state == RUNNING:
             self.observed.started_wall = wall
-            log.info("team ready: mission started")
+            log.info(
+                "team ready: mission started, %.2f s after the whole team was up (the slowest "
+                "agent's exchange round %.2f s: coordinator.monitor.start_settle)",
+                now - (phase.ready_since if phase.ready_since is not None else now),
+                self.exchange.slowest(),
+            )
             actions.append(MissionStarted(settings.swarm, wall))
         t = phase.mission_time(now)
         if state == RUNNING and self.pace.deploying:

@@ -15,6 +15,66 @@ import numpy as np
 
 WAITING, RUNNING, DONE = "waiting", "running", "done"
 
+# s the whole team holds its tokens before the mission starts: every agent has then had its
+# early beacons (within a second of the last token) and knows the robots next to it, which
+# its safety filter needs before its robot moves (MissionPhase.settle).
+START_SETTLE = 1.5
+# Rounds of the neighbour exchange (an agent's AgentState out, the AgentStates and beacon
+# tiles it follows chosen again: AgentBrain.exchange_due) the team holds its tokens for, at
+# the slowest agent's pace, when that is longer than START_SETTLE (:func:`start_settle`).
+# A robot knows a neighbour for its safety filter after about three of its rounds: the
+# neighbour takes the newcomer's token and beacons, the newcomer reads the beacon and
+# follows its AgentStates, then reads one. START_SETTLE was written for 10 Hz rounds; an
+# overloaded machine steps its brains at ~1.25 Hz (1000 robots in real time), and the
+# mission then started ~2 rounds after the last token: robots backed away from a known
+# neighbour inside the safe distance into one they did not know yet (the unseen-speed
+# limit, covswarm.tvd.safety.unseen_speed_limit, assumes those are beyond SAFETY_RADIUS).
+# covswarm.deploy.netsim (which starts as this rule does), circle-400 with S 8x slower,
+# brains stepped every 0.45-1.15 s, robots stopping 1 s after a command, 12 s, seeds 0-3
+# (30 Nov 2026): 3, 3, 4 and 4 pairs within a body diameter, the closest 0.111 m, with
+# 1.5 s; none but one 0.3 mm inside it (seed 2, an arc: brain.ARC_TURN) with three rounds
+# (3.45 s), and mean e_a over the first 5 s alike (0.289-0.309 m, 0.289-0.311 m): the team
+# waits, and nobody stands while S moves. The brain-side alternative, each robot standing
+# still for its first three turns after declaring itself alive, raised that mean by 31 %
+# (seed 0: 0.401 against 0.307 m) and e_a at 12 s to 0.164 m (0.077 m): two robots placed
+# on S's edge stood while its trailing corner passed them, and outside S a robot's cell is
+# empty, it aims through the packed team at S's centroid, and the filter holds it off.
+START_ROUNDS = 3
+# s: the longest the start waits for slow rounds: one agent's state stamped long after its
+# last (a stalled process) must not hold the whole team for minutes.
+MAX_START_SETTLE = 10.0
+
+
+@dataclass
+class ExchangeGaps:
+    """The time between each agent's last two AgentStates (their stamps, the agent's own
+    clock): one round of its neighbour exchange, as slow as its brain is stepped."""
+
+    last: dict[int, float] = field(default_factory=dict)  # id -> its newest state's stamp
+    gaps: dict[int, float] = field(default_factory=dict)  # id -> s between its last two
+
+    def add(self, ident: int, stamp: float) -> None:
+        """Agent ``ident``'s AgentState stamped ``stamp`` (s); an older or repeated one
+        changes nothing."""
+        last = self.last.get(ident)
+        if last is not None:
+            if not stamp > last:
+                return
+            self.gaps[ident] = stamp - last
+        self.last[ident] = stamp
+
+    def slowest(self) -> float:
+        """s: the longest round of any agent heard twice (0 before any)."""
+        return max(self.gaps.values(), default=0.0)
+
+
+def start_settle(slowest: float) -> float:
+    """s the team must have held its tokens before the mission starts, when the slowest
+    agent's neighbour exchange takes ``slowest`` s a round: START_SETTLE, or START_ROUNDS of
+    those rounds when longer (never above MAX_START_SETTLE). At 10 Hz: START_SETTLE."""
+    rounds = START_ROUNDS * slowest if math.isfinite(slowest) else 0.0
+    return min(max(START_SETTLE, rounds), MAX_START_SETTLE)
+
 
 @dataclass
 class MissionPhase:

@@ -55,6 +55,7 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import PoseImpairment
+from covswarm.coordinator.monitor import MAX_START_SETTLE, ExchangeGaps, start_settle
 from covswarm.coordinator.pace import broadcast_motion
 from covswarm.mission.scenarios import Scenario
 from covswarm.tvd.drive import DiffDrive
@@ -76,7 +77,8 @@ Slot = tuple[str, int | None, Topic]
 @dataclass
 class NetsimResult:
     """t (T,), e_a (T,), trajectories (T, n, 2), wheels (T, n, 2) (the commands held at each
-    sample), headings (T, n) rad, and the agents' last stats."""
+    sample), headings (T, n) rad, the agents' last stats, and when the mission started (s of
+    the simulated clock: the warmup's end, or later when the coordinator would wait longer)."""
 
     t: np.ndarray
     error: np.ndarray
@@ -84,6 +86,7 @@ class NetsimResult:
     wheels: np.ndarray
     headings: np.ndarray
     stats: dict[int, dict] = field(default_factory=dict)
+    started: float = math.nan  # s of the simulated clock at which the mission started
 
 
 def run_netsim(
@@ -102,6 +105,7 @@ def run_netsim(
     command_delay: float = 0.0,
     announce_start: bool = True,
     poses: np.ndarray | None = None,
+    settle: bool = True,
 ) -> NetsimResult:
     """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
 
@@ -110,7 +114,12 @@ def run_netsim(
     not say, the robots start as placed).
 
     The mission starts after ``warmup`` s of "waiting" broadcasts (neighbour discovery, as in
-    a real start). clock_skew: s added to the robots' pose stamps (their host's clock ahead).
+    a real start), and with ``settle`` not before the coordinator would start it: every
+    agent's token taken, then held for covswarm.coordinator.monitor.start_settle of the
+    slowest agent's time between AgentStates (at 10 Hz 1.5 s, within the 2 s warmup; brains
+    stepped at ~1.25 Hz wait longer). A team some agent of which has not declared itself
+    alive starts MAX_START_SETTLE s after the warmup. clock_skew: s added to the robots'
+    pose stamps (their host's clock ahead).
     robot_model: the robots' true geometry when it differs from what the agents assume
     (``config.robot``), to measure how model error degrades the agents' prediction.
     command_delay: s between a command's stamp and when the robot acts on it, on top of
@@ -198,7 +207,14 @@ def run_netsim(
         heapq.heappush(events, (float(agent_phase[i]), i, "agent", i))
     heapq.heappush(events, (0.0, -2, "robots", 0))
     heapq.heappush(events, (0.0, -1, "domain", 0))
-    end = warmup + duration
+    # When the mission starts (None: waiting), as the coordinator decides it: the agents'
+    # tokens as it takes them (``transit`` s after each DeclareAlive), and their AgentStates'
+    # stamps (coordinator.monitor.ExchangeGaps).
+    started: float | None = None
+    held = False  # the start was held past the warmup's end
+    end = math.inf
+    tokens: dict[int, float] = {}
+    exchange = ExchangeGaps()
     seq = 0
     wheels = np.zeros((n, 2))
     t_log: list[float] = []
@@ -222,8 +238,22 @@ def run_netsim(
                 else:
                     inbox[to][(kind, key_id, topic)] = payload
         wall = START_WALL + now
-        mission_t = min(max(now - warmup, 0.0), duration)
-        state = "waiting" if now < warmup else ("running" if now < end else "done")
+        if started is None and what == "domain" and now >= warmup:
+            if len(tokens) < n:  # (a brain without its robot's pose: do not wait forever)
+                ready = now >= warmup + MAX_START_SETTLE
+            else:
+                ready = now - max(tokens.values()) >= start_settle(exchange.slowest())
+            if ready or not settle:
+                # (on the first tick at the warmup's end: from the warmup's end exactly)
+                started = now if held else warmup
+                end = started + duration
+                next_sample = started
+            held = True
+        if started is None:
+            mission_t, state = 0.0, "waiting"
+        else:
+            mission_t = min(max(now - started, 0.0), duration)
+            state = "running" if now < end else "done"
         if what == "robots":
             for robot in robots:
                 robot.step(now)
@@ -273,6 +303,8 @@ def run_netsim(
                     heapq.heappush(commands, (due, order, index, command.encode()))
                     order += 1
                 elif isinstance(action, PublishState):
+                    if started is None:
+                        exchange.add(index, action.state.stamp)
                     payload = action.state.encode()
                     send(now + transit, ("state", index), "state", index, payload)
                 elif isinstance(action, PublishBeacon):
@@ -284,11 +316,12 @@ def run_netsim(
                     follow(index, "beacon", action.tiles)
                 elif isinstance(action, DeclareAlive):
                     send(now + transit, ("alive", None), "alive", index, b"")
+                    tokens.setdefault(index, now + transit)
             heapq.heappush(events, (now + 1.0 / rate, rank, what, index))
     stats = defaultdict(dict, {b.id: b.stats() for b in brains})
     return NetsimResult(
         np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log),
-        np.array(heading_log), dict(stats),
+        np.array(heading_log), dict(stats), math.nan if started is None else started,
     )  # fmt: skip
 
 

@@ -50,13 +50,14 @@ def make_core(scenario: str = "circle", duration: float = 20.0, pace: bool = Tru
 
 
 class Team:
-    """The agents of a core, each stepping at ``held`` Hz and reporting its stats once a
-    second (its mission steps counted from the start, as AgentBrain.stats)."""
+    """The agents of a core, each stepping at ``held`` Hz, with an AgentState each step (a
+    brain's exchange round: the start waits for START_ROUNDS of the slowest's), its stats
+    in one a second (its mission steps counted from the start, as AgentBrain.stats)."""
 
     def __init__(self, core: CoordinatorCore, held: float) -> None:
         self.core, self.held = core, held
         self.steps = dict.fromkeys(range(core.settings.agents), 0.0)
-        self.next_report = 0.0
+        self.next_report = self.next_step = 0.0
         for i in self.steps:
             for role in ("robot", "agent"):
                 core.on_liveliness(alive_key(SWARM, role, i), True, 0.0, WALL0)
@@ -77,6 +78,11 @@ class Team:
                     )
                     self.core.on_agent_state(state.encode())
                 self.next_report = now + 1.0
+            if now >= self.next_step:  # (with the stats' state of this tick: one round)
+                for i in self.steps:
+                    state = AgentState(id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=())
+                    self.core.on_agent_state(state.encode())
+                self.next_step = now + 1.0 / self.held
             ticks.append((now, self.core.tick(now, WALL0 + now)))
         return now, ticks
 

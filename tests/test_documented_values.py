@@ -19,7 +19,7 @@ import pytest
 from covswarm.agent import brain, neighborhood
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator import core as coordinator_core
-from covswarm.coordinator import pace
+from covswarm.coordinator import monitor, pace
 from covswarm.deploy import host_speed, plan
 from covswarm.deploy.cli import main
 from covswarm.mission.scenario_files import load_scenario
@@ -59,6 +59,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("with `RECEDE_SLACK` 0.015 m", lambda: safety.RECEDE_SLACK, 0.015),
     ("one row per robot it knows within 0.5 m", lambda: safety.SAFETY_RADIUS, 0.5),
     ("liveliness token for 1.5 s", lambda: coordinator_core.START_SETTLE, 1.5),
+    ("or for three rounds of the slowest agent's", lambda: monitor.START_ROUNDS, 3),
     ("the last has been silent for 0.5 s", lambda: brain.DOMAIN_RESTART_SILENCE, 0.5),
     ("wheel radius 21 mm", lambda: drive.KHEPERA_IV.wheel_radius, 0.021),
     ("wheel separation 105.4 mm", lambda: drive.KHEPERA_IV.wheel_separation, 0.1054),
