@@ -1244,7 +1244,6 @@ class AgentBrain:
         config = self.config
         now = begun.now
         neighborhood = self.neighborhood
-        reckoned = neighborhood.reckoned
         within = neighborhood.within(x, y, SAFETY_RADIUS)
         inside = neighborhood.fresh_rows(within, now, BEACON_TRUST)
         if len(inside) < len(within) and self.running:
@@ -1254,16 +1253,38 @@ class AgentBrain:
         # that merely left our candidates as the team moved on (its relays and states went
         # to others) would be a phantom where it was, and phantoms across a moving team's
         # path held robots back until they lost the domain (100-robot circle: e_a 5.7 m).
+        # And one whose states we followed and that is no longer first-hand, however else
+        # it is named: a stalled brain's state ages out of our candidates (pace's horizon)
+        # while a neighbour's relay of it, or its last beacon (sent in the turn of its last
+        # state, and then its newest news: a state's receipt is backdated to its stamp, a
+        # beacon's is not), still names it; the relay goes a turn later, and an old beacon
+        # is no row while its state is awaited (BEACON_TRUST). Keyed on the robot vanishing
+        # from the candidates, the follower of a robot stopped 0.18 m ahead saw none of it
+        # for a step and drove at the unseen speed limit into it: one process's brains
+        # starved for 2.5 s among brains stepped every 0.8-1.2 s (deploy.netsim circle-400,
+        # S 8x slower, seeds 0-3: 1-5 pairs within a diameter each, closest 0.104-0.128 m;
+        # with this rule none), as in the live circle-1000 at ~1 Hz (0.115 and 0.124 m, 30
+        # Nov 2026). Not one we stopped following (a relay carries it: Neighborhood.
+        # wanted_state_ids): its own state ages as meant, and as an obstacle it was a
+        # phantom where last heard (netsim circle-100 at 10 Hz, seed 0: e_a at 10 s 0.029 m
+        # against 0.006; as it is, seeds 0-2 at 10 Hz are unchanged to the last digit of
+        # e_a, and unstalled ~1 Hz circle-400 runs, seeds 0-1, in e_a and every counter).
+        # Such an obstacle goes when its state comes again (its states are followed:
+        # near_ids), not when a relay or a beacon names it.
         # (Set operations in C: the rows are turned into floats only for the rare robot
         # that vanished, not for every near robot every step.)
-        gone = self._near_first_hand.difference(reckoned)
+        first_hand, followed = neighborhood.first_hand, neighborhood.wanted
+        gone = self._near_first_hand.difference(neighborhood.reckoned)
+        second_hand = self._near_first_hand - first_hand  # (mostly empty)
+        if second_hand:
+            gone.update(r for r in second_hand if r in followed)
         if gone:
             last_ids, last_near = self._near_last
             for rid, (last_x, last_y, _, _) in zip(last_ids, last_near.tolist(), strict=True):
                 if rid in gone:
                     self.obstacles[rid] = (last_x, last_y, now)
         ids = neighborhood.table_ids[inside].tolist()
-        self._near_first_hand = neighborhood.first_hand.intersection(ids)
+        self._near_first_hand = first_hand.intersection(ids)
         self._near_last = (ids, near)
         latency = config.command_latency
         if latency:  # where they will be when our command acts, as our own pose (begin)
@@ -1274,7 +1295,7 @@ class AgentBrain:
             for rid in [
                 r
                 for r, (_, _, since) in self.obstacles.items()
-                if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in reckoned
+                if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in first_hand
             ]:
                 del self.obstacles[rid]
         if self.obstacles:  # none is a candidate

@@ -1,0 +1,81 @@
+"""A neighbour whose brain stalls (its process starved for seconds) stays in the safety
+filter where it stopped, whatever else still names it (AgentBrain._safety_inputs).
+
+Its AgentStates stop and its robot stops at its command's timeout. Once its last state is
+older than our stale horizon (AgentBrain.pace) it is no longer known first-hand; a robot we
+heard first-hand nearby and then not at all was held as an obstacle where last reckoned,
+but this one was still named: by a neighbour's relay (gone a turn later, when the relayer
+drops it too) or by its last beacon (sent in the turn of its last state, so its newest
+news; an old beacon is no row while its state is awaited, BEACON_TRUST). Either way the
+filter had no row for it at some step, and the follower drove at the unseen speed limit
+(0.087 m/s here) into the stopped robot (deploy.netsim circle-400, one process's brains
+stalled 2.5 s: 0.104 m; the live circle-1000 at ~1 Hz: 0.115 m).
+"""
+
+from __future__ import annotations
+
+import pytest
+from wire_samples import domain_message
+
+from covswarm import protocol
+from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
+
+WALL = 1.7e9
+# A strip S moving +x at 0.1 m/s. Our robot at (X, 1) is at its cell's centroid with robot
+# 1 at (AHEAD, 1), 0.19 m ahead (D = 0.16 m): S's feedforward drives us into it. Robot 2,
+# far ahead, relays robot 1 in the "relay" case.
+STRIP = [[0.4, 0.8], [2.0, 0.8], [2.0, 1.2], [0.4, 1.2]]
+X, AHEAD, FAR = 0.495, 0.685, 1.8
+GAP = 1.0  # s between our turns (a brain stepped at ~1 Hz)
+
+
+class Brain(AgentBrain):
+    """An AgentBrain that keeps its last Decision."""
+
+    decision: Decision | None = None
+
+    def step(self, now: float, now_wall: float) -> Decision:
+        self.decision = super().step(now, now_wall)
+        return self.decision
+
+
+def turn(brain: Brain, now: float, relayed: bool | None) -> float:
+    """One turn at ``now``: S, our pose (facing +x), robot 2's fresh state (relaying robot
+    1 when ``relayed``; None: no robot 2); the step's filtered speed along +x (m/s)."""
+    wall = WALL + now
+    domain = domain_message(STRIP, seq=int(now * 10), stamp=wall, velocity=(0.1, 0.0))
+    brain.receive("domain", domain.encode(), now, wall)
+    pose = protocol.Pose(id=0, x=X, y=1.0, theta=0.0, stamp=wall, seq=int(now * 10))
+    brain.receive("pose", pose.encode(), now, wall, key_id=0)
+    if relayed is not None:
+        relay = ((1, AHEAD, 1.0, 0.0, 0.0),) if relayed else None
+        neighbors = (0, 1) if relayed else (0,)
+        state = protocol.AgentState(
+            id=2, x=FAR, y=1.0, stamp=wall, neighbors=neighbors, vx=0.0, vy=0.0, relay=relay
+        )
+        brain.receive("state", state.encode(), now, wall, key_id=2)
+    brain.pace(GAP)
+    brain.tick(now, wall)
+    assert brain.decision is not None and brain.decision.reason == "running"
+    return brain.decision.velocity[0]
+
+
+@pytest.mark.parametrize("named_by", ["beacon", "relay"])
+def test_a_stalled_neighbour_stays_a_row_while_only_others_name_it(named_by: str) -> None:
+    brain = Brain(0, AgentConfig(cmd_timeout=1.0))
+    # Robot 1's last state (and, in the beacon case, a beacon of the same turn); then its
+    # brain stalls: its robot stands where it said.
+    state = protocol.AgentState(id=1, x=AHEAD, y=1.0, stamp=WALL, neighbors=(0,), vx=0.0, vy=0.0)
+    brain.receive("state", state.encode(), 0.1, WALL + 0.1, key_id=1)
+    if named_by == "beacon":
+        beacon = protocol.Beacon(id=1, x=AHEAD, y=1.0, stamp=WALL)
+        brain.receive("beacon", beacon.encode(), 0.1, WALL + 0.1, key_id=1)
+    relayer = True if named_by == "relay" else None
+    for now in (0.5, 1.5):  # its state fresh: it holds us back (~0.02 m/s)
+        assert turn(brain, now, relayer) < 0.04
+    # At 2.5 s its state is past our horizon (two gaps): named by the relay or the beacon
+    # only. At 3.5 s the relayer no longer relays it.
+    for now in (2.5, 3.5):
+        speed = turn(brain, now, False if relayer and now > 3.0 else relayer)
+        assert 1 not in brain.neighborhood.first_hand
+        assert speed < 0.04  # (without the obstacle: 0.087 m/s, the unseen speed limit)
