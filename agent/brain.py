@@ -1273,12 +1273,13 @@ class AgentBrain:
         # near_ids), not when a relay or a beacon names it.
         # (Set operations in C: the rows are turned into floats only for the rare robot
         # that vanished, not for every near robot every step.)
-        first_hand, followed = neighborhood.first_hand, neighborhood.wanted
-        gone = self._near_first_hand.difference(neighborhood.reckoned)
-        second_hand = self._near_first_hand - first_hand  # (mostly empty)
-        if second_hand:
-            gone.update(r for r in second_hand if r in followed)
+        first_hand = neighborhood.first_hand
+        gone = self._near_first_hand - first_hand  # (mostly empty)
         if gone:
+            reckoned, followed = neighborhood.reckoned, neighborhood.wanted
+            gone = {r for r in gone if r not in reckoned or r in followed}
+        if gone:
+            self.counters.obstacles_kept += len(gone)
             last_ids, last_near = self._near_last
             for rid, (last_x, last_y, _, _) in zip(last_ids, last_near.tolist(), strict=True):
                 if rid in gone:
@@ -1404,6 +1405,7 @@ class AgentBrain:
             "duty_scaled": c.duty_scaled,
             "speed_limited": c.speed_limited,
             "beacon_doubted": c.beacon_doubted,
+            "obstacles_kept": c.obstacles_kept,
             "aligning": c.aligning,
             "mission_steps": c.mission_steps,
             "guarded": c.guarded,

@@ -98,6 +98,10 @@ class Counters:
     # from a beacon older than BEACON_TRUST while their AgentState is awaited
     # (covswarm.agent.neighborhood.Neighborhood.fresh_rows)
     beacon_doubted: int = 0
+    # robots near us, first-hand at the last step, kept in the safety filter where last known
+    # since they vanished or (followed) were then named only by a relay or a beacon
+    # (covswarm.agent.brain.AgentBrain._safety_inputs, OBSTACLE_MEMORY)
+    obstacles_kept: int = 0
     # steps before the mission that turned the robot in place to face S's first motion
     # (covswarm.agent.brain.AgentBrain._standing)
     aligning: int = 0

@@ -127,6 +127,10 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
         "number",
         "filter rows left out: robots known from an old beacon, state awaited (robot-steps)",
     ),
+    "obstacles_kept": (
+        "number",
+        "near robots kept in the filter where last known: vanished or only relayed (total)",
+    ),
 }
 _STAT_PROPERTIES = {
     name: {"type": kind, "description": text} for name, (kind, text) in AGENT_STATS_FIELDS.items()

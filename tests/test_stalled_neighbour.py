@@ -79,3 +79,4 @@ def test_a_stalled_neighbour_stays_a_row_while_only_others_name_it(named_by: str
         speed = turn(brain, now, False if relayer and now > 3.0 else relayer)
         assert 1 not in brain.neighborhood.first_hand
         assert speed < 0.04  # (without the obstacle: 0.087 m/s, the unseen speed limit)
+    assert brain.stats()["obstacles_kept"] == 1  # counted once, when it stopped being first-hand
