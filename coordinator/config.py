@@ -39,6 +39,7 @@ class CoordinatorConfig:
     resume: bool = False
     max_domain_speed: float | None = None
     record: bool = True
+    record_states: bool = True  # the agents' AgentStates in run.mcap (/agents/states)
     foxglove: int | None = None  # live view port (0: a free one)
     seed: int | None = None  # the robots' start seed, recorded in run.mcap
     time_scale: float = 1.0

@@ -163,6 +163,7 @@ class CoordinatorSettings:
     # 1/s: the gain broadcast while the hold lasts (S still: Lloyd's iterations, which the
     # mission's gain, chosen for tracking, takes ~3x as many periods over); None: kappa
     deploy_kappa: float | None = None
+    record_states: bool = True  # the agents' AgentStates go to the recorder too
 
     @property
     def hold_kappa(self) -> float:
@@ -201,6 +202,7 @@ class CoordinatorSettings:
             deploy_error=config.deploy_error,
             deploy_timeout=config.deploy_timeout,
             deploy_kappa=config.deploy_kappa,
+            record_states=config.record_states,
         )
 
     @cached_property
@@ -363,6 +365,8 @@ def recording_counts() -> dict[str, float | int]:
         "backlog_overflow": 0,  # poses dropped because the backlog was full
         "stale_poses": 0,  # poses not newer than the robot's last recorded one
         "rejected_poses": 0,  # payloads that did not decode (ProtocolError)
+        "thinned_states": 0,  # older AgentStates of an agent left out after skipped ticks
+        "state_backlog_overflow": 0,  # AgentStates dropped because their backlog was full
     }
 
 
@@ -435,6 +439,13 @@ class CoordinatorCore:
         # Every (key, pose payload) received while the mission runs, until the recorder
         # takes them (bounded: a few seconds of the team's poses).
         self._pose_backlog: deque[tuple[str, bytes]] = deque(maxlen=64 * max(n, 16))
+        # Likewise every (id, AgentState payload) of an admitted agent (half the poses' rate),
+        # while waiting only each agent's newest: what it believed when the mission started.
+        self._state_backlog: deque[tuple[int, bytes]] | None = (
+            deque(maxlen=64 * max(n, 16))
+            if recorder is not None and settings.record_states
+            else None
+        )
         self._last_pose_time: dict[int, float] = {}  # mission time of each robot's last record
         self._last_record_t = 0.0
         self._next_stats_record = 0.0
@@ -567,6 +578,11 @@ class CoordinatorCore:
         # and vouches for nobody either way.
         if not self.roster.admit_state(rid):
             return
+        backlog = self._state_backlog
+        if backlog is not None and self.phase.state != DONE:  # no record comes after done
+            if len(backlog) == backlog.maxlen:
+                self.recording["state_backlog_overflow"] += 1
+            backlog.append((rid, payload))
         if self.phase.state == WAITING:
             self.exchange.add(rid, stamp)
         if self.roster.vouch(rid, neighbors):
@@ -705,6 +721,10 @@ class CoordinatorCore:
                 self._skipped += 1
         if state == WAITING:  # the first record holds the poses of one tick only
             self._pose_backlog.clear()
+            if self._state_backlog:
+                newest = dict(self._state_backlog)
+                self._state_backlog.clear()
+                self._state_backlog.extend(newest.items())
         finished = self._done_since is not None and now - self._done_since >= DONE_HOLD
         if finished:  # the recorder closes after the last tick
             self._collect_cells(wait=True)
@@ -890,10 +910,11 @@ class CoordinatorCore:
 
     def _record(self, t: float, polygon: np.ndarray, thin: bool) -> float:
         """Every pose received since the last record, each at the mission time it was
-        measured (covswarm.records.observations), S(t), and at lower rates the cells and the
-        agents' stats (covswarm.records.recorder). ``thin``: ticks were skipped, record only
-        each robot's newest pose, so that skipping bounds the work. Returns the CPU time
-        the poses and S took, s (the cells have their own budget)."""
+        measured (covswarm.records.observations), S(t), every AgentState received, and at
+        lower rates the cells and the agents' stats (covswarm.records.recorder). ``thin``:
+        ticks were skipped, record only each robot's newest pose and each agent's newest
+        state, so that skipping bounds the work. Returns the CPU time the poses, S and the
+        states took, s (the cells have their own budget)."""
         recorder, counts = self.recorder, self.recording
         assert recorder is not None
         began = self._cpu_clock()
@@ -931,6 +952,14 @@ class CoordinatorCore:
         recorder.domain(t, polygon)
         self.observed.domain_t.append(t)
         self.observed.domain_polygons.append(np.asarray(polygon, dtype=float))
+        if states := self._state_backlog:
+            if thin:
+                newest = dict(states)
+                counts["thinned_states"] += len(states) - len(newest)
+                recorder.agent_states(t, list(newest.values()))
+            else:
+                recorder.agent_states(t, [payload for _, payload in states])
+            states.clear()
         cost = self._cpu_clock() - began
         if self._pending_cells is None and recorder.cells_due(t):
             if positions := self.alive_positions():

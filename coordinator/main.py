@@ -180,6 +180,12 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 @switch_option(
     "record", "Write OUT/run.mcap and OUT/trajectories.csv (docs/records.md).", show_default=True
 )
+@switch_option(
+    "record-states",
+    "Record every AgentState the agents send in run.mcap (/agents/states), with --record or "
+    "--foxglove.",
+    show_default=True,
+)
 @float_option(
     "--agent-rate",
     low=0,

@@ -169,6 +169,11 @@ from covswarm.sim_robot.process import gather_drops
 )
 @FOXGLOVE_OPTION
 @switch_option("record", "The coordinator writes run.mcap and trajectories.csv.", show_default=True)
+@switch_option(
+    "record-states",
+    "The coordinator records every AgentState in run.mcap (/agents/states).",
+    show_default=True,
+)
 @click.option(
     "--console",
     is_flag=True,

@@ -311,6 +311,7 @@ class RunConfig:
     startup_timeout: float = 300.0
     foxglove: int | None = None
     record: bool = True
+    record_states: bool = True  # the coordinator records the agents' AgentStates
     console: bool = False
     console_port: int = 7480
     max_domain_speed: float | None = None
@@ -344,7 +345,8 @@ def coordinator_config(run: RunConfig, scenario: Scenario, endpoint: str) -> Coo
         duration=scenario.duration if run.duration is None else run.duration,
         kappa=scenario_kappa(run, scenario),
         agent_rate=run.rate,
-        **_passed_on(run, "swarm", "out", "scenario", "max_domain_speed", "record", "foxglove"),
+        **_passed_on(run, "swarm", "out", "scenario", "max_domain_speed", "foxglove"),
+        **_passed_on(run, "record", "record_states"),
         **_passed_on(run, "pace", "deploy_error", "deploy_timeout", "deploy_kappa"),
         **_passed_on(run, "seed", *_EVERY_CHILD),
     )

@@ -53,6 +53,7 @@ ARENA_TOPIC = "/arena"  # foxglove.SceneUpdate, workspace and obstacles, every A
 ERROR_TOPIC = "/error"  # JSON {e_a, robots}, at the e_a sample rate
 AGENT_STATS_TOPIC = "/agents/stats"  # JSON {agents: [{id, ...stats}], mean: {...}}
 STEERING_TOPIC = "/steering"  # JSON, one message per steering event
+AGENT_STATES_TOPIC = "/agents/states"  # msgpack, each AgentState payload as its agent sent it
 METADATA_NAME = "run"  # the MCAP metadata record with the run's parameters and versions
 CELL_PERIOD = 1.0  # s of mission time between two recorded tessellations
 ARENA_PERIOD = 1.0  # s: static, but repeated so that a live viewer joining late sees it
@@ -74,6 +75,10 @@ def free_bytes(path: Path) -> int:
 ERROR_SCHEMA = "covswarm.ErrorSample"  # names of the JSON channels' schemas
 AGENT_STATS_SCHEMA = "covswarm.AgentStats"
 STEERING_SCHEMA = "covswarm.SteeringEvent"
+# Named, without a definition: the payloads are protocol messages, decoded by
+# covswarm.protocol.AgentState.decode (no viewer decodes msgpack; records.replay does).
+AGENT_STATE_SCHEMA = "covswarm.AgentState"
+AGENT_STATE_ENCODING = "msgpack"
 
 _ERROR_SCHEMA = {
     "type": "object",
@@ -238,6 +243,13 @@ class RunRecorder:
                 (STEERING_TOPIC, STEERING_SCHEMA, _STEERING_SCHEMA),
             )
         )
+        # foxglove-sdk refuses a schemaless channel in any encoding but JSON.
+        self._states = foxglove.Channel(
+            AGENT_STATES_TOPIC,
+            schema=foxglove.Schema(name=AGENT_STATE_SCHEMA, encoding="", data=b""),
+            message_encoding=AGENT_STATE_ENCODING,
+            context=ctx,
+        )
         self.workspace, self.obstacles = workspace, tuple(obstacles)
         self.metadata = {
             **run_metadata,
@@ -273,7 +285,9 @@ class RunRecorder:
         self._last_ns = 0
         self._next_cells = 0.0
         self._next_arena = 0.0
-        self.counts = {"poses": 0, "cells": 0, "errors": 0, "stats": 0, "steering": 0}
+        self.counts = {
+            "poses": 0, "cells": 0, "errors": 0, "stats": 0, "steering": 0, "states": 0,
+        }  # fmt: skip
 
     def _open_files(self, out: Path, continued: bool) -> None:
         """run.mcap (or run-<k>.mcap) and trajectories.csv in ``out``."""
@@ -396,6 +410,16 @@ class RunRecorder:
                 mean[name] = float(np.mean(values))
         self._stats.log({"agents": agents, "mean": mean}, log_time=self._log_time(t))
         self.counts["stats"] += 1
+
+    def agent_states(self, t: float, payloads: Sequence[bytes]) -> None:
+        """AgentState payloads received by mission time t, one /agents/states message each,
+        the bytes as the agents sent them (log time t, when the coordinator saw them)."""
+        if not payloads or not self._writing(t):
+            return
+        log_time, log_state = self._log_time(t), self._states.log
+        for payload in payloads:
+            log_state(payload, log_time=log_time)
+        self.counts["states"] += len(payloads)
 
     def steering(self, t: float, event: Mapping[str, Any]) -> None:
         """A steering event (who moved S how) at mission time t; ``event`` must be JSON-able.

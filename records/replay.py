@@ -3,7 +3,8 @@
 Reads RUN_DIR/run.mcap back (the robots, S(t), the cells and e_a channels of
 covswarm.records.recorder) and renders one frame every ``speed / fps`` s of mission time,
 each showing the newest message of every channel at that time. GIF through Pillow; MP4
-through ffmpeg, only when ffmpeg is on the PATH.
+through ffmpeg, only when ffmpeg is on the PATH. :func:`read_agent_states` reads back what
+the agents said (their AgentStates), which the animation does not show.
 """
 
 from __future__ import annotations
@@ -17,7 +18,11 @@ from typing import Any
 import click
 import numpy as np
 
+from covswarm.protocol import AgentState, ProtocolError
 from covswarm.records.recorder import (
+    AGENT_STATE_ENCODING,
+    AGENT_STATE_SCHEMA,
+    AGENT_STATES_TOPIC,
     CELLS_TOPIC,
     DOMAIN_TOPIC,
     ERROR_TOPIC,
@@ -108,16 +113,64 @@ def read_recording(path: str | Path) -> Recording:
     return record
 
 
+@dataclass
+class AgentStates:
+    """The AgentStates of a run.mcap (/agents/states), in log time order: ``t[k]`` (s of
+    mission time, when the coordinator saw it) and ``states[k]`` as the agent sent it;
+    ``rejected`` counts the payloads that did not decode (left out)."""
+
+    t: list[float] = field(default_factory=list)
+    states: list[AgentState] = field(default_factory=list)
+    rejected: int = 0
+
+    def of(self, robot: int) -> list[tuple[float, AgentState]]:
+        """(log time, state) of every state robot ``robot``'s agent sent, in time order."""
+        return [(t, s) for t, s in zip(self.t, self.states, strict=True) if s.id == robot]
+
+    def at(self, robot: int, t: float) -> tuple[float, AgentState] | None:
+        """(log time, state) of the newest state of robot ``robot`` logged at or before
+        mission time ``t`` (None if it had sent none yet)."""
+        earlier = [(ts, s) for ts, s in self.of(robot) if ts <= t]
+        return earlier[-1] if earlier else None
+
+
+def read_agent_states(path: str | Path) -> AgentStates:
+    """The AgentStates recorded in a run.mcap, decoded with covswarm.protocol (a payload
+    that does not decode is counted in ``rejected``). Empty for a record without them
+    (``--no-record-states``, a simulation, an older file)."""
+    from mcap.reader import make_reader
+
+    record = AgentStates()
+    with open(path, "rb") as stream:
+        messages = make_reader(stream).iter_messages(
+            topics=[AGENT_STATES_TOPIC], log_time_order=True
+        )
+        for _, _, message in messages:
+            try:
+                state = AgentState.decode(message.data)
+            except ProtocolError:
+                record.rejected += 1
+                continue
+            record.t.append(message.log_time / 1e9)
+            record.states.append(state)
+    return record
+
+
 def decoder_factories() -> list[Any]:
-    """mcap decoders for a run.mcap: protobuf (the Foxglove schemas) and JSON channels."""
+    """mcap decoders for a run.mcap: protobuf (the Foxglove schemas), JSON channels and
+    the AgentStates (covswarm.protocol.AgentState; ProtocolError if one is malformed)."""
     from mcap.decoder import DecoderFactory
     from mcap_protobuf.decoder import DecoderFactory as ProtobufDecoderFactory
 
-    class JsonDecoderFactory(DecoderFactory):
+    class CovswarmDecoderFactory(DecoderFactory):
         def decoder_for(self, message_encoding: str, schema: Any) -> Any:
-            return json.loads if message_encoding == "json" else None
+            if message_encoding == "json":
+                return json.loads
+            if message_encoding == AGENT_STATE_ENCODING and schema is not None:
+                return AgentState.decode if schema.name == AGENT_STATE_SCHEMA else None
+            return None
 
-    return [ProtobufDecoderFactory(), JsonDecoderFactory()]
+    return [ProtobufDecoderFactory(), CovswarmDecoderFactory()]
 
 
 def _json_or_text(value: str) -> Any:

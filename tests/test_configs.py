@@ -72,7 +72,7 @@ def test_config_argv_writes_what_differs_bools_and_required_fields() -> None:
     config = CoordinatorConfig(swarm="s", out=Path("o"), connect=("a", "b"), rate=12.5)
     assert config_argv(config) == [
         "--swarm", "s", "--out", "o", "--connect", "a", "--connect", "b", "--rate", "12.5",
-        "--feedforward", "--no-resume", "--record", "--pace",
+        "--feedforward", "--no-resume", "--record", "--record-states", "--pace",
     ]  # fmt: skip
     with pytest.raises(TypeError):
         config_argv({"swarm": "s"})

@@ -39,6 +39,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import AgentState, Pose, ProtocolError, alive_key, messages, pose_key
 from covswarm.protocol.steering import SteerReply, SteerRequest
 from covswarm.records.recorder import RunRecorder
+from covswarm.records.replay import read_agent_states
 from covswarm.tvd.coverage import aggregate_error
 
 SWARM = "core-test"
@@ -422,6 +423,82 @@ def test_a_batch_of_poses_is_taken_as_one_pose_at_a_time(tmp_path) -> None:
     assert batched._pose_payloads == single._pose_payloads
     assert list(batched._pose_backlog) == list(single._pose_backlog) == pairs[-1024:]
     assert batched.recording["backlog_overflow"] == single.recording["backlog_overflow"] == 476
+
+
+def recording_core(out, record_states: bool = True, cpu_clock=lambda: 0.0):
+    """A core of 2 agents recording into ``out`` (its recorder closes with the core's)."""
+    settings = dataclasses.replace(make_core().settings, record_states=record_states)
+    recorder = RunRecorder(out, run_metadata={})
+    return CoordinatorCore(settings, recorder=recorder, cpu_clock=cpu_clock), recorder
+
+
+@pytest.mark.parametrize("record_states", [True, False])
+def test_the_core_records_each_admitted_state_and_the_newest_of_each_from_the_wait(
+    tmp_path, record_states: bool
+) -> None:
+    """While waiting, each agent's newest state is kept for the first record (what it
+    believed as the mission started); then every state received, as sent, at the tick
+    after it arrived. Malformed states and those of ids outside the team are not recorded,
+    and ``--no-record-states`` records none."""
+    core, recorder = recording_core(tmp_path, record_states)
+    join(core, [0, 1])
+    core.tick(0.0, WALL0)
+    waiting = [AgentState(i % 2, 0.1 * i, 0.0, WALL0 + i, (1 - i % 2,)) for i in range(5)]
+    for state in waiting:
+        core.on_agent_state(state.encode())
+        core.tick(0.0, WALL0)
+    core.on_agent_state(b"\xff")
+    core.on_agent_state(AgentState(7, 0.0, 0.0, WALL0, (0,)).encode())  # not in the team
+    started = start(core)
+    relay = ((1, 0.5, 0.0, 0.1, 0.0),)
+    running = [AgentState(0, 0.0, 0.0, WALL0 + 9, (1,), vx=0.1, vy=0.0, relay=relay),
+               AgentState(1, 0.5, 0.0, WALL0 + 9, (0,))]  # fmt: skip
+    for state in running:
+        core.on_agent_state(state.encode())
+    now = started + 0.05
+    core.tick(now, WALL0 + now)
+    recorder.close()
+    record = read_agent_states(tmp_path / "run.mcap")
+    if not record_states:
+        assert record.states == [] and recorder.counts["states"] == 0
+        return
+    t0, t1 = core.phase.mission_time(started), core.phase.mission_time(now)
+    assert record.t == pytest.approx([t0, t0, t1, t1], abs=1e-9)  # (log times are in ns)
+    assert sorted(record.states[:2], key=lambda s: s.id) == waiting[-2:][::-1]
+    assert record.states[2:] == running and record.rejected == 0
+    assert record.at(0, t1 + 0.01) == (record.t[2], running[0])
+    assert record.at(0, t1 + 0.01)[1].relay == relay
+    assert recorder.counts["states"] == 4
+    assert core.recording["thinned_states"] == core.recording["state_backlog_overflow"] == 0
+
+
+def test_states_are_thinned_to_each_agents_newest_past_the_budget_and_counted(tmp_path) -> None:
+    """A record costing 4 ticks' worth of RECORD_SHARE skips 3 ticks; the next record keeps
+    only each agent's newest state received since the last one and counts the others, so
+    every state received by the last record is either recorded or counted."""
+    cpu = iter(np.arange(0.0, 100.0, 0.01))  # every reading 10 ms of CPU later
+    core, recorder = recording_core(tmp_path, cpu_clock=lambda: float(next(cpu)))
+    now = start(core)
+    sent: dict[int, list[tuple[float, float]]] = {0: [], 1: []}  # (its tick's t, stamp)
+    for k in range(12):
+        now = round(now + 0.05, 10)
+        for i in (0, 1):
+            stamp = WALL0 + 100 + k + 0.1 * i
+            core.on_agent_state(AgentState(i, 0.0, 0.0, stamp, (1 - i,)).encode())
+            sent[i].append((core.phase.mission_time(now), stamp))
+        core.tick(now, WALL0 + now)
+    recorder.close()
+    record = read_agent_states(tmp_path / "run.mcap")
+    counts = core.recording
+    assert counts["skipped_ticks"] >= 6 and counts["thinned_states"] >= 6
+    # (the states of the ticks after the last record wait for the next)
+    taken = sum(when <= record.t[-1] for i in (0, 1) for when, _ in sent[i])
+    assert len(record.states) + counts["thinned_states"] == taken
+    for i in (0, 1):
+        recorded = record.of(i)
+        assert len({t for t, _ in recorded}) == len(recorded)  # one per record
+        for t, state in recorded:  # the newest received by the record's tick
+            assert state.stamp == max(stamp for when, stamp in sent[i] if when <= t)
 
 
 def test_a_resumed_core_continues_the_mission_time_and_replays_steering() -> None:

@@ -192,6 +192,46 @@ def test_steering_events_keep_their_time_and_the_file_stays_ordered(tmp_path: Pa
     assert messages["/error"][0][1] == {"e_a": None, "robots": 1}  # NaN is not JSON
 
 
+def test_agent_states_are_recorded_as_sent_and_read_back_decoded(tmp_path: Path) -> None:
+    """/agents/states holds each payload's bytes (msgpack, schema covswarm.AgentState) at
+    its log time; read_agent_states decodes them with covswarm.protocol and counts the
+    malformed; a robot's state at a time is the newest logged by then."""
+    from covswarm.protocol import AgentState
+    from covswarm.records.replay import read_agent_states
+
+    relay = ((3, 1.2, 2.0, 0.0, 0.1), (7, 0.8, 2.1, -0.05, 0.0))
+    states = [
+        AgentState(55, 1.0, 2.0, 1.7e9, (3, 7), vx=0.1, vy=-0.1, relay=relay),
+        AgentState(3, 1.2, 2.0, 1.7e9 + 0.01, (55,), stats={"rate_hz": 9.9, "rx_total": 12}),
+        AgentState(55, 1.01, 1.99, 1.7e9 + 0.1, (3,)),
+    ]
+    sent = [state.encode() for state in states]
+    with RunRecorder(tmp_path, run_metadata={}) as recorder:
+        recorder.agent_states(3.0, sent[:2])
+        recorder.agent_states(2.0, [])  # nothing to record: no message
+        recorder.agent_states(3.25, [sent[2], b"\x81\xa1v\x01"])  # a map with no fields
+    assert recorder.counts["states"] == 4
+    with (tmp_path / "run.mcap").open("rb") as stream:
+        reader = make_reader(stream)
+        raw = [
+            (schema.name, channel.message_encoding, message.log_time, message.data)
+            for schema, channel, message in reader.iter_messages(topics=["/agents/states"])
+        ]
+    assert raw == [
+        ("covswarm.AgentState", "msgpack", t, data)
+        for t, data in zip(
+            [3 * 10**9] * 2 + [3_250_000_000] * 2, [*sent, b"\x81\xa1v\x01"], strict=True
+        )
+    ]
+    record = read_agent_states(tmp_path / "run.mcap")
+    assert record.t == [3.0, 3.0, 3.25] and record.states == states and record.rejected == 1
+    assert record.at(55, 2.9) is None
+    assert record.at(55, 3.2) == (3.0, states[0])
+    assert [entry[0] for entry in record.at(55, 3.2)[1].relay] == [3, 7]  # whom it relayed
+    assert record.at(55, 10.0) == (3.25, states[2])
+    assert [state for _, state in record.of(3)] == [states[1]]
+
+
 def test_live_server_sends_robot_poses_over_foxglove_sdk_v1() -> None:
     """A WebSocket client speaking foxglove.sdk.v1 subscribes to /robots and decodes a pose."""
     import websockets
@@ -399,14 +439,20 @@ def test_run_refuses_a_live_view_it_cannot_serve(tmp_path: Path) -> None:
     result = CliRunner().invoke(run_command, ["--foxglove", "--no-coordinator", "--swarm", "s"])
     assert result.exit_code == 2 and "coordinator serves the live view" in result.output
 
-    def recording_args(seed: int, foxglove: int | None, record: bool) -> list[str]:
-        run = RunConfig(seed=seed, foxglove=foxglove, record=record, swarm="s", out=Path("o"))
+    def recording_args(seed: int, foxglove: int | None, record: bool, states: bool) -> list[str]:
+        run = RunConfig(
+            seed=seed, foxglove=foxglove, record=record, record_states=states, swarm="s",
+            out=Path("o"),
+        )  # fmt: skip
         argv = config_argv(coordinator_config(run, load_scenario("passage"), "e"))
         return [a for k, a in enumerate(argv) if a in RECORDING or argv[k - 1] in RECORDING]
 
     RECORDING = {"--seed", "--foxglove", "--record", "--no-record"}
-    assert recording_args(3, None, True) == ["--record", "--seed", "3"]
-    assert recording_args(3, 0, False) == ["--no-record", "--foxglove", "0", "--seed", "3"]
+    RECORDING |= {"--record-states", "--no-record-states"}
+    assert recording_args(3, None, True, True) == ["--record", "--record-states", "--seed", "3"]
+    assert recording_args(3, 0, False, False) == [
+        "--no-record", "--no-record-states", "--foxglove", "0", "--seed", "3",
+    ]  # fmt: skip
 
 
 def test_a_port_in_time_wait_is_free_and_a_listening_one_is_not() -> None:

@@ -29,6 +29,7 @@ pytestmark = pytest.mark.e2e
 
 AGENTS, DURATION = 3, 5.0
 POSE_RATE, TICK_RATE, SAMPLE_RATE = 20.0, 20.0, 10.0  # robots' poses, coordinator, e_a (Hz)
+STATE_RATE = 10.0  # Hz: an agent's AgentStates, at most (one a control step)
 
 
 async def first_robots_message(port: int, timeout: float) -> tuple[dict, bytes]:
@@ -98,18 +99,21 @@ def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
         summary = reader.get_summary()
         records = {m.name: m.metadata for m in reader.iter_metadata()}
         metadata, recording = records["run"], records["recording"]
-        robots, steering, file_order = [], [], []
+        robots, steering, states, file_order = [], [], [], []
         for _, ch, message, decoded in reader.iter_decoded_messages(log_time_order=False):
             file_order.append(message.log_time)
             if ch.topic == "/robots":
                 robots.append((message.log_time, decoded))
             elif ch.topic == "/steering":
                 steering.append(decoded)
+            elif ch.topic == "/agents/states":
+                states.append((message.log_time, decoded))
     topics = {c.topic: summary.schemas[c.schema_id].name for c in summary.channels.values()}
     for topic in ("/robots", "/domain", "/cells", "/arena"):
         assert topics[topic] == "foxglove.SceneUpdate"
     assert topics["/error"] == "covswarm.ErrorSample"
     assert topics["/agents/stats"] == "covswarm.AgentStats"
+    assert topics["/agents/states"] == "covswarm.AgentState"
     counts = {
         summary.channels[c].topic: n for c, n in summary.statistics.channel_message_counts.items()
     }
@@ -128,6 +132,13 @@ def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
     assert 0.7 * DURATION * SAMPLE_RATE <= counts["/error"] <= DURATION * SAMPLE_RATE + 2
     assert DURATION - 1 <= counts["/cells"] <= DURATION + 1
     assert counts["/agents/stats"] >= DURATION - 2
+    # Every AgentState of the team, decoded as covswarm.protocol's, from the start: the
+    # first record holds each agent's newest state from before it.
+    assert counts["/agents/states"] == json.loads(recording["states"]) == len(states)
+    assert len(states) >= 0.3 * DURATION * STATE_RATE * AGENTS
+    assert states[0][0] == states[AGENTS - 1][0] < 0.2e9
+    assert sorted(state.id for _, state in states[:AGENTS]) == list(range(AGENTS))
+    assert json.loads(recording["thinned_states"]) <= 0.1 * len(states)
     # Every pose the robots published (POSE_RATE each) during the mission, once.
     poses = sum(len(update.entities) for _, update in robots)
     assert 0.7 * poses_expected <= poses <= (DURATION + 0.2) * POSE_RATE * AGENTS
