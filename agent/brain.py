@@ -679,6 +679,20 @@ class AgentBrain:
                     states.append((message, facts, now - lag))
                     accepted += 1
                 continue
+            if kind == "beacon":
+                # Dated back to its stamp as a state is (on our clock, by its sender's bound
+                # when we have one): the beacon sent in the turn of a state is then as old as
+                # that state, not newer news, and one that waited in an overloaded process
+                # for our turn is as old as it is (BEACON_TRUST).
+                clock = peer_clocks.get(message.id)
+                lag = now_wall - (stamp if clock is None else clock.to_local(stamp))
+                if lag > MAX_PREDICTION:
+                    lag = MAX_PREDICTION
+                elif lag < 0.0:
+                    lag = 0.0
+                if self.on_beacon(message, now - lag):
+                    accepted += 1
+                continue
             if kind == "pose" and message.id == me:
                 self.robot_clock.add(now, now_wall, stamp)
             if _HANDLERS[kind](self, message, now):
@@ -1280,10 +1294,15 @@ class AgentBrain:
             gone = {r for r in gone if r not in reckoned or r in followed}
         if gone:
             self.counters.obstacles_kept += len(gone)
+            # Where its robot stops: on its last command until its command timeout (ours, as
+            # pace assumes of every neighbour's robot), which our last step's reckoning can
+            # fall short of (DEAD_RECKONING_LIMIT, a gap shorter than the timeout).
             last_ids, last_near = self._near_last
+            timeout = config.cmd_timeout
             for rid, (last_x, last_y, _, _) in zip(last_ids, last_near.tolist(), strict=True):
                 if rid in gone:
-                    self.obstacles[rid] = (last_x, last_y, now)
+                    stop = neighborhood.stop_point(rid, timeout) or (last_x, last_y)
+                    self.obstacles[rid] = (*stop, now)
         ids = neighborhood.table_ids[inside].tolist()
         self._near_first_hand = first_hand.intersection(ids)
         self._near_last = (ids, near)

@@ -652,6 +652,17 @@ class Neighborhood:
         ]
         return np.delete(rows, stale) if stale else rows
 
+    def stop_point(self, rid: int, after: float) -> tuple[float, float] | None:
+        """Where robot ``rid`` stands (x, y) m if it drove on the velocity of its freshest
+        first-hand record (its AgentState's, or a pose's, at rest) for ``after`` s from it and
+        then stopped: a robot whose brain stalled, ``after`` its command timeout. None
+        without a record."""
+        pose, state = self.poses.get(rid), self.states.get(rid)
+        record = pose if state is None or (pose is not None and pose[2] >= state[2]) else state
+        if record is None:
+            return None
+        return record[0] + after * record[3], record[1] + after * record[4]
+
     def within(self, x: float, y: float, radius: float) -> np.ndarray:
         """Indices into ``table`` of the candidates within ``radius`` m of (x, y) m."""
         distance = self._distances.get((x, y))

@@ -38,6 +38,7 @@ from __future__ import annotations
 import heapq
 import math
 from collections import defaultdict
+from collections.abc import Collection
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -74,6 +75,31 @@ Topic = tuple[str, object]
 Slot = tuple[str, int | None, Topic]
 
 
+@dataclass(frozen=True)
+class Stall:
+    """Brains ``ids`` take no turn from ``start`` s of the simulated clock for ``length`` s:
+    an agent process that stops stepping for a while (a packed process's brains on a host
+    busy elsewhere), their robots running on their last commands until their command
+    timeout."""
+
+    ids: frozenset[int]
+    start: float
+    length: float
+
+    def __init__(self, ids: Collection[int], start: float, length: float) -> None:
+        object.__setattr__(self, "ids", frozenset(ids))
+        object.__setattr__(self, "start", float(start))
+        object.__setattr__(self, "length", float(length))
+        if not (self.start >= 0.0 and self.length > 0.0):
+            raise ValueError(f"a stall needs start >= 0 and length > 0, not {self!r}")
+
+    def resume(self, index: int, t: float) -> float:
+        """When brain ``index``, due at ``t``, takes its turn."""
+        if index in self.ids and self.start <= t < self.start + self.length:
+            return self.start + self.length
+        return t
+
+
 @dataclass
 class NetsimResult:
     """t (T,), e_a (T,), trajectories (T, n, 2), wheels (T, n, 2) (the commands held at each
@@ -106,6 +132,9 @@ def run_netsim(
     announce_start: bool = True,
     poses: np.ndarray | None = None,
     settle: bool = True,
+    pace: float = 1.0,
+    turn_gaps: tuple[float, float] | None = None,
+    stall: Stall | None = None,
 ) -> NetsimResult:
     """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
 
@@ -126,12 +155,24 @@ def run_netsim(
     ``transit`` (a slow actuator or command link, which the agents do not see).
     poses: the robots' start poses, (n, 3) x, y (m), heading (rad); None: the scenario's,
     as ``covswarm run`` places them (covswarm.deploy.plan.initial_poses).
+
+    An overloaded host, as a live run on one (docs/scaling.md, "the overloaded start"):
+    pace: S runs at this fraction of its script's speed, as the coordinator slows it for a
+    team that holds a fraction of its rate (covswarm.coordinator.pace); turn_gaps: (lo, hi)
+    s, each brain's next turn comes a gap drawn uniformly in [lo, hi] after its last (its
+    first within hi of the start), and each brain is told the gap since its previous turn
+    (AgentBrain.pace), as a packed process that cannot hold ``rate`` steps its brains in
+    turn; None: every 1 / ``rate`` s; stall: brains that take no turn for a while.
     """
     from covswarm.deploy.plan import initial_poses
     from covswarm.sim_robot.process import RobotSim
     from covswarm.tvd.coverage import aggregate_error
 
     n = scenario.agents if agents is None else agents
+    if not pace > 0.0:
+        raise ValueError(f"pace must be positive, got {pace!r}")
+    if turn_gaps is not None and not 0.0 < turn_gaps[0] <= turn_gaps[1]:
+        raise ValueError(f"turn_gaps must be 0 < lo <= hi, got {turn_gaps!r}")
     duration = scenario.duration if duration is None else duration
     config = config or AgentConfig()
     if poses is None:
@@ -201,10 +242,14 @@ def run_netsim(
         follows[index][kind] = wanted
 
     rng = np.random.default_rng([seed, 7])
-    agent_phase = rng.uniform(0.0, 1.0 / rate, n)
+    first_turn = 1.0 / rate if turn_gaps is None else turn_gaps[1]
+    agent_phase = rng.uniform(0.0, first_turn, n)
+    gap_rng = np.random.default_rng([seed, 11])
+    last_turn: dict[int, float] = {}
     events: list[tuple[float, int, str, int]] = []  # (time, order, what, index)
     for i in range(n):
-        heapq.heappush(events, (float(agent_phase[i]), i, "agent", i))
+        due = float(agent_phase[i])
+        heapq.heappush(events, (stall.resume(i, due) if stall else due, i, "agent", i))
     heapq.heappush(events, (0.0, -2, "robots", 0))
     heapq.heappush(events, (0.0, -1, "domain", 0))
     # When the mission starts (None: waiting), as the coordinator decides it: the agents'
@@ -261,8 +306,8 @@ def run_netsim(
                 send(now + transit, ("pose", robot.id), "pose", robot.id, pose.encode())
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
-            vertices, velocities = scenario.domain(mission_t)
-            velocities, start = broadcast_motion(state, velocities)
+            vertices, velocities = scenario.domain(pace * mission_t)
+            velocities, start = broadcast_motion(state, velocities, pace)
             if not announce_start:
                 start = None
             payload = protocol.Domain(
@@ -284,7 +329,11 @@ def run_netsim(
             brain = brains[index]
             # What a packed process tells each brain (covswarm.agent.pack): the time since
             # its previous turn, by which it judges its neighbours' states.
-            brain.pace(1.0 / rate)
+            if turn_gaps is None:
+                brain.pace(1.0 / rate)
+            else:
+                brain.pace(now - last_turn.get(index, now - first_turn))
+                last_turn[index] = now
             items = [(kind, key_id, payload) for (kind, key_id, _), payload in inbox[index].items()]
             inbox[index].clear()
             if impair[index] is not None:
@@ -317,7 +366,11 @@ def run_netsim(
                 elif isinstance(action, DeclareAlive):
                     send(now + transit, ("alive", None), "alive", index, b"")
                     tokens.setdefault(index, now + transit)
-            heapq.heappush(events, (now + 1.0 / rate, rank, what, index))
+            if turn_gaps is None:
+                due = now + 1.0 / rate
+            else:
+                due = now + float(gap_rng.uniform(*turn_gaps))
+            heapq.heappush(events, (stall.resume(index, due) if stall else due, rank, what, index))
     stats = defaultdict(dict, {b.id: b.stats() for b in brains})
     return NetsimResult(
         np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log),

@@ -31,7 +31,8 @@ def reference_receive(
 ) -> bool:
     """One payload as the brain must take it: decoded and validated, its stamp checked
     (covswarm.protocol.inbound), its key's id matched, its sender's clock bounded (a state
-    dead-reckoned from its stamp on our clock), then handed to the handler of its kind."""
+    dead-reckoned from its stamp on our clock, a beacon dated by it), then handed to the
+    handler of its kind."""
     brain.counters.received += 1
     max_age = brain.config.beacon_timeout if kind == "beacon" else brain.config.stale_timeout
     try:
@@ -49,6 +50,10 @@ def reference_receive(
         clock = brain.peer_clocks.setdefault(message.id, ClockBound())
         clock.add(now, wall, message.stamp)
         now -= min(max(wall - clock.to_local(message.stamp), 0.0), MAX_PREDICTION)
+    elif kind == "beacon":  # dated back likewise, by its sender's bound when there is one
+        clock = brain.peer_clocks.get(message.id)
+        local = message.stamp if clock is None else clock.to_local(message.stamp)
+        now -= min(max(wall - local, 0.0), MAX_PREDICTION)
     handler = {
         "pose": brain.on_pose,
         "state": brain.on_agent_state,

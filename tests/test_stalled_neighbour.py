@@ -80,3 +80,29 @@ def test_a_stalled_neighbour_stays_a_row_while_only_others_name_it(named_by: str
         assert 1 not in brain.neighborhood.first_hand
         assert speed < 0.04  # (without the obstacle: 0.087 m/s, the unseen speed limit)
     assert brain.stats()["obstacles_kept"] == 1  # counted once, when it stopped being first-hand
+
+
+def test_a_stalled_neighbour_is_held_where_its_robot_stops() -> None:
+    """A robot driving at us when its brain stalls drives on until its command timeout
+    (1 s here): held there, not where our last step reckoned it (at most
+    DEAD_RECKONING_LIMIT, 0.5 s, on)."""
+    timeout, gap, speed = 1.0, 0.3, -0.05
+    brain = Brain(0, AgentConfig(cmd_timeout=timeout))
+    start = AHEAD + 0.05
+    state = protocol.AgentState(id=1, x=start, y=1.0, stamp=WALL, neighbors=(0,), vx=speed, vy=0.0)
+    brain.receive("state", state.encode(), 0.05, WALL + 0.05, key_id=1)
+    now = 0.1
+    while 1 in brain.neighborhood.first_hand or now < 0.2:
+        wall = WALL + now
+        domain = domain_message(STRIP, seq=int(now * 10), stamp=wall, velocity=(0.1, 0.0))
+        brain.receive("domain", domain.encode(), now, wall)
+        pose = protocol.Pose(id=0, x=X, y=1.0, theta=0.0, stamp=wall, seq=int(now * 10))
+        brain.receive("pose", pose.encode(), now, wall, key_id=0)
+        brain.pace(gap)
+        brain.tick(now, wall)
+        now += gap
+        assert now < 3.0
+    assert brain.stats()["obstacles_kept"] == 1
+    x, y, _ = brain.obstacles[1]
+    assert x == pytest.approx(start + timeout * speed, abs=1e-9)
+    assert y == pytest.approx(1.0, abs=1e-9)
