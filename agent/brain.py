@@ -95,8 +95,7 @@ DROP_REASONS = (
 MAX_STEP_FRACTION = 0.8
 # s: the longest control period a step is computed for (its gain, barrier and the time its
 # command must cover): a brain stepped less often (a stalled process) steps as if this were
-# its period. The longest for which its neighbours' states stay usable (STALE_STRETCH x the
-# default stale timeout, AgentBrain.pace).
+# its period (at the 1 s command timeout of an overloaded run, MAX_DUTY times its hold).
 MAX_PERIOD = 4.0
 # The largest factor a step's velocity is scaled by for a command that stops early (period
 # over hold, AgentBrain._finish): a robot driven for under a quarter of each period is
@@ -167,9 +166,16 @@ MAX_PREDICTION = 1.0
 POSE_HORIZON = HISTORY_SPAN
 # How long a neighbour's AgentState stays usable when this brain's turns come late
 # (AgentBrain.pace): for STALE_TURNS times the time between two of our turns, at least
-# stale_timeout and at most STALE_STRETCH times it.
+# stale_timeout and at most STALE_STRETCH times it. A state that old still says where its
+# robot is: a robot stops at its command timeout after its brain's last step, and a dead
+# brain's token goes at once. At 4 a host that stepped each brain every ~5 s (1000 robots
+# on two slow cores, 0.2 Hz held, 30 Nov 2026 18:08 UTC) refused its neighbours' states as
+# too old on arrival (4.5 s with the clock skew): every cell swelled over its neighbours'
+# and e_a rose to 13 m. covswarm.deploy.netsim, circle-400, brains every 4-6 s, S at 0.02 of
+# its speed, 60 s: e_a at the end 0.138 m at 4 (2460 states refused), 0.083 m at 10 (none);
+# gaps up to 2 s (STALE_TURNS gaps within 4 timeouts) are judged as before.
 STALE_TURNS = 2.0
-STALE_STRETCH = 4.0
+STALE_STRETCH = 10.0
 # s: a domain with a sequence number not above the one held is dropped as a late duplicate,
 # unless the held one's coordinator has been silent this long (10 broadcast periods): then
 # it is a restarted coordinator, whose numbers start again.

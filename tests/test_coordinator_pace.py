@@ -101,7 +101,7 @@ def test_the_held_fraction_of_an_agent_and_of_the_team() -> None:
     assert held_fraction({}, 12.0, None, 10.0) == 0.0
     assert team_target([]) == 1.0
     assert team_target([0.82] * 9 + [1.0]) == 1.0  # FULL and above: the rate is held
-    assert team_target([0.01, 0.02]) == PACE_FLOOR
+    assert team_target([0.001, 0.002]) == PACE_FLOOR
     # The slowest tenth: one stalled member of twenty does not set the pace alone.
     assert team_target([0.0] + [0.5] * 19) == pytest.approx(0.5)
     assert team_target([0.3] * 10) == pytest.approx(0.3)

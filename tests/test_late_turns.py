@@ -65,7 +65,8 @@ def test_the_stretch_is_bounded_and_undone_when_turns_come_on_time_again() -> No
     stale = brain.config.stale_timeout
     brain.pace(1000.0)  # a process frozen for minutes: at most STALE_STRETCH timeouts
     assert brain.neighborhood.stale_timeout == pytest.approx(STALE_STRETCH * stale)
-    assert not brain.receive("state", neighbour_state(WALL - 5.0), 0.0, WALL, key_id=1)
+    beyond = STALE_STRETCH * stale + brain.config.max_clock_skew + 0.5
+    assert not brain.receive("state", neighbour_state(WALL - beyond), 0.0, WALL, key_id=1)
     brain.pace(0.1)
     assert brain.neighborhood.stale_timeout == stale
     assert not brain.receive("state", neighbour_state(WALL - 2.0), 0.0, WALL, key_id=1)
