@@ -19,8 +19,10 @@ from covswarm.coordinator.core import (
 )
 from covswarm.coordinator.monitor import MAX_POSE_AGE
 from covswarm.coordinator.pace import (
+    BAND_PACE,
     DROP_BAND,
     PACE_FLOOR,
+    RISE_BAND,
     RISE_RATE,
     Pace,
     ScriptClock,
@@ -116,6 +118,17 @@ def test_the_pace_falls_at_once_rises_slowly_and_ignores_jitter() -> None:
     for _ in range(round(10 / 0.05)):  # 10 s of a team back at full rate
         pace = next_pace(pace, 1.0, 0.05)
     assert pace == 1.0
+
+
+def test_at_a_low_pace_the_band_shrinks_with_it() -> None:
+    # At the floor a team holding 2.4 % of its rate is followed (the band there is 0.0025,
+    # not 0.05), and one holding 2 % more than the pace of 0.4 is not.
+    assert next_pace(PACE_FLOOR, 0.024, 0.05) == pytest.approx(PACE_FLOOR + RISE_RATE * 0.05)
+    assert next_pace(0.02, 0.026, 1.0) == 0.026
+    assert next_pace(0.02, 0.0195, 0.05) == 0.02  # within the band, either way
+    assert next_pace(0.02, 0.016, 0.05) == 0.016
+    assert next_pace(0.4, 0.42, 0.05) == 0.4
+    assert next_pace(BAND_PACE, BAND_PACE + RISE_BAND * 0.9, 0.05) == BAND_PACE
 
 
 def test_script_time_and_mission_time_are_inverse_along_a_varying_pace() -> None:
