@@ -5,8 +5,9 @@ Usage: .venv/bin/python scripts/recording_cost.py [--agents 100] [--duration 30]
 
 Each run starts the team with ``covswarm run --no-coordinator`` (robots and agents, 50 per
 process, an embedded router) and the coordinator separately, so the coordinator's CPU time
-is read exactly from its own rusage (os.wait4). Runs alternate: with recording, without
-(``--no-record``), with, ... Prints a Markdown table (README) and writes
+is read exactly from its own rusage (os.wait4). Runs alternate: with recording, with
+recording but not the AgentStates (``--no-record-states``), without (``--no-record``),
+with, ... Prints a Markdown table (docs/records.md) and writes
 OUT/recording_cost.json: per run the coordinator's CPU seconds, its mission time, the wall
 CPU time it logged for recording, and the size of run.mcap per robot-minute.
 """
@@ -17,6 +18,7 @@ import json
 import os
 import re
 import secrets
+import socket
 import subprocess
 import time
 from pathlib import Path
@@ -26,13 +28,33 @@ import click
 from covswarm.deploy.plan import covswarm_argv
 from covswarm.deploy.router import free_port
 
+LISTEN_TIMEOUT = 60.0  # s: the launcher times the host before it starts its router
+
+
+def wait_listening(port: int, timeout: float = LISTEN_TIMEOUT) -> None:
+    """Until 127.0.0.1:``port`` accepts a connection (the team's router is up)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            with socket.create_connection(("127.0.0.1", port), timeout=1.0):
+                return
+        except OSError:
+            if time.monotonic() > deadline:
+                raise click.ClickException(f"no router on port {port} after {timeout} s") from None
+            time.sleep(0.2)
+
+
 RECORDING_LINE = re.compile(r"recording took ([0-9.]+) s of CPU over ([0-9.]+) s of mission")
 
 
-def run_once(out: Path, scenario: str, agents: int, duration: float, record: bool) -> dict:
-    """One mission; the coordinator's CPU seconds (user + system) and what it recorded."""
+def run_once(
+    out: Path, scenario: str, agents: int, duration: float, record: bool, states: bool = True
+) -> dict:
+    """One mission; the coordinator's CPU seconds (user + system) and what it recorded
+    (``states``: the agents' AgentStates too, /agents/states)."""
     swarm = f"cost-{secrets.token_hex(4)}"
-    endpoint = f"tcp/127.0.0.1:{free_port()}"
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
     out.mkdir(parents=True, exist_ok=True)
     team_log = (out / "team.log").open("wb")
     team = subprocess.Popen(
@@ -41,24 +63,29 @@ def run_once(out: Path, scenario: str, agents: int, duration: float, record: boo
          "--out", str(out / "team")],
         stdout=team_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
     )  # fmt: skip
-    time.sleep(2.0)  # the embedded router listens before the coordinator connects
+    wait_listening(port)
     coordinator_log = (out / "coordinator.log").open("wb")
     coordinator = subprocess.Popen(
         [*covswarm_argv(), "coordinator", "--connect", endpoint, "--swarm", swarm,
          "--scenario", scenario, "--agents", str(agents), "--duration", repr(duration),
-         "--out", str(out), *(() if record else ("--no-record",))],
+         "--out", str(out), *(() if record else ("--no-record",)),
+         *(() if states else ("--no-record-states",))],
         stdout=coordinator_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
     )  # fmt: skip
     _, status, usage = os.wait4(coordinator.pid, 0)
     coordinator.returncode = os.waitstatus_to_exitcode(status)
-    team.wait(timeout=120)
-    team_log.close()
     coordinator_log.close()
     if coordinator.returncode != 0:
+        team.terminate()  # the team would wait for a mission that never comes
+        team.wait(timeout=30)
+        team_log.close()
         raise click.ClickException(f"coordinator failed: see {out / 'coordinator.log'}")
+    team.wait(timeout=120)
+    team_log.close()
     summary = json.loads((out / "summary.json").read_text(encoding="utf-8"))
     result = {
         "record": record,
+        "states": record and states,
         "cpu_s": usage.ru_utime + usage.ru_stime,
         "mission_s": summary["mission_time"],
         "steady_state_error_mean": summary["steady_state_error_mean"],
@@ -79,12 +106,24 @@ def run_once(out: Path, scenario: str, agents: int, duration: float, record: boo
 @click.option("--repeats", type=int, default=2, show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), default=Path("runs/recording-cost"))
 def main(scenario: str, agents: int, duration: float, repeats: int, out: Path) -> None:
+    # (record, record the AgentStates) per variant, interleaved in each repeat
+    variants = {
+        "record": (True, True),
+        "record-no-states": (True, False),
+        "no-record": (False, False),
+    }
+    labels = {
+        "record": "with recording",
+        "record-no-states": "with recording, no AgentStates",
+        "no-record": "without recording",
+    }
     runs = []
     for k in range(repeats):
-        for record in (True, False):
-            name = f"{k}-{'record' if record else 'no-record'}"
+        for variant, (record, states) in variants.items():
+            name = f"{k}-{variant}"
             click.echo(f"run {name}: {agents} robots, {duration:g} s ...", err=True)
-            runs.append(run_once(out / name, scenario, agents, duration, record))
+            run = run_once(out / name, scenario, agents, duration, record, states)
+            runs.append({"variant": variant, **run})
     (out / "recording_cost.json").write_text(json.dumps(runs, indent=2) + "\n", encoding="utf-8")
     click.echo(
         "| run | coordinator CPU, start to exit (s) | recording CPU, logged (s) "
@@ -95,14 +134,17 @@ def main(scenario: str, agents: int, duration: float, repeats: int, out: Path) -
         logged = r.get("recording_cpu_s")
         size = r.get("mcap_kb_per_robot_minute")
         click.echo(
-            f"| {'with' if r['record'] else 'without'} recording | {r['cpu_s']:.2f} | "
+            f"| {labels[r['variant']]} | {r['cpu_s']:.2f} | "
             f"{'-' if logged is None else f'{logged:.2f}'} | "
             f"{'-' if size is None else f'{size:.0f}'} |"
         )
-    with_cpu = [r["cpu_s"] for r in runs if r["record"]]
-    without = [r["cpu_s"] for r in runs if not r["record"]]
-    extra = (sum(with_cpu) / len(with_cpu) - sum(without) / len(without)) / duration
-    click.echo(f"\nrecording: {100 * extra:+.2f} % of a core (mean with - mean without)")
+    mean = {
+        variant: sum(r["cpu_s"] for r in runs if r["variant"] == variant) / repeats
+        for variant in variants
+    }
+    for variant in ("record", "record-no-states"):
+        extra = (mean[variant] - mean["no-record"]) / duration
+        click.echo(f"{labels[variant]}: {100 * extra:+.2f} % of a core (mean - mean without)")
 
 
 if __name__ == "__main__":
