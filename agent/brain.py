@@ -668,35 +668,29 @@ class AgentBrain:
             if key_id is not None and message.id != key_id:
                 self.drops.drop("wrong_id", f"{kind} from id {message.id} on the key of {key_id}")
                 continue
-            if kind == "state":
+            if kind == "state" or kind == "beacon":
+                # Dated from when it was stamped, not from when it arrived: on our clock,
+                # within the bound on its sender's offset (a state counts towards the bound;
+                # a beacon only reads it). Dead reckoning counts from there, and the beacon
+                # sent in the turn of a state is as old as that state, not newer news, one
+                # that waited in an overloaded process for our turn as old as it is.
                 rid = message.id
                 clock = peer_clocks.get(rid)
-                if clock is None:
-                    clock = peer_clocks[rid] = ClockBound()
-                # Dead reckoning counts from when the state was stamped, not from when it
-                # arrived: on our clock, within the bound on its sender's offset.
-                local = clock.add(now, now_wall, stamp)
-                if rid != me:  # else our own state (on_agent_state)
-                    lag = now_wall - local  # clamped to [0, MAX_PREDICTION] (NaN stays)
-                    if lag > MAX_PREDICTION:
-                        lag = MAX_PREDICTION
-                    elif lag < 0.0:
-                        lag = 0.0
-                    states.append((message, facts, now - lag))
-                    accepted += 1
-                continue
-            if kind == "beacon":
-                # Dated back to its stamp as a state is (on our clock, by its sender's bound
-                # when we have one): the beacon sent in the turn of a state is then as old as
-                # that state, not newer news, and one that waited in an overloaded process
-                # for our turn is as old as it is (BEACON_TRUST).
-                clock = peer_clocks.get(message.id)
-                lag = now_wall - (stamp if clock is None else clock.to_local(stamp))
+                if kind == "state":
+                    if clock is None:
+                        clock = peer_clocks[rid] = ClockBound()
+                    local = clock.add(now, now_wall, stamp)
+                else:
+                    local = stamp if clock is None else clock.to_local(stamp)
+                lag = now_wall - local  # clamped to [0, MAX_PREDICTION] (NaN stays)
                 if lag > MAX_PREDICTION:
                     lag = MAX_PREDICTION
                 elif lag < 0.0:
                     lag = 0.0
-                if self.on_beacon(message, now - lag):
+                if kind == "beacon":
+                    accepted += self.on_beacon(message, now - lag)
+                elif rid != me:  # else our own state (on_agent_state)
+                    states.append((message, facts, now - lag))
                     accepted += 1
                 continue
             if kind == "pose" and message.id == me:

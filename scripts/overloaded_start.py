@@ -27,32 +27,19 @@ import json
 from pathlib import Path
 
 import click
-import numpy as np
-from scipy.spatial import cKDTree
 
 from covswarm.agent.brain import AgentConfig
 from covswarm.deploy.netsim import NetsimResult, Stall, run_netsim
+from covswarm.mission.physical import proximity
 from covswarm.mission.scenario_files import load_scenario
 
 FIRST_SECONDS = 5.0  # s of mission time over which the start's e_a is averaged
 COUNTERS = ("arc_turned", "obstacles_kept", "speed_limited", "beacon_doubted", "safety_relaxed")
 
 
-def approaches(trajectories: np.ndarray, diameter: float) -> tuple[float, int]:
-    """The closest distance between two robot centres over ``trajectories`` (T, n, 2) m,
-    and how many pairs came closer than ``diameter`` m at some sample."""
-    closest = np.inf
-    pairs: set[tuple[int, int]] = set()
-    for positions in trajectories:
-        tree = cKDTree(positions)
-        distance, _ = tree.query(positions, k=2)
-        closest = min(closest, float(distance[:, 1].min()))
-        pairs |= tree.query_pairs(diameter)
-    return closest, len(pairs)
-
-
 def summary(result: NetsimResult, diameter: float) -> dict[str, float]:
-    closest, pairs = approaches(result.trajectories, diameter)
+    closest, _, episodes = proximity(result.t, result.trajectories, diameter)
+    pairs = len({episode.pair for episode in episodes})
     first = result.error[result.t <= FIRST_SECONDS]
     row = {
         "closest_m": closest,

@@ -5,21 +5,14 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.spatial.distance import pdist
 
 from covswarm.agent.brain import AgentConfig
 from covswarm.coordinator.pace import team_target
 from covswarm.deploy.netsim import Stall, run_netsim
+from covswarm.mission.physical import proximity
 from covswarm.mission.scenario_files import load_scenario
 
 AGENTS = 12
-
-
-def approaches(trajectories: np.ndarray) -> tuple[float, int]:
-    """The closest two robot centres came over ``trajectories`` (T, n, 2) m, and at which
-    sample."""
-    gaps = [pdist(positions).min() for positions in trajectories]
-    return float(min(gaps)), int(np.argmin(gaps))
 
 
 def test_a_stall_moves_a_due_turn_to_its_end() -> None:
@@ -94,5 +87,6 @@ def test_a_team_stepped_every_five_seconds_follows_the_paced_s() -> None:
     assert refused == 0
     start, end = result.error[0], result.error[-1]
     assert end < 0.55 * start, (start, end)
-    closest, _ = approaches(result.trajectories)
-    assert closest >= AgentConfig().robot.body_diameter - 1e-3
+    diameter = AgentConfig().robot.body_diameter
+    closest, _, _ = proximity(result.t, result.trajectories, diameter)
+    assert closest is not None and closest >= diameter - 1e-3
