@@ -439,13 +439,15 @@ class CoordinatorCore:
         # Every (key, pose payload) received while the mission runs, until the recorder
         # takes them (bounded: a few seconds of the team's poses).
         self._pose_backlog: deque[tuple[str, bytes]] = deque(maxlen=64 * max(n, 16))
-        # Likewise every (id, AgentState payload) of an admitted agent (half the poses' rate),
-        # while waiting only each agent's newest: what it believed when the mission started.
+        # Likewise every (id, AgentState payload) of an admitted agent (half the poses' rate);
+        # while waiting only each agent's newest, by id (what it believed when the mission
+        # started), for the first record.
         self._state_backlog: deque[tuple[int, bytes]] | None = (
             deque(maxlen=64 * max(n, 16))
             if recorder is not None and settings.record_states
             else None
         )
+        self._waiting_states: dict[int, bytes] = {}
         self._last_pose_time: dict[int, float] = {}  # mission time of each robot's last record
         self._last_record_t = 0.0
         self._next_stats_record = 0.0
@@ -579,12 +581,14 @@ class CoordinatorCore:
         if not self.roster.admit_state(rid):
             return
         backlog = self._state_backlog
-        if backlog is not None and self.phase.state != DONE:  # no record comes after done
+        if self.phase.state == WAITING:
+            if backlog is not None:
+                self._waiting_states[rid] = payload
+            self.exchange.add(rid, stamp)
+        elif backlog is not None and self.phase.state != DONE:  # no record comes after done
             if len(backlog) == backlog.maxlen:
                 self.recording["state_backlog_overflow"] += 1
             backlog.append((rid, payload))
-        if self.phase.state == WAITING:
-            self.exchange.add(rid, stamp)
         if self.roster.vouch(rid, neighbors):
             self._enter_newcomers(self._now, self._wall)
         if stats is not None:  # a map of its own (no message holds it)
@@ -721,10 +725,6 @@ class CoordinatorCore:
                 self._skipped += 1
         if state == WAITING:  # the first record holds the poses of one tick only
             self._pose_backlog.clear()
-            if self._state_backlog:
-                newest = dict(self._state_backlog)
-                self._state_backlog.clear()
-                self._state_backlog.extend(newest.items())
         finished = self._done_since is not None and now - self._done_since >= DONE_HOLD
         if finished:  # the recorder closes after the last tick
             self._collect_cells(wait=True)
@@ -952,13 +952,17 @@ class CoordinatorCore:
         recorder.domain(t, polygon)
         self.observed.domain_t.append(t)
         self.observed.domain_polygons.append(np.asarray(polygon, dtype=float))
-        if states := self._state_backlog:
+        states = self._state_backlog
+        if states or self._waiting_states:
+            assert states is not None  # nothing waits when states are not recorded
+            waited = list(self._waiting_states.items())  # the first record's, taken once
+            self._waiting_states.clear()
             if thin:
-                newest = dict(states)
-                counts["thinned_states"] += len(states) - len(newest)
+                newest = dict(waited + list(states))
+                counts["thinned_states"] += len(states) + len(waited) - len(newest)
                 recorder.agent_states(t, list(newest.values()))
             else:
-                recorder.agent_states(t, [payload for _, payload in states])
+                recorder.agent_states(t, [payload for _, payload in waited + list(states)])
             states.clear()
         cost = self._cpu_clock() - began
         if self._pending_cells is None and recorder.cells_due(t):

@@ -472,6 +472,23 @@ def test_the_core_records_each_admitted_state_and_the_newest_of_each_from_the_wa
     assert core.recording["thinned_states"] == core.recording["state_backlog_overflow"] == 0
 
 
+def test_a_waiting_core_keeps_one_state_per_agent_however_many_arrive(tmp_path) -> None:
+    """While waiting, states are kept by id as they arrive (not appended and thinned once a
+    tick): 3000 states of 2 agents between two ticks overflow nothing, and the first record
+    holds each agent's newest."""
+    core, recorder = recording_core(tmp_path)
+    join(core, [0, 1])
+    core.tick(0.0, WALL0)
+    for k in range(3000):
+        core.on_agent_state(AgentState(k % 2, 0.0, 0.0, WALL0 + k, (1 - k % 2,)).encode())
+    started = start(core)
+    core.tick(started + 0.05, WALL0 + started + 0.05)
+    recorder.close()
+    record = read_agent_states(tmp_path / "run.mcap")
+    assert core.recording["state_backlog_overflow"] == 0
+    assert sorted(state.stamp for state in record.states) == [WALL0 + 2998, WALL0 + 2999]
+
+
 def test_states_are_thinned_to_each_agents_newest_past_the_budget_and_counted(tmp_path) -> None:
     """A record costing 4 ticks' worth of RECORD_SHARE skips 3 ticks; the next record keeps
     only each agent's newest state received since the last one and counts the others, so
