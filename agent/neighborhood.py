@@ -76,6 +76,14 @@ Record = tuple[
 _ID: dict[int, int] = {}
 
 
+def freshest(pose: Record | None, state: Record | None) -> Record | None:
+    """The newer of a robot's own pose and AgentState records (the pose on a tie: it is
+    what the robot measured; a state is what its brain reckoned), None without either."""
+    if state is None or (pose is not None and pose[2] >= state[2]):
+        return pose
+    return state
+
+
 def state_facts(state: protocol.AgentState) -> StateFacts:
     """What every receiver takes from ``state`` besides its fields: the same for all, so a
     process of many brains derives it once per message (covswarm.agent.decoding)."""
@@ -483,11 +491,10 @@ class Neighborhood:
         limit = min(self.reckoning_limit, rest)
         dead = self.dead_now()
         records = self.states.items()
-        if self.poses:  # the freshest of a robot's pose and state, the pose on a tie
+        if self.poses:  # other robots' poses (rarely: a brain follows its own robot's)
             chosen = {rid: pose for rid, pose in self.poses.items() if pose[2] >= fresh}
             for rid, record in records:
-                received = record[2]
-                if received >= fresh and (rid not in chosen or received > chosen[rid][2]):
+                if record[2] >= fresh and freshest(chosen.get(rid), record) is record:
                     chosen[rid] = record
             records = chosen.items()
         reckoned: dict[int, Reckoned] = {}
@@ -657,8 +664,7 @@ class Neighborhood:
         first-hand record (its AgentState's, or a pose's, at rest) for ``after`` s from it and
         then stopped: a robot whose brain stalled, ``after`` its command timeout. None
         without a record."""
-        pose, state = self.poses.get(rid), self.states.get(rid)
-        record = pose if state is None or (pose is not None and pose[2] >= state[2]) else state
+        record = freshest(self.poses.get(rid), self.states.get(rid))
         if record is None:
             return None
         return record[0] + after * record[3], record[1] + after * record[4]
