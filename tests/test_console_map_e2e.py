@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from browser_pages import COLOUR, console, open_page
+from browser_pages import BLUE_OVER_GREEN, COLOUR, console, open_page
 from live_runs import running_swarm
 
 from covswarm.deploy.plan import covswarm_argv
@@ -74,6 +74,8 @@ def test_the_map_picture_and_another_clients_route_are_drawn(lab_run, browser) -
         assert np.allclose(np.array(route["waypoints"])[:, :2], stops, atol=2e-3)
         assert len(route["shape"]) >= 3  # S's outline drawn at each stop
         mid = (stops[0] + stops[1]) / 2
-        purple = page.evaluate(COLOUR, mid.tolist())
-        assert purple[2] - purple[1] > 25, purple  # the route's line (#8e44ad) crosses there
+        # The route's line (#8e44ad) crosses there: steelblue (S, 50) and the stops' dotted
+        # outlines (63) are less blue.
+        purple = page.evaluate(BLUE_OVER_GREEN, mid.tolist())
+        assert purple > 80, purple
         page.close()
