@@ -38,13 +38,14 @@ from __future__ import annotations
 import heapq
 import math
 from collections import defaultdict
-from collections.abc import Collection
+from collections.abc import Collection, Iterable
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from covswarm import protocol
 from covswarm.agent.brain import (
+    Action,
     AgentBrain,
     AgentConfig,
     DeclareAlive,
@@ -135,6 +136,7 @@ def run_netsim(
     pace: float = 1.0,
     turn_gaps: tuple[float, float] | None = None,
     stall: Stall | None = None,
+    hold_after: float | None = None,
 ) -> NetsimResult:
     """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
 
@@ -163,6 +165,12 @@ def run_netsim(
     first within hi of the start), and each brain is told the gap since its previous turn
     (AgentBrain.pace), as a packed process that cannot hold ``rate`` steps its brains in
     turn; None: every 1 / ``rate`` s; stall: brains that take no turn for a while.
+    hold_after: with ``turn_gaps``, a running brain whose next turn comes more than
+    max(``hold_after``, its AgentBrain.command_hold) s after its last stops its robot then
+    (AgentBrain.hold), as a packed process does for a brain whose turn is late
+    (covswarm.agent.pack.Pack._hold; ``covswarm agent`` holds after 3 periods), but not
+    while a ``stall`` has its process stopped; None: the robots drive each command until
+    the next or its timeout.
     """
     from covswarm.deploy.plan import initial_poses
     from covswarm.sim_robot.process import RobotSim
@@ -173,6 +181,8 @@ def run_netsim(
         raise ValueError(f"pace must be positive, got {pace!r}")
     if turn_gaps is not None and not 0.0 < turn_gaps[0] <= turn_gaps[1]:
         raise ValueError(f"turn_gaps must be 0 < lo <= hi, got {turn_gaps!r}")
+    if hold_after is not None and not hold_after > 0.0:
+        raise ValueError(f"hold_after must be positive, got {hold_after!r}")
     duration = scenario.duration if duration is None else duration
     config = config or AgentConfig()
     if poses is None:
@@ -241,11 +251,38 @@ def run_netsim(
             subscribers.setdefault((kind, item), set()).add(index)
         follows[index][kind] = wanted
 
+    def carry_out(index: int, actions: Iterable[Action], now: float) -> None:
+        """What agent ``index``'s brain asked at ``now``, on the simulated network."""
+        nonlocal order
+        for action in actions:
+            if isinstance(action, SendCommand):
+                command = action.command
+                wheels[index] = (command.left, command.right)
+                due = now + transit + command_delay
+                heapq.heappush(commands, (due, order, index, command.encode()))
+                order += 1
+            elif isinstance(action, PublishState):
+                if started is None:
+                    exchange.add(index, action.state.stamp)
+                payload = action.state.encode()
+                send(now + transit, ("state", index), "state", index, payload)
+            elif isinstance(action, PublishBeacon):
+                payload = action.beacon.encode()
+                send(now + transit, ("beacon", action.tile), "beacon", index, payload)
+            elif isinstance(action, FollowStates):
+                follow(index, "state", action.ids)
+            elif isinstance(action, FollowTiles):
+                follow(index, "beacon", action.tiles)
+            elif isinstance(action, DeclareAlive):
+                send(now + transit, ("alive", None), "alive", index, b"")
+                tokens.setdefault(index, now + transit)
+
     rng = np.random.default_rng([seed, 7])
     first_turn = 1.0 / rate if turn_gaps is None else turn_gaps[1]
     agent_phase = rng.uniform(0.0, first_turn, n)
     gap_rng = np.random.default_rng([seed, 11])
     last_turn: dict[int, float] = {}
+    held_since: dict[int, float] = {}  # brain -> the turn after which its robot is to stop
     events: list[tuple[float, int, str, int]] = []  # (time, order, what, index)
     for i in range(n):
         due = float(agent_phase[i])
@@ -325,6 +362,10 @@ def run_netsim(
                 wheel_log.append(wheels.copy())
                 next_sample += SAMPLE_PERIOD
             heapq.heappush(events, (now + 1.0 / DOMAIN_RATE, rank, what, index))
+        elif what == "hold":
+            # (a turn taken since the hold was planned cancels it: that turn planned its own)
+            if last_turn.get(index) == held_since.pop(index, None) and brains[index].running:
+                carry_out(index, brains[index].hold(now, wall), now)
         else:
             brain = brains[index]
             # What a packed process tells each brain (covswarm.agent.pack): the time since
@@ -344,33 +385,18 @@ def run_netsim(
             for other in appeared[index]:
                 brain.on_liveliness("agent", other, True)
             appeared[index].clear()
-            for action in brain.tick(now, wall):
-                if isinstance(action, SendCommand):
-                    command = action.command
-                    wheels[index] = (command.left, command.right)
-                    due = now + transit + command_delay
-                    heapq.heappush(commands, (due, order, index, command.encode()))
-                    order += 1
-                elif isinstance(action, PublishState):
-                    if started is None:
-                        exchange.add(index, action.state.stamp)
-                    payload = action.state.encode()
-                    send(now + transit, ("state", index), "state", index, payload)
-                elif isinstance(action, PublishBeacon):
-                    payload = action.beacon.encode()
-                    send(now + transit, ("beacon", action.tile), "beacon", index, payload)
-                elif isinstance(action, FollowStates):
-                    follow(index, "state", action.ids)
-                elif isinstance(action, FollowTiles):
-                    follow(index, "beacon", action.tiles)
-                elif isinstance(action, DeclareAlive):
-                    send(now + transit, ("alive", None), "alive", index, b"")
-                    tokens.setdefault(index, now + transit)
+            carry_out(index, brain.tick(now, wall), now)
             if turn_gaps is None:
                 due = now + 1.0 / rate
             else:
                 due = now + float(gap_rng.uniform(*turn_gaps))
-            heapq.heappush(events, (stall.resume(index, due) if stall else due, rank, what, index))
+            due = stall.resume(index, due) if stall else due
+            if turn_gaps is not None and hold_after is not None and brain.running:
+                expires = now + max(hold_after, brain.command_hold)
+                if due > expires and (not stall or stall.resume(index, expires) == expires):
+                    held_since[index] = now
+                    heapq.heappush(events, (expires, rank, "hold", index))
+            heapq.heappush(events, (due, rank, what, index))
     stats = defaultdict(dict, {b.id: b.stats() for b in brains})
     return NetsimResult(
         np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log),

@@ -2,7 +2,8 @@
 
 Usage: .venv/bin/python scripts/overloaded_start.py [--scenario scenarios/circle-400.toml]
        [--seeds 0,1,2,3] [--duration 12] [--gaps 0.45,1.15] [--pace 0.125]
-       [--cmd-timeout 1.0] [--stall 6,2.5] [--no-settle] [--json out.json]
+       [--cmd-timeout 1.0] [--stall 6,2.5] [--no-settle] [--hold-after 0.3]
+       [--json out.json]
 
 Runs the scenario in the deterministic in-process network simulation
 (covswarm.deploy.netsim: the agents' own brains, robot models, no Zenoh) as an overloaded
@@ -12,7 +13,10 @@ coordinator slows it, robots stop ``--cmd-timeout`` s after a command (the brain
 as ``covswarm run`` tells them) and the mission starts when the coordinator would start
 it. ``--stall START,LENGTH``: the brains of the first half of the ids (one of two agent
 processes, as ``covswarm run`` packs them) take no turn for LENGTH s from START s of the
-simulated clock.
+simulated clock. ``--hold-after S``: a brain whose next turn comes later than S s (or than
+the hold its command was computed for) after its last stops its robot then, as a packed
+process does (``covswarm agent`` at 10 Hz: 0.3 s); without it each robot drives its
+command until the next or its timeout.
 
 Prints a Markdown table, a row per seed: the closest pair of robot centres from the start
 on, the pairs that came within a body diameter, and e_a's mean over the first 5 s of the
@@ -66,6 +70,10 @@ def summary(result: NetsimResult, diameter: float) -> dict[str, float]:
     "--settle/--no-settle", default=True, show_default=True,
     help="Start when the coordinator would (no: 2 s after launch, its rule before 30 Nov).",
 )  # fmt: skip
+@click.option(
+    "--hold-after", type=click.FloatRange(0.0, min_open=True), default=None,
+    help="s: a late brain stops its robot then, as a packed process does (default: never).",
+)  # fmt: skip
 @click.option("--json", "json_path", type=click.Path(dir_okay=False), default=None)
 def main(
     scenario_path: str,
@@ -76,6 +84,7 @@ def main(
     cmd_timeout: float,
     stall: str | None,
     settle: bool,
+    hold_after: float | None,
     json_path: str | None,
 ) -> None:
     scenario = load_scenario(scenario_path)
@@ -92,6 +101,7 @@ def main(
         f"{pace:g} of its speed, robots stop {cmd_timeout:g} s after a command"
         + (f", ids below {n // 2} stalled {stall} s" if stall else "")
         + ("" if settle else ", started 2 s after launch")
+        + ("" if hold_after is None else f", a late brain's robot stopped after {hold_after:g} s")
     )
     print("| seed | closest, m | pairs within a diameter | e_a first 5 s / mean / end, m |")
     print("|---|---|---|---|")
@@ -99,7 +109,7 @@ def main(
     for seed in (int(s) for s in seeds.split(",")):
         result = run_netsim(
             scenario, seed=seed, duration=duration, config=config, cmd_timeout=cmd_timeout,
-            pace=pace, turn_gaps=(lo, hi), stall=stalled, settle=settle,
+            pace=pace, turn_gaps=(lo, hi), stall=stalled, settle=settle, hold_after=hold_after,
         )  # fmt: skip
         row = {"seed": seed, **summary(result, diameter)}
         rows.append(row)

@@ -90,3 +90,23 @@ def test_a_team_stepped_every_five_seconds_follows_the_paced_s() -> None:
     diameter = AgentConfig().robot.body_diameter
     closest, _, _ = proximity(result.t, result.trajectories, diameter)
     assert closest is not None and closest >= diameter - 1e-3
+
+
+def test_a_late_brains_robot_stops_after_hold_after_as_a_pack_stops_it() -> None:
+    """With ``hold_after``, a brain whose next turn is later than max(hold_after, the hold
+    its command was computed for) stops its robot then (AgentBrain.hold), as
+    covswarm.agent.pack does: the commands held at the samples are (0, 0) far more often
+    than when each robot drives its command until the next (or its 1 s timeout)."""
+    stopped = {}
+    for hold_after in (None, 0.3):
+        result = run_netsim(
+            load_scenario("circle"), agents=AGENTS, duration=6.0, cmd_timeout=1.0,
+            config=AgentConfig(cmd_timeout=1.0), turn_gaps=(0.2, 1.0), hold_after=hold_after,
+        )  # fmt: skip
+        stopped[hold_after] = float((result.wheels == 0.0).all(axis=2).mean())
+    # Gaps drawn in [0.2, 1]: a turn is later than max(0.3, the last gap) about a third of
+    # the time, and its robot then stands for part of the gap (measured: 0.068 of the
+    # samples without, the brains' own stops, and 0.25 with).
+    assert stopped[None] < 0.1 and stopped[0.3] > 2.0 * stopped[None], stopped
+    with pytest.raises(ValueError, match="hold_after"):
+        run_netsim(load_scenario("circle"), agents=2, duration=1.0, hold_after=0.0)
