@@ -122,19 +122,6 @@ ARC_TURN = 1.0
 # at 10 Hz in netsim, seed 0, turned in place twice and ended 10 s at e_a 0.0074 m against
 # 0.0057 m; with it, seeds 0-2 at 10 Hz are unchanged to the bit.
 ARC_HOLD = 0.3
-# Past ARC_HOLD the turn is also capped over the robot's command timeout, not over the
-# expected hold (AgentBrain._wheels): a held command turns its robot at most to its aim
-# however long the robot drives it. The expected hold is the last gap between our turns;
-# the next may come later, and the robot drives on to its timeout: a turn sized to face the
-# aim in the expected hold carried the robot past it, on an arc the rows do not bound.
-# covswarm.deploy.netsim, brains stepped every 0.45-1.15 s, robots stopping 1 s after a
-# command, S 8x slower (scripts/overloaded_start.py), circle-400 seed 1: robot 396, 0.178 m
-# from robot 46 and filtered for a 0.549 s hold, turned at 0.63 rad/s to face its aim
-# (0.34 rad away) in 0.549 s; its next turn came 1.137 s later, it drove 0.95 s, turned
-# 0.60 rad, 0.25 rad past its aim toward 46, and the pair closed to 0.1386 m (0.160 m when
-# it faced its aim). With the cap over the timeout, seeds 0-2: no pair within a diameter
-# (before: 0, 1, 0), e_a's mean 0.193 / 0.212 / 0.198 m (0.197 / 0.220 / 0.202), at 12 s
-# 0.064 / 0.095 / 0.084 m (0.095 / 0.111 / 0.085), over the first 5 s the same to 4 mm.
 # Seconds between control steps while the mission is not running (neighbour bookkeeping).
 IDLE_STEP_PERIOD = 1.0
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
@@ -825,10 +812,9 @@ class AgentBrain:
     def command_hold(self) -> float:
         """s the last command was computed to stay in force (0: no cap known): the period
         measured between this brain's last two mission steps, up to its robot's command
-        timeout. Its gain and its barrier's decay rate are sampled for it (its turn cap
-        too, up to ARC_HOLD; beyond, over the command timeout), so a packed process that
-        stops the robot earlier (covswarm.agent.pack) drives it less far than the step
-        meant."""
+        timeout. Its gain, its barrier's decay rate and its turn cap are all sampled for
+        it, so a packed process that stops the robot earlier (covswarm.agent.pack) drives
+        it less far than the step meant."""
         return self._hold
 
     def pose_fresh(self, now: float) -> bool:
@@ -1205,11 +1191,8 @@ class AgentBrain:
         while the filter holds the robot back: covswarm.tvd.drive.steer; None: (vx, vy))."""
         config = self.config
         robot = config.robot
-        # Past ARC_HOLD, no further than the aim however long the robot drives the command:
-        # until our next one or its timeout (see ARC_HOLD).
-        turn_hold = max(self._hold, config.cmd_timeout) if self._hold > ARC_HOLD else self._hold
         left, right, capped = steer_one(
-            heading, vx, vy, robot, config.projection_distance, turn_hold, aim, side
+            heading, vx, vy, robot, config.projection_distance, self._hold, aim, side
         )
         self.counters.turn_capped += capped
         if self._hold > ARC_HOLD:
