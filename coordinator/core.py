@@ -953,8 +953,7 @@ class CoordinatorCore:
         self.observed.domain_t.append(t)
         self.observed.domain_polygons.append(np.asarray(polygon, dtype=float))
         states = self._state_backlog
-        if states or self._waiting_states:
-            assert states is not None  # nothing waits when states are not recorded
+        if states is not None and (states or self._waiting_states):
             waited = list(self._waiting_states.items())  # the first record's, taken once
             self._waiting_states.clear()
             if thin:

@@ -57,6 +57,7 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import PoseImpairment
+from covswarm.agent.pack import runs_on_for
 from covswarm.coordinator.monitor import MAX_START_SETTLE, ExchangeGaps, start_settle
 from covswarm.coordinator.pace import broadcast_motion
 from covswarm.mission.scenarios import Scenario
@@ -282,7 +283,6 @@ def run_netsim(
     agent_phase = rng.uniform(0.0, first_turn, n)
     gap_rng = np.random.default_rng([seed, 11])
     last_turn: dict[int, float] = {}
-    held_since: dict[int, float] = {}  # brain -> the turn after which its robot is to stop
     events: list[tuple[float, int, str, int]] = []  # (time, order, what, index)
     for i in range(n):
         due = float(agent_phase[i])
@@ -362,9 +362,8 @@ def run_netsim(
                 wheel_log.append(wheels.copy())
                 next_sample += SAMPLE_PERIOD
             heapq.heappush(events, (now + 1.0 / DOMAIN_RATE, rank, what, index))
-        elif what == "hold":
-            # (a turn taken since the hold was planned cancels it: that turn planned its own)
-            if last_turn.get(index) == held_since.pop(index, None) and brains[index].running:
+        elif what == "hold":  # (planned only when the brain's next turn comes later)
+            if brains[index].running:
                 carry_out(index, brains[index].hold(now, wall), now)
         else:
             brain = brains[index]
@@ -392,9 +391,8 @@ def run_netsim(
                 due = now + float(gap_rng.uniform(*turn_gaps))
             due = stall.resume(index, due) if stall else due
             if turn_gaps is not None and hold_after is not None and brain.running:
-                expires = now + max(hold_after, brain.command_hold)
+                expires = now + runs_on_for(brain, hold_after)
                 if due > expires and (not stall or stall.resume(index, expires) == expires):
-                    held_since[index] = now
                     heapq.heappush(events, (expires, rank, "hold", index))
             heapq.heappush(events, (due, rank, what, index))
     stats = defaultdict(dict, {b.id: b.stats() for b in brains})

@@ -39,27 +39,26 @@ def console(endpoint: str, swarm: str, *args: str) -> Iterator[str]:
         stop_process(process)
 
 
-# Mean colour (r, g, b, 0-255) of a 9 x 9 pixel patch of the map around a world point.
-COLOUR = """([x, y]) => {
+# The 9 x 9 canvas pixels around world point (x, y), as RGBA bytes (a JS expression's prelude).
+_PATCH = """
   const map = document.getElementById("map"), box = map.getBoundingClientRect();
   const [cx, cy] = window.covswarm.clientXY(x, y), dpr = window.devicePixelRatio || 1;
   const px = Math.round((cx - box.left) * dpr) - 4, py = Math.round((cy - box.top) * dpr) - 4;
-  const data = map.getContext("2d").getImageData(px, py, 9, 9).data, sum = [0, 0, 0];
+  const data = map.getContext("2d").getImageData(px, py, 9, 9).data;"""
+# Mean colour (r, g, b, 0-255) of a 9 x 9 pixel patch of the map around a world point.
+COLOUR = f"""([x, y]) => {{{_PATCH}
+  const sum = [0, 0, 0];
   for (let i = 0; i < data.length; i += 4) for (let c = 0; c < 3; c++) sum[c] += data[i + c];
   return sum.map((s) => s / (data.length / 4));
-}"""
+}}"""
 # The largest blue-over-green excess (0-255) of a pixel in the same 9 x 9 pixels: a line
 # of the route's purple (#8e44ad: 105) covers at least one of them whole wherever it
 # crosses, which the patch's mean dilutes by the line's angle and offset.
-BLUE_OVER_GREEN = """([x, y]) => {
-  const map = document.getElementById("map"), box = map.getBoundingClientRect();
-  const [cx, cy] = window.covswarm.clientXY(x, y), dpr = window.devicePixelRatio || 1;
-  const px = Math.round((cx - box.left) * dpr) - 4, py = Math.round((cy - box.top) * dpr) - 4;
-  const data = map.getContext("2d").getImageData(px, py, 9, 9).data;
+BLUE_OVER_GREEN = f"""([x, y]) => {{{_PATCH}
   let most = -255;
   for (let i = 0; i < data.length; i += 4) most = Math.max(most, data[i + 2] - data[i + 1]);
   return most;
-}"""
+}}"""
 
 
 def open_page(browser, url: str):
