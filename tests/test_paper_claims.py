@@ -19,7 +19,8 @@ from __future__ import annotations
 import json
 import multiprocessing
 import os
-from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Iterator, Mapping
+from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -92,6 +93,7 @@ NEIGHBORS = 2.0  # each mean count of Table 1: 2 robots
 RATIO = 0.1  # the d1 / da ratio of the formation, as the pages round it (one decimal)
 
 RUNS = {name: run["options"] for name, run in results_script.all_runs().items()}
+ERROR_RUNS = sorted(set(RUNS) - EXACT_C)
 
 
 def figures_of(options: dict) -> dict:
@@ -99,17 +101,38 @@ def figures_of(options: dict) -> dict:
     return results_script.figures_of(options)
 
 
+class Sims(Mapping):
+    """Figures of the runs of docs/results.json by name, each distinct option set simulated
+    once, in the order of ERROR_RUNS and then the rest, by a pool of spawned processes (this
+    one may hold other tests' threads); a test waits only for the runs it reads. Each test's
+    wait then stays within pytest's per-test timeout: one fixture that waited for all 32
+    (~540 s on a quiet slow host) went over it on a loaded one."""
+
+    def __init__(self, pool: ProcessPoolExecutor) -> None:
+        self._futures: dict[str, Future] = {}
+        for name in [*ERROR_RUNS, *sorted(set(RUNS) - set(ERROR_RUNS))]:
+            key = json.dumps(RUNS[name], sort_keys=True)
+            if key not in self._futures:
+                self._futures[key] = pool.submit(figures_of, RUNS[name])
+
+    def __getitem__(self, name: str) -> dict:
+        return self._futures[json.dumps(RUNS[name], sort_keys=True)].result()
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(RUNS)
+
+    def __len__(self) -> int:
+        return len(RUNS)
+
+
 @pytest.fixture(scope="module")
-def sims() -> dict[str, dict]:
-    """Figures of every run of docs/results.json, each distinct option set once, in a
-    spawned process (this one may hold other tests' threads); two at a time when the
-    end-to-end tests do not run beside them (pytest -n 0: tests/conftest.py)."""
-    distinct = {json.dumps(options, sort_keys=True): options for options in RUNS.values()}
+def sims() -> Iterator[Sims]:
+    """:class:`Sims`, two at a time when the end-to-end tests do not run beside them
+    (pytest -n 0: tests/conftest.py)."""
     workers = 1 if os.environ.get("PYTEST_XDIST_WORKER") else 2
     with ProcessPoolExecutor(workers, mp_context=multiprocessing.get_context("spawn")) as pool:
-        futures = {key: pool.submit(figures_of, options) for key, options in distinct.items()}
-        done = {key: future.result() for key, future in futures.items()}
-    return {name: done[json.dumps(options, sort_keys=True)] for name, options in RUNS.items()}
+        yield Sims(pool)
+        pool.shutdown(cancel_futures=True)
 
 
 def test_results_json_holds_every_command_of_the_script() -> None:
@@ -133,11 +156,8 @@ def test_every_command_is_on_a_page_and_every_table_is_rendered_from_the_file() 
         )
 
 
-ERROR_RUNS = sorted(set(RUNS) - EXACT_C)
-
-
 @pytest.mark.parametrize("name", ERROR_RUNS)
-def test_steady_state_error_within_its_band(name: str, sims: dict[str, dict]) -> None:
+def test_steady_state_error_within_its_band(name: str, sims: Sims) -> None:
     expected = RESULTS["runs"][name]["e_a"]
     band = max((CHAOTIC_REL if name in CHAOTIC else E_A_REL) * expected, E_A_ABS)
     assert abs(sims[name]["e_a"] - expected) <= band, (name, sims[name]["e_a"], expected)
@@ -147,14 +167,14 @@ COMPARED = sorted(n for n in ERROR_RUNS if f"{n}-noff" in RUNS)
 
 
 @pytest.mark.parametrize("name", COMPARED)
-def test_feedforward_improvement_within_its_band(name: str, sims: dict[str, dict]) -> None:
-    def gain(figures: dict[str, dict]) -> float:
+def test_feedforward_improvement_within_its_band(name: str, sims: Sims) -> None:
+    def gain(figures: Mapping[str, dict]) -> float:
         return 1.0 - figures[name]["e_a"] / figures[f"{name}-noff"]["e_a"]
 
     assert abs(gain(sims) - gain(RESULTS["runs"])) <= POINTS, (name, gain(sims))
 
 
-def test_guards_are_as_recorded(sims: dict[str, dict]) -> None:
+def test_guards_are_as_recorded(sims: Sims) -> None:
     """A guard count of 0 (no row rescaled, no fallback) is exactly 0; only the exact TVD-C
     falls back (its invariants below)."""
     for name in ERROR_RUNS:
@@ -164,14 +184,14 @@ def test_guards_are_as_recorded(sims: dict[str, dict]) -> None:
     assert all(RESULTS["runs"][n]["fallback_rate"] == 0 for n in ERROR_RUNS)
 
 
-def test_tvd_da_on_the_formation_is_as_many_times_better(sims: dict[str, dict]) -> None:
-    def ratio(figures: dict[str, dict]) -> float:
+def test_tvd_da_on_the_formation_is_as_many_times_better(sims: Sims) -> None:
+    def ratio(figures: Mapping[str, dict]) -> float:
         return figures["formation"]["e_a"] / figures["formation-da"]["e_a"]
 
     assert abs(ratio(sims) - ratio(RESULTS["runs"])) <= RATIO + 1e-9
 
 
-def test_without_feedforward_tvd_da_is_tvd_d1(sims: dict[str, dict]) -> None:
+def test_without_feedforward_tvd_da_is_tvd_d1(sims: Sims) -> None:
     """The laws table has one "without dc/dt (d1 and da)" column: without dc/dt both laws
     are (I + dc/dp) kappa (c - p), so their runs are the same run."""
     for scenario in results_script.SCENARIOS:
@@ -180,7 +200,7 @@ def test_without_feedforward_tvd_da_is_tvd_d1(sims: dict[str, dict]) -> None:
         assert sims[d1]["e_a"] == pytest.approx(sims[da]["e_a"], rel=1e-9), scenario
 
 
-def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: dict[str, dict]) -> None:
+def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: Sims) -> None:
     """The paper's exact TVD-C is tested by what is invariant about it, not by its figure:
     its solve falls back to TVD-D1 on almost every step, so it lands near TVD-D1 and clearly
     below no feedforward. Measured on 2026-11-25 across three OpenBLAS kernels (SkylakeX,
@@ -196,7 +216,7 @@ def test_exact_tvd_c_is_tvd_d1_in_disguise(sims: dict[str, dict]) -> None:
     assert 1.0 <= sims["circle-c-exact-noff"]["e_a"] / sims["circle-d1-noff"]["e_a"] <= 1.6
 
 
-def test_neighbor_counts_of_table_1_within_their_band(sims: dict[str, dict]) -> None:
+def test_neighbor_counts_of_table_1_within_their_band(sims: Sims) -> None:
     expected = results_script.table_1(RESULTS["runs"])
     mean = results_script.table_1(sims)
     for k, value in expected.items():
