@@ -18,9 +18,10 @@ offset), not from when they arrived; the domain likewise, from its broadcast's s
 mission time, and newer means a higher sequence number. Safety (covswarm.tvd.safety): the
 velocity is filtered so that this robot's half of every pair's barrier condition holds
 against every robot it knows within SAFETY_RADIUS, and against robots it stopped hearing
-from (OBSTACLE_MEMORY). Once it knows the world (:meth:`AgentBrain.set_world`, from the
-coordinator's World broadcast), also against the obstacles and workspace walls within
-SAFETY_RADIUS, and it refuses a domain that overlaps an obstacle.
+from (OBSTACLE_MEMORY; a robot whose brain died, for as long as its robot lives). Once it
+knows the world (:meth:`AgentBrain.set_world`, from the coordinator's World broadcast),
+also against the obstacles and workspace walls within SAFETY_RADIUS, and it refuses a
+domain that overlaps an obstacle.
 """
 
 from __future__ import annotations
@@ -218,7 +219,10 @@ WALL_GAMMA_FRACTION = 0.5
 # packing at the safe distance gives 6 per ring), so more are forgeries.
 MAX_UNCONFIRMED_FOLLOWED = 8
 # s: a robot we stopped hearing from (frozen brain, stopped robot) stays an obstacle at its
-# last known position for the safety filter this long after it left the coverage step.
+# last known position for the safety filter this long after it left the coverage step; one
+# whose agent's token is gone while its robot's is not, for as long as that lasts: a robot
+# without a brain stands where its command timeout stopped it, and a static S's neighbours
+# drove into it once they forgot it (AgentBrain._still_there).
 OBSTACLE_MEMORY = 30.0
 # s: the oldest beacon of a robot known only from beacons that the safety filter takes as a
 # robot there (AgentBrain._safety_inputs). A robot driving through S beacons every
@@ -1249,6 +1253,16 @@ class AgentBrain:
         near = set(neighborhood.table_ids[neighborhood.within(x, y, SAFETY_RADIUS)].tolist())
         return near, kept
 
+    def _still_there(self, rid: int, held: float) -> bool:
+        """Whether robot ``rid``, held as an obstacle for ``held`` s, is still taken to stand
+        where it stopped: for OBSTACLE_MEMORY s; for as long as its robot lives once its
+        agent's token is gone (an orphan: stopped by its command timeout, with no brain to
+        move it again); not once its robot's token is gone."""
+        roles = self.neighborhood.dead.get(rid, ())
+        if "robot" in roles:
+            return False
+        return held <= OBSTACLE_MEMORY or "agent" in roles
+
     def _safety_inputs(self, begun: Begun, velocity: np.ndarray, x: float, y: float) -> Filtering:
         """What the safety filter (covswarm.tvd.safety) needs to filter ``velocity`` (2,)
         m/s from (x, y) m (begun's pose): the robots near us, i.e. the candidates
@@ -1311,11 +1325,10 @@ class AgentBrain:
             near = near.copy()
             near[:, :2] += latency * near[:, 2:4]
         if self.obstacles:  # (seldom any: no scan of an empty table every step)
-            dead = neighborhood.dead
             for rid in [
                 r
                 for r, (_, _, since) in self.obstacles.items()
-                if now - since > OBSTACLE_MEMORY or "robot" in dead.get(r, ()) or r in first_hand
+                if r in first_hand or not self._still_there(r, now - since)
             ]:
                 del self.obstacles[rid]
         if self.obstacles:  # none is a candidate

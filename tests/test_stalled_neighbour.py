@@ -106,3 +106,30 @@ def test_a_stalled_neighbour_is_held_where_its_robot_stops() -> None:
     x, y, _ = brain.obstacles[1]
     assert x == pytest.approx(start + timeout * speed, abs=1e-9)
     assert y == pytest.approx(1.0, abs=1e-9)
+
+
+@pytest.mark.parametrize("orphan", [True, False])
+def test_a_robot_whose_brain_died_is_held_for_as_long_as_its_robot_lives(orphan: bool) -> None:
+    """Robot 1's agent token goes while its robot's stays (``orphan``): its robot stands
+    where its command timeout stopped it, with no brain to move it again, and stays a row
+    of our filter past OBSTACLE_MEMORY; until its robot's token goes too. A neighbour that
+    merely fell silent (no token change) is forgotten after OBSTACLE_MEMORY, as before."""
+    from covswarm.agent.brain import OBSTACLE_MEMORY
+
+    brain = Brain(0, AgentConfig(cmd_timeout=1.0))
+    for role in ("agent", "robot"):
+        brain.on_liveliness(role, 1, True)
+    state = protocol.AgentState(id=1, x=AHEAD, y=1.0, stamp=WALL, neighbors=(0,), vx=0.0, vy=0.0)
+    brain.receive("state", state.encode(), 0.1, WALL + 0.1, key_id=1)
+    assert turn(brain, 0.5, None) < 0.04
+    if orphan:
+        brain.on_liveliness("agent", 1, False)
+    now = 1.5
+    while now < OBSTACLE_MEMORY + 5.0:
+        speed = turn(brain, now, None)
+        now += GAP
+    assert (1 in brain.obstacles) is orphan
+    assert (speed < 0.04) is orphan, speed  # forgotten: the unseen speed limit, 0.087 m/s
+    brain.on_liveliness("robot", 1, False)
+    turn(brain, now, None)
+    assert 1 not in brain.obstacles
