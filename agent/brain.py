@@ -123,6 +123,18 @@ ARC_TURN = 1.0
 # at 10 Hz in netsim, seed 0, turned in place twice and ended 10 s at e_a 0.0074 m against
 # 0.0057 m; with it, seeds 0-2 at 10 Hz are unchanged to the bit.
 ARC_HOLD = 0.3
+# Past ARC_HOLD, a command that does not turn its robot in place has its turn capped over
+# the time the robot may drive it (AgentBrain.may_drive: its command timeout, unless our
+# process stops it earlier) rather than over the expected hold (AgentBrain._wheels): the
+# expected hold is the last gap between our turns, the next may come later, and the robot
+# drives the command until then or its timeout. Capped for the hold, the turn carried the
+# robot past its aim on an arc the filter's rows, taken along the heading at the step, do
+# not bound: deploy.netsim circle-400 seed 1 (scripts/overloaded_start.py), robot 396
+# filtered for a 0.549 s hold, its next turn 1.137 s later, swung 0.25 rad past its aim
+# towards robot 46 (0.1386 m). Whether it turns in place is still judged on the turn sized
+# for the hold: judged on the turn capped over the timeout (commit 701f322, reverted),
+# fewer robots turned in place and drove arcs instead, and circle-1000 seed 3 had a pair
+# at 0.126 m.
 # Seconds between control steps while the mission is not running (neighbour bookkeeping).
 IDLE_STEP_PERIOD = 1.0
 # s: an early beacon (a teammate appeared) follows the last one after at least this long, so
@@ -316,8 +328,11 @@ class Filtering:
     inputs of covswarm.tvd.safety.safe_unicycle_velocities for this robot. nominal: (2,)
     m/s; velocity: its last achieved one, (vx, vy) m/s; near: (m, 4) the robots near it (x, y m,
     vx, vy m/s); obstacles: the world's convex polygons near it; workspace: its box or
-    None; distances m, gains 1/s; spent: s of the step timer so far, set by conclude once
-    the inputs are built (not frozen: copying it with dataclasses.replace cost ~3 us)."""
+    None; distances m, gains 1/s; overrun: s the command may be driven when that is longer
+    than the drive gamma is sampled for (0: not), and near_gamma: each near row's own gamma
+    (None: gamma), both for filter_all's second pass; spent: s of the step timer so far, set
+    by conclude once the inputs are built (not frozen: copying it with dataclasses.replace
+    cost ~3 us)."""
 
     begun: Begun
     nominal: np.ndarray
@@ -329,17 +344,77 @@ class Filtering:
     workspace: tuple[float, float, float, float] | None
     obstacle_distance: float
     obstacle_gamma: float
+    overrun: float = 0.0
+    near_gamma: np.ndarray | None = None  # (m,) 1/s
     spent: float = 0.0
 
 
 def filter_all(filterings: list[Filtering]) -> list[SafeVelocity]:
     """The safety filter of every step of ``filterings`` in one batch
-    (covswarm.tvd.safety.safe_unicycle_velocities: each equal to its own filter)."""
+    (covswarm.tvd.safety.safe_unicycle_velocities: each equal to its own filter).
+
+    A step whose command may be driven longer than its barrier's gain is sampled for
+    (Filtering.overrun) is filtered again with the gain sampled over that time on the rows
+    of the robots its first answer, so driven, would bring it within the safe distance of
+    (:func:`overrun_rows`); its other rows keep their gain. Sampled for the expected hold T
+    (gamma T = 1), a row lets its pair use up the whole margin in T, and a command driven on
+    to the timeout goes on closing: deploy.netsim circle-1000 seed 3 with the turn capped
+    over the timeout (ARC_HOLD; scripts/overloaded_start.py), robot 975, filtered for a
+    0.478 s hold and not held back, drove 0.1 m/s towards robot 894, 0.220 m away, and its
+    next turn came 1.061 s later: 0.139 m. Sampled over the timeout on every row instead,
+    e_a's mean rose 10-24 mm (circle-400, seeds 0-3); on every row whose pair was closing,
+    7-20 mm (45 300-45 600 rows a run); on these rows (230-330 a run), 0.1 mm less on
+    average (docs/scaling.md, 1 Dec 2026)."""
+    safe = _filter(filterings)
+    again = []
+    for k, f in enumerate(filterings):
+        if f.overrun > 0.0 and len(f.near):
+            risk = overrun_rows(f, safe[k][0])
+            if risk.any():
+                f.near_gamma = np.where(risk, barrier_gain(f.gamma, f.overrun), f.gamma)
+                again.append(k)
+    if again:
+        for k, result in zip(again, _filter([filterings[k] for k in again]), strict=True):
+            safe[k] = result
+    return safe
+
+
+def overrun_rows(filtering: Filtering, velocity: Sequence[float]) -> np.ndarray:
+    """(m,) bool: the near robots ``filtering``'s robot would come within the safe distance
+    of, driving the forward speed of ``velocity`` (m/s, the filter's answer) for
+    ``filtering.overrun`` s while they drive their last known velocities: along its heading,
+    or along its aim (the command turns it towards its aim, at most to it), the nearer."""
+    x, y, heading = filtering.begun.pose
+    e = np.array([math.cos(heading), math.sin(heading)])
+    forward = float(e @ np.asarray(velocity, dtype=float))
+    ways = [e]
+    aim = np.asarray(filtering.nominal, dtype=float)
+    norm = math.hypot(aim[0], aim[1])
+    if norm > 0.0:
+        ways.append(aim / norm)
+    offset = np.array([x, y]) - filtering.near[:, :2]  # from each of them to us
+    apart = np.einsum("ij,ij->i", offset, offset) >= filtering.safe_distance**2
+    risk = np.zeros(len(offset), dtype=bool)
+    for way in ways:
+        w = forward * way - filtering.near[:, 2:4]  # our velocity relative to theirs
+        ww = np.einsum("ij,ij->i", w, w)
+        closing = -np.einsum("ij,ij->i", offset, w)
+        s = np.clip(np.divide(closing, ww, out=np.zeros_like(ww), where=ww > 0.0), 0.0, None)
+        s = np.minimum(s, filtering.overrun)  # s of the drive at which they are nearest
+        reach = offset + s[:, None] * w
+        risk |= np.einsum("ij,ij->i", reach, reach) < filtering.safe_distance**2
+    return risk & apart  # (a pair already inside: a smaller gain would ask less of it)
+
+
+def _filter(filterings: list[Filtering]) -> list[SafeVelocity]:
     poses = np.array([f.begun.pose for f in filterings])  # (R, 3): x, y, heading
     # (R, 4): safe distance, gamma, obstacle distance, obstacle gamma
     scalars = np.array(
         [(f.safe_distance, f.gamma, f.obstacle_distance, f.obstacle_gamma) for f in filterings]
     )
+    near_gammas = None
+    if any(f.near_gamma is not None for f in filterings):
+        near_gammas = [f.near_gamma for f in filterings]
     velocities, active, relaxed = safe_unicycle_velocities(
         poses[:, :2],
         np.array([f.nominal for f in filterings]),
@@ -354,6 +429,7 @@ def filter_all(filterings: list[Filtering]) -> list[SafeVelocity]:
         obstacle_distance=scalars[:, 2],
         reach=SAFETY_RADIUS,
         obstacle_gamma=scalars[:, 3],
+        neighbor_gammas=near_gammas,
     )
     return list(zip(velocities.tolist(), active.tolist(), relaxed.tolist(), strict=True))
 
@@ -517,6 +593,11 @@ class AgentBrain:
         self._gap = 0.0
         self._period = 1.0  # s, the last control period (at most MAX_PERIOD)
         self._hold = 0.0  # s, how long the coming command is expected to hold (see _view)
+        # s after a step at which our process stops the robot when no newer command came
+        # (covswarm.agent.pack.Pack.hold_after, or the command's own hold when longer:
+        # runs_on_for); None: nobody does, and the robot drives each command until the next
+        # or its timeout (may_drive).
+        self.stop_after: float | None = None
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
         # The domain whose start velocities were fitted last, and their field (_standing).
@@ -816,10 +897,29 @@ class AgentBrain:
     def command_hold(self) -> float:
         """s the last command was computed to stay in force (0: no cap known): the period
         measured between this brain's last two mission steps, up to its robot's command
-        timeout. Its gain, its barrier's decay rate and its turn cap are all sampled for
-        it, so a packed process that stops the robot earlier (covswarm.agent.pack) drives
-        it less far than the step meant."""
+        timeout. Its gain and its barrier's decay rate are sampled for it, and its turn
+        cap (past ARC_HOLD a turn not made in place is capped over the command timeout), so
+        a packed process that stops the robot earlier (covswarm.agent.pack) drives it less
+        far than the step meant."""
         return self._hold
+
+    def runs_on_for(self, stop_after: float) -> float:
+        """s after our last step that our robot drives its command while our turns are late,
+        when our process stops it ``stop_after`` s after a step (covswarm.agent.pack.Pack._hold,
+        deploy.netsim's hold_after): that, or the hold the command was computed for
+        (:attr:`command_hold`) when longer, so a command is never cut short of its own hold."""
+        return max(stop_after, self._hold)
+
+    @property
+    def may_drive(self) -> float:
+        """s the robot may drive the coming command if our next turn is late: until our
+        process stops it (``runs_on_for(stop_after)``), at most its command
+        timeout; without such a stop, the timeout. Past ARC_HOLD the turn is capped over it
+        and the barrier's gain sampled over it on the rows at risk (filter_all)."""
+        timeout = self.config.cmd_timeout
+        if self.stop_after is None:
+            return timeout
+        return min(timeout, self.runs_on_for(self.stop_after))
 
     def pose_fresh(self, now: float) -> bool:
         """Whether our own robot's pose is known and younger than ``stale_timeout``."""
@@ -1059,6 +1159,8 @@ class AgentBrain:
             velocity, active, relaxed = safe
             self.safety_active += active > 0
             self.safety_relaxed += bool(relaxed)
+            if filtering.near_gamma is not None and self.running:
+                self.counters.overrun_gained += int(np.sum(filtering.near_gamma < filtering.gamma))
             vx, vy = velocity
             aim = filtering.nominal.tolist()  # where it wants to go: the turn's cap and veer
             x, y, heading = filtering.begun.pose
@@ -1198,12 +1300,19 @@ class AgentBrain:
         left, right, capped = steer_one(
             heading, vx, vy, robot, config.projection_distance, self._hold, aim, side
         )
-        self.counters.turn_capped += capped
         if self._hold > ARC_HOLD:
             turn = (right - left) / robot.wheel_separation * config.cmd_timeout
             if abs(turn) > ARC_TURN:  # turn in place at the same rate, drive from the next step
                 left, right = 0.5 * (left - right), 0.5 * (right - left)
                 self.counters.arc_turned += 1
+            elif self.may_drive > self._hold:
+                # Driven on an arc: no further than its aim however long the robot drives
+                # the command, until our next one or its stop (see ARC_HOLD).
+                left, right, capped = steer_one(
+                    heading, vx, vy, robot, config.projection_distance, self.may_drive, aim,
+                    side,
+                )  # fmt: skip
+        self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
         # the speed, and the steered point is not the centre).
@@ -1347,6 +1456,12 @@ class AgentBrain:
         # command_latency s after it is computed, and what the others decided meanwhile is
         # not in the shares of the pairs' conditions, which can then disagree.
         gamma = barrier_gain(config.safety_gamma, driven + latency)
+        # Past ARC_HOLD our next turn may come later than the last gap, and the robot then
+        # drives the command to its timeout: filter_all samples the gain over that on the
+        # rows of the robots the command so driven would bring within the safe distance.
+        overrun = 0.0
+        if self._hold > ARC_HOLD and self.may_drive > driven and len(near):
+            overrun = self.may_drive + latency
         world = self.world
         obstacles: list[np.ndarray] = []
         if world is not None and world.obstacles:  # a workspace alone: walls, no search
@@ -1363,6 +1478,7 @@ class AgentBrain:
             workspace=self.workspace if world is not None else None,
             obstacle_distance=self._wall_distance,
             obstacle_gamma=WALL_GAMMA_FRACTION * gamma,
+            overrun=overrun,
         )
 
     # --- output --------------------------------------------------------------------------
@@ -1431,6 +1547,7 @@ class AgentBrain:
             "batch_fallbacks": c.batch_fallbacks,
             "turn_capped": c.turn_capped,
             "arc_turned": c.arc_turned,
+            "overrun_gained": c.overrun_gained,
             "cell_empty": c.cell_empty,
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,

@@ -79,6 +79,10 @@ class Counters:
     # mission steps whose command, held until the next step, would have turned the robot by
     # more than ARC_TURN: it turned in place instead (covswarm.agent.brain.ARC_TURN)
     arc_turned: int = 0
+    # safety-filter rows of mission steps whose barrier gain was sampled over the robot's
+    # command timeout, not the expected hold: the pair would come within the safe distance
+    # in that time, the brain slower than ARC_HOLD (covswarm.agent.brain.filter_all)
+    overrun_gained: int = 0
     # mission steps with no cell in S (the robot outside S, dominated by teammates: it aims
     # at S's centroid, covswarm.tvd.control); a robot stuck so dominates e_a
     cell_empty: int = 0

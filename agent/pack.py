@@ -143,13 +143,6 @@ def _slot(kind: str, key_id: int | None, key: str) -> _Slot:
     return f"{KIND_ORDER[kind]}{0 if key_id is None else key_id + 1:0{ID_DIGITS}d}{key}"
 
 
-def runs_on_for(brain: AgentBrain, hold_after: float) -> float:
-    """s after ``brain``'s last step that its robot drives that step's command while the
-    brain's turns are late, before the pack stops it (Pack._hold): ``hold_after``, or the
-    hold the command was computed for (AgentBrain.command_hold) when longer."""
-    return max(hold_after, brain.command_hold)
-
-
 class Payload(Protocol):
     def to_bytes(self) -> bytes: ...
 
@@ -238,6 +231,7 @@ class Pack:
         # Token changes, recorded once for the process; each brain catches up on its turn.
         self.liveliness = Liveliness()
         for brain in brains:
+            brain.stop_after = hold_after  # its commands are planned for the stop (_hold)
             brain.neighborhood.share(self.liveliness)
         self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
         self._every = 0  # samples queued one by one (the domain's), numbering their slots
@@ -664,7 +658,7 @@ class Pack:
         brain.counters.late += 1
         if brain.id in self._held:
             return  # stopped already: most of an overloaded pack's brains, most periods
-        if now - self._stepped.get(brain.id, now) <= runs_on_for(brain, self.hold_after):
+        if now - self._stepped.get(brain.id, now) <= brain.runs_on_for(self.hold_after):
             return
         self._held.add(brain.id)
         for action in brain.hold(now, wall):

@@ -57,7 +57,6 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import PoseImpairment
-from covswarm.agent.pack import runs_on_for
 from covswarm.coordinator.monitor import MAX_START_SETTLE, ExchangeGaps, start_settle
 from covswarm.coordinator.pace import broadcast_motion
 from covswarm.mission.scenarios import Scenario
@@ -198,6 +197,9 @@ def run_netsim(
         for i in range(n)
     ]
     brains = [AgentBrain(i, config, decoder, clock=lambda: 0.0) for i in range(n)]
+    if turn_gaps is not None and hold_after is not None:
+        for brain in brains:  # its commands are planned for the stop, as in a pack
+            brain.stop_after = hold_after
     impair = [
         PoseImpairment(
             config.pose_loss, config.pose_delay, np.random.default_rng([config.pose_seed, i])
@@ -391,7 +393,7 @@ def run_netsim(
                 due = now + float(gap_rng.uniform(*turn_gaps))
             due = stall.resume(index, due) if stall else due
             if turn_gaps is not None and hold_after is not None and brain.running:
-                expires = now + runs_on_for(brain, hold_after)
+                expires = now + brain.runs_on_for(hold_after)
                 if due > expires and (not stall or stall.resume(index, expires) == expires):
                     heapq.heappush(events, (expires, rank, "hold", index))
             heapq.heappush(events, (due, rank, what, index))

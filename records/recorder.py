@@ -111,6 +111,10 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
     "batch_fallbacks": ("number", "batched local steps retaken one by one (a bad view)"),
     "turn_capped": ("number", "steps whose turn rate was capped for the period held"),
     "arc_turned": ("number", "steps turned in place: the held turn was over ARC_TURN"),
+    "overrun_gained": (
+        "number",
+        "filter rows whose gain was sampled over the command timeout, not the expected hold",
+    ),
     "cell_empty": ("number", "mission steps with no cell in S (outside S, dominated)"),
     "stale_stretched": ("number", "mission steps that kept neighbours past the stale timeout"),
     "pose_too_old": (

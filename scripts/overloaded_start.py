@@ -38,7 +38,14 @@ from covswarm.mission.physical import proximity
 from covswarm.mission.scenario_files import load_scenario
 
 FIRST_SECONDS = 5.0  # s of mission time over which the start's e_a is averaged
-COUNTERS = ("arc_turned", "obstacles_kept", "speed_limited", "beacon_doubted", "safety_relaxed")
+COUNTERS = (
+    "arc_turned",
+    "obstacles_kept",
+    "speed_limited",
+    "beacon_doubted",
+    "safety_relaxed",
+    "overrun_gained",
+)
 
 
 def summary(result: NetsimResult, diameter: float) -> dict[str, float]:

@@ -341,11 +341,20 @@ def random_filter_cases(count: int, seed: int) -> dict:
 
 @pytest.mark.parametrize("walled", [False, True, "some"])
 @pytest.mark.parametrize("reciprocal", [False, True])
-def test_batch_unicycle_filter_equals_safe_velocity(walled: bool | str, reciprocal: bool) -> None:
+@pytest.mark.parametrize("per_row", [False, True])
+def test_batch_unicycle_filter_equals_safe_velocity(
+    walled: bool | str, reciprocal: bool, per_row: bool
+) -> None:
     """walled: obstacles and one workspace for all; "some": a workspace for every other robot
-    (brains of one process with and without a world)."""
+    (brains of one process with and without a world). per_row: every other robot's pair rows
+    with a gain of their own (covswarm.agent.brain.filter_all's second pass)."""
     count, safe = 300, 0.16
     case = random_filter_cases(count, seed=len(str(walled)) + 2 * int(reciprocal))
+    rows = np.random.default_rng(9)
+    gammas = [
+        rows.uniform(0.5, 10.0, len(near)) if per_row and r % 2 else None
+        for r, near in enumerate(case["neighbors"])
+    ]
     shared = {"obstacle_distance": 0.1, "reach": 0.5} if walled else {}
     box = (0.0, 4.0, 0.0, 4.0)
     workspace = [box if r % 2 else None for r in range(count)] if walled == "some" else None
@@ -362,6 +371,7 @@ def test_batch_unicycle_filter_equals_safe_velocity(walled: bool | str, reciproc
         obstacles=case["obstacles"] if walled else None,
         workspace=workspace,
         obstacle_gamma=0.5 * case["gamma"] if walled else None,
+        neighbor_gammas=gammas if per_row else None,
         **shared,
     )
     for r in range(count):
@@ -377,6 +387,7 @@ def test_batch_unicycle_filter_equals_safe_velocity(walled: bool | str, reciproc
             obstacles=case["obstacles"][r] if walled else (),
             workspace=workspace[r] if isinstance(workspace, list) else workspace,
             obstacle_gamma=0.5 * float(case["gamma"][r]) if walled else None,
+            neighbor_gammas=gammas[r],
             **shared,
         )
         np.testing.assert_allclose(velocity[r], want.velocity, rtol=0, atol=TOL, err_msg=f"{r}")

@@ -58,6 +58,64 @@ def test_filter_matches_dense_qp_on_random_layouts(seed: int) -> None:
     assert (active == 0) == np.allclose(u, nominal)
 
 
+@pytest.mark.parametrize("seed", range(24))
+def test_per_row_gains_match_dense_qp_row_by_row(seed: int) -> None:
+    # neighbor_gammas (covswarm.agent.brain.filter_all's second pass): each pair row built
+    # alone with its own scalar gain, then the dense QP over them.
+    rng = np.random.default_rng(1000 + seed)
+    scale = 10.0 ** rng.uniform(-1, 1)
+    m = int(rng.integers(1, 10))
+    me = rng.uniform(-1, 1, 2) * scale
+    others = me + rng.normal(size=(m, 2)) * 0.4 * scale
+    safe = 0.3 * scale * rng.uniform(0.3, 1.0)
+    nominal = rng.normal(size=2) * scale
+    velocity, theirs = rng.normal(size=2) * scale, rng.normal(size=(m, 2)) * scale
+    heading = rng.uniform(-np.pi, np.pi) if seed % 2 else None
+    gammas = rng.uniform(0.2, 10.0, m)
+    rows = [
+        pair_constraints(me, others[j : j + 1], safe, float(gammas[j]), velocity, theirs[j : j + 1])
+        for j in range(m)
+    ]
+    A, b = np.vstack([a for a, _ in rows]), np.concatenate([b for _, b in rows])
+    if heading is not None:
+        A = unicycle_rows(A, heading)
+    filtered = safe_velocity(
+        me, nominal, others, safe, heading=heading, velocity=velocity,
+        neighbor_velocities=theirs, neighbor_gammas=gammas,
+    )  # fmt: skip
+    reference = dense_qp(nominal, A, b)
+    if reference is None:
+        assert filtered.relaxed
+        return
+    assert not filtered.relaxed
+    u = filtered.velocity
+    assert np.all(A @ u <= b + 1e-8 * np.maximum(1.0, np.abs(b)))
+    cost, ref_cost = np.sum((u - nominal) ** 2), np.sum((reference - nominal) ** 2)
+    assert cost <= ref_cost * (1 + 1e-7) + 1e-12
+    np.testing.assert_allclose(u, reference, atol=1e-5 * scale)
+
+
+def test_per_row_gains_equal_to_gamma_change_nothing_and_bad_ones_are_refused() -> None:
+    rng = np.random.default_rng(7)
+    me, others = np.zeros(2), rng.normal(size=(6, 2)) * 0.3
+    nominal, theirs = np.array([0.3, 0.1]), rng.normal(size=(6, 2)) * 0.1
+    plain = safe_velocity(me, nominal, others, 0.2, gamma=3.0, neighbor_velocities=theirs)
+    same = safe_velocity(
+        me, nominal, others, 0.2, gamma=3.0, neighbor_velocities=theirs,
+        neighbor_gammas=np.full(6, 3.0),
+    )  # fmt: skip
+    np.testing.assert_array_equal(same.velocity, plain.velocity)
+    assert plain.active > 0  # the rows bind: a gain that changed them would show
+    lower = safe_velocity(
+        me, nominal, others, 0.2, gamma=3.0, neighbor_velocities=theirs,
+        neighbor_gammas=np.full(6, 0.5),
+    )  # fmt: skip
+    assert np.linalg.norm(lower.velocity - nominal) > np.linalg.norm(plain.velocity - nominal)
+    for bad in ([3.0] * 5 + [0.0], [3.0] * 5 + [-1.0], [3.0] * 5 + [np.nan], [3.0] * 5):
+        with pytest.raises(ValueError, match="neighbor_gammas"):
+            safe_velocity(me, nominal, others, 0.2, neighbor_gammas=np.array(bad))
+
+
 def test_tight_corner_uses_two_rows() -> None:
     # Two neighbours ahead-left and ahead-right at the safe distance: forward is blocked by
     # both, and the closest safe velocity sits where both rows meet.

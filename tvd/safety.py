@@ -188,14 +188,15 @@ def pair_constraints(
     position: np.ndarray,
     neighbors: np.ndarray,
     safe_distance: float,
-    gamma: float,
+    gamma: float | np.ndarray,
     velocity: np.ndarray | None = None,
     neighbor_velocities: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One robot's half of each pair's barrier condition: rows (A (m, 2), b (m,)), A u <= b.
 
     position: (2,) m; neighbors: (m, 2) m; velocity: (2,) m/s, this robot's current one, and
-    neighbor_velocities: (m, 2) m/s, theirs (None: zero, the Robotarium's split).
+    neighbor_velocities: (m, 2) m/s, theirs (None: zero, the Robotarium's split); gamma:
+    1/s, one for all rows or (m,), one per row.
     a_j = -2 (p - p_j), b_j = gamma h_j / 2 + clip(a_j . (v + v_j) / 2, +-gamma h_j / 2) with
     h_j = |p - p_j|^2 - safe_distance^2 (no share for a pair already inside, h_j < 0).
     """
@@ -379,6 +380,7 @@ def safe_velocity(
     obstacle_distance: float | None = None,
     reach: float = np.inf,
     obstacle_gamma: float | None = None,
+    neighbor_gammas: np.ndarray | None = None,
 ) -> FilterResult:
     """The velocity closest to ``nominal`` that keeps this robot's half of every pair safe.
 
@@ -393,7 +395,8 @@ def safe_velocity(
     ``obstacle_distance`` m from them (:func:`wall_distance`; required with either), at the
     decay rate ``obstacle_gamma`` 1/s (None: ``gamma``; smaller leaves room for command
     latency, covswarm.agent.brain.WALL_GAMMA_FRACTION). With neither, the rows and the
-    result are exactly those of the robots alone.
+    result are exactly those of the robots alone. neighbor_gammas: (m,) 1/s, each pair
+    row's own decay rate in place of ``gamma`` (None: ``gamma`` for all).
     Non-finite neighbours are ignored; a non-finite position, heading or nominal velocity
     gives 0. When the rows cannot all hold (``relaxed``: a pair already inside the safe
     distance, boxed in), every bound is raised to max(gamma h / 2, 0), which the zero
@@ -421,12 +424,20 @@ def safe_velocity(
         neighbor_velocities = neighbor_velocities[keep]
     if velocity is not None and not np.all(np.isfinite(velocity)):
         velocity = None
+    pair_gamma: float | np.ndarray = gamma
+    if neighbor_gammas is not None:
+        given = np.asarray(neighbor_gammas, dtype=float).reshape(-1)
+        if len(given) != len(keep):
+            raise ValueError(f"need one of neighbor_gammas per neighbour, got {len(given)}")
+        pair_gamma = given[keep]
+        if not np.all(pair_gamma > 0.0):  # NaN too
+            raise ValueError("need neighbor_gammas > 0 (not NaN)")
     A, b = pair_constraints(
-        position, neighbors[keep], safe_distance, gamma, velocity, neighbor_velocities
+        position, neighbors[keep], safe_distance, pair_gamma, velocity, neighbor_velocities
     )
     offset = position - neighbors[keep]
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance**2
-    relaxed = np.maximum(0.5 * gamma * h, 0.0)
+    relaxed = np.maximum(0.5 * pair_gamma * h, 0.0)
     if walled:
         wall_gamma = gamma if obstacle_gamma is None else obstacle_gamma
         A_o, b_o = obstacle_constraints(
@@ -539,15 +550,18 @@ def safe_unicycle_velocities(
     obstacle_distance: float | np.ndarray | None = None,
     reach: float = np.inf,
     obstacle_gamma: float | np.ndarray | None = None,
+    neighbor_gammas: Sequence[np.ndarray | None] | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """:func:`safe_velocity` of R differential-drive robots at once (the brains of one process
     due in one tick): robot r's result equals ``safe_velocity(positions[r], nominal[r],
     neighbors[r], safe_distance, gamma, heading=headings[r], velocity=velocities[r],
     neighbor_velocities=neighbor_velocities[r], obstacles=obstacles[r], workspace=workspace,
-    obstacle_distance=..., reach=reach, obstacle_gamma=...)`` to rounding.
+    obstacle_distance=..., reach=reach, obstacle_gamma=...,
+    neighbor_gammas=neighbor_gammas[r])`` to rounding.
 
     positions, nominal: (R, 2) m, m/s; headings: (R,) rad; neighbors: R arrays (m_r, 2) m;
     velocities: (R, 2) m/s or None; neighbor_velocities: R arrays (m_r, 2) m/s or None;
+    neighbor_gammas: R arrays (m_r,) 1/s (or None each: ``gamma``), or None;
     obstacles: R sequences of convex polygons or None; workspace: one box for all, or a box
     or None per robot; safe_distance, gamma, obstacle_distance, obstacle_gamma: one value
     or (R,) values. Returns (velocities (R, 2) m/s, active (R,) rows tight, relaxed (R,)
@@ -581,7 +595,11 @@ def safe_unicycle_velocities(
     nominal, headings = np.where(ok[:, None], nominal, 0.0), np.where(ok, headings, 0.0)
     gamma, safe_distance = np.broadcast_to(gamma, count), np.broadcast_to(safe_distance, count)
     wall_gamma = gamma if obstacle_gamma is None else np.broadcast_to(obstacle_gamma, count)
-    rows = [_pair_rows(p, ok, neighbors, safe_distance, gamma, velocities, neighbor_velocities)]
+    rows = [
+        _pair_rows(
+            p, ok, neighbors, safe_distance, gamma, velocities, neighbor_velocities, neighbor_gammas
+        )
+    ]
     if walled:
         distance = np.broadcast_to(np.asarray(obstacle_distance, dtype=float), count)
         rows.append(_obstacle_rows(p, ok, obstacles, workspace, distance, wall_gamma, reach))
@@ -669,6 +687,7 @@ def _pair_rows(
     gamma: np.ndarray,
     velocities: np.ndarray | None,
     neighbor_velocities: Sequence[np.ndarray] | None,
+    neighbor_gammas: Sequence[np.ndarray | None] | None = None,
 ) -> Rows:
     """Every robot's :func:`pair_constraints` rows, flat: (owner (T,), A (T, 2), b (T,),
     relaxed bounds (T,)); neighbours (or their velocities) not finite are left out, as a
@@ -677,6 +696,21 @@ def _pair_rows(
     owner = np.repeat(np.arange(len(p)), [len(x) for x in arrays])
     q = np.concatenate([np.zeros((0, 2)), *arrays])
     keep = ok[owner] & np.isfinite(q).all(axis=1)
+    row_gamma = gamma[owner]
+    if neighbor_gammas is not None:
+        row_gamma = np.concatenate(
+            [
+                row_gamma[:0],
+                *(
+                    np.broadcast_to(gamma[r], len(x))
+                    if g is None
+                    else np.asarray(g, dtype=float).reshape(len(x))
+                    for r, (x, g) in enumerate(zip(arrays, neighbor_gammas, strict=True))
+                ),
+            ]
+        )
+        if not np.all(row_gamma[keep] > 0.0):  # NaN too
+            raise ValueError("need neighbor_gammas > 0 (not NaN)")
     mean = np.zeros((len(q), 2))
     vq = None
     if neighbor_velocities is not None:
@@ -688,15 +722,15 @@ def _pair_rows(
         own = np.asarray(velocities, dtype=float).reshape(-1, 2)
         own = np.where(np.isfinite(own).all(axis=1)[:, None], own, 0.0)
         mean = 0.5 * own[owner] + mean
-    owner, q, mean = owner[keep], q[keep], mean[keep]
+    owner, q, mean, row_gamma = owner[keep], q[keep], mean[keep], row_gamma[keep]
     offset = p[owner] - q
     h = np.einsum("ij,ij->i", offset, offset) - safe_distance[owner] ** 2
     a = -2.0 * offset
-    half = 0.5 * gamma[owner] * h
+    half = 0.5 * row_gamma * h
     share = np.maximum(half, 0.0)
     b = half + np.clip(np.einsum("ij,ij->i", a, mean), -share, share)
     if vq is not None:
-        b = b + _recede_credit(a, vq[keep], share, safe_distance[owner], gamma[owner])
+        b = b + _recede_credit(a, vq[keep], share, safe_distance[owner], row_gamma)
     return owner, a, b, share
 
 
