@@ -20,16 +20,23 @@ from covswarm.tvd.safety import (
 )
 
 
-@pytest.mark.parametrize("seed", range(40))
-def test_filter_matches_dense_qp_on_random_layouts(seed: int) -> None:
-    rng = np.random.default_rng(seed)
+def random_case(rng: np.random.Generator, most: int) -> tuple:
+    """One robot's filter inputs at a random scale: (scale m, position (2,), 1 to ``most``
+    neighbours (m, 2), safe distance m, nominal (2,) m/s, velocity (2,), theirs (m, 2))."""
     scale = 10.0 ** rng.uniform(-1, 1)  # layouts from 10 cm to 10 m across
-    m = int(rng.integers(1, 13))
+    m = int(rng.integers(1, most + 1))
     me = rng.uniform(-1, 1, 2) * scale
     others = me + rng.normal(size=(m, 2)) * 0.4 * scale
     safe = 0.3 * scale * rng.uniform(0.3, 1.0)
     nominal = rng.normal(size=2) * scale
     velocity, theirs = rng.normal(size=2) * scale, rng.normal(size=(m, 2)) * scale
+    return scale, me, others, safe, nominal, velocity, theirs
+
+
+@pytest.mark.parametrize("seed", range(40))
+def test_filter_matches_dense_qp_on_random_layouts(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    scale, me, others, safe, nominal, velocity, theirs = random_case(rng, 12)
     heading = rng.uniform(-np.pi, np.pi) if seed % 2 else None
     A, b = pair_constraints(me, others, safe, DEFAULT_GAMMA, velocity, theirs)
     if heading is not None:
@@ -63,13 +70,8 @@ def test_per_row_gains_match_dense_qp_row_by_row(seed: int) -> None:
     # neighbor_gammas (covswarm.agent.brain.filter_all's second pass): each pair row built
     # alone with its own scalar gain, then the dense QP over them.
     rng = np.random.default_rng(1000 + seed)
-    scale = 10.0 ** rng.uniform(-1, 1)
-    m = int(rng.integers(1, 10))
-    me = rng.uniform(-1, 1, 2) * scale
-    others = me + rng.normal(size=(m, 2)) * 0.4 * scale
-    safe = 0.3 * scale * rng.uniform(0.3, 1.0)
-    nominal = rng.normal(size=2) * scale
-    velocity, theirs = rng.normal(size=2) * scale, rng.normal(size=(m, 2)) * scale
+    scale, me, others, safe, nominal, velocity, theirs = random_case(rng, 9)
+    m = len(others)
     heading = rng.uniform(-np.pi, np.pi) if seed % 2 else None
     gammas = rng.uniform(0.2, 10.0, m)
     rows = [
