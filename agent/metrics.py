@@ -83,9 +83,6 @@ class Counters:
     # command timeout, not the expected hold: the pair would come within the safe distance
     # in that time, the brain slower than ARC_HOLD (covswarm.agent.brain.filter_all)
     overrun_gained: int = 0
-    # robots followed as stranded: their token lives without their agent's, and their own
-    # poses make them still rows of the safety filter (covswarm.agent.brain.AgentBrain.stranded)
-    stranded_followed: int = 0
     # mission steps with no cell in S (the robot outside S, dominated by teammates: it aims
     # at S's centroid, covswarm.tvd.control); a robot stuck so dominates e_a
     cell_empty: int = 0

@@ -50,7 +50,6 @@ from covswarm.agent.brain import (
     AgentConfig,
     DeclareAlive,
     FollowStates,
-    FollowStranded,
     FollowTiles,
     PublishBeacon,
     PublishState,
@@ -214,8 +213,7 @@ def run_netsim(
         for other in range(n):
             if other != brain.id:
                 brain.on_liveliness("robot", other, True)
-    # Who follows each topic, and what each agent follows ("state": ids, "beacon": tiles,
-    # "stranded": ids whose robots' poses it follows).
+    # Who follows each topic, and what each agent follows ("state": ids, "beacon": tiles).
     subscribers: dict[Topic, set[int]] = {
         ("domain", None): set(range(n)),
         ("alive", None): set(range(n)),
@@ -223,7 +221,7 @@ def run_netsim(
     for i in range(n):
         subscribers[("pose", i)] = {i}
     follows: list[dict[str, frozenset]] = [
-        {"state": frozenset(), "beacon": frozenset(), "stranded": frozenset()} for _ in range(n)
+        {"state": frozenset(), "beacon": frozenset()} for _ in range(n)
     ]
     # Per agent: the newest unread payload per slot, and the agents whose tokens appeared.
     inbox: list[dict[Slot, bytes]] = [{} for _ in range(n)]
@@ -278,8 +276,6 @@ def run_netsim(
                 follow(index, "state", action.ids)
             elif isinstance(action, FollowTiles):
                 follow(index, "beacon", action.tiles)
-            elif isinstance(action, FollowStranded):
-                follow(index, "stranded", action.ids)
             elif isinstance(action, DeclareAlive):
                 send(now + transit, ("alive", None), "alive", index, b"")
                 tokens.setdefault(index, now + transit)
@@ -346,10 +342,7 @@ def run_netsim(
             for robot in robots:
                 robot.step(now)
                 pose = robot.pose_message(wall + clock_skew, int(round(now * ROBOT_RATE)))
-                payload = pose.encode()
-                send(now + transit, ("pose", robot.id), "pose", robot.id, payload)
-                if ("stranded", robot.id) in subscribers:
-                    send(now + transit, ("stranded", robot.id), "stranded", robot.id, payload)
+                send(now + transit, ("pose", robot.id), "pose", robot.id, pose.encode())
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
             vertices, velocities = scenario.domain(pace * mission_t)
