@@ -1305,13 +1305,12 @@ class AgentBrain:
             if abs(turn) > ARC_TURN:  # turn in place at the same rate, drive from the next step
                 left, right = 0.5 * (left - right), 0.5 * (right - left)
                 self.counters.arc_turned += 1
-            elif self.may_drive > self._hold:
+            elif (may_drive := self.may_drive) > self._hold:
                 # Driven on an arc: no further than its aim however long the robot drives
                 # the command, until our next one or its stop (see ARC_HOLD).
                 left, right, capped = steer_one(
-                    heading, vx, vy, robot, config.projection_distance, self.may_drive, aim,
-                    side,
-                )  # fmt: skip
+                    heading, vx, vy, robot, config.projection_distance, may_drive, aim, side
+                )
         self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports
         # for neighbours to dead-reckon our position with (a saturated command overstates
@@ -1460,8 +1459,8 @@ class AgentBrain:
         # drives the command to its timeout: filter_all samples the gain over that on the
         # rows of the robots the command so driven would bring within the safe distance.
         overrun = 0.0
-        if self._hold > ARC_HOLD and self.may_drive > driven and len(near):
-            overrun = self.may_drive + latency
+        if self._hold > ARC_HOLD and len(near) and (may_drive := self.may_drive) > driven:
+            overrun = may_drive + latency
         world = self.world
         obstacles: list[np.ndarray] = []
         if world is not None and world.obstacles:  # a workspace alone: walls, no search

@@ -134,21 +134,21 @@ def runs(tmp_path_factory: pytest.TempPathFactory) -> dict[int, dict]:
     results = {}
     with ExitStack() as stack:
         launchers = {}
-        for n in SIZES:
-            scenario = folder / f"square-{n}.toml"
-            scenario.write_text(SQUARE_TOML.format(n=n, h=round((n / 10) ** 0.5, 4)))
-            args = ["--scenario", str(scenario), "--agents", str(n), "--duration", "8",
-                    "--agents-per-process", "20"]  # fmt: skip
-            launchers[n] = stack.enter_context(launch(outs[n], *args, swarm=swarms[n]))
-            assert wait_until(functools.partial(mission_started, outs[n]), 90)
-            if n == SIZES[0]:
-                endpoint = json.loads((outs[n] / "launch.json").read_text())["endpoint"]
-                with ThreadPoolExecutor(1) as counter:
-                    counts = counter.submit(count_messages, endpoint, swarms[n], WINDOW)
-                    results[n] = mid_mission(swarms[n])
-                    results[n]["counts"] = counts.result()
-            else:
+        with ThreadPoolExecutor(1) as counter:
+            for n in SIZES:
+                scenario = folder / f"square-{n}.toml"
+                scenario.write_text(SQUARE_TOML.format(n=n, h=round((n / 10) ** 0.5, 4)))
+                args = ["--scenario", str(scenario), "--agents", str(n), "--duration", "8",
+                        "--agents-per-process", "20"]  # fmt: skip
+                launchers[n] = stack.enter_context(launch(outs[n], *args, swarm=swarms[n]))
+                assert wait_until(functools.partial(mission_started, outs[n]), 90)
+                counting = None
+                if n == SIZES[0]:
+                    endpoint = json.loads((outs[n] / "launch.json").read_text())["endpoint"]
+                    counting = counter.submit(count_messages, endpoint, swarms[n], WINDOW)
                 results[n] = mid_mission(swarms[n])
+                if counting is not None:  # counted before the next run is launched
+                    results[n]["counts"] = counting.result()
         for n in SIZES:
             code = launchers[n].wait(timeout=180)
             assert code == 0, (folder / f"square-{n}.launcher.log").read_text()
