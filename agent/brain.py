@@ -61,9 +61,12 @@ from covswarm.tvd.control import (
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import (
     KHEPERA_IV,
+    SLIDE_MIN,
     DiffDrive,
     pass_sides,
     steer_one,
+    stopped_dead_one,
+    takes_slide_one,
     turn_in_place,
     twist_from_wheels,
 )
@@ -71,9 +74,11 @@ from covswarm.tvd.safety import (
     DEFAULT_GAMMA,
     DEFAULT_MARGIN,
     SAFETY_RADIUS,
+    FilterResult,
     barrier_gain,
     body_safe_distance,
     safe_unicycle_velocities,
+    safe_velocity,
     unseen_speed_limit,
     wall_distance,
 )
@@ -434,6 +439,29 @@ def _filter(filterings: list[Filtering]) -> list[SafeVelocity]:
     return list(zip(velocities.tolist(), active.tolist(), relaxed.tolist(), strict=True))
 
 
+def filter_alone(filtering: Filtering, heading: float | None) -> FilterResult:
+    """``filtering``'s step filtered alone (covswarm.tvd.safety.safe_velocity: (2,) m/s,
+    rows tight, relaxed), its robot facing ``heading`` rad, or able to move sideways (None:
+    its slide, where a robot stopped dead turns to go, covswarm.tvd.drive.steer)."""
+    x, y, _ = filtering.begun.pose
+    return safe_velocity(
+        (x, y),
+        filtering.nominal,
+        filtering.near[:, :2],
+        filtering.safe_distance,
+        filtering.gamma,
+        velocity=np.asarray(filtering.velocity, dtype=float),
+        neighbor_velocities=filtering.near[:, 2:],
+        obstacles=filtering.obstacles,
+        workspace=filtering.workspace,
+        obstacle_distance=filtering.obstacle_distance,
+        reach=SAFETY_RADIUS,
+        obstacle_gamma=filtering.obstacle_gamma,
+        neighbor_gammas=filtering.near_gamma,
+        heading=heading,
+    )
+
+
 def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
     """One step's safety filter, or what it raised (for AgentBrain.drive to count)."""
     try:
@@ -562,6 +590,9 @@ class AgentBrain:
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
         # robot): they stay where they were, and the safety filter steers around them.
         self.obstacles: dict[int, tuple[float, float, float]] = {}
+        # Whether our robot aims at its slide (covswarm.tvd.drive.steer): since the safety
+        # filter stopped it dead, until the rows no longer bend its aim (_safety_inputs).
+        self._sliding = False
         # The last step's robots within SAFETY_RADIUS: those heard first-hand, and every
         # one's id and row (x, y, vx, vy) of the neighbourhood's table, in table order.
         self._near_first_hand: set[int] = set()
@@ -1165,12 +1196,22 @@ class AgentBrain:
             aim = filtering.nominal.tolist()  # where it wants to go: the turn's cap and veer
             x, y, heading = filtering.begun.pose
             # Held back (only by an active row: else it drives its aim), it passes on the
-            # side away from the robot that holds it back.
-            side = 1.0
+            # side away from the robot that holds it back; stopped dead, it turns toward
+            # its slide (covswarm.tvd.drive.steer), unless its turns come later than
+            # ARC_HOLD: a command driven up to the timeout would slide on past where the
+            # rows bent its aim (deploy.netsim's overloaded circle-400, brains every
+            # 0.45-1.15 s: e_a at the end +15 mm on average over seeds 0-3, 1 Dec 2026).
+            side, slide = 1.0, None
             if active:
                 near = filtering.near[:, :2]
                 side = float(pass_sides((x, y), filtering.nominal, near, SAFETY_RADIUS)[0])
-            decision = self._wheels(vx, vy, heading, (aim[0], aim[1]), side)
+                if self._hold <= ARC_HOLD and stopped_dead_one(heading, vx, vy, (aim[0], aim[1])):
+                    slide = tuple(filter_alone(filtering, None).velocity.tolist())
+                    # From the next step on it aims at its slide until the way is clear
+                    # (_safety_inputs), not back at the robot that stopped it.
+                    self._sliding = takes_slide_one(heading, vx, vy, (aim[0], aim[1]), slide)
+                    self.counters.slid += self._sliding and self.running
+            decision = self._wheels(vx, vy, heading, (aim[0], aim[1]), side, slide)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))
         self._step_us.add((filtering.spent + shared + self._clock() - started) * 1e6)
@@ -1291,15 +1332,18 @@ class AgentBrain:
         heading: float,
         aim: tuple[float, float] | None = None,
         side: float = 1.0,
+        slide: tuple[float, float] | None = None,
     ) -> Decision:
         """The running decision for the velocity (vx, vy) m/s from ``heading`` rad, turning
         toward ``aim`` (the velocity before the safety filter, faced, or passed on ``side``
-        while the filter holds the robot back: covswarm.tvd.drive.steer; None: (vx, vy))."""
+        while the filter holds the robot back: covswarm.tvd.drive.steer; None: (vx, vy)),
+        or toward ``slide`` when the filter stopped it dead."""
         config = self.config
         robot = config.robot
         left, right, capped = steer_one(
-            heading, vx, vy, robot, config.projection_distance, self._hold, aim, side
+            heading, vx, vy, robot, config.projection_distance, self._hold, aim, side, slide
         )
+
         if self._hold > ARC_HOLD:
             turn = (right - left) / robot.wheel_separation * config.cmd_timeout
             if abs(turn) > ARC_TURN:  # turn in place at the same rate, drive from the next step
@@ -1309,7 +1353,7 @@ class AgentBrain:
                 # Driven on an arc: no further than its aim however long the robot drives
                 # the command, until our next one or its stop (see ARC_HOLD).
                 left, right, capped = steer_one(
-                    heading, vx, vy, robot, config.projection_distance, may_drive, aim, side
+                    heading, vx, vy, robot, config.projection_distance, may_drive, aim, side, slide
                 )
         self.counters.turn_capped += capped
         # What the robot's centre will do, not what was asked: what our AgentState reports
@@ -1466,7 +1510,7 @@ class AgentBrain:
         if world is not None and world.obstacles:  # a workspace alone: walls, no search
             nearby = world.candidates((x, x, y, y), SAFETY_RADIUS)
             obstacles = [world.obstacles[j].vertices for j in nearby]
-        return Filtering(
+        filtering = Filtering(
             begun=begun,
             nominal=velocity,
             near=near,
@@ -1479,6 +1523,21 @@ class AgentBrain:
             obstacle_gamma=WALL_GAMMA_FRACTION * gamma,
             overrun=overrun,
         )
+        if self._sliding:
+            # Aiming at its slide since the filter stopped it dead (drive), until the rows
+            # no longer bend its aim. Facing its aim again while they did (at once, or
+            # once its aim was no longer stopped dead), it turned back into the robot that
+            # had stopped it, on an arc the filter (which bounds the forward speed along
+            # the heading it starts from) does not see: to 0.149 m of a still robot 10
+            # degrees off its aim (tests/test_slide.py), and stopped dead again.
+            slide = filter_alone(filtering, None)
+            norm = math.hypot(velocity[0], velocity[1])
+            long = math.hypot(*slide.velocity) >= SLIDE_MIN * norm
+            self._sliding = slide.active > 0 and long and self.running and self._hold <= ARC_HOLD
+            if self._sliding:
+                filtering.nominal = slide.velocity
+                self.counters.slid += 1
+        return filtering
 
     # --- output --------------------------------------------------------------------------
 
@@ -1547,6 +1606,7 @@ class AgentBrain:
             "turn_capped": c.turn_capped,
             "arc_turned": c.arc_turned,
             "overrun_gained": c.overrun_gained,
+            "slid": c.slid,
             "cell_empty": c.cell_empty,
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,

@@ -83,6 +83,10 @@ class Counters:
     # command timeout, not the expected hold: the pair would come within the safe distance
     # in that time, the brain slower than ARC_HOLD (covswarm.agent.brain.filter_all)
     overrun_gained: int = 0
+    # mission steps whose robot, stopped dead by the safety filter, turned toward its slide
+    # (the velocity the filter leaves a robot that could move sideways: covswarm.tvd.drive.
+    # steer), not its aim
+    slid: int = 0
     # mission steps with no cell in S (the robot outside S, dominated by teammates: it aims
     # at S's centroid, covswarm.tvd.control); a robot stuck so dominates e_a
     cell_empty: int = 0

@@ -55,6 +55,7 @@ class SimResult:
     safety_active: int = 0  # robot-steps on which the safety filter changed the velocity
     safety_relaxed: int = 0  # robot-steps on which it could not hold every pair (boxed in)
     contact_stops: int = 0  # robot-steps on which an obstacle or wall stopped a robot
+    slid: int = 0  # robot-steps stopped dead by the filter that turned toward their slide
     # the deploy hold's end: t (s), why (coordinator.pace.deploy_release), e_a (m) then;
     # None without a hold
     released: tuple[float, str, float] | None = None
@@ -130,8 +131,11 @@ def simulate(
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
     from covswarm.tvd.drive import (
         KHEPERA_IV,
+        SLIDE_MIN,
         integrate,
         pass_sides,
+        stopped_dead,
+        takes_slide,
         turn_in_place,
         twist_from_wheels,
         wheel_speeds,
@@ -199,7 +203,7 @@ def simulate(
     heading_log: list[np.ndarray] = []
     wheel_rows: list[np.ndarray] = []
     polygons: list[np.ndarray] = []
-    guarded = fallbacks = safety_active = safety_relaxed = contact_stops = 0
+    guarded = fallbacks = safety_active = safety_relaxed = contact_stops = slid = 0
     world = scenario.world
     walls = {
         "nearby_obstacles": world.nearby,
@@ -207,6 +211,7 @@ def simulate(
         "obstacle_distance": wall_distance(scenario.robot_diameter),
     }
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
+    sliding = np.zeros(n, dtype=bool)  # aiming at their slides (covswarm.tvd.drive.steer)
     safe_distance = body_safe_distance(scenario.robot_diameter)
     k = scripted = 0  # steps taken, of them the script's
     tau = 0.0
@@ -273,6 +278,19 @@ def simulate(
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
             raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {tk:.4g} s")
+        if safety and sliding.any():
+            # Aiming at their slides since the filter stopped them dead, until the rows
+            # no longer bend their aims (covswarm.agent.brain.AgentBrain._safety_inputs).
+            ids = np.flatnonzero(sliding)
+            slide, bent, _ = team_safe_velocities(
+                positions, aim, safe_distance, barrier_gain(DEFAULT_GAMMA, dt), SAFETY_RADIUS,
+                velocities=centre_velocity, subset=ids, **walls,
+            )  # fmt: skip
+            speeds = np.hypot(slide[ids, 0], slide[ids, 1])
+            keep = (bent[ids] > 0) & (speeds >= SLIDE_MIN * np.hypot(aim[ids, 0], aim[ids, 1]))
+            sliding[ids] = keep
+            velocity = aim = np.where(sliding[:, None], slide, aim)
+            slid += int(np.count_nonzero(keep))
         if safety:
             velocity, active, relaxed = team_safe_velocities(
                 positions, velocity, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
@@ -288,15 +306,25 @@ def simulate(
         else:
             # Held for a step, as an agent's command is for its period (AgentBrain._hold):
             # uncapped, a robot far from its goal at a long step spins instead of driving.
-            sides = None
+            sides = slides = None
             if safety:  # held back only by an active row; passing away from who holds it
                 sides = np.ones(n)
                 held = np.flatnonzero(active)
                 sides[held] = pass_sides(positions[held], aim[held], positions, SAFETY_RADIUS)
+                # stopped dead, toward the slide (covswarm.tvd.drive.steer), as an agent
+                dead = np.flatnonzero(stopped_dead(headings, velocity, aim) & (active > 0))
+                if len(dead):
+                    slides = team_safe_velocities(
+                        positions, aim, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
+                        SAFETY_RADIUS, velocities=centre_velocity, subset=dead, **walls,
+                    )[0]  # fmt: skip
             wheels = wheel_speeds(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L,
-                hold=dt, aims=aim, sides=sides,
+                hold=dt, aims=aim, sides=sides, slides=slides,
             )  # fmt: skip
+            if slides is not None:
+                sliding[dead] = takes_slide(headings, velocity, aim, slides)[dead]
+                slid += int(np.count_nonzero(sliding[dead]))
             wheel_rows.append(wheels)
             if safety:
                 forward, _ = twist_from_wheels(
@@ -324,7 +352,7 @@ def simulate(
     return SimResult(
         np.array(t_log), np.array(error_log), np.array(trajectory_log), np.array(heading_log),
         polygons, positions, guarded, fallbacks, wheel_log, safety_active, safety_relaxed,
-        contact_stops, released,
+        contact_stops, slid, released,
     )  # fmt: skip
 
 
@@ -432,6 +460,7 @@ def build_summary(
                 "on": safety,
                 "active_robot_steps": result.safety_active,
                 "relaxed_robot_steps": result.safety_relaxed,
+                "slid_robot_steps": result.slid,
             },
         }
     )

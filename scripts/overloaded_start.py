@@ -45,6 +45,7 @@ COUNTERS = (
     "beacon_doubted",
     "safety_relaxed",
     "overrun_gained",
+    "slid",
 )
 
 

@@ -331,3 +331,27 @@ def test_team_filter_is_each_robots_filter_against_the_robots_near_it(seed: int)
         np.testing.assert_allclose(out[i], one.velocity, rtol=0, atol=1e-12)
         assert (active[i], relaxed[i]) == (one.active, one.relaxed)
     assert active.sum() > 0  # the layout is tight enough for the filter to act
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_a_subset_of_the_team_is_filtered_as_the_whole_team_would_be(seed: int) -> None:
+    # The simulator's slides (covswarm.tvd.drive.steer): single integrators, some robots.
+    rng = np.random.default_rng(seed)
+    n = 12
+    positions = rng.uniform(-0.6, 0.6, size=(n, 2))
+    nominal = rng.normal(scale=0.2, size=(n, 2))
+    velocities = rng.normal(scale=0.1, size=(n, 2))
+    whole = team_safe_velocities(positions, nominal, 0.16, 10.0, 0.5, velocities=velocities)
+    subset = rng.choice(n, size=5, replace=False)
+    some = team_safe_velocities(
+        positions, nominal, 0.16, 10.0, 0.5, velocities=velocities, subset=subset
+    )
+    rest = np.setdiff1d(np.arange(n), subset)
+    for full, part in zip(whole, some, strict=True):
+        np.testing.assert_array_equal(part[subset], full[subset])
+    np.testing.assert_array_equal(some[0][rest], nominal[rest])
+    assert not some[1][rest].any() and not some[2][rest].any()
+    with pytest.raises(ValueError, match="single integrators"):
+        team_safe_velocities(
+            positions, nominal, 0.16, 10.0, 0.5, headings=np.zeros(n), subset=subset
+        )

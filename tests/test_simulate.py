@@ -188,7 +188,12 @@ def test_safety_keeps_squeezed_robots_apart_in_the_simulator(tmp_path: Path) -> 
         run_cli("--scenario", str(SQUEEZE), "--seed", "1", "--out", str(tmp_path / name), *flag)
     unsafe = json.loads((tmp_path / "unsafe" / "summary.json").read_text())
     safe = json.loads((tmp_path / "safe" / "summary.json").read_text())
-    assert unsafe["safety"] == {"on": False, "active_robot_steps": 0, "relaxed_robot_steps": 0}
+    assert unsafe["safety"] == {
+        "on": False,
+        "active_robot_steps": 0,
+        "relaxed_robot_steps": 0,
+        "slid_robot_steps": 0,
+    }
     assert unsafe["min_pairwise_distance"] < 0.14 and unsafe["close_approaches"] >= 1
     assert safe["safety"]["on"] and safe["safety"]["active_robot_steps"] > 0
     assert safe["min_pairwise_distance"] >= 0.14 and safe["close_approaches"] == 0

@@ -42,6 +42,10 @@ PASS_ANGLE = 1.0
 PASS_BELOW = 0.5
 PASS_STOPPED = 0.05
 PASS_DAMPING = 0.5
+# A robot stopped dead by a safety filter turns toward its slide (:func:`steer`'s
+# ``slides``) when the slide keeps at least SLIDE_MIN of its aim's speed; below that it is
+# boxed in, and it faces its aim and waits.
+SLIDE_MIN = 0.1
 
 
 @dataclass(frozen=True)
@@ -65,10 +69,53 @@ def wheel_speeds(
     hold: float | np.ndarray = 0.0,
     aims: np.ndarray | None = None,
     sides: np.ndarray | None = None,
+    slides: np.ndarray | None = None,
 ) -> np.ndarray:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity:
     :func:`steer`'s wheels."""
-    return steer(headings, velocities, robot, projection_distance, hold, aims, sides)[0]
+    return steer(headings, velocities, robot, projection_distance, hold, aims, sides, slides)[0]
+
+
+def stopped_dead(headings: np.ndarray, velocities: np.ndarray, aims: np.ndarray) -> np.ndarray:
+    """(n,) bool: the robots whose forward speed a safety filter cut to zero or below while
+    their aim lies ahead (headings (n,) rad; velocities, aims (n, 2) m/s, after and before
+    the filter): those :func:`steer` turns toward their slide, and the only ones whose slide
+    it reads. Non-finite rows are not."""
+    headings = np.asarray(headings, dtype=float).reshape(-1)
+    velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
+    aims = np.asarray(aims, dtype=float).reshape(-1, 2)
+    e = np.stack([np.cos(headings), np.sin(headings)], axis=1)
+    with np.errstate(invalid="ignore"):
+        ahead = np.einsum("ij,ij->i", aims, e)
+        forward = np.einsum("ij,ij->i", velocities, e)
+        return (ahead > 0.0) & (forward <= 0.0)
+
+
+def stopped_dead_one(heading: float, vx: float, vy: float, aim: tuple[float, float]) -> bool:
+    """:func:`stopped_dead` for one robot in plain floats."""
+    cos, sin = math.cos(heading), math.sin(heading)
+    return aim[0] * cos + aim[1] * sin > 0.0 and vx * cos + vy * sin <= 0.0
+
+
+def takes_slide(
+    headings: np.ndarray, velocities: np.ndarray, aims: np.ndarray, slides: np.ndarray
+) -> np.ndarray:
+    """(n,) bool: the robots :func:`steer` turns toward their ``slides`` (n, 2) m/s: those
+    :func:`stopped_dead` whose slide keeps at least SLIDE_MIN of their aim's speed."""
+    aims = np.asarray(aims, dtype=float).reshape(-1, 2)
+    slides = np.asarray(slides, dtype=float).reshape(-1, 2)
+    with np.errstate(invalid="ignore"):
+        long = np.hypot(slides[:, 0], slides[:, 1]) >= SLIDE_MIN * np.hypot(aims[:, 0], aims[:, 1])
+    return stopped_dead(headings, velocities, aims) & long
+
+
+def takes_slide_one(
+    heading: float, vx: float, vy: float, aim: tuple[float, float], slide: tuple[float, float]
+) -> bool:
+    """:func:`takes_slide` for one robot in plain floats."""
+    return stopped_dead_one(heading, vx, vy, aim) and math.hypot(*slide) >= SLIDE_MIN * math.hypot(
+        *aim
+    )
 
 
 def steer(
@@ -79,6 +126,7 @@ def steer(
     hold: float | np.ndarray = 0.0,
     aims: np.ndarray | None = None,
     sides: np.ndarray | None = None,
+    slides: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Rim speeds (left, right) in m/s that make each robot follow a planar velocity, and
     which robots' turn rate was capped for ``hold``.
@@ -86,7 +134,10 @@ def steer(
     headings: (n,) rad; velocities: (n, 2) m/s; hold: s the command will stay in force,
     scalar or (n,) (0: not known, no cap); aims: (n, 2) m/s, the velocities the robots
     want before a safety filter bounded their forward speed (None: ``velocities``); sides:
-    (n,) +1 or -1, the side each robot held back passes on (None: all +1, the left).
+    (n,) +1 or -1, the side each robot held back passes on (None: all +1, the left);
+    slides: (n, 2) m/s, the velocities the same filter leaves a robot that could move
+    sideways (covswarm.tvd.safety.safe_velocity without a heading; read only where
+    :func:`stopped_dead`, NaN elsewhere is fine; None: none).
     Returns wheels (n, 2) [left, right] and capped (n,) bool.
 
     Forward speed v = vx cos th + vy sin th, turn rate w = (-vx sin th + vy cos th) / l.
@@ -123,6 +174,17 @@ def steer(
     along) it faces its aim. Toward a veered heading it turns PASS_DAMPING of the angle per
     period: r changes with the heading, and a full turn each period swung between the aim
     and the veer. The turn rate toward a veered aim a' is |a| sin(e') / l, capped as above.
+
+    Stopped dead with a ``slides`` row, a robot turns toward its slide s instead, at
+    |s| sin(e_s) / l capped at |e_s| / hold (e_s the angle to s), its forward speed as
+    filtered: facing its aim it would wait for ever beside a robot that does not move (a
+    stranded one, an obstacle held), its aim and the filter's row in balance: 0.16 m from
+    a still robot 10-60 degrees off its aim, it waited all 4 s (tests/test_slide.py).
+    Facing s, the filter lets it drive, since s meets every row. The caller then aims it
+    at its slide until the rows no longer bend its aim (covswarm.agent.brain.AgentBrain.
+    _safety_inputs, and the simulator alike), and it goes round the robot. Not where
+    |s| < SLIDE_MIN |a|: boxed in, or a still robot within asin(SLIDE_MIN) (5.7 degrees)
+    of dead ahead, it faces its aim and waits as before.
 
     Saturation then scales both wheels of a robot by the same factor so the curvature (the
     path) is kept and only the speed along it drops. A robot with a non-finite heading or
@@ -161,6 +223,14 @@ def steer(
             veer = veer * np.asarray(sides, dtype=float).reshape(-1)
         error = np.where(veering, error + veer, error)
         w = np.where(veering, np.hypot(ax, ay) * np.sin(error) / projection_distance, w)
+        if slides is not None:
+            slides = np.asarray(slides, dtype=float).reshape(-1, 2)
+            if slides.shape != velocities.shape:
+                raise ValueError(f"{slides.shape[0]} slides for {velocities.shape[0]} velocities")
+            sx, sy = slides[:, 0], slides[:, 1]
+            slid = takes_slide(headings, velocities, aims, slides)
+            error = np.where(slid, np.arctan2(-sx * sin + sy * cos, sx * cos + sy * sin), error)
+            w = np.where(slid, (-sx * sin + sy * cos) / projection_distance, w)
         # |e| / hold (damped toward a veer), and no cap (inf) where the hold is not known
         limit = np.abs(error) / np.where(hold > 0.0, hold, np.nan)
         limit = np.where(hold > 0.0, np.where(veering, PASS_DAMPING * limit, limit), np.inf)
@@ -180,13 +250,14 @@ def steer_one(
     heading: float, vx: float, vy: float, robot: DiffDrive = KHEPERA_IV,
     projection_distance: float = DEFAULT_PROJECTION_DISTANCE, hold: float = 0.0,
     aim: tuple[float, float] | None = None, side: float = 1.0,
+    slide: tuple[float, float] | None = None,
 ) -> tuple[float, float, bool]:  # fmt: skip
     """:func:`steer` for one robot in plain floats: rim speeds (left, right) m/s for the
     planar velocity (vx, vy) m/s from ``heading`` rad, and whether the turn rate was capped
-    for ``hold`` s toward ``aim`` (m/s; None: (vx, vy)); the same arithmetic, guards and
-    errors. An agent steers its one robot every step, where numpy's per-call overhead was
-    ~40 us of steer's cost for a single row (tests/test_drive_model.py checks both agree
-    on random, capped and non-finite input)."""
+    for ``hold`` s toward ``aim`` (m/s; None: (vx, vy)), or toward ``slide`` (m/s) when
+    stopped dead; the same arithmetic, guards and errors. An agent steers its one robot
+    every step, where numpy's per-call overhead was ~40 us of steer's cost for a single row
+    (tests/test_drive_model.py checks both agree on random, capped and non-finite input)."""
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
     if not hold >= 0.0:
@@ -208,7 +279,11 @@ def steer_one(
         veer = PASS_ANGLE * (
             min(max(ratio / PASS_STOPPED, 0.0), 1.0) * min(max(1.0 - ratio / PASS_BELOW, 0.0), 1.0)
         )
-        if veer > 0.0:
+        if slide is not None and takes_slide_one(heading, vx, vy, aim, slide):
+            sx, sy = slide
+            error = math.atan2(-sx * sin + sy * cos, sx * cos + sy * sin)
+            w = (-sx * sin + sy * cos) / projection_distance
+        elif veer > 0.0:
             error += side * veer
             w = math.hypot(ax, ay) * math.sin(error) / projection_distance
             damping = PASS_DAMPING

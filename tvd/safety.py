@@ -468,6 +468,7 @@ def team_safe_velocities(
     nearby_obstacles: Callable[[np.ndarray, float], Sequence[np.ndarray]] | None = None,
     workspace: Box | None = None,
     obstacle_distance: float | None = None,
+    subset: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Every robot's :func:`safe_velocity` against the others within ``radius`` m, as each
     agent filters its own (the in-process simulator's team at once).
@@ -479,7 +480,9 @@ def team_safe_velocities(
     covswarm.world.model.World.nearby; workspace, obstacle_distance: as in
     :func:`safe_velocity`; each robot gets rows for those within ``radius``. Returns
     (velocities (n, 2), active (n,) rows tight per robot, relaxed (n,) bool). With headings
-    the team is filtered in one batch (:func:`safe_unicycle_velocities`).
+    the team is filtered in one batch (:func:`safe_unicycle_velocities`). subset: indices of
+    the single integrators to filter (None: all); the others keep their nominal velocity,
+    0 rows and not relaxed (the simulator's slides: covswarm.tvd.drive.steer).
     """
     from scipy.spatial import cKDTree
 
@@ -490,6 +493,8 @@ def team_safe_velocities(
     relaxed = np.zeros(n, dtype=bool)
     tree = cKDTree(positions)
     if headings is not None:  # differential drive: the whole team in one batch
+        if subset is not None:
+            raise ValueError("subset is for single integrators (headings=None)")
         # Each robot's neighbours as slices of one array (a fancy index per robot cost a
         # tenth of covswarm sim at 1000 robots); their order does not change the result.
         pairs = tree.query_pairs(radius, output_type="ndarray")
@@ -514,16 +519,17 @@ def team_safe_velocities(
             obstacle_distance=obstacle_distance,
             reach=radius,
         )
-    near = tree.query_ball_point(positions, radius)
-    for i in range(n):
-        others = [j for j in near[i] if j != i]
+    robots = np.arange(n) if subset is None else np.asarray(subset, dtype=int).reshape(-1)
+    out[:] = np.asarray(nominal, dtype=float).reshape(n, 2)
+    near = tree.query_ball_point(positions[robots], radius)
+    for i, around in zip(robots.tolist(), near, strict=True):
+        others = [j for j in around if j != i]
         result = safe_velocity(
             positions[i],
             nominal[i],
             positions[others],
             safe_distance,
             gamma,
-            heading=None if headings is None else float(headings[i]),
             velocity=None if velocities is None else velocities[i],
             neighbor_velocities=None if velocities is None else velocities[others],
             obstacles=() if nearby_obstacles is None else nearby_obstacles(positions[i], radius),

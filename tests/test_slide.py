@@ -1,0 +1,154 @@
+"""A robot that the safety filter stops dead beside a still robot turns toward its slide
+(covswarm.tvd.drive.steer's ``slides``, covswarm.agent.brain.slide_velocity): the
+velocity the same rows leave a robot that could move sideways; and it aims at its slide
+until the rows no longer bend its aim (AgentBrain._safety_inputs). Facing its aim, it
+waited for ever, its aim and the filter's row in balance: the deadlock of a robot behind a
+stranded one (tests/test_faults.py's newcomer run, robot 4 0.160 m from robot 3, 75
+degrees off its aim, for the last 10 s of the mission)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from wire_samples import domain_message
+
+from covswarm import protocol
+from covswarm.agent import brain as brain_module
+from covswarm.agent.brain import AgentBrain, AgentConfig
+from covswarm.tvd.drive import (
+    KHEPERA_IV,
+    SLIDE_MIN,
+    integrate_one,
+    steer,
+    steer_one,
+    stopped_dead,
+    stopped_dead_one,
+)
+from covswarm.tvd.safety import body_safe_distance
+
+WALL = 1.7e9
+START = (-0.2, 0.0)  # m: robot 0, facing +x
+# S 2.2 m to robot 0's right: its cell is empty and it aims at S's centroid, along +x.
+FAR_SQUARE = [[2.0, -1.0], [4.0, -1.0], [4.0, 1.0], [2.0, 1.0]]
+SAFE = body_safe_distance(KHEPERA_IV.body_diameter, AgentConfig().safety_margin)  # 0.16 m
+
+
+def drive_past(angle: float, seconds: float = 4.0) -> tuple[AgentBrain, list[tuple]]:
+    """Brain 0 stepped at 10 Hz for ``seconds``, its robot at START facing +x (its aim),
+    robot 1 still 1 mm outside the safe distance, ``angle`` rad to the left of the aim;
+    robot 0's poses, the command of each step driven for its period."""
+    neighbour = (
+        START[0] + (SAFE + 1e-3) * math.cos(angle),
+        START[1] + (SAFE + 1e-3) * math.sin(angle),
+    )
+    brain = AgentBrain(0, AgentConfig(kappa=1.0, cmd_timeout=0.5))
+    x, y, heading = *START, 0.0
+    path = [(x, y, heading)]
+    for k in range(round(seconds / 0.1)):
+        t = 0.1 * k
+        domain = domain_message(FAR_SQUARE, seq=k + 1, stamp=WALL + t)
+        brain.receive("domain", domain.encode(), t, WALL + t)
+        pose = protocol.Pose(id=0, x=x, y=y, theta=heading, stamp=WALL + t, seq=k)
+        brain.receive("pose", pose.encode(), t, WALL + t, key_id=0)
+        still = protocol.AgentState(1, *neighbour, WALL + t, neighbors=(0,))
+        brain.receive("state", still.encode(), t, WALL + t, key_id=1)
+        brain.pace(0.1)
+        decision = brain.step(t, WALL + t)
+        for _ in range(10):
+            x, y, heading = integrate_one(x, y, heading, decision.left, decision.right, 0.01)
+            path.append((x, y, heading))
+    return brain, path, neighbour
+
+
+@pytest.mark.parametrize("degrees", [10, 20, 30, 45, 60, -10, -40])
+def test_a_robot_stopped_dead_beside_a_still_one_gets_past_it(degrees: int) -> None:
+    brain, path, neighbour = drive_past(math.radians(degrees))
+    closest = min(math.hypot(px - neighbour[0], py - neighbour[1]) for px, py, _ in path)
+    # Turned back toward its aim as soon as it faced its slide, it arced into the still
+    # robot, to 0.149 m at 10 degrees; aiming at its slide until clear, it keeps 0.160 m.
+    assert closest >= SAFE - 2e-4
+    assert path[-1][0] > neighbour[0] + 0.5  # past it, on to S
+    assert 1 <= brain.counters.slid <= 15
+    assert not brain._sliding  # (the way clear: it aims where its law says)
+
+
+@pytest.mark.parametrize("degrees", [10, 20, 30, 45, 60, -10, -40])
+def test_facing_its_aim_it_waited_for_ever(degrees: int, monkeypatch: pytest.MonkeyPatch) -> None:
+    # The rule before: stopped dead, it faces its aim and waits.
+    monkeypatch.setattr(brain_module, "stopped_dead_one", lambda *args: False)
+    brain, path, neighbour = drive_past(math.radians(degrees))
+    assert math.hypot(path[-1][0] - START[0], path[-1][1] - START[1]) < 0.01
+    assert brain.counters.slid == 0
+
+
+def test_a_still_robot_dead_ahead_still_holds_it() -> None:
+    # Within asin(SLIDE_MIN) (5.7 degrees) of its aim the slide is too short to be taken
+    # (as when boxed in), and the robot waits facing its aim: the limit of this rule.
+    brain, path, neighbour = drive_past(math.radians(3.0))
+    closest = min(math.hypot(px - neighbour[0], py - neighbour[1]) for px, py, _ in path)
+    assert closest >= SAFE - 2e-4
+    assert path[-1][0] < neighbour[0]
+    assert brain.counters.slid == 0
+
+
+def test_steer_turns_toward_the_slide_only_when_stopped_dead() -> None:
+    heading, aim = 0.0, (0.2, 0.0)
+    slide = (0.1, -0.1)  # 45 degrees to the right
+    # Stopped dead (forward speed 0): toward the slide, the right wheel slower.
+    left, right, _ = steer_one(heading, 0.0, 0.0, KHEPERA_IV, 0.03, 0.1, aim, 1.0, slide)
+    assert left > 0.0 > right and left == pytest.approx(-right)
+    assert stopped_dead_one(heading, 0.0, 0.0, aim)
+    # Moving (forward speed above 0), or the aim behind: the slide is not read.
+    for velocity, aim_ in (((0.05, 0.0), aim), ((0.0, 0.0), (-0.2, 0.0))):
+        assert not stopped_dead_one(heading, *velocity, aim_)
+        assert steer_one(heading, *velocity, KHEPERA_IV, 0.03, 0.1, aim_, 1.0, slide) == (
+            steer_one(heading, *velocity, KHEPERA_IV, 0.03, 0.1, aim_, 1.0)
+        )
+    # A slide under SLIDE_MIN of the aim's speed (boxed in): it faces its aim, as before.
+    short = (0.0, -0.99 * SLIDE_MIN * 0.2)
+    assert steer_one(heading, 0.0, 0.0, KHEPERA_IV, 0.03, 0.1, aim, 1.0, short) == (
+        steer_one(heading, 0.0, 0.0, KHEPERA_IV, 0.03, 0.1, aim, 1.0)
+    )
+    # Capped for the hold: at most to face the slide.
+    left, right, capped = steer_one(heading, 0.0, 0.0, KHEPERA_IV, 0.03, 0.5, aim, 1.0, slide)
+    turned = (right - left) / KHEPERA_IV.wheel_separation * 0.5
+    assert capped and turned == pytest.approx(-math.pi / 4)
+
+
+def test_steer_and_steer_one_agree_with_slides() -> None:
+    rng = np.random.default_rng(5)
+    n = 400
+    headings = rng.uniform(-4.0, 4.0, n)
+    aims = rng.normal(0.0, 0.3, (n, 2))
+    e = np.stack([np.cos(headings), np.sin(headings)], axis=1)
+    lateral = np.stack([-e[:, 1], e[:, 0]], axis=1)
+    # The filter's answer: the aim's sideways part and a forward speed cut to 0 or below on
+    # half the rows, kept on the rest.
+    forward = np.einsum("ij,ij->i", aims, e)
+    cut = rng.random(n) < 0.5
+    forward = np.where(cut, -np.abs(rng.normal(0.0, 0.01, n)) * rng.integers(0, 2, n), forward)
+    velocities = np.einsum("ij,ij->i", aims, lateral)[:, None] * lateral + forward[:, None] * e
+    slides = rng.normal(0.0, 0.3, (n, 2)) * rng.choice([0.01, 1.0], (n, 1))
+    slides[:10] = np.nan  # not read where not stopped dead; else a stopped robot
+    holds = rng.choice([0.0, 0.1, 0.5], n)
+    wheels, capped = steer(headings, velocities, KHEPERA_IV, 0.03, holds, aims, None, slides)
+    plain = steer(headings, velocities, KHEPERA_IV, 0.03, holds, aims)[0]
+    dead = stopped_dead(headings, velocities, aims)
+    assert 50 < np.count_nonzero(dead) < 300
+    assert np.array_equal(wheels[~dead], plain[~dead])  # the slide read only where dead
+    assert np.count_nonzero(np.any(wheels != plain, axis=1)) > 25  # slides under SLIDE_MIN too
+    for k in range(n):
+        got = steer_one(
+            float(headings[k]), *velocities[k].tolist(), KHEPERA_IV, 0.03, float(holds[k]),
+            tuple(aims[k].tolist()), 1.0, tuple(slides[k].tolist()),
+        )  # fmt: skip
+        np.testing.assert_allclose(got[:2], wheels[k], rtol=1e-12, atol=1e-15)
+        assert got[2] == bool(capped[k]), k
+        assert (
+            stopped_dead_one(float(headings[k]), *velocities[k].tolist(), tuple(aims[k]))
+            == (dead[k])
+        )
+    with pytest.raises(ValueError, match="slides"):
+        steer(np.zeros(2), np.zeros((2, 2)), slides=np.zeros((3, 2)))
