@@ -516,12 +516,27 @@ class FollowTiles:
     tiles: frozenset[tuple[int, int]]
 
 
+@dataclass(frozen=True, slots=True)
+class FollowStranded:
+    """Be subscribed to exactly these robots' poses (AgentBrain.stranded)."""
+
+    ids: frozenset[int]
+
+
 @dataclass(frozen=True)
 class DeclareAlive:
     """Declare this agent's liveliness token: it hears its robot and can steer it."""
 
 
-Action = SendCommand | PublishState | PublishBeacon | FollowStates | FollowTiles | DeclareAlive
+Action = (
+    SendCommand
+    | PublishState
+    | PublishBeacon
+    | FollowStates
+    | FollowTiles
+    | FollowStranded
+    | DeclareAlive
+)
 
 
 def _ms(seconds: float) -> float:
@@ -593,6 +608,11 @@ class AgentBrain:
         # Whether our robot aims at its slide (covswarm.tvd.drive.steer): since the safety
         # filter stopped it dead, until the rows no longer bend its aim (_safety_inputs).
         self._sliding = False
+        # Stranded robots (:meth:`stranded`): id -> when we first saw it without its agent's
+        # token (monotonic); those whose poses we follow; and their last pose (x, y m, when).
+        self._orphaned: dict[int, float] = {}
+        self._stranded_followed: frozenset[int] = frozenset()
+        self._stranded: dict[int, tuple[float, float, float]] = {}
         # The last step's robots within SAFETY_RADIUS: those heard first-hand, and every
         # one's id and row (x, y, vx, vy) of the neighbourhood's table, in table order.
         self._near_first_hand: set[int] = set()
@@ -862,6 +882,13 @@ class AgentBrain:
             self.neighborhood.on_pose(pose, now)
         return True
 
+    def on_stranded(self, pose: protocol.Pose, now: float) -> bool:
+        """A pose of a stranded robot we follow (:meth:`stranded`): where it stands."""
+        if pose.id not in self._stranded_followed:
+            return False  # unfollowed since it was queued
+        self._stranded[pose.id] = (pose.x, pose.y, now)
+        return True
+
     def on_agent_state(self, state: protocol.AgentState, now: float) -> bool:
         if state.id == self.id:
             return False
@@ -1002,6 +1029,13 @@ class AgentBrain:
             self.neighborhood.ask(wanted, now)  # robots known from beacons must now confirm
             actions.append(FollowStates(frozenset(wanted)))
             actions.append(FollowTiles(self.wanted_tiles()))
+            stranded = self.stranded(now)
+            if stranded != self._stranded_followed:
+                self.counters.stranded_followed += len(stranded - self._stranded_followed)
+                self._stranded_followed = stranded
+                for rid in self._stranded.keys() - stranded:
+                    del self._stranded[rid]
+                actions.append(FollowStranded(stranded))
         if not self._alive and self.pose is not None:
             self._alive = True
             actions.append(DeclareAlive())
@@ -1376,6 +1410,28 @@ class AgentBrain:
             return pose.x, pose.y, pose.theta
         return self.history.move(pose.x, pose.y, pose.theta, self.pose_taken, target_wall)
 
+    def stranded(self, now: float) -> frozenset[int]:
+        """The robots whose poses we follow as obstacles: those whose robot's token has
+        lived without their agent's for longer than the command timeout while the mission
+        runs (covswarm.agent.neighborhood.Liveliness.orphans). Such a robot stands where its
+        timeout stopped it and no brain will move it; neighbours that knew it keep it
+        (:meth:`_still_there`), but a robot that arrives later has heard no state of it.
+        Its own robot publishes its pose to anyone (reading is open to every role), and the
+        safety filter takes it as a still row (:meth:`_safety_inputs`), never as a cell."""
+        orphans, since = self.neighborhood.liveliness.orphans, self._orphaned
+        if not orphans and not since:
+            return frozenset()  # (every step of a healthy team)
+        for rid in [rid for rid in since if rid not in orphans]:
+            del since[rid]
+        if not self.running or not self.config.safety:
+            return frozenset()
+        timeout = self.config.cmd_timeout
+        for rid in orphans:
+            since.setdefault(rid, now)
+        return frozenset(
+            rid for rid, first in since.items() if rid != self.id and now - first > timeout
+        )
+
     def near_ids(self) -> tuple[set[int], set[int]]:
         """The robots whose AgentStates the safety filter needs, as (near, kept).
 
@@ -1485,6 +1541,18 @@ class AgentBrain:
                 del self.obstacles[rid]
         if self.obstacles:  # none is a candidate
             rows = np.array([(x, y, 0.0, 0.0) for x, y, _ in self.obstacles.values()])
+            near = np.concatenate(
+                [near, rows[np.hypot(rows[:, 0] - x, rows[:, 1] - y) <= SAFETY_RADIUS]]
+            )
+        if self._stranded:  # a stranded robot, where its own pose puts it (stranded)
+            orphans = neighborhood.liveliness.orphans  # (not one whose token changed since)
+            rows = np.array(
+                [
+                    (sx, sy, 0.0, 0.0)
+                    for rid, (sx, sy, _) in self._stranded.items()
+                    if rid in orphans and rid not in self.obstacles and rid not in first_hand
+                ]
+            ).reshape(-1, 4)
             near = np.concatenate(
                 [near, rows[np.hypot(rows[:, 0] - x, rows[:, 1] - y) <= SAFETY_RADIUS]]
             )
@@ -1607,6 +1675,7 @@ class AgentBrain:
             "arc_turned": c.arc_turned,
             "overrun_gained": c.overrun_gained,
             "slid": c.slid,
+            "stranded_followed": c.stranded_followed,
             "cell_empty": c.cell_empty,
             "stale_stretched": c.stale_stretched,
             "pose_too_old": c.pose_too_old,
@@ -1709,6 +1778,7 @@ class AgentBrain:
 
 _HANDLERS: dict[str, Callable[[AgentBrain, object, float], bool]] = {
     "pose": AgentBrain.on_pose,
+    "stranded": AgentBrain.on_stranded,
     "state": AgentBrain.on_agent_state,
     "beacon": AgentBrain.on_beacon,
     "domain": AgentBrain.on_domain,

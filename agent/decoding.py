@@ -28,6 +28,7 @@ from covswarm.world.wire import from_message
 
 MESSAGE_TYPES: dict[str, type[protocol.Message]] = {
     "pose": protocol.Pose,
+    "stranded": protocol.Pose,  # a stranded robot's (covswarm.agent.brain.AgentBrain.stranded)
     "state": protocol.AgentState,
     "beacon": protocol.Beacon,
     "domain": protocol.Domain,

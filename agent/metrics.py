@@ -87,6 +87,9 @@ class Counters:
     # (the velocity the filter leaves a robot that could move sideways: covswarm.tvd.drive.
     # steer), not its aim
     slid: int = 0
+    # robots followed as stranded: their token lives without their agent's, and their own
+    # poses make them still rows of the safety filter (covswarm.agent.brain.AgentBrain.stranded)
+    stranded_followed: int = 0
     # mission steps with no cell in S (the robot outside S, dominated by teammates: it aims
     # at S's centroid, covswarm.tvd.control); a robot stuck so dominates e_a
     cell_empty: int = 0

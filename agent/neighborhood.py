@@ -158,6 +158,10 @@ class Liveliness:
         self.serial = 0
         self.deaths: dict[tuple[int, str], int] = {}  # (id, role) -> serial of the deletion
         self.tokens: set[int] = set()  # agents whose token appeared and did not vanish since
+        self.robots: set[int] = set()  # the same, robots
+        # robots whose token lives while their agent's does not: stopped by their command
+        # timeout, or about to be, and moved by no brain (covswarm.agent.brain.stranded)
+        self.orphans: set[int] = set()
         self._appeared: list[tuple[int, int]] = []  # (serial, agent id), oldest first
 
     def change(self, role: str, rid: int, alive: bool) -> None:
@@ -170,11 +174,21 @@ class Liveliness:
             self.deaths[rid, role] = self.serial
             if role == "agent":
                 self.tokens.discard(rid)
+                if rid in self.robots:
+                    self.orphans.add(rid)
+            else:
+                self.robots.discard(rid)
+                self.orphans.discard(rid)
             return
         self.deaths.pop((rid, role), None)
         if role == "agent":
             self.tokens.add(rid)
+            self.orphans.discard(rid)
             self._appeared.append((self.serial, rid))
+        else:
+            self.robots.add(rid)
+            if rid not in self.tokens:
+                self.orphans.add(rid)
 
     def appeared(self, since: int) -> list[int]:
         """The agents whose token appeared after change number ``since``."""

@@ -57,6 +57,7 @@ from covswarm.agent.brain import (
     DeclareAlive,
     Filtering,
     FollowStates,
+    FollowStranded,
     FollowTiles,
     PublishBeacon,
     PublishState,
@@ -124,7 +125,7 @@ PHASES = ("drain", "receive", "begin", "local steps", "conclude", "filter", "act
 # The order in which a brain gets a tick's payloads (then by id and key): the world (the
 # domain is judged against it), the domain and its own pose first, as a process of its own
 # drained its subscribers.
-KIND_ORDER = {"world": 0, "domain": 1, "pose": 2, "state": 3, "beacon": 4}
+KIND_ORDER = {"world": 0, "domain": 1, "pose": 2, "state": 3, "beacon": 4, "stranded": 5}
 
 # Where a payload waits for a brain: the KIND_ORDER of its kind, 1 + the id in its key (0
 # for none) in ID_DIGITS digits, then the key; one per key (per key and id in a beacon
@@ -222,7 +223,8 @@ class Pack:
         self.tokens: dict[int, Any] = {}
         self._subs: dict[str, _Subscription] = {}
         self._follows: dict[int, dict[str, frozenset]] = {
-            bid: {"state": frozenset(), "beacon": frozenset()} for bid in self.brains
+            bid: {"state": frozenset(), "beacon": frozenset(), "stranded": frozenset()}
+            for bid in self.brains
         }
         # brain -> {(key, id): (kind, id, payload)}: newest per key since its last turn
         self._pending: _Queues = {bid: {} for bid in self.brains}
@@ -302,8 +304,8 @@ class Pack:
                 del queue[slot]
 
     def follow(self, bid: int, kind: str, wanted: frozenset) -> None:
-        """Brain ``bid`` follows exactly ``wanted``: robot ids (kind "state") or tiles
-        ("beacon")."""
+        """Brain ``bid`` follows exactly ``wanted``: robot ids (kind "state": their
+        AgentStates; "stranded": their robots' poses) or tiles ("beacon")."""
         follows = self._follows[bid]
         held = follows[kind]
         if wanted is held or wanted == held:
@@ -318,6 +320,8 @@ class Pack:
     def _key(self, kind: str, item: Any) -> str:
         if kind == "state":
             return protocol.agent_state_key(self.swarm, item)
+        if kind == "stranded":
+            return protocol.pose_key(self.swarm, item)
         return protocol.beacon_tile_selector(self.swarm, *item)
 
     # --- input ---------------------------------------------------------------------------
@@ -481,6 +485,9 @@ class Pack:
             self.follow(bid, "state", action.ids)
         elif kind is FollowTiles:
             self.follow(bid, "beacon", action.tiles)
+        elif kind is FollowStranded:
+            # Not our own brains' robots: their tokens live with this process.
+            self.follow(bid, "stranded", frozenset(action.ids - self.brains.keys()))
         elif kind is PublishBeacon:
             self.bus.put(protocol.beacon_key(self.swarm, *action.tile, bid), action.beacon.encode())
         elif kind is DeclareAlive:

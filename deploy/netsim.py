@@ -50,6 +50,7 @@ from covswarm.agent.brain import (
     AgentConfig,
     DeclareAlive,
     FollowStates,
+    FollowStranded,
     FollowTiles,
     PublishBeacon,
     PublishState,
@@ -213,7 +214,8 @@ def run_netsim(
         for other in range(n):
             if other != brain.id:
                 brain.on_liveliness("robot", other, True)
-    # Who follows each topic, and what each agent follows ("state": ids, "beacon": tiles).
+    # Who follows each topic, and what each agent follows ("state": ids, "beacon": tiles,
+    # "stranded": ids whose robots' poses it follows).
     subscribers: dict[Topic, set[int]] = {
         ("domain", None): set(range(n)),
         ("alive", None): set(range(n)),
@@ -221,7 +223,7 @@ def run_netsim(
     for i in range(n):
         subscribers[("pose", i)] = {i}
     follows: list[dict[str, frozenset]] = [
-        {"state": frozenset(), "beacon": frozenset()} for _ in range(n)
+        {"state": frozenset(), "beacon": frozenset(), "stranded": frozenset()} for _ in range(n)
     ]
     # Per agent: the newest unread payload per slot, and the agents whose tokens appeared.
     inbox: list[dict[Slot, bytes]] = [{} for _ in range(n)]
@@ -276,6 +278,8 @@ def run_netsim(
                 follow(index, "state", action.ids)
             elif isinstance(action, FollowTiles):
                 follow(index, "beacon", action.tiles)
+            elif isinstance(action, FollowStranded):
+                follow(index, "stranded", action.ids)
             elif isinstance(action, DeclareAlive):
                 send(now + transit, ("alive", None), "alive", index, b"")
                 tokens.setdefault(index, now + transit)
@@ -342,7 +346,10 @@ def run_netsim(
             for robot in robots:
                 robot.step(now)
                 pose = robot.pose_message(wall + clock_skew, int(round(now * ROBOT_RATE)))
-                send(now + transit, ("pose", robot.id), "pose", robot.id, pose.encode())
+                payload = pose.encode()
+                send(now + transit, ("pose", robot.id), "pose", robot.id, payload)
+                if ("stranded", robot.id) in subscribers:
+                    send(now + transit, ("stranded", robot.id), "stranded", robot.id, payload)
             heapq.heappush(events, (now + 1.0 / ROBOT_RATE, rank, what, index))
         elif what == "domain":
             vertices, velocities = scenario.domain(pace * mission_t)

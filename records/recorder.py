@@ -116,6 +116,10 @@ AGENT_STATS_FIELDS: dict[str, tuple[str, str]] = {
         "filter rows whose gain was sampled over the command timeout, not the expected hold",
     ),
     "slid": ("number", "steps stopped dead by the filter that turned toward their slide"),
+    "stranded_followed": (
+        "number",
+        "robots followed as obstacles: their token lives without their agent's",
+    ),
     "cell_empty": ("number", "mission steps with no cell in S (outside S, dominated)"),
     "stale_stretched": ("number", "mission steps that kept neighbours past the stale timeout"),
     "pose_too_old": (

@@ -9,6 +9,7 @@ operator would, to time when robots stop and when the others drop a dead teammat
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -143,6 +144,7 @@ class Watch:
         # machine (a state listing a robot killed 2.0 s earlier, read in the full suite)
         self.states: list[tuple[float, int, list[int]]] = []
         self.domain_t: list[tuple[float, float, str]] = []  # (wall, mission t, state)
+        self.stats: dict[int, dict] = {}  # id -> the stats of its latest AgentState with any
         self._lock = threading.Lock()
         self.session = zenoh.open(protocol.session_config([endpoint]))
         self._subs = [
@@ -166,6 +168,8 @@ class Watch:
         m = protocol.AgentState.decode(sample.payload.to_bytes())
         with self._lock:
             self.states.append((m.stamp, m.id, list(m.neighbors)))
+            if m.stats:
+                self.stats[m.id] = dict(m.stats)
 
     def _domain(self, sample) -> None:
         m = protocol.Domain.decode(sample.payload.to_bytes())
@@ -184,6 +188,20 @@ class Watch:
         with self._lock:
             ids = list(self.poses)
         return float(np.mean([self.displacement(i, start, end) for i in ids])) / (end - start)
+
+    def closest(self, a: int, b: int) -> float:
+        """Robots ``a`` and ``b``'s closest approach, m: each pose of ``a`` against the
+        newest pose of ``b`` by then (inf before they were both heard)."""
+        with self._lock:
+            tracks = sorted([(w, 0, x, y) for w, x, y in self.poses.get(a, [])]
+                            + [(w, 1, x, y) for w, x, y in self.poses.get(b, [])])  # fmt: skip
+        last: list[tuple[float, float] | None] = [None, None]
+        closest = math.inf
+        for _, which, x, y in tracks:
+            last[which] = (x, y)
+            if last[0] is not None and last[1] is not None:
+                closest = min(closest, math.hypot(last[0][0] - last[1][0], last[0][1] - last[1][1]))
+        return closest
 
     def neighbor_mentions(self, dead: int) -> list[tuple[float, int]]:
         """(stamp, sender) of every AgentState of another agent that listed ``dead``."""
@@ -294,6 +312,10 @@ def test_dead_brain_dead_robot_and_a_newcomer(tmp_path: Path) -> None:
             # Robot 1's living agent commanded (0, 0) once its pose was stale (1 s).
             late = [c for c in watch.cmds[1] if killed_robot + 1.2 < c[0] < killed_robot + 4.0]
             assert late and all(left == 0.0 and right == 0.0 for _, left, right in late)
+            # The newcomer never heard agent 3, whose robot stands where it stopped: it
+            # followed that robot's own poses as a still row of its filter (stranded).
+            assert watch.stats[5].get("stranded_followed", 0) >= 1, watch.stats[5]
+            assert watch.closest(5, 3) >= 0.14  # (a body diameter)
     summary = json.loads((out / "summary.json").read_text())
     # The others dropped both from their neighbourhoods (liveliness: at once). On failure:
     # who still named them and how long after the kill, and when the coordinator saw the

@@ -18,7 +18,9 @@ import pytest
 from wire_samples import domain_message
 
 from covswarm import protocol
-from covswarm.agent.brain import AgentBrain, AgentConfig, Decision
+from covswarm.agent.brain import AgentBrain, AgentConfig, Decision, FollowStranded
+from covswarm.agent.neighborhood import Liveliness
+from covswarm.agent.pack import LocalBus, Pack
 
 WALL = 1.7e9
 # A strip S moving +x at 0.1 m/s. Our robot at (X, 1) is at its cell's centroid with robot
@@ -30,13 +32,18 @@ GAP = 1.0  # s between our turns (a brain stepped at ~1 Hz)
 
 
 class Brain(AgentBrain):
-    """An AgentBrain that keeps its last Decision."""
+    """An AgentBrain that keeps its last Decision and its last turn's actions."""
 
     decision: Decision | None = None
+    asked: list = []
 
     def step(self, now: float, now_wall: float) -> Decision:
         self.decision = super().step(now, now_wall)
         return self.decision
+
+    def tick(self, now: float, now_wall: float) -> list:
+        self.asked = super().tick(now, now_wall)
+        return self.asked
 
 
 def turn(brain: Brain, now: float, relayed: bool | None) -> float:
@@ -133,3 +140,79 @@ def test_a_robot_whose_brain_died_is_held_for_as_long_as_its_robot_lives(orphan:
     brain.on_liveliness("robot", 1, False)
     turn(brain, now, None)
     assert 1 not in brain.obstacles
+
+
+def stranded_follows(brain: Brain) -> list[frozenset[int]]:
+    """The FollowStranded asked in ``brain``'s last turn (at most one)."""
+    return [action.ids for action in brain.asked if isinstance(action, FollowStranded)]
+
+
+@pytest.mark.parametrize("then", ["robot_dies", "agent_returns"])
+def test_a_robot_with_no_brain_is_an_obstacle_to_a_robot_that_never_knew_it(then: str) -> None:
+    """Robot 1 stands 0.19 m ahead; its token lives and its agent's never appeared to us
+    (we arrived after its brain died): we never had a state of it, so nothing kept it
+    (_still_there). Once that has lasted longer than the command timeout (its robot has
+    stopped), we follow its robot's pose and it is a still row of our filter: without
+    it, we drive at the unseen speed limit (0.087 m/s) into it."""
+    brain = Brain(0, AgentConfig(cmd_timeout=1.0))
+    brain.on_liveliness("robot", 1, True)
+    assert turn(brain, 0.5, None) > 0.08  # stranded for 0 s: not followed yet
+    assert stranded_follows(brain) == []
+    assert turn(brain, 1.5, None) > 0.08 and stranded_follows(brain) == []  # 1 s: not over
+    assert turn(brain, 2.5, None) > 0.08  # no pose of it yet
+    assert stranded_follows(brain) == [frozenset({1})]
+    pose = protocol.Pose(id=1, x=AHEAD, y=1.0, theta=0.0, stamp=WALL + 2.6, seq=1)
+    assert brain.receive("stranded", pose.encode(), 2.6, WALL + 2.6, key_id=1)
+    for now in (3.5, 4.5):
+        assert turn(brain, now, None) < 0.04
+        assert stranded_follows(brain) == []  # (asked again only when it changes)
+    assert 1 not in brain.neighborhood.reckoned  # a row, never a cell or a relay
+    other = protocol.Pose(id=3, x=AHEAD, y=1.0, theta=0.0, stamp=WALL + 4.6, seq=1)
+    assert not brain.receive("stranded", other.encode(), 4.6, WALL + 4.6, key_id=3)
+    if then == "robot_dies":
+        brain.on_liveliness("robot", 1, False)
+    else:  # it is a teammate again; once its state comes, a first-hand row
+        brain.on_liveliness("agent", 1, True)
+    assert turn(brain, 5.5, None) > 0.08  # no longer a stranded row, from this turn
+    assert stranded_follows(brain) == [frozenset()]
+
+
+def test_the_process_knows_which_robots_live_without_their_agent() -> None:
+    alive = Liveliness()
+    alive.change("robot", 1, True)
+    alive.change("robot", 2, True)
+    alive.change("agent", 2, True)
+    assert alive.orphans == {1}
+    alive.change("agent", 1, True)
+    assert alive.orphans == set()
+    alive.change("agent", 2, False)
+    assert alive.orphans == {2}
+    alive.change("robot", 2, False)
+    alive.change("agent", 3, False)  # an agent without a robot: no orphan
+    assert alive.orphans == set()
+    alive.change("coordinator", 4, True)  # other roles are not robots
+    assert alive.orphans == set()
+
+
+def test_a_pack_follows_a_stranded_robots_pose_for_its_brain() -> None:
+    """The pack subscribes to the pose key of the robot its brain asks for (never to its
+    own brains' robots' under that name) and hands its poses over as "stranded"."""
+    bus = LocalBus()
+    brain = AgentBrain(0)
+    pack = Pack(bus, "s", [brain])
+    heard: list[tuple[str, int | None]] = []
+
+    def receive_all(items, now, wall):  # type: ignore[no-untyped-def]
+        heard.extend((kind, key_id) for kind, key_id, _ in items)
+        return 0
+
+    brain.receive_all = receive_all  # type: ignore[method-assign]
+    pack.carry_out(0, FollowStranded(frozenset({0, 1})))
+    key = protocol.pose_key("s", 1)
+    assert pack.followers(key) == {0}
+    bus.put(key, protocol.Pose(id=1, x=1.0, y=1.0, theta=0.0, stamp=WALL, seq=1).encode())
+    pack.drain()
+    pack.receive(0, 0.0, WALL)
+    assert heard == [("stranded", 1)]
+    pack.carry_out(0, FollowStranded(frozenset()))
+    assert pack.followers(key) == frozenset() and key not in bus._exact
