@@ -61,6 +61,7 @@ from covswarm.tvd.control import (
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import (
     KHEPERA_IV,
+    SLIDE_CLEARANCE,
     SLIDE_MIN,
     DiffDrive,
     pass_sides,
@@ -439,26 +440,26 @@ def _filter(filterings: list[Filtering]) -> list[SafeVelocity]:
     return list(zip(velocities.tolist(), active.tolist(), relaxed.tolist(), strict=True))
 
 
-def filter_alone(filtering: Filtering, heading: float | None) -> FilterResult:
-    """``filtering``'s step filtered alone (covswarm.tvd.safety.safe_velocity: (2,) m/s,
-    rows tight, relaxed), its robot facing ``heading`` rad, or able to move sideways (None:
-    its slide, where a robot stopped dead turns to go, covswarm.tvd.drive.steer)."""
+def slide_velocity(filtering: Filtering, clearance: float = SLIDE_CLEARANCE) -> FilterResult:
+    """``filtering``'s slide: its step filtered for a robot that could move sideways, with
+    the safe distances ``clearance`` m larger (covswarm.tvd.safety.safe_velocity without a
+    heading: (2,) m/s, rows tight, relaxed); where a robot stopped dead turns to go
+    (covswarm.tvd.drive.steer)."""
     x, y, _ = filtering.begun.pose
     return safe_velocity(
         (x, y),
         filtering.nominal,
         filtering.near[:, :2],
-        filtering.safe_distance,
+        filtering.safe_distance + clearance,
         filtering.gamma,
         velocity=np.asarray(filtering.velocity, dtype=float),
         neighbor_velocities=filtering.near[:, 2:],
         obstacles=filtering.obstacles,
         workspace=filtering.workspace,
-        obstacle_distance=filtering.obstacle_distance,
+        obstacle_distance=filtering.obstacle_distance + clearance,
         reach=SAFETY_RADIUS,
         obstacle_gamma=filtering.obstacle_gamma,
         neighbor_gammas=filtering.near_gamma,
-        heading=heading,
     )
 
 
@@ -1240,7 +1241,7 @@ class AgentBrain:
                 near = filtering.near[:, :2]
                 side = float(pass_sides((x, y), filtering.nominal, near, SAFETY_RADIUS)[0])
                 if self._hold <= ARC_HOLD and stopped_dead_one(heading, vx, vy, (aim[0], aim[1])):
-                    slide = tuple(filter_alone(filtering, None).velocity.tolist())
+                    slide = tuple(slide_velocity(filtering).velocity.tolist())
                     # From the next step on it aims at its slide until the way is clear
                     # (_safety_inputs), not back at the robot that stopped it.
                     self._sliding = takes_slide_one(heading, vx, vy, (aim[0], aim[1]), slide)
@@ -1597,13 +1598,16 @@ class AgentBrain:
             # once its aim was no longer stopped dead), it turned back into the robot that
             # had stopped it, on an arc the filter (which bounds the forward speed along
             # the heading it starts from) does not see: to 0.149 m of a still robot 10
-            # degrees off its aim (tests/test_slide.py), and stopped dead again.
-            slide = filter_alone(filtering, None)
-            norm = math.hypot(velocity[0], velocity[1])
-            long = math.hypot(*slide.velocity) >= SLIDE_MIN * norm
-            self._sliding = slide.active > 0 and long and self.running and self._hold <= ARC_HOLD
+            # degrees off its aim (tests/test_slide.py), and stopped dead again. (Bent at
+            # the safe distance: at the slide's, the robots of a dense team stayed in it.)
+            bent = slide_velocity(filtering, 0.0).active > 0
+            self._sliding = bent and self.running and self._hold <= ARC_HOLD
             if self._sliding:
-                filtering.nominal = slide.velocity
+                slide = slide_velocity(filtering).velocity
+                norm = math.hypot(velocity[0], velocity[1])
+                self._sliding = math.hypot(slide[0], slide[1]) >= SLIDE_MIN * norm
+            if self._sliding:
+                filtering.nominal = slide
                 self.counters.slid += 1
         return filtering
 

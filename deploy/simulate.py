@@ -131,6 +131,7 @@ def simulate(
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
     from covswarm.tvd.drive import (
         KHEPERA_IV,
+        SLIDE_CLEARANCE,
         SLIDE_MIN,
         integrate,
         pass_sides,
@@ -210,6 +211,8 @@ def simulate(
         "workspace": world.workspace,
         "obstacle_distance": wall_distance(scenario.robot_diameter),
     }
+    # A slide is taken SLIDE_CLEARANCE farther out (covswarm.tvd.drive)
+    slide_walls = walls | {"obstacle_distance": walls["obstacle_distance"] + SLIDE_CLEARANCE}
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
     sliding = np.zeros(n, dtype=bool)  # aiming at their slides (covswarm.tvd.drive.steer)
     safe_distance = body_safe_distance(scenario.robot_diameter)
@@ -282,10 +285,15 @@ def simulate(
             # Aiming at their slides since the filter stopped them dead, until the rows
             # no longer bend their aims (covswarm.agent.brain.AgentBrain._safety_inputs).
             ids = np.flatnonzero(sliding)
-            slide, bent, _ = team_safe_velocities(
-                positions, aim, safe_distance, barrier_gain(DEFAULT_GAMMA, dt), SAFETY_RADIUS,
+            gamma = barrier_gain(DEFAULT_GAMMA, dt)
+            bent = team_safe_velocities(
+                positions, aim, safe_distance, gamma, SAFETY_RADIUS,
                 velocities=centre_velocity, subset=ids, **walls,
-            )  # fmt: skip
+            )[1]  # fmt: skip
+            slide = team_safe_velocities(
+                positions, aim, safe_distance + SLIDE_CLEARANCE, gamma, SAFETY_RADIUS,
+                velocities=centre_velocity, subset=ids, **slide_walls,
+            )[0]  # fmt: skip
             speeds = np.hypot(slide[ids, 0], slide[ids, 1])
             keep = (bent[ids] > 0) & (speeds >= SLIDE_MIN * np.hypot(aim[ids, 0], aim[ids, 1]))
             sliding[ids] = keep
@@ -315,8 +323,9 @@ def simulate(
                 dead = np.flatnonzero(stopped_dead(headings, velocity, aim) & (active > 0))
                 if len(dead):
                     slides = team_safe_velocities(
-                        positions, aim, safe_distance, barrier_gain(DEFAULT_GAMMA, dt),
-                        SAFETY_RADIUS, velocities=centre_velocity, subset=dead, **walls,
+                        positions, aim, safe_distance + SLIDE_CLEARANCE,
+                        barrier_gain(DEFAULT_GAMMA, dt), SAFETY_RADIUS,
+                        velocities=centre_velocity, subset=dead, **slide_walls,
                     )[0]  # fmt: skip
             wheels = wheel_speeds(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L,

@@ -46,6 +46,11 @@ PASS_DAMPING = 0.5
 # ``slides``) when the slide keeps at least SLIDE_MIN of its aim's speed; below that it is
 # boxed in, and it faces its aim and waits.
 SLIDE_MIN = 0.1
+# A slide is taken for safe distances SLIDE_CLEARANCE (m) larger than the filter's: at the
+# safe distance the slide runs along it, which a robot turning toward it reaches only in the
+# limit, its forward speed held at zero all the while; a little farther out, the slide
+# leads away and the robot drives as soon as it faces past the tangent.
+SLIDE_CLEARANCE = 0.005
 
 
 @dataclass(frozen=True)
