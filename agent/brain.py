@@ -61,6 +61,7 @@ from covswarm.tvd.control import (
 from covswarm.tvd.density import Density
 from covswarm.tvd.drive import (
     KHEPERA_IV,
+    SLIDE_AFTER,
     SLIDE_CLEARANCE,
     SLIDE_MIN,
     DiffDrive,
@@ -609,6 +610,7 @@ class AgentBrain:
         # Whether our robot aims at its slide (covswarm.tvd.drive.steer): since the safety
         # filter stopped it dead, until the rows no longer bend its aim (_safety_inputs).
         self._sliding = False
+        self._stopped_since: float | None = None  # since when the filter stops it dead
         # Stranded robots (:meth:`stranded`): id -> when we first saw it without its agent's
         # token (monotonic); those whose poses we follow; and their last pose (x, y m, when).
         self._orphaned: dict[int, float] = {}
@@ -1240,12 +1242,17 @@ class AgentBrain:
             if active:
                 near = filtering.near[:, :2]
                 side = float(pass_sides((x, y), filtering.nominal, near, SAFETY_RADIUS)[0])
-                if self._hold <= ARC_HOLD and stopped_dead_one(heading, vx, vy, (aim[0], aim[1])):
-                    slide = tuple(slide_velocity(filtering).velocity.tolist())
-                    # From the next step on it aims at its slide until the way is clear
-                    # (_safety_inputs), not back at the robot that stopped it.
-                    self._sliding = takes_slide_one(heading, vx, vy, (aim[0], aim[1]), slide)
-                    self.counters.slid += self._sliding and self.running
+            now = filtering.begun.now
+            if not (active and stopped_dead_one(heading, vx, vy, (aim[0], aim[1]))):
+                self._stopped_since = None
+            elif self._stopped_since is None:
+                self._stopped_since = now
+            elif self._hold <= ARC_HOLD and now - self._stopped_since >= SLIDE_AFTER:
+                slide = tuple(slide_velocity(filtering).velocity.tolist())
+                # From the next step on it aims at its slide until the way is clear
+                # (_safety_inputs), not back at the robot that stopped it.
+                self._sliding = takes_slide_one(heading, vx, vy, (aim[0], aim[1]), slide)
+                self.counters.slid += self._sliding and self.running
             decision = self._wheels(vx, vy, heading, (aim[0], aim[1]), side, slide)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))

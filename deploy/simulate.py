@@ -131,6 +131,7 @@ def simulate(
     from covswarm.tvd.drive import DEFAULT_PROJECTION_DISTANCE as DEFAULT_L
     from covswarm.tvd.drive import (
         KHEPERA_IV,
+        SLIDE_AFTER,
         SLIDE_CLEARANCE,
         SLIDE_MIN,
         integrate,
@@ -215,6 +216,7 @@ def simulate(
     slide_walls = walls | {"obstacle_distance": walls["obstacle_distance"] + SLIDE_CLEARANCE}
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
     sliding = np.zeros(n, dtype=bool)  # aiming at their slides (covswarm.tvd.drive.steer)
+    stopped_since = np.full(n, np.inf)  # s: since when the filter stops each one dead
     safe_distance = body_safe_distance(scenario.robot_diameter)
     k = scripted = 0  # steps taken, of them the script's
     tau = 0.0
@@ -319,8 +321,11 @@ def simulate(
                 sides = np.ones(n)
                 held = np.flatnonzero(active)
                 sides[held] = pass_sides(positions[held], aim[held], positions, SAFETY_RADIUS)
-                # stopped dead, toward the slide (covswarm.tvd.drive.steer), as an agent
-                dead = np.flatnonzero(stopped_dead(headings, velocity, aim) & (active > 0))
+                # stopped dead for SLIDE_AFTER s, toward the slide (covswarm.tvd.drive.steer),
+                # as an agent
+                stopped = stopped_dead(headings, velocity, aim) & (active > 0)
+                stopped_since = np.where(stopped, np.fmin(stopped_since, tk), np.inf)
+                dead = np.flatnonzero(stopped & (tk - stopped_since >= SLIDE_AFTER - 1e-9))
                 if len(dead):
                     slides = team_safe_velocities(
                         positions, aim, safe_distance + SLIDE_CLEARANCE,

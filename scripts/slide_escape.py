@@ -2,7 +2,7 @@
 steer's ``slides``): the paths of one agent's robot that aims past a robot standing at the
 safe distance, ANGLES off its aim.
 
-Usage: .venv/bin/python scripts/slide_escape.py [--seconds 4] [--out docs/img/slide-escape.png]
+Usage: .venv/bin/python scripts/slide_escape.py [--seconds 6] [--out docs/img/slide-escape.png]
 
 One AgentBrain stepped at 10 Hz from START facing +x, where S (far to its right) puts its
 aim; robot 1 stands 1 mm outside the safe distance, ``angle`` off that aim, and its
@@ -38,7 +38,7 @@ PIN = 1.0  # s robot 0 stands at START: the brain follows robot 1 after the comm
 
 
 def drive_past(
-    angle: float, seconds: float = 4.0, slides: bool = True
+    angle: float, seconds: float = 6.0, slides: bool = True
 ) -> tuple[AgentBrain, list[tuple[float, float, float]], tuple[float, float]]:
     """Brain 0 stepped at 10 Hz for ``seconds`` beside robot 1, a stranded robot (its robot's
     token alive, its agent's never seen: covswarm.agent.brain.AgentBrain.stranded) still 1
@@ -90,7 +90,7 @@ def closest(path: list[tuple[float, float, float]], neighbour: tuple[float, floa
 
 
 @click.command()
-@click.option("--seconds", type=click.FloatRange(min=0.5), default=4.0, show_default=True)
+@click.option("--seconds", type=click.FloatRange(min=0.5), default=6.0, show_default=True)
 @click.option("--out", type=click.Path(path_type=Path), default=Path("docs/img/slide-escape.png"))
 def main(seconds: float, out: Path) -> None:
     import matplotlib

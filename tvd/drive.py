@@ -46,6 +46,9 @@ PASS_DAMPING = 0.5
 # ``slides``) when the slide keeps at least SLIDE_MIN of its aim's speed; below that it is
 # boxed in, and it faces its aim and waits.
 SLIDE_MIN = 0.1
+# ... once it has been stopped dead for SLIDE_AFTER s on end: a robot waits its turn in a
+# file that sets off, and takes a slide only where it would otherwise wait for ever.
+SLIDE_AFTER = 1.0
 # A slide is taken for safe distances SLIDE_CLEARANCE (m) larger than the filter's: at the
 # safe distance the slide runs along it, which a robot turning toward it reaches only in the
 # limit, its forward speed held at zero all the while; a little farther out, the slide
@@ -180,11 +183,12 @@ def steer(
     period: r changes with the heading, and a full turn each period swung between the aim
     and the veer. The turn rate toward a veered aim a' is |a| sin(e') / l, capped as above.
 
-    Stopped dead with a ``slides`` row, a robot turns toward its slide s instead, at
+    Stopped dead with a ``slides`` row (callers give one once it has been stopped dead for
+    SLIDE_AFTER s), a robot turns toward its slide s instead, at
     |s| sin(e_s) / l capped at |e_s| / hold (e_s the angle to s), its forward speed as
     filtered: facing its aim it would wait for ever beside a robot that does not move (a
     stranded one, an obstacle held), its aim and the filter's row in balance: 0.16 m from
-    a still robot 10-60 degrees off its aim, it waited all 4 s (tests/test_slide.py).
+    a still robot 10-60 degrees off its aim, it waited all 6 s (tests/test_slide.py).
     Facing s, the filter lets it drive, since s meets every row. The caller then aims it
     at its slide until the rows no longer bend its aim (covswarm.agent.brain.AgentBrain.
     _safety_inputs, and the simulator alike), and it goes round the robot. Not where
