@@ -121,9 +121,9 @@ def takes_slide_one(
     heading: float, vx: float, vy: float, aim: tuple[float, float], slide: tuple[float, float]
 ) -> bool:
     """:func:`takes_slide` for one robot in plain floats."""
-    return stopped_dead_one(heading, vx, vy, aim) and math.hypot(*slide) >= SLIDE_MIN * math.hypot(
-        *aim
-    )
+    if not stopped_dead_one(heading, vx, vy, aim):
+        return False
+    return math.hypot(*slide) >= SLIDE_MIN * math.hypot(*aim)
 
 
 def steer(
