@@ -31,7 +31,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -68,7 +68,6 @@ from covswarm.tvd.drive import (
     pass_sides,
     steer_one,
     stopped_dead_one,
-    takes_slide_one,
     turn_in_place,
     twist_from_wheels,
 )
@@ -464,6 +463,23 @@ def slide_velocity(filtering: Filtering, clearance: float = SLIDE_CLEARANCE) -> 
     )
 
 
+def slide_of(filtering: Filtering, side: float) -> np.ndarray | None:
+    """(2,) m/s: the slide ``filtering``'s robot takes (covswarm.tvd.drive.steer): its
+    slide (:func:`slide_velocity`), or, where that is shorter than SLIDE_MIN of its aim (a
+    still robot dead ahead), the slide of its aim turned a quarter to ``side`` (+1 left, -1
+    right); None where neither is that long (boxed in). How long is judged at the safe
+    distance itself: within SLIDE_CLEARANCE of it, the slide of a robot boxed in leads
+    away from every row, and it turned round to back out."""
+    ax, ay = float(filtering.nominal[0]), float(filtering.nominal[1])
+    least = SLIDE_MIN * math.hypot(ax, ay)
+    for nominal in (None, (-side * ay, side * ax)):
+        aimed = filtering if nominal is None else replace(filtering, nominal=np.array(nominal))
+        along = slide_velocity(aimed, 0.0).velocity
+        if math.hypot(along[0], along[1]) >= least:
+            return slide_velocity(aimed).velocity
+    return None
+
+
 def filter_one(filtering: Filtering) -> SafeVelocity | Exception:
     """One step's safety filter, or what it raised (for AgentBrain.drive to count)."""
     try:
@@ -607,9 +623,10 @@ class AgentBrain:
         # SAFETY_RADIUS that then stopped being candidates at all (a frozen brain, a stopped
         # robot): they stay where they were, and the safety filter steers around them.
         self.obstacles: dict[int, tuple[float, float, float]] = {}
-        # Whether our robot aims at its slide (covswarm.tvd.drive.steer): since the safety
-        # filter stopped it dead, until the rows no longer bend its aim (_safety_inputs).
-        self._sliding = False
+        # Whether our robot aims at its slide (covswarm.tvd.drive.steer), and the side it
+        # passes on (slide_of): since the safety filter stopped it dead, until the rows no
+        # longer bend its aim (_safety_inputs); None: not.
+        self._slide_side: float | None = None
         self._stopped_since: float | None = None  # since when the filter stops it dead
         # Stranded robots (:meth:`stranded`): id -> when we first saw it without its agent's
         # token (monotonic); those whose poses we follow; and their last pose (x, y m, when).
@@ -1247,12 +1264,19 @@ class AgentBrain:
                 self._stopped_since = None
             elif self._stopped_since is None:
                 self._stopped_since = now
-            elif self._hold <= ARC_HOLD and now - self._stopped_since >= SLIDE_AFTER:
-                slide = tuple(slide_velocity(filtering).velocity.tolist())
+            elif (
+                self._slide_side is None
+                and self._hold <= ARC_HOLD
+                and now - self._stopped_since >= SLIDE_AFTER
+            ):
                 # From the next step on it aims at its slide until the way is clear
-                # (_safety_inputs), not back at the robot that stopped it.
-                self._sliding = takes_slide_one(heading, vx, vy, (aim[0], aim[1]), slide)
-                self.counters.slid += self._sliding and self.running
+                # (_safety_inputs), not back at the robot that stopped it; dead ahead, on
+                # the side it passes on, kept until then.
+                taken = slide_of(filtering, side)
+                if taken is not None:
+                    slide = (float(taken[0]), float(taken[1]))
+                    self._slide_side = side
+                    self.counters.slid += self.running
             decision = self._wheels(vx, vy, heading, (aim[0], aim[1]), side, slide)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self.settle(self._failed(exc))
@@ -1599,7 +1623,7 @@ class AgentBrain:
             obstacle_gamma=WALL_GAMMA_FRACTION * gamma,
             overrun=overrun,
         )
-        if self._sliding:
+        if self._slide_side is not None:
             # Aiming at its slide since the filter stopped it dead (drive), until the rows
             # no longer bend its aim. Facing its aim again while they did (at once, or
             # once its aim was no longer stopped dead), it turned back into the robot that
@@ -1608,13 +1632,13 @@ class AgentBrain:
             # degrees off its aim (tests/test_slide.py), and stopped dead again. (Bent at
             # the safe distance: at the slide's, the robots of a dense team stayed in it.)
             bent = slide_velocity(filtering, 0.0).active > 0
-            self._sliding = bent and self.running and self._hold <= ARC_HOLD
-            if self._sliding:
-                slide = slide_velocity(filtering).velocity
-                norm = math.hypot(velocity[0], velocity[1])
-                self._sliding = math.hypot(slide[0], slide[1]) >= SLIDE_MIN * norm
-            if self._sliding:
-                filtering.nominal = slide
+            taken = None
+            if bent and self.running and self._hold <= ARC_HOLD:
+                taken = slide_of(filtering, self._slide_side)
+            if taken is None:
+                self._slide_side = None
+            else:
+                filtering.nominal = taken
                 self.counters.slid += 1
         return filtering
 

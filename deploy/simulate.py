@@ -12,6 +12,7 @@ Same seed, same options -> byte-identical summary.json and error.csv.
 
 from __future__ import annotations
 
+import functools
 import math
 import time
 from collections.abc import Callable, Sequence
@@ -132,12 +133,9 @@ def simulate(
     from covswarm.tvd.drive import (
         KHEPERA_IV,
         SLIDE_AFTER,
-        SLIDE_CLEARANCE,
-        SLIDE_MIN,
         integrate,
         pass_sides,
         stopped_dead,
-        takes_slide,
         turn_in_place,
         twist_from_wheels,
         wheel_speeds,
@@ -212,10 +210,10 @@ def simulate(
         "workspace": world.workspace,
         "obstacle_distance": wall_distance(scenario.robot_diameter),
     }
-    # A slide is taken SLIDE_CLEARANCE farther out (covswarm.tvd.drive)
-    slide_walls = walls | {"obstacle_distance": walls["obstacle_distance"] + SLIDE_CLEARANCE}
     centre_velocity = np.zeros((n, 2))  # the last step's, for the filter's reciprocal split
-    sliding = np.zeros(n, dtype=bool)  # aiming at their slides (covswarm.tvd.drive.steer)
+    # the side each robot aiming at its slide passes on (covswarm.agent.brain.slide_of); NaN:
+    # not sliding
+    slide_side = np.full(n, np.nan)
     stopped_since = np.full(n, np.inf)  # s: since when the filter stops each one dead
     safe_distance = body_safe_distance(scenario.robot_diameter)
     k = scripted = 0  # steps taken, of them the script's
@@ -283,23 +281,19 @@ def simulate(
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
             raise RuntimeError(f"non-finite velocity from tvd_{law} at t = {tk:.4g} s")
-        if safety and sliding.any():
+        filtered = functools.partial(
+            team_safe_velocities, positions, gamma=barrier_gain(DEFAULT_GAMMA, dt),
+            radius=SAFETY_RADIUS, velocities=centre_velocity,
+        )  # fmt: skip
+        if safety and np.isfinite(slide_side).any():
             # Aiming at their slides since the filter stopped them dead, until the rows
             # no longer bend their aims (covswarm.agent.brain.AgentBrain._safety_inputs).
-            ids = np.flatnonzero(sliding)
-            gamma = barrier_gain(DEFAULT_GAMMA, dt)
-            bent = team_safe_velocities(
-                positions, aim, safe_distance, gamma, SAFETY_RADIUS,
-                velocities=centre_velocity, subset=ids, **walls,
-            )[1]  # fmt: skip
-            slide = team_safe_velocities(
-                positions, aim, safe_distance + SLIDE_CLEARANCE, gamma, SAFETY_RADIUS,
-                velocities=centre_velocity, subset=ids, **slide_walls,
-            )[0]  # fmt: skip
-            speeds = np.hypot(slide[ids, 0], slide[ids, 1])
-            keep = (bent[ids] > 0) & (speeds >= SLIDE_MIN * np.hypot(aim[ids, 0], aim[ids, 1]))
-            sliding[ids] = keep
-            velocity = aim = np.where(sliding[:, None], slide, aim)
+            ids = np.flatnonzero(np.isfinite(slide_side))
+            bent = filtered(aim, safe_distance, subset=ids, **walls)[1]
+            slide = _slides(filtered, aim, slide_side, ids[bent[ids] > 0], safe_distance, walls)
+            keep = np.isfinite(slide).all(axis=1)
+            slide_side[~keep] = np.nan
+            velocity = aim = np.where(keep[:, None], slide, aim)
             slid += int(np.count_nonzero(keep))
         if safety:
             velocity, active, relaxed = team_safe_velocities(
@@ -325,20 +319,18 @@ def simulate(
                 # as an agent
                 stopped = stopped_dead(headings, velocity, aim) & (active > 0)
                 stopped_since = np.where(stopped, np.fmin(stopped_since, tk), np.inf)
-                dead = np.flatnonzero(stopped & (tk - stopped_since >= SLIDE_AFTER - 1e-9))
+                waited = tk - stopped_since >= SLIDE_AFTER - 1e-9
+                dead = np.flatnonzero(stopped & waited & np.isnan(slide_side))
                 if len(dead):
-                    slides = team_safe_velocities(
-                        positions, aim, safe_distance + SLIDE_CLEARANCE,
-                        barrier_gain(DEFAULT_GAMMA, dt), SAFETY_RADIUS,
-                        velocities=centre_velocity, subset=dead, **slide_walls,
-                    )[0]  # fmt: skip
+                    slides = _slides(filtered, aim, sides, dead, safe_distance, walls)
             wheels = wheel_speeds(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L,
                 hold=dt, aims=aim, sides=sides, slides=slides,
             )  # fmt: skip
             if slides is not None:
-                sliding[dead] = takes_slide(headings, velocity, aim, slides)[dead]
-                slid += int(np.count_nonzero(sliding[dead]))
+                taken = np.isfinite(slides).all(axis=1)
+                slide_side[taken] = sides[taken]
+                slid += int(np.count_nonzero(taken))
             wheel_rows.append(wheels)
             if safety:
                 forward, _ = twist_from_wheels(
@@ -368,6 +360,38 @@ def simulate(
         polygons, positions, guarded, fallbacks, wheel_log, safety_active, safety_relaxed,
         contact_stops, slid, released,
     )  # fmt: skip
+
+
+def _slides(
+    filtered: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
+    aims: np.ndarray,
+    sides: np.ndarray,
+    ids: np.ndarray,
+    safe_distance: float,
+    walls: dict[str, Any],
+) -> np.ndarray:
+    """(n, 2) m/s: the slide each robot of ``ids`` takes, covswarm.agent.brain.slide_of for
+    the team at once (``filtered``: team_safe_velocities bound to the team's positions, gain
+    and velocities; ``sides`` (n,) +1 or -1); NaN rows for the others and where none is
+    SLIDE_MIN of the aim long."""
+    from covswarm.tvd.drive import SLIDE_CLEARANCE, SLIDE_MIN
+
+    out = np.full(aims.shape, np.nan)
+    least = SLIDE_MIN * np.hypot(aims[:, 0], aims[:, 1])
+    turned = np.column_stack([-sides * aims[:, 1], sides * aims[:, 0]])
+    wide = walls | {"obstacle_distance": walls["obstacle_distance"] + SLIDE_CLEARANCE}
+    todo = np.asarray(ids, dtype=int)
+    for aimed in (aims, turned):
+        if not len(todo):
+            break
+        along = filtered(aimed, safe_distance, subset=todo, **walls)[0]
+        long = todo[np.hypot(along[todo, 0], along[todo, 1]) >= least[todo]]
+        if len(long):
+            out[long] = filtered(aimed, safe_distance + SLIDE_CLEARANCE, subset=long, **wide)[0][
+                long
+            ]
+        todo = np.setdiff1d(todo, long)
+    return out
 
 
 def guard_counts(result: SimResult) -> dict[str, Any]:

@@ -32,27 +32,28 @@ START = (-0.2, 0.0)  # m: robot 0, facing +x
 # S 2.2 m to robot 0's right: its cell is empty and it aims at S's centroid, along +x.
 FAR_SQUARE = [[2.0, -1.0], [4.0, -1.0], [4.0, 1.0], [2.0, 1.0]]
 SAFE = body_safe_distance(KHEPERA_IV.body_diameter, AgentConfig().safety_margin)  # 0.16 m
-ANGLES = (10, 30, 60, -40)  # degrees to the left of the aim
+ANGLES = (0, 10, 30, 60, -40)  # degrees to the left of the aim
 KAPPA = 0.1  # 1/s: an aim of ~0.32 m/s, the Khepera IV's cruising speed
 PIN = 1.0  # s robot 0 stands at START: the brain follows robot 1 after the command timeout
 
 
 def drive_past(
-    angle: float, seconds: float = 6.0, slides: bool = True
+    angle: float, seconds: float = 6.0, slides: bool = True, also: tuple[float, ...] = ()
 ) -> tuple[AgentBrain, list[tuple[float, float, float]], tuple[float, float]]:
     """Brain 0 stepped at 10 Hz for ``seconds`` beside robot 1, a stranded robot (its robot's
     token alive, its agent's never seen: covswarm.agent.brain.AgentBrain.stranded) still 1
-    mm outside the safe distance and ``angle`` rad to the left of robot 0's aim; (the brain,
-    robot 0's poses (x, y, heading) every 10 ms, robot 1's position). Robot 0 stands at
-    START until the brain follows robot 1 (after the command timeout). ``slides``: False
-    for the rule before."""
-    neighbour = (
-        START[0] + (SAFE + 1e-3) * math.cos(angle),
-        START[1] + (SAFE + 1e-3) * math.sin(angle),
-    )
+    mm outside the safe distance and ``angle`` rad to the left of robot 0's aim, and more
+    such robots at the angles ``also``; (the brain, robot 0's poses (x, y, heading) every
+    10 ms, robot 1's position). Robot 0 stands at START until the brain follows them (after
+    the command timeout). ``slides``: False for the rule before."""
+    still = [
+        (START[0] + (SAFE + 1e-3) * math.cos(a), START[1] + (SAFE + 1e-3) * math.sin(a))
+        for a in (angle, *also)
+    ]
     config = AgentConfig(kappa=KAPPA, cmd_timeout=0.5)
     brain = AgentBrain(0, config)
-    brain.on_liveliness("robot", 1, True)
+    for rid in range(1, len(still) + 1):
+        brain.on_liveliness("robot", rid, True)
     x, y, heading = *START, 0.0
     path = [(x, y, heading)]
     rule = (
@@ -70,10 +71,9 @@ def drive_past(
             brain.receive("domain", domain.encode(), t, wall)
             pose = protocol.Pose(id=0, x=x, y=y, theta=heading, stamp=wall, seq=k)
             brain.receive("pose", pose.encode(), t, wall, key_id=0)
-            still = protocol.Pose(
-                id=1, x=neighbour[0], y=neighbour[1], theta=0.0, stamp=wall, seq=k
-            )
-            brain.receive("stranded", still.encode(), t, wall, key_id=1)
+            for rid, (sx, sy) in enumerate(still, start=1):
+                other = protocol.Pose(id=rid, x=sx, y=sy, theta=0.0, stamp=wall, seq=k)
+                brain.receive("stranded", other.encode(), t, wall, key_id=rid)
             brain.pace(0.1)
             (command,) = [a.command for a in brain.tick(t, wall) if isinstance(a, SendCommand)]
             if t < PIN:
@@ -81,7 +81,7 @@ def drive_past(
             for _ in range(10):
                 x, y, heading = integrate_one(x, y, heading, command.left, command.right, 0.01)
                 path.append((x, y, heading))
-    return brain, path, neighbour
+    return brain, path, still[0]
 
 
 def closest(path: list[tuple[float, float, float]], neighbour: tuple[float, float]) -> float:

@@ -57,7 +57,7 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("`auto` runs at `HOLDING_SHARE` (0.6)", lambda: plan.HOLDING_SHARE, 0.6),
     ("`RECEDE_SHARE` (0.5) of a neighbour's", lambda: safety.RECEDE_SHARE, 0.5),
     ("with `RECEDE_SLACK` 0.015 m", lambda: safety.RECEDE_SLACK, 0.015),
-    ("a slide under `SLIDE_MIN` (0.1) of the aim's speed", lambda: drive.SLIDE_MIN, 0.1),
+    ("is under `SLIDE_MIN` (0.1) of its aim's speed", lambda: drive.SLIDE_MIN, 0.1),
     ("safe distances `SLIDE_CLEARANCE` (5 mm) larger", lambda: drive.SLIDE_CLEARANCE, 0.005),
     ("stopped dead for `SLIDE_AFTER` (1 s) on end", lambda: drive.SLIDE_AFTER, 1.0),
     ("by a brain whose turns come later than `ARC_HOLD` (0.3 s)", lambda: brain.ARC_HOLD, 0.3),

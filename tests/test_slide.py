@@ -39,7 +39,7 @@ def test_a_robot_stopped_dead_beside_a_still_one_gets_past_it(degrees: int) -> N
     assert escape.closest(path, neighbour) >= escape.SAFE - 5e-4
     assert path[-1][0] > neighbour[0] + 0.25  # past it, on to S
     assert 1 <= brain.counters.slid <= 45
-    assert not brain._sliding  # (the way clear: it aims where its law says)
+    assert brain._slide_side is None  # (the way clear: it aims where its law says)
 
 
 @pytest.mark.parametrize("degrees", AROUND)
@@ -49,13 +49,43 @@ def test_facing_its_aim_it_waited_for_ever(degrees: int) -> None:
     assert brain.counters.slid == 0
 
 
-def test_a_still_robot_dead_ahead_still_holds_it() -> None:
-    # Within asin(SLIDE_MIN) (5.7 degrees) of its aim the slide is too short to be taken
-    # (as when boxed in), and the robot waits facing its aim: the limit of this rule.
-    brain, path, neighbour = escape.drive_past(math.radians(3.0))
+@pytest.mark.parametrize("degrees", [0, 1, 3, -3])
+def test_a_still_robot_dead_ahead_is_passed_on_the_side_away_from_it(degrees: int) -> None:
+    # Within asin(SLIDE_MIN) (5.7 degrees) of its aim its slide is too short: it takes the
+    # slide of its aim turned a quarter, to the side it passes on, away from the robot
+    # (AgentBrain.slide_of; the left when it is dead ahead).
+    brain, path, neighbour = escape.drive_past(math.radians(degrees))
     assert escape.closest(path, neighbour) >= escape.SAFE - 5e-4
-    assert path[-1][0] < neighbour[0]
+    assert path[-1][0] > neighbour[0] + 0.25
+    side = 1.0 if degrees <= 0 else -1.0
+    assert side * path[-1][1] > 0.1
+    assert 1 <= brain.counters.slid <= 45
+
+
+def test_a_boxed_in_robot_waits() -> None:
+    # Still robots all round, 60 degrees apart: no slide is SLIDE_MIN of its aim long, its
+    # own or its aim's turned a quarter, and it waits, facing its aim.
+    around = tuple(math.radians(a) for a in (60, -60, 120, -120, 180))
+    brain, path, neighbour = escape.drive_past(0.0, also=around)
+    assert math.hypot(path[-1][0] - escape.START[0], path[-1][1] - escape.START[1]) < 0.01
     assert brain.counters.slid == 0
+
+
+def test_in_a_cup_of_still_robots_it_turns_about_and_keeps_its_distance() -> None:
+    # Still robots at 0 and 60 degrees either side, the way back open: the slide of its aim
+    # turned a quarter leads back along the cup's side, and it turns about in the cup
+    # without getting out (138 steps slid in 15 s; before, it waited facing its aim). Never
+    # closer than the safe distance; getting out of a cup is a planner's work.
+    around = (math.radians(60.0), math.radians(-60.0))
+    brain, path, neighbour = escape.drive_past(0.0, seconds=15.0, also=around)
+    for angle in (0.0, *around):
+        still = (
+            escape.START[0] + (escape.SAFE + 1e-3) * math.cos(angle),
+            escape.START[1] + (escape.SAFE + 1e-3) * math.sin(angle),
+        )
+        assert escape.closest(path, still) >= escape.SAFE - 5e-4
+    assert path[-1][0] < neighbour[0]
+    assert brain.counters.slid > 0
 
 
 def test_steer_turns_toward_the_slide_only_when_stopped_dead() -> None:
