@@ -463,18 +463,22 @@ def slide_velocity(filtering: Filtering, clearance: float = SLIDE_CLEARANCE) -> 
     )
 
 
-def slide_of(filtering: Filtering, side: float) -> np.ndarray | None:
+def slide_of(
+    filtering: Filtering, side: float, along: np.ndarray | None = None
+) -> np.ndarray | None:
     """(2,) m/s: the slide ``filtering``'s robot takes (covswarm.tvd.drive.steer): its
     slide (:func:`slide_velocity`), or, where that is shorter than SLIDE_MIN of its aim (a
     still robot dead ahead), the slide of its aim turned a quarter to ``side`` (+1 left, -1
     right); None where neither is that long (boxed in). How long is judged at the safe
-    distance itself: within SLIDE_CLEARANCE of it, the slide of a robot boxed in leads
-    away from every row, and it turned round to back out."""
+    distance itself (``along``: that slide of its aim, when already known): within
+    SLIDE_CLEARANCE of it, the slide of a robot boxed in leads away from every row, and it
+    turned round to back out."""
     ax, ay = float(filtering.nominal[0]), float(filtering.nominal[1])
     least = SLIDE_MIN * math.hypot(ax, ay)
     for nominal in (None, (-side * ay, side * ax)):
         aimed = filtering if nominal is None else replace(filtering, nominal=np.array(nominal))
-        along = slide_velocity(aimed, 0.0).velocity
+        if nominal is not None or along is None:
+            along = slide_velocity(aimed, 0.0).velocity
         if math.hypot(along[0], along[1]) >= least:
             return slide_velocity(aimed).velocity
     return None
@@ -1631,10 +1635,10 @@ class AgentBrain:
             # the heading it starts from) does not see: to 0.149 m of a still robot 10
             # degrees off its aim (tests/test_slide.py), and stopped dead again. (Bent at
             # the safe distance: at the slide's, the robots of a dense team stayed in it.)
-            bent = slide_velocity(filtering, 0.0).active > 0
+            along = slide_velocity(filtering, 0.0)
             taken = None
-            if bent and self.running and self._hold <= ARC_HOLD:
-                taken = slide_of(filtering, self._slide_side)
+            if along.active > 0 and self.running and self._hold <= ARC_HOLD:
+                taken = slide_of(filtering, self._slide_side, along.velocity)
             if taken is None:
                 self._slide_side = None
             else:

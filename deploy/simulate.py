@@ -289,8 +289,9 @@ def simulate(
             # Aiming at their slides since the filter stopped them dead, until the rows
             # no longer bend their aims (covswarm.agent.brain.AgentBrain._safety_inputs).
             ids = np.flatnonzero(np.isfinite(slide_side))
-            bent = filtered(aim, safe_distance, subset=ids, **walls)[1]
-            slide = _slides(filtered, aim, slide_side, ids[bent[ids] > 0], safe_distance, walls)
+            along, bent, _ = filtered(aim, safe_distance, subset=ids, **walls)
+            bent_ids = ids[bent[ids] > 0]
+            slide = _slides(filtered, aim, slide_side, bent_ids, safe_distance, walls, along)
             keep = np.isfinite(slide).all(axis=1)
             slide_side[~keep] = np.nan
             velocity = aim = np.where(keep[:, None], slide, aim)
@@ -369,11 +370,13 @@ def _slides(
     ids: np.ndarray,
     safe_distance: float,
     walls: dict[str, Any],
+    along: np.ndarray | None = None,
 ) -> np.ndarray:
     """(n, 2) m/s: the slide each robot of ``ids`` takes, covswarm.agent.brain.slide_of for
     the team at once (``filtered``: team_safe_velocities bound to the team's positions, gain
-    and velocities; ``sides`` (n,) +1 or -1); NaN rows for the others and where none is
-    SLIDE_MIN of the aim long."""
+    and velocities; ``sides`` (n,) +1 or -1; ``along``: the aims' slides at the safe
+    distance on the rows of ``ids``, when already known); NaN rows for the others and where
+    none is SLIDE_MIN of the aim long."""
     from covswarm.tvd.drive import SLIDE_CLEARANCE, SLIDE_MIN
 
     out = np.full(aims.shape, np.nan)
@@ -384,7 +387,8 @@ def _slides(
     for aimed in (aims, turned):
         if not len(todo):
             break
-        along = filtered(aimed, safe_distance, subset=todo, **walls)[0]
+        if aimed is turned or along is None:
+            along = filtered(aimed, safe_distance, subset=todo, **walls)[0]
         long = todo[np.hypot(along[todo, 0], along[todo, 1]) >= least[todo]]
         if len(long):
             out[long] = filtered(aimed, safe_distance + SLIDE_CLEARANCE, subset=long, **wide)[0][

@@ -43,8 +43,9 @@ PASS_BELOW = 0.5
 PASS_STOPPED = 0.05
 PASS_DAMPING = 0.5
 # A robot stopped dead by a safety filter turns toward its slide (:func:`steer`'s
-# ``slides``) when the slide keeps at least SLIDE_MIN of its aim's speed; below that it is
-# boxed in, and it faces its aim and waits.
+# ``slides``) when the slide keeps at least SLIDE_MIN of its aim's speed (callers then try
+# its aim turned a quarter: a still robot dead ahead); below that it is boxed in, and it
+# faces its aim and waits.
 SLIDE_MIN = 0.1
 # ... once it has been stopped dead for SLIDE_AFTER s on end: a robot waits its turn in a
 # file that sets off, and takes a slide only where it would otherwise wait for ever.
@@ -192,8 +193,9 @@ def steer(
     Facing s, the filter lets it drive, since s meets every row. The caller then aims it
     at its slide until the rows no longer bend its aim (covswarm.agent.brain.AgentBrain.
     _safety_inputs, and the simulator alike), and it goes round the robot. Not where
-    |s| < SLIDE_MIN |a|: boxed in, or a still robot within asin(SLIDE_MIN) (5.7 degrees)
-    of dead ahead, it faces its aim and waits as before.
+    |s| < SLIDE_MIN |a|: boxed in, it faces its aim and waits as before (for a still robot
+    within asin(SLIDE_MIN), 5.7 degrees, of dead ahead, callers give the slide of the aim
+    turned a quarter: covswarm.agent.brain.slide_of).
 
     Saturation then scales both wheels of a robot by the same factor so the curvature (the
     path) is kept and only the speed along it drops. A robot with a non-finite heading or
