@@ -92,6 +92,7 @@ def simulate(
     deploy_error: float | None = None,
     deploy_timeout: float = DEPLOY_TIMEOUT,
     deploy_kappa: float | None = None,
+    still: Sequence[int] = (),
 ) -> SimResult:
     """Run the scenario; None options take the scenario's defaults.
 
@@ -117,6 +118,11 @@ def simulate(
     walls within that radius too. Obstacles and walls are solid for every robot, filtered
     or not (covswarm.world.contact.stop_at_contacts on each step's move, the chord of a
     unicycle's arc); a run that never touches one is exactly what it was without them.
+
+    still: indices of robots whose brains are dead: each stands where it starts, facing
+    as it starts, and is left out of every cell and of e_a (no agent of it is heard), while
+    the other robots' safety filters keep it as a still row (velocity 0), as the agents keep
+    a stranded robot (covswarm.agent.brain.AgentBrain.stranded). At least one robot moves.
     """
     from covswarm.coordinator.pace import (
         aligned_by,
@@ -165,6 +171,20 @@ def simulate(
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
         raise ValueError(f"damping must be a finite number >= 0, not {damping!r}")
+
+    moving = moving_robots(n, still)
+    every = bool(moving.all())  # no still robot: the team as a whole, with no copies
+
+    def team(rows: np.ndarray) -> np.ndarray:
+        return rows if every else rows[moving]
+
+    def spread(rows: np.ndarray) -> np.ndarray:
+        """(n, ...) from the moving robots' rows, zeros for the still ones."""
+        if every:
+            return rows
+        out = np.zeros((n, *rows.shape[1:]))
+        out[moving] = rows
+        return out
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
@@ -232,7 +252,7 @@ def simulate(
         # steps that take none tessellate for it.
         error = None
         if holding and aligned is None:
-            error = aggregate_error(positions, polygon, density)
+            error = aggregate_error(team(positions), polygon, density)
             why = deploy_release(tk, (tk, error), deploy_error, hold_steps * dt)
             if why is not None:
                 aligned = (tk, why, error)
@@ -253,7 +273,7 @@ def simulate(
         facing_only = holding and aligned is not None  # S still a while more: face its start
         if finished or facing_only:
             error_log.append(
-                aggregate_error(positions, polygon, density) if error is None else error
+                aggregate_error(team(positions), polygon, density) if error is None else error
             )
         if finished:
             break
@@ -262,6 +282,7 @@ def simulate(
                 assert facing is not None
                 pairs = zip(headings.tolist(), facing.tolist(), strict=True)
                 wheels = np.array([turn_in_place(h, d, COMMAND_TIMEOUT) for h, d in pairs])
+                wheels[~moving] = 0.0
                 wheel_rows.append(wheels)
                 poses = integrate(np.column_stack([positions, headings]), wheels, dt)
                 headings = poses[:, 2]  # turning in place: the centres stay
@@ -272,11 +293,11 @@ def simulate(
             continue
         gain = hold_gain(tk, kappa, hold_kappa) if holding else kappa
         step = control.team_step(
-            law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,
+            law, team(positions), polygon, polygon_velocity, gain, feedforward=feedforward,
             density=density, damping=damping, prior=prior,
         )  # fmt: skip
         error_log.append(step.error if error is None else error)
-        velocity = aim = step.velocity
+        velocity = aim = spread(step.velocity)
         guarded += int(step.guarded.sum())
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
@@ -302,6 +323,9 @@ def simulate(
                 SAFETY_RADIUS, headings=None if dynamics == "single" else headings,
                 velocities=centre_velocity, **walls,
             )  # fmt: skip
+            if not every:  # a dead brain's robot is nobody's to filter
+                velocity = np.where(moving[:, None], velocity, 0.0)
+                active, relaxed = np.where(moving, active, 0), relaxed & moving
             safety_active += int(np.count_nonzero(active))
             safety_relaxed += int(np.count_nonzero(relaxed))
         start = positions
@@ -318,7 +342,7 @@ def simulate(
                 sides[held] = pass_sides(positions[held], aim[held], positions, SAFETY_RADIUS)
                 # stopped dead for SLIDE_AFTER s, toward the slide (covswarm.tvd.drive.steer),
                 # as an agent
-                stopped = stopped_dead(headings, velocity, aim) & (active > 0)
+                stopped = stopped_dead(headings, velocity, aim) & (active > 0) & moving
                 stopped_since = np.where(stopped, np.fmin(stopped_since, tk), np.inf)
                 waited = tk - stopped_since >= SLIDE_AFTER - 1e-9
                 dead = np.flatnonzero(stopped & waited & np.isnan(slide_side))
@@ -328,6 +352,7 @@ def simulate(
                 headings, velocity, projection_distance=projection_distance or DEFAULT_L,
                 hold=dt, aims=aim, sides=sides, slides=slides,
             )  # fmt: skip
+            wheels[~moving] = 0.0
             if slides is not None:
                 taken = np.isfinite(slides).all(axis=1)
                 slide_side[taken] = sides[taken]
@@ -361,6 +386,21 @@ def simulate(
         polygons, positions, guarded, fallbacks, wheel_log, safety_active, safety_relaxed,
         contact_stops, slid, released,
     )  # fmt: skip
+
+
+def moving_robots(n: int, still: Sequence[int]) -> np.ndarray:
+    """(n,) bool: the robots of a team of ``n`` that are not in ``still`` (indices of
+    robots whose brains are dead); refuses an index out of range and a team all still."""
+    moving = np.ones(n, dtype=bool)
+    for index in still:
+        if isinstance(index, bool) or not isinstance(index, (int, np.integer)):
+            raise ValueError(f"still: robot indices are integers, not {index!r}")
+        if not 0 <= index < n:
+            raise ValueError(f"still: robot {index} is not in a team of {n} (0 to {n - 1})")
+        moving[index] = False
+    if not moving.any():
+        raise ValueError("still: every robot would be still; at least one must move")
+    return moving
 
 
 def _slides(
@@ -433,6 +473,7 @@ def build_summary(
     deploy_error: float | None = None,
     deploy_timeout: float = DEPLOY_TIMEOUT,
     deploy_kappa: float | None = None,
+    still: Sequence[int] = (),
 ) -> dict[str, Any]:
     """summary.json contents: run parameters and error statistics, no timestamps; the keys
     every run has come from coordinator.outputs.mission_summary, as ``covswarm run``'s.
@@ -498,6 +539,9 @@ def build_summary(
                 goals,
             ),
             "contact_stops": result.contact_stops,
+            # robots whose brains are dead (simulate's ``still``): out of e_a, in the
+            # distances between robots
+            "still": sorted(int(i) for i in still),
             "safety": {
                 "on": safety,
                 "active_robot_steps": result.safety_active,
@@ -615,6 +659,14 @@ def world_line(summary: dict[str, Any]) -> str:
     help="Unicycles: each robot starts facing S's motion at the start, as covswarm run's "
     "robots turn to while the mission waits.",
 )
+@click.option(
+    "--still",
+    "still_text",
+    default="",
+    metavar="I,J,...",
+    help="Robots (indices from 0) whose brains are dead: they stand where they start, out of "
+    "every cell and of e_a, a still obstacle for the others' --safety filters.",
+)
 @deploy_options(DEPLOY_TIMEOUT)
 def sim_command(
     scenario_name: str,
@@ -637,6 +689,7 @@ def sim_command(
     deploy_error: float | None,
     deploy_timeout: float,
     deploy_kappa: float | None,
+    still_text: str,
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -662,6 +715,12 @@ def sim_command(
         scenario = load_scenario(scenario_name)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    try:
+        still = tuple(int(part) for part in still_text.split(",") if part.strip())
+    except ValueError:
+        raise click.BadParameter(
+            f"robot indices separated by commas, not {still_text!r}", param_hint="--still"
+        ) from None
     options = {
         "agents": scenario.agents if agents is None else agents,
         "law": law,
@@ -679,7 +738,12 @@ def sim_command(
         "deploy_error": deploy_error,
         "deploy_timeout": deploy_timeout,
         "deploy_kappa": deploy_kappa,
+        "still": still,
     }
+    try:
+        moving_robots(options["agents"], still)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--still") from None
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])
     except ValueError as exc:
