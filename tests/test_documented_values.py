@@ -60,6 +60,8 @@ DOCUMENTED: list[tuple[str, Callable[[], object], object]] = [
     ("is under `SLIDE_MIN` (0.1) of its aim's speed", lambda: drive.SLIDE_MIN, 0.1),
     ("safe distances `SLIDE_CLEARANCE` (5 mm) larger", lambda: drive.SLIDE_CLEARANCE, 0.005),
     ("stopped dead for `SLIDE_AFTER` (1 s) on end", lambda: drive.SLIDE_AFTER, 1.0),
+    ("at a forward speed of `STOPPED_SPEED` (1 mm/s) or less", lambda: drive.STOPPED_SPEED, 0.001),
+    ("stopped dead at `STOPPED_SPEED` (1 mm/s)", lambda: drive.STOPPED_SPEED, 0.001),
     ("by a brain whose turns come later than `ARC_HOLD` (0.3 s)", lambda: brain.ARC_HOLD, 0.3),
     ("one row per robot it knows within 0.5 m", lambda: safety.SAFETY_RADIUS, 0.5),
     ("liveliness token for 1.5 s", lambda: coordinator_core.START_SETTLE, 1.5),

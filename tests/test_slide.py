@@ -17,6 +17,7 @@ from script_modules import load_script
 from covswarm.tvd.drive import (
     KHEPERA_IV,
     SLIDE_MIN,
+    STOPPED_SPEED,
     steer,
     steer_one,
     stopped_dead,
@@ -147,3 +148,15 @@ def test_steer_and_steer_one_agree_with_slides() -> None:
         )
     with pytest.raises(ValueError, match="slides"):
         steer(np.zeros(2), np.zeros((2, 2)), slides=np.zeros((3, 2)))
+
+
+def test_a_robot_held_at_the_safe_distance_is_stopped_dead_whatever_the_rounding() -> None:
+    # Held at the barrier's rest, its forward speed is +-1e-17 m/s from step to step; a test
+    # of <= 0 restarted its SLIDE_AFTER wait at every positive one (tests/test_sim_still.py's
+    # team behind its dead robots).
+    aim = (0.3, 0.1)
+    for forward in (-1e-17, 0.0, 1e-17, 0.5 * STOPPED_SPEED, STOPPED_SPEED):
+        assert stopped_dead_one(0.0, forward, 0.05, aim)
+        assert stopped_dead(np.zeros(1), np.array([[forward, 0.05]]), np.array([aim]))[0]
+    assert not stopped_dead_one(0.0, 2.0 * STOPPED_SPEED, 0.0, aim)
+    assert not stopped_dead_one(0.0, 0.0, 0.0, (-0.3, 0.1))  # its aim behind it: not held

@@ -55,6 +55,12 @@ SLIDE_AFTER = 1.0
 # limit, its forward speed held at zero all the while; a little farther out, the slide
 # leads away and the robot drives as soon as it faces past the tangent.
 SLIDE_CLEARANCE = 0.005
+# m/s: a forward speed the filter cuts to this or less is stopped dead. Not 0: a robot the
+# barrier holds at the safe distance gets +-1e-17 m/s from one step to the next, and a test
+# of <= 0 restarted its SLIDE_AFTER wait at every positive one, so robots queued behind a
+# dead robot waited for ever (covswarm sim --scenario scenarios/circle-400.toml --still
+# 0,...,9: 56 and 120 robots outside S at the end in seeds 0 and 1; 9 and 43 with 1 mm/s).
+STOPPED_SPEED = 1e-3
 
 
 @dataclass(frozen=True)
@@ -86,9 +92,9 @@ def wheel_speeds(
 
 
 def stopped_dead(headings: np.ndarray, velocities: np.ndarray, aims: np.ndarray) -> np.ndarray:
-    """(n,) bool: the robots whose forward speed a safety filter cut to zero or below while
-    their aim lies ahead (headings (n,) rad; velocities, aims (n, 2) m/s, after and before
-    the filter): those :func:`steer` turns toward their slide, and the only ones whose slide
+    """(n,) bool: the robots whose forward speed a safety filter cut to STOPPED_SPEED or less
+    while their aim lies ahead (headings (n,) rad; velocities, aims (n, 2) m/s, after and
+    before the filter): those :func:`steer` turns toward their slide, and the only ones whose slide
     it reads. Non-finite rows are not."""
     headings = np.asarray(headings, dtype=float).reshape(-1)
     velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
@@ -97,13 +103,13 @@ def stopped_dead(headings: np.ndarray, velocities: np.ndarray, aims: np.ndarray)
     with np.errstate(invalid="ignore"):
         ahead = np.einsum("ij,ij->i", aims, e)
         forward = np.einsum("ij,ij->i", velocities, e)
-        return (ahead > 0.0) & (forward <= 0.0)
+        return (ahead > 0.0) & (forward <= STOPPED_SPEED)
 
 
 def stopped_dead_one(heading: float, vx: float, vy: float, aim: tuple[float, float]) -> bool:
     """:func:`stopped_dead` for one robot in plain floats."""
     cos, sin = math.cos(heading), math.sin(heading)
-    return aim[0] * cos + aim[1] * sin > 0.0 and vx * cos + vy * sin <= 0.0
+    return aim[0] * cos + aim[1] * sin > 0.0 and vx * cos + vy * sin <= STOPPED_SPEED
 
 
 def takes_slide(
@@ -242,6 +248,7 @@ def steer(
             slid = takes_slide(headings, velocities, aims, slides)
             error = np.where(slid, np.arctan2(-sx * sin + sy * cos, sx * cos + sy * sin), error)
             w = np.where(slid, (-sx * sin + sy * cos) / projection_distance, w)
+            veering &= ~slid  # (crawling under STOPPED_SPEED, it veered as well)
         # |e| / hold (damped toward a veer), and no cap (inf) where the hold is not known
         limit = np.abs(error) / np.where(hold > 0.0, hold, np.nan)
         limit = np.where(hold > 0.0, np.where(veering, PASS_DAMPING * limit, limit), np.inf)
