@@ -388,6 +388,14 @@ def simulate(
     )  # fmt: skip
 
 
+def robot_indices(text: str) -> tuple[int, ...]:
+    """``--still``'s robot indices from "I,J,..." ("" for none)."""
+    try:
+        return tuple(int(part) for part in text.split(",") if part.strip())
+    except ValueError:
+        raise click.BadParameter(f"robot indices separated by commas, not {text!r}") from None
+
+
 def moving_robots(n: int, still: Sequence[int]) -> np.ndarray:
     """(n,) bool: the robots of a team of ``n`` that are not in ``still`` (indices of
     robots whose brains are dead); refuses an index out of range and a team all still."""
@@ -661,8 +669,8 @@ def world_line(summary: dict[str, Any]) -> str:
 )
 @click.option(
     "--still",
-    "still_text",
     default="",
+    callback=lambda _ctx, _param, text: robot_indices(text),
     metavar="I,J,...",
     help="Robots (indices from 0) whose brains are dead: they stand where they start, out of "
     "every cell and of e_a, a still obstacle for the others' --safety filters.",
@@ -689,7 +697,7 @@ def sim_command(
     deploy_error: float | None,
     deploy_timeout: float,
     deploy_kappa: float | None,
-    still_text: str,
+    still: tuple[int, ...],
 ) -> None:
     """Simulate coverage of a moving domain in-process and write plots and a summary."""
     from rich.console import Console
@@ -715,12 +723,6 @@ def sim_command(
         scenario = load_scenario(scenario_name)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
-    try:
-        still = tuple(int(part) for part in still_text.split(",") if part.strip())
-    except ValueError:
-        raise click.BadParameter(
-            f"robot indices separated by commas, not {still_text!r}", param_hint="--still"
-        ) from None
     options = {
         "agents": scenario.agents if agents is None else agents,
         "law": law,
