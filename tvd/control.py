@@ -49,6 +49,14 @@ far from a CVT the spectral radius of J is 2 to 5 and near-coincident robots mak
 With a density (a snapshot at the current time, covswarm.tvd.density.Density) c, dc/dp and
 dc/dt are those of phi, dc/dt with both terms of Proposition 1.
 
+Robots that stand still (``still``: a dead brain's robot, which no law moves) are generators
+of the diagram with pdot = 0: the others' cells end where theirs begin, so no robot's
+centroid falls on one. Their velocities are known, so each law is taken over the moving
+robots alone: J's columns of still robots multiply zero (their r, rho and v read as 0 by
+their neighbours' rows: (I + J_mm) for TVD-D1 and TVD-DA, (I - J_mm)^-1 for TVD-C, J_mm
+the moving robots' block of dc/dp), and their rows are 0. Without still robots (the
+default) every law is as above, to the bit.
+
 A robot with an empty cell (outside S and dominated, or a coincident duplicate) gets
 pdot = kappa (c_S - p) + dc_S/dt, c_S the centroid of the whole of S, under every law: it
 heads into S and owns a cell as soon as it is in (or a duplicate is apart). Aiming at the
@@ -129,7 +137,8 @@ class TeamStep:
     fallback: the team-wide fallback was taken (exact TVD-C: guarded TVD-D1 instead; damped
     TVD-C: the solve failed, so only the prior is fed forward); error: e_a = ||p - c(p, t)||
     (m) at the positions stepped from, of the cells the step used (as
-    covswarm.tvd.coverage.aggregate_error; NaN when not computed).
+    covswarm.tvd.coverage.aggregate_error; NaN when not computed), over the moving robots
+    when some stand still.
     """
 
     velocity: np.ndarray
@@ -380,12 +389,14 @@ def team_step(
     max_amplification: float = MAX_AMPLIFICATION,
     damping: float = DAMPING,
     prior: str = "affine",
+    still: np.ndarray | None = None,
 ) -> TeamStep:
     """One full-team step of ``law`` ("c", "d1" or "da"), with its guard counts.
 
     positions: (n, 2) m; polygon, polygon_velocity: (k, 2) m and m/s; kappa 1/s.
     ``damping`` and ``prior`` apply to "c" only (damping 0: the exact TVD-C with its
-    fallback).
+    fallback). still: (n,) bool, the robots that stand still (module notes; None: none):
+    generators with velocity 0, the law taken over the others.
     """
     _check_law(law)
     if prior not in PRIORS:
@@ -393,23 +404,51 @@ def team_step(
     if not (math.isfinite(damping) and damping >= 0.0):
         raise ValueError(f"damping must be a finite number >= 0, got {damping!r}")
     points, domain, batch = _team_cells(positions, polygon, polygon_velocity, kappa, density)
+    fixed = _still_mask(still, len(points))
     target, rate = _targets(batch, points, domain, feedforward, density)
     feedback = kappa * (target - as_complex(points))
+    if fixed is not None:  # read as 0 by the neighbours' rows: pdot = 0 there
+        feedback = np.where(fixed, 0.0, feedback)
+        rate = None if rate is None else np.where(fixed, 0.0, rate)
     if law == "d1":
         references = feedback if rate is None else feedback + rate
         step = _team_d1(batch, points, references, max_amplification, density)
     elif law == "da":
-        step = _team_da(batch, points, domain, feedback, rate, max_amplification, density)
+        step = _team_da(batch, points, domain, feedback, rate, max_amplification, density, fixed)
     elif damping == 0.0:
-        step = _team_c_exact(batch, points, feedback, rate, max_amplification, density)
+        step = _team_c_exact(batch, points, feedback, rate, max_amplification, density, fixed)
     else:
         field = as_complex(_fit(domain)(points)) if prior == "affine" else None
+        if field is not None and fixed is not None:
+            field = np.where(fixed, 0.0, field)
         step = _team_c_damped(
-            batch, points, feedback, rate, max_amplification, density, damping, field
+            batch, points, feedback, rate, max_amplification, density, damping, field, fixed
         )
     # e_a of these cells: a simulator's log then needs no tessellation of its own.
-    error = float(np.linalg.norm(points - as_vectors(batch.centroid)))
-    return replace(step, error=error)
+    offsets = points - as_vectors(batch.centroid)
+    if fixed is not None:
+        offsets = offsets[~fixed]
+        step = replace(
+            step,
+            velocity=np.where(fixed[:, None], 0.0, step.velocity),
+            guarded=step.guarded & ~fixed,
+        )
+    return replace(step, error=float(np.linalg.norm(offsets)))
+
+
+def _still_mask(still: np.ndarray | None, n: int) -> np.ndarray | None:
+    """``still`` as (n,) bool, None when no robot stands still; ValueError for another
+    shape, or for a team all still."""
+    if still is None:
+        return None
+    mask = np.asarray(still)
+    if mask.shape != (n,) or mask.dtype != np.bool_:
+        raise ValueError(f"still must be an ({n},) bool array, got {mask.dtype} {mask.shape}")
+    if not mask.any():
+        return None
+    if mask.all():
+        raise ValueError("still: every robot stands still; at least one must move")
+    return mask
 
 
 def _team_d1(
@@ -439,14 +478,19 @@ def _team_da(
     rate: np.ndarray | None,
     max_amplification: float,
     density: DensityModel | None,
+    fixed: np.ndarray | None = None,
 ) -> TeamStep:
-    """TVD-DA of the whole team: v(p) + (I + J) (kappa (c - p) + rho)."""
+    """TVD-DA of the whole team: v(p) + (I + J) (kappa (c - p) + rho). ``fixed``: (n,) bool,
+    the robots standing still (their v read as 0 by their neighbours' rows), or None."""
     if rate is None:
         return _team_d1(batch, points, feedback, max_amplification, density)
     prepared = _prepare(batch, points, density)
     field = _motion_field(domain, points, density)
     labels = np.maximum(batch.labels, 0)
-    references = feedback + _residual(batch, points, rate, field, field[labels], density, prepared)
+    theirs = field[labels] if fixed is None else np.where(fixed, 0.0, field)[labels]
+    references = feedback + _residual(batch, points, rate, field, theirs, density, prepared)
+    if fixed is not None:
+        references = np.where(fixed, 0.0, references)
     rows, guarded = _neumann_rows(
         batch, points, references, references[labels], max_amplification, density, prepared
     )
@@ -498,6 +542,31 @@ def _control_matrix(
     return scipy.sparse.eye_array(jacobian.shape[0], format="csc") - jacobian.tocsc()
 
 
+def _moving_block(
+    matrix: scipy.sparse.csc_array, fixed: np.ndarray | None
+) -> tuple[scipy.sparse.csc_array, np.ndarray | None]:
+    """(``matrix``'s rows and columns of the moving robots (the coordinates of robots not
+    ``fixed``), those coordinates (2m,)); the whole matrix and None when none is fixed."""
+    if fixed is None:
+        return matrix, None
+    coordinates = (2 * np.flatnonzero(~fixed)[:, None] + np.arange(2)).ravel()
+    return matrix[coordinates][:, coordinates].tocsc(), coordinates
+
+
+def _on_moving(values: np.ndarray, coordinates: np.ndarray | None) -> np.ndarray:
+    """(2n,) ``values`` at the moving robots' coordinates (all when None)."""
+    return values if coordinates is None else values[coordinates]
+
+
+def _from_moving(solution: np.ndarray, coordinates: np.ndarray | None, n: int) -> np.ndarray:
+    """(n, 2) from a solution over the moving robots' coordinates, 0 for the still ones."""
+    if coordinates is None:
+        return solution.reshape(-1, 2)
+    out = np.zeros(2 * n)
+    out[coordinates] = solution
+    return out.reshape(-1, 2)
+
+
 def _solve(system: scipy.sparse.csc_array, rhs: np.ndarray) -> np.ndarray | None:
     """Sparse LU solve, None when it fails or is not finite."""
     try:
@@ -514,12 +583,15 @@ def _team_c_exact(
     rate: np.ndarray | None,
     max_amplification: float,
     density: DensityModel | None,
+    fixed: np.ndarray | None = None,
 ) -> TeamStep:
-    """The paper's TVD-C, (I - J)^-1 r, or guarded TVD-D1 when that is unusable."""
+    """The paper's TVD-C, (I - J)^-1 r, or guarded TVD-D1 when that is unusable; over the
+    moving robots (``fixed``: (n,) bool, those standing still, or None)."""
     references = feedback if rate is None else feedback + rate
-    solution = _solve(_control_matrix(batch, points, density), as_vectors(references).ravel())
+    matrix, coordinates = _moving_block(_control_matrix(batch, points, density), fixed)
+    solution = _solve(matrix, _on_moving(as_vectors(references).ravel(), coordinates))
     if solution is not None:
-        velocities = solution.reshape(-1, 2)
+        velocities = _from_moving(solution, coordinates, len(points))
         bound = max_amplification * float(np.max(np.abs(references)))
         if np.all(np.linalg.norm(velocities, axis=1) <= bound):
             return TeamStep(velocities, np.zeros(len(points), dtype=bool))
@@ -536,23 +608,26 @@ def _team_c_damped(
     density: DensityModel | None,
     damping: float,
     prior: np.ndarray | None,
+    fixed: np.ndarray | None = None,
 ) -> TeamStep:
     """kappa (c - p) + x, x the solution of (I - J) x = dc/dt damped toward ``prior`` ((n,)
     complex, None for zero); a correction x - prior faster than ``max_amplification`` times
-    max |dc/dt| is rescaled to that speed."""
+    max |dc/dt| is rescaled to that speed. Over the moving robots (``fixed``: (n,) bool,
+    those standing still, or None)."""
     n = len(points)
     if rate is None:
         return TeamStep(as_vectors(feedback), np.zeros(n, dtype=bool))
-    matrix = _control_matrix(batch, points, density)
-    normal = (matrix.T @ matrix + damping**2 * scipy.sparse.eye_array(2 * n)).tocsc()
-    rhs = as_vectors(rate).ravel()
+    matrix, coordinates = _moving_block(_control_matrix(batch, points, density), fixed)
+    size = matrix.shape[0]
+    normal = (matrix.T @ matrix + damping**2 * scipy.sparse.eye_array(size)).tocsc()
+    rhs = _on_moving(as_vectors(rate).ravel(), coordinates)
     if prior is not None:
-        rhs = rhs - matrix @ as_vectors(prior).ravel()
+        rhs = rhs - matrix @ _on_moving(as_vectors(prior).ravel(), coordinates)
     solution = _solve(normal, matrix.T @ rhs)
     if solution is None:
         fallback = feedback if prior is None else feedback + prior
         return TeamStep(as_vectors(fallback), np.zeros(n, dtype=bool), fallback=True)
-    correction = as_complex(solution.reshape(-1, 2))
+    correction = as_complex(_from_moving(solution, coordinates, n))
     limit = max_amplification * float(np.max(np.abs(rate)))
     speed = np.abs(correction)
     guarded = speed > limit
@@ -643,26 +718,30 @@ def local_step(
     density: DensityModel | None = None,
     max_amplification: float = MAX_AMPLIFICATION,
     law: str = "d1",
+    still: frozenset = frozenset(),
 ) -> LocalStep:
     """One robot's step of ``law`` ("d1" or "da") from the robots it knows: itself, its
     neighbours, theirs.
 
-    positions: {id: (2,)} including ``me``. Builds only the cells of ``me`` and of its
-    neighbours (a local partial Voronoi diagram); equals row ``me`` of ``tvd_d1`` (``tvd_da``)
-    on the full team whenever ``positions`` contains the true two-hop neighbourhood. A robot
-    whose cell is empty (outside S, every point of S closer to someone else) has no
-    neighbours inside S; it is exact when ``positions`` holds the robots whose Voronoi
-    regions in the plane border its own, and a robot that sees nobody takes all of S as its
-    cell and heads for its centroid, which also brings it into S. ``local_steps`` with one
+    positions: {id: (2,)} including ``me``; still: the ids among them of robots that stand still
+    (generators with velocity 0, module notes), never ``me``. Builds only the cells of ``me``
+    and of its neighbours (a local partial Voronoi diagram); equals row ``me`` of ``tvd_d1``
+    (``tvd_da``) on the full team whenever ``positions`` contains the true two-hop
+    neighbourhood. A robot whose cell is empty (outside S, every point of S closer to someone
+    else) has no neighbours inside S; it is exact when ``positions`` holds the robots whose
+    Voronoi regions in the plane border its own, and a robot that sees nobody takes all of S as
+    its cell and heads for its centroid, which also brings it into S. ``local_steps`` with one
     view (the same code).
     """
     _check_local_law(law)
     check_density(density)
     _check_kappa(kappa)
     ids = _ordered_known(me, positions)
+    _check_still(me, still)
     points = validate_positions(_view_points(positions, ids))
     domain = make_domain(polygon, polygon_velocity)
-    known = _Known([ids], points, [0], [ids.index(me)], [float(kappa)])
+    fixed = _fixed([ids], [still]) if still else None
+    known = _Known([ids], points, [0], [ids.index(me)], [float(kappa)], fixed)
     return _batch_steps(known, domain, density, feedforward, max_amplification, law)[0]
 
 
@@ -672,7 +751,8 @@ class LocalView:
 
     me: its id; positions: {id: (2,) m} including ``me`` (its two-hop neighbourhood);
     polygon, polygon_velocity: (M, 2) m and m/s, S as this robot holds it; kappa: 1/s;
-    density: the density snapshot it holds (None: uniform).
+    density: the density snapshot it holds (None: uniform); still: the ids of ``positions``
+    that stand still (generators with velocity 0, module notes), never ``me``.
     """
 
     me: Hashable
@@ -681,6 +761,7 @@ class LocalView:
     polygon_velocity: np.ndarray
     kappa: float
     density: DensityModel | None = None
+    still: frozenset = frozenset()
 
 
 def local_steps(
@@ -709,6 +790,7 @@ def local_steps(
             check_density(view.density)
             _check_kappa(view.kappa)
             orders.append(_ordered_known(view.me, view.positions))
+            _check_still(view.me, view.still)
             same = (id(view.polygon), id(view.polygon_velocity), id(view.density))
             key = keys.get(same)
             if key is None:
@@ -722,6 +804,9 @@ def local_steps(
     if not views:
         return []
     points = _batch_points(views, orders)
+    fixed = None
+    if any(view.still for view in views):
+        fixed = _fixed(orders, [view.still for view in views])
     sizes = [len(ids) for ids in orders]
     starts = list(accumulate(sizes, initial=0))
     steps: list = [None] * len(views)
@@ -738,9 +823,10 @@ def local_steps(
                 starts[:-1],
                 [start + orders[i].index(views[i].me) for i, start in enumerate(starts[:-1])],
                 [float(view.kappa) for view in views],
+                fixed,
             )
         else:
-            known = _subset(views, orders, points, starts, members)
+            known = _subset(views, orders, points, starts, members, fixed)
         group = _batch_steps(known, domain, first.density, feedforward, max_amplification, law)
         for index, step in zip(members, group, strict=True):
             steps[index] = step
@@ -765,13 +851,30 @@ def _named(error: Exception, index: int, view: LocalView) -> Exception:
 class _Known:
     """Validated views of one S and density, stacked: ids: each view's ids (V lists) in
     point order; points: (N, 2) m, the views' blocks in turn; starts: (V,) each block's
-    first row; mes: (V,) each view's own robot's row; kappa: (V,) 1/s."""
+    first row; mes: (V,) each view's own robot's row; kappa: (V,) 1/s; fixed: (N,) bool,
+    the points that stand still, or None for none."""
 
     ids: list[list]
     points: np.ndarray
     starts: list[int]
     mes: list[int]
     kappa: list[float]
+    fixed: np.ndarray | None = None
+
+
+def _check_still(me: Hashable, still: frozenset) -> None:
+    """ValueError when a view's own robot is among its still ones."""
+    if me in still:
+        raise ValueError(f"the robot itself ({me!r}) cannot stand still in its own view")
+
+
+def _fixed(orders: list[list], stills: Sequence[frozenset]) -> np.ndarray:
+    """(N,) bool over the stacked points of views with these ids (in point order): the
+    robots each view holds still."""
+    return np.array(
+        [key in still for ids, still in zip(orders, stills, strict=True) for key in ids],
+        dtype=bool,
+    )
 
 
 def _ordered_known(me: Hashable, positions: Mapping[Hashable, np.ndarray]) -> list:
@@ -827,9 +930,10 @@ def _subset(
     points: np.ndarray,
     starts: list[int],
     members: list[int],
+    fixed: np.ndarray | None,
 ) -> _Known:
-    """The views ``members`` of a batch (``local_steps``' points and block starts) as their
-    own stack."""
+    """The views ``members`` of a batch (``local_steps``' points, block starts and still
+    points) as their own stack."""
     rows = np.concatenate([np.arange(starts[i], starts[i + 1]) for i in members])
     ids = [orders[i] for i in members]
     offsets = list(accumulate((len(block) for block in ids), initial=0))[:-1]
@@ -839,6 +943,7 @@ def _subset(
         offsets,
         [start + orders[i].index(views[i].me) for i, start in zip(members, offsets, strict=True)],
         [float(views[i].kappa) for i in members],
+        None if fixed is None else fixed[rows],
     )
 
 
@@ -857,7 +962,8 @@ def _batch_steps(
     rows: every view's own cell first (so that they are its leading rows, which a density
     reuses its integrals for), then its neighbours' cells (``_view_cells``), which (I + J)
     needs the references of: r (TVD-D1), or kappa (c - p) + rho (TVD-DA; a neighbour's
-    row of J needs its neighbours' v, in the two-hop view).
+    row of J needs its neighbours' v, in the two-hop view). A still robot's r, rho and v
+    are read as 0 (module notes).
     """
     count = len(views.ids)
     points, candidates, mes = _stack(views)
@@ -877,17 +983,20 @@ def _batch_steps(
     elif rate is not None:
         field = _motion_field(domain, points, density)
         prepared = _prepare(batch, points, density)
+        theirs = field if views.fixed is None else np.where(views.fixed, 0.0, field)
         references = feedback + _residual(
             batch,
             points,
             rate,
             field[owners],
-            field[np.maximum(batch.labels, 0)],
+            theirs[np.maximum(batch.labels, 0)],
             density,
             prepared,
         )
     by_robot = np.zeros(len(points), dtype=np.complex128)
     by_robot[owners] = references
+    if views.fixed is not None:
+        by_robot[views.fixed] = 0.0
     rows, guarded = _neumann_rows(
         mine,
         points,
