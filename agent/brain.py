@@ -1210,8 +1210,28 @@ class AgentBrain:
         self._hold = min(period, config.cmd_timeout) if self._was_running or first else 0.0
         self._was_running = self.running
         others[self.id] = me
-        view = LocalView(self.id, others, vertices, velocities, kappa, density)
+        still = self._still_generators(others)
+        view = LocalView(self.id, others, vertices, velocities, kappa, density, still)
         return Begun(view, pose, now, now_wall, self._clock() - started)
+
+    def _still_generators(self, others: dict[int, tuple[float, float]]) -> frozenset[int]:
+        """The stranded robots (:meth:`stranded`), put into ``others`` where their own poses
+        say they stand, as the local diagram's still generators (covswarm.tvd.control's
+        ``still``): their cells bound ours, so our centroid never falls on one. Left out of
+        it, a robot whose centroid fell on a dead brain's robot inside S stood at the safe
+        distance from it for the rest of the mission (docs/real-robots.md, "Robots queued
+        behind dead ones"). Every brain follows every stranded robot, so neighbours agree
+        on them as on the rest of the two-hop set."""
+        if not self._stranded:
+            return frozenset()
+        orphans = self.neighborhood.liveliness.orphans  # (not one whose token changed since)
+        first_hand = self.neighborhood.first_hand
+        still = []
+        for rid, (sx, sy, _) in self._stranded.items():
+            if rid in orphans and rid not in first_hand:
+                others[rid] = (sx, sy)
+                still.append(rid)
+        return frozenset(still)
 
     def conclude(
         self, begun: Begun, result: LocalStep | Exception, shared: float
@@ -1309,7 +1329,11 @@ class AgentBrain:
         self.counters.cell_empty += int(result.mass <= 0.0 and self.running)
         # Neighbour bookkeeping runs while waiting too, so subscriptions are warm at start.
         # The view's own ids (ints), as one frozenset: taken as it is, not copied.
-        self.neighborhood.one_hop = frozenset(result.neighbors)
+        # Without the still generators: no brain of theirs answers, states or beacons.
+        still = begun.view.still
+        self.neighborhood.one_hop = (
+            frozenset(result.neighbors) - still if still else frozenset(result.neighbors)
+        )
         if self.neighborhood.unrequited(now):
             self._beacon_due = True
         self._local = len(begun.view.positions) - 1
@@ -1452,14 +1476,15 @@ class AgentBrain:
         runs (covswarm.agent.neighborhood.Liveliness.orphans). Such a robot stands where its
         timeout stopped it and no brain will move it; neighbours that knew it keep it
         (:meth:`_still_there`), but a robot that arrives later has heard no state of it.
-        Its own robot publishes its pose to anyone (reading is open to every role), and the
-        safety filter takes it as a still row (:meth:`_safety_inputs`), never as a cell."""
+        Its own robot publishes its pose to anyone (reading is open to every role): the
+        local diagram takes it as a still generator (:meth:`_still_generators`), the safety
+        filter as a still row (:meth:`_safety_inputs`)."""
         orphans, since = self.neighborhood.liveliness.orphans, self._orphaned
         if not orphans and not since:
             return frozenset()  # (every step of a healthy team)
         for rid in [rid for rid in since if rid not in orphans]:
             del since[rid]
-        if not self.running or not self.config.safety:
+        if not self.running:
             return frozenset()
         timeout = self.config.cmd_timeout
         for rid in orphans:

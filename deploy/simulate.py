@@ -120,9 +120,10 @@ def simulate(
     unicycle's arc); a run that never touches one is exactly what it was without them.
 
     still: indices of robots whose brains are dead: each stands where it starts, facing
-    as it starts, and is left out of every cell and of e_a (no agent of it is heard), while
-    the other robots' safety filters keep it as a still row (velocity 0), as the agents keep
-    a stranded robot (covswarm.agent.brain.AgentBrain.stranded). At least one robot moves.
+    as it starts, a generator of the diagram that the law never moves (covswarm.tvd.control's
+    ``still``: the others' cells end where its cell begins) and out of e_a, while the other
+    robots' safety filters keep it as a still row (velocity 0), as the agents keep a
+    stranded robot (covswarm.agent.brain.AgentBrain.stranded). At least one robot moves.
     """
     from covswarm.coordinator.pace import (
         aligned_by,
@@ -173,18 +174,8 @@ def simulate(
         raise ValueError(f"damping must be a finite number >= 0, not {damping!r}")
 
     moving = moving_robots(n, still)
-    every = bool(moving.all())  # no still robot: the team as a whole, with no copies
-
-    def team(rows: np.ndarray) -> np.ndarray:
-        return rows if every else rows[moving]
-
-    def spread(rows: np.ndarray) -> np.ndarray:
-        """(n, ...) from the moving robots' rows, zeros for the still ones."""
-        if every:
-            return rows
-        out = np.zeros((n, *rows.shape[1:]))
-        out[moving] = rows
-        return out
+    every = bool(moving.all())
+    standing = None if every else ~moving  # the laws' and e_a's ``still``
 
     steps = max(1, round(duration / dt))
     positions = scenario.initial_positions(n, seed)
@@ -252,7 +243,7 @@ def simulate(
         # steps that take none tessellate for it.
         error = None
         if holding and aligned is None:
-            error = aggregate_error(team(positions), polygon, density)
+            error = aggregate_error(positions, polygon, density, standing)
             why = deploy_release(tk, (tk, error), deploy_error, hold_steps * dt)
             if why is not None:
                 aligned = (tk, why, error)
@@ -273,7 +264,7 @@ def simulate(
         facing_only = holding and aligned is not None  # S still a while more: face its start
         if finished or facing_only:
             error_log.append(
-                aggregate_error(team(positions), polygon, density) if error is None else error
+                aggregate_error(positions, polygon, density, standing) if error is None else error
             )
         if finished:
             break
@@ -293,11 +284,11 @@ def simulate(
             continue
         gain = hold_gain(tk, kappa, hold_kappa) if holding else kappa
         step = control.team_step(
-            law, team(positions), polygon, polygon_velocity, gain, feedforward=feedforward,
-            density=density, damping=damping, prior=prior,
+            law, positions, polygon, polygon_velocity, gain, feedforward=feedforward,
+            density=density, damping=damping, prior=prior, still=standing,
         )  # fmt: skip
         error_log.append(step.error if error is None else error)
-        velocity = aim = spread(step.velocity)
+        velocity = aim = step.velocity
         guarded += int(step.guarded.sum())
         fallbacks += int(step.fallback)
         if not np.all(np.isfinite(velocity)):
@@ -672,8 +663,9 @@ def world_line(summary: dict[str, Any]) -> str:
     default="",
     callback=lambda _ctx, _param, text: robot_indices(text),
     metavar="I,J,...",
-    help="Robots (indices from 0) whose brains are dead: they stand where they start, out of "
-    "every cell and of e_a, a still obstacle for the others' --safety filters.",
+    help="Robots (indices from 0) whose brains are dead: they stand where they start, keep "
+    "their cells (the others' end where theirs begin), out of e_a, a still obstacle for the "
+    "others' --safety filters.",
 )
 @deploy_options(DEPLOY_TIMEOUT)
 def sim_command(

@@ -1,6 +1,9 @@
 """A team that passes robots whose brains are dead: ``covswarm sim --still`` on a crowded
-mission, with the rule that says when a robot is stopped dead (covswarm.tvd.drive.
-STOPPED_SPEED) as it is and as it was before 1 Dec 2026 (a forward speed <= 0).
+mission, under three rules: as it is (the dead robots still generators of the diagram,
+covswarm.tvd.control's ``still``, and a robot stopped dead at a forward speed of at most
+covswarm.tvd.drive.STOPPED_SPEED); "out of cells", the dead robots left out of the
+diagram until the evening of 1 Dec 2026 (every law and e_a over the moving robots alone);
+"before", out of cells and stopped dead at a forward speed <= 0, as before 1 Dec 2026.
 
 Usage: .venv/bin/python scripts/dead_robots.py [--scenario scenarios/circle-400.toml]
        [--still 10] [--seeds 0,1,2,3] [--out docs/img/dead-robots.png]
@@ -14,6 +17,8 @@ robot-steps slid and the closest two robots came; draws seed 0's end and e_a.
 
 from __future__ import annotations
 
+from contextlib import ExitStack
+from dataclasses import replace
 from pathlib import Path
 from unittest import mock
 
@@ -24,17 +29,35 @@ from shapely.geometry import Point, Polygon
 
 from covswarm.deploy.simulate import SimResult, simulate
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.tvd import drive
+from covswarm.tvd import control, coverage, drive
 
-RULES = ("before", "now")
+RULES = ("before", "out of cells", "now")
+team_step, aggregate_error = control.team_step, coverage.aggregate_error
+
+
+def step_out_of_cells(law, positions, *args, still=None, **options) -> control.TeamStep:
+    """``control.team_step`` with the still robots out of the diagram (velocity 0)."""
+    if still is None:
+        return team_step(law, positions, *args, **options)
+    step = team_step(law, positions[~still], *args, **options)
+    velocity, guarded = np.zeros_like(positions), np.zeros(len(positions), dtype=bool)
+    velocity[~still], guarded[~still] = step.velocity, step.guarded
+    return replace(step, velocity=velocity, guarded=guarded)
+
+
+def error_out_of_cells(positions, polygon, density=None, still=None) -> float:
+    """``coverage.aggregate_error`` of the moving robots alone."""
+    return aggregate_error(positions if still is None else positions[~still], polygon, density)
 
 
 def run(scenario_path: str, still: int, seed: int, rule: str) -> SimResult:
-    """One run with robots 0..still-1 dead; ``rule`` "before": stopped dead at <= 0 m/s."""
-    patch = mock.patch.object(
-        drive, "STOPPED_SPEED", 0.0 if rule == "before" else drive.STOPPED_SPEED
-    )
-    with patch:
+    """One run with robots 0..still-1 dead under ``rule`` (module docstring)."""
+    with ExitStack() as stack:
+        if rule != "now":
+            stack.enter_context(mock.patch.object(control, "team_step", step_out_of_cells))
+            stack.enter_context(mock.patch.object(coverage, "aggregate_error", error_out_of_cells))
+        if rule == "before":
+            stack.enter_context(mock.patch.object(drive, "STOPPED_SPEED", 0.0))
         return simulate(
             load_scenario(scenario_path), safety=True, dt=0.1, projection_distance=0.05,
             seed=seed, still=list(range(still)), dynamics="unicycle", face_start=True,
@@ -79,10 +102,11 @@ def main(scenario_path: str, still: int, seeds: str, out: Path) -> None:
                 shown[rule] = result
     figure, axes = plt.subplots(1, 3, figsize=(16, 5.2))
     titles = {
-        "before": "stopped dead at <= 0 m/s (before)",
-        "now": f"stopped dead at <= {drive.STOPPED_SPEED:g} m/s (now)",
+        "before": "out of cells, stopped dead at <= 0 m/s",
+        "out of cells": f"out of cells, stopped dead at <= {drive.STOPPED_SPEED:g} m/s",
+        "now": "still cells (now)",
     }
-    for ax, rule in zip(axes, RULES, strict=False):
+    for ax, rule in zip(axes, ("out of cells", "now"), strict=True):
         result = shown[rule]
         polygon = np.vstack([result.final_polygon, result.final_polygon[:1]])
         ax.fill(*polygon.T, color="C0", alpha=0.12, label="S at the end")
@@ -93,7 +117,7 @@ def main(scenario_path: str, still: int, seeds: str, out: Path) -> None:
         ax.set_xlabel("x [m]")
     axes[0].set_ylabel("y [m]")
     axes[0].legend(loc="lower left", fontsize=8)
-    for rule, style in zip(RULES, ("C3--", "C0-"), strict=True):
+    for rule, style in zip(RULES, ("C3:", "C1--", "C0-"), strict=True):
         axes[2].plot(shown[rule].t, shown[rule].error, style, label=titles[rule])
     axes[2].set_yscale("log")
     axes[2].set_xlabel("t [s]")

@@ -21,6 +21,7 @@ from covswarm import protocol
 from covswarm.agent.brain import AgentBrain, AgentConfig, Decision, FollowStranded
 from covswarm.agent.neighborhood import Liveliness
 from covswarm.agent.pack import LocalBus, Pack
+from covswarm.tvd import control
 
 WALL = 1.7e9
 # A strip S moving +x at 0.1 m/s. Our robot at (X, 1) is at its cell's centroid with robot
@@ -175,6 +176,46 @@ def test_a_robot_with_no_brain_is_an_obstacle_to_a_robot_that_never_knew_it(then
         brain.on_liveliness("agent", 1, True)
     assert turn(brain, 5.5, None) > 0.08  # no longer a stranded row, from this turn
     assert stranded_follows(brain) == [frozenset()]
+
+
+class Viewing(Brain):
+    """A Brain that keeps the local view of its last step."""
+
+    view = None
+
+    def begin(self, now: float, now_wall: float):
+        begun = super().begin(now, now_wall)
+        self.view = getattr(begun, "view", None)
+        return begun
+
+
+@pytest.mark.parametrize("safety", [True, False])
+def test_a_stranded_robot_is_a_still_generator_of_the_local_diagram(safety: bool) -> None:
+    """Followed (with the filter or without), robot 1's own pose is in our local view as a
+    still generator (covswarm.tvd.control's ``still``): its cell bounds ours, so our
+    centroid is on our side of it; it is not a one-hop neighbour we would follow or
+    expect an answer from. Its robot's token gone, it leaves the view."""
+    brain = Viewing(0, AgentConfig(cmd_timeout=1.0, safety=safety))
+    brain.on_liveliness("robot", 1, True)
+    for now in (0.5, 1.5, 2.5):
+        turn(brain, now, None)
+        assert brain.view is not None and brain.view.still == frozenset()
+    assert stranded_follows(brain) == [frozenset({1})]
+    pose = protocol.Pose(id=1, x=AHEAD, y=1.0, theta=0.0, stamp=WALL + 2.6, seq=1)
+    assert brain.receive("stranded", pose.encode(), 2.6, WALL + 2.6, key_id=1)
+    turn(brain, 3.5, None)
+    view = brain.view
+    assert view.still == frozenset({1}) and tuple(view.positions[1]) == (AHEAD, 1.0)
+    assert 1 not in brain.neighborhood.one_hop
+    # Our cell ends at the bisector with it: its centroid is behind that, the strip's
+    # centroid (1.2, 1) is not.
+    step = control.local_step(
+        0, view.positions, view.polygon, view.polygon_velocity, view.kappa, still=view.still
+    )
+    assert step.centroid[0] < (X + AHEAD) / 2 and 1 in step.neighbors
+    brain.on_liveliness("robot", 1, False)
+    turn(brain, 4.5, None)
+    assert brain.view.still == frozenset() and 1 not in brain.view.positions
 
 
 def test_the_process_knows_which_robots_live_without_their_agent() -> None:

@@ -1053,8 +1053,16 @@ def centroid_rate(
 
 
 def aggregate_error(
-    positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
+    positions: np.ndarray,
+    polygon: np.ndarray,
+    density: DensityModel | None = None,
+    still: np.ndarray | None = None,
 ) -> float:
-    """Aggregated CVT error e_a = ||p - c(p, t)|| over the whole team (Section 5), metres."""
+    """Aggregated CVT error e_a = ||p - c(p, t)|| over the whole team (Section 5), metres.
+
+    still: (n,) bool, robots that stand still (covswarm.tvd.control's module notes): they
+    bound the others' cells, and e_a is taken over the others (None: every robot counts).
+    """
     points, _, batch = tessellate(positions, polygon, density=density)
-    return float(np.linalg.norm(points - as_vectors(batch.centroid)))
+    offsets = points - as_vectors(batch.centroid)
+    return float(np.linalg.norm(offsets if still is None else offsets[~np.asarray(still)]))
