@@ -875,10 +875,17 @@ class CoordinatorCore:
         positions = {i: (float(x), float(y)) for i, (x, y) in zip(ids, points, strict=True)}
         density = self.settings.scenario.density(script)
         clock = self._cost_clock
+        # Robots whose brains died stand where they stopped: still generators, as the
+        # agents take them (covswarm.tvd.control's ``still``), out of e_a themselves.
+        still = [obs.poses[i] for i in self.roster.stranded(obs.liveness.alive) if i in obs.poses]
+        generators, standing = points, None
+        if still:
+            generators = np.vstack([points, still])
+            standing = np.arange(len(generators)) >= len(points)
 
         def job() -> tuple[float, float]:
             began = clock()
-            return aggregate_error(points, polygon, density), clock() - began
+            return aggregate_error(generators, polygon, density, standing), clock() - began
 
         return PendingSample(measured, positions, polygon, self._ticks, offload(job))
 

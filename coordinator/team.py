@@ -147,6 +147,12 @@ class Roster:
         (monitor.team_of, restricted to the roster)."""
         return frozenset(alive.get("robot", set()) & alive.get("agent", set()) & self._admitted)
 
+    def stranded(self, alive: Mapping[str, set[int]]) -> frozenset[int]:
+        """Admitted ids whose robot holds its token and whose agent does not: a robot
+        stopped by its command timeout that no brain moves, which the agents take as a
+        still generator of their diagrams (covswarm.agent.brain.AgentBrain.stranded)."""
+        return frozenset((alive.get("robot", set()) - alive.get("agent", set())) & self._admitted)
+
     @property
     def total(self) -> int:
         return sum(self.counts.values())

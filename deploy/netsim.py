@@ -138,6 +138,7 @@ def run_netsim(
     turn_gaps: tuple[float, float] | None = None,
     stall: Stall | None = None,
     hold_after: float | None = None,
+    dead: Collection[int] = (),
 ) -> NetsimResult:
     """Run the mission; ``config`` is every agent's (pose_loss/pose_delay included).
 
@@ -172,12 +173,24 @@ def run_netsim(
     (covswarm.agent.pack.Pack._hold; ``covswarm agent`` holds after 3 periods), but not
     while a ``stall`` has its process stopped; None: the robots drive each command until
     the next or its timeout.
+
+    dead: indices of brains that never run (their agents died before the start): their
+    robots stand where placed, their agents' tokens never appear, and the others take them
+    as stranded robots (covswarm.agent.brain.AgentBrain.stranded); e_a is the rest's, the
+    dead robots still generators of its diagram, as the coordinator takes them.
     """
     from covswarm.deploy.plan import initial_poses
     from covswarm.sim_robot.process import RobotSim
     from covswarm.tvd.coverage import aggregate_error
 
     n = scenario.agents if agents is None else agents
+    standing = np.zeros(n, dtype=bool)
+    for index in dead:
+        if not (type(index) is int and 0 <= index < n):
+            raise ValueError(f"dead: brain indices are integers from 0 to {n - 1}, not {index!r}")
+        standing[index] = True
+    if standing.all():
+        raise ValueError("dead: every brain would be dead; at least one must run")
     if not pace > 0.0:
         raise ValueError(f"pace must be positive, got {pace!r}")
     if turn_gaps is not None and not 0.0 < turn_gaps[0] <= turn_gaps[1]:
@@ -290,7 +303,7 @@ def run_netsim(
     gap_rng = np.random.default_rng([seed, 11])
     last_turn: dict[int, float] = {}
     events: list[tuple[float, int, str, int]] = []  # (time, order, what, index)
-    for i in range(n):
+    for i in np.flatnonzero(~standing).tolist():
         due = float(agent_phase[i])
         heapq.heappush(events, (stall.resume(i, due) if stall else due, i, "agent", i))
     heapq.heappush(events, (0.0, -2, "robots", 0))
@@ -327,7 +340,7 @@ def run_netsim(
                     inbox[to][(kind, key_id, topic)] = payload
         wall = START_WALL + now
         if started is None and what == "domain" and now >= warmup:
-            if len(tokens) < n:  # (a brain without its robot's pose: do not wait forever)
+            if len(tokens) < n - int(standing.sum()):  # (a brain without its pose: no endless wait)
                 ready = now >= warmup + MAX_START_SETTLE
             else:
                 ready = now - max(tokens.values()) >= start_settle(exchange.slowest())
@@ -365,7 +378,7 @@ def run_netsim(
             if state == "running" and now >= next_sample - 1e-9:
                 positions = np.array([r.pose[:2] for r in robots])
                 t_log.append(mission_t)
-                e_log.append(aggregate_error(positions, vertices))
+                e_log.append(aggregate_error(positions, vertices, still=standing if dead else None))
                 traj.append(positions)
                 heading_log.append(np.array([r.pose[2] for r in robots]))
                 wheel_log.append(wheels.copy())

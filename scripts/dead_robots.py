@@ -2,7 +2,7 @@
 mission, under three rules: as it is (the dead robots still generators of the diagram,
 covswarm.tvd.control's ``still``, and a robot stopped dead at a forward speed of at most
 covswarm.tvd.drive.STOPPED_SPEED); "out of cells", the dead robots left out of the
-diagram until the evening of 1 Dec 2026 (every law and e_a over the moving robots alone);
+diagram before 2 Dec 2026 (every law and e_a over the moving robots alone);
 "before", out of cells and stopped dead at a forward speed <= 0, as before 1 Dec 2026.
 
 Usage: .venv/bin/python scripts/dead_robots.py [--scenario scenarios/circle-400.toml]
@@ -11,7 +11,8 @@ Usage: .venv/bin/python scripts/dead_robots.py [--scenario scenarios/circle-400.
 Robots 0 to still - 1 stand where they start (dead brains, the agents' stranded robots); the
 rest run with the agents' settings (unicycles, the safety filter, 10 Hz, a projection
 distance of 0.05 m, facing S's motion at the start). Prints, per seed and rule, the robots
-left more than 5 cm outside S at the end, e_a's second-half mean and final value, the
+left more than 5 cm outside S at the end, those inside it held more than 5 cm from their
+centroids (in the rule's diagram), e_a's second-half mean and final value, the
 robot-steps slid and the closest two robots came; draws seed 0's end and e_a.
 """
 
@@ -70,6 +71,19 @@ def left_behind(result: SimResult, still: int) -> int:
     return sum(not final.contains(Point(*p)) for p in result.positions[still:])
 
 
+def held_inside(result: SimResult, still: int, rule: str) -> int:
+    """Moving robots inside S at the end more than 5 cm from the centroid of their cell in
+    the rule's diagram (the dead robots generators of it only under "now")."""
+    final = Polygon(result.final_polygon).buffer(0.05)
+    points = result.positions if rule == "now" else result.positions[still:]
+    _, _, batch = coverage.tessellate(points, result.final_polygon)
+    offsets = points - coverage.as_vectors(batch.centroid)
+    moving = range(still, len(points)) if rule == "now" else range(len(points))
+    return sum(
+        final.contains(Point(*points[i])) and float(np.hypot(*offsets[i])) > 0.05 for i in moving
+    )
+
+
 def closest(result: SimResult) -> float:
     """m: the closest any two robots came, over every step."""
     return float(min(cKDTree(f).query(f, k=2)[0][:, 1].min() for f in result.trajectories))
@@ -87,14 +101,18 @@ def main(scenario_path: str, still: int, seeds: str, out: Path) -> None:
     import matplotlib.pyplot as plt
 
     shown: dict[str, SimResult] = {}
-    print("| seed | rule | left behind | e_a 2nd half, m | e_a final, m | slid | closest, m |")
-    print("|---|---|---|---|---|---|---|")
+    print(
+        "| seed | rule | left behind | held inside S | e_a 2nd half, m | e_a final, m | slid "
+        "| closest, m |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
     for seed in [int(s) for s in seeds.split(",")]:
         for rule in RULES:
             result = run(scenario_path, still, seed, rule)
             half = float(result.error[len(result.error) // 2 :].mean())
             print(
-                f"| {seed} | {rule} | {left_behind(result, still)} | {half:.3f} | "
+                f"| {seed} | {rule} | {left_behind(result, still)} | "
+                f"{held_inside(result, still, rule)} | {half:.3f} | "
                 f"{result.error[-1]:.3f} | {result.slid} | {closest(result):.4f} |",
                 flush=True,
             )
@@ -106,7 +124,7 @@ def main(scenario_path: str, still: int, seeds: str, out: Path) -> None:
         "out of cells": f"out of cells, stopped dead at <= {drive.STOPPED_SPEED:g} m/s",
         "now": "still cells (now)",
     }
-    for ax, rule in zip(axes, ("out of cells", "now"), strict=True):
+    for ax, rule in zip(axes[:2], ("out of cells", "now"), strict=True):
         result = shown[rule]
         polygon = np.vstack([result.final_polygon, result.final_polygon[:1]])
         ax.fill(*polygon.T, color="C0", alpha=0.12, label="S at the end")

@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from reference import reference_cells
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import split
 
@@ -220,6 +221,42 @@ def test_error_samples_use_the_poses_of_the_team_at_the_sample_rate() -> None:
     # A robot whose agent is gone is not in e_a.
     core.on_liveliness(alive_key(SWARM, "agent", 1), False, 0.0, WALL0)
     assert set(core.alive_positions()) == {0}
+
+
+def test_a_robot_whose_agent_died_bounds_the_cells_of_e_a_and_is_out_of_it() -> None:
+    """Robot 2's agent dies and its robot stays: the agents take it as a still generator
+    (covswarm.tvd.control's ``still``), so e_a is robots 0 and 1's in the cells it bounds
+    (shapely's); its robot's token gone too, it is out of the diagram."""
+    core = make_core(agents=3)
+    started = start(core)
+    centre = core.settings.scenario.domain(0.0)[0].mean(axis=0)
+    positions = centre + np.array([[-0.3, 0.1], [0.4, -0.2], [0.05, 0.3]])
+
+    def sample(k: int) -> float:
+        """Ticks from 0.1 k s into the mission until an e_a sample is taken; that e_a."""
+        record, taken = core.observed.record, len(core.observed.record.t)
+        now = round(started + 0.1 * k, 10)
+        while len(record.t) == taken:
+            for i, (x, y) in enumerate(positions):
+                pose = Pose(id=i, x=x, y=y, theta=0.0, stamp=WALL0 + now, seq=round(now * 100))
+                core.on_pose(pose_key(SWARM, i), pose.encode())
+            core.tick(now, WALL0 + now)
+            now = round(now + 0.05, 10)
+        return record.error[-1]
+
+    core.on_liveliness(alive_key(SWARM, "agent", 2), False, started, WALL0 + started)
+    error = sample(1)
+    polygon = core.steering.domain(core.observed.record.t[-1])[0]
+    cells = reference_cells(positions, polygon)
+    expected = math.sqrt(
+        sum(np.sum((positions[i] - np.array(cells[i].centroid.coords[0])) ** 2) for i in (0, 1))
+    )
+    assert error == pytest.approx(expected, rel=1e-9)
+    assert error != pytest.approx(voronoi_error(positions[:2], polygon), rel=1e-3)
+    core.on_liveliness(alive_key(SWARM, "robot", 2), False, started, WALL0 + started)
+    error = sample(3)
+    polygon = core.steering.domain(core.observed.record.t[-1])[0]
+    assert error == pytest.approx(voronoi_error(positions[:2], polygon), rel=1e-9)
 
 
 def test_the_team_changes_once_per_tick_and_tokens_gone_after_done_are_not_losses() -> None:

@@ -76,3 +76,21 @@ def test_robots_whose_poses_are_too_old_to_predict_stop() -> None:
     moved = result.trajectories[-1] - result.trajectories[0]
     assert float(abs(moved).max()) < 0.01
     assert all(stats["pose_too_old"] > 0 for stats in result.stats.values())
+
+
+def test_robots_of_dead_brains_stand_and_the_others_take_them_as_still_generators() -> None:
+    # Brains 0 and 3 never run: their robots stand where placed; every live brain sees them
+    # stranded (a robot's token without its agent's) and follows them as still generators.
+    result = run_netsim(load_scenario("passage"), agents=AGENTS, duration=6.0, dead=(0, 3))
+    moved = abs(result.trajectories[-1] - result.trajectories[0]).max(axis=1)
+    assert moved[[0, 3]].max() == 0.0
+    assert moved[[1, 2, 4, 5]].min() > 0.05, moved
+    assert result.started < 2.0 + 1.0, result.started  # no wait for the dead brains' tokens
+    for index in (1, 2, 4, 5):
+        assert result.stats[index]["stranded_followed"] >= 1, result.stats[index]
+
+
+@pytest.mark.parametrize("dead", [(6,), (-1,), (0, 1, 2, 3, 4, 5)])
+def test_dead_brains_are_refused_unless_indices_of_some_of_the_team(dead: tuple) -> None:
+    with pytest.raises(ValueError, match="dead"):
+        run_netsim(load_scenario("passage"), agents=AGENTS, duration=1.0, dead=dead)
