@@ -223,6 +223,12 @@ def _trajectory_figure(
             zorder=3,
             label="final robots + Voronoi cells",
         )
+    still = list(summary.get("still", ()))  # covswarm sim --still's dead robots
+    if still:
+        ax.scatter(
+            *final[still].T, marker="s", s=40, c="k", zorder=4,
+            label="dead robots (still generators)",
+        )  # fmt: skip
     ax.add_patch(Polygon(polygon, closed=True, fill=False, ec="tab:blue", lw=1.8))
     first = trajectories[0][np.isfinite(trajectories[0]).all(axis=1)]
     ax.scatter(*first.T, marker="x", s=10, c="0.4", lw=0.8, label="start")

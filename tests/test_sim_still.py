@@ -181,3 +181,26 @@ def test_a_team_gets_past_its_dead_robots() -> None:
     for r in results:
         closest = min(cKDTree(frame).query(frame, k=2)[0][:, 1].min() for frame in r.trajectories)
         assert closest >= 0.14 - 1e-3
+
+
+def test_the_trajectory_plot_marks_the_dead_robots_where_they_stand() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from covswarm.mission.report import _trajectory_figure
+
+    square = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]])
+    trajectories = np.array([[[0.2, 0.2], [0.8, 0.3], [0.5, 0.8]]] * 3)
+    trajectories[:, 0] += np.linspace(0.0, 0.1, 3)[:, None]  # robot 0 moves; 1 and 2 stand
+    for still, expected in (([1, 2], [[0.8, 0.3], [0.5, 0.8]]), ([], None)):
+        fig = _trajectory_figure(plt, {"still": still}, trajectories, [square] * 3, (), None, None)
+        ax = fig.axes[0]
+        marked = [c for c in ax.collections if c.get_label().startswith("dead robots")]
+        if expected is None:
+            assert marked == []
+        else:
+            assert len(marked) == 1
+            np.testing.assert_allclose(marked[0].get_offsets(), expected)
+        plt.close(fig)
