@@ -98,7 +98,7 @@ from covswarm.agent.link import ZenohBus
 from covswarm.agent.metrics import Counters
 from covswarm.agent.pack import Pack, collect_less
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import session_config
+from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import (
@@ -155,7 +155,7 @@ def run_agents(
     """
     stop = StopFlag()
     wall_clock = scaled(time.time, time_scale)
-    with zenoh.open(config) as session:
+    with open_session(config) as session:
         claims: list[zenoh.LivelinessToken] = []
         ticker = Ticker(rate, time_scale=time_scale, phase=phase)
         pack: Pack | None = None

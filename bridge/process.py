@@ -47,7 +47,7 @@ from covswarm.bridge.rmw_zenoh import (
 )
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import session_config
+from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker
 from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, connect_option, float_option
@@ -137,7 +137,7 @@ def run_bridge(
 ) -> None:
     """Run until SIGINT/SIGTERM; logs each robot's counters and drops at exit."""
     stop = StopFlag()
-    with zenoh.open(config) as session:
+    with open_session(config) as session:
         claims = [claim_or_refuse(session, swarm, "robot", brain.id) for brain in brains]
         node = Ros2Node(session, options)
         wires = []

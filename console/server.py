@@ -450,11 +450,9 @@ def console_command(
     secure: Path | None,
 ) -> None:
     """Serve the operator console of a running swarm: watch it, and steer S by dragging."""
-    import zenoh
-
     from covswarm.coordinator.steer_client import SteeringClient
     from covswarm.protocol import check_swarm
-    from covswarm.protocol.session import session_config
+    from covswarm.protocol.session import SessionError, open_session, session_config
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s console %(message)s")
     try:
@@ -464,11 +462,10 @@ def console_command(
         raise click.UsageError(str(exc)) from None
     token = new_token() if needs_token(host) else None
     try:
-        session = zenoh.open(config)
-    except zenoh.ZError as exc:
-        raise click.ClickException(
-            f"cannot reach the swarm at {', '.join(connect)}: {exc}"
-        ) from None
+        session = open_session(config)
+    except SessionError as exc:
+        where = ", ".join(connect)
+        raise click.ClickException(f"cannot reach the swarm at {where}: {exc}") from None
     with session:
         feed = SwarmFeed(session, swarm, SwarmView(swarm))
         client = SteeringClient(session, swarm, timeout=steer_timeout)

@@ -20,7 +20,6 @@ from concurrent.futures import ThreadPoolExecutor
 from typing import Any
 
 import click
-import zenoh
 
 from covswarm.coordinator.broadcastable import check_broadcastable
 from covswarm.coordinator.config import (
@@ -48,7 +47,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import session_config
+from covswarm.protocol.session import open_session, session_config
 from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.records.recorder import LiveViewError
 from covswarm.runtime.claims import claim_exclusive
@@ -94,7 +93,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
         except ValueError as exc:
             raise click.UsageError(f"--resume: {exc}") from None
     stop = StopFlag()
-    with zenoh.open(
+    with open_session(
         session_config(list(config.connect), secure=config.secure, role="coordinator")
     ) as session:
         claim = claim_exclusive(session, config.swarm, "coordinator", 0)

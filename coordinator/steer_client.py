@@ -33,7 +33,7 @@ import click
 from covswarm.protocol.keys import check_swarm, steer_key
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.steering import SteerReply, SteerRequest
-from covswarm.runtime.options import FiniteFloat
+from covswarm.runtime.options import FiniteFloat, connect_option
 
 
 class SteerTimeout(TimeoutError):
@@ -132,9 +132,7 @@ NO_ANSWER_EXIT = 3  # no coordinator answered
 
 
 @click.command("steer")
-@click.option(
-    "--connect", multiple=True, required=True, help="Zenoh endpoint, e.g. tcp/127.0.0.1:7447."
-)
+@connect_option("Zenoh endpoint, e.g. tcp/127.0.0.1:7447.")
 @click.option("--swarm", required=True, help="Swarm name of the running mission.")
 @click.option("--translate", "translate_", metavar="DX,DY", help="Move S by (DX, DY) m.")
 @click.option("--rotate", type=float, metavar="DEG", help="Turn S by DEG degrees (CCW).")
@@ -175,9 +173,7 @@ def steer_command(
     Exit status: 0 accepted, 1 refused, 3 no coordinator answered or no router let us in
     (2: bad options).
     """
-    import zenoh
-
-    from covswarm.protocol.session import session_config
+    from covswarm.protocol.session import SessionError, open_session, session_config
 
     shape = None if goto is not None else polygon  # with --goto, --polygon is the goal's
     chosen = [o for o in (translate_, rotate, scale, shape, goto) if o is not None]
@@ -221,8 +217,8 @@ def steer_command(
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:
-        session = zenoh.open(config)
-    except zenoh.ZError as exc:  # no router there, or it refused our credentials
+        session = open_session(config)
+    except SessionError as exc:  # no router there, or it refused our credentials
         click.echo(f"no answer: cannot join {', '.join(connect)}: {exc}", err=True)
         raise SystemExit(NO_ANSWER_EXIT) from None
     with session:

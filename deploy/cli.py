@@ -42,6 +42,17 @@ class LazyGroup(click.Group):
         module_name, attribute = target.split(":")
         return getattr(importlib.import_module(module_name), attribute)
 
+    def invoke(self, ctx: click.Context) -> object:
+        try:
+            return super().invoke(ctx)
+        except ConnectionError as exc:
+            # Imported here: raised only once that module (and zenoh) was imported anyway.
+            from covswarm.protocol.session import SessionError
+
+            if isinstance(exc, SessionError):
+                raise click.ClickException(f"cannot open a Zenoh session: {exc}") from None
+            raise
+
 
 @click.group(cls=LazyGroup)
 @click.version_option(package_name="covswarm")

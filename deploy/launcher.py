@@ -63,6 +63,7 @@ from covswarm.protocol.keys import parse_ids
 from covswarm.protocol.security import SECURE_OPTION, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
+    ENDPOINT,
     RUN_TIME_SCALE_OPTION,
     agents_option,
     deploy_options,
@@ -97,7 +98,9 @@ from covswarm.sim_robot.process import gather_drops
     help="Least time between two AgentStates of an agent, s (0: one every control step).",
 )
 @click.option("--swarm", help="Swarm name (key prefix) [random, unique per run].")
-@click.option("--connect", help="Join this Zenoh endpoint instead of an embedded router.")
+@click.option(
+    "--connect", type=ENDPOINT, help="Join this Zenoh endpoint instead of an embedded router."
+)
 @click.option(
     "--ids",
     help="Only these robot ids (and their agents) on this host, e.g. 0-49 [all]; needs --swarm.",
@@ -108,11 +111,13 @@ from covswarm.sim_robot.process import gather_drops
 )
 @click.option(
     "--router-listen",
+    type=ENDPOINT,
     multiple=True,
     help="Endpoint the embedded router listens on, e.g. tcp/10.0.0.1:7447 [a free loopback port].",
 )
 @click.option(
     "--router-connect",
+    type=ENDPOINT,
     multiple=True,
     help="Another host's router for the embedded router to connect to (repeatable).",
 )

@@ -49,12 +49,10 @@ def zenoh_session(
     router enforces the access list of protocol.access (the client session joins as the
     operator); the free loopback port is then a ``tls/`` endpoint.
     """
-    import zenoh
-
-    from covswarm.protocol import session_config
+    from covswarm.protocol.session import SessionError, open_session, session_config
 
     if connect is not None:
-        session = zenoh.open(session_config([connect], secure=secure))
+        session = open_session(session_config([connect], secure=secure))
         with _closing(session):
             yield session, connect
         return
@@ -62,7 +60,7 @@ def zenoh_session(
         config = session_config(
             list(peers), list(listen), mode="router", max_sessions=max_sessions, secure=secure
         )
-        session = zenoh.open(config)
+        session = open_session(config)
         with _closing(session):
             yield session, local_endpoint(listen[0])
         return
@@ -73,8 +71,8 @@ def zenoh_session(
             list(peers), [endpoint], mode="router", max_sessions=max_sessions, secure=secure
         )
         try:
-            session = zenoh.open(config)
-        except zenoh.ZError:
+            session = open_session(config)
+        except SessionError:
             if attempt == 4:
                 raise
             continue

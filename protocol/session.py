@@ -8,7 +8,9 @@ in :mod:`protocol.security`; the router's access control in :mod:`protocol.acces
 
 from __future__ import annotations
 
+import ipaddress
 import json
+import re
 from collections.abc import Sequence
 from pathlib import Path
 
@@ -18,6 +20,68 @@ from covswarm.protocol.security import apply_security, identity_name
 
 MODES = ("client", "peer", "router")
 RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router
+# Zenoh's link protocols; those of HOST_PORT name a host and a port.
+PROTOCOLS = ("tcp", "tls", "udp", "quic", "ws", "unixsock-stream", "unixpipe", "serial", "vsock")
+HOST_PORT = ("tcp", "tls", "udp", "quic", "ws")
+_HOSTNAME = re.compile(r"^[A-Za-z0-9]([A-Za-z0-9-]{0,62})(\.[A-Za-z0-9]([A-Za-z0-9-]{0,62}))*\.?$")
+# Where zenoh's messages say which Rust source raised them: nothing a user can act on.
+_RUST_SOURCE = re.compile(r"\s+at /\S+\.rs:\d+\.?")
+
+
+def check_endpoint(endpoint: str) -> str:
+    """``endpoint`` as given if it is a Zenoh endpoint ``<protocol>/<address>`` that zenoh
+    can parse, e.g. ``tcp/127.0.0.1:7447``, ``tls/[::1]:7447``, ``tcp/robot-3.lab:7447``
+    (metadata after ``?`` or ``#`` kept as is); else ValueError with the reason, before a
+    session is configured (zenoh's own error is a JSON5 parse error with a traceback)."""
+    if not isinstance(endpoint, str) or not endpoint.strip():
+        raise ValueError(f"endpoint {endpoint!r}: empty; expected <protocol>/<address>")
+    protocol, slash, address = endpoint.partition("/")
+    if not slash or not address:
+        raise ValueError(
+            f"endpoint {endpoint!r}: expected <protocol>/<address>, e.g. tcp/127.0.0.1:7447"
+        )
+    if protocol not in PROTOCOLS:
+        raise ValueError(
+            f"endpoint {endpoint!r}: unknown protocol {protocol!r}; one of {', '.join(PROTOCOLS)}"
+        )
+    if protocol not in HOST_PORT:
+        return endpoint
+    address = re.split(r"[?#]", address, maxsplit=1)[0]
+    host, colon, port = address.rpartition(":")
+    if not colon or not host:
+        raise ValueError(f"endpoint {endpoint!r}: expected {protocol}/<host>:<port>")
+    if not port.isdigit() or not 0 <= int(port) <= 65535:
+        raise ValueError(f"endpoint {endpoint!r}: port {port!r} is not a number in 0..65535")
+    if host.startswith("[") and host.endswith("]"):
+        try:
+            ipaddress.IPv6Address(host[1:-1])
+        except ValueError:
+            raise ValueError(f"endpoint {endpoint!r}: {host} is not an IPv6 address") from None
+    elif not _HOSTNAME.match(host):
+        raise ValueError(
+            f"endpoint {endpoint!r}: {host!r} is neither an IP address nor a host name"
+            " (an IPv6 address goes in brackets: tcp/[::1]:7447)"
+        )
+    return endpoint
+
+
+def zenoh_reason(exc: BaseException) -> str:
+    """A zenoh error's message without the Rust source location zenoh appends."""
+    return _RUST_SOURCE.sub("", str(exc)).strip()
+
+
+class SessionError(ConnectionError):
+    """A Zenoh session that could not be opened, with zenoh's reason (``covswarm`` prints
+    it as a one-line error: covswarm.deploy.cli)."""
+
+
+def open_session(config: zenoh.Config) -> zenoh.Session:
+    """``zenoh.open(config)``; its failure (no router at the endpoints, a port in use, a
+    certificate refused) as SessionError with zenoh's reason."""
+    try:
+        return zenoh.open(config)
+    except zenoh.ZError as exc:
+        raise SessionError(zenoh_reason(exc)) from None
 
 
 def session_config(
@@ -48,6 +112,8 @@ def session_config(
         raise ValueError("a client session needs at least one --connect endpoint")
     if mode == "router" and not listen:
         raise ValueError("a router session needs at least one listen endpoint")
+    for endpoint in [*(connect or []), *(listen or [])]:
+        check_endpoint(endpoint)
     if mode != "router":
         identity_name(role, id)  # a wrong role fails in open mode too, not first on a lab
     if secure is not None:

@@ -130,9 +130,27 @@ def switch_option(name: str, help: str, *, default: bool = True, **extra: Any) -
     return click.option(f"--{name}/--no-{name}", default=default, help=help, **extra)
 
 
+class EndpointType(click.ParamType):
+    """A Zenoh endpoint such as ``tcp/127.0.0.1:7447`` (covswarm.protocol.session.check_endpoint),
+    refused with the reason as the command line is read."""
+
+    name = "endpoint"
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> str:
+        from covswarm.protocol.session import check_endpoint  # imports zenoh: when used
+
+        try:
+            return check_endpoint(value)
+        except ValueError as exc:
+            self.fail(str(exc), param, ctx)
+
+
+ENDPOINT = EndpointType()
+
+
 def connect_option(help: str) -> Decorator:
     """``--connect``: the Zenoh endpoints a process joins, required and repeatable."""
-    return click.option("--connect", multiple=True, required=True, help=help)
+    return click.option("--connect", type=ENDPOINT, multiple=True, required=True, help=help)
 
 
 def id_options(ids_help: str) -> Decorator:

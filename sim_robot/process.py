@@ -56,7 +56,7 @@ from covswarm.protocol.inbound import (
 )
 from covswarm.protocol.messages import MAX_ANGLE, MAX_COORD, MAX_SEQ, MAX_STAMP, SCHEMA_VERSION
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.session import session_config
+from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime import options
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
@@ -448,7 +448,7 @@ def run_robots(
     """
     stop = StopFlag()
     wall_clock = scaled(time.time, time_scale)
-    with zenoh.open(config) as session:
+    with open_session(config) as session:
         # Tokens must stay referenced: zenoh undeclares a token when it is collected.
         tokens: list[zenoh.LivelinessToken] = []
         links: list[tuple[RobotSim, zenoh.Publisher, zenoh.Subscriber]] = []
