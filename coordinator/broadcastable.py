@@ -10,12 +10,22 @@ from __future__ import annotations
 
 from covswarm.mission.scenarios import Scenario
 from covswarm.protocol import Domain, ProtocolError
+from covswarm.protocol import World as WorldMessage
+from covswarm.world.wire import to_message
 
 
 def check_broadcastable(scenario: Scenario, kappa: float, duration: float) -> None:
     """ValueError with a sentence unless every Domain of ``scenario`` over [0, duration] s,
     with gain ``kappa`` (1/s), is one the agents decode (protocol.Domain.decode: field
-    bounds, vertex count, payload size), checked at the motion's sample times."""
+    bounds, vertex count, payload size), checked at the motion's sample times, and its
+    world one they decode too (protocol.World: obstacle count, coordinates, payload size):
+    a map's pieces past those bounds were refused by the coordinator once the team was up."""
+    try:
+        WorldMessage.decode(to_message(scenario.world, 0, 0.0).encode())
+    except ProtocolError as exc:
+        raise ValueError(
+            f"scenario {scenario.name}: its world cannot be broadcast to the agents ({exc})"
+        ) from None
     for t in scenario.motion.sample_times(duration):
         vertices, velocities = scenario.domain(float(t))
         density = scenario.density(float(t))

@@ -65,3 +65,63 @@ def test_a_scenario_within_the_wire_limits_is_accepted(tmp_path: Path) -> None:
 def test_every_builtin_is_broadcastable(name: str) -> None:
     scenario = load_scenario(name)
     check_broadcastable(scenario, scenario.kappa, scenario.duration)
+
+
+def map_scenario(tmp_path: Path, name: str, resolution: float, speckle: bool) -> Path:
+    """A 200 x 200 px map: free, or with a corner of isolated occupied pixels (a
+    checkerboard: one obstacle each, 5000 of them), S a square at its middle."""
+    import numpy as np
+    from PIL import Image
+
+    grey = np.full((200, 200), 254, dtype=np.uint8)
+    if speckle:
+        corner = grey[:100, :100]
+        corner[::2, ::2] = 0
+        corner[1::2, 1::2] = 0
+    else:
+        grey[0, 0] = 0  # one obstacle, at the map's far corner
+    Image.fromarray(grey, mode="L").save(tmp_path / f"{name}.pgm")
+    half = 100 * resolution
+    (tmp_path / f"{name}.yaml").write_text(
+        f"image: {name}.pgm\nresolution: {resolution}\norigin: [{-half}, {-half}, 0.0]\n"
+        "negate: 0\noccupied_thresh: 0.65\nfree_thresh: 0.196\n",
+        encoding="utf-8",
+    )
+    path = tmp_path / f"{name}.toml"
+    path.write_text(
+        f'name = "{name}"\nagents = 4\nduration = 2.0\nmap = "{name}.yaml"\n\n[domain]\n'
+        'kind = "rigid"\npolygon = [[0.5, -0.5], [1.5, -0.5], [1.5, 0.5], [0.5, 0.5]]\n'
+        "radius = 0.0\nperiod = 50.0\n",
+        encoding="utf-8",
+    )
+    return path
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(
+    ("name", "resolution", "speckle", "why"),
+    [("speckle", 0.05, True, "at most 4096"), ("huge", 5000.0, False, "outside [-10000.0")],
+)
+def test_sim_and_run_refuse_a_map_the_agents_could_not_decode(
+    tmp_path: Path, name: str, resolution: float, speckle: bool, why: str
+) -> None:
+    path = map_scenario(tmp_path, name, resolution, speckle)
+    scenario = load_scenario(str(path))
+    with pytest.raises(ValueError, match="its world") as refused:
+        check_broadcastable(scenario, scenario.kappa, scenario.duration)
+    assert why in str(refused.value)
+    runner = CliRunner()
+    for command in (
+        ["sim", "--out", str(tmp_path / "sim")],
+        ["run", "--out", str(tmp_path / "run")],
+    ):
+        result = runner.invoke(main, [*command, "--scenario", str(path)])
+        assert result.exit_code == 2, (command, result.output)
+        assert "cannot be broadcast" in result.output and why in result.output
+    assert not (tmp_path / "run" / "logs").exists()  # nothing started
+    assert not (tmp_path / "sim").exists()
+
+
+def test_a_map_within_the_wire_limits_is_accepted(tmp_path: Path) -> None:
+    scenario = load_scenario(str(map_scenario(tmp_path, "fine", 0.05, False)))
+    check_broadcastable(scenario, scenario.kappa, scenario.duration)
