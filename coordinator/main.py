@@ -73,7 +73,7 @@ OUTPUTS_NOT_WRITTEN = "run outputs not written in"
 def run_coordinator(config: CoordinatorConfig) -> None:
     """One coordinator run: wait for the team, broadcast, monitor, write the outputs."""
     try:
-        scenario = load_scenario(config.scenario)
+        scenario = load_scenario(config.scenario, config.agents)
         check_swarm(config.swarm)
         settings = CoordinatorSettings.from_config(config, scenario)
     except ValueError as exc:

@@ -248,7 +248,7 @@ def run_swarm(run: RunConfig) -> None:
     if run.foxglove is not None and not port_is_free(run.foxglove):
         raise click.UsageError(f"--foxglove: {LIVE_HOST}:{run.foxglove} is already in use")
     try:
-        scenario = load_scenario(run.scenario)
+        scenario = load_scenario(run.scenario, run.agents)
         swarm = check_swarm(run.swarm) if run.swarm else new_swarm_name()
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None

@@ -712,7 +712,7 @@ def sim_command(
     if compare and no_feedforward:
         raise click.UsageError("--compare already runs without feedforward; drop --no-feedforward")
     try:
-        scenario = load_scenario(scenario_name)
+        scenario = load_scenario(scenario_name, agents)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
     options = {

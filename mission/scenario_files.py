@@ -82,7 +82,7 @@ from pathlib import Path
 from typing import Any
 
 from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
-from covswarm.mission.scenarios import BUILTINS, Box, Scenario, check_box
+from covswarm.mission.scenarios import BUILTINS, Box, Scenario, builtin, check_box
 from covswarm.world.maps import OccupancyMap, finite_number, read_map, read_regular_file
 from covswarm.world.model import World, make_obstacle
 
@@ -94,25 +94,31 @@ except ModuleNotFoundError:  # Python 3.10
 MAX_FILE_BYTES = 1 << 20  # a scenario file is text a person writes
 
 
-def load_scenario(name_or_path: str | Path) -> Scenario:
-    """A built-in scenario by name, or a scenario read from a .toml file.
+def load_scenario(name_or_path: str | Path, agents: int | None = None) -> Scenario:
+    """A built-in scenario by name, or a scenario read from a .toml file, for a team of
+    ``agents`` robots (default: the scenario's own ``agents``; ``--agents`` of sim and run):
+    a route is planned for that team, S never smaller than it may take.
 
     Raises ValueError naming the file and the problem for anything malformed.
     """
+    if agents is not None and (isinstance(agents, bool) or not isinstance(agents, int)):
+        raise ValueError(f"agents must be an integer, not {agents!r}")
+    if agents is not None and agents < 1:
+        raise ValueError(f"agents must be at least 1, not {agents}")
     if str(name_or_path) in BUILTINS:
-        return BUILTINS[str(name_or_path)]()
+        return builtin(str(name_or_path), agents)
     path = Path(name_or_path)
     if path.suffix != ".toml":
         known = ", ".join(sorted(BUILTINS))
         raise ValueError(
             f"unknown scenario {str(name_or_path)!r}: use one of {known} or a .toml file"
         )
-    return read_scenario_file(path)
+    return read_scenario_file(path, agents)
 
 
-def read_scenario_file(path: Path) -> Scenario:
-    """The scenario in the .toml file at ``path``; ValueError naming the file and the
-    problem for anything malformed."""
+def read_scenario_file(path: Path, agents: int | None = None) -> Scenario:
+    """The scenario in the .toml file at ``path`` for a team of ``agents`` (default: the
+    file's); ValueError naming the file and the problem for anything malformed."""
     path = Path(path)
     raw = read_regular_file(path, MAX_FILE_BYTES)
     try:
@@ -122,7 +128,7 @@ def read_scenario_file(path: Path) -> Scenario:
     except tomllib.TOMLDecodeError as exc:
         raise ValueError(f"{path}: invalid TOML ({exc})") from None
     try:
-        return scenario_from_dict(data, base=path.parent)
+        return scenario_from_dict(data, base=path.parent, agents=agents)
     except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
         raise ValueError(f"{path}: {exc}") from None
 
@@ -134,9 +140,12 @@ _TOP_KEYS = {
 }  # fmt: skip
 
 
-def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenario:
+def scenario_from_dict(
+    data: dict[str, Any], base: Path | None = None, agents: int | None = None
+) -> Scenario:
     """Build a Scenario from parsed TOML (see the module docstring for the keys); ``base``:
-    the folder a ``map`` path is relative to (default: the current one)."""
+    the folder a ``map`` path is relative to (default: the current one); ``agents``: the
+    team, in place of the file's (a route is planned for it)."""
     unknown = set(data) - _TOP_KEYS
     if unknown:
         raise ValueError(f"unknown keys {sorted(unknown)}")
@@ -147,9 +156,10 @@ def scenario_from_dict(data: dict[str, Any], base: Path | None = None) -> Scenar
         raise ValueError(f"[initial]: unknown keys {sorted(set(initial) - {'box'})}")
     options: dict[str, Any] = {}
     if "agents" in data:
-        agents = data["agents"]
-        if isinstance(agents, bool) or not isinstance(agents, int):
-            raise ValueError(f"agents must be an integer, not {agents!r}")
+        if isinstance(data["agents"], bool) or not isinstance(data["agents"], int):
+            raise ValueError(f"agents must be an integer, not {data['agents']!r}")
+        options["agents"] = data["agents"]
+    if agents is not None:
         options["agents"] = agents
     for key in ("kappa", "duration", "dt", "robot_diameter"):
         if key in data:

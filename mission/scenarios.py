@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -478,12 +478,13 @@ _WAREHOUSE = {
 }
 
 
-def warehouse() -> Scenario:
-    """20 Khepera IV taken from one room of a warehouse to the other by the route planner.
+def warehouse(agents: int = 20) -> Scenario:
+    """20 Khepera IV (or ``agents``) taken from one room of a warehouse to the other by the
+    route planner.
 
     S, a 2.4 m x 1.6 m rectangle, cannot pass the 1.1 m door: the planner
     (covswarm.world.planner) shrinks it on the way to the door, never below the team's least
-    S (covswarm.mission.crowding.least_domain: 0.89 m^2, 0.18 m wide), takes it through and
+    S (covswarm.mission.crowding.least_domain: 0.89 m^2, 0.18 m wide for 20), takes it through and
     grows it back at the goal beyond shelf 3. Fastest vertex 0.25 m/s; 10 s at the end for
     the team to settle.
     """
@@ -492,7 +493,7 @@ def warehouse() -> Scenario:
     from covswarm.world.planner import plan_tour
 
     world = World(_HALL, tuple(Obstacle(n, box_vertices(b)) for n, b in _WAREHOUSE.items()))
-    min_area, min_width = least_domain(20, Scenario.robot_diameter)
+    min_area, min_width = least_domain(agents, Scenario.robot_diameter)
     route = plan_tour(
         world,
         np.array(_rectangle(-3.7, -1.3, -1.1, 0.5)),
@@ -504,7 +505,7 @@ def warehouse() -> Scenario:
     return Scenario(
         name="warehouse",
         motion=route.motion,
-        agents=20,
+        agents=agents,
         kappa=2.0,
         duration=math.ceil(route.motion.end) + 10.0,
         dt=0.02,
@@ -521,6 +522,20 @@ BUILTINS = {
     "live": live,
     "warehouse": warehouse,
 }
+# The built-ins whose S is planned for their team (a factory of the team size).
+PLANNED: dict[str, Callable[[int], Scenario]] = {"warehouse": warehouse}
+
+
+def builtin(name: str, agents: int | None = None) -> Scenario:
+    """The built-in scenario ``name`` for a team of ``agents`` (default: its own); a planned
+    one's route is planned for that team."""
+    if agents is None:
+        return BUILTINS[name]()
+    if name in PLANNED:
+        return PLANNED[name](agents)
+    return replace(BUILTINS[name](), agents=agents)
+
+
 # The --scenario help of every command that takes one, built from BUILTINS so that it
 # names every built-in there is.
 SCENARIO_HELP = (

@@ -18,6 +18,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import Scenario
 
 DATA = Path(__file__).resolve().parent / "data"
+SCENARIOS = Path(__file__).resolve().parents[1] / "scenarios"
 RECT = "[[-2.4, -0.8], [-1.2, -0.8], [-1.2, 0.8], [-2.4, 0.8]]"
 
 
@@ -176,3 +177,57 @@ def test_fifo_device_and_oversize_files_are_refused_without_hanging(tmp_path: Pa
     zero.symlink_to("/dev/zero")
     with pytest.raises(ValueError, match="not a regular file"):
         load_scenario(zero)
+
+
+def smallest_area(scenario: Scenario, samples: int = 400) -> float:
+    """m^2: the smallest S over the scenario's motion, sampled."""
+    times = np.linspace(0.0, scenario.motion.end, samples)
+    return min(Polygon(scenario.domain(float(t))[0]).area for t in times)
+
+
+@pytest.mark.parametrize("agents", [4, 12, 30])
+def test_a_route_is_planned_for_the_team_that_runs_it(agents: int) -> None:
+    # --agents of sim and run: S never smaller than that team may take, nor held to the size
+    # the file's team needs.
+    from covswarm.mission.crowding import least_domain
+
+    scenario = load_scenario(str(SCENARIOS / "lab-route.toml"), agents)
+    assert scenario.agents == agents
+    least = least_domain(agents, scenario.robot_diameter)[0]
+    assert smallest_area(scenario) >= least * (1 - 1e-6)
+
+
+def test_the_warehouse_shrinks_for_a_small_team_as_far_as_it_may() -> None:
+    from covswarm.mission.crowding import least_domain
+
+    small, own = load_scenario("warehouse", 6), load_scenario("warehouse")
+    assert (small.agents, own.agents) == (6, 20)
+    assert smallest_area(small) >= least_domain(6, small.robot_diameter)[0] * (1 - 1e-6)
+    assert smallest_area(small) < 0.5 * smallest_area(own)
+
+
+def test_a_door_too_narrow_for_the_files_team_passes_a_smaller_one(tmp_path: Path) -> None:
+    text = (SCENARIOS / "lab-route.toml").read_text(encoding="utf-8")
+    text = text.replace('map = "lab.yaml"', f'map = "{SCENARIOS / "lab.yaml"}"\n'
+                        "obstacles = [[-0.1, 0.1, 0.3, 0.8]]")  # fmt: skip
+    path = tmp_path / "door.toml"
+    path.write_text(text, encoding="utf-8")
+    with pytest.raises(ValueError, match="too-narrow"):
+        load_scenario(str(path))  # the file's 12 robots: the 0.7 m door is too narrow
+    assert load_scenario(str(path), 2).agents == 2
+
+
+def test_sim_plans_the_route_for_its_agents_option(tmp_path: Path) -> None:
+    from click.testing import CliRunner
+
+    from covswarm.deploy.cli import main
+
+    text = (SCENARIOS / "lab-route.toml").read_text(encoding="utf-8")
+    text = text.replace('map = "lab.yaml"', f'map = "{SCENARIOS / "lab.yaml"}"\n'
+                        "obstacles = [[-0.1, 0.1, 0.3, 0.8]]")  # fmt: skip
+    (tmp_path / "door.toml").write_text(text, encoding="utf-8")
+    sim = ["sim", "--scenario", str(tmp_path / "door.toml"), "--duration", "0.2"]
+    refused = CliRunner().invoke(main, [*sim, "--out", str(tmp_path / "a")])
+    assert refused.exit_code == 2 and "too-narrow" in refused.output
+    ran = CliRunner().invoke(main, [*sim, "--agents", "2", "--out", str(tmp_path / "b")])
+    assert ran.exit_code == 0, ran.output
