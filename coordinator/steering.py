@@ -342,13 +342,19 @@ def _check_inside(vertices: np.ndarray, limits: Limits, what: str) -> None:
     if limits.workspace is None:
         return
     xmin, xmax, ymin, ymax = limits.workspace
-    low = vertices.min(axis=0) + WORKSPACE_SLACK
-    high = vertices.max(axis=0) - WORKSPACE_SLACK
-    if low[0] < xmin or high[0] > xmax or low[1] < ymin or high[1] > ymax:
+    low, high = vertices.min(axis=0), vertices.max(axis=0)
+    slack = WORKSPACE_SLACK
+    if (
+        low[0] + slack < xmin
+        or high[0] - slack > xmax
+        or low[1] + slack < ymin
+        or high[1] - slack > ymax
+    ):
+        reach = f"[{low[0]:.3g}, {high[0]:.3g}] x [{low[1]:.3g}, {high[1]:.3g}] m"
         raise Refusal(
             "outside-workspace",
-            f"{what} reaches [{low[0]:.3g}, {high[0]:.3g}] x [{low[1]:.3g}, {high[1]:.3g}] m, "
-            f"outside the workspace [{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}] m",
+            f"{what} reaches {reach}, outside the workspace "
+            f"[{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}] m",
         )
 
 
@@ -406,9 +412,16 @@ def plan_goto(
         speed = limits.max_speed
     goal_polygon = None
     if request.polygon is not None:
-        goal_polygon = check_target(
-            np.array(request.polygon), limits, signed_area(current), "goal polygon"
+        # S's shape at the goal, placed there (centroid on the goal) before it is held to
+        # the workspace: where it was typed says nothing.
+        shape = check_target(
+            np.array(request.polygon),
+            replace(limits, workspace=None),
+            signed_area(current),
+            "goal polygon",
         )
+        goal_polygon = shape - centroid(shape) + np.asarray(request.goal, dtype=float)
+        _check_inside(goal_polygon, limits, "the goal polygon at the goal")
     try:
         route = plan_route(
             world,

@@ -253,6 +253,24 @@ def test_goto_with_a_goal_polygon_and_a_speed() -> None:
     assert max(speeds) <= 0.2 * (1 + 1e-9)
 
 
+def test_a_goal_polygon_is_held_to_the_workspace_where_it_is_placed_not_where_typed() -> None:
+    # Typed far outside the workspace, placed at a goal inside it: accepted, S ends there.
+    outside = tuple(map(tuple, (SQUARE * 0.8 + [10.0, 10.0]).tolist()))
+    steer = steering(DOOR, SQUARE + [-1.5, 0.0])
+    reply = send(steer, SteerRequest("goto", goal=(-1.5, 1.0), polygon=outside), 0.0)
+    assert reply.accepted, reply.reason
+    end = steer.domain(reply.duration + 0.01)[0]
+    np.testing.assert_allclose(centroid(end), [-1.5, 1.0], atol=1e-9)
+    # Typed inside the workspace, placed where it would leave it: refused, the extents
+    # reported are where it would be, not shifted by the slack.
+    inside = tuple(map(tuple, (SQUARE * 0.8).tolist()))
+    steer = steering(DOOR, SQUARE + [-1.5, 0.0])
+    reply = send(steer, SteerRequest("goto", goal=(-2.8, 0.0), polygon=inside), 0.0)
+    assert not reply.accepted
+    assert reply.reason.startswith("outside-workspace: the goal polygon at the goal reaches")
+    assert "[-3.2, -2.4] x [-0.4, 0.4] m" in reply.reason, reply.reason
+
+
 @pytest.mark.parametrize(
     ("world", "goal", "code"),
     [
