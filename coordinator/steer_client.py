@@ -31,8 +31,9 @@ from typing import Any
 import click
 
 from covswarm.protocol.keys import check_swarm, steer_key
+from covswarm.protocol.messages import MAX_ANGLE
 from covswarm.protocol.security import SECURE_OPTION
-from covswarm.protocol.steering import SteerReply, SteerRequest
+from covswarm.protocol.steering import MAX_DURATION, SteerReply, SteerRequest
 from covswarm.runtime.options import FiniteFloat, connect_option
 
 
@@ -131,11 +132,64 @@ REFUSED_EXIT = 1  # the coordinator refused the request (the reason is printed)
 NO_ANSWER_EXIT = 3  # no coordinator answered
 
 
+def steer_request(
+    translate_: str | None,
+    rotate: float | None,
+    scale: float | None,
+    polygon: str | None,
+    goto: str | None,
+    about: str | None,
+    duration: float | None,
+    speed: float | None,
+) -> SteerRequest:
+    """The SteerRequest of ``covswarm steer``'s options (as its parameters are named);
+    click.UsageError with the reason for a combination or value it cannot send."""
+    shape = None if goto is not None else polygon  # with --goto, --polygon is the goal's
+    chosen = [o for o in (translate_, rotate, scale, shape, goto) if o is not None]
+    if len(chosen) != 1:
+        raise click.UsageError(
+            "give exactly one of --translate, --rotate, --scale, --polygon, --goto"
+        )
+    if goto is not None and duration is not None:
+        raise click.UsageError("--goto takes --speed, not --duration (its route is planned)")
+    if about is not None and rotate is None and scale is None:
+        raise click.UsageError("--about is the fixed point of --rotate or --scale only")
+    try:
+        centre = None if about is None else _pair(about, "--about")
+        if translate_ is not None:
+            dx, dy = _pair(translate_, "--translate")
+            return SteerRequest("translate", dx=dx, dy=dy, duration=duration, speed=speed)
+        elif rotate is not None:
+            return SteerRequest(
+                "rotate", angle=math.radians(rotate), about=centre, duration=duration, speed=speed
+            )
+        elif scale is not None:
+            return SteerRequest("scale", factor=scale, about=centre, duration=duration, speed=speed)
+        elif goto is not None:
+            return SteerRequest(
+                "goto",
+                goal=_pair(goto, "--goto"),
+                polygon=None if polygon is None else _vertices(polygon),
+                speed=speed,
+            )
+        else:
+            return SteerRequest(
+                "polygon", polygon=_vertices(polygon or ""), duration=duration, speed=speed
+            )
+    except ValueError as exc:  # ProtocolError included: NaN, too many vertices, ...
+        raise click.UsageError(str(exc)) from None
+
+
 @click.command("steer")
 @connect_option("Zenoh endpoint, e.g. tcp/127.0.0.1:7447.")
 @click.option("--swarm", required=True, help="Swarm name of the running mission.")
 @click.option("--translate", "translate_", metavar="DX,DY", help="Move S by (DX, DY) m.")
-@click.option("--rotate", type=float, metavar="DEG", help="Turn S by DEG degrees (CCW).")
+@click.option(
+    "--rotate",
+    type=FiniteFloat(min=-math.degrees(MAX_ANGLE), max=math.degrees(MAX_ANGLE)),
+    metavar="DEG",
+    help="Turn S by DEG degrees (CCW).",
+)
 @click.option("--scale", type=FiniteFloat(min=0, min_open=True), help="Scale S by F.")
 @click.option(
     "--polygon",
@@ -147,7 +201,9 @@ NO_ANSWER_EXIT = 3  # no coordinator answered
 )
 @click.option("--about", metavar="X,Y", help="Fixed point of --rotate/--scale [S's centroid].")
 @click.option(
-    "--duration", type=FiniteFloat(min=0, min_open=True), help="Seconds the motion takes."
+    "--duration",
+    type=FiniteFloat(min=0, min_open=True, max=MAX_DURATION),
+    help="Seconds the motion takes.",
 )
 @click.option("--speed", type=FiniteFloat(min=0, min_open=True), help="m/s of S's fastest vertex.")
 @click.option("--timeout", type=FiniteFloat(min=0, min_open=True), default=2.0, show_default=True)
@@ -175,42 +231,10 @@ def steer_command(
     """
     from covswarm.protocol.session import SessionError, open_session, session_config
 
-    shape = None if goto is not None else polygon  # with --goto, --polygon is the goal's
-    chosen = [o for o in (translate_, rotate, scale, shape, goto) if o is not None]
-    if len(chosen) != 1:
-        raise click.UsageError(
-            "give exactly one of --translate, --rotate, --scale, --polygon, --goto"
-        )
-    if goto is not None and duration is not None:
-        raise click.UsageError("--goto takes --speed, not --duration (its route is planned)")
-    if about is not None and rotate is None and scale is None:
-        raise click.UsageError("--about is the fixed point of --rotate or --scale only")
+    request = steer_request(translate_, rotate, scale, polygon, goto, about, duration, speed)
     try:
         check_swarm(swarm)
-        centre = None if about is None else _pair(about, "--about")
-        if translate_ is not None:
-            dx, dy = _pair(translate_, "--translate")
-            request = SteerRequest("translate", dx=dx, dy=dy, duration=duration, speed=speed)
-        elif rotate is not None:
-            request = SteerRequest(
-                "rotate", angle=math.radians(rotate), about=centre, duration=duration, speed=speed
-            )
-        elif scale is not None:
-            request = SteerRequest(
-                "scale", factor=scale, about=centre, duration=duration, speed=speed
-            )
-        elif goto is not None:
-            request = SteerRequest(
-                "goto",
-                goal=_pair(goto, "--goto"),
-                polygon=None if polygon is None else _vertices(polygon),
-                speed=speed,
-            )
-        else:
-            request = SteerRequest(
-                "polygon", polygon=_vertices(polygon or ""), duration=duration, speed=speed
-            )
-    except ValueError as exc:  # ProtocolError included: NaN, too many vertices, ...
+    except ValueError as exc:
         raise click.UsageError(str(exc)) from None
     try:
         config = session_config(list(connect), secure=secure, role="operator")

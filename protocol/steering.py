@@ -25,6 +25,7 @@ factor = 1, polygon, about and goal absent), so a request cannot mean two things
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -142,7 +143,7 @@ class SteerRequest(Message):
         if self.kind == "translate":
             what = f"translate ({self.dx:g}, {self.dy:g}) m"
         elif self.kind == "rotate":
-            what = f"rotate {self.angle:g} rad"
+            what = f"rotate {math.degrees(self.angle):g} deg"
         elif self.kind == "scale":
             what = f"scale x{self.factor:g}"
         elif self.kind == "goto":
