@@ -136,17 +136,20 @@ class Supervisor:
         status = self.progress.status
         if status is not None and status.state == "running" and self._cpu_at_start is None:
             self._cpu_at_start = (now, self._cpu_times())
-        if status is not None and status.state == "done" and not self.rss:
-            self._measure_resources(now)
+        if status is not None and status.state == "done":
+            self.measure_resources(now)
 
     def _cpu_times(self) -> dict[str, float | None]:
         times = {name: cpu_seconds(c.process.pid) for name, c in self.children.items()}
         times[LAUNCHER] = cpu_seconds(os.getpid())  # its embedded router serves every child
         return times
 
-    def _measure_resources(self, now: float) -> None:
-        """RSS of every child at the end of the mission (all still up) and its CPU use
-        since the mission started."""
+    def measure_resources(self, now: float | None = None) -> None:
+        """RSS of every child at the end of the mission (all still up: when it is done, or
+        when the operator interrupts it) and its CPU use since the mission started; once."""
+        if self.rss:
+            return
+        now = time.monotonic() if now is None else now
         started, before = self._cpu_at_start or (now, {})
         after = self._cpu_times()
         for child in self.children.values():
@@ -225,6 +228,7 @@ def run_processes(
                     if received:
                         console.log("interrupted: stopping the coordinator (it writes outputs)")
                         exit_code = 128 + received[0]
+                        supervisor.measure_resources()  # while every child is still up
                         supervisor.stop_coordinator(received)
                         break
                     waited = time.monotonic() - supervisor.began

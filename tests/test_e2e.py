@@ -147,16 +147,22 @@ def test_children_die_when_the_launcher_is_sigkilled(tmp_path: Path) -> None:
         assert wait_until(lambda: not (swarm_pids(swarm) & children), timeout=10)
 
 
-def test_sigterm_stops_the_run_cleanly_with_outputs(tmp_path: Path) -> None:
+@pytest.mark.parametrize("stop", [signal.SIGTERM, signal.SIGINT])
+def test_a_signal_stops_the_run_cleanly_with_outputs(tmp_path: Path, stop: int) -> None:
+    # SIGINT is Ctrl-C, how the live scenario is ended; resources.json measured then too.
     swarm, out = new_swarm(), tmp_path / "stopped"
     with launch(out, "--agents", "2", "--duration", "60", swarm=swarm) as launcher:
         log = out / "logs" / "coordinator-0.log"
         assert wait_until(lambda: log.exists() and "mission started" in log.read_text(), 60)
         time.sleep(3.0)  # some mission time, so there is something to write
-        launcher.send_signal(signal.SIGTERM)
-        assert launcher.wait(timeout=60) == 128 + signal.SIGTERM
+        launcher.send_signal(stop)
+        assert launcher.wait(timeout=60) == 128 + stop
     summary = json.loads((out / "summary.json").read_text())
     assert 2.0 < summary["mission_time"] < 30.0
+    resources = json.loads((out / "resources.json").read_text())
+    assert {"coordinator", "agent", "robot"} <= resources["rss_mb"].keys()
+    assert all(mb > 0 for mbs in resources["rss_mb"].values() for mb in mbs)
+    assert {"coordinator", "agent", "robot"} <= resources["cpu_percent_of_core"].keys()
     assert swarm_pids(swarm) == set()
 
 
