@@ -307,7 +307,7 @@ class Console:
 
     async def _feed_client(self, ws: web.WebSocketResponse) -> None:
         """Send every new frame to one page; a slow page skips frames, never delays others."""
-        seen = -1
+        seen = 0  # version 0: no frame built yet (its text is empty, no JSON for the page)
         while not ws.closed:
             async with self._changed:
                 while self._version == seen:

@@ -95,3 +95,18 @@ def test_a_flood_of_refused_posts_logs_a_few_lines(caplog: pytest.LogCaptureFixt
     assert {status for status, _ in answers.values()} == {400}
     refused = [r for r in caplog.records if "steering refused" in r.getMessage()]
     assert 1 <= len(refused) <= 3
+
+
+async def _first_frames(count: int) -> list[str]:
+    console = Console(StillFeed(), never_steer, token=None)
+    async with TestClient(TestServer(console.app, host="127.0.0.1")) as client:
+        ws = await client.ws_connect("/ws", headers={"Host": "127.0.0.1"})
+        frames = [await asyncio.wait_for(ws.receive_str(), 10.0) for _ in range(count)]
+        await ws.close()
+    return frames
+
+
+def test_a_fresh_consoles_first_page_gets_state_documents_only() -> None:
+    # Its first frame was the empty text of a state not built yet: the page's JSON.parse threw.
+    for frame in asyncio.run(_first_frames(3)):
+        assert json.loads(frame)["swarm"] == "test"
