@@ -23,6 +23,7 @@ from __future__ import annotations
 import asyncio
 import json
 import logging
+import math
 import signal
 import socket
 import time
@@ -55,6 +56,7 @@ DEFAULT_RATE = 15.0  # Hz of state frames to the page (>= 10 for smooth motion)
 STATE_PATHS = ("/ws", "/api/steer")  # requests that can steer or stream: Origin checked
 MAP_TIMEOUT = 3.0  # s a query for the map's picture waits for the coordinator
 MAP_RETRY = 5.0  # s before asking again when no coordinator answered
+SILENT_AFTER = 10.0  # s without a domain before the console says it hears no coordinator
 
 
 class SwarmFeed:
@@ -171,6 +173,7 @@ class Console:
         self._steer_log = RateLog(log)  # refused steering: a flood of POSTs logs a few lines
         self._map_task: asyncio.Task[None] | None = None  # a map query in flight
         self._map_next = 0.0  # monotonic s before which no map query is made
+        self._silent_since: float | None = None  # monotonic s the pump started, until heard
         self.app = web.Application(middlewares=[self._guard], client_max_size=MAX_BODY)
         self.app.router.add_get("/", self._index)
         self.app.router.add_get("/ws", self._stream)
@@ -233,11 +236,29 @@ class Console:
             else:
                 self.feed.drain(time.monotonic())
             self._ask_for_map()
+            self._warn_if_silent()
             next_at += self.period
             delay = next_at - time.monotonic()
             if delay < -self.period:
                 next_at = time.monotonic()  # overloaded: restart the schedule, no burst
             await asyncio.sleep(max(0.0, delay))
+
+    def _warn_if_silent(self) -> None:
+        """Log once when no domain of the swarm came within SILENT_AFTER s: the coordinator
+        is not up, or --swarm names another swarm (the page only says "unknown")."""
+        now = time.monotonic()
+        if self._silent_since is None:
+            self._silent_since = now
+        elif self.view.domain is not None:
+            self._silent_since = math.inf
+        elif now - self._silent_since >= SILENT_AFTER:
+            self._silent_since = math.inf
+            log.warning(
+                "no domain of swarm %r heard in %.0f s: is its coordinator running, and is "
+                '--swarm its name (launch.json\'s "swarm")?',
+                self.view.swarm,
+                SILENT_AFTER,
+            )
 
     def _ask_for_map(self) -> None:
         """Once per arena (World content), ask the coordinator for its map's picture in a

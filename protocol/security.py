@@ -139,6 +139,12 @@ def require_identities(directory: Path, names: Iterable[str]) -> None:
     e.g. ``agent-0-9``) ``directory`` lacks; for a launcher to check before it starts
     processes that would each fail on its own."""
     directory = Path(directory)
+    if not (directory / CA).is_file() and (directory.parent / CA).is_file():
+        # One identity's own folder: issuing into it would make a CA nobody trusts.
+        raise ValueError(
+            f"{directory} is not a secure folder (no {CA}) but one identity's in "
+            f"{directory.parent}: --secure {directory.parent}"
+        )
     missing = [n for n in names if not (directory / n / CERT).is_file()]
     if missing:
         command = f"covswarm credentials {directory}{issue_options(missing)}"

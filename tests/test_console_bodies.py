@@ -110,3 +110,22 @@ def test_a_fresh_consoles_first_page_gets_state_documents_only() -> None:
     # Its first frame was the empty text of a state not built yet: the page's JSON.parse threw.
     for frame in asyncio.run(_first_frames(3)):
         assert json.loads(frame)["swarm"] == "test"
+
+
+def test_a_console_that_hears_no_domain_says_so_once(
+    caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A wrong --swarm (or no coordinator yet): the page only shows "unknown".
+    from covswarm.console import server
+
+    monkeypatch.setattr(server, "SILENT_AFTER", 0.3)
+
+    async def run() -> None:
+        console = Console(StillFeed(), never_steer, token=None, rate=20.0)
+        async with TestClient(TestServer(console.app, host="127.0.0.1")):
+            await asyncio.sleep(1.0)
+
+    with caplog.at_level(logging.WARNING, logger="covswarm.console"):
+        asyncio.run(run())
+    silent = [r for r in caplog.records if "no domain of swarm 'test'" in r.getMessage()]
+    assert len(silent) == 1

@@ -72,6 +72,13 @@ def test_secured_mode_refuses_clear_endpoints_and_incomplete_folders(
     (tmp_path / "identities.json").write_text('[{"name": "agent-1", "role": "agent"}]')
     with pytest.raises(ValueError, match="needs an id"):
         session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
+    # One identity's folder given for the secure folder: pointed at its parent, not told
+    # to issue a new CA there.
+    with pytest.raises(ValueError, match="not a secure folder") as wrong:
+        session_config(["tls/127.0.0.1:7447"], secure=secure / "operator")
+    assert f"--secure {secure}" in str(wrong.value) and "covswarm credentials" not in str(
+        wrong.value
+    )
 
 
 @pytest.mark.timeout(120)
