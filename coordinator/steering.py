@@ -392,7 +392,7 @@ def world_check(world: World, tolerance: float = CONTACT_TOLERANCE) -> MotionChe
         what = (
             "leave the workspace"
             if contact.obstacle == "workspace"
-            else f"touch obstacle {contact.obstacle!r}"
+            else f"touch obstacle {world.describe(contact.obstacle)}"
         )
         raise Refusal("obstacle", f"S would {what} at t = {contact.time:.2f} s")
 

@@ -228,7 +228,9 @@ def _check_clear(motion: DomainMotion, duration: float, world: World) -> None:
         return
     if contact.obstacle == "workspace":
         raise ValueError(f"the domain S leaves the workspace at t = {contact.time:.3f} s")
-    raise ValueError(f"the domain S touches {contact.obstacle} at t = {contact.time:.3f} s")
+    raise ValueError(
+        f"the domain S touches {world.describe(contact.obstacle)} at t = {contact.time:.3f} s"
+    )
 
 
 def _speed_bound(motion: DomainMotion, duration: float) -> float | None:

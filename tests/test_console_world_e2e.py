@@ -228,7 +228,7 @@ def test_the_arena_is_drawn_and_a_drag_into_an_obstacle_turns_red_and_is_refused
         assert request["kind"] == "translate" and request["dy"] == pytest.approx(0.3, abs=0.01)
         reply = page.evaluate("(r) => window.covswarm.steer(r)", request)
         assert not reply["accepted"] and reply["reason"].startswith("obstacle: S would touch")
-        assert "'obstacle 1' at t = " in reply["reason"], reply
+        assert "'obstacle 1' ([-0.3, 0.3] x [0.45, 1.83] m) at t = " in reply["reason"], reply
         shown = page.inner_text("#steer-result")
         assert shown.startswith("refused: obstacle") and "obstacle 1" in shown, shown
         time.sleep(0.5)

@@ -164,7 +164,9 @@ def test_a_translation_through_a_wall_is_refused_naming_it_and_the_time() -> Non
     steer = steering(DOOR, SQUARE + [0.0, 1.0])  # beside the north wall
     reply = send(steer, SteerRequest("translate", dx=2.0, dy=0.0), 2.0)
     assert not reply.accepted
-    assert reply.reason.startswith("obstacle: S would touch obstacle 'wall north' at t = ")
+    assert reply.reason.startswith(
+        "obstacle: S would touch obstacle 'wall north' ([1.2, 1.4] x [0.4, 2] m) at t = "
+    )
     when = float(reply.reason.rsplit("t = ", 1)[1].split(" s")[0])
     # The right edge (x = 0.5) reaches x = 1.2 after 0.7 m of the 2 m: smoothstep s = 0.35.
     speed = 0.5

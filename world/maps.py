@@ -239,7 +239,11 @@ def _read_grey(path: Path) -> np.ndarray:
             if image.mode in ("P", "PA"):
                 image = image.convert("RGBA")
             pixels = np.asarray(image)
-    except (UnidentifiedImageError, OSError, Image.DecompressionBombError) as exc:
+    except UnidentifiedImageError:
+        raise ValueError(
+            f"{path}: not a readable image (not PGM, PNG or another format Pillow reads)"
+        ) from None
+    except (OSError, Image.DecompressionBombError) as exc:
         raise ValueError(f"{path}: not a readable image ({exc})") from None
     if pixels.dtype == bool:
         return np.where(pixels, 255, 0).astype(np.uint8)

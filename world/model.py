@@ -250,6 +250,19 @@ class World:
                 best, best_row = d, int(rows[j])
         return best, best_row
 
+    def describe(self, name: str) -> str:
+        """``name`` (an obstacle's, or "workspace", as contact() says) with where it is, for
+        a message: "'map piece 5' ([1.8, 2.2] x [0.9, 1.3] m)" (a map's pieces are known
+        by number only)."""
+        for row, obstacle in enumerate(self.obstacles):
+            if obstacle.name == name:
+                x0, x1, y0, y1 = self._pack.boxes[row]
+                return f"{name!r} ([{x0:.3g}, {x1:.3g}] x [{y0:.3g}, {y1:.3g}] m)"
+        if name == "workspace" and self.workspace is not None:
+            x0, x1, y0, y1 = self.workspace
+            return f"the workspace [{x0:.4g}, {x1:.4g}] x [{y0:.4g}, {y1:.4g}] m"
+        return name
+
     def workspace_gap(self, polygon: np.ndarray) -> float:
         """How far (m) S's nearest vertex is inside the workspace's walls (negative: that far
         outside); inf without a workspace. S is convex, so its vertices decide."""

@@ -218,10 +218,12 @@ def plan_route(
     s_min = max(math.sqrt(min_area / area(start)), min_width / width(start))
     # An S already at or below the limit may keep its size but not shrink.
     scales = _levels(min(s_min, 1.0))
-    final = _goal_polygon(world, shape, target, goal_polygon, min_area, min_width)
-    touched = world.contact(start)
+    touched = world.contact(start)  # the start first: a goal said blocked hid it
+    if touched == "workspace":
+        raise NoPath("start-blocked", f"S already leaves {world.describe(touched)}")
     if touched is not None:
-        raise NoPath("start-blocked", f"S already touches {touched}")
+        raise NoPath("start-blocked", f"S already touches {world.describe(touched)}")
+    final = _goal_polygon(world, shape, target, goal_polygon, min_area, min_width)
     if resolution is not None and not (math.isfinite(resolution) and resolution > 0.0):
         raise ValueError(f"resolution must be positive, got {resolution!r}")
     tries = [resolution] if resolution is not None else _cells(world, start, final, scales)
@@ -330,6 +332,8 @@ def plan_tour(
                 max_speed=max_speed, t0=t, hold=hold,
             )  # fmt: skip
         except NoPath as exc:
+            if exc.code == "start-blocked":  # S at t = 0, before any goal
+                raise NoPath(exc.code, f"at t = 0: {exc.why}") from None
             raise NoPath(exc.code, f"goal {k + 1} {list(goal)}: {exc.why}") from None
         polygons += list(leg.motion.polygons[1:])
         spans += list(leg.motion.spans)
@@ -391,9 +395,9 @@ def _goal_polygon(
             )
     touched = world.contact(final)
     if touched == "workspace":
-        raise NoPath("outside-workspace", "S at the goal would leave the workspace")
+        raise NoPath("outside-workspace", f"S at the goal would leave {world.describe(touched)}")
     if touched is not None:
-        raise NoPath("goal-blocked", f"S at the goal would overlap {touched}")
+        raise NoPath("goal-blocked", f"S at the goal would overlap {world.describe(touched)}")
     return final
 
 
@@ -786,10 +790,12 @@ def _shortcut(
         if b is None:
             raise NoPath(
                 "goal-blocked",
-                f"S cannot take the goal polygon there: it would touch {touched}",
+                f"S cannot take the goal polygon there: it would touch {world.describe(touched)}",
             )
         if b == a + 1:
-            raise NoPath("unverified", f"the grid's step {a} -> {b} touches {touched}")
+            raise NoPath(
+                "unverified", f"the grid's step {a} -> {b} touches {world.describe(touched)}"
+            )
         kept.insert(kept.index(b), (a + b) // 2)
     length = sum(
         float(np.linalg.norm(states[b][0] - states[a][0]))
