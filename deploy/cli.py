@@ -26,6 +26,7 @@ SUBCOMMANDS: dict[str, str] = {
     "console": "covswarm.console.server:console_command",
     "bridge": "covswarm.bridge.process:bridge_group",
     "replay": "covswarm.records.replay:replay_command",
+    "router": "covswarm.deploy.router:router_command",
 }
 
 

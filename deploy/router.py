@@ -1,4 +1,6 @@
-"""The launcher's own Zenoh session: an embedded router, or a client of an existing one."""
+"""The launcher's own Zenoh session (an embedded router, or a client of an existing one),
+and ``covswarm router``: a router of its own, for a swarm that must outlive its launcher
+(``covswarm run --connect``) or span hosts."""
 
 from __future__ import annotations
 
@@ -8,6 +10,11 @@ from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
+
+import click
+
+from covswarm.protocol.security import SECURE_OPTION
+from covswarm.runtime.options import ENDPOINT
 
 ROUTER_HOST = "127.0.0.1"
 
@@ -97,3 +104,54 @@ def _closing(session: Any) -> Iterator[None]:
             session.close()
         except zenoh.ZError as exc:
             log.warning("closing the Zenoh session: %s", exc)
+
+
+ROUTER_SESSIONS = 4000  # clients a stand-alone router admits: 1000 robots' four processes
+
+
+@click.command("router")
+@click.option(
+    "--listen",
+    "listen",
+    type=ENDPOINT,
+    multiple=True,
+    required=True,
+    help="Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; 0.0.0.0 for every "
+    "interface, then --secure).",
+)
+@click.option(
+    "--connect",
+    "peers",
+    type=ENDPOINT,
+    multiple=True,
+    help="Another host's router to route to (repeatable).",
+)
+@click.option(
+    "--max-sessions",
+    type=click.IntRange(min=1),
+    default=ROUTER_SESSIONS,
+    show_default=True,
+    help="Clients admitted at once.",
+)
+@SECURE_OPTION
+def router_command(
+    listen: Sequence[str], peers: Sequence[str], max_sessions: int, secure: Path | None
+) -> None:
+    """A Zenoh router for covswarm processes until Ctrl-C or SIGTERM: scouting off, and
+    with --secure mutual TLS and the access list of protocol.access. Processes join it with
+    --connect (``covswarm run --connect`` keeps running across its restarts)."""
+    from covswarm.protocol.session import open_session, session_config
+    from covswarm.runtime.clock import StopFlag
+
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(message)s")
+    try:
+        config = session_config(
+            list(peers), list(listen), mode="router", max_sessions=max_sessions, secure=secure
+        )
+    except ValueError as exc:
+        raise click.UsageError(str(exc)) from None
+    stop = StopFlag()
+    with open_session(config):
+        print(f"router listening on {', '.join(listen)}", flush=True)
+        while not stop.is_set():
+            stop.sleep(0.2)

@@ -22,15 +22,6 @@ from covswarm import protocol
 from covswarm.deploy.plan import auto_per_process, auto_robots_per_process, covswarm_argv
 from covswarm.deploy.router import free_port
 
-# A stand-alone Zenoh router: ``python -c ROUTER ENDPOINT`` prints "ready", runs until SIGTERM.
-ROUTER = """
-import signal, sys, zenoh
-from covswarm.protocol import session_config
-with zenoh.open(session_config(None, [sys.argv[1]], mode="router")):
-    print("ready", flush=True)
-    signal.pause()  # until SIGTERM (default action: exit)
-"""
-
 
 def swarm_pids(swarm: str, *words: str) -> set[int]:
     """Live (non-zombie) processes whose command line names ``swarm`` and ``words``."""

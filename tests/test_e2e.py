@@ -12,14 +12,14 @@ import json
 import os
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
 import pytest
-from live_runs import ROUTER, launch, new_swarm, swarm_pids, wait_until
+from live_runs import launch, new_swarm, swarm_pids, wait_until
 
 from covswarm.agent.brain import AGENT_PROJECTION_DISTANCE
+from covswarm.deploy.plan import covswarm_argv
 from covswarm.deploy.router import free_port
 from covswarm.deploy.simulate import simulate
 from covswarm.mission.report import steady_state_mean
@@ -112,10 +112,10 @@ def test_a_dead_agent_is_reported_and_the_run_goes_on(tmp_path: Path) -> None:
 def test_run_joins_an_existing_router(tmp_path: Path) -> None:
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     router = subprocess.Popen(
-        [sys.executable, "-c", ROUTER, endpoint], stdout=subprocess.PIPE, text=True
+        [*covswarm_argv(), "router", "--listen", endpoint], stdout=subprocess.PIPE, text=True
     )
     try:
-        assert router.stdout.readline().strip() == "ready"
+        assert router.stdout.readline().startswith("router listening on")
         # Two runs share the router: each swarm name keeps them apart (docs/protocol.md, "<swarm>").
         # Teams of 2 and 3: a run that saw the other's robot 2 or its states would say so.
         outs = {2: tmp_path / "joined-2", 3: tmp_path / "joined-3"}

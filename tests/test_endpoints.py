@@ -70,6 +70,7 @@ def covswarm(*args: str, timeout: float = 60) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.e2e
 @pytest.mark.parametrize(
     "args",
     [
@@ -87,6 +88,7 @@ def test_the_commands_refuse_a_malformed_endpoint_as_a_bad_option(args: tuple[st
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.e2e
 def test_steer_without_a_router_says_no_answer_in_one_line() -> None:
     done = covswarm(
         "steer", "--connect", f"tcp/127.0.0.1:{closed_port()}", "--swarm", "x", "--translate", "1,0"
@@ -96,6 +98,7 @@ def test_steer_without_a_router_says_no_answer_in_one_line() -> None:
     assert "Traceback" not in done.stderr
 
 
+@pytest.mark.e2e
 def test_run_without_a_router_there_or_on_a_busy_port_is_a_one_line_error(tmp_path) -> None:
     missing = covswarm(
         "run", "--scenario", "live", "--agents", "2", "--duration", "5",

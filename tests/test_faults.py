@@ -13,7 +13,6 @@ import math
 import os
 import signal
 import subprocess
-import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import ROUTER, launch, new_swarm, swarm_pids, wait_until
+from live_runs import launch, new_swarm, swarm_pids, wait_until
 
 from covswarm import protocol
 from covswarm.agent.brain import AgentBrain
@@ -238,10 +237,10 @@ def sleep_until(wall: float) -> None:
 def router(endpoint: str) -> Iterator[subprocess.Popen]:
     """A stand-alone Zenoh router process on ``endpoint``, killed by pid on exit."""
     process = subprocess.Popen(
-        [sys.executable, "-c", ROUTER, endpoint], stdout=subprocess.PIPE, text=True
+        [*covswarm_argv(), "router", "--listen", endpoint], stdout=subprocess.PIPE, text=True
     )
     try:
-        assert process.stdout.readline().strip() == "ready"
+        assert process.stdout.readline().startswith("router listening on")
         yield process
     finally:
         process.kill()
