@@ -37,6 +37,7 @@ from typing import Any
 
 import click
 
+from covswarm.protocol.certificates import certificate_names
 from covswarm.protocol.keys import check_id, format_ids, parse_ids
 
 CA, CERT, KEY, IDENTITIES = "ca.pem", "cert.pem", "key.pem", "identities.json"
@@ -116,6 +117,14 @@ def apply_security(
     missing = [n for n in needed if not (directory / n).is_file()]
     if missing:
         raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}")
+    presented = certificate_names(directory / name / CERT).common_name
+    if presented != name:
+        # The router knows a process by its certificate's name alone: as this one it would
+        # drop, in silence, everything this process sends as itself.
+        raise ValueError(
+            f"{directory / name / CERT} is {presented}'s certificate, not {name}'s: "
+            f"the router would take this process for {presented}"
+        )
 
     def put(key: str, value: object) -> None:
         config.insert_json5(key, json.dumps(value))
@@ -132,6 +141,27 @@ def apply_security(
         put("transport/link/tls/connect_certificate", str(directory / name / CERT))
         put("transport/link/tls/connect_private_key", str(directory / name / KEY))
         put("access_control", access_control(read_identities(directory)))
+
+
+def check_router_hosts(directory: Path, listen: Iterable[str]) -> None:
+    """ValueError unless the router's certificate in ``directory`` names every host of the
+    ``listen`` endpoints (a wildcard address aside: this host's processes reach it on
+    loopback, which it always names): a client connecting to an address the certificate
+    does not name is refused with no reason but "Unable to connect"."""
+    names = certificate_names(Path(directory) / ROUTER / CERT)
+    for endpoint in listen:
+        address = endpoint.partition("/")[2].split("?")[0].split("#")[0]
+        host = address.rpartition(":")[0]
+        if host in ("0.0.0.0", "[::]") or names.covers(host):
+            continue
+        named = sorted(n.partition(":")[2] for n in names.alt_names)
+        kept = [n for n in named if n not in ("127.0.0.1", "localhost")]  # always named
+        hosts = "".join(f" --host {n}" for n in [*kept, host.strip("[]")])
+        raise ValueError(
+            f"the router's certificate names {', '.join(named)}, not {host}: clients of "
+            f"{endpoint} would be refused; covswarm credentials {directory}{hosts} issues "
+            "it again with that name"
+        )
 
 
 def require_identities(directory: Path, names: Iterable[str]) -> None:

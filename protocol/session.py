@@ -16,7 +16,7 @@ from pathlib import Path
 
 import zenoh
 
-from covswarm.protocol.security import apply_security, identity_name
+from covswarm.protocol.security import apply_security, check_router_hosts, identity_name
 
 MODES = ("client", "peer", "router")
 RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router
@@ -138,4 +138,6 @@ def session_config(
         config.insert_json5("transport/unicast/max_sessions", json.dumps(int(max_sessions)))
     if secure is not None:
         apply_security(config, secure, mode, role, id)
+        if mode == "router":
+            check_router_hosts(secure, listen or [])
     return config

@@ -1,0 +1,114 @@
+"""What a certificate names (covswarm.protocol.certificates), read against openssl's own
+reading of the certificates ``covswarm credentials`` issues, and the two silent failures it
+turns into refusals at start-up: another identity's certificate, and a router listening on
+an address its certificate does not name."""
+
+from __future__ import annotations
+
+import re
+import shutil
+import subprocess
+from pathlib import Path
+
+import pytest
+
+from covswarm.protocol.certificates import Names, certificate_names
+from covswarm.protocol.security import check_router_hosts, issue_credentials
+from covswarm.protocol.session import session_config
+
+
+@pytest.fixture(scope="module", autouse=True)
+def openssl(require) -> None:
+    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
+
+
+@pytest.fixture(scope="module")
+def secure(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    folder = tmp_path_factory.mktemp("secure")
+    return issue_credentials(
+        folder, agents=[0, 1], robots=[0, 1], hosts=["robots.lab", "10.0.0.5", "::1"]
+    )
+
+
+def openssl_names(path: Path) -> Names:
+    text = subprocess.run(
+        ["openssl", "x509", "-noout", "-subject", "-ext", "subjectAltName", "-in", str(path)],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+    cn = re.search(r"subject=.*?CN\s*=\s*([^,\n]+)", text)
+    alt = re.findall(r"(DNS|IP Address):([^,\s]+)", text)
+    names = {f"{'IP' if kind.startswith('IP') else 'DNS'}:{value}" for kind, value in alt}
+    return Names(cn.group(1).strip() if cn else None, frozenset(names))
+
+
+def test_the_names_read_are_openssls(secure: Path) -> None:
+    certificates = [secure / "ca.pem", *sorted(secure.glob("*/cert.pem"))]
+    assert len(certificates) >= 10
+    for path in certificates:
+        ours, theirs = certificate_names(path), openssl_names(path)
+        assert ours.common_name == theirs.common_name, path
+        # openssl prints IPv6 addresses in full: compare them as addresses
+        assert {n.replace("IP:0:0:0:0:0:0:0:1", "IP:::1") for n in theirs.alt_names} == set(
+            ours.alt_names
+        ), path
+    router = certificate_names(secure / "router" / "cert.pem")
+    assert router.common_name == "router"
+    assert router.covers("127.0.0.1") and router.covers("ROBOTS.lab") and router.covers("[::1]")
+    assert not router.covers("127.0.0.2") and not router.covers("other.lab")
+
+
+def test_what_is_not_a_certificate_is_refused_with_the_file(tmp_path: Path) -> None:
+    (tmp_path / "none.pem").write_text("hello")
+    with pytest.raises(ValueError, match="none.pem: no PEM certificate"):
+        certificate_names(tmp_path / "none.pem")
+    (tmp_path / "junk.pem").write_text(
+        "-----BEGIN CERTIFICATE-----\nMIIBAAAA\n-----END CERTIFICATE-----\n"
+    )
+    with pytest.raises(ValueError, match="junk.pem: not a readable certificate"):
+        certificate_names(tmp_path / "junk.pem")
+
+
+def test_another_identitys_certificate_is_refused_before_the_session(
+    secure: Path, tmp_path: Path
+) -> None:
+    swapped = tmp_path / "swapped"
+    swapped.mkdir()
+    shutil.copy(secure / "ca.pem", swapped / "ca.pem")
+    shutil.copytree(secure / "robot-1", swapped / "robot-0")
+    with pytest.raises(ValueError, match="is robot-1's certificate, not robot-0's"):
+        session_config(["tls/127.0.0.1:7447"], secure=swapped, role="robot", id=0)
+    session_config(["tls/127.0.0.1:7447"], secure=secure, role="robot", id=0)  # its own
+
+
+def test_a_router_on_an_address_its_certificate_does_not_name_is_refused(secure: Path) -> None:
+    check_router_hosts(secure, ["tls/127.0.0.1:7447", "tls/0.0.0.0:7447", "tls/[::1]:7447"])
+    check_router_hosts(secure, ["tls/robots.lab:7447", "tls/10.0.0.5:7447"])
+    with pytest.raises(ValueError, match="not 127.0.0.2") as refused:
+        session_config(None, ["tls/127.0.0.2:7447"], "router", secure=secure)
+    # the command it names keeps the names the certificate has
+    assert "--host 10.0.0.5 --host ::1 --host robots.lab --host 127.0.0.2" in str(refused.value)
+
+
+@pytest.mark.e2e
+def test_the_commands_refuse_them_in_one_line(secure: Path, tmp_path: Path) -> None:
+    from covswarm.deploy.plan import covswarm_argv
+
+    swapped = tmp_path / "swapped"
+    swapped.mkdir()
+    shutil.copy(secure / "ca.pem", swapped / "ca.pem")
+    shutil.copytree(secure / "robot-1", swapped / "robot-0")
+    robot = subprocess.run(
+        [*covswarm_argv(), "robot", "--id", "0", "--swarm", "x", "--connect",
+         "tls/127.0.0.1:7447", "--secure", str(swapped)],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert robot.returncode == 2 and "robot-1's certificate" in robot.stderr
+    run = subprocess.run(
+        [*covswarm_argv(), "run", "--secure", str(secure), "--agents", "2", "--router-listen",
+         "tls/127.0.0.2:7447", "--out", str(tmp_path / "run")],
+        capture_output=True, text=True, timeout=60,
+    )  # fmt: skip
+    assert run.returncode == 2 and "not 127.0.0.2" in run.stderr
+    assert not (tmp_path / "run" / "logs").exists()
+    for done in (robot, run):
+        assert "Traceback" not in done.stderr
