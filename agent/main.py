@@ -84,6 +84,7 @@ from __future__ import annotations
 
 import logging
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import click
@@ -97,6 +98,7 @@ from covswarm.agent.faults import delay_steps
 from covswarm.agent.link import ZenohBus
 from covswarm.agent.metrics import Counters
 from covswarm.agent.pack import Pack, collect_less
+from covswarm.protocol.keys import format_ids
 from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
@@ -119,6 +121,8 @@ from covswarm.runtime.options import (
 from covswarm.tvd.drive import KHEPERA_IV, MAX_WHEEL_SPEED
 from covswarm.tvd.safety import DEFAULT_MARGIN
 
+# s after start-up before an agent that has not heard its robot or a domain says so
+SILENT_AFTER = 30.0
 log = logging.getLogger("covswarm.agent")
 # A late brain's robot runs on its last command for at most this many control periods
 # before the brain stops it (covswarm.agent.pack): a brain stepping every other period of
@@ -164,9 +168,14 @@ def run_agents(
                 claims.append(claim_or_refuse(session, swarm, "agent", brain.id))
             pack = Pack(ZenohBus(session), swarm, brains, hold_after=HOLD_AFTER_PERIODS / rate)
             collect_less()
+            check_at: float | None = time.monotonic() + SILENT_AFTER
             while not stop.is_set():
                 ticker.wait(stop)
                 pack.tick(ticker.now, wall_clock, ticker.deadline)
+                if check_at is not None and time.monotonic() >= check_at:
+                    check_at = None
+                    if (silence := unheard(brains, swarm)) is not None:
+                        log.warning(silence)
         finally:
             if pack is not None:  # stop the robots at once rather than after their timeout
                 pack.stop(wall_clock())
@@ -184,6 +193,28 @@ def run_agents(
             )
         log.info("%d ticks, %d overruns", ticker.ticks, ticker.overruns)
     return [brain.counters for brain in brains]
+
+
+def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
+    """What none of ``brains`` has heard yet (its robot's pose, a domain), said with the
+    likely reason, or None when each heard both: the one clue a process started under
+    another swarm's name (a forgotten --swarm is "default") gets, since it hears nothing."""
+    ids = format_ids(sorted(b.id for b in brains))
+    missing = [
+        what
+        for what, heard in (
+            ("its robot's pose", any(b.pose is not None for b in brains)),
+            ("a domain from the coordinator", any(b.domain is not None for b in brains)),
+        )
+        if not heard
+    ]
+    if not missing:
+        return None
+    return (
+        f"agent {ids} of swarm {swarm!r} has not heard {' nor '.join(missing)} in "
+        f"{SILENT_AFTER:g} s: is that process running, and is {swarm!r} its swarm's name "
+        "(--swarm)?"
+    )
 
 
 @click.command("agent")

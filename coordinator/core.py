@@ -86,6 +86,7 @@ from covswarm.protocol import (
     World,
     parse_alive_key,
 )
+from covswarm.protocol.keys import format_ids
 from covswarm.records.observations import timed_layers
 from covswarm.runtime.ratelog import RateLog
 from covswarm.tvd.coverage import aggregate_error, cells
@@ -111,6 +112,9 @@ OWN_DOMAINS_KEPT = 50
 DONE_HOLD = 1.0  # s of "done" broadcasts, so every agent sees it and stops its robot
 STATUS_PERIOD = 0.5  # s
 WORLD_PERIOD = 1.0  # s between World broadcasts: a late joiner has the arena within this
+# s between two log lines naming the processes the team still waits for (the one clue a
+# process started by hand under another --swarm gets: it hears nothing and says nothing)
+WAITING_REPORT = 10.0
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
@@ -427,6 +431,7 @@ class CoordinatorCore:
         # CPU s)); offloaded like e_a (at 1000 robots ~250 ms, five broadcast periods).
         self._pending_cells: tuple[float, list[int], Future] | None = None
         self._ticks = 0  # ticks so far (an offloaded sample's budget counts from its start)
+        self._next_waiting_report: float | None = None  # now of the next log of who is missing
         n = settings.agents
         self._seq = 0
         # (seq, stamp) of the Domains published lately: hearing one of them is hearing
@@ -625,6 +630,30 @@ class CoordinatorCore:
             log.warning("steering request refused at t = %.2f s: %s", t, reply.reason)
         return [ReplySteer(reply.encode(), reply.accepted), *actions]
 
+    def _report_waiting(self, now: float) -> None:
+        """Every WAITING_REPORT s before the mission: the ids whose agent or robot has not
+        appeared yet, and the swarm name a process started by hand must be given."""
+        if self._next_waiting_report is None:
+            self._next_waiting_report = now + WAITING_REPORT
+            return
+        if now < self._next_waiting_report:
+            return
+        self._next_waiting_report = now + WAITING_REPORT
+        live, team = self.observed.liveness, range(self.settings.agents)
+        missing = {
+            role: [i for i in team if i not in live.alive.get(role, ())]
+            for role in ("agent", "robot")
+        }
+        said = "; ".join(
+            f"{role}s {format_ids(ids)} missing" for role, ids in missing.items() if ids
+        )
+        if said:
+            log.info(
+                "still waiting for the team: %s (a process started by hand joins with --swarm %s)",
+                said,
+                self.settings.swarm,
+            )
+
     def team_ready(self) -> bool:
         live = self.observed.liveness
         n = self.settings.agents
@@ -668,6 +697,8 @@ class CoordinatorCore:
         if state == WAITING and stopping:
             log.info("stopped before the mission started")
             return [Finished(started=False)]
+        if state == WAITING:
+            self._report_waiting(now)
         actions: list[Action] = []
         if before == WAITING and state == RUNNING:
             self.observed.started_wall = wall

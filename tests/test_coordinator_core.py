@@ -705,3 +705,24 @@ def test_an_e_a_sample_takes_every_robot_at_the_sample_time() -> None:
     for t, positions in zip(record.t[-3:], record.positions[-3:], strict=True):
         at = origin + velocity * (started + t)  # the sample's wall time, since WALL0
         np.testing.assert_allclose([positions[i] for i in range(3)], at, atol=1e-9)
+
+
+def test_while_waiting_the_core_names_the_missing_processes_and_the_swarm(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    # A process started by hand under another --swarm hears nothing and says nothing: the
+    # coordinator's log is where its operator finds what is missing.
+    from covswarm.coordinator.core import WAITING_REPORT
+
+    core = make_core(agents=4)
+    join(core, [0, 1])
+    core.on_liveliness(alive_key(SWARM, "robot", 2), True, 0.0, WALL0)
+    with caplog.at_level(logging.INFO, logger="covswarm.coordinator"):
+        now = 0.0
+        while now < 2.5 * WAITING_REPORT:
+            core.tick(now, WALL0 + now)
+            now += 0.05
+    lines = [r.getMessage() for r in caplog.records if "still waiting" in r.getMessage()]
+    assert len(lines) == 2
+    assert "agents 2-3 missing; robots 3 missing" in lines[0]
+    assert f"--swarm {SWARM}" in lines[0]
