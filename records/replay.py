@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -50,6 +51,7 @@ class Recording:
     cells: list[list[np.ndarray]] = field(default_factory=list)
     error_t: list[float] = field(default_factory=list)
     error: list[float] = field(default_factory=list)
+    truncated: list[str] = field(default_factory=list)  # parts read up to where they broke off
 
     @property
     def end(self) -> float:
@@ -67,20 +69,63 @@ def _loop_points(entity: Any) -> np.ndarray:
     return np.array([[p.x, p.y] for p in points], dtype=float).reshape(-1, 2)
 
 
-def read_recording(path: str | Path) -> Recording:
-    """Decode a run.mcap written by RunRecorder (ValueError if it holds no robot poses)."""
-    from mcap.reader import make_reader
+def recording_parts(run_dir: Path) -> list[Path]:
+    """A run folder's records in mission order: run.mcap, then the parts resumed
+    coordinators wrote beside it (run-1.mcap, run-2.mcap, ...: records.recorder.record_names)."""
+    parts = [run_dir / MCAP_FILE] if (run_dir / MCAP_FILE).is_file() else []
+    k = 1
+    while (part := run_dir / f"run-{k}.mcap").is_file():
+        parts.append(part)
+        k += 1
+    return parts
 
+
+def _decoded(path: Path, topics: list[str]) -> tuple[list[Any], dict[str, Any], bool]:
+    """(the decoded messages of ``topics`` in log time order, the run's metadata, whether
+    the file ended early) of the MCAP file at ``path``. A file whose writer was killed (a
+    coordinator SIGKILLed before it wrote the summary and footer: the first part of a
+    resumed run) is read as a stream up to its last whole record."""
+    from mcap.reader import NonSeekingReader, make_reader
+
+    metadata: dict[str, Any] = {}
+    with open(path, "rb") as stream:
+        try:
+            reader = make_reader(stream, decoder_factories=decoder_factories())
+            for entry in reader.iter_metadata():
+                if entry.name == METADATA_NAME:
+                    metadata = {k: _json_or_text(v) for k, v in entry.metadata.items()}
+            messages = list(reader.iter_decoded_messages(topics=topics, log_time_order=True))
+            return messages, metadata, False
+        except Exception:  # noqa: BLE001 -- no footer or summary: read it as a stream below
+            pass
+        stream.seek(0)
+        streamed = NonSeekingReader(
+            stream, validate_crcs=False, decoder_factories=decoder_factories()
+        )
+        messages = []
+        try:
+            for item in streamed.iter_decoded_messages(topics=topics, log_time_order=False):
+                messages.append(item)
+        except Exception:  # noqa: BLE001 -- the record cut short where its writer died
+            pass
+    messages.sort(key=lambda item: item[2].log_time)  # stable: a tick's messages in order
+    return messages, metadata, True
+
+
+def read_recording(paths: str | Path | Sequence[str | Path]) -> Recording:
+    """Decode a run.mcap written by RunRecorder, or the parts of a resumed run in mission
+    order (:func:`recording_parts`); ValueError if they hold no robot poses. A part whose
+    writer was killed is read up to its last whole record and named in ``truncated``."""
+    parts = [Path(paths)] if isinstance(paths, (str, Path)) else [Path(p) for p in paths]
     record = Recording()
     robots: dict[int, tuple[float, float, float]] = {}
     updated: dict[int, float] = {}
     topics = [ROBOTS_TOPIC, DOMAIN_TOPIC, CELLS_TOPIC, ERROR_TOPIC]
-    with open(path, "rb") as stream:
-        reader = make_reader(stream, decoder_factories=decoder_factories())
-        for entry in reader.iter_metadata():
-            if entry.name == METADATA_NAME:
-                record.metadata = {k: _json_or_text(v) for k, v in entry.metadata.items()}
-        messages = reader.iter_decoded_messages(topics=topics, log_time_order=True)
+    for path in parts:
+        messages, metadata, truncated = _decoded(path, topics)
+        record.metadata = record.metadata or metadata
+        if truncated:
+            record.truncated.append(path.name)
         for _, channel, message, update in messages:
             t = message.log_time / 1e9
             if channel.topic == ERROR_TOPIC:
@@ -109,7 +154,8 @@ def read_recording(path: str | Path) -> Recording:
                 record.cells_t.append(t)
                 record.cells.append([_loop_points(e) for e in update.entities])
     if not record.pose_t:
-        raise ValueError(f"{path}: no messages on {ROBOTS_TOPIC}")
+        names = ", ".join(str(p) for p in parts)
+        raise ValueError(f"{names}: no messages on {ROBOTS_TOPIC}")
     return record
 
 
@@ -317,14 +363,19 @@ def render(
 )
 @click.option("--dpi", type=click.IntRange(min=20, max=300), default=80, show_default=True)
 def replay_command(run_dir: Path, out: Path | None, fps: float, speed: float, dpi: int) -> None:
-    """Render an animation of a recorded run (RUN_DIR/run.mcap): S, cells, robots, e_a."""
-    source = run_dir / MCAP_FILE
-    if not source.is_file():
+    """Render an animation of a recorded run (RUN_DIR/run.mcap, and run-1.mcap, ... of a
+    resumed one): S, cells, robots, e_a."""
+    parts = recording_parts(run_dir)
+    if not parts:
         raise click.UsageError(f"{run_dir} has no {MCAP_FILE} (record one with covswarm run/sim)")
     try:
-        record = read_recording(source)
-    except Exception as exc:  # a truncated or foreign file: say so, never a traceback
-        raise click.ClickException(f"cannot read {source}: {exc}") from None
+        record = read_recording(parts)
+    except Exception as exc:  # a foreign or empty file: say so, never a traceback
+        raise click.ClickException(f"cannot read {run_dir}: {exc}") from None
+    for name in record.truncated:
+        click.echo(
+            f"{name} ends early (its coordinator stopped before closing it): read up to there"
+        )
     out = run_dir / "replay.gif" if out is None else out
     frames = render(record, out, fps=fps, speed=speed, dpi=dpi)
     size = out.stat().st_size / 1e6

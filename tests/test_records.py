@@ -541,3 +541,47 @@ def test_the_stats_schema_declares_every_stat_an_agent_reports() -> None:
         topic, field, stat = path.split(".")
         assert topic == rec.AGENT_STATS_TOPIC and field == "mean"
         assert mean["properties"][stat]["type"] == "number"
+
+
+KILLED_WRITER = """
+import os, sys
+import numpy as np
+from covswarm.records import recorder
+recorder.MCAP_CHUNK_SIZE = 4096  # several chunks: the writer dies with some written
+r = recorder.RunRecorder(sys.argv[1], run_metadata={"scenario": "unit"})
+for k in range(200):
+    r.poses(0.05 * k, [0, 1], np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]) + 0.001 * k)
+os._exit(0)  # as SIGKILL: no summary, no footer
+"""
+
+
+def test_a_resumed_runs_parts_replay_in_order_the_killed_one_read_to_its_end(
+    tmp_path: Path,
+) -> None:
+    # A coordinator killed mid-run leaves run.mcap without its footer; the one resumed with
+    # --resume writes run-1.mcap beside it (records.md). Replay reads both, in order.
+    import subprocess
+    import sys
+
+    from covswarm.records.replay import read_recording, recording_parts
+
+    subprocess.run([sys.executable, "-c", KILLED_WRITER, str(tmp_path)], check=True, timeout=60)
+    with pytest.raises(Exception):  # noqa: B017 -- what any MCAP reader says of it
+        read_mcap(tmp_path / "run.mcap")
+    with RunRecorder(tmp_path, run_metadata={"scenario": "unit"}, continued=True) as recorder:
+        for k in range(40):
+            recorder.poses(12.0 + 0.05 * k, [0, 1], np.array([[0.0, 1.0, 0.0], [1.0, 1.0, 0.0]]))
+    parts = recording_parts(tmp_path)
+    assert [p.name for p in parts] == ["run.mcap", "run-1.mcap"]
+    record = read_recording(parts)
+    assert record.truncated == ["run.mcap"]
+    first = [t for t in record.pose_t if t < 12.0]
+    assert len(first) >= 150 and first[0] == 0.0  # all but what the killed writer had buffered
+    assert record.pose_t[-1] == pytest.approx(12.0 + 0.05 * 39)
+    assert record.pose_t == sorted(record.pose_t)
+    result = CliRunner().invoke(
+        replay_command,
+        [str(tmp_path), "--out", str(tmp_path / "r.gif"), "--fps", "2", "--dpi", "30"],
+    )
+    assert result.exit_code == 0, result.output
+    assert "run.mcap ends early" in result.output
