@@ -147,6 +147,14 @@ def summary_table(
             "bench --brain-tick)",
         )
     lost = summary.get("lost_processes", [])
-    table.add_row("liveliness lost", ", ".join(f"{e['role']} {e['id']}" for e in lost) or "none")
+    table.add_row("liveliness lost", ", ".join(map(describe_loss, lost)) or "none")
     table.add_row("outputs", str(out_dir))
     return table
+
+
+def describe_loss(loss: dict) -> str:
+    """A lost token of summary.json's lost_processes, with when: "robot 5 at t = 10.8 s"
+    (mission time), or "before the start" (a process that left and came back is then
+    named twice, each with its time)."""
+    when = "before the start" if loss.get("t") is None else f"at t = {loss['t']:.1f} s"
+    return f"{loss['role']} {loss['id']} {when}"

@@ -131,7 +131,7 @@ class Supervisor:
                 if child is not self.coordinator:
                     self.console.log(
                         f"[red]{child.spec.name} (pid {child.process.pid}) exited with {code} "
-                        f"at {now - self.began:.1f} s; see {child.log_path}"
+                        f"{now - self.began:.1f} s after launch; see {child.log_path}"
                     )
         status = self.progress.status
         if status is not None and status.state == "running" and self._cpu_at_start is None:

@@ -178,6 +178,13 @@ def require_identities(directory: Path, names: Iterable[str]) -> None:
     missing = [n for n in names if not (directory / n / CERT).is_file()]
     if missing:
         command = f"covswarm credentials {directory}{issue_options(missing)}"
+        if (directory / CA).is_file() and not (directory / CA_KEY).is_file():
+            # A robot's or a host's folder: the CA's key stays on the admin machine.
+            command = (
+                f"on the machine that holds the CA's key ({CA_KEY}), covswarm credentials "
+                f"<its folder>{issue_options(missing)}, then copy "
+                f"{', '.join(f'{n}/' for n in missing)} into {directory}"
+            )
         raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}: {command}")
 
 

@@ -220,3 +220,10 @@ def test_robot_and_agent_children_run_nicer_than_the_launcher(tmp_path: Path) ->
         assert child.process.wait(timeout=30) == 0
         niceness = int(child.log_path.read_text().split()[-1])
         assert niceness == min(19, mine + CHILD_NICE.get(role, 0)), role
+
+
+def test_a_lost_process_is_listed_with_when() -> None:
+    from covswarm.deploy.display import describe_loss
+
+    assert describe_loss({"role": "robot", "id": 5, "t": None}) == "robot 5 before the start"
+    assert describe_loss({"role": "robot", "id": 5, "t": 10.84}) == "robot 5 at t = 10.8 s"

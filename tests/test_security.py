@@ -63,15 +63,24 @@ def test_secured_mode_refuses_clear_endpoints_and_incomplete_folders(
 ) -> None:
     with pytest.raises(ValueError, match="needs tls/ endpoints"):
         session_config(["tcp/127.0.0.1:7447"], secure=secure)
-    (tmp_path / "ca.pem").write_text("")
     with pytest.raises(ValueError, match="lacks operator: covswarm credentials"):
-        session_config(["tls/127.0.0.1:7447"], secure=tmp_path)
+        session_config(["tls/127.0.0.1:7447"], secure=tmp_path)  # no CA yet: issue one here
+    (tmp_path / "ca.pem").write_text("")
     with pytest.raises(ValueError, match="lacks router/cert.pem, router/key.pem, identities"):
         session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
     shutil.copytree(secure / "router", tmp_path / "router")
     (tmp_path / "identities.json").write_text('[{"name": "agent-1", "role": "agent"}]')
     with pytest.raises(ValueError, match="needs an id"):
         session_config(None, ["tls/127.0.0.1:7447"], "router", secure=tmp_path)
+    # A robot's machine (ca.pem and its own folder, no CA key): told to issue it where the
+    # CA's key is, not here, where covswarm credentials cannot.
+    machine = tmp_path / "machine"
+    machine.mkdir()
+    shutil.copy(secure / "ca.pem", machine / "ca.pem")
+    shutil.copytree(secure / "robot-3", machine / "robot-3")
+    with pytest.raises(ValueError, match="lacks robot-5: on the machine that holds") as there:
+        session_config(["tls/127.0.0.1:7447"], secure=machine, role="robot", id=5)
+    assert "--robot-ids 5, then copy robot-5/ into" in str(there.value)
     # One identity's folder given for the secure folder: pointed at its parent, not told
     # to issue a new CA there.
     with pytest.raises(ValueError, match="not a secure folder") as wrong:
