@@ -54,11 +54,12 @@ def test_every_field_is_an_option_of_the_same_name(config: type, command: click.
 @pytest.mark.parametrize(
     ("command", "argv", "config"),
     [
-        (coordinator_command, ["--connect", "e", "--swarm", "s", "--out", "o"],
-         CoordinatorConfig(connect=("e",), swarm="s", out=Path("o"))),
-        (agent_command, ["--connect", "e", "--id", "1"],
-         AgentProcessConfig(connect=("e",), rate=10.0, id=1)),
-        (robot_command, ["--connect", "e", "--id", "1"], RobotConfig(connect=("e",), id=1)),
+        (coordinator_command, ["--connect", "tcp/127.0.0.1:7447", "--swarm", "s", "--out", "o"],
+         CoordinatorConfig(connect=("tcp/127.0.0.1:7447",), swarm="s", out=Path("o"))),
+        (agent_command, ["--connect", "tcp/127.0.0.1:7447", "--id", "1"],
+         AgentProcessConfig(connect=("tcp/127.0.0.1:7447",), rate=10.0, id=1)),
+        (robot_command, ["--connect", "tcp/127.0.0.1:7447", "--id", "1"],
+         RobotConfig(connect=("tcp/127.0.0.1:7447",), id=1)),
         (run_command, [], RunConfig()),
     ],
 )  # fmt: skip

@@ -77,6 +77,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
+from covswarm.tvd.arrays import as_mask
 from covswarm.tvd.coverage import (
     PRUNED_CELLS,
     CellBatch,
@@ -250,16 +251,23 @@ def _check_kappa(kappa: float) -> None:
         raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
 
 
-def _check_local_law(law: str) -> None:
+def _check_local_law(law: str, max_amplification: float) -> None:
     if law not in ("d1", "da"):
         raise ValueError(
             f"a local step's law must be 'd1' or 'da' (TVD-C is centralised), got {law!r}"
         )
+    _check_law(law, max_amplification)
 
 
-def _check_law(law: str) -> None:
+def _check_law(law: str, max_amplification: float = MAX_AMPLIFICATION) -> None:
+    """ValueError for an unknown law or a guard that is not a finite positive factor (a
+    negative one reversed every robot's velocity, NaN turned the guard off)."""
     if law not in LAWS:
         raise ValueError(f"law must be one of {LAWS}, got {law!r}")
+    if not (math.isfinite(max_amplification) and max_amplification > 0.0):
+        raise ValueError(
+            f"max_amplification must be a finite number > 0, got {max_amplification!r}"
+        )
 
 
 def _targets(
@@ -398,7 +406,7 @@ def team_step(
     fallback). still: (n,) bool, the robots that stand still (module notes; None: none):
     generators with velocity 0, the law taken over the others.
     """
-    _check_law(law)
+    _check_law(law, max_amplification)
     if prior not in PRIORS:
         raise ValueError(f"prior must be one of {PRIORS}, got {prior!r}")
     if not (math.isfinite(damping) and damping >= 0.0):
@@ -441,9 +449,7 @@ def _still_mask(still: np.ndarray | None, n: int) -> np.ndarray | None:
     shape, or for a team all still."""
     if still is None:
         return None
-    mask = np.asarray(still)
-    if mask.shape != (n,) or mask.dtype != np.bool_:
-        raise ValueError(f"still must be an ({n},) bool array, got {mask.dtype} {mask.shape}")
+    mask = as_mask(still, "still", n)
     if not mask.any():
         return None
     if mask.all():
@@ -733,7 +739,7 @@ def local_step(
     its cell and heads for its centroid, which also brings it into S. ``local_steps`` with one
     view (the same code).
     """
-    _check_local_law(law)
+    _check_local_law(law, max_amplification)
     check_density(density)
     _check_kappa(kappa)
     ids = _ordered_known(me, positions)
@@ -781,7 +787,7 @@ def local_steps(
     with invalid input raises ValueError (TypeError for a density that is not a
     DensityModel) naming its index and ``me``; the caller can then step the views one by one.
     """
-    _check_local_law(law)
+    _check_local_law(law, max_amplification)
     orders: list[list] = []  # each view's ids in point order
     groups: dict[tuple, list[int]] = {}
     keys: dict[tuple, tuple] = {}  # S and density by identity -> by value

@@ -58,6 +58,8 @@ from typing import NamedTuple, Protocol, runtime_checkable
 import numpy as np
 from scipy.spatial import cKDTree
 
+from covswarm.tvd.arrays import as_mask
+
 # Relative tolerances, scaled by the size of S: below GEOMETRY_TOL * size two points are the
 # same point and an edge has no length.
 GEOMETRY_TOL = 1e-12
@@ -1065,4 +1067,6 @@ def aggregate_error(
     """
     points, _, batch = tessellate(positions, polygon, density=density)
     offsets = points - as_vectors(batch.centroid)
-    return float(np.linalg.norm(offsets if still is None else offsets[~np.asarray(still)]))
+    if still is None:
+        return float(np.linalg.norm(offsets))
+    return float(np.linalg.norm(offsets[~as_mask(still, "still", len(points))]))

@@ -29,6 +29,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from covswarm.tvd.arrays import as_rows, as_values
+
 DEFAULT_PROJECTION_DISTANCE = 0.03  # m; see the module docstring for how it was chosen
 MAX_WHEEL_SPEED = 0.8  # m/s rim speed; the Khepera IV is quoted 0.8-1.0 m/s
 # A robot that a safety filter holds back while it still moves passes beside its aim, on
@@ -209,16 +211,12 @@ def steer(
     """
     if projection_distance <= 0.0:
         raise ValueError(f"projection_distance must be positive, got {projection_distance}")
-    headings = np.asarray(headings, dtype=float).reshape(-1)
-    velocities = np.asarray(velocities, dtype=float).reshape(-1, 2)
-    if headings.shape[0] != velocities.shape[0]:
-        raise ValueError(f"{headings.shape[0]} headings but {velocities.shape[0]} velocities")
+    velocities = as_rows(velocities, "velocities")
+    headings = as_values(headings, "headings", len(velocities))
     hold = np.broadcast_to(np.asarray(hold, dtype=float), headings.shape)
     if not np.all(hold >= 0.0):
         raise ValueError(f"hold must be >= 0 s, got {hold}")
-    aims = velocities if aims is None else np.asarray(aims, dtype=float).reshape(-1, 2)
-    if aims.shape != velocities.shape:
-        raise ValueError(f"{aims.shape[0]} aims for {velocities.shape[0]} velocities")
+    aims = velocities if aims is None else as_rows(aims, "aims", len(velocities))
     half_track = 0.5 * robot.wheel_separation
     with np.errstate(invalid="ignore", over="ignore", divide="ignore"):
         # non-finite rows are zeroed below
@@ -374,10 +372,8 @@ def integrate(
     Each wheel is clamped to +-max_wheel_speed on its own, like a motor controller would;
     a non-finite wheel command counts as 0 (the robot stops rather than vanishing).
     """
-    poses = np.asarray(poses, dtype=float).reshape(-1, 3)
-    wheels = np.asarray(wheels, dtype=float).reshape(-1, 2)
-    if poses.shape[0] != wheels.shape[0]:
-        raise ValueError(f"{poses.shape[0]} poses but {wheels.shape[0]} wheel commands")
+    poses = as_rows(poses, "poses", width=3)
+    wheels = as_rows(wheels, "wheels", len(poses))
     wheels = np.where(np.isfinite(wheels), wheels, 0.0)
     wheels = np.clip(wheels, -robot.max_wheel_speed, robot.max_wheel_speed)
     v, w = twist_from_wheels(wheels[:, 0], wheels[:, 1], robot.wheel_separation)

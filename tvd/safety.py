@@ -71,6 +71,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from covswarm.tvd.arrays import as_point, as_rows, as_values
+
 # (xmin, xmax, ymin, ymax) m: a rectangular workspace, the robots' centres inside.
 Box = tuple[float, float, float, float]
 
@@ -80,6 +82,7 @@ Box = tuple[float, float, float, float]
 # passage (deploy.netsim, 10 robots, the agents then on TVD-D1) e_a's second-half mean was
 # 0.069 m at 10/s against 0.115 m at 5/s and 0.055 m without the filter.
 DEFAULT_GAMMA = 10.0
+FAR_AWAY = 1.0e15  # m: where a robot without a finite position is put in a neighbour search
 # m: distance between robot centres kept beyond the body diameter, for what the model does
 # not know (pose noise, a neighbour's dead-reckoning error, the arc a unicycle drives
 # between two commands instead of the straight line of the rows).
@@ -411,15 +414,16 @@ def safe_velocity(
         raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
     if obstacle_gamma is not None and not obstacle_gamma > 0.0:
         raise ValueError(f"need obstacle_gamma > 0, got {obstacle_gamma!r}")
-    position = np.asarray(position, dtype=float).reshape(2)
-    nominal = np.asarray(nominal, dtype=float).reshape(2)
+    position = as_point(position, "position")
+    nominal = as_point(nominal, "nominal")
+    neighbors = as_rows(neighbors, "neighbors")
+    if neighbor_velocities is not None:
+        neighbor_velocities = as_rows(neighbor_velocities, "neighbor_velocities", len(neighbors))
     finite = np.all(np.isfinite(position)) and np.all(np.isfinite(nominal))
     if not finite or (heading is not None and not np.isfinite(heading)):
         return FilterResult(np.zeros(2), 0, False)
-    neighbors = np.asarray(neighbors, dtype=float).reshape(-1, 2)
     keep = np.all(np.isfinite(neighbors), axis=1)
     if neighbor_velocities is not None:
-        neighbor_velocities = np.asarray(neighbor_velocities, dtype=float).reshape(-1, 2)
         keep &= np.all(np.isfinite(neighbor_velocities), axis=1)
         neighbor_velocities = neighbor_velocities[keep]
     if velocity is not None and not np.all(np.isfinite(velocity)):
@@ -486,12 +490,20 @@ def team_safe_velocities(
     """
     from scipy.spatial import cKDTree
 
-    positions = np.asarray(positions, dtype=float).reshape(-1, 2)
+    positions = as_rows(positions, "positions")
     n = len(positions)
+    nominal = as_rows(nominal, "nominal", n)
+    if velocities is not None:
+        velocities = as_rows(velocities, "velocities", n)
+    if headings is not None:
+        headings = as_values(headings, "headings", n)
     out = np.empty((n, 2))
     active = np.zeros(n, dtype=int)
     relaxed = np.zeros(n, dtype=bool)
-    tree = cKDTree(positions)
+    # A robot whose position is not finite gets 0 (safe_velocity's rule) and is nobody's
+    # neighbour: the tree holds it far beyond every radius.
+    finite = np.isfinite(positions).all(axis=1)
+    tree = cKDTree(np.where(finite[:, None], positions, FAR_AWAY))
     if headings is not None:  # differential drive: the whole team in one batch
         if subset is not None:
             raise ValueError("subset is for single integrators (headings=None)")
@@ -520,10 +532,10 @@ def team_safe_velocities(
             reach=radius,
         )
     robots = np.arange(n) if subset is None else np.asarray(subset, dtype=int).reshape(-1)
-    out[:] = np.asarray(nominal, dtype=float).reshape(n, 2)
-    near = tree.query_ball_point(positions[robots], radius)
+    out[:] = nominal
+    near = tree.query_ball_point(np.where(finite[:, None], positions, FAR_AWAY)[robots], radius)
     for i, around in zip(robots.tolist(), near, strict=True):
-        others = [j for j in around if j != i]
+        others = [j for j in around if j != i and finite[j]]
         result = safe_velocity(
             positions[i],
             nominal[i],
@@ -592,10 +604,12 @@ def safe_unicycle_velocities(
         raise ValueError(f"obstacles need obstacle_distance >= 0, got {obstacle_distance!r}")
     if obstacle_gamma is not None and not np.all(np.asarray(obstacle_gamma) > 0.0):
         raise ValueError(f"need obstacle_gamma > 0, got {obstacle_gamma!r}")
-    p = np.asarray(positions, dtype=float).reshape(-1, 2)
+    p = as_rows(positions, "positions")
     count = len(p)
-    nominal = np.asarray(nominal, dtype=float).reshape(count, 2)
-    headings = np.asarray(headings, dtype=float).reshape(count)
+    nominal = as_rows(nominal, "nominal", count)
+    headings = as_values(headings, "headings", count)
+    if len(neighbors) != count:
+        raise ValueError(f"neighbors must hold one array per robot ({count}), got {len(neighbors)}")
     ok = np.isfinite(p).all(axis=1) & np.isfinite(nominal).all(axis=1) & np.isfinite(headings)
     # A robot with bad input gets 0 (its rows are left out); computed as a still one.
     nominal, headings = np.where(ok[:, None], nominal, 0.0), np.where(ok, headings, 0.0)
