@@ -65,7 +65,8 @@ class SteeringClient:
             errors.append(reply.err.payload.to_string())
         detail = f" ({'; '.join(errors)})" if errors else ""
         raise SteerTimeout(
-            f"no coordinator of swarm {self.swarm!r} answered within {self.timeout:g} s{detail}"
+            f"no coordinator of swarm {self.swarm!r} answered (waited up to {self.timeout:g} s: "
+            f"none may be reachable at all){detail}"
         )
 
     def translate(self, dx: float, dy: float, duration: float | None = None) -> SteerReply:

@@ -24,6 +24,11 @@ class FiniteFloat(click.FloatRange):
             self.fail(f"{value!r} is not a finite number", param, ctx)
         return number
 
+    def _describe_range(self) -> str:
+        if self.min is None and self.max is None:  # click's own would say "x<=None"
+            return "finite"
+        return super()._describe_range()
+
 
 MAX_CLOCK_SKEW_OPTION = click.option(
     "--max-clock-skew",

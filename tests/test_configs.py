@@ -117,3 +117,19 @@ def test_the_run_command_line_parses_into_a_run_config() -> None:
     assert (run.agents, run.feedforward, run.pose_loss, run.ids) == (4, False, 0.1, "0-1")
     assert run.command_latency == 0.05
     assert (run.coordinator, run.swarm, run.foxglove) == (False, "x", 9000)
+
+
+def test_no_help_text_shows_an_unbounded_range_as_none() -> None:
+    # click's FloatRange describes a range without bounds as "x<=None" (covswarm sim --heading)
+    from click.testing import CliRunner
+
+    from covswarm.deploy.cli import SUBCOMMANDS, main
+
+    for name in SUBCOMMANDS:
+        if name == "bridge":
+            continue  # a group: its commands' help below
+        shown = CliRunner().invoke(main, [name, "--help"], terminal_width=200)
+        assert shown.exit_code == 0, (name, shown.output)
+        assert "None" not in shown.output, (name, shown.output)
+    shown = CliRunner().invoke(main, ["bridge", "ros2", "--help"], terminal_width=200)
+    assert shown.exit_code == 0 and "None" not in shown.output

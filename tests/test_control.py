@@ -247,3 +247,20 @@ def test_local_velocity_dominated_robot_with_whole_team() -> None:
     for me in range(3):
         v = control.local_velocity(me, dict(enumerate(p)), SQUARE, V, 1.5)
         np.testing.assert_allclose(v, team[me], atol=1e-12)
+
+
+def test_two_coincident_robots_alone_stay_together_and_a_third_parts_them() -> None:
+    # docs/library.md's defined behaviour: the duplicate heads for S's centroid, which is
+    # the owner's target too when the owner's cell is all of S.
+    from covswarm.tvd import control
+
+    square = np.array([[-1.0, -1.0], [1.0, -1.0], [1.0, 1.0], [-1.0, 1.0]])
+    for start, apart in (
+        ([[0.5, 0.5], [0.5, 0.5]], False),
+        ([[0.5, 0.5], [0.5, 0.5], [-0.5, -0.5]], True),
+    ):
+        p = np.array(start)
+        for _ in range(500):
+            p = p + 0.02 * control.tvd_da(p, square, np.zeros((4, 2)), kappa=2.0)
+        gap = float(np.linalg.norm(p[0] - p[1]))
+        assert (gap > 0.1) == apart, (start, gap)

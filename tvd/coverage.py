@@ -996,7 +996,8 @@ def cells(
 def mass_centroid(
     positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Mass m_i and centroid c_i of every cell (Section 4.2; quadrature with a density).
+    """Mass m_i and centroid c_i of every cell (Section 4.2; closed forms, with a density too:
+    covswarm.tvd.density).
 
     positions: (n, 2); polygon: (k, 2). Returns mass (n,) and centroid (n, 2); an empty
     cell has mass 0 and the nearest point of S as its centroid.
@@ -1008,7 +1009,8 @@ def mass_centroid(
 def neighbors(
     positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> list[set[int]]:
-    """Delaunay neighbours of each robot whose shared cell edge inside S has positive length.
+    """The Voronoi neighbours of each robot: those whose shared cell edge inside S has
+    positive length (read off the cells' edges; no Delaunay triangulation).
 
     positions: (n, 2); polygon: (k, 2). Returns n sets of robot indices.
     """
@@ -1020,7 +1022,8 @@ def neighbors(
 def centroid_jacobian(
     positions: np.ndarray, polygon: np.ndarray, density: DensityModel | None = None
 ) -> np.ndarray:
-    """dc/dp, eqs. (6)/(7) (Section 2.3): closed form for uniform density, else quadrature.
+    """dc/dp, eqs. (6)/(7) (Section 2.3), in closed form (with a density too:
+    covswarm.tvd.density).
 
     positions: (n, 2); polygon: (k, 2). Returns a dense (2n, 2n) array ordered
     [x0, y0, x1, y1, ...]. The row of an empty cell is the derivative of the nearest point
