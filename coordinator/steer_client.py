@@ -210,18 +210,7 @@ def steer_request(
 @click.option("--timeout", type=FiniteFloat(min=0, min_open=True), default=2.0, show_default=True)
 @SECURE_OPTION
 def steer_command(
-    connect: Sequence[str],
-    swarm: str,
-    translate_: str | None,
-    rotate: float | None,
-    scale: float | None,
-    polygon: str | None,
-    goto: str | None,
-    about: str | None,
-    duration: float | None,
-    speed: float | None,
-    timeout: float,
-    secure: Any,
+    connect: Sequence[str], swarm: str, timeout: float, secure: Any, **motion: Any
 ) -> None:
     """Steer a running swarm: move, turn, scale or reshape S, or send it somewhere (--goto,
     planned by the coordinator around the obstacles). Prints accepted (and a goto's route)
@@ -232,7 +221,7 @@ def steer_command(
     """
     from covswarm.protocol.session import SessionError, open_session, session_config
 
-    request = steer_request(translate_, rotate, scale, polygon, goto, about, duration, speed)
+    request = steer_request(**motion)  # its options as steer_request names them
     try:
         check_swarm(swarm)
     except ValueError as exc:

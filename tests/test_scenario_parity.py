@@ -31,6 +31,21 @@ def scenario_file(tmp_path: Path, vertices: int, kappa: float) -> Path:
     return path
 
 
+def refused_by_sim_and_run(tmp_path: Path, path: Path, why: str) -> None:
+    """covswarm sim and run both refuse the scenario at ``path`` as a bad option, saying
+    ``why``, before anything starts."""
+    runner = CliRunner()
+    for command in (
+        ["sim", "--out", str(tmp_path / "sim")],
+        ["run", "--out", str(tmp_path / "run")],
+    ):
+        result = runner.invoke(main, [*command, "--scenario", str(path)])
+        assert result.exit_code == 2, (command, result.output)
+        assert "cannot be broadcast" in result.output and why in result.output
+    assert not (tmp_path / "run" / "logs").exists()  # nothing started
+    assert not (tmp_path / "sim").exists()
+
+
 # e2e: were the check to let the scenario through, `covswarm run` would start its router.
 @pytest.mark.e2e
 @pytest.mark.parametrize(
@@ -44,16 +59,7 @@ def test_sim_and_run_refuse_what_the_agents_could_not_decode(
         scenario = load_scenario(str(path))
         check_broadcastable(scenario, scenario.kappa, scenario.duration)
     assert why in str(refused.value)
-    runner = CliRunner()
-    for command in (
-        ["sim", "--out", str(tmp_path / "sim")],
-        ["run", "--out", str(tmp_path / "run")],
-    ):
-        result = runner.invoke(main, [*command, "--scenario", str(path)])
-        assert result.exit_code == 2, (command, result.output)
-        assert "cannot be broadcast" in result.output and why in result.output
-    assert not (tmp_path / "run" / "logs").exists()  # nothing started
-    assert not (tmp_path / "sim").exists()
+    refused_by_sim_and_run(tmp_path, path, why)
 
 
 def test_a_scenario_within_the_wire_limits_is_accepted(tmp_path: Path) -> None:
@@ -110,16 +116,7 @@ def test_sim_and_run_refuse_a_map_the_agents_could_not_decode(
     with pytest.raises(ValueError, match="its world") as refused:
         check_broadcastable(scenario, scenario.kappa, scenario.duration)
     assert why in str(refused.value)
-    runner = CliRunner()
-    for command in (
-        ["sim", "--out", str(tmp_path / "sim")],
-        ["run", "--out", str(tmp_path / "run")],
-    ):
-        result = runner.invoke(main, [*command, "--scenario", str(path)])
-        assert result.exit_code == 2, (command, result.output)
-        assert "cannot be broadcast" in result.output and why in result.output
-    assert not (tmp_path / "run" / "logs").exists()  # nothing started
-    assert not (tmp_path / "sim").exists()
+    refused_by_sim_and_run(tmp_path, path, why)
 
 
 def test_a_map_within_the_wire_limits_is_accepted(tmp_path: Path) -> None:

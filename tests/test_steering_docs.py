@@ -48,18 +48,10 @@ def cli_requests() -> list[SteerRequest]:
     for line in lines[:5]:
         args = shlex.split(line.replace("ENDPOINT", "tcp/127.0.0.1:7447"))
         params = steer_command.make_context("steer", args).params
-        requests.append(
-            steer_request(
-                params["translate_"],
-                params["rotate"],
-                params["scale"],
-                params["polygon"],
-                params["goto"],
-                params["about"],
-                params["duration"],
-                params["speed"],
-            )  # fmt: skip
-        )
+        motion = {
+            k: v for k, v in params.items() if k not in ("connect", "swarm", "timeout", "secure")
+        }
+        requests.append(steer_request(**motion))
     return requests
 
 
