@@ -54,6 +54,8 @@ from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, connect_option, floa
 from covswarm.tvd.drive import KHEPERA_IV
 
 log = logging.getLogger("covswarm.bridge")
+# s after start-up before the bridge says which robots have sent no pose at all
+SILENT_AFTER = 10.0
 
 QOS = qos_string(reliable=True, depth=10)  # rclcpp's default for publishers and subscriptions
 STATE_RATE = 10.0  # Hz of the --publish-state topics
@@ -161,9 +163,14 @@ def run_bridge(
         ticker = Ticker(rate)
         seq = 0
         log.info("bridge for robots %s of swarm %s ready", [brain.id for brain in brains], swarm)
+        check_at: float | None = time.monotonic() + SILENT_AFTER
         try:
             while not stop.is_set():
                 now = ticker.wait(stop)
+                if check_at is not None and time.monotonic() >= check_at:
+                    check_at = None
+                    for line in unheard_robots(brains, options):
+                        log.warning(line)
                 wall = time.time()
                 for brain, commands, cmd_vel, poses, pose_out in wires:
                     while (sample := commands.try_recv()) is not None:
@@ -191,10 +198,26 @@ def run_bridge(
             for token in [*alive.values(), *claims, *node.tokens]:
                 token.undeclare()
     for brain in brains:
-        log.info(
+        # A robot that never published, or whose data was dropped, is said without --verbose.
+        level = logging.WARNING if brain.poses == 0 or brain.drops.total else logging.INFO
+        log.log(
+            level,
             "robot %d: %d commands, %d twists, %d stops, %d poses, dropped %s",
             brain.id, brain.commands, brain.twists, brain.stops, brain.poses, brain.drops.summary(),
         )  # fmt: skip
+
+
+def unheard_robots(brains: list[RobotBrain], options: Ros2Options) -> list[str]:
+    """A line for each robot of ``brains`` that has sent no pose at all: the topic and
+    type the bridge listens on, the likely mistake (a TurtleBot publishes Odometry on
+    /odom, not PoseStamped on /robot<id>/pose)."""
+    return [
+        f"robot {brain.id}: no pose on {robot_topic(options.pose_topic, brain.id)} "
+        f"({options.pose_type}) in {SILENT_AFTER:g} s: does the robot publish there, with that "
+        "type (--pose-topic, --pose-type)?"
+        for brain in brains
+        if brain.poses == 0 and not brain.drops.total
+    ]
 
 
 def _hold_token(

@@ -194,3 +194,16 @@ def test_without_the_ros2_extra_the_command_says_what_to_install() -> None:
     )
     out = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True).stdout
     assert out.startswith("1 ") and "pip install 'covswarm[ros2]'" in out, out
+
+
+def test_a_robot_that_sent_no_pose_is_named_with_the_topic_and_type_listened_on() -> None:
+    # A TurtleBot's Odometry on /odom while the bridge listens for PoseStamped on
+    # /robot<id>/pose: nothing arrives, and the bridge said nothing without --verbose.
+    from covswarm.bridge.process import Ros2Options, unheard_robots
+
+    heard, silent = RobotBrain(4, cdr.POSE_STAMPED), RobotBrain(5, cdr.POSE_STAMPED)
+    payload = cdr.encode_pose_stamped(1.0, -0.5, 0.25, WALL - 0.1, "map")
+    assert heard.on_pose(payload, encode_attachment(1, int(WALL * 1e9), bytes(16)), 10.0, WALL)
+    (line,) = unheard_robots([heard, silent], Ros2Options())
+    assert line.startswith("robot 5: no pose on /robot5/pose (geometry_msgs/msg/PoseStamped)")
+    assert "--pose-topic, --pose-type" in line
