@@ -379,11 +379,17 @@ def ros2_command(
             publish_state=publish_state,
             state_namespace=state_namespace,
         )
-        for rid in robot_ids:  # every name is built now, so a bad template fails here
-            for template in (cmd_topic, pose_topic):
-                robot_topic(template, rid)
+        for option, template in (("--cmd-topic", cmd_topic), ("--pose-topic", pose_topic)):
+            try:  # every name is built now, so a bad template fails here
+                for rid in robot_ids:
+                    robot_topic(template, rid)
+            except ValueError as exc:
+                raise click.BadParameter(str(exc), param_hint=option) from None
         node_token_key(domain_id, "0", 0, node_name)
-        check_topic(state_namespace)
+        try:
+            check_topic(state_namespace)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--state-namespace") from None
         brains = [
             RobotBrain(
                 rid,

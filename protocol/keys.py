@@ -53,8 +53,8 @@ def parse_ids(spec: str) -> list[int]:
         try:
             lo = _parse_int_chunk(first.strip())
             hi = _parse_int_chunk(last.strip()) if dash else lo
-        except ValueError:
-            raise ValueError(f"invalid id list {spec!r}: use e.g. 0-49 or 0-4,10") from None
+        except ValueError as exc:
+            raise ValueError(f"invalid id list {spec!r} ({exc}): use e.g. 0-49 or 0-4,10") from None
         if hi < lo:
             raise ValueError(f"invalid id range {part.strip()!r} in {spec!r}")
         ids.update(range(lo, hi + 1))

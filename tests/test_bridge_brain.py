@@ -172,6 +172,7 @@ def test_mission_view_keeps_the_newest_domain_error_and_fresh_poses() -> None:
         ("--domain-id", "233", "outside 0..232"),
         ("--node-name", "covswarm-bridge", "invalid ROS 2 node name"),
         ("--ids", "3-1", "invalid id range"),
+        ("--ids", "0-70000", "robot id 70000 outside 0..65535"),
         ("--swarm", "a/b", "invalid swarm name"),
     ],
 )
@@ -181,6 +182,8 @@ def test_the_command_refuses_bad_options_with_the_reason(
     args = {"--ids": "0-2", "--connect": "tcp/127.0.0.1:9", "--swarm": "lab", option: value}
     result = CliRunner().invoke(bridge_group, ["ros2", *(a for kv in args.items() for a in kv)])
     assert result.exit_code == 2 and message in result.output, result.output
+    if option in ("--cmd-topic", "--pose-topic"):
+        assert f"Invalid value for '{option}'" in result.output  # which option says it
 
 
 def test_without_the_ros2_extra_the_command_says_what_to_install() -> None:
