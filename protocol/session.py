@@ -120,6 +120,13 @@ def session_config(
         clear = [e for e in [*(connect or []), *(listen or [])] if not e.startswith("tls/")]
         if clear:
             raise ValueError(f"secured mode needs tls/ endpoints, got {clear}")
+    else:
+        tls = [e for e in [*(connect or []), *(listen or [])] if e.startswith("tls/")]
+        if tls:  # zenoh would only say "Unable to connect"
+            raise ValueError(
+                f"{', '.join(tls)}: a tls/ endpoint needs --secure DIR (a folder from "
+                "covswarm credentials: the CA and this process's certificate)"
+            )
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")

@@ -172,7 +172,7 @@ def test_steering_a_secured_swarm_needs_the_credentials(tmp_path: Path, require)
             member = steer_cli(endpoint, swarm, "--translate", "1,0", "--secure", str(secure))
             assert member.returncode == 1 and member.stdout.startswith("refused: not-running")
             outsider = steer_cli(endpoint, swarm, "--translate", "1,0")
-            assert outsider.returncode == 3 and "cannot join" in outsider.stderr
+            assert outsider.returncode == 2 and "needs --secure" in outsider.stderr
         finally:
             coordinator.send_signal(signal.SIGTERM)
             coordinator.wait(timeout=30)
