@@ -381,14 +381,17 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
         assert status == 504 and "no coordinator" in reply["reason"]
 
         wrong = make_test_credentials(tmp_path / "wrong", ids=[])  # another lab's CA
-        for extra in (["--secure", str(wrong)], []):
+        for extra, said in (
+            (["--secure", str(wrong)], "cannot reach the swarm"),  # the router refuses it
+            ([], "a tls/ endpoint needs --secure DIR"),  # refused before any session
+        ):
             outsider = subprocess.run(
                 [*covswarm_argv(), "console", "--connect", endpoint, "--swarm", swarm,
                  "--port", "0", *extra],
                 capture_output=True, text=True, timeout=60,
             )  # fmt: skip
             assert outsider.returncode != 0 and "http://" not in outsider.stdout
-            assert "cannot reach the swarm" in outsider.stderr, outsider.stderr
+            assert said in outsider.stderr, outsider.stderr
 
 
 def listening(port: int) -> bool:

@@ -3,7 +3,7 @@ loopback Zenoh.
 
 200 agents and 200 simulated robots, ``auto`` packing (one agent process per core, 100
 brains each on this 2-core machine, the brains due in a tick stepped as one batch), at a
-tenth of real time: the 1000-robot runs belong in the README's commands, not in CI. The
+twentieth of real time: the 1000-robot runs belong in the README's commands, not in CI. The
 run must hold its 10 Hz of mission time with at most 1 % of periods missed, never slow its
 script down, cover the domain, and leave no process behind.
 """
@@ -23,8 +23,9 @@ from covswarm.mission.scenario_files import load_scenario
 AGENTS = 200
 # mission s per wall s. On a host three times slower than usual (a 500-brain bench tick of
 # 0.9 ms), with the suite's other worker busy beside it, the run held 8.7 Hz at 0.25 and 8.9
-# Hz at 0.15 (30 Nov 2026).
-TIME_SCALE = 0.1
+# Hz at 0.15 (30 Nov 2026); at 0.1, 9.9999 Hz alone but 9.876 Hz once in four clean-clone CI
+# runs with the other worker busy (2 Dec 2026): half that, for the margin.
+TIME_SCALE = 0.05
 # Steady-state e_a of the run over that of `covswarm sim` of the same mission stepped at
 # 10 Hz: measured 1.18-1.78 (four runs of 4 and 6 s, 27 Nov 2026, load 1-5); the issue's
 # target is 1.5, this band is the measured spread's.

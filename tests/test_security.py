@@ -106,8 +106,11 @@ def test_only_clients_with_credentials_join(router: tuple, secure: Path, tmp_pat
     assert received == [b"from a member"]
 
     other_lab = make_test_credentials(tmp_path / "other-lab", ids=[0])  # another CA
-    no_credentials = session_config([endpoint])  # TLS with the right CA, but no certificate
-    no_credentials.insert_json5(
+    with pytest.raises(ValueError, match="a tls/ endpoint needs --secure DIR"):
+        session_config([endpoint])  # covswarm refuses it before zenoh; the router must too:
+    no_credentials = session_config([endpoint.replace("tls/", "tcp/")])
+    no_credentials.insert_json5("connect/endpoints", json.dumps([endpoint]))
+    no_credentials.insert_json5(  # TLS with the right CA, but no certificate
         "transport/link/tls/root_ca_certificate", json.dumps(str(secure / "ca.pem"))
     )
     plain_tcp = session_config([endpoint.replace("tls/", "tcp/")])  # no TLS at all
@@ -140,8 +143,8 @@ def test_robot_process_joins_a_secured_swarm_with_one_flag(router: tuple, secure
         refused = subprocess.run(
             [COVSWARM, "robot", *common[:-2]], cwd=REPO, capture_output=True, text=True, timeout=120
         )
-        assert refused.returncode != 0  # without --secure: no session at all
-        assert "Unable to connect" in refused.stderr
+        assert refused.returncode == 2  # without --secure: refused before any session
+        assert "a tls/ endpoint needs --secure DIR" in refused.stderr
     finally:
         child.terminate()
         child.wait(timeout=30)
