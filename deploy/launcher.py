@@ -60,7 +60,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
-from covswarm.protocol.security import SECURE_OPTION, check_router_hosts, require_identities
+from covswarm.protocol.security import SECURE_OPTION, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
     ENDPOINT,
@@ -299,6 +299,8 @@ def run_swarm(run: RunConfig) -> None:
             per_process=packing, robots_per_process=robot_packing,
         )  # fmt: skip
         names = {s.identity for s in planned} | ({"console"} if run.console else set())
+        from covswarm.protocol.session import check_router_hosts  # imports zenoh
+
         try:
             require_identities(run.secure, sorted(names))
             if run.connect is None and run.router_listen:

@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import socket
 from collections.abc import Iterator, Sequence
-from contextlib import contextmanager
+from contextlib import ExitStack, contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -140,18 +140,15 @@ def router_command(
     """A Zenoh router for covswarm processes until Ctrl-C or SIGTERM: scouting off, and
     with --secure mutual TLS and the access list of protocol.access. Processes join it with
     --connect (``covswarm run --connect`` keeps running across its restarts)."""
-    from covswarm.protocol.session import open_session, session_config
     from covswarm.runtime.clock import StopFlag
 
     logging.basicConfig(level=logging.INFO, format="%(asctime)s router %(message)s")
-    try:
-        config = session_config(
-            list(peers), list(listen), mode="router", max_sessions=max_sessions, secure=secure
-        )
-    except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
-    stop = StopFlag()
-    with open_session(config):
+    with ExitStack() as stack:
+        try:
+            stack.enter_context(zenoh_session(None, max_sessions, listen, peers, secure=secure))
+        except ValueError as exc:  # the session's configuration (secure folder, endpoints)
+            raise click.UsageError(str(exc)) from None
+        stop = StopFlag()
         print(f"router listening on {', '.join(listen)}", flush=True)
         while not stop.is_set():
             stop.sleep(0.2)

@@ -143,27 +143,6 @@ def apply_security(
         put("access_control", access_control(read_identities(directory)))
 
 
-def check_router_hosts(directory: Path, listen: Iterable[str]) -> None:
-    """ValueError unless the router's certificate in ``directory`` names every host of the
-    ``listen`` endpoints (a wildcard address aside: this host's processes reach it on
-    loopback, which it always names): a client connecting to an address the certificate
-    does not name is refused with no reason but "Unable to connect"."""
-    names = certificate_names(Path(directory) / ROUTER / CERT)
-    for endpoint in listen:
-        address = endpoint.partition("/")[2].split("?")[0].split("#")[0]
-        host = address.rpartition(":")[0]
-        if host in ("0.0.0.0", "[::]") or names.covers(host):
-            continue
-        named = sorted(n.partition(":")[2] for n in names.alt_names)
-        kept = [n for n in named if n not in ("127.0.0.1", "localhost")]  # always named
-        hosts = "".join(f" --host {n}" for n in [*kept, host.strip("[]")])
-        raise ValueError(
-            f"the router's certificate names {', '.join(named)}, not {host}: clients of "
-            f"{endpoint} would be refused; covswarm credentials {directory}{hosts} issues "
-            "it again with that name"
-        )
-
-
 def require_identities(directory: Path, names: Iterable[str]) -> None:
     """ValueError naming the command that issues whichever of ``names`` (identity names,
     e.g. ``agent-0-9``) ``directory`` lacks; for a launcher to check before it starts

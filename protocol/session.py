@@ -11,12 +11,13 @@ from __future__ import annotations
 import ipaddress
 import json
 import re
-from collections.abc import Sequence
+from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import zenoh
 
-from covswarm.protocol.security import apply_security, check_router_hosts, identity_name
+from covswarm.protocol.certificates import certificate_names
+from covswarm.protocol.security import CERT, ROUTER, apply_security, identity_name
 
 MODES = ("client", "peer", "router")
 RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router
@@ -46,8 +47,7 @@ def check_endpoint(endpoint: str) -> str:
         )
     if protocol not in HOST_PORT:
         return endpoint
-    address = re.split(r"[?#]", address, maxsplit=1)[0]
-    host, colon, port = address.rpartition(":")
+    host, colon, port = _host_port(endpoint)
     if not colon or not host:
         raise ValueError(f"endpoint {endpoint!r}: expected {protocol}/<host>:<port>")
     if not port.isdigit() or not 0 <= int(port) <= 65535:
@@ -63,6 +63,32 @@ def check_endpoint(endpoint: str) -> str:
             " (an IPv6 address goes in brackets: tcp/[::1]:7447)"
         )
     return endpoint
+
+
+def _host_port(endpoint: str) -> tuple[str, str, str]:
+    """(host, ":" or "", port) of ``<protocol>/<host>:<port>[?metadata][#config]``."""
+    address = re.split(r"[?#]", endpoint.partition("/")[2], maxsplit=1)[0]
+    return address.rpartition(":")
+
+
+def check_router_hosts(directory: Path, listen: Iterable[str]) -> None:
+    """ValueError unless the router's certificate in the secure folder ``directory`` names
+    every host of the ``listen`` endpoints (a wildcard address aside: this host's processes
+    reach it on loopback, which it always names): a client connecting to an address the
+    certificate does not name is refused with no reason but "Unable to connect"."""
+    names = certificate_names(Path(directory) / ROUTER / CERT)
+    for endpoint in listen:
+        host = _host_port(endpoint)[0]
+        if host in ("0.0.0.0", "[::]") or names.covers(host):
+            continue
+        named = sorted(n.partition(":")[2] for n in names.alt_names)
+        kept = [n for n in named if n not in ("127.0.0.1", "localhost")]  # always named
+        hosts = "".join(f" --host {n}" for n in [*kept, host.strip("[]")])
+        raise ValueError(
+            f"the router's certificate names {', '.join(named)}, not {host}: clients of "
+            f"{endpoint} would be refused; covswarm credentials {directory}{hosts} issues "
+            "it again with that name"
+        )
 
 
 def zenoh_reason(exc: BaseException) -> str:
@@ -112,16 +138,15 @@ def session_config(
         raise ValueError("a client session needs at least one --connect endpoint")
     if mode == "router" and not listen:
         raise ValueError("a router session needs at least one listen endpoint")
-    for endpoint in [*(connect or []), *(listen or [])]:
-        check_endpoint(endpoint)
+    endpoints = [check_endpoint(e) for e in [*(connect or []), *(listen or [])]]
     if mode != "router":
         identity_name(role, id)  # a wrong role fails in open mode too, not first on a lab
     if secure is not None:
-        clear = [e for e in [*(connect or []), *(listen or [])] if not e.startswith("tls/")]
+        clear = [e for e in endpoints if not e.startswith("tls/")]
         if clear:
             raise ValueError(f"secured mode needs tls/ endpoints, got {clear}")
     else:
-        tls = [e for e in [*(connect or []), *(listen or [])] if e.startswith("tls/")]
+        tls = [e for e in endpoints if e.startswith("tls/")]
         if tls:  # zenoh would only say "Unable to connect"
             raise ValueError(
                 f"{', '.join(tls)}: a tls/ endpoint needs --secure DIR (a folder from "

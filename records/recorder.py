@@ -199,14 +199,19 @@ def metadata_strings(values: Mapping[str, Any]) -> dict[str, str]:
     return {k: v if isinstance(v, str) else json.dumps(v) for k, v in values.items()}
 
 
+def mcap_part(k: int) -> str:
+    """The record of a run's k-th resumed coordinator (k >= 1): run-<k>.mcap."""
+    return MCAP_FILE.replace(".mcap", f"-{k}.mcap")
+
+
 def record_names(out_dir: Path, continued: bool) -> tuple[str, str]:
     """(run.mcap, trajectories.csv), or the first free (run-<k>.mcap, trajectories-<k>.csv)."""
     if not continued:
         return MCAP_FILE, TRAJECTORIES_FILE
     k = 1
-    while (out_dir / f"run-{k}.mcap").exists():
+    while (out_dir / mcap_part(k)).exists():
         k += 1
-    return f"run-{k}.mcap", TRAJECTORIES_FILE.replace(".csv", f"-{k}.csv")
+    return mcap_part(k), TRAJECTORIES_FILE.replace(".csv", f"-{k}.csv")
 
 
 def _ns(t: float) -> int:

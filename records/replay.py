@@ -30,6 +30,7 @@ from covswarm.records.recorder import (
     MCAP_FILE,
     METADATA_NAME,
     ROBOTS_TOPIC,
+    mcap_part,
 )
 from covswarm.records.scene import ROBOT_DIAMETER, ROBOT_LIFETIME
 from covswarm.runtime.options import FiniteFloat
@@ -74,7 +75,7 @@ def recording_parts(run_dir: Path) -> list[Path]:
     coordinators wrote beside it (run-1.mcap, run-2.mcap, ...: records.recorder.record_names)."""
     parts = [run_dir / MCAP_FILE] if (run_dir / MCAP_FILE).is_file() else []
     k = 1
-    while (part := run_dir / f"run-{k}.mcap").is_file():
+    while (part := run_dir / mcap_part(k)).is_file():
         parts.append(part)
         k += 1
     return parts

@@ -13,8 +13,8 @@ from pathlib import Path
 import pytest
 
 from covswarm.protocol.certificates import Names, certificate_names
-from covswarm.protocol.security import check_router_hosts, issue_credentials
-from covswarm.protocol.session import session_config
+from covswarm.protocol.security import issue_credentials
+from covswarm.protocol.session import check_router_hosts, session_config
 
 
 @pytest.fixture(scope="module", autouse=True)

@@ -503,7 +503,8 @@ def team_safe_velocities(
     # A robot whose position is not finite gets 0 (safe_velocity's rule) and is nobody's
     # neighbour: the tree holds it far beyond every radius.
     finite = np.isfinite(positions).all(axis=1)
-    tree = cKDTree(np.where(finite[:, None], positions, FAR_AWAY))
+    searched = np.where(finite[:, None], positions, FAR_AWAY)
+    tree = cKDTree(searched)
     if headings is not None:  # differential drive: the whole team in one batch
         if subset is not None:
             raise ValueError("subset is for single integrators (headings=None)")
@@ -533,7 +534,7 @@ def team_safe_velocities(
         )
     robots = np.arange(n) if subset is None else np.asarray(subset, dtype=int).reshape(-1)
     out[:] = nominal
-    near = tree.query_ball_point(np.where(finite[:, None], positions, FAR_AWAY)[robots], radius)
+    near = tree.query_ball_point(searched[robots], radius)
     for i, around in zip(robots.tolist(), near, strict=True):
         others = [j for j in around if j != i and finite[j]]
         result = safe_velocity(
