@@ -113,7 +113,8 @@ from covswarm.sim_robot.process import gather_drops
     "--router-listen",
     type=ENDPOINT,
     multiple=True,
-    help="Endpoint the embedded router listens on, e.g. tcp/10.0.0.1:7447 [a free loopback port].",
+    help="Endpoint the embedded router listens on, e.g. tls/10.0.0.1:7447 (beyond loopback "
+    "with --secure) [a free loopback port].",
 )
 @click.option(
     "--router-connect",
@@ -236,6 +237,13 @@ def run_swarm(run: RunConfig) -> None:
         raise click.UsageError("--robots none needs --swarm, the name the bridges join")
     if run.connect is not None and (run.router_listen or run.router_connect):
         raise click.UsageError("--connect joins a router: no --router-listen/--router-connect")
+    if run.secure is None and run.connect is None and run.router_listen:
+        from covswarm.protocol.session import check_open_listen  # imports zenoh
+
+        try:
+            check_open_listen(run.router_listen)
+        except ValueError as exc:
+            raise click.UsageError(str(exc)) from None
     if run.time_scale is None and (run.ids is not None or not run.coordinator):
         raise click.UsageError(
             "--time-scale auto times this host alone: a team over several hosts needs one "

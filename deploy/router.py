@@ -116,8 +116,8 @@ ROUTER_SESSIONS = 4000  # clients a stand-alone router admits: 1000 robots' four
     type=ENDPOINT,
     multiple=True,
     required=True,
-    help="Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; 0.0.0.0 for every "
-    "interface, then --secure).",
+    help="Endpoint to listen on, e.g. tcp/127.0.0.1:7447 (repeatable; beyond loopback, "
+    "e.g. tls/0.0.0.0:7447, with --secure).",
 )
 @click.option(
     "--connect",

@@ -71,6 +71,40 @@ def _host_port(endpoint: str) -> tuple[str, str, str]:
     return address.rpartition(":")
 
 
+def is_loopback(endpoint: str) -> bool:
+    """Whether ``endpoint`` (checked by :func:`check_endpoint`) is reachable from this host
+    only: a loopback address or ``localhost``, or a protocol without a network address
+    (a Unix socket, a pipe, a serial line)."""
+    if endpoint.partition("/")[0] not in HOST_PORT:
+        return True
+    host = _host_port(endpoint)[0].strip("[]")
+    if host.lower() == "localhost":
+        return True
+    try:
+        return ipaddress.ip_address(host).is_loopback
+    except ValueError:  # a host name: it resolves to another host's view of this one
+        return False
+
+
+def check_open_listen(listen: Iterable[str]) -> None:
+    """ValueError unless every ``listen`` endpoint of a router in open mode (no --secure) is
+    loopback (:func:`is_loopback`): an open router that other hosts can reach lets any of
+    them command every robot, publish the domain the team follows and read everything
+    (docs/security.md); beyond loopback covswarm listens in secured mode only."""
+    exposed = [e for e in listen if not is_loopback(e)]
+    if not exposed:
+        return
+    named = [_host_port(e)[0].strip("[]") for e in exposed]
+    hosts = "".join(f" --host {h}" for h in named if h not in ("0.0.0.0", "::"))
+    tls = ", ".join(f"tls/{e.partition('/')[2]}" for e in exposed)
+    raise ValueError(
+        f"{', '.join(exposed)}: a router reachable from other hosts needs --secure DIR "
+        "(without it anyone who reaches the port commands every robot). Issue the "
+        f"credentials once (covswarm credentials DIR{hosts}), listen on {tls} and give "
+        "every process --secure DIR (docs/security.md); or listen on 127.0.0.1"
+    )
+
+
 def check_router_hosts(directory: Path, listen: Iterable[str]) -> None:
     """ValueError unless the router's certificate in the secure folder ``directory`` names
     every host of the ``listen`` endpoints (a wildcard address aside: this host's processes
@@ -130,7 +164,8 @@ def session_config(
     the certificate of ``role`` (coordinator, agent, robot, bridge, console, operator) and
     ``id`` (agent and robot only: one id, or the ids of a process running several brains);
     a router presents its own and enforces the access-control list. ``role``/``id`` are
-    ignored without ``secure``.
+    ignored without ``secure``; without it a router listens on loopback only
+    (:func:`check_open_listen`).
     """
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -152,6 +187,7 @@ def session_config(
                 f"{', '.join(tls)}: a tls/ endpoint needs --secure DIR (a folder from "
                 "covswarm credentials: the CA and this process's certificate)"
             )
+        check_open_listen(listen or [])
     config = zenoh.Config()
     config.insert_json5("mode", json.dumps(mode))
     config.insert_json5("scouting/multicast/enabled", "false")

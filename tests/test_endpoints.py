@@ -10,7 +10,14 @@ import subprocess
 import pytest
 
 from covswarm.deploy.plan import covswarm_argv
-from covswarm.protocol.session import SessionError, check_endpoint, open_session, session_config
+from covswarm.protocol.session import (
+    SessionError,
+    check_endpoint,
+    check_open_listen,
+    is_loopback,
+    open_session,
+    session_config,
+)
 
 GOOD = [
     "tcp/127.0.0.1:7447",
@@ -44,6 +51,56 @@ def test_zenoh_takes_every_endpoint_the_check_passes(endpoint: str) -> None:
             session_config([endpoint])
         return
     session_config([endpoint])  # zenoh parses it (a ZError otherwise)
+
+
+LOOPBACK = [
+    "tcp/127.0.0.1:7447",
+    "tcp/127.0.0.2:7447",
+    "tcp/[::1]:7447",
+    "tcp/localhost:7447",
+    "udp/127.0.0.1:7447",
+    "unixsock-stream//tmp/zenoh.sock",
+]
+EXPOSED = [
+    "tcp/0.0.0.0:7447",
+    "tcp/[::]:7447",
+    "tcp/10.0.0.1:7447",
+    "tcp/robot-3.lab:7447",
+    "udp/192.168.1.10:7447",
+    "tcp/[fe80::1]:7447",
+]
+
+
+def test_an_open_router_listens_on_loopback_only() -> None:
+    """Beyond loopback a router needs --secure: open, anyone reaching the port would
+    command every robot. Refused with what to do instead, before zenoh is configured."""
+    assert all(is_loopback(e) for e in LOOPBACK)
+    assert not any(is_loopback(e) for e in EXPOSED)
+    check_open_listen(LOOPBACK)
+    session_config(None, ["tcp/127.0.0.1:0"], "router")
+    for endpoint in EXPOSED:
+        with pytest.raises(ValueError, match="needs --secure DIR") as refused:
+            session_config(None, ["tcp/127.0.0.1:0", endpoint], "router")
+        assert endpoint in str(refused.value)
+        assert f"tls/{endpoint.partition('/')[2]}" in str(refused.value)
+    with pytest.raises(ValueError, match=r"covswarm credentials DIR --host 10\.0\.0\.1\)"):
+        check_open_listen(["tcp/10.0.0.1:7447"])
+
+
+@pytest.mark.e2e
+@pytest.mark.parametrize(
+    "args",
+    [
+        ("router", "--listen", "tcp/0.0.0.0:{port}"),
+        ("run", "--scenario", "live", "--agents", "2", "--router-listen", "tcp/10.0.0.1:{port}"),
+    ],
+)
+def test_the_commands_refuse_an_open_router_beyond_loopback(args: tuple[str, ...]) -> None:
+    port = closed_port()
+    done = covswarm(*(a.format(port=port) for a in args))
+    assert done.returncode == 2, done.stderr
+    assert "a router reachable from other hosts needs --secure DIR" in done.stderr
+    assert "Traceback" not in done.stderr
 
 
 @pytest.mark.parametrize(("endpoint", "reason"), BAD.items())

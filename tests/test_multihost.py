@@ -2,11 +2,15 @@
 
 Each namespace runs ``covswarm run`` for half of the team with its own embedded router on
 its veth address; namespace B's router connects to A's (Zenoh routes between them), and
-only A runs the coordinator. A probe process in each namespace measures the round trip
-between them through both routers and records the agents' neighbour lists, which must
-cross the hosts. Needs root (``ip netns``): as another user it is skipped with that reason
-(failed under CI=true, tests/conftest.py); as root it runs, and fails if it cannot set up
-the namespaces (no iproute2, no netns support).
+only A runs the coordinator. A router reachable from another host listens in secured mode
+only (covswarm.protocol.session.check_open_listen), so the run is secured: one secure folder
+whose router certificate names both addresses, mutual TLS on every link, and each router
+enforcing the access list on its own clients. A probe process in each namespace measures
+the round trip between them through both routers (as the ``bridge`` and a ``ros2`` node, on
+a ROS 2 key: the access list lets no one else put outside the swarm's own keys) and records
+the agents' neighbour lists, which must cross the hosts. Needs root (``ip netns``): as
+another user it is skipped with that reason (failed under CI=true, tests/conftest.py); as
+root it runs, and fails if it cannot set up the namespaces (no iproute2, no netns support).
 
 Namespaces, veth names and the 10.199.X.0/24 subnet are random per run (addresses live
 only inside the test's own namespaces, so even equal X would not collide); everything is
@@ -29,6 +33,7 @@ from pathlib import Path
 import pytest
 
 from covswarm.deploy.plan import covswarm_argv
+from covswarm.protocol.security import issue_credentials
 
 pytestmark = pytest.mark.e2e
 
@@ -40,11 +45,13 @@ PORT = 7447  # free by construction: nothing else listens inside a fresh namespa
 PROBE = """
 import json, signal, sys, threading, time, zenoh
 from covswarm.protocol import AgentState, Status, session_config
-mode, endpoint, swarm = sys.argv[1:4]
-base = f"covswarm/{swarm}/probe"
+from pathlib import Path
+mode, endpoint, swarm, secure = sys.argv[1:5]
+base = f"0/covswarm_probe/{swarm}"  # ROS 2 domain 0's keys: the bridge and ros2 may put them
+role = "ros2" if mode == "pong" else "bridge"
 for attempt in range(300):  # until this namespace's launcher has its router up
     try:
-        session = zenoh.open(session_config([endpoint]))
+        session = zenoh.open(session_config([endpoint], secure=Path(secure), role=role))
         break
     except zenoh.ZError:
         time.sleep(0.2)
@@ -131,10 +138,13 @@ def test_one_swarm_over_two_hosts(tmp_path: Path, require) -> None:
     require(os.geteuid() == 0, "the multi-host test needs root to create network namespaces")
     swarm = f"mh-{secrets.token_hex(4)}"
     with two_hosts() as ((ns_a, addr_a), (ns_b, addr_b)):
+        secure = issue_credentials(
+            tmp_path / "secure", agents=range(TEAM), robots=range(TEAM), hosts=[addr_a, addr_b]
+        )
         in_a, in_b = ["ip", "netns", "exec", ns_a], ["ip", "netns", "exec", ns_b]
-        router_a, router_b = f"tcp/{addr_a}:{PORT}", f"tcp/{addr_b}:{PORT}"
+        router_a, router_b = f"tls/{addr_a}:{PORT}", f"tls/{addr_b}:{PORT}"
         common = ["--agents", str(TEAM), "--scenario", "passage", "--duration", "15",
-                  "--seed", "3", "--swarm", swarm]  # fmt: skip
+                  "--seed", "3", "--swarm", swarm, "--secure", str(secure)]  # fmt: skip
         run = [*covswarm_argv(), "run", *common]
         host_a = [*in_a, *run, "--ids", "0-2", "--router-listen", router_a,
                   "--out", str(tmp_path / "a")]  # fmt: skip
@@ -146,7 +156,7 @@ def test_one_swarm_over_two_hosts(tmp_path: Path, require) -> None:
             started(host_b, tmp_path / "b.log") as launcher_b,
             started(host_a, tmp_path / "a.log") as launcher_a,
             started(
-                [*in_b, *probe, "pong", router_b, swarm],
+                [*in_b, *probe, "pong", router_b, swarm, str(secure)],
                 tmp_path / "pong.log",
                 stdout=subprocess.PIPE,
                 text=True,
@@ -154,7 +164,8 @@ def test_one_swarm_over_two_hosts(tmp_path: Path, require) -> None:
         ):
             assert pong.stdout.readline().strip() == "ready", (tmp_path / "pong.log").read_text()
             measured = subprocess.run(
-                [*in_a, *probe, "ping", router_a, swarm], capture_output=True, text=True,
+                [*in_a, *probe, "ping", router_a, swarm, str(secure)], capture_output=True,
+                text=True,
                 timeout=150,
             )  # fmt: skip
             assert measured.returncode == 0, measured.stderr
