@@ -257,8 +257,11 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
     default=MAX_WHEEL_SPEED,
     help="Rim speed limit (m/s) the commands are saturated to.",
 )
-@pose_loss_option("Fault injection: drop this fraction of received poses.")
-@pose_delay_option("Fault injection: deliver received poses this many s late.")
+@pose_loss_option(
+    "Fault injection: drop this fraction of the positions received (the robot's poses and "
+    "the neighbours' AgentStates)."
+)
+@pose_delay_option("Fault injection: deliver those positions this many s late.")
 @click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
 @switch_option(
     "prediction",

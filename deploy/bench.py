@@ -39,7 +39,7 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.runtime.options import float_option
+from covswarm.runtime.options import SIZES, float_option, out_option
 from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
@@ -822,6 +822,79 @@ def write_bench(out: Path, rows: list[dict]) -> None:
     plt.close(fig)
 
 
+# The options of each mode that another mode would ignore.
+BRAIN_TICK_ONLY = (
+    "brain_tick_sizes",
+    "brain_tick_team",
+    "brain_tick_rate",
+    "brain_tick_spacing",
+    "brain_tick_late",
+)
+LIVE_ONLY = ("live_sizes", "live_duration", "live_per_process", "live_time_scale")
+STEP_ONLY = ("quick", "sizes", "seeds", "repeats", "obstacles", "live", *LIVE_ONLY)
+
+
+def check_bench_options(ctx: click.Context, brain_tick: bool, live: bool) -> None:
+    """UsageError for options given on the command line that the chosen mode ignores."""
+    from click.core import ParameterSource
+
+    def given(names: tuple[str, ...]) -> list[str]:
+        return [
+            "--" + name.replace("_", "-")
+            for name in names
+            if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE
+        ]
+
+    if brain_tick and (ignored := given(STEP_ONLY)):
+        raise click.UsageError(f"--brain-tick times packed processes only: no {', '.join(ignored)}")
+    if not brain_tick and (ignored := given(BRAIN_TICK_ONLY)):
+        raise click.UsageError(f"{' and '.join(ignored)}: for --brain-tick only")
+    if not live and (ignored := given(LIVE_ONLY)):
+        raise click.UsageError(f"{' and '.join(ignored)}: for --live runs only")
+
+
+def table_console() -> Any:
+    """A rich Console for the bench's tables: as wide as they need (160 columns) when the
+    output is not a terminal (a pipe or a file, where rich would squeeze them into 80)."""
+    from rich.console import Console
+
+    console = Console()
+    return console if console.is_terminal else Console(width=160)
+
+
+def step_tables(rows: list[dict]) -> tuple[Any, Any]:
+    """The compute rows as two rich tables: one robot's step, and the full team's step and
+    the safety filter. The ratios are of timings made interleaved on the same views
+    (run_bench), not of the p50s printed beside them."""
+    from rich.table import Table
+
+    note = "ratios: timed interleaved on the same views, not of the columns beside them"
+    step = Table(title="covswarm bench: one robot's control step vs team size", caption=note)
+    full = Table(title="the centralised full-team step, and the safety filter", caption=note)
+    step_columns = (
+        ("N", "agents", "{:d}"), ("layout", "layout", "{}"),
+        ("p50 us", "local_step_p50_us", "{:.0f}"), ("p99 us", "local_step_p99_us", "{:.0f}"),
+        ("mean us", "local_step_mean_us", "{:.0f}"),
+        ("density p50 us", "local_step_density_p50_us", "{:.0f}"),
+        ("density / uniform", "density_over_uniform", "{:.2f}"),
+        ("DA p50 us", "local_step_da_p50_us", "{:.0f}"), ("DA / D1", "da_over_d1", "{:.2f}"),
+        ("two-hop robots", "two_hop_mean", "{:.1f}"),
+    )  # fmt: skip
+    full_columns = (
+        ("N", "agents", "{:d}"), ("layout", "layout", "{}"),
+        ("TVD-C ms", "tvd_c_ms", "{:.1f}"), ("TVD-D1 ms", "tvd_d1_ms", "{:.1f}"),
+        ("TVD-DA ms", "tvd_da_ms", "{:.1f}"),
+        ("safety filter p50 us", "safety_filter_p50_us", "{:.0f}"),
+        ("safety / step", "safety_over_step", "{:.2f}"),
+    )  # fmt: skip
+    for table, columns in ((step, step_columns), (full, full_columns)):
+        for name, _, _ in columns:
+            table.add_column(name, justify="right")
+        for row in rows:
+            table.add_row(*(fmt.format(row[key]) for _, key, fmt in columns))
+    return step, full
+
+
 def live_table(rows: list[dict]) -> Any:
     """The live runs as a rich table."""
     from rich.table import Table
@@ -829,13 +902,16 @@ def live_table(rows: list[dict]) -> Any:
     table = Table(title=f"covswarm bench --live: real runs, agents asked {LIVE_RATE:g} Hz")
     columns = (
         ("N", "agents", "{:d}"), ("K", "agents_per_process", "{:d}"),
-        ("scale", "time_scale", "{:g}"), ("step p50 us", "live_step_p50_us", "{:.0f}"),
+        ("scale", "time_scale", "{:g}"), ("tile m", "tile_size", "{:.2f}"),
+        ("step p50 us", "live_step_p50_us", "{:.0f}"),
         ("step p99 us", "live_step_p99_us", "{:.0f}"), ("rx/s", "rx_per_agent_per_s", "{:.0f}"),
         ("pose->cmd p50 ms", "pose_to_cmd_p50_ms", "{:.1f}"),
         ("pose->cmd p99 ms", "pose_to_cmd_p99_ms", "{:.1f}"),
         ("rate Hz (min)", "rate_held_min_hz", "{:.1f}"),
         ("missed", "missed_deadline_mean", "{:.1%}"), ("MB/agent", "rss_per_agent_mb", "{:.0f}"),
-        ("MB/robot", "rss_per_robot_mb", "{:.0f}"), ("e_a final", "final_error", "{:.3f}"),
+        ("MB/robot", "rss_per_robot_mb", "{:.0f}"),
+        ("CPU/agent % of a core", "cpu_per_agent_pct", "{:.2f}"),
+        ("e_a final m", "final_error", "{:.3f}"),
     )  # fmt: skip
     for name, _, _ in columns:
         table.add_column(name, justify="right")
@@ -848,11 +924,29 @@ def live_table(rows: list[dict]) -> Any:
 
 @click.command("bench")
 @click.option("--quick", is_flag=True, help="N up to 300, 1 seed, sampled robots (< 2 min).")
-@click.option("--sizes", default=None, help="Comma-separated team sizes (default 10..3000).")
-@click.option("--seeds", default=3, show_default=True, help="Layouts per (N, kind).")
-@click.option("--sample", default=300, show_default=True, help="Robots timed per layout.")
-@click.option("--repeats", default=3, show_default=True, help="Full-team steps timed per layout.")
-@click.option("--out", type=click.Path(path_type=Path), default=None, help="Output folder.")
+@click.option("--sizes", type=SIZES, default=None, help="Team sizes, e.g. 10,100 [10..3000].")
+@click.option(
+    "--seeds",
+    type=click.IntRange(min=1),
+    default=3,
+    show_default=True,
+    help="Layouts per (N, kind).",
+)
+@click.option(
+    "--sample",
+    type=click.IntRange(min=1),
+    default=300,
+    show_default=True,
+    help="Robots timed per layout (--brain-tick: at most its team).",
+)
+@click.option(
+    "--repeats",
+    type=click.IntRange(min=1),
+    default=3,
+    show_default=True,
+    help="Full-team steps timed per layout.",
+)
+@out_option(help="Output folder [runs/bench-<time>].")
 @click.option(
     "--obstacles",
     type=click.IntRange(min=0),
@@ -865,6 +959,7 @@ def live_table(rows: list[dict]) -> Any:
 )
 @click.option(
     "--live-sizes",
+    type=SIZES,
     default=",".join(map(str, LIVE_SIZES)),
     show_default=True,
     help="Team sizes of the live runs.",
@@ -891,6 +986,7 @@ def live_table(rows: list[dict]) -> Any:
 )
 @click.option(
     "--brain-tick-sizes",
+    type=SIZES,
     default=",".join(map(str, BRAIN_TICK_SIZES)),
     show_default=True,
     help="Brains per process for --brain-tick.",
@@ -930,19 +1026,19 @@ def live_table(rows: list[dict]) -> Any:
 )
 def bench_command(
     quick: bool,
-    sizes: str | None,
+    sizes: tuple[int, ...] | None,
     seeds: int,
     sample: int,
     repeats: int,
     out: Path | None,
     obstacles: int,
     live: bool,
-    live_sizes: str,
+    live_sizes: tuple[int, ...],
     live_duration: float,
     live_per_process: int,
     live_time_scale: float,
     brain_tick: bool,
-    brain_tick_sizes: str,
+    brain_tick_sizes: tuple[int, ...],
     brain_tick_team: int,
     brain_tick_rate: float,
     brain_tick_spacing: float,
@@ -951,23 +1047,28 @@ def bench_command(
     """Measure per-agent compute vs team size against the centralised baseline (and, with
     --live, what real distributed runs achieve; with --brain-tick, only what one brain's
     control period costs in packed processes)."""
-    from rich.console import Console
     from rich.progress import Progress
     from rich.table import Table
 
+    check_bench_options(click.get_current_context(), brain_tick, live)
+    console = table_console()
     if brain_tick:
         out = out or Path("runs") / f"bench-brain-tick-{time.strftime('%Y%m%d-%H%M%S')}"
-        try:
-            per_process = tuple(int(s) for s in brain_tick_sizes.split(","))
-        except ValueError as exc:
-            raise click.BadParameter(str(exc), param_hint="--brain-tick-sizes") from exc
-        if not per_process or min(per_process) < 1:
-            raise click.BadParameter("positive sizes", param_hint="--brain-tick-sizes")
+        if max(brain_tick_sizes) > brain_tick_team:
+            raise click.BadParameter(
+                f"a process of {max(brain_tick_sizes)} brains in a team of {brain_tick_team}: "
+                f"give --brain-tick-team {max(brain_tick_sizes)} or more",
+                param_hint="--brain-tick-sizes",
+            )
+        console.log(
+            f"timing the local step, then processes of {', '.join(map(str, brain_tick_sizes))} "
+            f"brains in a team of {brain_tick_team}"
+        )
         tick_rows = run_brain_ticks(
-            per_process,
+            brain_tick_sizes,
             brain_tick_team,
             min(sample, brain_tick_team),
-            progress=lambda size: Console().log(f"{size} brains per process: done"),
+            progress=lambda size: console.log(f"{size} brains per process: done"),
             rate=brain_tick_rate,
             spacing=brain_tick_spacing,
             late=brain_tick_late,
@@ -975,14 +1076,12 @@ def bench_command(
         out.mkdir(parents=True, exist_ok=True)
         (out / "bench.json").write_text(json.dumps(tick_rows, indent=2, sort_keys=True) + "\n")
         plot_brain_ticks(tick_rows, out / "brain-tick.png")
-        Console().print(brain_tick_table(tick_rows))
-        Console().print(brain_tick_phase_table(tick_rows))
-        Console().print(f"wrote {out}/bench.json and {out}/brain-tick.png")
+        console.print(brain_tick_table(tick_rows))
+        console.print(brain_tick_phase_table(tick_rows))
+        console.print(f"wrote {out}/bench.json and {out}/brain-tick.png")
         return
 
-    chosen = (
-        tuple(int(s) for s in sizes.split(",")) if sizes else (QUICK_SIZES if quick else FULL_SIZES)
-    )
+    chosen = sizes or (QUICK_SIZES if quick else FULL_SIZES)
     if quick:
         seeds, sample, repeats = 1, min(sample, 100), 1
     out = out or Path("runs") / f"bench-{time.strftime('%Y%m%d-%H%M%S')}"
@@ -997,45 +1096,24 @@ def bench_command(
             obstacles=obstacles,
         )
     live_rows: list[dict] = []
+    failed: list[int] = []
     if live:
         out.mkdir(parents=True, exist_ok=True)
+
+        def live_done(n: int, code: int) -> None:
+            if code != 0:
+                failed.append(n)
+            console.log(
+                f"live run N={n}: "
+                + ("done" if code == 0 else f"[red]failed ({code}), see {out}/live-{n}.log")
+            )
+
         live_rows = run_live(
-            tuple(int(s) for s in live_sizes.split(",")),
-            live_duration,
-            out,
-            live_per_process,
-            live_time_scale,
-            progress=lambda n, code: Console().log(
-                f"live run N={n}: " + ("done" if code == 0 else f"[red]failed ({code})")
-            ),
+            live_sizes, live_duration, out, live_per_process, live_time_scale, progress=live_done
         )
     write_bench(out, rows + live_rows)
-    table = Table(title="covswarm bench: one robot's control step vs team size")
-    for name in (
-        "N", "layout", "p50 us", "p99 us", "mean us", "phi p50 us", "phi/uniform", "two-hop",
-        "TVD-C ms",
-        "TVD-D1 ms", "TVD-DA ms", "safety p50 us", "safety/step", "DA p50 us", "DA/D1",
-    ):  # fmt: skip
-        table.add_column(name, justify="right")
-    for row in rows:
-        table.add_row(
-            str(row["agents"]),
-            row["layout"],
-            f"{row['local_step_p50_us']:.0f}",
-            f"{row['local_step_p99_us']:.0f}",
-            f"{row['local_step_mean_us']:.0f}",
-            f"{row['local_step_density_p50_us']:.0f}",
-            f"{row['density_over_uniform']:.2f}",
-            f"{row['two_hop_mean']:.1f}",
-            f"{row['tvd_c_ms']:.1f}",
-            f"{row['tvd_d1_ms']:.1f}",
-            f"{row['tvd_da_ms']:.1f}",
-            f"{row['safety_filter_p50_us']:.0f}",
-            f"{row['safety_over_step']:.2f}",
-            f"{row['local_step_da_p50_us']:.0f}",
-            f"{row['da_over_d1']:.2f}",
-        )
-    Console().print(table)
+    for table in step_tables(rows):
+        console.print(table)
     if obstacles:
         walls = Table(title=f"safety filter with {obstacles} obstacles and the workspace walls")
         for name in ("N", "layout", "obstacles near", "p50 us", "p99 us", "added p50 us"):
@@ -1049,9 +1127,13 @@ def bench_command(
                 f"{row['safety_walls_p99_us']:.0f}",
                 f"{row['walls_added_p50_us']:.0f}",
             )
-        Console().print(walls)
+        console.print(walls)
     if live_rows:
-        Console().print(live_table(live_rows))
-    Console().print(
+        console.print(live_table(live_rows))
+    console.print(
         f"wrote {out}/bench.json, bench.csv, per_agent_compute.png, neighbor_histogram.png"
     )
+    if failed:
+        raise click.ClickException(
+            f"live runs failed at N = {', '.join(map(str, failed))} (their logs in {out})"
+        )

@@ -139,8 +139,11 @@ from covswarm.sim_robot.process import gather_drops
     "core, split further where a batch would not hold the rate; deploy/plan.py).",
 )
 @RUN_TIME_SCALE_OPTION
-@pose_loss_option("Fault injection: every agent drops this fraction of received poses (seeded).")
-@pose_delay_option("Fault injection: every agent receives poses this many s late.")
+@pose_loss_option(
+    "Fault injection: every agent drops this fraction of the positions it receives (its "
+    "robot's poses and its neighbours' AgentStates; seeded)."
+)
+@pose_delay_option("Fault injection: every agent receives those positions this many s late.")
 @float_option(
     "--fault-step-delay",
     low=0.0,

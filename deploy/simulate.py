@@ -35,7 +35,7 @@ from covswarm.runtime.options import (
     law_option,
     out_option,
 )
-from covswarm.tvd.control import LAWS, PRIORS
+from covswarm.tvd.control import DAMPING, LAWS, PRIORS
 
 DYNAMICS = ("single", "unicycle")
 
@@ -616,7 +616,7 @@ def world_line(summary: dict[str, Any]) -> str:
 @float_option(
     "--damping",
     low=0,
-    help="TVD-C's feedforward damping [covswarm.tvd.control.DAMPING]; 0: the paper's exact "
+    help=f"TVD-C's feedforward damping [{DAMPING:g}]; 0: the paper's exact "
     "TVD-C, falling back to TVD-D1 when unusable.",
 )
 @click.option(

@@ -153,6 +153,24 @@ class EndpointType(click.ParamType):
 ENDPOINT = EndpointType()
 
 
+class SizesType(click.ParamType):
+    """Comma-separated positive integers such as ``10,100,1000`` (team or process sizes),
+    as a tuple; refused with the reason as the command line is read."""
+
+    name = "n,n,..."
+
+    def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
+        if isinstance(value, tuple):
+            return value
+        parts = [part.strip() for part in str(value).split(",")]
+        if not all(part.isdigit() and int(part) >= 1 for part in parts):
+            self.fail(f"{value!r}: expected positive integers separated by commas", param, ctx)
+        return tuple(int(part) for part in parts)
+
+
+SIZES = SizesType()
+
+
 def connect_option(help: str) -> Decorator:
     """``--connect``: the Zenoh endpoints a process joins, required and repeatable."""
     return click.option("--connect", type=ENDPOINT, multiple=True, required=True, help=help)

@@ -394,7 +394,7 @@ def test_bench_brain_tick_reports_every_process_size(tmp_path: Path) -> None:
     assert (out / "brain-tick.png").stat().st_size > 0
     assert "where a brain-tick goes" in result.output
     bad = CliRunner().invoke(bench_command, ["--brain-tick", "--brain-tick-sizes", "0"])
-    assert bad.exit_code != 0 and "positive sizes" in bad.output
+    assert bad.exit_code != 0 and "expected positive integers" in bad.output
 
 
 def test_a_tile_sample_goes_to_each_follower_and_a_malformed_key_is_counted() -> None:
