@@ -653,7 +653,7 @@ def plot_brain_ticks(rows: list[dict], path: Path) -> None:
     ax.text(BRAIN_TICK_TARGET_US, len(rows) - 0.5, f" {BRAIN_TICK_TARGET_US:.0f} us", fontsize=8)
     ax.set_xlabel("wall us per brain-tick")
     ax.set_ylabel("brains per process")
-    ax.legend(fontsize=7, ncol=5, loc="upper center", bbox_to_anchor=(0.5, -0.45))
+    ax.legend(fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5))  # clear of the axes
     fig.tight_layout()
     fig.savefig(path, dpi=120, bbox_inches="tight")
     plt.close(fig)
@@ -754,6 +754,17 @@ def run_live(
     return rows
 
 
+def plain_log_ticks(scale: Any, span: float) -> None:
+    """Plain numbers on the log axis ``scale`` (matplotlib's labels ticks 3.6x10^2), the
+    minor ticks labelled too when the axis spans less than a decade (``span``: its top over
+    its bottom), when it would have no major tick."""
+    from matplotlib.ticker import FuncFormatter
+
+    scale.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
+    few = span < 10.0
+    scale.set_minor_formatter(FuncFormatter(lambda value, _: f"{value:g}" if few else ""))
+
+
 def write_bench(out: Path, rows: list[dict]) -> None:
     """bench.json, bench.csv and the log-log plots into ``out``."""
     import matplotlib
@@ -804,6 +815,8 @@ def write_bench(out: Path, rows: list[dict]) -> None:
     for axis in (left, right):
         axis.grid(True, which="both", alpha=0.3)
         axis.legend(fontsize=7)
+        for scale, (low, high) in ((axis.xaxis, axis.get_xlim()), (axis.yaxis, axis.get_ylim())):
+            plain_log_ticks(scale, high / low)
     fig.tight_layout()
     fig.savefig(out / "per_agent_compute.png", dpi=120)
     plt.close(fig)
@@ -814,7 +827,9 @@ def write_bench(out: Path, rows: list[dict]) -> None:
     for i, row in enumerate(cvt):
         counts = {int(k): v / row["agents"] for k, v in row["neighbor_histogram"].items()}
         keys = np.array(sorted(counts))
-        axis.bar(keys + i * width, [counts[k] for k in keys], width, label=f"N = {row['agents']}")
+        # the group of bars centred on its neighbour count
+        offset = (i - (len(cvt) - 1) / 2) * width
+        axis.bar(keys + offset, [counts[k] for k in keys], width, label=f"N = {row['agents']}")
     axis.set(xlabel="neighbours", ylabel="fraction of robots", title="Neighbour counts, near-CVT")
     axis.legend(fontsize=7)
     fig.tight_layout()
