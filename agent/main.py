@@ -113,6 +113,7 @@ from covswarm.runtime.options import (
     float_option,
     id_options,
     id_selection,
+    kappa_option,
     law_option,
     pose_delay_option,
     pose_loss_option,
@@ -231,9 +232,7 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
     "monotonic clock (default: one period after start).",
 )
 @TIME_SCALE_OPTION
-@float_option(
-    "--kappa", low=0.0, low_open=True, help="Gain; default: the kappa broadcast with the domain."
-)
+@kappa_option("Gain; default: the kappa broadcast with the domain.")
 @switch_option("feedforward", "Use the dc/dt term (--no-feedforward: drop it, an ablation).")
 @law_option("da: domain-motion feedforward (docs/tracking.md); d1: the paper's TVD-D1.")
 @float_option("--stale-timeout", low=0.01, default=1.0)

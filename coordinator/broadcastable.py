@@ -42,7 +42,13 @@ def check_broadcastable(scenario: Scenario, kappa: float, duration: float) -> No
             )
             Domain.decode(message.encode())
         except ProtocolError as exc:
+            what = "density" if str(exc).startswith("density") else "domain"
+            path = scenario.density_path
+            turns = path is not None and bool(path.turn_rates.any())
+            turning = " (a bump's cov_rate includes its turn_rate's turning)" * (
+                turns and "cov_rate" in str(exc)
+            )
             raise ValueError(
-                f"scenario {scenario.name}: its domain at t = {float(t):g} s cannot be "
-                f"broadcast to the agents ({exc})"
+                f"scenario {scenario.name}: its {what} at t = {float(t):g} s cannot be "
+                f"broadcast to the agents ({exc}){turning}"
             ) from None

@@ -58,6 +58,7 @@ from covswarm.runtime.options import (
     connect_option,
     deploy_options,
     float_option,
+    kappa_option,
     law_option,
     out_option,
     switch_option,
@@ -153,7 +154,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 @float_option(
     "--sample-rate", low=0, low_open=True, default=10.0, help="e_a samples per second (at most)."
 )
-@float_option("--kappa", low=0, low_open=True, help="Gain [scenario].")
+@kappa_option("Gain [scenario].")
 @float_option(
     "--tile-size",
     low=0,

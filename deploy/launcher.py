@@ -68,6 +68,7 @@ from covswarm.runtime.options import (
     agents_option,
     deploy_options,
     float_option,
+    kappa_option,
     law_option,
     out_option,
     pose_delay_option,
@@ -80,7 +81,7 @@ from covswarm.sim_robot.process import gather_drops
 @click.command("run")
 @click.option("--scenario", default="passage", show_default=True, help=SCENARIO_HELP)
 @agents_option("Team size [scenario default].")
-@float_option("--kappa", low=0, low_open=True, help="Gain [scenario].")
+@kappa_option("Gain [scenario].")
 @switch_option("feedforward", "Agents use the dc/dt feedforward term (--no-feedforward: drop it).")
 @law_option(
     "The agents' control law: da, domain-motion feedforward (docs/tracking.md); d1, the "
@@ -260,9 +261,12 @@ def run_swarm(run: RunConfig) -> None:
         raise click.UsageError(f"--foxglove: {LIVE_HOST}:{run.foxglove} is already in use")
     try:
         scenario = load_scenario(run.scenario, run.agents)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--scenario") from None
+    try:
         swarm = check_swarm(run.swarm) if run.swarm else new_swarm_name()
     except ValueError as exc:
-        raise click.UsageError(str(exc)) from None
+        raise click.BadParameter(str(exc), param_hint="--swarm") from None
     n = team_size(run, scenario)
     try:
         ids = None if run.ids is None else parse_ids(run.ids)
@@ -281,6 +285,11 @@ def run_swarm(run: RunConfig) -> None:
         check_deploy_kappa(run.deploy_error, run.deploy_kappa)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
+    if run.agents_per_process.strip().lower() != "auto":
+        try:  # a number needs no brain-tick: refused before the host is timed
+            parse_per_process(run.agents_per_process, here)
+        except ValueError as exc:
+            raise click.BadParameter(str(exc), param_hint="--agents-per-process") from None
     # Timed once the cheap checks passed: a refused run does not wait for it.
     console = Console()
     brain_tick, brain_tick_source = host_brain_tick(run, here, cores, console)

@@ -32,6 +32,7 @@ from covswarm.runtime.options import (
     agents_option,
     deploy_options,
     float_option,
+    kappa_option,
     law_option,
     out_option,
 )
@@ -168,6 +169,8 @@ def simulate(
         raise ValueError(f"dynamics must be one of {DYNAMICS}, not {dynamics!r}")
     if n < 1 or kappa <= 0 or dt <= 0 or duration <= 0:
         raise ValueError("agents, kappa, dt and duration must be positive")
+    if dt > duration:
+        raise ValueError(f"a step of {dt:g} s is longer than the mission ({duration:g} s)")
     if damping is None:
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
@@ -627,7 +630,7 @@ def world_line(summary: dict[str, Any]) -> str:
     help="What TVD-C's damped feedforward is pulled toward: S's affine field, or zero.",
 )
 @click.option("--no-feedforward", is_flag=True, help="Drop the dc/dt feedforward term.")
-@float_option("--kappa", low=0, low_open=True, help="Gain [scenario default].")
+@kappa_option("Gain [scenario default].")
 @float_option("--dt", low=0, low_open=True, help="Step, s [scenario default].")
 @float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario default].")
 @click.option("--seed", type=int, default=0, show_default=True, help="Initial positions/headings.")
@@ -738,6 +741,19 @@ def sim_command(
         moving_robots(options["agents"], still)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--still") from None
+    if options["dt"] > options["duration"]:
+        raise click.BadParameter(
+            f"a step of {options['dt']:g} s is longer than the mission ({options['duration']:g} s)",
+            param_hint="--dt",
+        )
+    ctx = click.get_current_context()
+    tvd_c_only = [
+        f"--{name}"
+        for name in ("damping", "prior")
+        if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE
+    ]
+    if law != "c" and tvd_c_only:
+        raise click.UsageError(f"{' and '.join(tvd_c_only)}: for --law c (TVD-C) only")
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])
     except ValueError as exc:

@@ -14,7 +14,7 @@ import numpy as np
 
 from covswarm.mission.toml_text import toml_float, toml_list, toml_points
 from covswarm.tvd.coverage import signed_area
-from covswarm.tvd.density import Density
+from covswarm.tvd.density import BUMP_KEYS, Density
 
 # Samples per keyframe segment / over a rigid mission checked for convexity: linear
 # interpolation of two convex polygons is not always convex.
@@ -183,7 +183,12 @@ class DensityPath:
         object.__setattr__(self, "turn_rates", rates)
 
     def __call__(self, t: float) -> Density:
-        base, t = self.base, float(t)
+        # Rates too large for the time overflow to inf, which Density refuses by name.
+        with np.errstate(over="ignore", invalid="ignore"):
+            return self._at(float(t))
+
+    def _at(self, t: float) -> Density:
+        base = self.base
         angle = self.turn_rates * t
         cos, sin = np.cos(angle), np.sin(angle)
         rotation = np.stack([np.stack([cos, -sin], -1), np.stack([sin, cos], -1)], -2)
@@ -213,6 +218,16 @@ class DensityPath:
         bumps = table.get("bumps", [])
         if not isinstance(bumps, list) or not all(isinstance(b, dict) for b in bumps):
             raise ValueError("[density] bumps must be an array of tables ([[density.bumps]])")
+        for i, bump in enumerate(bumps):
+            if unknown := set(bump) - {*BUMP_KEYS, "turn_rate"}:
+                raise ValueError(
+                    f"density: bump {i}: unknown keys {sorted(map(str, unknown))}; the keys are "
+                    f"{', '.join(BUMP_KEYS)}, turn_rate"
+                )
+        if unknown := set(table) - {"floor", "bumps"}:
+            raise ValueError(
+                f"[density]: unknown keys {sorted(map(str, unknown))}; the keys are floor, bumps"
+            )
         turns = [b.get("turn_rate", 0.0) for b in bumps]
         if any(isinstance(v, bool) or not isinstance(v, (int, float)) for v in turns):
             raise ValueError(f"density: turn_rate must be a number, got {turns!r}")

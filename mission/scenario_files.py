@@ -217,7 +217,9 @@ def _keyed(key: str, build: Callable[..., Any], *args: Any) -> Any:
     try:
         return build(*args)
     except (ValueError, TypeError, KeyError, AttributeError, OverflowError) as exc:
-        message = str(exc)
+        message, bare = str(exc), key.strip("[]")
+        if message.startswith(f"{bare}: "):  # "density: ..." under "[density]"
+            message = key + message[len(bare) :]
         raise ValueError(message if message.startswith(key) else f"{key}: {message}") from None
 
 

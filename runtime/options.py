@@ -12,6 +12,7 @@ import click
 
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
 from covswarm.protocol.keys import MAX_ID, parse_ids
+from covswarm.protocol.messages import MAX_KAPPA
 
 
 class FiniteFloat(click.FloatRange):
@@ -97,6 +98,11 @@ def float_option(
         help=help,
         **extra,
     )
+
+
+def kappa_option(help: str) -> Decorator:
+    """``--kappa``: the control gain, positive and at most what a Domain carries (MAX_KAPPA)."""
+    return float_option("--kappa", low=0.0, low_open=True, high=MAX_KAPPA, help=help)
 
 
 def deploy_options(timeout: float) -> Decorator:

@@ -8,6 +8,8 @@ full team's TVD-D1 (local step). Relative error <= 1e-5 unless stated.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 from reference import (
@@ -268,16 +270,32 @@ def bad(**changes) -> dict:
         (bad(bump={"cov": [[1, 2], [2, 1]]}), "not positive definite"),
         (bad(bump={"cov": [[-1, 0], [0, -1]]}), "not positive definite"),
         (bad(bump={"mean": [0, float("inf")]}), "NaN or inf"),
-        (bad(bump={"mean": [0, 0, 0]}), "shape"),
-        (bad(bump={"color": 1}), "keys"),
+        (bad(bump={"mean": [0, 0, 0]}), r"bump 0 mean must be \[x, y\], got \[0, 0, 0\]"),
+        (bad(bump={"mean": [0, 0.5, 1, 1]}), r"bump 0 mean must be \[x, y\]"),
+        (bad(bump={"mean": {"x": 0, "y": 0}}), r"bump 0 mean must be \[x, y\]"),
+        (bad(bump={"mean_rate": [0.1, 0, 0]}), r"bump 0 mean_rate must be \[x, y\]"),
+        (bad(bump={"cov": [1, 0, 0, 1]}), r"bump 0 cov must be \[\[a, b\], \[c, d\]\]"),
+        (bad(bump={"cov": [[[1, 0], [0, 1]]]}), r"bump 0 cov must be \[\[a, b\]"),
+        (bad(bump={"cov": [[1, 0], [0]]}), r"bump 0 cov must be \[\[a, b\]"),
+        (bad(bump={"weight": "8"}), "bump 0 weight must be a number, got '8'"),
+        (bad(bump={"weight": True}), "bump 0 weight must be a number, got True"),
+        (bad(bump={"weight_rate": [1]}), "bump 0 weight_rate must be a number"),
+        (bad(bump={"cov": [[1e300, 0], [0, 1e300]]}), "too large or too small"),
+        (bad(bump={"cov": [[1e-300, 0], [0, 1e-300]]}), "too large or too small"),
+        (bad(bump={"color": 1}), r"bump 0: unknown keys \['color'\]; the keys are mean,"),
+        (bad(sigma=1), r"unknown keys \['sigma'\]; the keys are floor, bumps, t"),
         ({**GOOD, "bumps": GOOD["bumps"] * 17}, "at most 16"),
-        ({"bumps": []}, "floor"),
+        ({"bumps": []}, "needs 'floor'"),
         ([1.0], "map"),
     ],
 )
 def test_bad_densities_raise(data, reason: str) -> None:
-    with pytest.raises(ValueError, match=reason):
-        Density.from_dict(data)
+    """Refused with the key and the form expected: never reshaped or converted into
+    something else (a flat covariance, a string weight), nor a numpy message or warning."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # an overflow warning would fail the test
+        with pytest.raises(ValueError, match=reason):
+            Density.from_dict(data)
 
 
 def test_advancing_into_an_invalid_density_raises() -> None:

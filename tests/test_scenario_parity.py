@@ -62,6 +62,21 @@ def test_sim_and_run_refuse_what_the_agents_could_not_decode(
     refused_by_sim_and_run(tmp_path, path, why)
 
 
+def test_a_density_past_the_wire_limits_is_named_and_its_turning_explained(tmp_path: Path):
+    """A turn_rate so fast that the covariance's rate on the wire exceeds its bound: the
+    refusal names the density (not the domain) and says where that rate comes from."""
+    path = scenario_file(tmp_path, 4, 1.0)
+    path.write_text(
+        path.read_text() + "[density]\nfloor = 1.0\n[[density.bumps]]\nmean = [0.0, 0.5]\n"
+        "cov = [[0.09, 0.0], [0.0, 0.01]]\nweight = 8.0\nturn_rate = 1e300\n",
+        encoding="utf-8",
+    )
+    scenario = load_scenario(str(path))
+    with pytest.raises(ValueError, match="its density at t = 0 s cannot be broadcast") as refused:
+        check_broadcastable(scenario, scenario.kappa, scenario.duration)
+    assert str(refused.value).endswith("(a bump's cov_rate includes its turn_rate's turning)")
+
+
 def test_a_scenario_within_the_wire_limits_is_accepted(tmp_path: Path) -> None:
     scenario = load_scenario(str(scenario_file(tmp_path, 64, 1000.0)))
     check_broadcastable(scenario, scenario.kappa, scenario.duration)

@@ -280,6 +280,28 @@ BAD_FILES = {
         scenario_text(f'kind = "rigid"\npolygon = {SQUARE}', "kappa = -1"),
         "kappa",
     ),
+    "density without floor": (
+        scenario_text(f'kind = "rigid"\npolygon = {SQUARE}')
+        + "[density]\n[[density.bumps]]\nmean = [0.5, 0.5]\ncov = [[0.1, 0], [0, 0.1]]\n"
+        "weight = 2.0\n",
+        r"\[density\]: needs 'floor'",
+    ),
+    "density key typo": (
+        scenario_text(f'kind = "rigid"\npolygon = {SQUARE}') + "[density]\nfloor = 1\nflor = 2\n",
+        r"\[density\]: unknown keys \['flor'\]; the keys are floor, bumps$",
+    ),
+    "bump key typo": (
+        scenario_text(f'kind = "rigid"\npolygon = {SQUARE}')
+        + "[density]\nfloor = 1\n[[density.bumps]]\nmean = [0.5, 0.5]\n"
+        "cov = [[0.1, 0], [0, 0.1]]\nweight = 2.0\nsigma = 3\n",
+        r"bump 0: unknown keys \['sigma'\]; the keys are .*weight_rate, turn_rate$",
+    ),
+    "bump mean of four": (
+        scenario_text(f'kind = "rigid"\npolygon = {SQUARE}')
+        + "[density]\nfloor = 1\n[[density.bumps]]\nmean = [0.0, 0.5, 1.0, 1.0]\n"
+        "cov = [[0.1, 0], [0, 0.1]]\nweight = 2.0\n",
+        r"\[density\]: bump 0 mean must be \[x, y\]",
+    ),
 }
 
 

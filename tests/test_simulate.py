@@ -86,6 +86,17 @@ def test_bad_options_are_rejected(small: Path) -> None:
     assert result.exit_code != 0 and "cannot read" in result.output
     result = CliRunner().invoke(main, ["sim", "--compare", "--no-feedforward"])
     assert result.exit_code != 0
+    with pytest.raises(ValueError, match="a step of 5 s is longer than the mission"):
+        simulate(scenario, dt=5.0, duration=2.0)
+    refused = {
+        ("--kappa", "1e9"): "'--kappa': 1000000000.0 is not in the range 0.0<x<=1000.0",
+        ("--dt", "5", "--duration", "2"): "--dt: a step of 5 s is longer than the mission (2 s)",
+        ("--law", "da", "--damping", "0.5"): "--damping: for --law c (TVD-C) only",
+        ("--law", "d1", "--prior", "zero"): "--prior: for --law c (TVD-C) only",
+    }
+    for args, reason in refused.items():
+        result = CliRunner().invoke(main, ["sim", "--scenario", str(small), *args])
+        assert result.exit_code == 2 and reason in " ".join(result.output.split()), result.output
 
 
 def test_cli_compare_writes_both_curves(small: Path, tmp_path: Path) -> None:

@@ -60,6 +60,7 @@ the tests' reference (tests/density_reference.py).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 from functools import cache, cached_property
 from typing import Any
@@ -74,7 +75,10 @@ MAX_BUMPS = 16
 # Relative asymmetry of a covariance (or its rate) accepted as rounding.
 SYMMETRY_TOL = 1e-9
 
-_BUMP_KEYS = ("mean", "cov", "weight", "mean_rate", "cov_rate", "weight_rate")
+# A bump's keys in Density.to_dict / from_dict, and the form of each value.
+BUMP_KEYS = ("mean", "cov", "weight", "mean_rate", "cov_rate", "weight_rate")
+_BUMP_SHAPES = {"mean": (2,), "cov": (2, 2), "weight": (), "mean_rate": (2,), "cov_rate": (2, 2)}
+_FORMS = {(): "a number", (2,): "[x, y]", (2, 2): "[[a, b], [c, d]]"}
 
 
 @dataclass(frozen=True, eq=False)
@@ -220,20 +224,30 @@ class Density:
         if not isinstance(data, dict):
             raise ValueError(f"density: expected a map, got {type(data).__name__}")
         unknown = set(data) - {"t", "floor", "bumps"}
-        if unknown or "floor" not in data:
-            raise ValueError(f"density: need 'floor' (and 'bumps', 't'), unknown {sorted(unknown)}")
+        if unknown:
+            raise ValueError(
+                f"density: unknown keys {sorted(map(str, unknown))}; the keys are floor, bumps, t"
+            )
+        if "floor" not in data:
+            raise ValueError("density: needs 'floor' (phi's value far from every bump)")
         bumps = data.get("bumps", [])
         if not isinstance(bumps, (list, tuple)) or len(bumps) > MAX_BUMPS:
             raise ValueError(f"density: 'bumps' must be a list of at most {MAX_BUMPS} maps")
-        columns: dict[str, list[Any]] = {key: [] for key in _BUMP_KEYS}
+        columns: dict[str, list[Any]] = {key: [] for key in BUMP_KEYS}
         for i, bump in enumerate(bumps):
-            if not isinstance(bump, dict) or set(bump) - set(_BUMP_KEYS):
-                raise ValueError(f"density: bump {i} must be a map with keys from {_BUMP_KEYS}")
-            if not {"mean", "cov", "weight"} <= set(bump):
-                raise ValueError(f"density: bump {i} needs 'mean', 'cov' and 'weight'")
-            zeros = {"mean_rate": [0.0, 0.0], "cov_rate": [[0.0, 0.0], [0.0, 0.0]]}
-            for key in _BUMP_KEYS:
-                columns[key].append(bump.get(key, zeros.get(key, 0.0)))
+            if not isinstance(bump, dict):
+                raise ValueError(f"density: bump {i} must be a map, got {bump!r}")
+            if unknown := set(bump) - set(BUMP_KEYS):
+                raise ValueError(
+                    f"density: bump {i}: unknown keys {sorted(map(str, unknown))}; "
+                    f"the keys are {', '.join(BUMP_KEYS)}"
+                )
+            if missing := [key for key in ("mean", "cov", "weight") if key not in bump]:
+                raise ValueError(f"density: bump {i} needs {', '.join(missing)}")
+            for key in BUMP_KEYS:
+                shape = _BUMP_SHAPES.get(key, ())
+                value = bump.get(key, np.zeros(shape).tolist() if shape else 0.0)
+                columns[key].append(_numbers(value, shape, f"bump {i} {key}"))
         return cls(
             floor=_number(data["floor"], "floor"),
             means=np.array(columns["mean"], dtype=float).reshape(-1, 2),
@@ -264,6 +278,25 @@ class Density:
         self, batch: CellBatch, points: np.ndarray, domain: CoverageDomain
     ) -> np.ndarray:
         return centroid_rates(self, batch, points, domain)
+
+
+def _numbers(value: Any, shape: tuple[int, ...], name: str) -> Any:
+    """``value`` as floats nested in lists of exactly ``shape`` (() a number, (2,) a point,
+    (2, 2) a matrix), else ValueError naming ``name`` and the form expected: a flat or too
+    deeply nested matrix, a string or a boolean is refused, not reshaped or converted."""
+    if isinstance(value, np.ndarray):
+        value = value.tolist()
+
+    def walk(item: Any, dims: tuple[int, ...]) -> Any:
+        if not dims:
+            if isinstance(item, bool) or not isinstance(item, numbers.Real):
+                raise ValueError(f"density: {name} must be {_FORMS[shape]}, got {value!r}")
+            return float(item)
+        if not isinstance(item, (list, tuple)) or len(item) != dims[0]:
+            raise ValueError(f"density: {name} must be {_FORMS[shape]}, got {value!r}")
+        return [walk(part, dims[1:]) for part in item]
+
+    return walk(value, shape)
 
 
 def _number(value: Any, name: str) -> float:
@@ -325,8 +358,17 @@ def _problems(density: Density) -> list[str]:
                 problems.append(f"{name} of bumps {np.flatnonzero(bad).tolist()} not symmetric")
     # Cholesky-free test of a symmetric 2x2: positive trace and determinant.
     cov = density.covariances
-    det = cov[:, 0, 0] * cov[:, 1, 1] - cov[:, 0, 1] * cov[:, 1, 0]
-    indefinite = (det <= 0.0) | (cov[:, 0, 0] <= 0.0)
+    with np.errstate(over="ignore", under="ignore", invalid="ignore"):
+        diagonal = cov[:, 0, 0] * cov[:, 1, 1]
+        det = diagonal - cov[:, 0, 1] * cov[:, 1, 0]
+    # A positive diagonal whose product underflows to 0 is no singular matrix.
+    underflow = (diagonal == 0.0) & (cov[:, 0, 0] > 0.0) & (cov[:, 1, 1] > 0.0)
+    beyond = ~np.isfinite(det) | underflow
+    if beyond.any():
+        bad = np.flatnonzero(beyond).tolist()
+        problems.append(f"covariances of bumps {bad} too large or too small (their determinants "
+                        "overflow or underflow)")  # fmt: skip
+    indefinite = ~beyond & ((det <= 0.0) | (cov[:, 0, 0] <= 0.0))
     if indefinite.any():
         bad = np.flatnonzero(indefinite).tolist()
         problems.append(f"covariances of bumps {bad} not positive definite")
