@@ -81,6 +81,11 @@ class Supervisor:
         self.startup = Startup(list(specs), max_starting=2 * (os.cpu_count() or 2), stall=STALL)
         self.children: dict[str, Child] = {}
         self.coordinator: Child | None = None
+        # A child that exited before the mission started (its log's last line says why):
+        # the run cannot be the one asked for. A simulated robot refused because its id
+        # already runs in the swarm (a bridge's real robot) left the mission to drive
+        # whoever held that id, and that robot's token made the launcher count it ready.
+        self.failed_start: tuple[Child, str] | None = None
         self.rss: dict[str, list[float]] = {}
         self.cpu: dict[str, list[float]] = {}
         self.members: dict[str, list[int]] = {}
@@ -128,7 +133,11 @@ class Supervisor:
             if child.exit_code is None and (code := child.process.poll()) is not None:
                 child.exit_code = code
                 self.startup.exited.add(child.spec.name)
-                if child is not self.coordinator:
+                status = self.progress.status
+                started = status is not None and status.state != "waiting"
+                if not started and self.failed_start is None:
+                    self.failed_start = (child, last_line(child.log_path))
+                elif child is not self.coordinator:
                     self.console.log(
                         f"[red]{child.spec.name} (pid {child.process.pid}) exited with {code} "
                         f"{now - self.began:.1f} s after launch; see {child.log_path}"
@@ -182,6 +191,15 @@ class Supervisor:
         self._status.undeclare()
 
 
+def last_line(path: Path) -> str:
+    """The last non-blank line of a child's log ("" if none): what it said before exiting."""
+    try:
+        lines = path.read_text("utf-8", errors="replace").splitlines()
+    except OSError:
+        return ""
+    return next((line.strip() for line in reversed(lines) if line.strip()), "")
+
+
 def run_processes(
     specs: list[ChildSpec],
     *,
@@ -215,6 +233,15 @@ def run_processes(
                 while True:
                     supervisor.tick()
                     live.update(render(progress))
+                    if supervisor.failed_start is not None:
+                        child, said = supervisor.failed_start
+                        console.log(
+                            f"[red]{child.spec.name} (pid {child.process.pid}) exited with "
+                            f"{child.exit_code} before the mission started: {said or 'no output'} "
+                            f"(see {child.log_path}); stopping the run"
+                        )
+                        exit_code = 1
+                        break
                     coordinator = supervisor.coordinator
                     if coordinator is not None and coordinator.exit_code is not None:
                         if coordinator.exit_code != 0:

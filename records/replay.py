@@ -90,6 +90,7 @@ def _decoded(path: Path, topics: list[str]) -> tuple[list[Any], dict[str, Any], 
 
     metadata: dict[str, Any] = {}
     with open(path, "rb") as stream:
+        _check_magic(stream, path)
         try:
             reader = make_reader(stream, decoder_factories=decoder_factories())
             for entry in reader.iter_metadata():
@@ -111,6 +112,41 @@ def _decoded(path: Path, topics: list[str]) -> tuple[list[Any], dict[str, Any], 
             pass
     messages.sort(key=lambda item: item[2].log_time)  # stable: a tick's messages in order
     return messages, metadata, True
+
+
+MCAP_MAGIC = b"\x89MCAP0\r\n"  # every MCAP file's first bytes (the MCAP specification)
+
+
+def _check_magic(stream: Any, path: Path) -> None:
+    """ValueError unless ``stream`` (at its start, left there) begins as an MCAP file."""
+    if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+        raise ValueError(f"{path}: not an MCAP file")
+    stream.seek(0)
+
+
+def _raw_messages(path: Path, topics: list[str]) -> tuple[list[Any], bool]:
+    """(the (schema, channel, message) records of ``topics`` in log time order, undecoded;
+    whether the file ended early), read as :func:`_decoded` reads a file whose writer was
+    killed: up to its last whole record."""
+    from mcap.reader import NonSeekingReader, make_reader
+
+    with open(path, "rb") as stream:
+        _check_magic(stream, path)
+        try:
+            reader = make_reader(stream)
+            return list(reader.iter_messages(topics=topics, log_time_order=True)), False
+        except Exception:  # noqa: BLE001 -- no footer or summary: read it as a stream below
+            pass
+        stream.seek(0)
+        messages = []
+        try:
+            streamed = NonSeekingReader(stream, validate_crcs=False)
+            for item in streamed.iter_messages(topics=topics, log_time_order=False):
+                messages.append(item)
+        except Exception:  # noqa: BLE001 -- the record cut short where its writer died
+            pass
+    messages.sort(key=lambda item: item[2].log_time)
+    return messages, True
 
 
 def read_recording(paths: str | Path | Sequence[str | Path]) -> Recording:
@@ -164,11 +200,13 @@ def read_recording(paths: str | Path | Sequence[str | Path]) -> Recording:
 class AgentStates:
     """The AgentStates of a run.mcap (/agents/states), in log time order: ``t[k]`` (s of
     mission time, when the coordinator saw it) and ``states[k]`` as the agent sent it;
-    ``rejected`` counts the payloads that did not decode (left out)."""
+    ``rejected`` counts the payloads that did not decode (left out); ``truncated``: the file
+    ended early (its coordinator was killed) and was read up to its last whole record."""
 
     t: list[float] = field(default_factory=list)
     states: list[AgentState] = field(default_factory=list)
     rejected: int = 0
+    truncated: bool = False
 
     def of(self, robot: int) -> list[tuple[float, AgentState]]:
         """(log time, state) of every state robot ``robot``'s agent sent, in time order."""
@@ -184,22 +222,19 @@ class AgentStates:
 def read_agent_states(path: str | Path) -> AgentStates:
     """The AgentStates recorded in a run.mcap, decoded with covswarm.protocol (a payload
     that does not decode is counted in ``rejected``). Empty for a record without them
-    (``--no-record-states``, a simulation, an older file)."""
-    from mcap.reader import make_reader
-
-    record = AgentStates()
-    with open(path, "rb") as stream:
-        messages = make_reader(stream).iter_messages(
-            topics=[AGENT_STATES_TOPIC], log_time_order=True
-        )
-        for _, _, message in messages:
-            try:
-                state = AgentState.decode(message.data)
-            except ProtocolError:
-                record.rejected += 1
-                continue
-            record.t.append(message.log_time / 1e9)
-            record.states.append(state)
+    (``--no-record-states``, a simulation, an older file). A file whose coordinator was
+    killed is read up to its last whole record (``truncated``); ValueError for a file that
+    is no MCAP file."""
+    messages, truncated = _raw_messages(Path(path), [AGENT_STATES_TOPIC])
+    record = AgentStates(truncated=truncated)
+    for _, _, message in messages:
+        try:
+            state = AgentState.decode(message.data)
+        except ProtocolError:
+            record.rejected += 1
+            continue
+        record.t.append(message.log_time / 1e9)
+        record.states.append(state)
     return record
 
 

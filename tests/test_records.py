@@ -549,8 +549,10 @@ import numpy as np
 from covswarm.records import recorder
 recorder.MCAP_CHUNK_SIZE = 4096  # several chunks: the writer dies with some written
 r = recorder.RunRecorder(sys.argv[1], run_metadata={"scenario": "unit"})
+from covswarm.protocol import AgentState
 for k in range(200):
     r.poses(0.05 * k, [0, 1], np.array([[0.0, 0.0, 0.0], [1.0, 0.0, 0.0]]) + 0.001 * k)
+    r.agent_states(0.05 * k, [AgentState(1, 1.0, 0.0, 1.7e9 + k, (0,)).encode()])
 os._exit(0)  # as SIGKILL: no summary, no footer
 """
 
@@ -563,7 +565,7 @@ def test_a_resumed_runs_parts_replay_in_order_the_killed_one_read_to_its_end(
     import subprocess
     import sys
 
-    from covswarm.records.replay import read_recording, recording_parts
+    from covswarm.records.replay import read_agent_states, read_recording, recording_parts
 
     subprocess.run([sys.executable, "-c", KILLED_WRITER, str(tmp_path)], check=True, timeout=60)
     with pytest.raises(Exception):  # noqa: B017 -- what any MCAP reader says of it
@@ -585,3 +587,18 @@ def test_a_resumed_runs_parts_replay_in_order_the_killed_one_read_to_its_end(
     )
     assert result.exit_code == 0, result.output
     assert "run.mcap ends early" in result.output
+    # The agents' states of the killed part, read to its end as well, in order.
+    states = read_agent_states(tmp_path / "run.mcap")
+    assert states.truncated and states.rejected == 0 and len(states.t) >= 150
+    assert [s.stamp - 1.7e9 for s in states.states] == pytest.approx(range(len(states.t)))
+
+
+def test_what_is_not_an_mcap_file_is_refused_as_such(tmp_path: Path) -> None:
+    from covswarm.records.replay import read_agent_states, read_recording
+
+    (tmp_path / "run.mcap").write_bytes(bytes(range(256)) * 20)
+    for read in (read_agent_states, read_recording):
+        with pytest.raises(ValueError, match="run.mcap: not an MCAP file"):
+            read(tmp_path / "run.mcap")
+    result = CliRunner().invoke(replay_command, [str(tmp_path)])
+    assert result.exit_code == 1 and "not an MCAP file" in result.output
