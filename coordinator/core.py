@@ -73,7 +73,7 @@ from covswarm.coordinator.steering import (
     default_max_domain_speed,
     world_check,
 )
-from covswarm.coordinator.team import Roster
+from covswarm.coordinator.team import REPORTED_IDS, Roster
 from covswarm.mission.crowding import Crowding
 from covswarm.mission.crowding import crowding as estimate_crowding
 from covswarm.mission.scenarios import Scenario
@@ -115,6 +115,7 @@ WORLD_PERIOD = 1.0  # s between World broadcasts: a late joiner has the arena wi
 # s between two log lines naming the processes the team still waits for (the one clue a
 # process started by hand under another --swarm gets: it hears nothing and says nothing)
 WAITING_REPORT = 10.0
+WAITING_FOR = "still waiting for the team:"  # how the report starts (the launcher quotes it)
 STATS_RECORD_PERIOD = 1.0  # s of mission time between two records of the agents' stats
 # Largest share of a core that computing e_a may take (it costs ~4 ms for 100 robots,
 # ~50 ms for 1000): the coordinator shares the machine with the agents it monitors.
@@ -432,6 +433,7 @@ class CoordinatorCore:
         self._pending_cells: tuple[float, list[int], Future] | None = None
         self._ticks = 0  # ticks so far (an offloaded sample's budget counts from its start)
         self._next_waiting_report: float | None = None  # now of the next log of who is missing
+        self._outsiders_told: set[int] = set()  # robots outside the team already warned of
         n = settings.agents
         self._seq = 0
         # (seq, stamp) of the Domains published lately: hearing one of them is hearing
@@ -508,6 +510,8 @@ class CoordinatorCore:
             return
         if not self.roster.admit_token(role, ident, alive):  # not of the team: counted
             self._enter_newcomers(now, wall)
+            if role == "robot" and alive and ident not in self.roster.admitted:
+                self._warn_outsider(ident)
             return
         # Tokens vanishing after "done" are processes shutting down, not failures.
         if self.phase.state == DONE and not alive:
@@ -517,6 +521,22 @@ class CoordinatorCore:
         if event is not None and not alive:
             when = "before the start" if t is None else f"at t = {t:.1f} s"
             log.warning("%s %d lost its liveliness token %s", role, ident, when)
+
+    def _warn_outsider(self, rid: int) -> None:
+        """Once per id: a robot that holds its token outside the team (a bridge serving more
+        robots than ``--agents``). No brain of the team moves it and the agents keep clear
+        of it as of a robot left standing (covswarm.agent.brain.AgentBrain.stranded), which
+        costs the coverage: say so where the operator looks, not only in summary.json."""
+        if rid in self._outsiders_told or len(self._outsiders_told) >= REPORTED_IDS:
+            return
+        self._outsiders_told.add(rid)
+        n = self.settings.agents
+        log.warning(
+            "robot %d holds a liveliness token outside the team (ids 0-%d): until an agent of "
+            "its own joins (a newcomer), no brain moves it and the team's agents keep clear of "
+            "it as of a standing robot; a bridge serving it needs --agents %d or more",
+            rid, n - 1, rid + 1,
+        )  # fmt: skip
 
     def _enter_newcomers(self, now: float, wall: float) -> None:
         """Enter the tokens of newcomers the roster just admitted in the liveness."""
@@ -649,7 +669,8 @@ class CoordinatorCore:
         )
         if said:
             log.info(
-                "still waiting for the team: %s (a process started by hand joins with --swarm %s)",
+                "%s %s (a process started by hand joins with --swarm %s)",
+                WAITING_FOR,
                 said,
                 self.settings.swarm,
             )

@@ -131,7 +131,8 @@ def run_coordinator(config: CoordinatorConfig) -> None:
             recorder.counts,
         )
     if not core.observed.record.t:
-        log.info("no samples recorded: no outputs written")
+        # run.mcap holds what was heard before the start (tokens, steering): kept
+        log.info("no samples recorded (the mission never started): no summary or plots written")
         return
     disk = None if recorder is None else recorder.disk
     try:

@@ -148,6 +148,14 @@ def summary_table(
         )
     lost = summary.get("lost_processes", [])
     table.add_row("liveliness lost", ", ".join(map(describe_loss, lost)) or "none")
+    if (unexpected := summary.get("unexpected") or {}).get("total"):
+        # ids outside the team that held tokens or sent poses or states (coordinator.team)
+        ids = ", ".join(map(str, unexpected["first_ids"]))
+        more = "+" if unexpected["distinct_ids"] > len(unexpected["first_ids"]) else ""
+        table.add_row(
+            "outside the team",
+            f"[yellow]ids {ids}{more}: {unexpected['total']} tokens and messages refused",
+        )
     table.add_row("outputs", str(out_dir))
     return table
 

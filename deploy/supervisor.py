@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from covswarm.coordinator.core import WAITING_FOR
 from covswarm.deploy.display import Progress, render
 from covswarm.deploy.plan import ChildSpec
 from covswarm.deploy.processes import (
@@ -191,13 +192,15 @@ class Supervisor:
         self._status.undeclare()
 
 
-def last_line(path: Path) -> str:
-    """The last non-blank line of a child's log ("" if none): what it said before exiting."""
+def last_line(path: Path, containing: str = "") -> str:
+    """The last non-blank line of a child's log that holds ``containing`` ("" if none):
+    what it said before exiting."""
     try:
         lines = path.read_text("utf-8", errors="replace").splitlines()
     except OSError:
         return ""
-    return next((line.strip() for line in reversed(lines) if line.strip()), "")
+    said = (line.strip() for line in reversed(lines) if line.strip() and containing in line)
+    return next(said, "")
 
 
 def run_processes(
@@ -261,6 +264,11 @@ def run_processes(
                     waited = time.monotonic() - supervisor.began
                     if not supervisor.startup.done and waited > startup_timeout:
                         console.log(f"[red]start-up took more than {startup_timeout:.0f} s")
+                        if supervisor.coordinator is not None:  # who it was waiting for
+                            said = last_line(supervisor.coordinator.log_path, WAITING_FOR)
+                            if said:  # without the log line's time and name
+                                said = WAITING_FOR + said.split(WAITING_FOR, 1)[1]
+                                console.log(f"[red]the coordinator: {said}")
                         exit_code = 1
                         break
                     time.sleep(TICK)

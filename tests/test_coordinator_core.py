@@ -8,6 +8,7 @@ import math
 import threading
 import time
 from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
 
 import msgpack
 import numpy as np
@@ -15,6 +16,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from reference import reference_cells
+from rich.console import Console
 from shapely.geometry import LineString, Point, Polygon
 from shapely.ops import split
 
@@ -437,6 +439,31 @@ def test_a_state_naming_a_newcomer_enters_it_in_the_liveness_and_the_team() -> N
     assert core.observed.liveness.count("agent") == core.observed.liveness.count("robot") == 3
     assert core.roster.members(core.observed.liveness.alive) == frozenset({0, 1, 5})
     assert core.roster.summary()["counts"] == {}  # its tokens and state are not unexpected
+
+
+def test_a_robot_outside_the_team_is_named_once_in_the_log(caplog) -> None:
+    """A bridge serving robots 0-3 to a team of 2: robots 2 and 3 hold tokens, no brain of
+    the team moves them and the agents keep clear of them; the coordinator says so once per
+    robot, and the run's summary table lists them (deploy.display.summary_table)."""
+    from covswarm.deploy.display import summary_table
+    from covswarm.deploy.processes import RunResult
+
+    core = make_core(agents=2)
+    with caplog.at_level("WARNING", logger="covswarm.coordinator"):
+        for _ in range(3):  # tokens that come and go are named once
+            for i in range(4):
+                core.on_liveliness(alive_key(SWARM, "robot", i), True, 0.0, WALL0)
+        core.on_liveliness(alive_key(SWARM, "agent", 7), True, 0.0, WALL0)  # no robot
+    told = [r.getMessage() for r in caplog.records if "outside the team" in r.getMessage()]
+    assert len(told) == 2
+    assert told[1].startswith("robot 3 holds a liveliness token outside the team (ids 0-1)")
+    assert told[1].endswith("a bridge serving it needs --agents 4 or more")
+    summary = {"unexpected": core.roster.summary(), "lost_processes": []}
+    table = summary_table(summary, RunResult(0, {}, {}, {}), Path("out"), 1.0)
+    with Console(width=200, record=True) as console:
+        console.print(table)
+    row = " ".join(console.export_text().replace("│", " ").split())
+    assert "outside the team ids 2, 3, 7: 7 tokens and messages refused" in row
 
 
 def test_a_batch_of_poses_is_taken_as_one_pose_at_a_time(tmp_path) -> None:

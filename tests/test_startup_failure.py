@@ -61,3 +61,22 @@ def test_a_child_refused_at_start_up_stops_the_run(tmp_path: Path) -> None:
     assert took < 60  # not the 20 s mission, nor the start-up timeout
     assert not (tmp_path / "run" / "summary.json").exists()
     assert not swarm_pids(swarm, "run") and not swarm_pids(swarm, "agent")
+
+
+def test_a_start_up_that_times_out_says_whom_the_coordinator_waited_for(tmp_path: Path) -> None:
+    """No robot ever comes (``--robots none``, and no bridge on that swarm: a wrong
+    ``--swarm``): at the start-up timeout the launcher quotes the coordinator's last word
+    on who is missing, which was in its log alone, and exits 1."""
+    swarm = new_swarm()
+    run = subprocess.run(
+        [*covswarm_argv(), "run", "--agents", "2", "--duration", "5", "--swarm", swarm,
+         "--robots", "none", "--startup-timeout", "25", "--out", str(tmp_path / "run")],
+        capture_output=True, text=True, timeout=120, env={**os.environ, "COLUMNS": "400"},
+    )  # fmt: skip
+    said = " ".join(run.stdout.split())
+    assert run.returncode == 1, said
+    assert "start-up took more than 25 s" in said
+    waiting = "the coordinator: still waiting for the team: agents 0-1 missing; robots 0-1 missing"
+    assert waiting in said, said
+    assert f"joins with --swarm {swarm}" in said
+    assert not swarm_pids(swarm, "agent") and not swarm_pids(swarm, "coordinator")
