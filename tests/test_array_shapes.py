@@ -92,3 +92,20 @@ def test_a_still_mask_must_be_one() -> None:
     points, _, batch = coverage.tessellate(positions, SQUARE)
     offsets = points - coverage.as_vectors(batch.centroid)
     assert expected == pytest.approx(float(np.linalg.norm(offsets[~mask])))
+
+
+@pytest.mark.parametrize("dt", [float("nan"), float("inf"), -0.1, "0.1"])
+def test_integrate_refuses_a_step_that_is_no_time(dt) -> None:
+    """A NaN step made every pose NaN, a negative one drove the robots backwards."""
+    with pytest.raises(ValueError, match="dt must be a finite number of seconds >= 0"):
+        drive.integrate(np.zeros((2, 3)), np.full((2, 2), 0.1), dt)
+    assert np.array_equal(drive.integrate(np.zeros((1, 3)), np.ones((1, 2)), 0.0), np.zeros((1, 3)))
+
+
+def test_a_robot_needs_positive_dimensions_and_speed() -> None:
+    for field in ("wheel_radius", "wheel_separation", "body_diameter", "max_wheel_speed"):
+        for value in (0.0, -1.0, float("nan"), float("inf"), True):
+            with pytest.raises(ValueError, match=f"DiffDrive: {field} must be"):
+                drive.DiffDrive(**{field: value})
+    with pytest.raises(ValueError, match="wheel_separation must be > 0 m"):
+        drive.twist_from_wheels(0.1, 0.2, 0.0)

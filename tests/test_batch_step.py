@@ -183,9 +183,13 @@ def test_empty_batch() -> None:
 @pytest.mark.parametrize(
     ("bad", "message"),
     [
-        ({"positions": {0: np.array([np.nan, 1.0]), 1: np.array([1.0, 1.0])}}, "NaN"),
+        ({"positions": {0: np.array([0.5, 0.5]), 1: np.array([np.nan, 1.0])}}, r"NaN.*\[1\]"),
         # 3-vectors: the batch's one conversion fails, the views are converted one by one
-        ({"positions": {0: np.array([0.5, 0.5, 0.0]), 1: np.array([1.5, 1.5, 0.0])}}, "shape"),
+        ({"positions": {0: np.array([0.5, 0.5, 0.0]), 1: np.array([1.5, 1.5, 0.0])}}, "pairs"),
+        # one robot's: named by its id
+        ({"positions": {0: np.array([0.5, 0.5]), 1: [1.5, 1.5, 0.0]}}, r"robots \[1\]$"),
+        ({"positions": {0: np.array([0.5, 0.5]), 1: "here"}}, r"robots \[1\]$"),
+        ({"positions": [np.array([0.5, 0.5])]}, r"a mapping \{id: \(x, y\)\}, not a list"),
         ({"me": 5}, "positions must include"),
         ({"kappa": -1.0}, "kappa"),
         ({"polygon": np.array([[0.0, 0.0], [1.0, 0.0], [2.0, 0.0]])}, "zero area"),

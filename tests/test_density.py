@@ -298,6 +298,24 @@ def test_bad_densities_raise(data, reason: str) -> None:
             Density.from_dict(data)
 
 
+def test_the_constructor_takes_arrays_of_their_shape_only() -> None:
+    """Never reshaped: means given as (2, B) (x's row, y's row) would be read as scrambled
+    points, a flat covariance as a matrix."""
+    xs, ys = np.array([0.0, 1.0, 2.0]), np.array([5.0, 6.0, 7.0])
+    covariances, weights = np.tile(0.1 * np.eye(2), (3, 1, 1)), np.ones(3)
+    with pytest.raises(
+        ValueError, match=r"means must be numbers of shape \(B, 2\), shape \(2, 3\)"
+    ):
+        Density(0.1, np.vstack([xs, ys]), covariances, weights)
+    with pytest.raises(ValueError, match=r"covariances must be numbers of shape \(1, 2, 2\)"):
+        Density(0.1, [[0.0, 0.0]], [0.1, 0.0, 0.0, 0.1], [1.0])
+    with pytest.raises(ValueError, match=r"weights must be numbers of shape \(3,\), shape \(\)"):
+        Density(0.1, np.column_stack([xs, ys]), covariances, 1.0)
+    good = Density(0.1, np.column_stack([xs, ys]), covariances, weights)
+    np.testing.assert_array_equal(good.means[:, 0], xs)
+    assert Density(0.1, [], [], []).means.shape == (0, 2)  # no bump: uniform
+
+
 def test_advancing_into_an_invalid_density_raises() -> None:
     density = Density.from_dict(bad(bump={"cov_rate": [[-1, 0], [0, 0]]}))
     density.at(0.5)

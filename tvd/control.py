@@ -887,18 +887,44 @@ def _fixed(orders: list[list], stills: Sequence[frozenset]) -> np.ndarray:
 
 def _ordered_known(me: Hashable, positions: Mapping[Hashable, np.ndarray]) -> list:
     """A view's ids in point order (``_ordered_ids``); ValueError when ``me`` is missing."""
+    if not isinstance(positions, Mapping):
+        raise ValueError(
+            f"positions must be a mapping {{id: (x, y)}}, not a {type(positions).__name__}"
+        )
     if me not in positions:
         raise ValueError(f"positions must include the robot itself ({me!r})")
     return _ordered_ids(positions)
 
 
 def _view_points(positions: Mapping[Hashable, np.ndarray], ids: list) -> np.ndarray:
-    """A view's positions (n, 2) m in the order of ``ids``; ValueError for a position that
-    is not a 2-vector. Finiteness is left to the caller (once for a whole batch)."""
-    points = np.array([positions[key] for key in ids], dtype=np.float64)
-    if points.shape != (len(ids), 2):
-        validate_positions(points)  # raises, naming the shape
+    """A view's positions (n, 2) m in the order of ``ids``; ValueError naming the robots
+    (by id) whose positions are not finite (x, y) pairs."""
+    try:
+        points = np.array([positions[key] for key in ids], dtype=np.float64)
+        paired = points.shape == (len(ids), 2)
+    except (ValueError, TypeError):
+        paired = False
+    if not paired:
+        raise ValueError(
+            f"positions must be (x, y) pairs, not those of robots {_unpaired(positions, ids)}"
+        )
+    if not np.isfinite(points).all():
+        bad = [key for key, ok in zip(ids, np.isfinite(points).all(axis=1), strict=True) if not ok]
+        raise ValueError(f"positions contain NaN or inf (robots {bad})")
     return points
+
+
+def _unpaired(positions: Mapping[Hashable, np.ndarray], ids: list) -> list:
+    """The ids among ``ids`` whose positions are not two real numbers."""
+    bad = []
+    for key in ids:
+        try:
+            pair = np.asarray(positions[key], dtype=np.float64)
+        except (ValueError, TypeError):
+            pair = None
+        if pair is None or pair.shape != (2,):
+            bad.append(key)
+    return bad
 
 
 def _batch_points(views: Sequence[LocalView], orders: list[list]) -> np.ndarray:
@@ -922,13 +948,11 @@ def _batch_points(views: Sequence[LocalView], orders: list[list]) -> np.ndarray:
                 raise _named(error, index, view) from error
         points = np.concatenate(blocks)
     if not np.isfinite(points).all():
-        start = 0
         for index, (view, ids) in enumerate(zip(views, orders, strict=True)):
             try:
-                validate_positions(points[start : start + len(ids)])
+                _view_points(view.positions, ids)
             except ValueError as error:
                 raise _named(error, index, view) from error
-            start += len(ids)
     return points
 
 

@@ -306,10 +306,21 @@ def _number(value: Any, name: str) -> float:
 
 
 def _array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
+    """``value`` as float64 of exactly ``shape`` (-1: any length), never reshaped: a (2, B)
+    array of means read as (B, 2) would scramble x and y. An empty value is no bump."""
     try:
-        return np.array(value, dtype=np.float64).reshape(shape)
+        array = np.array(value, dtype=np.float64)
     except (TypeError, ValueError):
-        raise ValueError(f"invalid density: {name} must be numbers of shape {shape}") from None
+        array = None
+    if array is not None and array.size == 0:
+        return array.reshape([0 if n == -1 else n for n in shape])
+    if array is None or array.ndim != len(shape) or any(
+        n not in (-1, m) for n, m in zip(shape, array.shape, strict=True)
+    ):
+        given = "not numbers" if array is None else f"shape {array.shape}"
+        expected = ", ".join("B" if n == -1 else str(n) for n in shape) + "," * (len(shape) == 1)
+        raise ValueError(f"invalid density: {name} must be numbers of shape ({expected}), {given}")
+    return array
 
 
 def _still_valid(

@@ -74,6 +74,14 @@ class DiffDrive:
     body_diameter: float = 0.14
     max_wheel_speed: float = MAX_WHEEL_SPEED
 
+    def __post_init__(self) -> None:
+        for name in ("wheel_radius", "wheel_separation", "body_diameter", "max_wheel_speed"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and value > 0):
+                raise ValueError(f"DiffDrive: {name} must be a number > 0, got {value!r}")
+            if not math.isfinite(value):
+                raise ValueError(f"DiffDrive: {name} must be finite, got {value!r}")
+
 
 KHEPERA_IV = DiffDrive()
 
@@ -360,6 +368,8 @@ def twist_from_wheels(
     side (``integrate``, ``integrate_one``), an agent's report of its centre velocity and the
     ROS 2 bridge's Twist all use the same figures.
     """
+    if not wheel_separation > 0.0:  # NaN too
+        raise ValueError(f"wheel_separation must be > 0 m, got {wheel_separation!r}")
     return 0.5 * (left + right), (right - left) / wheel_separation
 
 
@@ -371,7 +381,10 @@ def integrate(
     poses: (n, 3) [x, y, heading]; wheels: (n, 2) [left, right] m/s. Returns a new (n, 3).
     Each wheel is clamped to +-max_wheel_speed on its own, like a motor controller would;
     a non-finite wheel command counts as 0 (the robot stops rather than vanishing).
+    ValueError unless dt is a finite number >= 0.
     """
+    if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt >= 0.0):
+        raise ValueError(f"dt must be a finite number of seconds >= 0, got {dt!r}")
     poses = as_rows(poses, "poses", width=3)
     wheels = as_rows(wheels, "wheels", len(poses))
     wheels = np.where(np.isfinite(wheels), wheels, 0.0)
