@@ -213,8 +213,9 @@ def unheard_robots(brains: list[RobotBrain], options: Ros2Options) -> list[str]:
     /odom, not PoseStamped on /robot<id>/pose)."""
     return [
         f"robot {brain.id}: no pose on {robot_topic(options.pose_topic, brain.id)} "
-        f"({options.pose_type}) in {SILENT_AFTER:g} s: does the robot publish there, with that "
-        "type (--pose-topic, --pose-type)?"
+        f"({options.pose_type}) in ROS 2 domain {options.domain_id} in {SILENT_AFTER:g} s: does "
+        "the robot publish there, with that type, in that domain (--pose-topic, --pose-type, "
+        "--domain-id: the robots' ROS_DOMAIN_ID)?"
         for brain in brains
         if brain.poses == 0 and not brain.drops.total
     ]
@@ -321,7 +322,11 @@ def bridge_group() -> None:
     help="No command for this long (s): the robot gets a zero Twist.",
 )
 @float_option(
-    "--pose-max-age", low=0.01, default=0.5, help="Drop poses stamped longer ago than this (s)."
+    "--pose-max-age",
+    low=0.01,
+    default=0.5,
+    help="Drop poses stamped longer ago than this (s), beyond --max-clock-skew: the "
+    "limit is their sum (the tracker's clock may run that far behind the bridge's).",
 )
 @float_option(
     "--pose-timeout",

@@ -140,11 +140,13 @@ def layout_files() -> dict[str, str]:
 
 
 def main(folder: str) -> None:
-    """Write both layout files into ``folder``."""
+    """Write both layout files into ``folder`` (made if missing)."""
+    Path(folder).mkdir(parents=True, exist_ok=True)
     for name, text in layout_files().items():
         (Path(folder) / name).write_text(text, encoding="utf-8")
         print(f"wrote {Path(folder) / name}")
 
 
 if __name__ == "__main__":
-    main(sys.argv[1] if len(sys.argv) > 1 else "docs")
+    # the repository's docs/ by default, wherever it is run from
+    main(sys.argv[1] if len(sys.argv) > 1 else str(Path(__file__).resolve().parent.parent / "docs"))

@@ -12,7 +12,8 @@ Runs, one after the other, on this machine:
 
 Prints a Markdown table of both runs' e_a (steady state = mean over the second half,
 final) and their ratio; each run's outputs are in ``<out>/ros2`` and ``<out>/sim``, the
-bridge's and the robots' logs in ``<out>``.
+bridge's log (``bridge.log``) and the Twists the emulated robots received
+(``twists.jsonl``) in ``<out>``.
 """
 
 from __future__ import annotations

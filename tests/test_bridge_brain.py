@@ -207,6 +207,8 @@ def test_a_robot_that_sent_no_pose_is_named_with_the_topic_and_type_listened_on(
     heard, silent = RobotBrain(4, cdr.POSE_STAMPED), RobotBrain(5, cdr.POSE_STAMPED)
     payload = cdr.encode_pose_stamped(1.0, -0.5, 0.25, WALL - 0.1, "map")
     assert heard.on_pose(payload, encode_attachment(1, int(WALL * 1e9), bytes(16)), 10.0, WALL)
-    (line,) = unheard_robots([heard, silent], Ros2Options())
-    assert line.startswith("robot 5: no pose on /robot5/pose (geometry_msgs/msg/PoseStamped)")
-    assert "--pose-topic, --pose-type" in line
+    (line,) = unheard_robots([heard, silent], Ros2Options(domain_id=7))
+    assert line.startswith(
+        "robot 5: no pose on /robot5/pose (geometry_msgs/msg/PoseStamped) in ROS 2 domain 7"
+    )
+    assert "--pose-topic, --pose-type, --domain-id: the robots' ROS_DOMAIN_ID" in line
