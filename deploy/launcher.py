@@ -131,6 +131,13 @@ from covswarm.sim_robot.process import gather_drops
     help="sim: a simulated robot per agent; none: the robots come from bridges that join "
     "the swarm (covswarm bridge ros2), and the mission starts once all are there. Needs --swarm.",
 )
+@float_option(
+    "--cmd-timeout",
+    low=0.01,
+    help="The robots' command timeout, s: how long a robot drives its last command, which "
+    "the agents plan for; with --robots none, the bridge's --cmd-timeout [0.5, or longer "
+    "for a team the host cannot step at --rate: launch.json's cmd_timeout_s].",
+)
 @click.option(
     "--agents-per-process",
     default="auto",
@@ -331,7 +338,13 @@ def run_swarm(run: RunConfig) -> None:
     log_dir.mkdir(parents=True, exist_ok=True)
     if (crowd := crowding(scenario, n, duration)).crowded:
         console.log(f"[yellow]warning: {crowd.warning(n, safety=run.safety)}")
-    timeout = command_timeout(here, cores, run.rate, run.time_scale, brain_tick)
+    planned = command_timeout(here, cores, run.rate, run.time_scale, brain_tick)
+    timeout = planned if run.cmd_timeout is None else run.cmd_timeout
+    if timeout < planned:
+        console.log(
+            f"[yellow]warning: --cmd-timeout {timeout:g} s is shorter than the {planned:.2g} s "
+            "this host's steps of the team need: robots will stop between commands"
+        )
     if (note := capacity_note(here, cores, run.rate, run.time_scale, brain_tick)) is not None:
         console.log(f"[yellow]warning: {note}; robots keep a command for {timeout:.2g} s")
     with zenoh_session(

@@ -301,6 +301,9 @@ class RunConfig:
     router_listen: tuple[str, ...] = ()
     router_connect: tuple[str, ...] = ()
     robots: str = "sim"  # "sim" | "none" (bridges bring them)
+    # s: the robots' command timeout, which the agents plan their commands for; None: the
+    # launcher's (command_timeout), given to its simulated robots too
+    cmd_timeout: float | None = None
     agents_per_process: str = "auto"  # parse_per_process
     time_scale: float | None = 1.0  # None: auto (the launcher's holding_time_scale)
     pose_loss: float = 0.0

@@ -100,6 +100,10 @@ def test_integrate_refuses_a_step_that_is_no_time(dt) -> None:
     with pytest.raises(ValueError, match="dt must be a finite number of seconds >= 0"):
         drive.integrate(np.zeros((2, 3)), np.full((2, 2), 0.1), dt)
     assert np.array_equal(drive.integrate(np.zeros((1, 3)), np.ones((1, 2)), 0.0), np.zeros((1, 3)))
+    with pytest.raises(ValueError, match="dt must be"):  # one per robot (a robot process's)
+        drive.integrate(np.zeros((2, 3)), np.full((2, 2), 0.1), np.array([0.05, -0.01]))
+    moved = drive.integrate(np.zeros((2, 3)), np.full((2, 2), 0.1), np.array([0.05, 0.1]))
+    np.testing.assert_allclose(moved[:, 0], [0.005, 0.01])
 
 
 def test_a_robot_needs_positive_dimensions_and_speed() -> None:

@@ -77,7 +77,8 @@ def test_two_runs_at_once_do_not_collide(tmp_path: Path) -> None:
     outs = [tmp_path / "a", tmp_path / "b"]
     with (
         launch(outs[0], "--agents", "2", "--duration", "5") as first,
-        launch(outs[1], "--agents", "2", "--duration", "5") as second,
+        # the robots' command timeout given (a bridge's): the children are told it
+        launch(outs[1], "--agents", "2", "--duration", "5", "--cmd-timeout", "0.7") as second,
     ):
         assert first.wait(timeout=120) == 0
         assert second.wait(timeout=120) == 0
@@ -86,6 +87,11 @@ def test_two_runs_at_once_do_not_collide(tmp_path: Path) -> None:
     assert launches[0]["endpoint"] != launches[1]["endpoint"]
     for launched in launches:  # an embedded router listens on loopback unless told otherwise
         assert launched["endpoint"].startswith("tcp/127.0.0.1:"), launched["endpoint"]
+    assert launches[1]["cmd_timeout_s"] == 0.7
+    children = [argv for argv in launches[1]["argv"] if "agent" in argv or "robot" in argv]
+    assert children and all(
+        argv[argv.index("--cmd-timeout") + 1] == "0.7" for argv in children
+    ), children
     for out in outs:
         summary = json.loads((out / "summary.json").read_text())
         # Each coordinator saw exactly its own team, none of the other run's processes.

@@ -381,9 +381,13 @@ def integrate(
     poses: (n, 3) [x, y, heading]; wheels: (n, 2) [left, right] m/s. Returns a new (n, 3).
     Each wheel is clamped to +-max_wheel_speed on its own, like a motor controller would;
     a non-finite wheel command counts as 0 (the robot stops rather than vanishing).
-    ValueError unless dt is a finite number >= 0.
+    dt: s, one for all or (n,) one per robot; ValueError unless finite and >= 0.
     """
-    if not (isinstance(dt, (int, float, np.floating)) and math.isfinite(dt) and dt >= 0.0):
+    try:
+        steps = np.asarray(dt, dtype=np.float64)
+    except (TypeError, ValueError):
+        steps = None
+    if steps is None or isinstance(dt, str) or not (np.isfinite(steps) & (steps >= 0.0)).all():
         raise ValueError(f"dt must be a finite number of seconds >= 0, got {dt!r}")
     poses = as_rows(poses, "poses", width=3)
     wheels = as_rows(wheels, "wheels", len(poses))
