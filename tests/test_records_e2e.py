@@ -149,6 +149,9 @@ def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
     assert metadata["source"] == "run" and metadata["scenario"] == "passage"
     assert json.loads(metadata["agents"]) == AGENTS and json.loads(metadata["seed"]) == 5
     assert json.loads(metadata["versions"])["covswarm"]
+    # the coordinator's own settings (the agents' and robots' are in launch.json)
+    assert json.loads(metadata["pace"]) is True and json.loads(metadata["deploy_error"]) is None
+    assert json.loads(metadata["deploy_timeout"]) > 0
 
     # trajectories.csv: the same poses, every robot at the pose rate.
     rows = read_trajectories(out / "trajectories.csv")
