@@ -11,7 +11,10 @@ ROS 2 -> covswarm: a PoseStamped / Pose2D / Odometry payload becomes a covswarm 
 pose is stamped with its header stamp, else the attachment's source timestamp, else its
 time of receipt (``stamp_source="receive"`` always takes the time of receipt: for a pose
 source whose clock is not the bridge's); poses older than ``pose_max_age``, from more than
-``max_clock_skew`` in the future, or malformed are dropped and counted per reason. The
+``max_clock_skew`` in the future, or malformed are dropped and counted per reason, and so
+are the poses of a second publisher on the robot's topic while the first one's are fresh
+(``second_source``: two robots or trackers under one id; the robot follows the publisher
+it heard first, and the next one once that one is quiet for ``pose_timeout``). The
 robot is *visible* (the bridge holds its covswarm liveliness token) while its newest valid
 pose is at most ``pose_timeout`` old.
 
@@ -38,7 +41,10 @@ from covswarm.tvd.drive import KHEPERA_IV, twist_from_wheels
 
 log = logging.getLogger("covswarm.bridge")
 
-DROP_REASONS = (*COMMAND_REASONS, "attachment")
+# "second_source": a pose from another publisher (GID) on the robot's topic while the one
+# it follows is live: two robots or trackers under one id, whose poses mixed would make the
+# robot jump between them (covswarm.bridge.brain.RobotBrain.on_pose).
+DROP_REASONS = (*COMMAND_REASONS, "attachment", "second_source")
 STAMP_SOURCES = ("message", "receive")
 
 
@@ -93,6 +99,7 @@ class RobotBrain:
         self._last_zero = -math.inf
         self._pose: cdr.PlanarPose | None = None  # newest valid pose not yet forwarded
         self._last_pose: float | None = None
+        self._source: bytes | None = None  # the GID of the publisher whose poses we take
 
     # covswarm -> ROS 2 ------------------------------------------------------------------
     def on_command(self, payload: bytes, now: float, now_wall: float) -> bool:
@@ -136,12 +143,21 @@ class RobotBrain:
         self, payload: bytes, attachment: bytes | None, now: float, now_wall: float
     ) -> bool:
         """Take a raw CDR pose payload and its rmw_zenoh attachment; False if dropped."""
-        source_stamp = None
+        source_stamp, gid = None, None
         if attachment is not None:
             try:
-                source_stamp = decode_attachment(attachment).source_timestamp_ns * 1e-9
+                decoded = decode_attachment(attachment)
             except ValueError as exc:
                 self.drops.drop("attachment", f"pose: {exc}")
+                return False
+            source_stamp, gid = decoded.source_timestamp_ns * 1e-9, decoded.gid
+        if gid is not None and gid != self._source:
+            if self._source is not None and self.visible(now):
+                self.drops.drop(
+                    "second_source",
+                    f"pose from a second publisher ({gid.hex()}) while {self._source.hex()}'s "
+                    "are fresh: two robots or trackers under one id?",
+                )
                 return False
         try:
             pose = cdr.decode_pose(payload, self.pose_type)
@@ -157,6 +173,8 @@ class RobotBrain:
             return False
         self._pose = cdr.PlanarPose(pose.x, pose.y, pose.theta, stamp)
         self._last_pose = now
+        if gid is not None:
+            self._source = gid
         self.poses += 1
         return True
 

@@ -212,3 +212,29 @@ def test_a_robot_that_sent_no_pose_is_named_with_the_topic_and_type_listened_on(
         "robot 5: no pose on /robot5/pose (geometry_msgs/msg/PoseStamped) in ROS 2 domain 7"
     )
     assert "--pose-topic, --pose-type, --domain-id: the robots' ROS_DOMAIN_ID" in line
+
+
+def test_a_second_publisher_under_one_id_is_dropped_while_the_first_is_live() -> None:
+    """Two robots (or trackers) publishing /robot0/pose: their poses mixed made robot 0
+    jump between x = -1.7 and x = 1.5 with no word. The robot follows the publisher heard
+    first; the other's poses are dropped and counted (second_source, a warning) until the
+    first is quiet for pose_timeout, when the robot follows the one still there."""
+    brain = RobotBrain(0, cdr.POSE_STAMPED, pose_timeout=1.0)
+    first, second = bytes(range(16)), bytes(range(16, 32))
+
+    def pose(x: float, gid: bytes, now: float) -> bool:
+        payload = cdr.encode_pose_stamped(x, 0.0, 0.0, WALL + now - 0.01, "map")
+        return brain.on_pose(
+            payload, encode_attachment(1, int((WALL + now) * 1e9), gid), now, WALL + now
+        )
+
+    taken = []
+    for k in range(20):  # both at 20 Hz for 1 s
+        now = 0.05 * k
+        if pose(-1.7, first, now):
+            taken.append(brain.take_pose(k).x)
+        assert not pose(1.5, second, now + 0.01)
+    assert taken == [-1.7] * 20 and brain.drops.counts["second_source"] == 20
+    assert pose(1.5, second, 2.1)  # the first quiet for more than pose_timeout: the second
+    assert brain.take_pose(21).x == 1.5
+    assert not pose(-1.7, first, 2.2)  # and now the first is the second source
