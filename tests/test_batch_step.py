@@ -420,3 +420,10 @@ def test_batch_unicycle_filter_edges() -> None:
             np.ones((2, 2)), nominal, [0.0, 0.0], [[], []], 0.2,
             workspace=[None, (0, 2, 2, 0)], obstacle_distance=0.1,
         )  # fmt: skip
+
+
+@pytest.mark.parametrize("kappa", ["1", True, None, float("nan"), 0.0])
+def test_a_gain_that_is_no_positive_number_is_named(kappa) -> None:
+    polygon = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    with pytest.raises(ValueError, match="kappa must be a positive finite gain"):
+        local_step(0, {0: np.array([0.5, 0.5])}, polygon, np.zeros((4, 2)), kappa)

@@ -405,3 +405,10 @@ def test_agent_brain_uses_the_broadcast_density() -> None:
     fading = Density(1.0, [[1.8, 1.0]], [np.eye(2) * 0.1], [5.0], weight_rates=[-10.0])
     assert extrapolate_density(fading, 0.2, 1.0).weights[0] == pytest.approx(3.0)
     assert extrapolate_density(fading, 0.9, 1.0).weights[0] == 5.0  # w = -4 would be invalid
+
+
+def test_phi_takes_points_only() -> None:
+    density = Density.from_dict(GOOD)
+    with pytest.raises(ValueError, match=r"points must have shape \(\.\.\., 2\), got \(3,\)"):
+        density.phi(np.array([1.0, 1.0, 1.0]))
+    assert density.phi([0.0, 0.0]) == pytest.approx(3.0)  # floor + the bump's weight

@@ -41,5 +41,5 @@ def as_mask(value: object, name: str, n: int) -> np.ndarray:
     length (a boolean index and an integer one select different robots)."""
     array = np.asarray(value)
     if array.shape != (n,) or array.dtype != np.bool_:
-        raise ValueError(f"{name} must be an ({n},) bool array, got {array.dtype} {array.shape}")
+        raise ValueError(f"{name} must be a ({n},) bool array, got {array.dtype} {array.shape}")
     return array

@@ -249,6 +249,8 @@ def _motion_field(
 
 
 def _check_kappa(kappa: float) -> None:
+    if isinstance(kappa, bool) or not isinstance(kappa, (int, float, np.floating, np.integer)):
+        raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
     if not (math.isfinite(kappa) and kappa > 0.0):
         raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
 

@@ -147,6 +147,9 @@ class Density:
 
     def _bumps(self, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """x = q - mu_b (..., B, 2) and g_b(q) (..., B) for points q (..., 2)."""
+        q = np.asarray(q, dtype=np.float64)
+        if q.shape[-1:] != (2,):
+            raise ValueError(f"points must have shape (..., 2), got {q.shape}")
         x = q[..., None, :] - self.means
         px = np.einsum("bij,...bj->...bi", self.precisions, x)
         return x, np.exp(-0.5 * np.sum(x * px, axis=-1))
