@@ -89,9 +89,9 @@ def test_two_runs_at_once_do_not_collide(tmp_path: Path) -> None:
         assert launched["endpoint"].startswith("tcp/127.0.0.1:"), launched["endpoint"]
     assert launches[1]["cmd_timeout_s"] == 0.7
     children = [argv for argv in launches[1]["argv"] if "agent" in argv or "robot" in argv]
-    assert children and all(
-        argv[argv.index("--cmd-timeout") + 1] == "0.7" for argv in children
-    ), children
+    assert children and all(argv[argv.index("--cmd-timeout") + 1] == "0.7" for argv in children), (
+        children
+    )
     for out in outs:
         summary = json.loads((out / "summary.json").read_text())
         # Each coordinator saw exactly its own team, none of the other run's processes.

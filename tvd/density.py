@@ -317,8 +317,10 @@ def _array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
         array = None
     if array is not None and array.size == 0:
         return array.reshape([0 if n == -1 else n for n in shape])
-    if array is None or array.ndim != len(shape) or any(
-        n not in (-1, m) for n, m in zip(shape, array.shape, strict=True)
+    if (
+        array is None
+        or array.ndim != len(shape)
+        or any(n not in (-1, m) for n, m in zip(shape, array.shape, strict=True))
     ):
         given = "not numbers" if array is None else f"shape {array.shape}"
         expected = ", ".join("B" if n == -1 else str(n) for n in shape) + "," * (len(shape) == 1)
