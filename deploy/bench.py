@@ -39,7 +39,7 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.runtime.options import SIZES, float_option, out_option
+from covswarm.runtime.options import SIZES, count_option, float_option, out_option
 from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
@@ -940,33 +940,16 @@ def live_table(rows: list[dict]) -> Any:
 @click.command("bench")
 @click.option("--quick", is_flag=True, help="N up to 300, 1 seed, sampled robots (< 2 min).")
 @click.option("--sizes", type=SIZES, default=None, help="Team sizes, e.g. 10,100 [10..3000].")
-@click.option(
-    "--seeds",
-    type=click.IntRange(min=1),
-    default=3,
-    show_default=True,
-    help="Layouts per (N, kind).",
+@count_option("--seeds", default=3, help="Layouts per (N, kind).")
+@count_option(
+    "--sample", default=300, help="Robots timed per layout (--brain-tick: at most its team)."
 )
-@click.option(
-    "--sample",
-    type=click.IntRange(min=1),
-    default=300,
-    show_default=True,
-    help="Robots timed per layout (--brain-tick: at most its team).",
-)
-@click.option(
-    "--repeats",
-    type=click.IntRange(min=1),
-    default=3,
-    show_default=True,
-    help="Full-team steps timed per layout.",
-)
+@count_option("--repeats", default=3, help="Full-team steps timed per layout.")
 @out_option(help="Output folder [runs/bench-<time>].")
-@click.option(
+@count_option(
     "--obstacles",
-    type=click.IntRange(min=0),
     default=0,
-    show_default=True,
+    low=0,
     help="Also time the safety filter with this many 0.2 m boxes in the square (per N).",
 )
 @click.option(
@@ -986,11 +969,9 @@ def live_table(rows: list[dict]) -> Any:
     default=20.0,
     help="Mission length of each live run, s.",
 )
-@click.option(
+@count_option(
     "--live-per-process",
-    type=click.IntRange(min=1),
     default=LIVE_PER_PROCESS,
-    show_default=True,
     help="Brains per agent process and robots per robot process in the live runs.",
 )
 @click.option(
@@ -1006,11 +987,10 @@ def live_table(rows: list[dict]) -> Any:
     show_default=True,
     help="Brains per process for --brain-tick.",
 )
-@click.option(
+@count_option(
     "--brain-tick-team",
-    type=click.IntRange(min=2),
     default=BRAIN_TICK_TEAM,
-    show_default=True,
+    low=2,
     help="Robots in the team the packs share for --brain-tick.",
 )
 @float_option(

@@ -100,6 +100,14 @@ def float_option(
     )
 
 
+def count_option(*decls: str, default: int, help: str, low: int = 1) -> Decorator:
+    """An integer option of at least ``low`` (a count: teams, seeds, samples), its default
+    shown in --help."""
+    return click.option(
+        *decls, type=click.IntRange(min=low), default=default, show_default=True, help=help
+    )
+
+
 def kappa_option(help: str) -> Decorator:
     """``--kappa``: the control gain, positive and at most what a Domain carries (MAX_KAPPA)."""
     return float_option("--kappa", low=0.0, low_open=True, high=MAX_KAPPA, help=help)
