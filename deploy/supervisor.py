@@ -236,6 +236,12 @@ def run_processes(
                 while True:
                     supervisor.tick()
                     live.update(render(progress))
+                    if received:
+                        console.log("interrupted: stopping the coordinator (it writes outputs)")
+                        exit_code = 128 + received[0]
+                        supervisor.measure_resources()  # while every child is still up
+                        supervisor.stop_coordinator(received)
+                        break
                     if supervisor.failed_start is not None:
                         child, said = supervisor.failed_start
                         console.log(
@@ -254,12 +260,6 @@ def run_processes(
                     status = progress.status
                     if not has_coordinator and status is not None and status.state == "done":
                         console.log("the coordinator (on another host) says the mission is done")
-                        break
-                    if received:
-                        console.log("interrupted: stopping the coordinator (it writes outputs)")
-                        exit_code = 128 + received[0]
-                        supervisor.measure_resources()  # while every child is still up
-                        supervisor.stop_coordinator(received)
                         break
                     waited = time.monotonic() - supervisor.began
                     if not supervisor.startup.done and waited > startup_timeout:
