@@ -152,8 +152,10 @@ def _error_figure(
 
 def _mark_steering(ax: Any, requests: Any) -> None:
     """Steering requests (summary.json's ``steering``) on the e_a plot: accepted ones as a
-    green line at their arrival and a band while S moved, refused ones as a red dotted line."""
+    green line at their arrival and a band while S moved (until the motion's end, or the
+    next accepted request, which takes over from it), refused ones as a red dotted line."""
     seen: set[bool] = set()
+    taken = sorted(float(r["t"]) for r in requests if r["accepted"])
     for request in requests:
         accepted, t = bool(request["accepted"]), float(request["t"])
         label = None
@@ -163,7 +165,9 @@ def _mark_steering(ax: Any, requests: Any) -> None:
         color = "tab:green" if accepted else "tab:red"
         ax.axvline(t, color=color, linestyle="-" if accepted else ":", linewidth=1.0, label=label)
         if accepted and request["duration"] > 0:
-            ax.axvspan(t, t + float(request["duration"]), color=color, alpha=0.12, zorder=0)
+            later = [other for other in taken if other > t]
+            end = min([t + float(request["duration"]), *later[:1]])
+            ax.axvspan(t, end, color=color, alpha=0.12, zorder=0)
     if seen:
         ax.legend(loc="upper right")
 

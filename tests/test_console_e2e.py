@@ -221,6 +221,46 @@ def same_polygon(a: np.ndarray, b: np.ndarray, tol: float) -> bool:
     return bool(d.min(axis=1).max() < tol and d.min(axis=0).max() < tol)
 
 
+def test_S_dragged_while_it_moves_ends_where_it_was_dropped(
+    swarm_run, browser, watch: DomainWatch
+) -> None:
+    """The coordinator brakes a moving S before the next motion: a relative move sent for a
+    drag of a moving S started from where S stopped and took it past the drop (0.38 m in an
+    operator's run). The page sends the outline dropped, and S ends on it."""
+    with console(*swarm_run) as url:
+        goto(url, LEFT_ROOM)
+        page = browser.new_page(viewport={"width": 1100, "height": 700})
+        page.goto(url)
+        page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
+        page.wait_for_function(WORLD_DRAWN, timeout=5000)
+        status, reply = post_json(  # S sets off up, slowly
+            url.rstrip("/") + "/api/steer",
+            json.dumps({"kind": "translate", "dx": 0.0, "dy": 0.5, "duration": 3.0}).encode(),
+        )
+        assert status == 200 and reply["accepted"], reply
+        page.wait_for_function(
+            "window.covswarm.state().velocities.some(v => Math.abs(v[1]) > 0.1)", timeout=5000
+        )
+        page.evaluate("window.covswarm.hooks.lastReply = null")
+        handles = page.evaluate("window.covswarm.handles()")
+        x, y = page.evaluate(f"window.covswarm.clientXY({handles['c'][0]}, {handles['c'][1]})")
+        scale = page.evaluate("window.covswarm.view()")["scale"]
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x, y + 0.3 * scale, steps=10)  # 0.3 m down
+        page.mouse.up()
+        page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=5000)
+        request, reply = page.evaluate(
+            "[window.covswarm.hooks.lastRequest, window.covswarm.hooks.lastReply]"
+        )
+        assert reply["accepted"], (request, reply)
+        time.sleep(reply["duration"] + 1.5)  # its brake, its motion, and it holds
+        assert centroid(watch.latest())[1] == pytest.approx(handles["c"][1] - 0.3, abs=0.02)
+        assert request["kind"] == "polygon"  # the outline dropped, which S is now
+        assert same_polygon(watch.latest(), np.array(request["polygon"]), tol=0.01)
+        page.close()
+
+
 def test_rotate_scale_and_vertex_handles_steer_what_was_dragged(
     swarm_run, browser, watch: DomainWatch
 ) -> None:

@@ -394,6 +394,14 @@ def test_the_error_plot_marks_every_request(tmp_path) -> None:
     lines = [(line.get_xdata()[0], line.get_color()) for line in ax.get_lines()]
     assert lines == [(1.0, "tab:green"), (4.0, "tab:red"), (6.0, "tab:green")]
     assert len(ax.patches) == 2  # the bands while S moved
+    # each until its motion's end or the next accepted request, which took S over
+    spans = [(p.get_x(), p.get_x() + p.get_width()) for p in ax.patches]
+    assert spans[0] == pytest.approx((1.0, 3.0)) and spans[1][0] == pytest.approx(6.0)
+    fig2, ax2 = plt.subplots()
+    cut = [dict(events[0], duration=3600.0), events[2]]  # a long motion cut short at t = 6
+    _mark_steering(ax2, cut)
+    assert ax2.patches[0].get_x() + ax2.patches[0].get_width() == pytest.approx(6.0)
+    plt.close(fig2)
     assert [t.get_text() for t in ax.get_legend().get_texts()] == [
         "steering request",
         "refused steering request",

@@ -577,7 +577,19 @@
     draw();
   }
 
+  // Whether S is moving now, or moved since the drag took hold of it.
+  function sMoved(d) {
+    const speeds = (state && state.velocities) || [];
+    if (speeds.some((v) => Math.hypot(v[0], v[1]) > 1e-6)) return true;
+    const now = (state && state.polygon) || [];
+    return now.length !== d.poly.length || now.some((p, i) => Math.hypot(p[0] - d.poly[i][0], p[1] - d.poly[i][1]) > 1e-6);
+  }
+
   function request(d) {
+    // S on its way: the coordinator brakes it before a new motion, and a relative one (move
+    // by, turn by) would then start from where S stops, past where the operator grabbed
+    // it (0.38 m past the drop in one run). The outline dropped is sent as it is instead.
+    if (d.mode !== "vertex" && sMoved(d)) return { kind: "polygon", polygon: d.ghost.map((p) => p.map(r)) };
     if (d.mode === "translate") return { kind: "translate", dx: r(d.delta[0]), dy: r(d.delta[1]) };
     if (d.mode === "rotate") return { kind: "rotate", angle: r(d.angle), about: d.c.map(r) };
     if (d.mode === "scale") return { kind: "scale", factor: r(d.factor), about: d.c.map(r) };
