@@ -187,7 +187,7 @@ def steer_request(
 @click.option("--translate", "translate_", metavar="DX,DY", help="Move S by (DX, DY) m.")
 @click.option(
     "--rotate",
-    type=FiniteFloat(min=-math.degrees(MAX_ANGLE), max=math.degrees(MAX_ANGLE)),
+    type=FiniteFloat(min=-int(math.degrees(MAX_ANGLE)), max=int(math.degrees(MAX_ANGLE))),
     metavar="DEG",
     help="Turn S by DEG degrees (CCW).",
 )

@@ -350,10 +350,12 @@ def _check_inside(vertices: np.ndarray, limits: Limits, what: str) -> None:
         or low[1] + slack < ymin
         or high[1] - slack > ymax
     ):
-        reach = f"[{low[0]:.3g}, {high[0]:.3g}] x [{low[1]:.3g}, {high[1]:.3g}] m"
+        # to the millimetre: 3 significant figures hid a 2 mm overshoot (2.59 against 2.591)
+        reach = f"[{low[0]:.3f}, {high[0]:.3f}] x [{low[1]:.3f}, {high[1]:.3f}] m"
+        over = max(xmin - low[0], high[0] - xmax, ymin - low[1], high[1] - ymax)
         raise Refusal(
             "outside-workspace",
-            f"{what} reaches {reach}, outside the workspace "
+            f"{what} reaches {reach}, {over * 1e3:.0f} mm outside the workspace "
             f"[{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}] m",
         )
 
@@ -685,7 +687,8 @@ class Steering:
             return self._refuse(refusal, request, t, wall)
         if brake is not None:
             motion = replace(brake, then=motion)
-            note = "; ".join(filter(None, [f"braking {lead:.2g} s first", note]))
+            if lead >= 1e-3:  # a brake under a millisecond is none to speak of
+                note = "; ".join(filter(None, [f"braking {lead:.2g} s first", note]))
         self.motion = motion
         self.route, self.route_end = stops, t + span
         self.largest_jump = max(self.largest_jump, jump)

@@ -136,7 +136,7 @@ class SteerRequest(Message):
         if kind == "goto" and self.goal is None:
             raise ProtocolError("SteerRequest: goto needs its goal", "schema")
         if self.duration is not None and self.speed is not None:
-            raise ProtocolError("SteerRequest: give a duration or a speed, not both")
+            raise ProtocolError("give a duration or a speed, not both")
 
     def describe(self) -> str:
         """One line for logs and summaries, e.g. "translate (1, 0) m in 4 s"."""

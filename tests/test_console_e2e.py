@@ -387,7 +387,7 @@ def test_a_console_off_the_default_address_needs_its_token(swarm_run, browser) -
 
 
 def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
-    require, tmp_path: Path
+    require, tmp_path: Path, browser
 ) -> None:
     import zenoh
 
@@ -419,6 +419,18 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
         # Steering goes over the same secured session: with no coordinator, nobody answers.
         status, reply = post_json(url + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')
         assert status == 504 and "no coordinator" in reply["reason"]
+        # The page offers no steering then (S drawn, no handles): a drag sends nothing.
+        page = browser.new_page(viewport={"width": 900, "height": 600})
+        page.goto(url)
+        page.wait_for_function("window.covswarm.state() && window.covswarm.view().ready")
+        x, y = page.evaluate("window.covswarm.clientXY(0.5, 0.5)")
+        page.mouse.move(x, y)
+        page.mouse.down()
+        page.mouse.move(x + 60, y, steps=5)
+        page.mouse.up()
+        assert page.evaluate("window.covswarm.hooks.lastRequest") is None
+        assert page.inner_text("#steer-result") == "no coordinator: S cannot be steered"
+        page.close()
 
         wrong = make_test_credentials(tmp_path / "wrong", ids=[])  # another lab's CA
         for extra, said in (

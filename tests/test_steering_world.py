@@ -270,7 +270,7 @@ def test_a_goal_polygon_is_held_to_the_workspace_where_it_is_placed_not_where_ty
     reply = send(steer, SteerRequest("goto", goal=(-2.8, 0.0), polygon=inside), 0.0)
     assert not reply.accepted
     assert reply.reason.startswith("outside-workspace: the goal polygon at the goal reaches")
-    assert "[-3.2, -2.4] x [-0.4, 0.4] m" in reply.reason, reply.reason
+    assert "[-3.200, -2.400] x [-0.400, 0.400] m, 200 mm outside the workspace" in reply.reason
 
 
 @pytest.mark.parametrize(

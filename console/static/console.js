@@ -418,7 +418,7 @@
     }
     if (state.route) drawRoute(state.route);
     else delete document.body.dataset.routePoints;
-    if (poly.length >= 3 && !gotoMode) drawHandles(poly);
+    if (poly.length >= 3 && !gotoMode && steerable()) drawHandles(poly);
     let preview = (drag && drag.ghost) || (pending && pending.polygon), blocked = Boolean(drag && drag.hit);
     if (!preview && gotoMode && pointer && poly.length >= 3) {
       const c = centroid(poly), goal = toWorld(pointer);
@@ -561,7 +561,7 @@
   // coordinator would (its refusal reason "obstacle: ...").
   function refuseHere(req, hit) {
     // Worded as the coordinator's refusal (coordinator.steering), without its time.
-    const reason = hit === "workspace" ? "obstacle: S would leave the workspace" : `obstacle: S would touch obstacle '${hit}'`;
+    const reason = hit === "workspace" ? "outside-workspace: S would leave the workspace" : `obstacle: S would touch obstacle '${hit}'`;
     hooks.lastRequest = req;
     hooks.lastReply = { accepted: false, reason, local: true };
     showResult("refused", `refused: ${reason} (checked by the console, not sent)`);
@@ -606,11 +606,19 @@
     return norm(sub(screenPoint, toScreen(worldPoint))) <= HANDLE_PX;
   }
 
+  // Whether S can be steered: a mission not over, with a coordinator to answer.
+  function steerable() {
+    return !!state && state.state !== "done" && !!(state.alive && state.alive.coordinator);
+  }
+
   function startDrag(event) {
     const s = local(event);
     const poly = state && state.polygon && state.polygon.length >= 3 ? state.polygon.map((p) => p.slice()) : null;
     const base = { start: s, world: toWorld(s), poly, moved: false };
-    if (!poly) return { ...base, mode: "pan", view: { ...view } };
+    if (poly && !steerable()) {
+      showResult("idle", state.state === "done" ? "the mission is over: S is not steered any more" : "no coordinator: S cannot be steered");
+    }
+    if (!poly || !steerable()) return { ...base, mode: "pan", view: { ...view } };
     const hd = handles(poly);
     const vertex = poly.findIndex((p) => near(s, p));
     if (vertex >= 0) return { ...base, mode: "vertex", vertex, c: hd.c };
@@ -685,7 +693,7 @@
     map.title = over ? over.name : "";
     document.getElementById("hover").textContent = over ? over.name : "–";
     if (gotoMode) { draw(); return; }
-    if (!state || !state.polygon || state.polygon.length < 3) return;
+    if (!state || !state.polygon || state.polygon.length < 3 || !steerable()) { map.style.cursor = "default"; return; }
     const s = local(event), poly = state.polygon, hd = handles(poly);
     map.style.cursor = poly.some((p) => near(s, p)) || near(s, hd.rotate) || near(s, hd.scale)
       ? "pointer" : inside(poly, toWorld(s)) ? "move" : "default";
