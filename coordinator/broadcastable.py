@@ -8,7 +8,7 @@ same file failed mid-start.
 
 from __future__ import annotations
 
-from covswarm.mission.scenarios import Scenario
+from covswarm.mission.scenarios import Scenario, check_motion
 from covswarm.protocol import Domain, ProtocolError
 from covswarm.protocol import World as WorldMessage
 from covswarm.world.wire import to_message
@@ -19,7 +19,13 @@ def check_broadcastable(scenario: Scenario, kappa: float, duration: float) -> No
     with gain ``kappa`` (1/s), is one the agents decode (protocol.Domain.decode: field
     bounds, vertex count, payload size), checked at the motion's sample times, and its
     world one they decode too (protocol.World: obstacle count, coordinates, payload size):
-    a map's pieces past those bounds were refused by the coordinator once the team was up."""
+    a map's pieces past those bounds were refused by the coordinator once the team was up.
+    S itself is checked over ``duration`` too (mission.scenarios.check_motion): a run
+    longer than its scenario's own duration was checked over the scenario's alone."""
+    try:
+        check_motion(scenario.motion, duration)
+    except ValueError as exc:
+        raise ValueError(f"scenario {scenario.name}: {exc}") from None
     try:
         WorldMessage.decode(to_message(scenario.world, 0, 0.0).encode())
     except ProtocolError as exc:

@@ -84,7 +84,7 @@ class Scenario:
             if box is not None:
                 check_box(box)
         self._build_world()
-        _check_motion(self.motion, self.duration)
+        check_motion(self.motion, self.duration)
         _check_clear(self.motion, self.duration, self.world)
         if self.density_path is not None:
             for t in self.motion.sample_times(self.duration):
@@ -253,10 +253,18 @@ def _speed_bound(motion: DomainMotion, duration: float) -> float | None:
     return None
 
 
-def _check_motion(motion: DomainMotion, duration: float) -> None:
-    """Raise ValueError unless S(t) is a valid convex polygon at the sampled times."""
+def check_motion(motion: DomainMotion, duration: float) -> None:
+    """Raise ValueError unless S(t) is a valid convex polygon at the sampled times of
+    [0, ``duration``] s, and a rigid motion's scale stays positive throughout (past 0 the
+    polygon is S turned half a turn about its centre, which the samples alone, orientation
+    and all, take for a valid one)."""
     from covswarm.tvd.coverage import validate_polygon
 
+    if isinstance(motion, Rigid) and 1.0 + motion.scale_rate * duration <= 0.0:
+        raise ValueError(
+            f"domain: its scale 1 + scale_rate t reaches 0 at t = {-1.0 / motion.scale_rate:g} s"
+            f", within the {duration:g} s mission (scale_rate = {motion.scale_rate:g})"
+        )
     for t in motion.sample_times(duration):
         vertices, velocities = motion(float(t))
         try:

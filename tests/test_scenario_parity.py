@@ -77,6 +77,17 @@ def test_a_density_past_the_wire_limits_is_named_and_its_turning_explained(tmp_p
     assert str(refused.value).endswith("(a bump's cov_rate includes its turn_rate's turning)")
 
 
+def test_s_is_checked_over_the_runs_duration_not_only_the_scenarios(tmp_path: Path) -> None:
+    """A scenario of 2 s whose S shrinks to nothing at 20 s: fine as it is, refused for a
+    run of 30 s (covswarm run broadcast S shrinking through a point and back out)."""
+    path = scenario_file(tmp_path, 4, 1.0)
+    path.write_text(path.read_text() + "scale_rate = -0.05\n", encoding="utf-8")
+    scenario = load_scenario(str(path))
+    check_broadcastable(scenario, scenario.kappa, 10.0)
+    with pytest.raises(ValueError, match="reaches 0 at t = 20 s, within the 30 s mission"):
+        check_broadcastable(scenario, scenario.kappa, 30.0)
+
+
 def test_a_scenario_within_the_wire_limits_is_accepted(tmp_path: Path) -> None:
     scenario = load_scenario(str(scenario_file(tmp_path, 64, 1000.0)))
     check_broadcastable(scenario, scenario.kappa, scenario.duration)

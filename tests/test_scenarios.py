@@ -280,6 +280,10 @@ BAD_FILES = {
         scenario_text(f'kind = "rigid"\npolygon = {SQUARE}', "kappa = -1"),
         "kappa",
     ),
+    "shrinks through zero": (  # past 0 the scale turns S half a turn: still "valid"
+        scenario_text(f'kind = "rigid"\npolygon = {SQUARE}\nscale_rate = -1.0'),
+        "its scale 1 \\+ scale_rate t reaches 0 at t = 1 s, within the 10 s mission",
+    ),
     "density without floor": (
         scenario_text(f'kind = "rigid"\npolygon = {SQUARE}')
         + "[density]\n[[density.bumps]]\nmean = [0.5, 0.5]\ncov = [[0.1, 0], [0, 0.1]]\n"
