@@ -104,7 +104,9 @@ from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
 from covswarm.runtime.options import (
+    FAULT_DELAY_MAX,
     MAX_CLOCK_SKEW_OPTION,
+    MAX_RATE,
     ROUTER_HELP,
     SWARM_OPTION,
     TIME_SCALE_OPTION,
@@ -222,7 +224,7 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
 @id_options("Several brains in this process instead, e.g. 0-9 (one session).")
 @connect_option(ROUTER_HELP)
 @SWARM_OPTION
-@float_option("--rate", low=0.5, default=10.0)
+@float_option("--rate", low=0.5, high=MAX_RATE, default=10.0)
 @float_option(
     "--tick-phase",
     low=0.0,
@@ -261,7 +263,13 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
     "the neighbours' AgentStates)."
 )
 @pose_delay_option("Fault injection: deliver those positions this many s late.")
-@click.option("--pose-seed", type=int, default=0, show_default=True, help="Seed of the pose drops.")
+@click.option(
+    "--pose-seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Seed of the pose drops.",
+)
 @switch_option(
     "prediction",
     "--no-prediction: control from the last pose as received, not predicted to the command's time.",
@@ -313,6 +321,7 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
 @float_option(
     "--fault-step-delay",
     low=0.0,
+    high=FAULT_DELAY_MAX,
     default=0.0,
     help="Fault injection: every control step takes this many s more (a sleep): a starved "
     "process that holds fewer steps than asked.",

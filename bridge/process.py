@@ -50,7 +50,7 @@ from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker
-from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, connect_option, float_option
+from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, MAX_RATE, connect_option, float_option
 from covswarm.tvd.drive import KHEPERA_IV
 
 log = logging.getLogger("covswarm.bridge")
@@ -312,6 +312,7 @@ def bridge_group() -> None:
 @float_option(
     "--rate",
     low=1.0,
+    high=MAX_RATE,
     default=50.0,
     help="Loop rate (Hz): commands and poses are forwarded at the next tick.",
 )

@@ -53,6 +53,7 @@ from covswarm.records.recorder import LiveViewError
 from covswarm.runtime.claims import claim_exclusive
 from covswarm.runtime.clock import StopFlag, scaled
 from covswarm.runtime.options import (
+    MAX_RATE,
     TIME_SCALE_OPTION,
     agents_option,
     connect_option,
@@ -151,9 +152,13 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 @click.option("--swarm", required=True, help="Swarm name (key prefix) shared by the run.")
 @agents_option("Team size to wait for [scenario].")
 @float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario].")
-@float_option("--rate", low=0, low_open=True, default=20.0, help="Domain broadcasts per second.")
+@float_option("--rate", low=0.1, high=MAX_RATE, default=20.0, help="Domain broadcasts per second.")
 @float_option(
-    "--sample-rate", low=0, low_open=True, default=10.0, help="e_a samples per second (at most)."
+    "--sample-rate",
+    low=0.1,
+    high=MAX_RATE,
+    default=10.0,
+    help="e_a samples per second (at most).",
 )
 @kappa_option("Gain [scenario].")
 @float_option(

@@ -39,7 +39,7 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.runtime.options import SIZES, count_option, float_option, out_option
+from covswarm.runtime.options import MAX_RATE, SIZES, count_option, float_option, out_option
 from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
@@ -996,6 +996,7 @@ def live_table(rows: list[dict]) -> Any:
 @float_option(
     "--brain-tick-rate",
     low=0.5,
+    high=MAX_RATE,
     default=LIVE_RATE,
     help="Control rate of the brains for --brain-tick, Hz (AgentStates at most every 0.1 s).",
 )

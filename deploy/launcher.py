@@ -64,6 +64,8 @@ from covswarm.protocol.security import SECURE_OPTION, require_identities
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
     ENDPOINT,
+    FAULT_DELAY_MAX,
+    MAX_RATE,
     RUN_TIME_SCALE_OPTION,
     agents_option,
     deploy_options,
@@ -88,9 +90,13 @@ from covswarm.sim_robot.process import gather_drops
     "paper's TVD-D1."
 )
 @float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario default].")
-@click.option("--seed", type=int, default=0, show_default=True, help="Initial poses.")
+@click.option(
+    "--seed", type=click.IntRange(min=0), default=0, show_default=True, help="Initial poses."
+)
 @out_option(help="Output folder [runs/run-<scenario>-<timestamp>].")
-@float_option("--rate", low=0.5, default=10.0, help="Control rate of every agent, Hz.")
+@float_option(
+    "--rate", low=0.5, high=MAX_RATE, default=10.0, help="Control rate of every agent, Hz."
+)
 @float_option(
     "--state-period",
     low=0.0,
@@ -155,6 +161,7 @@ from covswarm.sim_robot.process import gather_drops
 @float_option(
     "--fault-step-delay",
     low=0.0,
+    high=FAULT_DELAY_MAX,
     default=0.0,
     help="Fault injection: every agent step takes this many s more (a sleep): a starved team.",
 )
@@ -213,6 +220,7 @@ from covswarm.sim_robot.process import gather_drops
     "--brain-tick",
     low=0,
     low_open=True,
+    high=1.0,
     help="s of CPU one brain-tick costs live on this host, for auto packing and the capacity "
     "warning (and whether robots keep commands for late steps) [measured at launch for a "
     "team beyond 8 agents per core: deploy/host_speed.py].",

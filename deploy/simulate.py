@@ -39,6 +39,7 @@ from covswarm.runtime.options import (
 from covswarm.tvd.control import DAMPING, LAWS, PRIORS
 
 DYNAMICS = ("single", "unicycle")
+MAX_STEPS = 1.0e7  # steps of one simulation: a day of mission at 10 ms
 
 
 @dataclass(frozen=True, eq=False)
@@ -171,6 +172,11 @@ def simulate(
         raise ValueError("agents, kappa, dt and duration must be positive")
     if dt > duration:
         raise ValueError(f"a step of {dt:g} s is longer than the mission ({duration:g} s)")
+    if duration / dt > MAX_STEPS:
+        raise ValueError(
+            f"{duration:g} s in steps of {dt:g} s is {duration / dt:.3g} steps, more than "
+            f"{MAX_STEPS:g}: give a longer --dt or a shorter --duration"
+        )
     if damping is None:
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
@@ -633,7 +639,13 @@ def world_line(summary: dict[str, Any]) -> str:
 @kappa_option("Gain [scenario default].")
 @float_option("--dt", low=0, low_open=True, help="Step, s [scenario default].")
 @float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario default].")
-@click.option("--seed", type=int, default=0, show_default=True, help="Initial positions/headings.")
+@click.option(
+    "--seed",
+    type=click.IntRange(min=0),
+    default=0,
+    show_default=True,
+    help="Initial positions/headings.",
+)
 @click.option("--dynamics", type=click.Choice(DYNAMICS), help="Robot model [scenario default].")
 @out_option("out_dir", help="Output folder [runs/sim-<scenario>-<timestamp>].")
 @click.option("--compare", is_flag=True, help="Also run without feedforward and compare.")
@@ -744,6 +756,12 @@ def sim_command(
     if options["dt"] > options["duration"]:
         raise click.BadParameter(
             f"a step of {options['dt']:g} s is longer than the mission ({options['duration']:g} s)",
+            param_hint="--dt",
+        )
+    if options["duration"] / options["dt"] > MAX_STEPS:
+        raise click.BadParameter(
+            f"{options['duration']:g} s in steps of {options['dt']:g} s is more than "
+            f"{MAX_STEPS:g} steps",
             param_hint="--dt",
         )
     ctx = click.get_current_context()

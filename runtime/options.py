@@ -14,20 +14,45 @@ from covswarm.protocol.inbound import MAX_CLOCK_SKEW
 from covswarm.protocol.keys import MAX_ID, parse_ids
 from covswarm.protocol.messages import MAX_KAPPA
 
+# No option of covswarm means anything beyond this magnitude (m, s, Hz, gains): 1e308 s of
+# mission overflowed the clocks and step counts of the processes it reached.
+OPTION_MAX = 1.0e6
+# Nor anything positive below this: 1e-300 as a rate or a time scale asked for sleeps the
+# platform cannot represent.
+OPTION_TINY = 1.0e-6
+# Hz: control, pose and broadcast rates beyond this only spin a core.
+MAX_RATE = 1000.0
+
 
 class FiniteFloat(click.FloatRange):
     """A float option's type: a finite number in the range (click's FloatRange lets "nan",
-    which fails every comparison, and "inf" through to the code behind the option)."""
+    which fails every comparison, and "inf" through to the code behind the option), of at
+    most OPTION_MAX in magnitude unless the range says otherwise, and, for a positive one
+    (a range open at 0), at least OPTION_TINY."""
+
+    def __init__(
+        self,
+        min: float | None = None,  # noqa: A002 (click's names)
+        max: float | None = None,  # noqa: A002
+        min_open: bool = False,
+        max_open: bool = False,
+        clamp: bool = False,
+    ) -> None:
+        low = -OPTION_MAX if min is None else min
+        high = OPTION_MAX if max is None else max
+        super().__init__(low, high, min_open=min_open, max_open=max_open, clamp=clamp)
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
-        number = super().convert(value, param, ctx)
-        if not math.isfinite(number):
+        if not math.isfinite(click.FLOAT.convert(value, param, ctx)):  # before the range
             self.fail(f"{value!r} is not a finite number", param, ctx)
+        number = super().convert(value, param, ctx)
+        if self.min == 0 and self.min_open and number < OPTION_TINY:
+            self.fail(f"{value!r} is below {OPTION_TINY:g}", param, ctx)
         return number
 
     def _describe_range(self) -> str:
-        if self.min is None and self.max is None:  # click's own would say "x<=None"
-            return "finite"
+        if self.min == -OPTION_MAX and self.max == OPTION_MAX:
+            return f"|x|<={OPTION_MAX:g}"
         return super()._describe_range()
 
 
@@ -40,9 +65,13 @@ MAX_CLOCK_SKEW_OPTION = click.option(
 )
 
 
+# Mission seconds per wall second: 1000 robots run at 0.05; at 1e-300 a process asked for
+# sleeps beyond the platform's, at 1e308 its mission stamps were no longer finite.
+TIME_SCALES = (1.0e-3, 100.0)
+
 TIME_SCALE_OPTION = click.option(
     "--time-scale",
-    type=FiniteFloat(min=0.0, min_open=True),
+    type=FiniteFloat(min=TIME_SCALES[0], max=TIME_SCALES[1]),
     default=1.0,
     show_default=True,
     help="Mission seconds per wall second (< 1: slower than real time, for big simulations); "
@@ -57,7 +86,7 @@ class TimeScaleOrAuto(FiniteFloat):
     name = "number|auto"
 
     def __init__(self) -> None:
-        super().__init__(min=0.0, min_open=True)
+        super().__init__(min=TIME_SCALES[0], max=TIME_SCALES[1])
 
     def convert(self, value: Any, param: click.Parameter | None, ctx: click.Context | None) -> Any:
         if value is None or (isinstance(value, str) and value.strip().lower() == "auto"):
@@ -212,9 +241,14 @@ def pose_loss_option(help: str) -> Decorator:
     return float_option("--pose-loss", low=0.0, high=1.0, high_open=True, default=0.0, help=help)
 
 
+# s: the longest delay a fault injection adds (a pose delivered late, a step made slow):
+# beyond it a team only waits for its start-up timeout.
+FAULT_DELAY_MAX = 60.0
+
+
 def pose_delay_option(help: str) -> Decorator:
     """``--pose-delay``: fault injection, received poses delivered this many s late."""
-    return float_option("--pose-delay", low=0.0, default=0.0, help=help)
+    return float_option("--pose-delay", low=0.0, high=FAULT_DELAY_MAX, default=0.0, help=help)
 
 
 def agents_option(help: str) -> Decorator:

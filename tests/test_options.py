@@ -87,3 +87,36 @@ def test_id_selection_needs_exactly_one() -> None:
         id_selection(1, "0-2")
     with pytest.raises(click.BadParameter):
         id_selection(None, "2-0")
+
+
+# Values that passed every option's own range and then crashed a process mid-run (clocks,
+# step counts, sleeps the platform cannot make) or spun a core: refused as the command line
+# is read, whatever the command.
+EXTREMES = [
+    ("run", "--rate", "1e308"), ("run", "--time-scale", "1e308"), ("run", "--time-scale", "1e-300"),
+    ("run", "--fault-step-delay", "1e308"), ("run", "--pose-delay", "1e308"),
+    ("run", "--brain-tick", "1e308"), ("run", "--duration", "1e308"), ("run", "--seed", "-1"),
+    ("sim", "--dt", "1e-300"), ("sim", "--damping", "1e308"), ("sim", "--seed", "-1"),
+    ("agent", "--rate", "1e308"), ("agent", "--time-scale", "1e-300"),
+    ("agent", "--pose-seed", "-1"), ("coordinator", "--rate", "1e308"),
+    ("coordinator", "--time-scale", "1e308"), ("robot", "--rate", "1e308"),
+    ("steer", "--timeout", "1e308"), ("bench", "--brain-tick-late", "1e308"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("command", "option", "value"), EXTREMES)
+def test_extreme_values_are_refused_as_the_command_line_is_read(
+    command: str, option: str, value: str
+) -> None:
+    from covswarm.deploy.cli import main
+
+    done = CliRunner().invoke(main, [command, option, value])
+    assert done.exit_code == 2, done.output
+    assert f"Invalid value for '{option}'" in done.output and "Traceback" not in done.output
+
+
+def test_a_simulation_of_too_many_steps_is_refused() -> None:
+    from covswarm.deploy.cli import main
+
+    done = CliRunner().invoke(main, ["sim", "--dt", "1e-5", "--duration", "1000"])
+    assert done.exit_code == 2 and "more than 1e+07 steps" in done.output, done.output
