@@ -28,6 +28,9 @@ COORDINATOR_GRACE = 60.0  # s for an interrupted coordinator to write its output
 # A child not ready after this long stops holding a start-up slot. Generous: on an
 # overloaded machine starting more processes at once only makes every start slower.
 STALL = 120.0
+# s a child's exit before the mission started waits for a Status saying it had (they come
+# at the coordinator's broadcast rate, 20 Hz by default) before it stops the run.
+START_GRACE = 1.0
 
 
 @dataclass
@@ -87,6 +90,10 @@ class Supervisor:
         # already runs in the swarm (a bridge's real robot) left the mission to drive
         # whoever held that id, and that robot's token made the launcher count it ready.
         self.failed_start: tuple[Child, str] | None = None
+        # One that exited while the mission had not started as far as we know, and when:
+        # a failed start unless a Status says within START_GRACE that it had (a child that
+        # died as the mission began, its Status still on the way).
+        self._exited_early: tuple[Child, float] | None = None
         self.rss: dict[str, list[float]] = {}
         self.cpu: dict[str, list[float]] = {}
         self.members: dict[str, list[int]] = {}
@@ -134,20 +141,34 @@ class Supervisor:
             if child.exit_code is None and (code := child.process.poll()) is not None:
                 child.exit_code = code
                 self.startup.exited.add(child.spec.name)
-                status = self.progress.status
-                started = status is not None and status.state != "waiting"
-                if not started and self.failed_start is None:
-                    self.failed_start = (child, last_line(child.log_path))
+                if not self._started() and self._exited_early is None:
+                    self._exited_early = (child, now)
                 elif child is not self.coordinator:
-                    self.console.log(
-                        f"[red]{child.spec.name} (pid {child.process.pid}) exited with {code} "
-                        f"{now - self.began:.1f} s after launch; see {child.log_path}"
-                    )
+                    self._tell_exit(child, now)
+        if self._exited_early is not None and self.failed_start is None:
+            child, when = self._exited_early
+            if self._started():
+                self._exited_early = None
+                if child is not self.coordinator:
+                    self._tell_exit(child, when)
+            elif now - when >= START_GRACE:
+                self.failed_start = (child, last_line(child.log_path))
         status = self.progress.status
         if status is not None and status.state == "running" and self._cpu_at_start is None:
             self._cpu_at_start = (now, self._cpu_times())
         if status is not None and status.state == "done":
             self.measure_resources(now)
+
+    def _started(self) -> bool:
+        """Whether a Status has said the mission is under way (or over)."""
+        status = self.progress.status
+        return status is not None and status.state != "waiting"
+
+    def _tell_exit(self, child: Child, when: float) -> None:
+        self.console.log(
+            f"[red]{child.spec.name} (pid {child.process.pid}) exited with {child.exit_code} "
+            f"{when - self.began:.1f} s after launch; see {child.log_path}"
+        )
 
     def _cpu_times(self) -> dict[str, float | None]:
         times = {name: cpu_seconds(c.process.pid) for name, c in self.children.items()}

@@ -87,7 +87,7 @@ def test_a_still_mask_must_be_one() -> None:
     mask[[0, 3]] = True
     expected = coverage.aggregate_error(positions, SQUARE, still=mask)
     for wrong in (np.array([0, 3]), mask.astype(int), np.array([True])):
-        with pytest.raises(ValueError, match=r"still must be an \(10,\) bool array"):
+        with pytest.raises(ValueError, match=r"still must be a \(10,\) bool array"):
             coverage.aggregate_error(positions, SQUARE, still=wrong)
     points, _, batch = coverage.tessellate(positions, SQUARE)
     offsets = points - coverage.as_vectors(batch.centroid)
