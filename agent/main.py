@@ -112,6 +112,7 @@ from covswarm.runtime.options import (
     TIME_SCALE_OPTION,
     VERBOSE_OPTION,
     connect_option,
+    count_option,
     float_option,
     id_options,
     id_selection,
@@ -263,13 +264,7 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
     "the neighbours' AgentStates)."
 )
 @pose_delay_option("Fault injection: deliver those positions this many s late.")
-@click.option(
-    "--pose-seed",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Seed of the pose drops.",
-)
+@count_option("--pose-seed", default=0, low=0, help="Seed of the pose drops.")
 @switch_option(
     "prediction",
     "--no-prediction: control from the last pose as received, not predicted to the command's time.",

@@ -30,6 +30,7 @@ from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
 from covswarm.runtime.options import (
     agents_option,
+    count_option,
     deploy_options,
     float_option,
     kappa_option,
@@ -639,13 +640,7 @@ def world_line(summary: dict[str, Any]) -> str:
 @kappa_option("Gain [scenario default].")
 @float_option("--dt", low=0, low_open=True, help="Step, s [scenario default].")
 @float_option("--duration", low=0, low_open=True, help="Mission length, s [scenario default].")
-@click.option(
-    "--seed",
-    type=click.IntRange(min=0),
-    default=0,
-    show_default=True,
-    help="Initial positions/headings.",
-)
+@count_option("--seed", default=0, low=0, help="Initial positions/headings.")
 @click.option("--dynamics", type=click.Choice(DYNAMICS), help="Robot model [scenario default].")
 @out_option("out_dir", help="Output folder [runs/sim-<scenario>-<timestamp>].")
 @click.option("--compare", is_flag=True, help="Also run without feedforward and compare.")
