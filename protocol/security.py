@@ -375,6 +375,9 @@ def credentials_command(
     console, operator, one agent and one robot per id. Run again to add identities."""
     if agents is not None and ids:
         raise click.UsageError("give --agents N or --ids, not both")
+    if not str(directory).strip() or directory == Path("."):
+        # the CA's private key among whatever else the working directory holds
+        raise click.BadParameter("name a folder of its own, e.g. ./secure", param_hint="DIRECTORY")
     both = list(range(agents)) if agents is not None else ids
     try:
         issue_credentials(
@@ -385,6 +388,8 @@ def credentials_command(
         )  # fmt: skip
     except (RuntimeError, ValueError, subprocess.CalledProcessError) as exc:
         raise click.ClickException(str(exc)) from exc
+    except OSError as exc:  # a folder that cannot be made there
+        raise click.ClickException(f"{directory}: {exc.strerror or exc}") from None
     click.echo(
         f"credentials written to {directory}: give each machine {directory / CA} and its "
         f"own sub-folders; keep {directory / CA_KEY} on this machine only"

@@ -601,3 +601,22 @@ def test_covswarm_run_refuses_before_starting_when_a_certificate_is_missing(
     assert "lacks agent-0-1" in done.stderr and "--group 0-1" in done.stderr
     assert time.monotonic() - started < 30
     assert not (tmp_path / "run" / "logs").exists()
+
+
+def test_credentials_want_a_folder_of_their_own(tmp_path: Path, monkeypatch) -> None:
+    """An empty DIRECTORY (a variable unset in a script) or "." put the CA's private key in
+    the working directory, among whatever else it holds."""
+    from click.testing import CliRunner
+
+    from covswarm.protocol.security import credentials_command
+
+    monkeypatch.chdir(tmp_path)
+    for directory in ("", "."):
+        done = CliRunner().invoke(credentials_command, [directory, "--ids", "0"])
+        assert done.exit_code == 2 and "name a folder of its own" in done.output, done.output
+    assert list(tmp_path.iterdir()) == []
+    (tmp_path / "file").write_text("")
+    done = CliRunner().invoke(
+        credentials_command, [str(tmp_path / "file" / "secure"), "--ids", "0"]
+    )
+    assert done.exit_code == 1 and "Not a directory" in done.output, done.output
