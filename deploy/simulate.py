@@ -28,6 +28,7 @@ from covswarm.coordinator.config import DEPLOY_TIMEOUT
 from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
+from covswarm.protocol.keys import parse_ids
 from covswarm.runtime.options import (
     agents_option,
     count_option,
@@ -390,11 +391,14 @@ def simulate(
 
 
 def robot_indices(text: str) -> tuple[int, ...]:
-    """``--still``'s robot indices from "I,J,..." ("" for none)."""
+    """``--still``'s robot indices from "I,J,..." or ranges as ``--ids`` takes them
+    (protocol.keys.parse_ids: "0-4,10"); "" for none."""
+    if not text:
+        return ()
     try:
-        return tuple(int(part) for part in text.split(",") if part.strip())
-    except ValueError:
-        raise click.BadParameter(f"robot indices separated by commas, not {text!r}") from None
+        return tuple(parse_ids(text))
+    except ValueError as exc:
+        raise click.BadParameter(str(exc)) from None
 
 
 def moving_robots(n: int, still: Sequence[int]) -> np.ndarray:
@@ -673,7 +677,8 @@ def world_line(summary: dict[str, Any]) -> str:
     default="",
     callback=lambda _ctx, _param, text: robot_indices(text),
     metavar="I,J,...",
-    help="Robots (indices from 0) whose brains are dead: they stand where they start, keep "
+    help="Robots (indices from 0, e.g. 1,4 or 0-9) whose brains are dead: they stand where "
+    "they start, keep "
     "their cells (the others' end where theirs begin), out of e_a, a still obstacle for the "
     "others' --safety filters.",
 )

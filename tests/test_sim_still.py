@@ -141,9 +141,13 @@ def test_sim_command_records_its_still_robots(tmp_path) -> None:
     bad = runner.invoke(sim_command, [*args, "--still", "7", "--out", str(tmp_path / "bad")])
     assert bad.exit_code == 2
     assert "robot 7 is not in a team of 6" in bad.output
-    bad = runner.invoke(sim_command, [*args, "--still", "one", "--out", str(tmp_path / "bad")])
-    assert bad.exit_code == 2
-    assert "robot indices separated by commas" in bad.output
+    for text in ("one", "0,,1", ","):  # as --ids: no empty or unreadable part
+        bad = runner.invoke(sim_command, [*args, "--still", text, "--out", str(tmp_path / "bad")])
+        assert bad.exit_code == 2
+        assert f"invalid id list {text!r}" in bad.output
+    ranged = runner.invoke(sim_command, [*args, "--still", "0-1", "--out", str(tmp_path / "r")])
+    assert ranged.exit_code == 0, ranged.output
+    assert json.loads((tmp_path / "r" / "summary.json").read_text())["still"] == [0, 1]
 
 
 def _left_behind(result: SimResult, still: list[int]) -> int:
