@@ -279,7 +279,7 @@ def run_swarm(run: RunConfig) -> None:
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--scenario") from None
     try:
-        swarm = check_swarm(run.swarm) if run.swarm else new_swarm_name()
+        swarm = check_swarm(run.swarm) if run.swarm is not None else new_swarm_name()
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--swarm") from None
     n = team_size(run, scenario)

@@ -101,6 +101,7 @@ EXTREMES = [
     ("agent", "--pose-seed", "-1"), ("coordinator", "--rate", "1e308"),
     ("coordinator", "--time-scale", "1e308"), ("robot", "--rate", "1e308"),
     ("steer", "--timeout", "1e308"), ("bench", "--brain-tick-late", "1e308"),
+    ("run", "--swarm", ""),  # a random name had stood in for it
 ]  # fmt: skip
 
 
