@@ -65,6 +65,11 @@ def layouts(sizes: list[int], count: int) -> list[np.ndarray]:
 
 def load_peer(folder: Path):
     """The peer's TVD (TVD-C) class, Agent and DoubleEllipse from its folder."""
+    if not (folder / "coveragecontrol_2d.py").is_file():
+        sys.exit(
+            f"--peer {folder}: no coveragecontrol_2d.py there (the peer's "
+            "pycoverage_robotarium folder)"
+        )
     sys.path.insert(0, str(folder))
     import coveragecontrol_2d  # noqa: PLC0415 (the peer: on the path only now)
     import utils_2d  # noqa: PLC0415
@@ -169,10 +174,20 @@ def measure(
     }
 
 
+def sizes_list(text: str) -> list[int]:
+    """--sizes: positive integers separated by commas."""
+    parts = text.split(",")
+    if not all(p.strip().isdigit() and int(p) > 0 for p in parts):
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected positive integers separated by commas"
+        )
+    return [int(p) for p in parts]
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--peer", type=Path, required=True, help="its pycoverage_robotarium folder")
-    parser.add_argument("--sizes", default="5,10,20", help="team sizes")
+    parser.add_argument("--sizes", type=sizes_list, default="5,10,20", help="team sizes")
     parser.add_argument("--layouts", type=int, default=3, help="random layouts per size")
     parser.add_argument("--repeats", type=int, default=3, help="peer steps timed per layout")
     parser.add_argument("--samples", type=int, default=SAMPLES, help="the peer's MC points")
@@ -185,7 +200,7 @@ def main() -> None:
     args = parser.parse_args()
     peer, utils = load_peer(args.peer)
     quadrature = first_quadrature() if args.first_quadrature else None
-    sizes = [int(s) for s in args.sizes.split(",")]
+    sizes = args.sizes
     rows = []
     for positions in layouts(sizes, args.layouts):
         rows.append(measure(peer, utils, positions, args.samples, args.repeats, quadrature))

@@ -59,6 +59,8 @@ def main() -> None:
     parser.add_argument("--rate", type=float, default=10.0, help="control rate, Hz")
     parser.add_argument("--start", type=float, default=5.0, help="s counted as the start")
     args = parser.parse_args()
+    if not (args.run / "run.mcap").is_file():
+        parser.error(f"{args.run}: no run.mcap there (a covswarm run's output folder)")
     counts = missed_periods(read_samples(args.run / "run.mcap"), args.rate)
     early, final, late = split_at(counts, args.start)
     print(

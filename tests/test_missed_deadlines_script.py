@@ -56,3 +56,11 @@ def test_a_recording_without_a_mission_is_refused(tmp_path: Path) -> None:
         [sys.executable, str(SCRIPT), str(folder)], capture_output=True, text=True, timeout=60
     )
     assert done.returncode != 0 and "no /error sample" in done.stderr
+
+
+def test_a_folder_without_a_recording_is_refused_in_one_line(tmp_path: Path) -> None:
+    done = subprocess.run(
+        [sys.executable, str(SCRIPT), str(tmp_path / "nothing")], capture_output=True, text=True
+    )
+    assert done.returncode == 2 and "Traceback" not in done.stderr
+    assert "no run.mcap there (a covswarm run's output folder)" in done.stderr
