@@ -25,7 +25,7 @@ BASE = ["--connect", "tcp/127.0.0.1:1", "--swarm", "s1"]
         (["--polygon", "0,0;1,0"], "2 points"),
         (["--translate", "nan,0"], "not finite"),
         (["--translate", "1,0", "--about", "0,0"], "--rotate or --scale only"),
-        (["--scale", "0"], "x>0"),
+        (["--scale", "0"], "0<x<="),
         (["--translate", "1,0", "--duration", "2", "--speed", "1"], "not both"),
         (["--goto", "1"], "expected X,Y"),
         (["--goto", "1,0", "--translate", "1,0"], "exactly one of"),
