@@ -172,13 +172,7 @@ def simulate(
         raise ValueError(f"dynamics must be one of {DYNAMICS}, not {dynamics!r}")
     if n < 1 or kappa <= 0 or dt <= 0 or duration <= 0:
         raise ValueError("agents, kappa, dt and duration must be positive")
-    if dt > duration:
-        raise ValueError(f"a step of {dt:g} s is longer than the mission ({duration:g} s)")
-    if duration / dt > MAX_STEPS:
-        raise ValueError(
-            f"{duration:g} s in steps of {dt:g} s is {duration / dt:.3g} steps, more than "
-            f"{MAX_STEPS:g}: give a longer --dt or a shorter --duration"
-        )
+    check_steps(dt, duration)
     if damping is None:
         damping = control.DAMPING
     if not (math.isfinite(damping) and damping >= 0):
@@ -388,6 +382,18 @@ def simulate(
         polygons, positions, guarded, fallbacks, wheel_log, safety_active, safety_relaxed,
         contact_stops, slid, released,
     )  # fmt: skip
+
+
+def check_steps(dt: float, duration: float) -> None:
+    """ValueError unless a mission of ``duration`` s takes at least one step of ``dt`` s and
+    at most MAX_STEPS."""
+    if dt > duration:
+        raise ValueError(f"a step of {dt:g} s is longer than the mission ({duration:g} s)")
+    if duration / dt > MAX_STEPS:
+        raise ValueError(
+            f"{duration:g} s in steps of {dt:g} s is more than {MAX_STEPS:g} steps "
+            f"({duration / dt:.3g}): give a longer --dt or a shorter --duration"
+        )
 
 
 def robot_indices(text: str) -> tuple[int, ...]:
@@ -753,17 +759,10 @@ def sim_command(
         moving_robots(options["agents"], still)
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--still") from None
-    if options["dt"] > options["duration"]:
-        raise click.BadParameter(
-            f"a step of {options['dt']:g} s is longer than the mission ({options['duration']:g} s)",
-            param_hint="--dt",
-        )
-    if options["duration"] / options["dt"] > MAX_STEPS:
-        raise click.BadParameter(
-            f"{options['duration']:g} s in steps of {options['dt']:g} s is more than "
-            f"{MAX_STEPS:g} steps",
-            param_hint="--dt",
-        )
+    try:
+        check_steps(options["dt"], options["duration"])
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="--dt") from None
     ctx = click.get_current_context()
     tvd_c_only = [
         f"--{name}"

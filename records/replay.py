@@ -81,72 +81,45 @@ def recording_parts(run_dir: Path) -> list[Path]:
     return parts
 
 
-def _decoded(path: Path, topics: list[str]) -> tuple[list[Any], dict[str, Any], bool]:
-    """(the decoded messages of ``topics`` in log time order, the run's metadata, whether
-    the file ended early) of the MCAP file at ``path``. A file whose writer was killed (a
-    coordinator SIGKILLed before it wrote the summary and footer: the first part of a
-    resumed run) is read as a stream up to its last whole record."""
+MCAP_MAGIC = b"\x89MCAP0\r\n"  # every MCAP file's first bytes (the MCAP specification)
+
+
+def _records(
+    path: Path, topics: list[str], decoded: bool = True
+) -> tuple[list[Any], dict[str, Any], bool]:
+    """(the messages of ``topics`` in log time order, decoded (schema, channel, message,
+    decoded) or not (schema, channel, message); the run's metadata; whether the file ended
+    early) of the MCAP file at ``path``; ValueError if it is no MCAP file. A file whose
+    writer was killed (a coordinator SIGKILLed before it wrote the summary and footer: the
+    first part of a resumed run) is read as a stream up to its last whole record."""
     from mcap.reader import NonSeekingReader, make_reader
 
+    factories = decoder_factories() if decoded else ()
     metadata: dict[str, Any] = {}
     with open(path, "rb") as stream:
-        _check_magic(stream, path)
+        if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
+            raise ValueError(f"{path}: not an MCAP file")
+        stream.seek(0)
         try:
-            reader = make_reader(stream, decoder_factories=decoder_factories())
+            reader = make_reader(stream, decoder_factories=factories)
             for entry in reader.iter_metadata():
                 if entry.name == METADATA_NAME:
                     metadata = {k: _json_or_text(v) for k, v in entry.metadata.items()}
-            messages = list(reader.iter_decoded_messages(topics=topics, log_time_order=True))
-            return messages, metadata, False
+            read = reader.iter_decoded_messages if decoded else reader.iter_messages
+            return list(read(topics=topics, log_time_order=True)), metadata, False
         except Exception:  # noqa: BLE001 -- no footer or summary: read it as a stream below
             pass
         stream.seek(0)
-        streamed = NonSeekingReader(
-            stream, validate_crcs=False, decoder_factories=decoder_factories()
-        )
+        streamed = NonSeekingReader(stream, validate_crcs=False, decoder_factories=factories)
+        read = streamed.iter_decoded_messages if decoded else streamed.iter_messages
         messages = []
         try:
-            for item in streamed.iter_decoded_messages(topics=topics, log_time_order=False):
+            for item in read(topics=topics, log_time_order=False):
                 messages.append(item)
         except Exception:  # noqa: BLE001 -- the record cut short where its writer died
             pass
     messages.sort(key=lambda item: item[2].log_time)  # stable: a tick's messages in order
     return messages, metadata, True
-
-
-MCAP_MAGIC = b"\x89MCAP0\r\n"  # every MCAP file's first bytes (the MCAP specification)
-
-
-def _check_magic(stream: Any, path: Path) -> None:
-    """ValueError unless ``stream`` (at its start, left there) begins as an MCAP file."""
-    if stream.read(len(MCAP_MAGIC)) != MCAP_MAGIC:
-        raise ValueError(f"{path}: not an MCAP file")
-    stream.seek(0)
-
-
-def _raw_messages(path: Path, topics: list[str]) -> tuple[list[Any], bool]:
-    """(the (schema, channel, message) records of ``topics`` in log time order, undecoded;
-    whether the file ended early), read as :func:`_decoded` reads a file whose writer was
-    killed: up to its last whole record."""
-    from mcap.reader import NonSeekingReader, make_reader
-
-    with open(path, "rb") as stream:
-        _check_magic(stream, path)
-        try:
-            reader = make_reader(stream)
-            return list(reader.iter_messages(topics=topics, log_time_order=True)), False
-        except Exception:  # noqa: BLE001 -- no footer or summary: read it as a stream below
-            pass
-        stream.seek(0)
-        messages = []
-        try:
-            streamed = NonSeekingReader(stream, validate_crcs=False)
-            for item in streamed.iter_messages(topics=topics, log_time_order=False):
-                messages.append(item)
-        except Exception:  # noqa: BLE001 -- the record cut short where its writer died
-            pass
-    messages.sort(key=lambda item: item[2].log_time)
-    return messages, True
 
 
 def read_recording(paths: str | Path | Sequence[str | Path]) -> Recording:
@@ -159,7 +132,7 @@ def read_recording(paths: str | Path | Sequence[str | Path]) -> Recording:
     updated: dict[int, float] = {}
     topics = [ROBOTS_TOPIC, DOMAIN_TOPIC, CELLS_TOPIC, ERROR_TOPIC]
     for path in parts:
-        messages, metadata, truncated = _decoded(path, topics)
+        messages, metadata, truncated = _records(path, topics)
         record.metadata = record.metadata or metadata
         if truncated:
             record.truncated.append(path.name)
@@ -225,7 +198,7 @@ def read_agent_states(path: str | Path) -> AgentStates:
     (``--no-record-states``, a simulation, an older file). A file whose coordinator was
     killed is read up to its last whole record (``truncated``); ValueError for a file that
     is no MCAP file."""
-    messages, truncated = _raw_messages(Path(path), [AGENT_STATES_TOPIC])
+    messages, _, truncated = _records(Path(path), [AGENT_STATES_TOPIC], decoded=False)
     record = AgentStates(truncated=truncated)
     for _, _, message in messages:
         try:

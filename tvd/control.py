@@ -99,7 +99,6 @@ from covswarm.tvd.coverage import (
     make_domain,
     neighbor_candidates,
     tessellate,
-    validate_positions,
 )
 from covswarm.tvd.density import Density
 
@@ -249,9 +248,9 @@ def _motion_field(
 
 
 def _check_kappa(kappa: float) -> None:
-    if isinstance(kappa, bool) or not isinstance(kappa, (int, float, np.floating, np.integer)):
-        raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
-    if not (math.isfinite(kappa) and kappa > 0.0):
+    real = (int, float, np.floating, np.integer)
+    number = not isinstance(kappa, bool) and isinstance(kappa, real)
+    if not (number and math.isfinite(kappa) and kappa > 0.0):
         raise ValueError(f"kappa must be a positive finite gain, got {kappa!r}")
 
 
@@ -748,7 +747,7 @@ def local_step(
     _check_kappa(kappa)
     ids = _ordered_known(me, positions)
     _check_still(me, still)
-    points = validate_positions(_view_points(positions, ids))
+    points = _view_points(positions, ids)  # checked there, finite, ``me`` among them
     domain = make_domain(polygon, polygon_velocity)
     fixed = _fixed([ids], [still]) if still else None
     known = _Known([ids], points, [0], [ids.index(me)], [float(kappa)], fixed)

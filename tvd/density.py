@@ -251,15 +251,15 @@ class Density:
                 shape = _BUMP_SHAPES.get(key, ())
                 value = bump.get(key, np.zeros(shape).tolist() if shape else 0.0)
                 columns[key].append(_numbers(value, shape, f"bump {i} {key}"))
-        return cls(
-            floor=_number(data["floor"], "floor"),
-            means=np.array(columns["mean"], dtype=float).reshape(-1, 2),
-            covariances=np.array(columns["cov"], dtype=float).reshape(-1, 2, 2),
-            weights=np.array(columns["weight"], dtype=float),
-            mean_rates=np.array(columns["mean_rate"], dtype=float).reshape(-1, 2),
-            covariance_rates=np.array(columns["cov_rate"], dtype=float).reshape(-1, 2, 2),
-            weight_rates=np.array(columns["weight_rate"], dtype=float),
-            time=_number(data.get("t", 0.0), "t"),
+        return cls(  # the constructor's _array makes them arrays of their shapes
+            floor=_numbers(data["floor"], (), "floor"),
+            means=columns["mean"],
+            covariances=columns["cov"],
+            weights=columns["weight"],
+            mean_rates=columns["mean_rate"],
+            covariance_rates=columns["cov_rate"],
+            weight_rates=columns["weight_rate"],
+            time=_numbers(data.get("t", 0.0), (), "t"),
         )
 
     # ------------------------------------------- covswarm.tvd.coverage's DensityModel protocol
@@ -300,12 +300,6 @@ def _numbers(value: Any, shape: tuple[int, ...], name: str) -> Any:
         return [walk(part, dims[1:]) for part in item]
 
     return walk(value, shape)
-
-
-def _number(value: Any, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise ValueError(f"density: {name} must be a number, got {value!r}")
-    return float(value)
 
 
 def _array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:

@@ -77,10 +77,9 @@ class DiffDrive:
     def __post_init__(self) -> None:
         for name in ("wheel_radius", "wheel_separation", "body_diameter", "max_wheel_speed"):
             value = getattr(self, name)
-            if isinstance(value, bool) or not (isinstance(value, (int, float)) and value > 0):
-                raise ValueError(f"DiffDrive: {name} must be a number > 0, got {value!r}")
-            if not math.isfinite(value):
-                raise ValueError(f"DiffDrive: {name} must be finite, got {value!r}")
+            number = not isinstance(value, bool) and isinstance(value, (int, float))
+            if not (number and 0.0 < value < math.inf):
+                raise ValueError(f"DiffDrive: {name} must be a finite number > 0, got {value!r}")
 
 
 KHEPERA_IV = DiffDrive()
