@@ -50,7 +50,13 @@ from covswarm.protocol.security import SECURE_OPTION
 from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker
-from covswarm.runtime.options import MAX_CLOCK_SKEW_OPTION, MAX_RATE, connect_option, float_option
+from covswarm.runtime.options import (
+    MAX_CLOCK_SKEW_OPTION,
+    MAX_RATE,
+    connect_option,
+    float_option,
+    refuse_unused,
+)
 from covswarm.tvd.drive import KHEPERA_IV
 
 log = logging.getLogger("covswarm.bridge")
@@ -367,6 +373,8 @@ def ros2_command(
 ) -> None:
     """Drive ROS 2 robots (rmw_zenoh) as covswarm robots: cmd_vel out, poses in."""
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING)
+    ctx = click.get_current_context()
+    refuse_unused(ctx, ("frame", "state_namespace"), publish_state, "--publish-state")
     try:
         cdr.typestore()
     except RuntimeError as exc:

@@ -36,6 +36,15 @@ def needs_token(host: str) -> bool:
     return host.strip("[]").lower() not in LOOPBACK_NAMES
 
 
+def check_host(host: str) -> str:
+    """``host`` to listen on, or ValueError for an empty one: aiohttp takes "" for every
+    interface, which the one who typed it may not mean (and the URL printed would name no
+    host); every interface is 0.0.0.0 (or ::), said as such."""
+    if not host.strip():
+        raise ValueError("an empty address: give one (0.0.0.0 for every interface, with a token)")
+    return host
+
+
 def new_token() -> str:
     """A fresh random token for one console's lifetime."""
     return secrets.token_urlsafe(TOKEN_BYTES)

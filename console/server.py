@@ -37,6 +37,7 @@ from aiohttp import web
 from covswarm.console.access import (
     COOKIE,
     DEFAULT_HOST,
+    check_host,
     needs_token,
     new_token,
     refusal,
@@ -478,6 +479,7 @@ def console_command(
     logging.basicConfig(level=logging.INFO, format="%(asctime)s console %(message)s")
     try:
         check_swarm(swarm)
+        check_host(host)
         config = session_config(list(connect), secure=secure, role="console")
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None

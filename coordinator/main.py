@@ -56,6 +56,7 @@ from covswarm.runtime.options import (
     MAX_RATE,
     TIME_SCALE_OPTION,
     agents_option,
+    check_deploy_options,
     connect_option,
     deploy_options,
     float_option,
@@ -212,5 +213,6 @@ def run_coordinator(config: CoordinatorConfig) -> None:
 def coordinator_command(foxglove_port: int | None, **options: Any) -> None:
     """Broadcast the moving domain, monitor the team, write the run's outputs."""
     logging.basicConfig(level=logging.INFO, format="%(asctime)s coordinator %(message)s")
+    check_deploy_options(click.get_current_context(), options["deploy_error"])
     # FOXGLOVE_OPTION (shared with covswarm run) names its value foxglove_port.
     run_coordinator(CoordinatorConfig(foxglove=foxglove_port, **options))

@@ -39,7 +39,15 @@ from typing import Any
 import click
 import numpy as np
 
-from covswarm.runtime.options import MAX_RATE, SIZES, count_option, float_option, out_option
+from covswarm.runtime.options import (
+    MAX_RATE,
+    SIZES,
+    count_option,
+    float_option,
+    given_options,
+    out_option,
+    refuse_unused,
+)
 from covswarm.tvd.control import local_step, tvd_c, tvd_d1, tvd_da
 from covswarm.tvd.coverage import mass_centroid, neighbors
 from covswarm.tvd.density import Density
@@ -851,21 +859,10 @@ STEP_ONLY = ("quick", "sizes", "seeds", "repeats", "obstacles", "live", *LIVE_ON
 
 def check_bench_options(ctx: click.Context, brain_tick: bool, live: bool) -> None:
     """UsageError for options given on the command line that the chosen mode ignores."""
-    from click.core import ParameterSource
-
-    def given(names: tuple[str, ...]) -> list[str]:
-        return [
-            "--" + name.replace("_", "-")
-            for name in names
-            if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE
-        ]
-
-    if brain_tick and (ignored := given(STEP_ONLY)):
+    if brain_tick and (ignored := given_options(ctx, *STEP_ONLY)):
         raise click.UsageError(f"--brain-tick times packed processes only: no {', '.join(ignored)}")
-    if not brain_tick and (ignored := given(BRAIN_TICK_ONLY)):
-        raise click.UsageError(f"{' and '.join(ignored)}: for --brain-tick only")
-    if not live and (ignored := given(LIVE_ONLY)):
-        raise click.UsageError(f"{' and '.join(ignored)}: for --live runs only")
+    refuse_unused(ctx, BRAIN_TICK_ONLY, brain_tick, "--brain-tick")
+    refuse_unused(ctx, LIVE_ONLY, live, "--live")
 
 
 def table_console() -> Any:

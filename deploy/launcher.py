@@ -68,6 +68,7 @@ from covswarm.runtime.options import (
     MAX_RATE,
     RUN_TIME_SCALE_OPTION,
     agents_option,
+    check_deploy_options,
     deploy_options,
     float_option,
     kappa_option,
@@ -75,6 +76,7 @@ from covswarm.runtime.options import (
     out_option,
     pose_delay_option,
     pose_loss_option,
+    refuse_unused,
     switch_option,
 )
 from covswarm.sim_robot.process import gather_drops
@@ -228,6 +230,11 @@ from covswarm.sim_robot.process import gather_drops
 @SECURE_OPTION
 def run_command(foxglove_port: int | None, **options: Any) -> None:
     """Run the swarm as real processes over Zenoh on this machine (or this host's slice)."""
+    ctx = click.get_current_context()
+    refuse_unused(ctx, ("console_port",), options["console"], "--console")
+    recorded = options["record"] or not options["record_states"]
+    refuse_unused(ctx, ("record_states",), recorded, "a recorded run (not with --no-record)")
+    check_deploy_options(ctx, options["deploy_error"])
     # FOXGLOVE_OPTION (shared with covswarm coordinator) names its value foxglove_port.
     run_swarm(RunConfig(foxglove=foxglove_port, **options))
 

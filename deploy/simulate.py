@@ -31,12 +31,14 @@ from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
 from covswarm.protocol.keys import parse_ids
 from covswarm.runtime.options import (
     agents_option,
+    check_deploy_options,
     count_option,
     deploy_options,
     float_option,
     kappa_option,
     law_option,
     out_option,
+    refuse_unused,
 )
 from covswarm.tvd.control import DAMPING, LAWS, PRIORS
 
@@ -764,13 +766,14 @@ def sim_command(
     except ValueError as exc:
         raise click.BadParameter(str(exc), param_hint="--dt") from None
     ctx = click.get_current_context()
-    tvd_c_only = [
-        f"--{name}"
-        for name in ("damping", "prior")
-        if ctx.get_parameter_source(name) is click.core.ParameterSource.COMMANDLINE
-    ]
-    if law != "c" and tvd_c_only:
-        raise click.UsageError(f"{' and '.join(tvd_c_only)}: for --law c (TVD-C) only")
+    refuse_unused(ctx, ("damping", "prior"), law == "c", "--law c (TVD-C)")
+    refuse_unused(
+        ctx,
+        ("projection_distance", "heading", "face_start"),
+        options["dynamics"] == "unicycle",
+        "unicycles (--dynamics unicycle, or a scenario of them)",
+    )
+    check_deploy_options(ctx, deploy_error)
     try:
         check_broadcastable(scenario, options["kappa"], options["duration"])
     except ValueError as exc:

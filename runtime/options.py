@@ -137,6 +137,26 @@ def count_option(*decls: str, default: int, help: str, low: int = 1) -> Decorato
     )
 
 
+def given_options(ctx: click.Context, *names: str) -> list[str]:
+    """The options among ``names`` (parameter names) given on the command line, as flags
+    (``--name``), in the order of ``names``."""
+    from click.core import ParameterSource
+
+    return [
+        "--" + name.replace("_", "-")
+        for name in names
+        if ctx.get_parameter_source(name) is ParameterSource.COMMANDLINE
+    ]
+
+
+def refuse_unused(ctx: click.Context, names: tuple[str, ...], used: bool, needs: str) -> None:
+    """UsageError naming the options of ``names`` given on the command line when ``used``
+    is false: a command never accepts an option it would ignore (``needs`` says when it
+    is used, e.g. "--console")."""
+    if not used and (ignored := given_options(ctx, *names)):
+        raise click.UsageError(f"{' and '.join(ignored)}: only with {needs}")
+
+
 def kappa_option(help: str) -> Decorator:
     """``--kappa``: the control gain, positive and at most what a Domain carries (MAX_KAPPA)."""
     return float_option("--kappa", low=0.0, low_open=True, high=MAX_KAPPA, help=help)
@@ -171,6 +191,11 @@ def deploy_options(timeout: float) -> Decorator:
         "[the mission's kappa].",
     )
     return lambda command: error_option(timeout_option(kappa_option(command)))
+
+
+def check_deploy_options(ctx: click.Context, deploy_error: float | None) -> None:
+    """UsageError for ``--deploy-timeout`` without a deploy hold (``--deploy-error``)."""
+    refuse_unused(ctx, ("deploy_timeout",), deploy_error is not None, "--deploy-error")
 
 
 def switch_option(name: str, help: str, *, default: bool = True, **extra: Any) -> Decorator:

@@ -115,6 +115,12 @@ class RobotSim:
             raise ValueError(f"cmd_timeout must be positive, got {cmd_timeout!r}")
         if not np.all(np.isfinite(pose)):
             raise ValueError(f"initial pose must be finite, got {pose!r}")
+        if max(abs(pose[0]), abs(pose[1])) > protocol.MAX_COORD:
+            # it would start, and then never publish a pose (Pose refuses it)
+            raise ValueError(
+                f"initial position ({pose[0]:g}, {pose[1]:g}) m is beyond the protocol's "
+                f"+-{protocol.MAX_COORD:g} m"
+            )
         self.id = protocol.check_id(robot_id)
         self.robot = robot
         self.cmd_timeout = cmd_timeout

@@ -105,6 +105,19 @@ def test_robot_drops_delayed_and_future_commands() -> None:
 # --- counting and logging ---------------------------------------------------------------
 
 
+def test_a_robot_placed_beyond_the_protocols_reach_is_refused_at_start() -> None:
+    from click.testing import CliRunner
+
+    from covswarm.deploy.cli import main
+
+    RobotSim(1, (1.0e4, -1.0e4, 0.0))  # the edge is still publishable
+    with pytest.raises(ValueError, match=r"\(20000, 0\) m is beyond the protocol's \+-10000 m"):
+        RobotSim(1, (2.0e4, 0.0, 0.0))
+    args = ["robot", "--id", "3", "--connect", "tcp/127.0.0.1:1", "--swarm", "s", "--x", "1e5"]
+    done = CliRunner().invoke(main, args)
+    assert done.exit_code == 2 and "beyond the protocol's" in done.output, done.output
+
+
 def test_drops_are_counted_per_reason_and_logged_rate_limited(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

@@ -21,11 +21,11 @@ REFUSED = {
     ("--sample", "0"): "'--sample': 0 is not in the range x>=1",
     ("--repeats", "-1"): "'--repeats': -1 is not in the range x>=1",
     ("--live", "--live-sizes", "10,x"): "'--live-sizes': '10,x': expected positive integers",
-    ("--live-sizes", "10"): "--live-sizes: for --live runs only",
+    ("--live-sizes", "10"): "--live-sizes: only with --live",
     ("--live-duration", "5", "--live-per-process", "2"): (
-        "--live-duration and --live-per-process: for --live runs only"
+        "--live-duration and --live-per-process: only with --live"
     ),
-    ("--brain-tick-team", "50"): "--brain-tick-team: for --brain-tick only",
+    ("--brain-tick-team", "50"): "--brain-tick-team: only with --brain-tick",
     ("--brain-tick", "--sizes", "10", "--live"): (
         "--brain-tick times packed processes only: no --sizes, --live"
     ),

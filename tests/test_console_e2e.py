@@ -275,13 +275,14 @@ def test_rotate_scale_and_vertex_handles_steer_what_was_dragged(
         page.wait_for_function(f"document.body.dataset.robotsDrawn === '{TEAM}'", timeout=15000)
         page.wait_for_function(WORLD_DRAWN, timeout=5000)  # the view is set: on the arena
 
-        def gesture(start, end) -> tuple[dict, dict]:
+        def gesture(start, end, says: str = "release to send") -> tuple[dict, dict]:
             page.evaluate("window.covswarm.hooks.lastReply = null")
             x0, y0 = page.evaluate(f"window.covswarm.clientXY({start[0]}, {start[1]})")
             x1, y1 = page.evaluate(f"window.covswarm.clientXY({end[0]}, {end[1]})")
             page.mouse.move(x0, y0)
             page.mouse.down()
             page.mouse.move(x1, y1, steps=20)
+            assert page.inner_text("#steer-result") == says  # before the release
             page.mouse.up()
             page.wait_for_function("window.covswarm.hooks.lastReply !== null", timeout=5000)
             request, reply = page.evaluate(
@@ -312,7 +313,8 @@ def test_rotate_scale_and_vertex_handles_steer_what_was_dragged(
         # is still convex, and the coordinator's S becomes exactly that polygon.
         polygon = np.array(page.evaluate("window.covswarm.state().polygon"))
         v0, opposite = polygon[0], polygon[2]
-        request, _ = gesture(v0, opposite + 0.2 * (opposite - v0))
+        held = "S stays convex: the vertex holds its last convex position; release to send"
+        request, _ = gesture(v0, opposite + 0.2 * (opposite - v0), held)
         assert request["kind"] == "polygon"
         sent = np.array(request["polygon"])
         shape = Polygon(sent)

@@ -16,6 +16,7 @@ from shapely.ops import voronoi_diagram
 
 from covswarm.console.access import (
     COOKIE,
+    check_host,
     host_ok,
     needs_token,
     new_token,
@@ -154,6 +155,20 @@ def test_only_the_default_loopback_address_goes_without_a_token() -> None:
         assert not needs_token(host)
     for host in ("0.0.0.0", "127.0.0.2", "192.168.1.5", "::", "example.org"):
         assert needs_token(host)
+
+
+def test_an_empty_address_is_refused_rather_than_every_interface() -> None:
+    from click.testing import CliRunner
+
+    from covswarm.deploy.cli import main
+
+    for host in ("", " "):
+        with pytest.raises(ValueError, match="0.0.0.0 for every interface"):
+            check_host(host)
+    assert check_host("0.0.0.0") == "0.0.0.0"
+    args = ["console", "--connect", "tcp/127.0.0.1:1", "--swarm", "s", "--host", ""]
+    done = CliRunner().invoke(main, args)
+    assert done.exit_code == 2 and "an empty address" in done.output, done.output
 
 
 def test_token_check() -> None:

@@ -122,3 +122,46 @@ def test_a_simulation_of_too_many_steps_is_refused() -> None:
 
     done = CliRunner().invoke(main, ["sim", "--dt", "1e-5", "--duration", "1000"])
     assert done.exit_code == 2 and "more than 1e+07 steps" in done.output, done.output
+
+
+# Options a command would accept and then ignore, for want of the option that uses them: a
+# user who typed them expects an effect.
+UNUSED = [
+    (("run", "--console-port", "7481"), "--console-port: only with --console"),
+    (("run", "--no-record", "--record-states"), "--record-states: only with a recorded run"),
+    (("run", "--deploy-timeout", "30"), "--deploy-timeout: only with --deploy-error"),
+    (("coordinator", "--connect", "tcp/127.0.0.1:1", "--swarm", "s", "--out", "/nonexistent",
+      "--deploy-timeout", "30"), "--deploy-timeout: only with --deploy-error"),
+    (("sim", "--scenario", "circle", "--face-start"), "--face-start: only with unicycles"),
+    (("bridge", "ros2", "--ids", "0", "--swarm", "s", "--connect", "tcp/127.0.0.1:1",
+      "--frame", "odom"),
+     "--frame: only with --publish-state"),
+    (("bench", "--live-duration", "5"), "--live-duration: only with --live"),
+]  # fmt: skip
+
+
+@pytest.mark.parametrize(("args", "reason"), UNUSED)
+def test_an_option_that_would_be_ignored_is_refused(args: tuple[str, ...], reason: str) -> None:
+    from covswarm.deploy.cli import main
+
+    done = CliRunner().invoke(main, list(args))
+    assert done.exit_code == 2, done.output
+    assert reason in " ".join(done.output.split()) and "Traceback" not in done.output
+
+
+@click.command()
+@click.option("--base", is_flag=True)
+@float_option("--extra", default=1.0)
+def needs_base(base: bool, extra: float) -> None:
+    from covswarm.runtime.options import refuse_unused
+
+    refuse_unused(click.get_current_context(), ("extra",), base, "--base")
+    click.echo(f"extra {extra}")
+
+
+def test_refuse_unused_looks_at_the_command_line_only() -> None:
+    # the default is no reason to refuse, nor an option given with what uses it
+    assert CliRunner().invoke(needs_base, []).output == "extra 1.0\n"
+    assert CliRunner().invoke(needs_base, ["--base", "--extra", "2"]).output == "extra 2.0\n"
+    done = CliRunner().invoke(needs_base, ["--extra", "1"])  # even at its default value
+    assert done.exit_code == 2 and "--extra: only with --base" in done.output

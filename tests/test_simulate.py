@@ -91,8 +91,13 @@ def test_bad_options_are_rejected(small: Path) -> None:
     refused = {
         ("--kappa", "1e9"): "'--kappa': 1000000000.0 is not in the range 0.0<x<=1000.0",
         ("--dt", "5", "--duration", "2"): "--dt: a step of 5 s is longer than the mission (2 s)",
-        ("--law", "da", "--damping", "0.5"): "--damping: for --law c (TVD-C) only",
-        ("--law", "d1", "--prior", "zero"): "--prior: for --law c (TVD-C) only",
+        ("--law", "da", "--damping", "0.5"): "--damping: only with --law c (TVD-C)",
+        ("--law", "d1", "--prior", "zero"): "--prior: only with --law c (TVD-C)",
+        ("--dynamics", "single", "--heading", "0.5"): "--heading: only with unicycles",
+        ("--dynamics", "single", "--projection-distance", "0.05"): (
+            "--projection-distance: only with unicycles"
+        ),
+        ("--deploy-timeout", "5"): "--deploy-timeout: only with --deploy-error",
     }
     for args, reason in refused.items():
         result = CliRunner().invoke(main, ["sim", "--scenario", str(small), *args])

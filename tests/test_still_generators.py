@@ -186,6 +186,11 @@ def test_a_still_robot_is_refused_as_the_view_owner_and_masks_are_checked() -> N
         control.team_step("da", points, square, np.zeros((4, 2)), 1.0, still=np.array([1, 0]))
     with pytest.raises(ValueError, match="every robot"):
         control.team_step("da", points, square, np.zeros((4, 2)), 1.0, still=np.ones(2, bool))
+    # e_a is over the moving robots too: of none, it is no 0 m
+    with pytest.raises(ValueError, match="every robot"):
+        coverage.aggregate_error(points, square, still=np.ones(2, bool))
+    none_still = coverage.aggregate_error(points, square, still=np.zeros(2, bool))
+    assert none_still == coverage.aggregate_error(points, square) > 0.0
 
 
 def test_lloyd_steps_leave_a_still_robot_its_cell() -> None:

@@ -43,3 +43,17 @@ def as_mask(value: object, name: str, n: int) -> np.ndarray:
     if array.shape != (n,) or array.dtype != np.bool_:
         raise ValueError(f"{name} must be a ({n},) bool array, got {array.dtype} {array.shape}")
     return array
+
+
+def still_mask(still: object | None, n: int) -> np.ndarray | None:
+    """``still`` (robots that stand still: covswarm.tvd.control's module notes) as an (n,)
+    bool array, None when no robot stands still; ValueError for another shape, or for a
+    team all still (the laws and e_a are over the moving robots: there would be none)."""
+    if still is None:
+        return None
+    mask = as_mask(still, "still", n)
+    if not mask.any():
+        return None
+    if mask.all():
+        raise ValueError("still: every robot stands still; at least one must move")
+    return mask

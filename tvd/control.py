@@ -78,7 +78,7 @@ import numpy as np
 import scipy.sparse
 import scipy.sparse.linalg
 
-from covswarm.tvd.arrays import as_mask
+from covswarm.tvd.arrays import still_mask
 from covswarm.tvd.coverage import (
     PRUNED_CELLS,
     CellBatch,
@@ -415,7 +415,7 @@ def team_step(
     if not (math.isfinite(damping) and damping >= 0.0):
         raise ValueError(f"damping must be a finite number >= 0, got {damping!r}")
     points, domain, batch = _team_cells(positions, polygon, polygon_velocity, kappa, density)
-    fixed = _still_mask(still, len(points))
+    fixed = still_mask(still, len(points))
     target, rate = _targets(batch, points, domain, feedforward, density)
     feedback = kappa * (target - as_complex(points))
     if fixed is not None:  # read as 0 by the neighbours' rows: pdot = 0 there
@@ -445,19 +445,6 @@ def team_step(
             guarded=step.guarded & ~fixed,
         )
     return replace(step, error=float(np.linalg.norm(offsets)))
-
-
-def _still_mask(still: np.ndarray | None, n: int) -> np.ndarray | None:
-    """``still`` as (n,) bool, None when no robot stands still; ValueError for another
-    shape, or for a team all still."""
-    if still is None:
-        return None
-    mask = as_mask(still, "still", n)
-    if not mask.any():
-        return None
-    if mask.all():
-        raise ValueError("still: every robot stands still; at least one must move")
-    return mask
 
 
 def _team_d1(

@@ -58,7 +58,7 @@ from typing import NamedTuple, Protocol, runtime_checkable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from covswarm.tvd.arrays import as_mask
+from covswarm.tvd.arrays import still_mask
 
 # Relative tolerances, scaled by the size of S: below GEOMETRY_TOL * size two points are the
 # same point and an edge has no length.
@@ -1070,6 +1070,5 @@ def aggregate_error(
     """
     points, _, batch = tessellate(positions, polygon, density=density)
     offsets = points - as_vectors(batch.centroid)
-    if still is None:
-        return float(np.linalg.norm(offsets))
-    return float(np.linalg.norm(offsets[~as_mask(still, "still", len(points))]))
+    fixed = still_mask(still, len(points))
+    return float(np.linalg.norm(offsets if fixed is None else offsets[~fixed]))

@@ -654,7 +654,7 @@
         d.ghost = candidate;
         d.clamped = false;
       } else {
-        d.clamped = true;
+        d.clamped = "S stays convex: the vertex holds its last convex position";
         if (!d.ghost) d.ghost = d.poly;
       }
     }
@@ -662,6 +662,7 @@
       d.hit = sweepContact(d);
       hooks.dragContact = d.hit;
       if (d.hit) showResult("refused", `S would touch ${d.hit === "workspace" ? "the workspace's wall" : d.hit}: release refuses`);
+      else if (d.moved && d.clamped) showResult("pending", `${d.clamped}; release to send`);
       else if (d.moved) showResult("pending", "release to send");
     }
   }
