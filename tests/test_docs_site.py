@@ -52,6 +52,16 @@ def test_the_readme_is_short_and_its_links_resolve() -> None:
         for h in re.findall(r"^#+ (.+)$", README, flags=re.MULTILINE)
     }
     assert set(anchors) <= headings, set(anchors) - headings
+    # and the anchors of its links into the documentation (as Python-Markdown's toc makes them)
+    into = re.findall(r"\]\(([^)#\s]+\.md)#([^)]+)\)", README)
+    assert into, "no link into a page's section found: the pattern is wrong"
+    for page, anchor in into:
+        text = (ROOT / page).read_text(encoding="utf-8")
+        slugs = {
+            re.sub(r"[-\s]+", "-", re.sub(r"[^\w\s-]", "", h).strip().lower())
+            for h in re.findall(r"^#+ (.+)$", text, flags=re.MULTILINE)
+        }
+        assert anchor in slugs, f"{page}#{anchor}"
 
 
 def test_installs_come_from_the_lock_and_ci_runs_the_readmes_command() -> None:
