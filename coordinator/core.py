@@ -420,7 +420,11 @@ class CoordinatorCore:
         if world.workspace is not None or world.obstacles:
             checks = (world_check(world), *checks)
         self.steering = Steering(
-            settings.scenario.domain, settings.steering_limits(), checks=checks, world=world
+            settings.scenario.domain,
+            settings.steering_limits(),
+            checks=checks,
+            world=world,
+            end=settings.duration,
         )
         self._next_world: float | None = None
         self.recorder = recorder

@@ -630,6 +630,9 @@ class Steering:
     # arrives; None once another request is accepted (see active_route).
     route: tuple[tuple[float, ...], ...] | None = None
     route_end: float = 0.0
+    # Script time the mission ends (s): a motion that arrives later is accepted (the operator
+    # may mean to watch it start) with a note that S will not get there.
+    end: float = math.inf
 
     def domain(self, t: float) -> tuple[np.ndarray, np.ndarray]:
         """S(t): CCW vertices (k, 2) and their exact velocities (k, 2)."""
@@ -689,6 +692,9 @@ class Steering:
             motion = replace(brake, then=motion)
             if lead >= 1e-3:  # a brake under a millisecond is none to speak of
                 note = "; ".join(filter(None, [f"braking {lead:.2g} s first", note]))
+        if t + span > self.end:
+            late = f"S arrives at t = {t + span:.1f} s, after the mission ends ({self.end:g} s)"
+            note = "; ".join(filter(None, [note, late]))
         self.motion = motion
         self.route, self.route_end = stops, t + span
         self.largest_jump = max(self.largest_jump, jump)

@@ -225,7 +225,7 @@ def test_goal_outside_or_blocked_is_refused_with_its_reason() -> None:
     kwargs = {"min_area": MIN_AREA, "min_width": MIN_WIDTH, "max_speed": SPEED}
     with pytest.raises(NoPath, match="outside-workspace"):
         plan_route(world, polygon, (5.0, 0.0), **kwargs)
-    with pytest.raises(NoPath, match="goal-blocked"):
+    with pytest.raises(NoPath, match="goal-blocked.*a smaller goal polygon may fit"):
         plan_route(world, polygon, (0.0, 1.0), **kwargs)
     with pytest.raises(NoPath, match="too-small"):
         plan_route(world, polygon, (2.0, 0.0), goal_polygon=0.3 * RECT, **kwargs)
@@ -244,6 +244,10 @@ def test_a_goal_polygon_of_another_shape_is_reached() -> None:
     final = route.motion(route.motion.end)[0]
     expected = shapely.Polygon(hexagon + goal)
     assert shapely.Polygon(final).symmetric_difference(expected).area < 1e-9
+    # the last stop says the goal polygon's size relative to S at the start
+    last = route.waypoints[-1]
+    assert np.allclose(last.centroid, goal)
+    assert last.scale == pytest.approx(math.sqrt(expected.area / shapely.Polygon(RECT).area))
     obstacles = shapely.union_all([shapely.box(b[0], b[2], b[1], b[3]) for b in boxes])
     for t in np.linspace(0.0, route.motion.end, 800):
         assert shapely.Polygon(route.motion(t)[0]).distance(obstacles) > 0.0

@@ -455,3 +455,14 @@ def test_too_small_is_twice_the_room_the_crowding_warning_asks() -> None:
         # The crowding estimate of the target agrees: twice the room, give or take the grid.
         estimate = smallest_cell_area(np.array(target), 10)
         assert estimate == pytest.approx(2.0 * scale * room, rel=0.03)
+
+
+def test_a_motion_that_ends_after_the_mission_is_accepted_with_a_note() -> None:
+    steer = Steering(still(SQUARE), LIMITS, end=10.0)
+    early = send(steer, SteerRequest("translate", dx=1.0, dy=0.0, duration=4.0), 1.0)
+    assert early.accepted and early.reason == ""
+    late = send(steer, SteerRequest("translate", dx=1.0, dy=0.0, duration=4.0), 8.0)
+    assert late.accepted and late.duration > 2.0
+    assert late.reason.endswith(
+        f"S arrives at t = {8.0 + late.duration:.1f} s, after the mission ends (10 s)"
+    )

@@ -267,6 +267,8 @@ def plan_route(
     ]
     if goal_polygon is None and waypoints[-1].scale != 1.0:  # grown back at the goal
         waypoints.append(Waypoint(waypoints[-1].centroid, 1.0, waypoints[-1].angle))
+    elif goal_polygon is not None:  # the given polygon: its size relative to S at the start
+        waypoints.append(Waypoint(waypoints[-1].centroid, math.sqrt(area(final) / area(start))))
     return Route(tuple(waypoints), motion, motion.end - t0, length, grid.h)
 
 
@@ -394,10 +396,14 @@ def _goal_polygon(
                 f"the team needs {min_area:.3g} m^2 and {min_width:.3g} m",
             )
     touched = world.contact(final)
+    # S's own size at the goal is only the default: a smaller goal polygon may fit there
+    hint = "" if goal_polygon is not None else "; a smaller goal polygon may fit"
     if touched == "workspace":
-        raise NoPath("outside-workspace", f"S at the goal would leave {world.describe(touched)}")
+        raise NoPath(
+            "outside-workspace", f"S at the goal would leave {world.describe(touched)}{hint}"
+        )
     if touched is not None:
-        raise NoPath("goal-blocked", f"S at the goal would overlap {world.describe(touched)}")
+        raise NoPath("goal-blocked", f"S at the goal would overlap {world.describe(touched)}{hint}")
     return final
 
 
