@@ -225,7 +225,7 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
 @id_options("Several brains in this process instead, e.g. 0-9 (one session).")
 @connect_option(ROUTER_HELP)
 @SWARM_OPTION
-@float_option("--rate", low=0.5, high=MAX_RATE, default=10.0)
+@float_option("--rate", low=0.5, high=MAX_RATE, default=10.0, help="Control periods per second.")
 @float_option(
     "--tick-phase",
     low=0.0,
@@ -238,7 +238,13 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
 @kappa_option("Gain; default: the kappa broadcast with the domain.")
 @switch_option("feedforward", "Use the dc/dt term (--no-feedforward: drop it, an ablation).")
 @law_option("da: domain-motion feedforward (docs/tracking.md); d1: the paper's TVD-D1.")
-@float_option("--stale-timeout", low=0.01, default=1.0)
+@float_option(
+    "--stale-timeout",
+    low=0.01,
+    default=1.0,
+    help="A neighbour's own pose or AgentState, or a relay of it, older than this (s) leaves "
+    "the local diagram.",
+)
 @float_option(
     "--state-period",
     low=0.0,
@@ -246,11 +252,33 @@ def unheard(brains: Sequence[AgentBrain], swarm: str) -> str | None:
     help="Least time between two AgentStates, s (0: one every control step; must be below "
     "--stale-timeout). A faster control loop keeps its neighbours' news at this period.",
 )
-@float_option("--beacon-period", low=0.05, default=10.0)
-@float_option("--beacon-timeout", low=0.1, default=25.0)
-@click.option("--max-tile-radius", type=click.IntRange(1, 10), default=3, show_default=True)
-@float_option("--max-extrapolation", low=0.0, default=1.0)
-@float_option("--linger", low=0.0, default=0.5)
+@float_option(
+    "--beacon-period",
+    low=0.05,
+    default=10.0,
+    help="s between two routine beacons on our tile (how robots not yet neighbours find us).",
+)
+@float_option("--beacon-timeout", low=0.1, default=25.0, help="s a beacon heard stays usable.")
+@click.option(
+    "--max-tile-radius",
+    type=click.IntRange(1, 10),
+    default=3,
+    show_default=True,
+    help="Beacon tiles followed around our own, at most this many in each direction.",
+)
+@float_option(
+    "--max-extrapolation",
+    low=0.0,
+    default=1.0,
+    help="S (and its density) is moved along its broadcast velocities for at most this "
+    "long (s) after its stamp, then held still.",
+)
+@float_option(
+    "--linger",
+    low=0.0,
+    default=0.5,
+    help="s a robot's AgentState stays followed after it left our two-hop set.",
+)
 @MAX_CLOCK_SKEW_OPTION
 @float_option(
     "--max-wheel-speed",

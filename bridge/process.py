@@ -300,9 +300,19 @@ def bridge_group() -> None:
 @connect_option("Zenoh router, e.g. tcp/127.0.0.1:7447.")
 @click.option("--swarm", required=True, help="Swarm (run) name, as given to covswarm run.")
 @click.option("--domain-id", type=int, default=0, show_default=True, help="ROS_DOMAIN_ID.")
-@click.option("--cmd-topic", default="/robot{id}/cmd_vel", show_default=True)
+@click.option(
+    "--cmd-topic",
+    default="/robot{id}/cmd_vel",
+    show_default=True,
+    help="Each robot's command topic ({id}: its id).",
+)
 @_type_option(cdr.COMMAND_TYPES, "--cmd-type", "Twist", "Message type of the command topic.")
-@click.option("--pose-topic", default="/robot{id}/pose", show_default=True)
+@click.option(
+    "--pose-topic",
+    default="/robot{id}/pose",
+    show_default=True,
+    help="Each robot's pose topic ({id}: its id).",
+)
 @_type_option(cdr.POSE_TYPES, "--pose-type", "PoseStamped", "Message type of the pose topic.")
 @float_option(
     "--axle",
@@ -313,8 +323,18 @@ def bridge_group() -> None:
 )
 @click.option("--frame", default="map", show_default=True, help="frame_id of --publish-state.")
 @click.option("--publish-state", is_flag=True, help="Publish S(t), poses and e_a to ROS 2.")
-@click.option("--state-namespace", default="/covswarm", show_default=True)
-@click.option("--node-name", default="covswarm_bridge", show_default=True)
+@click.option(
+    "--state-namespace",
+    default="/covswarm",
+    show_default=True,
+    help="Namespace of the --publish-state topics.",
+)
+@click.option(
+    "--node-name",
+    default="covswarm_bridge",
+    show_default=True,
+    help="The ROS 2 node name the bridge announces.",
+)
 @float_option(
     "--rate",
     low=1.0,

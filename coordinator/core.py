@@ -80,6 +80,7 @@ from covswarm.mission.scenarios import Scenario
 from covswarm.protocol import (
     AgentState,
     Domain,
+    KeyIds,
     Pose,
     ProtocolError,
     Status,
@@ -242,6 +243,10 @@ class Observed:
     # Domains heard on the swarm's domain key that this coordinator did not publish: a
     # second coordinator or a forger (issue 21), counted and reported.
     foreign_domains: int = 0
+    # Poses and AgentStates whose own id is not their key's: in secure mode a process may
+    # put only on its own keys, so a message naming another robot is a forger's with some
+    # robot's credentials (covswarm.protocol.KeyIds); dropped and counted.
+    wrong_ids: int = 0
     started_wall: float | None = None
     team_changes: list[TeamChange] = field(default_factory=list)
     # Who may be a team member (ids 0..N-1) and what came from any other id (issue 21);
@@ -370,6 +375,7 @@ def recording_counts() -> dict[str, float | int]:
         "backlog_overflow": 0,  # poses dropped because the backlog was full
         "stale_poses": 0,  # poses not newer than the robot's last recorded one
         "rejected_poses": 0,  # payloads that did not decode (ProtocolError)
+        "wrong_id_poses": 0,  # poses whose id is not their key's (Observed.wrong_ids)
         "thinned_states": 0,  # older AgentStates of an agent left out after skipped ticks
         "state_backlog_overflow": 0,  # AgentStates dropped because their backlog was full
     }
@@ -444,6 +450,8 @@ class CoordinatorCore:
         # ourselves; any other Domain on the key is someone else's.
         self._published: deque[tuple[int, float]] = deque(maxlen=OWN_DOMAINS_KEPT)
         self._ratelog = RateLog(log)
+        self._pose_ids = KeyIds(settings.swarm, "pose")
+        self._state_ids = KeyIds(settings.swarm, "state")
         # Newest undecoded pose payload per key: every robot's pose arrives at 20 Hz, but
         # only the ones present when e_a is sampled are ever read.
         self._pose_payloads: dict[str, bytes] = {}
@@ -597,13 +605,31 @@ class CoordinatorCore:
             self.observed.foreign_domains,
         )
 
-    def on_agent_state(self, payload: bytes) -> None:
-        """An agent's AgentState payload: its stats (about once a second) are kept, its
-        neighbours vouch for newcomers (coordinator.team)."""
+    def _wrong_id(self, kind: str, key: str, rid: int) -> None:
+        """A message whose own id ``rid`` is not its key's: counted (``wrong_ids``) and
+        logged (rate-limited), never taken."""
+        self.observed.wrong_ids += 1
+        self._ratelog.log(
+            logging.ERROR,
+            "wrong id",
+            "a %s saying id %d on %s, another robot's key (%d so far): dropped; a forger with "
+            "some robot's credentials, or a bridge that mislabels its robots",
+            kind,
+            rid,
+            key,
+            self.observed.wrong_ids,
+        )
+
+    def on_agent_state(self, key: str, payload: bytes) -> None:
+        """An agent's AgentState payload on ``key``: its stats (about once a second) are
+        kept, its neighbours vouch for newcomers (coordinator.team)."""
         try:
             rid, stamp, neighbors, stats = _read_state(payload)
         except ProtocolError:
             self.observed.rejected += 1
+            return
+        if rid != self._state_ids(key):
+            self._wrong_id("AgentState", key, rid)
             return
         # Vouching never admits the sender itself: a state an unadmitted id sent is counted
         # and vouches for nobody either way.
@@ -687,11 +713,14 @@ class CoordinatorCore:
     def alive_positions(self) -> dict[int, tuple[float, float]]:
         """Latest pose of every team member (robot and agent both hold their token)."""
         obs = self.observed
-        for payload in self._pose_payloads.values():
+        for key, payload in self._pose_payloads.items():
             try:
                 pose = Pose.decode(payload)
             except ProtocolError:
                 obs.rejected += 1
+                continue
+            if pose.id != self._pose_ids(key):
+                self._wrong_id("pose", key, pose.id)
                 continue
             if not self.roster.admit_pose(pose.id):
                 continue
@@ -981,17 +1010,20 @@ class CoordinatorCore:
         recorder, counts = self.recorder, self.recording
         assert recorder is not None
         began = self._cpu_clock()
-        payloads = [payload for _, payload in self._pose_backlog]
+        received: list[tuple[str, bytes]] = list(self._pose_backlog)
         if thin:
-            payloads = list(dict(self._pose_backlog).values())  # the newest per key
-            counts["thinned_poses"] += len(self._pose_backlog) - len(payloads)
+            received = list(dict(self._pose_backlog).items())  # the newest per key
+            counts["thinned_poses"] += len(self._pose_backlog) - len(received)
         self._pose_backlog.clear()
         observations = []
-        for payload in payloads:
+        for key, payload in received:
             try:
                 pose = Pose.decode(payload)
             except ProtocolError:
                 counts["rejected_poses"] += 1
+                continue
+            if pose.id != self._pose_ids(key):
+                counts["wrong_id_poses"] += 1  # counted once more when sampled for e_a
                 continue
             observations.append((pose.id, pose.seq, pose.stamp, pose.x, pose.y, pose.theta))
         layers, stale = timed_layers(

@@ -105,7 +105,7 @@ class CoordinatorLink:
             received.append((str(sample.key_expr), sample.payload.to_bytes()))
         core.on_poses(received)
         while (sample := self._states.try_recv()) is not None:
-            core.on_agent_state(sample.payload.to_bytes())
+            core.on_agent_state(str(sample.key_expr), sample.payload.to_bytes())
         while (sample := self._heard.try_recv()) is not None:
             core.on_domain_heard(sample.payload.to_bytes())
         while (query := self._steer.try_recv()) is not None:

@@ -207,7 +207,13 @@ def steer_request(
     help="Seconds the motion takes.",
 )
 @click.option("--speed", type=FiniteFloat(min=0, min_open=True), help="m/s of S's fastest vertex.")
-@click.option("--timeout", type=FiniteFloat(min=0, min_open=True), default=2.0, show_default=True)
+@click.option(
+    "--timeout",
+    type=FiniteFloat(min=0, min_open=True),
+    default=2.0,
+    show_default=True,
+    help="s to wait for the coordinator's answer.",
+)
 @SECURE_OPTION
 def steer_command(
     connect: Sequence[str], swarm: str, timeout: float, secure: Any, **motion: Any

@@ -80,6 +80,19 @@ def live_brain_tick(
     return sum(cpu) / 100.0 / (held_rate_hz * brains * time_scale)
 
 
+def world_line(summary: dict[str, Any]) -> str:
+    """The arena figures of summary.json (mission.world_metrics) on one console line."""
+    clearance = summary.get("min_obstacle_clearance")
+    line = (
+        f"{summary['obstacle_contacts']} obstacle contacts; closest to a wall "
+        + ("-" if clearance is None else f"{clearance:.3f} m")
+        + f"; S over obstacles up to {summary['domain_obstacle_overlap']:.4f} m^2"
+    )
+    if summary.get("goals"):
+        line += f"; goals reached {summary['goals_reached']} of {summary['goals']}"
+    return line
+
+
 def summary_table(
     summary: dict[str, Any], result: RunResult, out_dir: Path, time_scale: float = 1.0
 ) -> Any:
@@ -111,6 +124,8 @@ def summary_table(
             f"{summary.get('close_approaches', 0)}, {summary.get('close_approach_time', 0.0):.1f} "
             "pair-s",
         )
+    if summary.get("min_obstacle_clearance") is not None or summary.get("goals"):
+        table.add_row("arena", world_line(summary))  # a workspace, obstacles or goals
     if summary.get("max_wheel_speed_used") is not None:
         table.add_row(
             "wheels",

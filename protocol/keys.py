@@ -225,6 +225,29 @@ def parse_id(key: str, swarm: str, kind: str) -> int:
     return _parse_int_chunk(parts[-1] if kind == "beacon" else parts[3])
 
 
+class KeyIds:
+    """Robot ids of the keys of one kind (:func:`parse_id`) as a subscriber of a wildcard
+    meets them, each key parsed once: ``ids(key)`` is its id, None for a key of another
+    shape. A message's own id is to be held against it: in secure mode a process may put
+    only on its own keys, never inside another robot's messages (docs/security.md). At
+    most ``limit`` keys are kept (robots come and go over a long run)."""
+
+    def __init__(self, swarm: str, kind: str, limit: int = 4096) -> None:
+        self.swarm, self.kind, self.limit = swarm, kind, limit
+        self._ids: dict[str, int | None] = {}
+
+    def __call__(self, key: str) -> int | None:
+        ids = self._ids
+        if key not in ids:
+            if len(ids) >= self.limit:
+                ids.clear()
+            try:
+                ids[key] = parse_id(key, self.swarm, self.kind)
+            except ValueError:
+                ids[key] = None
+        return ids[key]
+
+
 def parse_alive_key(key: str, swarm: str) -> tuple[str, int]:
     """(role, id) from a liveliness key; ValueError if it is not one of this swarm's."""
     parts = str(key).split("/")

@@ -33,7 +33,7 @@ from covswarm.coordinator.config import CoordinatorConfig
 from covswarm.coordinator.core import WAITING, CoordinatorCore, CoordinatorSettings, run_inline
 from covswarm.coordinator.outputs import open_recorder
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.protocol import AgentState, Pose, alive_key, pose_key
+from covswarm.protocol import AgentState, Pose, agent_state_key, alive_key, pose_key
 
 SCENARIO = Path(__file__).resolve().parent.parent / "scenarios" / "circle-1000.toml"
 SWARM = "throughput"
@@ -107,8 +107,9 @@ def main(agents: int, seconds: float, offload: bool, record: bool, state_rate: f
             )
             with_stats = np.floor((k + 1) / RATE + phases) - np.floor(k / RATE + phases)
             states.append([
-                agent_state(i, agents, float(xy[i, 0]), float(xy[i, 1]), stamp, k,
-                            bool(with_stats[i]))
+                (agent_state_key(SWARM, i),
+                 agent_state(i, agents, float(xy[i, 0]), float(xy[i, 1]), stamp, k,
+                             bool(with_stats[i])))
                 for i in np.flatnonzero(due).tolist()
             ])  # fmt: skip
         taking = taking_states = ticking = 0.0
@@ -120,8 +121,8 @@ def main(agents: int, seconds: float, offload: bool, record: bool, state_rate: f
             w0, c0 = time.monotonic(), time.thread_time()
             core.on_poses(list(zip(keys, payloads[k], strict=True)))  # the link's batch
             c1 = time.thread_time()
-            for payload in states[k]:
-                core.on_agent_state(payload)
+            for key, payload in states[k]:
+                core.on_agent_state(key, payload)
             c2 = time.thread_time()
             core.tick(t, wall0 + t)
             ticking += time.thread_time() - c2

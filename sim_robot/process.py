@@ -552,9 +552,19 @@ def parse_pose(text: str) -> tuple[float, float, float]:
 # its stamp within the step (step_with_commands), so stepping at the pose rate loses
 # nothing, and on a machine hosting hundreds of robots every saved tick is CPU the agents
 # need.
-@options.float_option("--rate", low=1.0, high=options.MAX_RATE, default=20.0)
-@options.float_option("--pose-rate", low=0.1, high=options.MAX_RATE, default=20.0)
-@options.float_option("--cmd-timeout", low=0.01, default=0.5)
+@options.float_option(
+    "--rate", low=1.0, high=options.MAX_RATE, default=20.0, help="Integration steps per second."
+)
+@options.float_option(
+    "--pose-rate",
+    low=0.1,
+    high=options.MAX_RATE,
+    default=20.0,
+    help="Poses published per second (fewer before a first command moves the wheels).",
+)
+@options.float_option(
+    "--cmd-timeout", low=0.01, default=0.5, help="No command for this long (s): the wheels stop."
+)
 @options.TIME_SCALE_OPTION
 @options.MAX_CLOCK_SKEW_OPTION
 @options.float_option(

@@ -39,7 +39,15 @@ from covswarm.coordinator.core import (
 )
 from covswarm.coordinator.steering import Refusal
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.protocol import AgentState, Pose, ProtocolError, alive_key, messages, pose_key
+from covswarm.protocol import (
+    AgentState,
+    Pose,
+    ProtocolError,
+    agent_state_key,
+    alive_key,
+    messages,
+    pose_key,
+)
 from covswarm.protocol.steering import SteerReply, SteerRequest
 from covswarm.records.recorder import RunRecorder
 from covswarm.records.replay import read_agent_states
@@ -313,10 +321,27 @@ def test_stopping_ends_a_waiting_mission_at_once_and_a_running_one_through_done(
 def test_agent_stats_are_kept_and_malformed_states_counted() -> None:
     core = make_core()
     state = AgentState(id=1, x=0.0, y=0.0, stamp=WALL0, neighbors=(0,), stats={"rate_hz": 9.9})
-    core.on_agent_state(state.encode())
-    core.on_agent_state(b"\xff")
+    hear(core, state)
+    core.on_agent_state(agent_state_key(SWARM, 1), b"\xff")
     assert core.observed.agent_stats == {1: {"rate_hz": 9.9}}
     assert core.observed.rejected == 1
+
+
+
+def test_a_message_naming_another_robot_than_its_key_is_dropped_and_counted() -> None:
+    """In secure mode a process may put only on its own keys: robot 9's credentials put
+    poses and states saying id 0 on robot 9's keys. Neither moves robot 0 nor gives it
+    stats (the pace would follow a forged rate); both are counted in summary.json."""
+    core = make_core()
+    started = start(core)
+    real = Pose(0, -1.0, 0.0, 0.0, WALL0 + started, 1)
+    forged = Pose(0, 2.2, 1.6, 0.0, WALL0 + started, 2)
+    core.on_poses([(pose_key(SWARM, 0), real.encode()), (pose_key(SWARM, 9), forged.encode())])
+    state = AgentState(0, 2.2, 1.6, WALL0, (1,), stats={"rate_hz": 0.1})
+    core.on_agent_state(agent_state_key(SWARM, 9), state.encode())
+    assert core.alive_positions()[0] == (-1.0, 0.0)
+    assert 0 not in core.observed.agent_stats
+    assert core.observed.wrong_ids == 2 and core.observed.rejected == 0
 
 
 # A state valid but for its relay: entries of the wrong arity or type, numbers not finite
@@ -352,6 +377,11 @@ BAD_RELAYS = [
 ]
 
 
+def hear(core: CoordinatorCore, state: AgentState) -> None:
+    """``state`` as the link hands it over: on its own agent's key."""
+    core.on_agent_state(agent_state_key(SWARM, state.id), state.encode())
+
+
 def state_payload(**fields) -> bytes:
     """An AgentState's bytes as a peer might send them, ``fields`` in place of a valid
     state's (robot 1, neighbour 0, with stats and a relay)."""
@@ -381,9 +411,9 @@ def test_a_state_malformed_only_in_its_relay_is_dropped_and_counted(relay) -> No
     reason = refusal(AgentState.decode, payload)
     assert reason is not None  # today's checker refuses it
     assert refusal(_read_state, payload) == reason
-    core.on_agent_state(payload)
+    core.on_agent_state(agent_state_key(SWARM, 1), payload)
     assert core.observed.rejected == 1 and core.observed.agent_stats == {}
-    core.on_agent_state(state_payload())
+    core.on_agent_state(agent_state_key(SWARM, 1), state_payload())
     assert core.observed.rejected == 1
     assert core.observed.agent_stats == {1: {"rate_hz": 9.9, "mission_steps": 10}}
 
@@ -433,9 +463,9 @@ def test_a_state_naming_a_newcomer_enters_it_in_the_liveness_and_the_team() -> N
     core = make_core(agents=2)
     join(core, [0, 1, 5])
     assert core.observed.liveness.count("agent") == 2
-    core.on_agent_state(AgentState(5, 0.0, 0.0, WALL0, (0, 5)).encode())
+    hear(core, AgentState(5, 0.0, 0.0, WALL0, (0, 5)))
     assert core.observed.liveness.count("agent") == 2
-    core.on_agent_state(AgentState(1, 0.0, 0.0, WALL0, (0, 5)).encode())
+    hear(core, AgentState(1, 0.0, 0.0, WALL0, (0, 5)))
     assert core.observed.liveness.count("agent") == core.observed.liveness.count("robot") == 3
     assert core.roster.members(core.observed.liveness.alive) == frozenset({0, 1, 5})
     assert core.roster.summary()["counts"] == {}  # its tokens and state are not unexpected
@@ -509,16 +539,16 @@ def test_the_core_records_each_admitted_state_and_the_newest_of_each_from_the_wa
     core.tick(0.0, WALL0)
     waiting = [AgentState(i % 2, 0.1 * i, 0.0, WALL0 + i, (1 - i % 2,)) for i in range(5)]
     for state in waiting:
-        core.on_agent_state(state.encode())
+        hear(core, state)
         core.tick(0.0, WALL0)
-    core.on_agent_state(b"\xff")
-    core.on_agent_state(AgentState(7, 0.0, 0.0, WALL0, (0,)).encode())  # not in the team
+    core.on_agent_state(agent_state_key(SWARM, 1), b"\xff")
+    hear(core, AgentState(7, 0.0, 0.0, WALL0, (0,)))  # not in the team
     started = start(core)
     relay = ((1, 0.5, 0.0, 0.1, 0.0),)
     running = [AgentState(0, 0.0, 0.0, WALL0 + 9, (1,), vx=0.1, vy=0.0, relay=relay),
                AgentState(1, 0.5, 0.0, WALL0 + 9, (0,))]  # fmt: skip
     for state in running:
-        core.on_agent_state(state.encode())
+        hear(core, state)
     now = started + 0.05
     core.tick(now, WALL0 + now)
     recorder.close()
@@ -544,7 +574,7 @@ def test_a_waiting_core_keeps_one_state_per_agent_however_many_arrive(tmp_path) 
     join(core, [0, 1])
     core.tick(0.0, WALL0)
     for k in range(3000):
-        core.on_agent_state(AgentState(k % 2, 0.0, 0.0, WALL0 + k, (1 - k % 2,)).encode())
+        hear(core, AgentState(k % 2, 0.0, 0.0, WALL0 + k, (1 - k % 2,)))
     started = start(core)
     core.tick(started + 0.05, WALL0 + started + 0.05)
     recorder.close()
@@ -565,7 +595,7 @@ def test_states_are_thinned_to_each_agents_newest_past_the_budget_and_counted(tm
         now = round(now + 0.05, 10)
         for i in (0, 1):
             stamp = WALL0 + 100 + k + 0.1 * i
-            core.on_agent_state(AgentState(i, 0.0, 0.0, stamp, (1 - i,)).encode())
+            hear(core, AgentState(i, 0.0, 0.0, stamp, (1 - i,)))
             sent[i].append((core.phase.mission_time(now), stamp))
         core.tick(now, WALL0 + now)
     recorder.close()

@@ -33,7 +33,7 @@ from covswarm.coordinator.pace import (
     team_target,
 )
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.protocol import AgentState, Pose, alive_key, pose_key
+from covswarm.protocol import AgentState, Pose, agent_state_key, alive_key, pose_key
 from covswarm.tvd.density import Density
 
 SWARM = "pace-test"
@@ -78,12 +78,12 @@ class Team:
                     state = AgentState(
                         id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=(), stats=stats
                     )
-                    self.core.on_agent_state(state.encode())
+                    self.core.on_agent_state(agent_state_key(SWARM, i), state.encode())
                 self.next_report = now + 1.0
             if now >= self.next_step:  # (with the stats' state of this tick: one round)
                 for i in self.steps:
                     state = AgentState(id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=())
-                    self.core.on_agent_state(state.encode())
+                    self.core.on_agent_state(agent_state_key(SWARM, i), state.encode())
                 self.next_step = now + 1.0 / self.held
             ticks.append((now, self.core.tick(now, WALL0 + now)))
         return now, ticks

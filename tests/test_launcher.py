@@ -192,6 +192,21 @@ def test_the_live_brain_tick_is_the_agents_cpu_per_brain_step(tmp_path: Path) ->
     assert "CPU per launcher process │ mean 8.0%" in text
 
 
+def test_the_run_table_shows_the_arena_as_sim_prints_it(tmp_path: Path) -> None:
+    from covswarm.deploy.display import summary_table, world_line
+    from covswarm.deploy.processes import RunResult
+
+    arena = {"obstacle_contacts": 0, "min_obstacle_clearance": 0.0864,
+             "domain_obstacle_overlap": 0.0, "goals": 1, "goals_reached": 1}  # fmt: skip
+    line = "0 obstacle contacts; closest to a wall 0.086 m; S over obstacles up to 0.0000 m^2"
+    assert world_line(arena) == line + "; goals reached 1 of 1"
+    text = " ".join(_text(summary_table(arena, RunResult(0, {}, {}), tmp_path)).split())
+    assert "arena │ 0 obstacle contacts; closest to a wall 0.086 m" in text
+    open_floor = {"obstacle_contacts": 0, "min_obstacle_clearance": None,
+                  "domain_obstacle_overlap": 0.0, "goals": 0, "goals_reached": 0}  # fmt: skip
+    assert "arena" not in _text(summary_table(open_floor, RunResult(0, {}, {}), tmp_path))
+
+
 def test_a_session_close_that_times_out_does_not_lose_the_run(
     caplog: pytest.LogCaptureFixture,
 ) -> None:

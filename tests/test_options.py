@@ -165,3 +165,23 @@ def test_refuse_unused_looks_at_the_command_line_only() -> None:
     assert CliRunner().invoke(needs_base, ["--base", "--extra", "2"]).output == "extra 2.0\n"
     done = CliRunner().invoke(needs_base, ["--extra", "1"])  # even at its default value
     assert done.exit_code == 2 and "--extra: only with --base" in done.output
+
+
+def test_every_option_of_every_command_says_what_it_is() -> None:
+    from covswarm.deploy.cli import main
+
+    silent = []
+
+    def walk(command: click.Command, path: list[str], ctx: click.Context) -> None:
+        if isinstance(command, click.Group):
+            for name in command.list_commands(ctx):
+                sub = command.get_command(ctx, name)
+                assert sub is not None
+                walk(sub, [*path, name], click.Context(sub, parent=ctx))
+            return
+        for param in command.params:
+            if isinstance(param, click.Option) and not param.hidden and not param.help:
+                silent.append(f"covswarm {' '.join(path)} {param.opts[0]}")
+
+    walk(main, [], click.Context(main))
+    assert not silent, silent

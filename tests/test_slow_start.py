@@ -26,7 +26,7 @@ from covswarm.coordinator.monitor import (
 )
 from covswarm.deploy.netsim import run_netsim
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.protocol import AgentState, alive_key
+from covswarm.protocol import AgentState, agent_state_key, alive_key
 
 SWARM = "slow-start"
 WALL = 1.7e9
@@ -64,7 +64,8 @@ def core_start(gap: float) -> float:
             core.on_liveliness(alive_key(SWARM, role, i), True, 0.0, WALL)
     for rid, spacing in ((0, 0.1), (1, gap)):
         for stamp in (WALL - spacing, WALL):
-            core.on_agent_state(AgentState(rid, 0.5 * rid, 0.0, stamp, ()).encode())
+            state = AgentState(rid, 0.5 * rid, 0.0, stamp, ())
+            core.on_agent_state(agent_state_key(SWARM, rid), state.encode())
     now = 0.0
     while core.phase.state == WAITING:
         core.tick(now, WALL + now)
