@@ -235,7 +235,7 @@ class Pack:
         for brain in brains:
             brain.stop_after = hold_after  # its commands are planned for the stop (_hold)
             brain.neighborhood.share(self.liveliness)
-        self._ids: dict[str, int | None] = {}  # wildcard sample key -> id (None: malformed)
+        self._key_id = protocol.KeyIds(swarm, "beacon", DECODE_CACHE)  # a tile's sample keys
         self._every = 0  # samples queued one by one (the domain's), numbering their slots
         self._recent_domains: deque[_Slot] = deque()  # their newest slots, oldest first
         self._held: set[int] = set()  # brains whose last command was a hold
@@ -436,16 +436,6 @@ class Pack:
             unread = self._pending[bid].pop(slot, None) or self._later[bid].pop(slot, None)
             if unread is not None:
                 self.brains[bid].counters.coalesced += 1
-
-    def _key_id(self, key: str) -> int | None:
-        if key not in self._ids:
-            if len(self._ids) >= DECODE_CACHE:  # bounded: tiles see robots come and go
-                self._ids.clear()
-            try:
-                self._ids[key] = protocol.parse_id(key, self.swarm, "beacon")
-            except ValueError:
-                self._ids[key] = None
-        return self._ids[key]
 
     def take_own_poses(self, bids: list[int]) -> None:
         """Queue the newest pose of each robot of ``bids`` for its brain (the last of a
