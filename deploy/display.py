@@ -23,6 +23,30 @@ class Progress:
     status: Any = None  # latest protocol.Status
 
 
+# s of wall time between two progress lines when the output is not a terminal (a pipe, a
+# log file), where the live display does not refresh.
+PLAIN_PERIOD = 10.0
+ROLES_SHOWN = ("coordinator", "robot", "agent")  # the start-up's counts, in this order
+
+
+def progress_line(progress: Progress) -> str:
+    """What :func:`render` shows, on one plain line (for an output that is not a terminal)."""
+    n, status = progress.agents, progress.status
+    if status is None or status.state == "waiting":
+        ready = {role: sum(1 for r, _ in progress.ready if r == role) for role in ROLES_SHOWN}
+        return (
+            f"start-up: coordinator {ready['coordinator']}/1, robots {ready['robot']}/{n}, "
+            f"agents {ready['agent']}/{n} ready"
+        )
+    script = status.t if status.script_t is None else status.script_t
+    error = "-" if status.error is None else f"{status.error:.4f} m"
+    pace = "" if status.pace is None or status.pace >= 1.0 else f" at {status.pace:.2f}x"
+    return (
+        f"{status.state}: {script:.1f} / {progress.duration:.1f} s{pace}, e_a {error}, "
+        f"alive {status.alive_robots}/{n} robots, {status.alive_agents}/{n} agents"
+    )
+
+
 def render(progress: Progress) -> Any:
     """Start-up: processes ready per role. Mission: time, e_a, processes alive."""
     from rich.progress_bar import ProgressBar

@@ -207,6 +207,18 @@ def test_the_run_table_shows_the_arena_as_sim_prints_it(tmp_path: Path) -> None:
     assert "arena" not in _text(summary_table(open_floor, RunResult(0, {}, {}), tmp_path))
 
 
+def test_an_output_that_is_not_a_terminal_gets_plain_progress_lines() -> None:
+    from covswarm.deploy.display import Progress, progress_line
+    from covswarm.protocol import Status
+
+    progress = Progress(agents=4, duration=30.0, ready={("coordinator", 0), ("robot", 1)})
+    assert progress_line(progress) == "start-up: coordinator 1/1, robots 1/4, agents 0/4 ready"
+    progress.status = Status(1.7e9, 12.3, "running", 0.0312, 4, 3, pace=0.5, script_t=6.1)
+    assert progress_line(progress) == (
+        "running: 6.1 / 30.0 s at 0.50x, e_a 0.0312 m, alive 3/4 robots, 4/4 agents"
+    )
+
+
 def test_a_session_close_that_times_out_does_not_lose_the_run(
     caplog: pytest.LogCaptureFixture,
 ) -> None:
