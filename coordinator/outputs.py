@@ -211,6 +211,7 @@ def build_summary(
         "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
         "foreign_domains": observed.foreign_domains,
+        "wrong_id_messages": observed.wrong_ids,
         "error_samples_clipped": observed.clipped_samples,
         "tile_size": settings.tile_size,
         **({} if observed.pace is None else {"pace": pace_summary(settings, observed)}),
@@ -251,7 +252,7 @@ def write_run_outputs(
         error=np.array(record.error),
         trajectories=record.trajectories(),
         polygons=record.polygons,
-        obstacles=list(settings.scenario.obstacles),
+        obstacles=[o.vertices for o in settings.scenario.world.obstacles],
         workspace=settings.scenario.workspace,
         density=settings.scenario.density(
             record.t[-1] if observed.pace is None else observed.pace.script_time(record.t[-1])
@@ -297,7 +298,7 @@ def open_recorder(config: CoordinatorConfig, settings: CoordinatorSettings) -> R
             "max_domain_speed": settings.max_domain_speed,
         },
         workspace=scenario.workspace,
-        obstacles=scenario.obstacles,
+        obstacles=[o.vertices for o in scenario.world.obstacles],
         live_port=config.foxglove,
         continued=config.resume,
     )

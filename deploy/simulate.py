@@ -66,6 +66,7 @@ class SimResult:
     # the deploy hold's end: t (s), why (coordinator.pace.deploy_release), e_a (m) then;
     # None without a hold
     released: tuple[float, str, float] | None = None
+    aligned_s: float = 0.0  # s of the hold S stayed still for the robots to face its start
 
     @property
     def final_polygon(self) -> np.ndarray:
@@ -383,6 +384,7 @@ def simulate(
         np.array(t_log), np.array(error_log), np.array(trajectory_log), np.array(heading_log),
         polygons, positions, guarded, fallbacks, wheel_log, safety_active, safety_relaxed,
         contact_stops, slid, released,
+        0.0 if released is None or aligned is None else released[0] - aligned[0],
     )  # fmt: skip
 
 
@@ -577,7 +579,8 @@ def build_summary(
         summary["deploy"] = {
             "error": deploy_error, "timeout": deploy_timeout, "hold_s": float(hold),
             "released_because": why, "error_at_release": float(error),
-            "kappa": hold_kappa, "kappa_ramp_s": gain_ramp(kappa, hold_kappa),
+            "aligned_s": float(result.aligned_s), "kappa": hold_kappa,
+            "kappa_ramp_s": gain_ramp(kappa, hold_kappa),
         }  # fmt: skip
     if law == "c":
         from covswarm.tvd.control import DAMPING
@@ -606,19 +609,6 @@ def physical_line(summary: dict[str, Any]) -> str:
             f" saturated {summary['saturated_time']:.1f} robot-s"
             f" ({summary['saturated_fraction']:.1%} of commands)"
         )
-    return line
-
-
-def world_line(summary: dict[str, Any]) -> str:
-    """The arena figures of summary.json (mission.world_metrics) on one console line."""
-    clearance = summary.get("min_obstacle_clearance")
-    line = (
-        f"{summary['obstacle_contacts']} obstacle contacts; closest to a wall "
-        + ("-" if clearance is None else f"{clearance:.3f} m")
-        + f"; S over obstacles up to {summary['domain_obstacle_overlap']:.4f} m^2"
-    )
-    if summary.get("goals"):
-        line += f"; goals reached {summary['goals_reached']} of {summary['goals']}"
     return line
 
 
@@ -726,6 +716,7 @@ def sim_command(
 
     from covswarm.coordinator.broadcastable import check_broadcastable
     from covswarm.coordinator.pace import check_deploy_kappa
+    from covswarm.deploy.display import world_line
     from covswarm.mission.report import write_outputs
     from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
@@ -814,6 +805,7 @@ def sim_command(
         console.print(f"[yellow]warning: {crowd.warning(summary['agents'], safety=safety)}")
     if out_dir is None:
         out_dir = Path("runs") / f"sim-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+    obstacles = [o.vertices for o in scenario.world.obstacles]  # whatever their shape
     write_outputs(
         out_dir,
         summary=summary,
@@ -822,7 +814,7 @@ def sim_command(
         trajectories=results[0].trajectories,
         polygons=results[0].polygons,
         error_compare=results[1].error if compare else None,
-        obstacles=list(scenario.obstacles),
+        obstacles=obstacles,
         workspace=scenario.workspace,
         density=scenario.density(options["duration"]),  # the script's end
         script_start=results[0].script_start,
@@ -832,7 +824,7 @@ def sim_command(
         headings=results[0].headings, polygons=results[0].polygons, dt=options["dt"],
         run_metadata={"source": "sim", "scenario": scenario.name, "feedforward": runs[0],
                       **options},
-        workspace=scenario.workspace, obstacles=scenario.obstacles,
+        workspace=scenario.workspace, obstacles=obstacles,
     )  # fmt: skip
     # S at the instants of trajectories.csv, to check it against the map with other tools.
     recorded = range(0, len(results[0].t), stride)

@@ -10,6 +10,7 @@ from __future__ import annotations
 import csv
 import json
 from collections import Counter
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -43,7 +44,7 @@ def write_outputs(
     trajectories: np.ndarray,
     polygons: list[np.ndarray],
     error_compare: np.ndarray | None = None,
-    obstacles: list[Box] | tuple[Box, ...] = (),
+    obstacles: Sequence[np.ndarray] = (),
     workspace: Box | None = None,
     density: Any = None,
     script_start: float | None = None,
@@ -51,8 +52,10 @@ def write_outputs(
     """Write the four output files and return the folder.
 
     t, error, error_compare: (T,); trajectories: (T, n, 2), NaN where a robot's position is
-    unknown; polygons: T arrays (k, 2), the domain at each sample; density: phi at the last
-    sample (covswarm.tvd.density.Density, shaded under the final domain), None when uniform;
+    unknown; polygons: T arrays (k, 2), the domain at each sample; obstacles: every obstacle
+    of the world (boxes, convex polygons, a map's pieces) as its vertices (k, 2) m;
+    workspace: (xmin, xmax, ymin, ymax) m or None; density: phi at the last sample
+    (covswarm.tvd.density.Density, shaded under the final domain), None when uniform;
     script_start: s, when S started moving after a deploy hold (error.png's steady-state
     window is then the second half of what follows, as summary.json's), None without one.
     """
@@ -177,10 +180,11 @@ def _trajectory_figure(
     summary: dict[str, Any],
     trajectories: np.ndarray,
     polygons: list[np.ndarray],
-    obstacles: list[Box] | tuple[Box, ...],
+    obstacles: Sequence[np.ndarray],
     workspace: Box | None,
     density: Any,
 ) -> Any:
+    from matplotlib.collections import PolyCollection
     from matplotlib.patches import Polygon, Rectangle
 
     from covswarm.tvd.coverage import cells
@@ -191,8 +195,8 @@ def _trajectory_figure(
         ax.add_patch(
             Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, fill=False, color="k", lw=1.5)
         )
-    for xmin, xmax, ymin, ymax in obstacles:
-        ax.add_patch(Rectangle((xmin, ymin), xmax - xmin, ymax - ymin, color="tab:red", alpha=0.6))
+    # One collection, however many pieces a map has.
+    ax.add_collection(PolyCollection(obstacles, color="tab:red", alpha=0.6))
 
     # Domain: centroid trace (vertex mean) and a few outlines, darker as time goes on.
     centres = np.array([np.asarray(p, float).mean(axis=0) for p in polygons])

@@ -227,7 +227,7 @@ class RunRecorder:
         *,
         run_metadata: Mapping[str, Any],
         workspace: tuple[float, float, float, float] | None = None,
-        obstacles: Sequence[tuple[float, float, float, float]] = (),
+        obstacles: Sequence[np.ndarray] = (),
         live_port: int | None = None,
         cell_share: float | None = CELL_SHARE,
         continued: bool = False,
@@ -235,6 +235,8 @@ class RunRecorder:
     ) -> None:
         """out_dir: where run.mcap and trajectories.csv go (None: live only);
         run_metadata: scenario, law, kappa, seed, agents, ... (versions are added);
+        workspace: (xmin, xmax, ymin, ymax) m or None; obstacles: every obstacle of the
+        world, whatever its shape, as a convex polygon (k, 2) m (World.obstacles' vertices);
         live_port: serve the channels on ws://127.0.0.1:PORT (0 picks a free port);
         cell_share: record cells less often than CELL_PERIOD when they cost more than this
         share of a core (None: always CELL_PERIOD, deterministic); continued: a restarted
@@ -264,11 +266,12 @@ class RunRecorder:
             message_encoding=AGENT_STATE_ENCODING,
             context=ctx,
         )
-        self.workspace, self.obstacles = workspace, tuple(obstacles)
+        self.workspace = workspace
+        self.obstacles = tuple(np.asarray(p, dtype=float) for p in obstacles)
         self.metadata = {
             **run_metadata,
             "workspace": None if workspace is None else list(workspace),
-            "obstacles": [list(box) for box in obstacles],
+            "obstacle_polygons": [p.tolist() for p in self.obstacles],
             "versions": versions(),
         }
         self.server = None
@@ -557,13 +560,13 @@ def record_simulation(
     dt: float,
     run_metadata: Mapping[str, Any],
     workspace: tuple[float, float, float, float] | None = None,
-    obstacles: Sequence[tuple[float, float, float, float]] = (),
+    obstacles: Sequence[np.ndarray] = (),
 ) -> int:
     """run.mcap and trajectories.csv of a ``covswarm sim`` result; returns the stride used.
 
     t, error: (T,); trajectories: (T, n, 2) m; headings: (T, n) rad; polygons: T (k, 2)
-    arrays. Robots are ids 0..n-1 (the simulator's order). Every ``sim_stride(dt)``-th step
-    is recorded, and the last one.
+    arrays; workspace, obstacles: as RunRecorder's. Robots are ids 0..n-1 (the simulator's
+    order). Every ``sim_stride(dt)``-th step is recorded, and the last one.
     """
     stride = sim_stride(dt)
     steps = list(range(0, len(t), stride))

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -34,6 +34,7 @@ from covswarm.records.recorder import (
 )
 from covswarm.records.scene import ROBOT_DIAMETER, ROBOT_LIFETIME
 from covswarm.runtime.options import FiniteFloat
+from covswarm.world.model import box_vertices
 
 HEADING_LENGTH = 0.15  # m, the heading arrow drawn on each robot
 
@@ -58,6 +59,16 @@ class Recording:
     def end(self) -> float:
         """The last pose time (s), 0 without poses."""
         return self.pose_t[-1] if self.pose_t else 0.0
+
+
+def obstacle_polygons(metadata: Mapping[str, Any]) -> list[np.ndarray]:
+    """The recorded obstacles, (k, 2) vertices (m) each: the metadata's
+    ``obstacle_polygons``, or in a recording from before it the boxes [xmin, xmax, ymin,
+    ymax] of ``obstacles`` (ValueError if one is no box)."""
+    if "obstacle_polygons" in metadata:
+        polygons = metadata["obstacle_polygons"] or []
+        return [np.asarray(p, dtype=float).reshape(-1, 2) for p in polygons]
+    return [box_vertices(box) for box in metadata.get("obstacles") or []]
 
 
 def _yaw(q: Any) -> float:
@@ -256,8 +267,7 @@ def render(
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     from matplotlib import animation
-    from matplotlib.collections import EllipseCollection, LineCollection
-    from matplotlib.patches import Rectangle
+    from matplotlib.collections import EllipseCollection, LineCollection, PolyCollection
 
     suffix = out.suffix.lower()
     if suffix == ".gif":
@@ -288,8 +298,9 @@ def render(
         low, high = every.min(axis=0) - 0.2, every.max(axis=0) + 0.2
         ax.set_xlim(low[0], high[0])
         ax.set_ylim(low[1], high[1])
-    for x0, x1, y0, y1 in meta.get("obstacles") or []:
-        ax.add_patch(Rectangle((x0, y0), x1 - x0, y1 - y0, color="#8c4d40", alpha=0.5))
+    ax.add_collection(
+        PolyCollection(obstacle_polygons(meta), color="#8c4d40", alpha=0.5), autolim=False
+    )
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     cell_lines = LineCollection([], colors="0.6", linewidths=0.7)
@@ -370,7 +381,13 @@ def render(
     show_default=True,
     help="Mission seconds per second of animation.",
 )
-@click.option("--dpi", type=click.IntRange(min=20, max=300), default=80, show_default=True)
+@click.option(
+    "--dpi",
+    type=click.IntRange(min=20, max=300),
+    default=80,
+    show_default=True,
+    help="Resolution of the frames, dots per inch.",
+)
 def replay_command(run_dir: Path, out: Path | None, fps: float, speed: float, dpi: int) -> None:
     """Render an animation of a recorded run (RUN_DIR/run.mcap, and run-1.mcap, ... of a
     resumed one): S, cells, robots, e_a."""

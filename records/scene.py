@@ -7,14 +7,12 @@ Entity ids carry what a viewer (or ``covswarm replay``) needs to tell things apa
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
 
 import numpy as np
 from foxglove.messages import (
     ArrowPrimitive,
     Color,
-    CubePrimitive,
     CylinderPrimitive,
     Duration,
     LinePrimitive,
@@ -25,6 +23,7 @@ from foxglove.messages import (
     SceneEntity,
     SceneUpdate,
     Timestamp,
+    TriangleListPrimitive,
     Vector3,
 )
 
@@ -40,6 +39,7 @@ CELL_COLOR = Color(r=0.45, g=0.45, b=0.45, a=0.8)
 OBSTACLE_COLOR = Color(r=0.55, g=0.3, b=0.25, a=0.6)
 WORKSPACE_COLOR = Color(r=0.6, g=0.6, b=0.6, a=1.0)
 _IDENTITY = Quaternion(x=0.0, y=0.0, z=0.0, w=1.0)
+_ORIGIN = Pose(position=Vector3(x=0.0, y=0.0, z=0.0), orientation=_IDENTITY)
 _ROBOT_SIZE = Vector3(x=ROBOT_DIAMETER, y=ROBOT_DIAMETER, z=ROBOT_HEIGHT)
 _ROBOT_LIFETIME = Duration(sec=int(ROBOT_LIFETIME), nsec=0)
 
@@ -48,15 +48,6 @@ def timestamp(t: float) -> Timestamp:
     """A Foxglove Timestamp of mission time ``t`` (s since the mission's start, >= 0)."""
     ns = max(0, round(t * 1e9))
     return Timestamp(sec=ns // 1_000_000_000, nsec=ns % 1_000_000_000)
-
-
-def planar_pose(x: float, y: float, theta: float, z: float = 0.0) -> Pose:
-    """Pose at (x, y, z) m facing ``theta`` rad (counter-clockwise from +x) about +z."""
-    half = 0.5 * theta
-    return Pose(
-        position=Vector3(x=x, y=y, z=z),
-        orientation=Quaternion(x=0.0, y=0.0, z=math.sin(half), w=math.cos(half)),
-    )
 
 
 def robots_update(
@@ -153,11 +144,12 @@ def cells_update(t: float, ids: Sequence[int], cells: Sequence[np.ndarray]) -> S
 def arena_update(
     t: float,
     workspace: tuple[float, float, float, float] | None,
-    obstacles: Sequence[tuple[float, float, float, float]],
+    obstacles: Sequence[np.ndarray],
 ) -> SceneUpdate:
-    """The workspace outline (entity ``workspace``) and obstacle boxes (``obstacle/<k>``).
+    """The workspace outline (entity ``workspace``) and the obstacles (``obstacle/<k>``).
 
-    Boxes are (xmin, xmax, ymin, ymax) m, as in the scenario.
+    workspace: (xmin, xmax, ymin, ymax) m; obstacles: convex polygons, (m_k, 2) vertices
+    (m), each filled as a triangle fan on the plane.
     """
     stamp = timestamp(t)
     entities = []
@@ -172,19 +164,25 @@ def arena_update(
                 lines=[_loop(corners, WORKSPACE_COLOR, 1.0)],
             )
         )
-    for k, (x0, x1, y0, y1) in enumerate(obstacles):
+    for k, polygon in enumerate(obstacles):
         entities.append(
             SceneEntity(
                 timestamp=stamp,
                 frame_id=FRAME,
                 id=f"obstacle/{k}",
-                cubes=[
-                    CubePrimitive(
-                        pose=planar_pose(0.5 * (x0 + x1), 0.5 * (y0 + y1), 0.0, 0.05),
-                        size=Vector3(x=x1 - x0, y=y1 - y0, z=0.1),
-                        color=OBSTACLE_COLOR,
-                    )
-                ],
+                triangles=[_filled(polygon, OBSTACLE_COLOR)],
             )
         )
     return SceneUpdate(entities=entities)
+
+
+def _filled(polygon: np.ndarray, color: Color) -> TriangleListPrimitive:
+    """A convex polygon (k, 2) as k - 2 triangles fanned from its first vertex, indexed so
+    that each vertex is sent once (built once a second for up to a map's 4096 pieces)."""
+    points = np.asarray(polygon, dtype=float).tolist()
+    return TriangleListPrimitive(
+        pose=_ORIGIN,
+        points=[Point3(x=x, y=y, z=0.0) for x, y in points],
+        color=color,
+        indices=[i for j in range(1, len(points) - 1) for i in (0, j, j + 1)],
+    )

@@ -17,7 +17,7 @@ from covswarm.coordinator.core import (
     PublishWorld,
 )
 from covswarm.coordinator.outputs import build_summary, run_goals, write_run_outputs
-from covswarm.protocol import AgentState, Pose, World, pose_key
+from covswarm.protocol import AgentState, Pose, World, agent_state_key, pose_key
 from covswarm.protocol.steering import SteerRequest
 from covswarm.world.wire import from_message
 
@@ -68,7 +68,8 @@ def test_phantom_ids_are_counted_not_team_members() -> None:
     join(core, [0, 1, 7])  # 7 is nobody the launcher started
     core.on_pose(pose_key(SWARM, 7), Pose(7, 0.0, 0.0, 0.0, WALL0, 1).encode())
     core.on_pose(pose_key(SWARM, 0), Pose(0, -2.0, 0.0, 0.0, WALL0, 1).encode())
-    core.on_agent_state(AgentState(7, 0.0, 0.0, WALL0, (), stats={"rate_hz": 10.0}).encode())
+    state = AgentState(7, 0.0, 0.0, WALL0, (), stats={"rate_hz": 10.0})
+    core.on_agent_state(agent_state_key(SWARM, 7), state.encode())
     assert core.observed.liveness.count("agent") == 2 and core.team_ready()
     assert set(core.alive_positions()) == {0}
     assert 7 not in core.observed.agent_stats
@@ -112,8 +113,11 @@ def test_summary_has_the_arena_keys_and_domain_csv(tmp_path: Path) -> None:
         now = round(now + 0.05, 10)
         for i, x in enumerate((-2.3, -1.7)):
             core.on_pose(pose_key(SWARM, i), Pose(i, x, -0.2, 0.0, WALL0 + now, 1).encode())
+        # robot 1's key carrying a pose that says robot 0: dropped, counted
+        core.on_pose(pose_key(SWARM, 1), Pose(0, 2.0, 2.0, 0.0, WALL0 + now, 1).encode())
         core.tick(now, WALL0 + now)
     summary = build_summary(core.settings, core.observed, core.steering, {"stopped": None})
+    assert summary["wrong_id_messages"] > 0 and summary["min_obstacle_clearance"] > 1.0
     # The warehouse's own goal (pre-empted at once) and the goto's, reached.
     assert summary["goal_list"] == [[2.7, 0.1], [-2.0, -0.2]]
     assert summary["goals"] == 2 and summary["goals_reached"] == 1

@@ -371,6 +371,9 @@ def test_covswarm_sim_holds_s0_as_the_coordinator_does() -> None:
         duration=2.0, seed=1, dynamics="single", deploy_error=0.02,
     )  # fmt: skip
     assert summary["deploy"]["hold_s"] == hold
+    # as the run's: the hold's last DEPLOY_ALIGN s, S still for the robots to face its start
+    assert summary["deploy"]["aligned_s"] == pytest.approx(DEPLOY_ALIGN, abs=0.05)
+    assert timed_out.aligned_s == pytest.approx(DEPLOY_ALIGN, abs=0.05)
     scripted = held.t >= hold
     assert summary["steady_state_error_mean"] == pytest.approx(
         steady_state_mean(held.t[scripted], held.error[scripted])

@@ -101,7 +101,9 @@ def test_sim_writes_run_mcap_with_foxglove_schemas(sim_dir: Path) -> None:
     assert json.loads(run["agents"]) == AGENTS and json.loads(run["seed"]) == SEED
     assert json.loads(run["kappa"]) == load_scenario("passage").kappa
     assert "law" in run and json.loads(run["versions"])["foxglove-sdk"].startswith("0.")
-    assert json.loads(run["obstacles"]) == [list(b) for b in load_scenario("passage").obstacles]
+    assert json.loads(run["obstacle_polygons"]) == [
+        o.vertices.tolist() for o in load_scenario("passage").world.obstacles
+    ]
 
     # The recorded poses are the simulator's: an independent in-process run of the options.
     reference = simulate(load_scenario("passage"), agents=AGENTS, duration=DURATION, seed=SEED)

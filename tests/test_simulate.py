@@ -179,7 +179,7 @@ def test_write_outputs_handles_unknown_positions(tmp_path: Path) -> None:
         error=np.array([0.3, np.nan, 0.1]),
         trajectories=trajectories,
         polygons=[square] * 3,
-        obstacles=[(0.4, 0.6, 0.4, 0.6)],
+        obstacles=[np.array([[0.4, 0.4], [0.6, 0.4], [0.6, 0.6], [0.4, 0.6]])],
         workspace=(-1.0, 2.0, -1.0, 2.0),
     )
     assert all((tmp_path / name).exists() for name in OUTPUTS)
