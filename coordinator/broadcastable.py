@@ -8,7 +8,7 @@ same file failed mid-start.
 
 from __future__ import annotations
 
-from covswarm.mission.scenarios import Scenario, check_motion
+from covswarm.mission.scenarios import Scenario, check_motion, check_route_duration
 from covswarm.protocol import Domain, ProtocolError
 from covswarm.protocol import World as WorldMessage
 from covswarm.world.wire import to_message
@@ -21,8 +21,14 @@ def check_broadcastable(scenario: Scenario, kappa: float, duration: float) -> No
     world one they decode too (protocol.World: obstacle count, coordinates, payload size):
     a map's pieces past those bounds were refused by the coordinator once the team was up.
     S itself is checked over ``duration`` too (mission.scenarios.check_motion): a run
-    longer than its scenario's own duration was checked over the scenario's alone."""
+    longer than its scenario's own duration was checked over the scenario's alone; and a
+    planned route must end within it (mission.scenarios.check_route_duration: a
+    ``--duration`` shorter than the route cut it short without a word).
+
+    The messages say what ``covswarm run`` could not send: ``covswarm sim`` has no agents,
+    but refuses the same scenarios."""
     try:
+        check_route_duration(scenario.motion, duration, "--duration")
         check_motion(scenario.motion, duration)
     except ValueError as exc:
         raise ValueError(f"scenario {scenario.name}: {exc}") from None
@@ -30,7 +36,9 @@ def check_broadcastable(scenario: Scenario, kappa: float, duration: float) -> No
         WorldMessage.decode(to_message(scenario.world, 0, 0.0).encode())
     except ProtocolError as exc:
         raise ValueError(
-            f"scenario {scenario.name}: its world cannot be broadcast to the agents ({exc})"
+            f"scenario {scenario.name}: its world does not fit a World message ({exc}), so "
+            "covswarm run could not send it to its processes (the message's limits: "
+            "docs/world.md)"
         ) from None
     for t in scenario.motion.sample_times(duration):
         vertices, velocities = scenario.domain(float(t))
@@ -55,6 +63,7 @@ def check_broadcastable(scenario: Scenario, kappa: float, duration: float) -> No
                 turns and "cov_rate" in str(exc)
             )
             raise ValueError(
-                f"scenario {scenario.name}: its {what} at t = {float(t):g} s cannot be "
-                f"broadcast to the agents ({exc}){turning}"
+                f"scenario {scenario.name}: its {what} at t = {float(t):g} s does not fit a "
+                f"Domain message ({exc}), so covswarm run could not send it to its "
+                f"processes{turning}"
             ) from None

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import math
+import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -27,6 +30,21 @@ class Progress:
 # log file), where the live display does not refresh.
 PLAIN_PERIOD = 10.0
 ROLES_SHOWN = ("coordinator", "robot", "agent")  # the start-up's counts, in this order
+
+
+class PlainLines:
+    """Progress as a plain line every PLAIN_PERIOD s of wall time on a ``console`` (rich)
+    that is not a terminal; nothing on one that is (its live display shows it)."""
+
+    def __init__(self, console: Any) -> None:
+        self.console = console
+        self._next = math.inf if console.is_terminal else 0.0
+
+    def __call__(self, line: Callable[[], str]) -> None:
+        """Log ``line()`` if a line is due (``line`` is called only then)."""
+        if time.monotonic() >= self._next:
+            self.console.log(line())
+            self._next = time.monotonic() + PLAIN_PERIOD
 
 
 def progress_line(progress: Progress) -> str:

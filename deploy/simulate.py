@@ -716,7 +716,7 @@ def sim_command(
 
     from covswarm.coordinator.broadcastable import check_broadcastable
     from covswarm.coordinator.pace import check_deploy_kappa
-    from covswarm.deploy.display import world_line
+    from covswarm.deploy.display import PlainLines, world_line
     from covswarm.mission.report import write_outputs
     from covswarm.mission.world_metrics import DOMAIN_FILE, write_domain_csv
     from covswarm.records.recorder import record_simulation
@@ -786,14 +786,16 @@ def sim_command(
         console=console,
         transient=False,
     ) as bar:
+        plain = PlainLines(console)  # a pipe or a file: the bar shows nothing until the end
         for feedforward in runs:
             label = f"{scenario.name} tvd_{law} {'with' if feedforward else 'without'} dc/dt"
             task = bar.add_task(label, total=max(1, round(options["duration"] / options["dt"])))
-            results.append(simulate(
-                scenario, feedforward=feedforward,
-                progress=lambda step, _total, task=task: bar.update(task, completed=step),
-                **options,
-            ))  # fmt: skip
+
+            def report(step: int, total: int, task: Any = task, label: str = label) -> None:
+                bar.update(task, completed=step)
+                plain(lambda: f"{label}: step {step} of {total}")
+
+            results.append(simulate(scenario, feedforward=feedforward, progress=report, **options))
     elapsed, cpu = time.perf_counter() - started, time.process_time() - cpu_started
 
     summary = build_summary(

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import math
 import os
 import signal
 import time
@@ -11,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from covswarm.coordinator.core import WAITING_FOR
-from covswarm.deploy.display import PLAIN_PERIOD, Progress, progress_line, render
+from covswarm.deploy.display import PlainLines, Progress, progress_line, render
 from covswarm.deploy.plan import ChildSpec
 from covswarm.deploy.processes import (
     LAUNCHER,
@@ -254,14 +253,12 @@ def run_processes(
         # try/finally: whatever goes wrong here (a bug, a second Ctrl-C) children are
         # stopped by pid; PR_SET_PDEATHSIG covers the launcher dying outright.
         try:
-            plain_at = 0.0 if not console.is_terminal else math.inf  # the next plain line
+            plain = PlainLines(console)  # a pipe or a file: the live display shows nothing
             with Live(render(progress), console=console, transient=False) as live:
                 while True:
                     supervisor.tick()
                     live.update(render(progress))
-                    if time.monotonic() >= plain_at:  # a pipe or a file: no live display
-                        console.log(progress_line(progress))
-                        plain_at = time.monotonic() + PLAIN_PERIOD
+                    plain(lambda: progress_line(progress))
                     if received:
                         console.log("interrupted: stopping the coordinator (it writes outputs)")
                         exit_code = 128 + received[0]

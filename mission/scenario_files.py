@@ -9,20 +9,23 @@ for a map's)::
     name = "zigzag"            # used in output folder names
     agents = 10                # default team size
     kappa = 2.0                # control gain, 1/s
-    duration = 40.0            # s
+    duration = 40.0            # s (a route's default: its end + 10 s; shorter is refused)
     dt = 0.02                  # default simulator step, s
     dynamics = "unicycle"      # "single" (integrator) or "unicycle" (Khepera IV wheels)
     workspace = [-2.591, 2.591, -1.829, 1.829]        # xmin, xmax, ymin, ymax: S stays in
     obstacles = [[-0.3, 0.3, 0.45, 1.829],            # boxes xmin, xmax, ymin, ymax
                  [[1.0, 1.0], [1.5, 1.0], [1.2, 1.4]]]  # or convex polygons [[x, y], ...]
+                               # (one wholly outside the workspace is refused: a typo)
     map = "lab.yaml"           # optional: a ROS map_server / Nav2 map, relative to this
                                # file; its occupied and unknown cells become obstacles
                                # (covswarm.world.maps), its extent the default workspace
+                               # (a workspace reaching beyond it is refused)
     robot_diameter = 0.14      # m: bodies start at least this far apart (and the
                                # summary's close approaches are closer than it)
 
     [initial]                  # optional; default: uniform at random inside S(0)
-    box = [-2.4, -1.2, -0.8, 0.8]                     # uniform at random in this box
+    box = [-2.4, -1.2, -0.8, 0.8]                     # uniform at random in this box, which
+                               # must lie in the workspace, clear of every obstacle
 
     [domain]                   # kind = "keyframes": S is linearly interpolated between
     kind = "keyframes"         # polygons, so every vertex moves with constant velocity
@@ -51,7 +54,9 @@ scale and a = rotation_rate t.
 
 A planned route (covswarm.world.planner): S goes from ``polygon`` to each goal in turn
 through free space, shrinking (never below the team's least S) where a door needs it and
-growing back at each goal; planned at load, deterministically::
+growing back at each goal; planned at load, deterministically. Without ``duration`` the
+mission lasts the route's end plus mission.scenarios.SETTLE (10 s); a ``duration`` ending
+before the route is refused::
 
     [domain]
     kind = "route"
@@ -82,9 +87,18 @@ from pathlib import Path
 from typing import Any
 
 from covswarm.mission.motion import DensityPath, DomainMotion, Keyframes, Rigid
-from covswarm.mission.scenarios import BUILTINS, Box, Scenario, builtin, check_box
+from covswarm.mission.scenarios import (
+    BUILTINS,
+    Box,
+    Scenario,
+    builtin,
+    check_box,
+    route_duration,
+)
+from covswarm.tvd.geometry import polygons_intersect
 from covswarm.world.maps import OccupancyMap, finite_number, read_map, read_regular_file
-from covswarm.world.model import World, make_obstacle
+from covswarm.world.model import Obstacle, World, box_vertices, make_obstacle
+from covswarm.world.route import RouteMotion
 
 try:
     import tomllib
@@ -172,16 +186,19 @@ def scenario_from_dict(
     if "density" in data:
         options["density_path"] = _keyed("[density]", DensityPath.from_table, data["density"])
     world, grid = _world(data, base)
+    motion = _motion_from_dict(
+        _table(data["domain"], "[domain]"),
+        world,
+        (
+            options.get("agents", Scenario.agents),
+            options.get("robot_diameter", Scenario.robot_diameter),
+        ),
+    )
+    if isinstance(motion, RouteMotion) and "duration" not in options:
+        options["duration"] = route_duration(motion)  # not the default 40 s: S cut short
     return Scenario(
         name=data["name"],
-        motion=_motion_from_dict(
-            _table(data["domain"], "[domain]"),
-            world,
-            (
-                options.get("agents", Scenario.agents),
-                options.get("robot_diameter", Scenario.robot_diameter),
-            ),
-        ),
+        motion=motion,
         initial_box=_keyed("[initial] box", _box, initial["box"]) if "box" in initial else None,
         world=world,
         map=grid,
@@ -206,10 +223,30 @@ def _world(data: dict[str, Any], base: Path | None) -> tuple[World, OccupancyMap
             raise ValueError(f"map must be the path of a map's YAML file, not {name!r}")
         path = Path(name) if base is None or Path(name).is_absolute() else base / name
         grid = _keyed("map", read_map, path)
-        obstacles += grid.obstacles()
         if workspace is None:
             workspace = grid.extent
+        else:
+            grid.check_workspace(workspace)
+    if workspace is not None:
+        _check_inside(obstacles, workspace)
+    if grid is not None:
+        obstacles += _keyed("map", grid.obstacles)
     return World(workspace, tuple(obstacles)), grid
+
+
+def _check_inside(obstacles: list[Obstacle], workspace: Box) -> None:
+    """ValueError naming the first of the file's ``obstacles`` that lies wholly outside the
+    workspace (not even touching it): it can only be a typo in its coordinates. One that
+    crosses the workspace's edge (a wall running out of it) is fine."""
+    room = box_vertices(workspace)
+    for obstacle in obstacles:
+        if not polygons_intersect(obstacle.vertices, room):
+            x0, x1, y0, y1 = obstacle.box
+            w = ", ".join(f"{v:g}" for v in workspace)
+            raise ValueError(
+                f"{obstacle.name} ([{x0:g}, {x1:g}] x [{y0:g}, {y1:g}] m) lies wholly outside "
+                f"the workspace [{w}]: check its coordinates"
+            )
 
 
 def _keyed(key: str, build: Callable[..., Any], *args: Any) -> Any:

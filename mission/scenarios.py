@@ -19,6 +19,7 @@ from covswarm.tvd.coverage import signed_area
 from covswarm.tvd.density import Density
 from covswarm.world.maps import OccupancyMap
 from covswarm.world.model import World, box_vertices
+from covswarm.world.route import RouteMotion
 from covswarm.world.sweep import SAMPLES, first_contact
 
 Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
@@ -26,6 +27,7 @@ Box = tuple[float, float, float, float]  # xmin, xmax, ymin, ymax
 MAX_AGENTS = 100_000
 MAX_DURATION = 86_400.0  # s: a day; S's path is checked against the world over all of it
 CONTACT_TOLERANCE = 1e-4  # m: S within this of an obstacle touches it (world.sweep)
+SETTLE = 10.0  # s a planned route's mission lasts past its end, for the team to settle
 
 
 @dataclass(frozen=True, eq=False)
@@ -35,8 +37,9 @@ class Scenario:
     ``world`` (covswarm.world.model.World): the workspace and every obstacle (boxes, convex
     polygons, a map's pieces). Without it, the world is built from ``workspace`` and the
     boxes ``obstacles``; with it, ``workspace`` is the world's and ``obstacles`` becomes the
-    world's axis-aligned boxes (what plots and recordings draw). S(t) must stay clear of the
-    obstacles and inside the workspace over [0, duration] (refused otherwise).
+    world's axis-aligned boxes (plots and recordings draw every obstacle of ``world``).
+    S(t) must stay clear of the obstacles and inside the workspace over [0, duration]
+    (refused otherwise).
     """
 
     name: str
@@ -84,6 +87,9 @@ class Scenario:
             if box is not None:
                 check_box(box)
         self._build_world()
+        if self.initial_box is not None:
+            _check_start_box(self.initial_box, self.world)
+        check_route_duration(self.motion, self.duration)
         check_motion(self.motion, self.duration)
         _check_clear(self.motion, self.duration, self.world)
         if self.density_path is not None:
@@ -208,6 +214,40 @@ def check_box(box: Box) -> None:
     if len(box) != 4:
         raise ValueError(f"box {box!r}: need 4 numbers xmin, xmax, ymin, ymax")
     box_vertices(box)
+
+
+def route_duration(motion: RouteMotion) -> float:
+    """A planned route's mission length when none is given, s: its end (whole seconds, up)
+    plus SETTLE."""
+    return math.ceil(motion.end) + SETTLE
+
+
+def check_route_duration(motion: DomainMotion, duration: float, option: str = "duration") -> None:
+    """ValueError unless a planned route (world.route.RouteMotion) ends within a mission of
+    ``duration`` s, the effective one (a scenario's, or ``covswarm sim/run --duration``,
+    named ``option`` in the message): cut short, S stops mid-way and goals go unreached
+    without a word. Other motions may be run for any length (S stays put past its end)."""
+    if not isinstance(motion, RouteMotion) or motion.end <= duration:
+        return
+    need = math.ceil(motion.end * 10.0) / 10.0
+    raise ValueError(
+        f"the route ends at {motion.end:.1f} s, after the mission's {duration:g} s: "
+        f"give {option} >= {need:g} or fewer goals"
+    )
+
+
+def _check_start_box(box: Box, world: World) -> None:
+    """ValueError unless the start box lies inside the workspace and clear of every obstacle
+    (as S must: World.contact within CONTACT_TOLERANCE), naming what it reaches."""
+    hit = world.contact(box_vertices(box), tolerance=CONTACT_TOLERANCE)
+    if hit is None:
+        return
+    where = "[" + ", ".join(f"{v:g}" for v in box) + "]"
+    what = "leaves " if hit == "workspace" else "touches "
+    raise ValueError(
+        f"the initial box {where} (where the robots start) {what}{world.describe(hit)}: "
+        "move it clear, or drop it to start the robots inside S(0)"
+    )
 
 
 def _check_clear(motion: DomainMotion, duration: float, world: World) -> None:
@@ -495,8 +535,8 @@ def warehouse(agents: int = 20) -> Scenario:
     S, a 2.4 m x 1.6 m rectangle, cannot pass the 1.1 m door: the planner
     (covswarm.world.planner) shrinks it on the way to the door, never below the team's least
     S (covswarm.mission.crowding.least_domain: 0.89 m^2, 0.18 m wide for 20), takes it through and
-    grows it back at the goal beyond shelf 3. Fastest vertex 0.25 m/s; 10 s at the end for
-    the team to settle.
+    grows it back at the goal beyond shelf 3. Fastest vertex 0.25 m/s; SETTLE (10 s) at the
+    end for the team to settle.
     """
     from covswarm.mission.crowding import least_domain
     from covswarm.world.model import Obstacle
@@ -517,7 +557,7 @@ def warehouse(agents: int = 20) -> Scenario:
         motion=route.motion,
         agents=agents,
         kappa=2.0,
-        duration=math.ceil(route.motion.end) + 10.0,
+        duration=route_duration(route.motion),
         dt=0.02,
         dynamics="unicycle",
         world=world,

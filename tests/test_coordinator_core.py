@@ -327,7 +327,6 @@ def test_agent_stats_are_kept_and_malformed_states_counted() -> None:
     assert core.observed.rejected == 1
 
 
-
 def test_a_message_naming_another_robot_than_its_key_is_dropped_and_counted() -> None:
     """In secure mode a process may put only on its own keys: robot 9's credentials put
     poses and states saying id 0 on robot 9's keys. Neither moves robot 0 nor gives it

@@ -176,8 +176,9 @@ def test_bad_files_are_refused(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="list.yaml: the YAML must be a mapping"):
         read_map(tmp_path / "list.yaml")
     (tmp_path / "broken.yaml").write_text("image: [unclosed\n")
-    with pytest.raises(ValueError, match="broken.yaml: invalid YAML"):
+    with pytest.raises(ValueError, match="broken.yaml: not YAML: line 2, column 1: ") as info:
         read_map(tmp_path / "broken.yaml")
+    assert "\n" not in str(info.value) and "unicode string" not in str(info.value)
     (tmp_path / "big.yaml").write_bytes(b"#" * (2 << 20))
     with pytest.raises(ValueError, match="more than the"):
         read_map(tmp_path / "big.yaml")

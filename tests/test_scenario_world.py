@@ -212,6 +212,9 @@ def test_a_door_too_narrow_for_the_files_team_passes_a_smaller_one(tmp_path: Pat
     text = (SCENARIOS / "lab-route.toml").read_text(encoding="utf-8")
     text = text.replace('map = "lab.yaml"', f'map = "{SCENARIOS / "lab.yaml"}"\n'
                         "obstacles = [[-0.1, 0.1, 0.3, 0.8]]")  # fmt: skip
+    # Without the file's 110 s: two robots' route through the narrower door ends at 112 s,
+    # so the mission lasts the route's own length (a 110 s one is refused).
+    text = text.replace("duration = 110.0\n", "")
     path = tmp_path / "door.toml"
     path.write_text(text, encoding="utf-8")
     with pytest.raises(ValueError, match="too-narrow"):
@@ -227,9 +230,13 @@ def test_sim_plans_the_route_for_its_agents_option(tmp_path: Path) -> None:
     text = (SCENARIOS / "lab-route.toml").read_text(encoding="utf-8")
     text = text.replace('map = "lab.yaml"', f'map = "{SCENARIOS / "lab.yaml"}"\n'
                         "obstacles = [[-0.1, 0.1, 0.3, 0.8]]")  # fmt: skip
+    # Without the file's 110 s: two robots' route through the narrower door ends at 112 s,
+    # so the mission lasts the route's own length (a 110 s one is refused).
+    text = text.replace("duration = 110.0\n", "")
     (tmp_path / "door.toml").write_text(text, encoding="utf-8")
-    sim = ["sim", "--scenario", str(tmp_path / "door.toml"), "--duration", "0.2"]
+    sim = ["sim", "--scenario", str(tmp_path / "door.toml"), "--dt", "0.1"]
     refused = CliRunner().invoke(main, [*sim, "--out", str(tmp_path / "a")])
     assert refused.exit_code == 2 and "too-narrow" in refused.output
     ran = CliRunner().invoke(main, [*sim, "--agents", "2", "--out", str(tmp_path / "b")])
     assert ran.exit_code == 0, ran.output
+    assert "goals reached 2 of 2" in " ".join(ran.output.split())  # the whole route

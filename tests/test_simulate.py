@@ -104,6 +104,12 @@ def test_bad_options_are_rejected(small: Path) -> None:
         assert result.exit_code == 2 and reason in " ".join(result.output.split()), result.output
 
 
+def test_cli_without_a_terminal_prints_plain_progress(small: Path, tmp_path: Path) -> None:
+    output = run_cli("--scenario", str(small), "--out", str(tmp_path / "run"))
+    # CliRunner's output is no terminal: the bar would show nothing until the end
+    assert "small tvd_da with dc/dt: step 1 of 40" in " ".join(output.split())
+
+
 def test_cli_compare_writes_both_curves(small: Path, tmp_path: Path) -> None:
     out = tmp_path / "run"
     output = run_cli("--scenario", str(small), "--compare", "--law", "d1", "--out", str(out))

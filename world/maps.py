@@ -8,15 +8,19 @@ lower-left pixel; yaw must be 0: a rotated map is refused, rotate the image inst
 refused (a typo must not pass silently).
 
 The image: 8-bit grey, bilevel, palette or colour (colour channels averaged to grey; an alpha
-channel is ignored), PGM or PNG or anything Pillow reads. Row 0 is the top of the map. A
-pixel of grey x has occupancy p = (255 - x) / 255, or x / 255 when negated. trinary and
+channel is ignored), PGM or PNG or anything Pillow reads; 16-bit images are refused (save
+the map with 8 bits a channel). Row 0 is the top of the map. A pixel of grey x has
+occupancy p = (255 - x) / 255, or x / 255 when negated. trinary and
 scale: p > occupied_thresh is occupied, p < free_thresh free, anything between unknown; raw:
 x is the occupancy in percent (p = x / 100, 255 unknown). Unknown counts as occupied: S must
 not be planned into space nobody has seen.
 
 Occupied cells become few convex pieces: runs of occupied cells along each row, merged with
 the identical runs of the rows above them into rectangles, so a straight wall is one
-rectangle; the rectangles cover exactly the occupied cells, without overlapping.
+rectangle; the rectangles cover exactly the occupied cells, without overlapping. A map whose
+cover has more rectangles than a World message carries (protocol MAX_OBSTACLES) is refused
+when its obstacles are asked for, counted before any is built (count_rectangles), so a
+noisy map is refused in a second rather than after minutes of building millions of pieces.
 """
 
 from __future__ import annotations
@@ -30,6 +34,7 @@ from typing import Any
 
 import numpy as np
 
+from covswarm.protocol.messages import MAX_OBSTACLES
 from covswarm.world.model import Box, Obstacle, World
 
 MAX_YAML_BYTES = 1 << 20  # a map's YAML is a few lines
@@ -37,6 +42,8 @@ MAX_IMAGE_BYTES = 64 << 20
 MAX_PIXELS = 64_000_000  # 8000 x 8000: 400 m a side at 5 cm
 _KEYS = {"image", "resolution", "origin", "negate", "occupied_thresh", "free_thresh", "mode"}
 _REQUIRED = {"image", "resolution", "origin", "occupied_thresh", "free_thresh"}
+EDGE_TOLERANCE = 1e-6  # m: a workspace this close to the map's edge is inside it (rounding)
+_BLOCK_CELLS = 1 << 22  # cells count_rectangles looks at at once (bounds its memory)
 
 
 @dataclass(frozen=True, eq=False)
@@ -57,8 +64,33 @@ class OccupancyMap:
         x0, y0 = self.origin
         return (x0, x0 + cols * self.resolution, y0, y0 + rows * self.resolution)
 
-    def obstacles(self, prefix: str = "map piece", first: int = 1) -> tuple[Obstacle, ...]:
-        """The occupied cells as rectangles (cover_rectangles), named "<prefix> <first + i>"."""
+    def check_workspace(self, workspace: Box) -> None:
+        """ValueError naming both rectangles unless ``workspace`` lies within the map's extent
+        (to EDGE_TOLERANCE): space beyond the map's edge was never seen, yet has no pieces,
+        so S would be planned through it as if it were free."""
+        xmin, xmax, ymin, ymax = self.extent
+        wx0, wx1, wy0, wy1 = workspace
+        e = EDGE_TOLERANCE
+        if wx0 < xmin - e or wx1 > xmax + e or wy0 < ymin - e or wy1 > ymax + e:
+            raise ValueError(
+                f"workspace [{wx0:g}, {wx1:g}] x [{wy0:g}, {wy1:g}] m reaches beyond the map "
+                f"{self.path} ([{xmin:g}, {xmax:g}] x [{ymin:g}, {ymax:g}] m), space nobody "
+                "has seen: give a workspace within the map, or none to use the map's extent"
+            )
+
+    def obstacles(
+        self, prefix: str = "map piece", first: int = 1, limit: int = MAX_OBSTACLES
+    ) -> tuple[Obstacle, ...]:
+        """The occupied cells as rectangles (cover_rectangles), named "<prefix> <first + i>";
+        ValueError naming the map and what to do if there are more than ``limit`` (counted
+        first, in a fraction of a second, so none is built)."""
+        count = count_rectangles(self.occupied)
+        if count > limit:
+            raise ValueError(
+                f"{self.path}: {count} occupied rectangles, at most {limit} fit a World "
+                "message: clean speckle (isolated occupied pixels), crop the map to the lab, "
+                "or use a coarser resolution"
+            )
         x0, y0 = self.origin
         h = self.resolution
         return tuple(
@@ -104,6 +136,33 @@ def cover_rectangles(occupied: np.ndarray) -> list[tuple[int, int, int, int]]:
     return rectangles
 
 
+def count_rectangles(occupied: np.ndarray, block_cells: int = _BLOCK_CELLS) -> int:
+    """len(cover_rectangles(occupied)) without building them, vectorised: every run of True
+    cells along a row starts a rectangle unless the row below has the identical run. Rows
+    are taken a block of about ``block_cells`` cells at a time (with the row before it)."""
+    grid = np.asarray(occupied, dtype=bool)
+    if grid.ndim != 2:
+        raise ValueError(f"occupancy grid must be 2-D, got shape {grid.shape}")
+    rows, cols = grid.shape
+    width = cols + 1  # flat index of a change: row * width + column
+    block = max(1, block_cells // (cols + 2))
+    total = 0
+    for a in range(0, rows, block):
+        low = max(a - 1, 0)
+        padded = np.zeros((min(a + block, rows) - low, cols + 2), dtype=np.int8)
+        padded[:, 1:-1] = grid[low : a + block]
+        changes = np.flatnonzero(np.diff(padded, axis=1))  # a row's runs start, end, ...
+        starts, lengths = changes[0::2], changes[1::2] - changes[0::2]
+        if len(starts) == 0:
+            continue
+        keys = starts * (cols + 2) + lengths  # increasing: runs in order, lengths <= cols
+        own = starts >= (a - low) * width  # the block's rows (not the row before it)
+        below = (starts[own] - width) * (cols + 2) + lengths[own]  # the same run a row down
+        at = np.minimum(np.searchsorted(keys, below), len(keys) - 1)
+        total += int(own.sum()) - int(np.count_nonzero(keys[at] == below))
+    return total
+
+
 def read_map(yaml_path: str | Path) -> OccupancyMap:
     """The map described by a map_server YAML file; ValueError naming the file and the reason
     for anything malformed (module docstring)."""
@@ -114,7 +173,7 @@ def read_map(yaml_path: str | Path) -> OccupancyMap:
     try:
         data = yaml.safe_load(text)
     except yaml.YAMLError as exc:
-        raise ValueError(f"{path}: invalid YAML ({exc})") from None
+        raise ValueError(f"{path}: not YAML: {_yaml_error(exc)}") from None
     try:
         meta = _metadata(data)
     except ValueError as exc:
@@ -140,9 +199,24 @@ def read_map(yaml_path: str | Path) -> OccupancyMap:
 
 def world_from_map(yaml_path: str | Path, workspace: Box | None = None) -> World:
     """A World of the map's occupied cells (few rectangles, "map piece N"), in ``workspace``
-    (default: the map's extent)."""
+    (default: the map's extent; one reaching beyond it is refused: OccupancyMap.check_workspace)."""
     grid = read_map(yaml_path)
+    if workspace is not None:
+        grid.check_workspace(workspace)
     return World(grid.extent if workspace is None else workspace, grid.obstacles())
+
+
+def _yaml_error(exc: Exception) -> str:
+    """PyYAML's error in one line: where (line, column, from 1) and what, without its
+    multi-line excerpt of the text."""
+    mark, problem = getattr(exc, "problem_mark", None), getattr(exc, "problem", None)
+    if mark is None or problem is None:
+        return " ".join(str(exc).replace('in "<unicode string>", ', "").split())
+    where = f"line {mark.line + 1}, column {mark.column + 1}: {problem}"
+    context, begun = getattr(exc, "context", None), getattr(exc, "context_mark", None)
+    if context and begun is not None:  # "while parsing a flow sequence" begun elsewhere
+        context += f" begun at line {begun.line + 1}, column {begun.column + 1}"
+    return " ".join((where + (f" ({context})" if context else "")).split())
 
 
 def _metadata(data: Any) -> dict[str, Any]:
@@ -235,7 +309,10 @@ def _read_grey(path: Path) -> np.ndarray:
             if width == 0 or height == 0:
                 raise ValueError(f"{path}: empty image")
             if image.mode not in ("1", "L", "LA", "P", "PA", "RGB", "RGBA"):
-                raise ValueError(f"{path}: not an 8-bit image (mode {image.mode})")
+                raise ValueError(
+                    f"{path}: not an 8-bit image (mode {image.mode}): save the map with "
+                    "8 bits a channel (8-bit grey, as map_saver writes)"
+                )
             if image.mode in ("P", "PA"):
                 image = image.convert("RGBA")
             pixels = np.asarray(image)
