@@ -369,6 +369,8 @@ def _motion_from_dict(
 
 def _require_keys(table: dict[str, Any], required: set[str], allowed: set[str]) -> None:
     missing, unknown = required - set(table), set(table) - allowed
+    if missing and unknown:  # most likely a typo: name both
+        raise ValueError(f"[domain]: missing {sorted(missing)}, unknown {sorted(unknown)}")
     if missing:
         raise ValueError(f"[domain]: missing {sorted(missing)}")
     if unknown:

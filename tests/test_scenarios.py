@@ -228,7 +228,10 @@ BAD_FILES = {
     "no domain": ('name = "x"\n', "required"),
     "unknown key": (scenario_text(f'kind = "rigid"\npolygon = {SQUARE}', "colour = 1"), "unknown"),
     "bad kind": (scenario_text('kind = "spline"'), "kind"),
-    "domain typo": (scenario_text(f'kind = "rigid"\npolgon = {SQUARE}'), "polygon"),
+    "domain typo": (
+        scenario_text(f'kind = "rigid"\npolgon = {SQUARE}'),
+        r"\[domain\]: missing \['polygon'\], unknown \['polgon'\]",
+    ),
     "non-convex": (
         scenario_text('kind = "rigid"\npolygon = [[0, 0], [2, 0], [0.5, 0.5], [0, 2]]'),
         "t = 0",
