@@ -1,9 +1,12 @@
 """Who may use the console: the token rule, and the checks every HTTP/WebSocket request passes.
 
-The console listens on 127.0.0.1 by default and then needs no token, like any local tool;
-listening on any other address (even another loopback one) needs a token, made once at
-start-up and printed once in the URL, like Jupyter. Pure functions (no aiohttp), so the
-rules are unit-tested directly; console.server applies them to every request.
+In open mode the console listens on 127.0.0.1 by default and then needs no token, like any
+local tool; listening on any other address (even another loopback one) needs a token, made
+once at start-up and printed once in the URL, like Jupyter. A secured console (``--secure``)
+needs its token on every address, loopback included: its steering requests carry the
+console's certificate, which no other local user holds, so the page must not lend it to
+whoever reaches the port. Pure functions (no aiohttp), so the rules are unit-tested
+directly; console.server applies them to every request.
 
 Where a request may carry the token: the ``token`` query parameter (the printed URL), an
 ``Authorization: token <T>`` header (scripts), or the cookie the page gets on its first
@@ -21,6 +24,7 @@ rebinding (a hostile name that resolves to 127.0.0.1).
 from __future__ import annotations
 
 import hmac
+import os
 import secrets
 from collections.abc import Mapping
 from urllib.parse import urlsplit
@@ -31,9 +35,28 @@ COOKIE = "covswarm_console_token"
 TOKEN_BYTES = 24  # 192 random bits, URL-safe (32 characters)
 
 
-def needs_token(host: str) -> bool:
-    """True unless the console listens on the default loopback address (or its aliases)."""
-    return host.strip("[]").lower() not in LOOPBACK_NAMES
+def needs_token(host: str, secure: bool = False) -> bool:
+    """True for a secured console (``secure``: it steers with the swarm's credentials)
+    whatever its address; in open mode, unless it listens on the default loopback address
+    (or its aliases)."""
+    return secure or host.strip("[]").lower() not in LOOPBACK_NAMES
+
+
+def read_token_file(path: str) -> str:
+    """The token in the file at ``path`` (one line, written by whoever prints the URL, e.g.
+    ``covswarm run --console``), or ValueError: a file that cannot be read, an empty one, or
+    one that others may read (a token any local user can read protects nothing)."""
+    try:
+        info = os.stat(path)
+        with open(path, encoding="ascii") as file:
+            token = file.read().strip()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read the token file {path}: {exc}") from None
+    if info.st_mode & 0o077:
+        raise ValueError(f"the token file {path} is readable by others: chmod 600 it")
+    if not token or any(c.isspace() for c in token):
+        raise ValueError(f"the token file {path} holds no token (one word on one line)")
+    return token
 
 
 def check_host(host: str) -> str:

@@ -40,6 +40,7 @@ from covswarm.console.access import (
     check_host,
     needs_token,
     new_token,
+    read_token_file,
     refusal,
 )
 from covswarm.console.model import SwarmView
@@ -67,6 +68,7 @@ class SwarmFeed:
         import zenoh
 
         from covswarm.protocol import (
+            KeyIds,
             alive_selector,
             all_poses_selector,
             domain_key,
@@ -76,6 +78,7 @@ class SwarmFeed:
 
         self.swarm, self.view = swarm, view
         self._session = session
+        self._pose_ids = KeyIds(swarm, "pose")  # a pose's robot is its key's
         self._delete = zenoh.SampleKind.DELETE
         # Latest-wins streams in rings (drained every frame); liveliness in a FIFO, since a
         # lost change would leave a dead process counted alive.
@@ -121,11 +124,19 @@ class SwarmFeed:
         latest: dict[str, bytes] = {}
         while (sample := self._poses.try_recv()) is not None:
             latest[str(sample.key_expr)] = sample.payload.to_bytes()
-        for payload in latest.values():
+        for key, payload in latest.items():
             try:
-                view.on_pose(Pose.decode(payload), now)
+                pose = Pose.decode(payload)
             except ProtocolError as exc:
                 view.on_dropped(exc.reason)
+                continue
+            # The key is what the router checked (in secure mode robot 9 may put only on
+            # robot/9/pose), not the id inside: a pose of another id, or on a key of another
+            # shape, is dropped (docs/security.md).
+            if pose.id != self._pose_ids(key):
+                view.on_dropped("wrong_id")
+                continue
+            view.on_pose(pose, now)
 
     def fetch_map(self) -> tuple[bool, Any, str | None]:
         """Ask the coordinator for the map's picture (blocking: run it in a worker thread,
@@ -438,7 +449,8 @@ async def serve(console: Console, host: str, port: int, announce: Callable[[int]
     "--host",
     default=DEFAULT_HOST,
     show_default=True,
-    help="Address to listen on; anything but 127.0.0.1 requires the printed token.",
+    help="Address to listen on; anything but 127.0.0.1 (or any with --secure) requires the "
+    "printed token.",
 )
 @click.option(
     "--port",
@@ -462,6 +474,13 @@ async def serve(console: Console, host: str, port: int, announce: Callable[[int]
     help="Seconds to wait for the coordinator's answer to a steering request.",
 )
 @SECURE_OPTION
+@click.option(
+    "--token-file",
+    type=click.Path(dir_okay=False, path_type=Path),
+    default=None,
+    help="Take the token from this owner-only file instead of making one, and print the URL "
+    "without it (covswarm run --console prints it).",
+)
 def console_command(
     connect: Sequence[str],
     swarm: str,
@@ -470,8 +489,12 @@ def console_command(
     rate: float,
     steer_timeout: float,
     secure: Path | None,
+    token_file: Path | None,
 ) -> None:
-    """Serve the operator console of a running swarm: watch it, and steer S by dragging."""
+    """Serve the operator console of a running swarm: watch it, and steer S by dragging.
+
+    In open mode a console on 127.0.0.1 needs no token; on any other address, and on every
+    address with --secure, each request must carry the token of the URL it prints."""
     from covswarm.coordinator.steer_client import SteeringClient
     from covswarm.protocol import check_swarm
     from covswarm.protocol.session import SessionError, open_session, session_config
@@ -481,9 +504,10 @@ def console_command(
         check_swarm(swarm)
         check_host(host)
         config = session_config(list(connect), secure=secure, role="console")
+        given = None if token_file is None else read_token_file(str(token_file))
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
-    token = new_token() if needs_token(host) else None
+    token = given or (new_token() if needs_token(host, secure is not None) else None)
     try:
         session = open_session(config)
     except SessionError as exc:
@@ -495,8 +519,13 @@ def console_command(
         console = Console(feed, client.request, token=token, rate=rate)
 
         def announce(bound: int) -> None:
-            # Printed once, on stdout (the token is a secret: it goes nowhere else).
-            click.echo(f"covswarm console of swarm {swarm}: {console_url(host, bound, token)}")
+            # Printed once, on stdout (the token is a secret: it goes nowhere else); a token
+            # from a file is not (stdout may be a log others can read: covswarm run's).
+            if given is None:
+                url = console_url(host, bound, token)
+            else:
+                url = f"{console_url(host, bound, None)} (with the token of {token_file})"
+            click.echo(f"covswarm console of swarm {swarm}: {url}")
             log.info("listening on %s port %d (%s)", host, bound, "token" if token else "loopback")
 
         try:

@@ -81,6 +81,9 @@ from covswarm.runtime.options import (
 )
 from covswarm.sim_robot.process import gather_drops
 
+# A secured run's console token, handed to the console child (owner-only; removed at the end).
+CONSOLE_TOKEN = "console.token"
+
 
 @click.command("run")
 @click.option("--scenario", default="passage", show_default=True, help=SCENARIO_HELP)
@@ -254,6 +257,21 @@ def host_brain_tick(run: RunConfig, agents: int, cores: int, console: Console) -
     return measured.brain_tick, "measured"
 
 
+def hand_over_token(path: Path) -> str:
+    """A new console token, written to ``path`` for the console child alone (owner-only;
+    never on a command line, which every local user can read, nor in its log) and returned
+    for the URL the launcher prints: a secured console needs it even on loopback
+    (console.access.needs_token)."""
+    from covswarm.console.access import new_token
+
+    token = new_token()
+    path.unlink(missing_ok=True)  # O_EXCL below: a file planted there is not reused
+    fd = os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o600)
+    with os.fdopen(fd, "w", encoding="ascii") as file:
+        file.write(token + "\n")
+    return token
+
+
 def run_swarm(run: RunConfig) -> None:
     """The run ``run`` describes: router, children, live display, summary; exits with its
     status."""
@@ -341,12 +359,14 @@ def run_swarm(run: RunConfig) -> None:
             per_process=packing, robots_per_process=robot_packing,
         )  # fmt: skip
         names = {s.identity for s in planned} | ({"console"} if run.console else set())
-        from covswarm.protocol.session import check_router_hosts  # imports zenoh
+        if run.connect is not None:
+            names.add("operator")  # the launcher's own session joins that router as it
+        from covswarm.protocol.session import check_router_folder  # imports zenoh
 
         try:
             require_identities(run.secure, sorted(names))
-            if run.connect is None and run.router_listen:
-                check_router_hosts(run.secure, run.router_listen)
+            if run.connect is None:  # the embedded router's files, as covswarm router's
+                check_router_folder(run.secure, run.router_listen or ())
         except ValueError as exc:
             raise click.UsageError(str(exc)) from None
     log_dir = out_dir / "logs"
@@ -380,17 +400,27 @@ def run_swarm(run: RunConfig) -> None:
                 f"ws://{LIVE_HOST}:{run.foxglove}"
             )  # fmt: skip
             console.log(f"Foxglove live view on {port} (docs/records.md)")
-        console_url = None
+        console_url = token_file = None
         if run.console:
             port = run.console_port or free_port()
             first = 1 if specs and specs[0].role == "coordinator" else 0
+            console_url = f"http://127.0.0.1:{port}/"
+            if run.secure is None:
+                console.log(f"operator console on {console_url}")
+            else:
+                token_file = out_dir.resolve() / CONSOLE_TOKEN
+                # One line, never wrapped: the URL is to be copied whole.
+                console.print(
+                    f"operator console on {console_url}?token={hand_over_token(token_file)}",
+                    soft_wrap=True, markup=False, highlight=False,
+                )  # fmt: skip
             specs.insert(first, console_spec(
                 covswarm_argv(), endpoint=endpoint, swarm=swarm, port=port, secure=run.secure,
+                token_file=token_file,
             ))  # fmt: skip
-            console_url = f"http://127.0.0.1:{port}/"
-            console.log(f"operator console on {console_url}")
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
+                        "console_token_file": None if token_file is None else str(token_file),
                         "agents_per_process": packing,
                         "robots_per_process": robot_packing,
                         "brain_tick_s": brain_tick, "brain_tick_source": brain_tick_source,
@@ -398,10 +428,14 @@ def run_swarm(run: RunConfig) -> None:
                         "cmd_timeout_s": timeout,
                         "argv": [s.argv for s in specs]}, indent=1) + "\n", encoding="utf-8",
         )  # fmt: skip
-        result = run_processes(
-            specs, session=session, swarm=swarm, agents=n, duration=duration, log_dir=log_dir,
-            startup_timeout=run.startup_timeout, console=console,
-        )  # fmt: skip
+        try:
+            result = run_processes(
+                specs, session=session, swarm=swarm, agents=n, duration=duration,
+                log_dir=log_dir, startup_timeout=run.startup_timeout, console=console,
+            )  # fmt: skip
+        finally:
+            if token_file is not None:
+                token_file.unlink(missing_ok=True)  # the token dies with the run
     summary_path = out_dir / "summary.json"
     summary = None
     if summary_path.exists():

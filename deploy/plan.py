@@ -480,12 +480,19 @@ def plan_children(
 
 
 def console_spec(
-    base: Sequence[str], *, endpoint: str, swarm: str, port: int, secure: Path | None = None
+    base: Sequence[str],
+    *,
+    endpoint: str,
+    swarm: str,
+    port: int,
+    secure: Path | None = None,
+    token_file: Path | None = None,
 ) -> ChildSpec:
     """The operator console of ``covswarm run --console``: ``covswarm console`` on
-    127.0.0.1:``port`` (no token on loopback); it holds no liveliness token, so the
+    127.0.0.1:``port`` (no token on loopback in open mode; secured, the token in
+    ``token_file``, never on its command line); it holds no liveliness token, so the
     supervisor counts it ready once spawned."""
-    secured = () if secure is None else ("--secure", str(secure))
+    secured = () if secure is None else ("--secure", str(secure), "--token-file", str(token_file))
     argv = (
         *base, "console", "--connect", endpoint, "--swarm", swarm, "--port", str(port), *secured,
     )  # fmt: skip

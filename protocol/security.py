@@ -13,7 +13,7 @@ and answers steering requests, and so on. The folder holds:
 - ``identities.json``: every identity issued, with its role and ids (the router builds its
   access-control list from it; not secret);
 - one sub-folder per identity, ``<name>/cert.pem`` and ``<name>/key.pem``; ``router/`` is
-  the router's (its certificate names 127.0.0.1 and localhost, plus ``--host`` names);
+  the router's (its certificate names 127.0.0.1 and localhost, plus every ``--host`` given);
 - ``ca/ca.key``: the CA's private key, kept to issue more identities later. It never
   leaves the machine that issues credentials.
 
@@ -107,24 +107,8 @@ def apply_security(
     """
     from covswarm.protocol.access import access_control
 
-    directory = Path(directory).resolve()
     name = ROUTER if mode == "router" else identity_name(role, ids)
-    if mode != "router":
-        require_identities(directory, [name])  # names the command that issues it
-    needed = [CA, f"{name}/{CERT}", f"{name}/{KEY}"]
-    if mode == "router":
-        needed.append(IDENTITIES)
-    missing = [n for n in needed if not (directory / n).is_file()]
-    if missing:
-        raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}")
-    presented = certificate_names(directory / name / CERT).common_name
-    if presented != name:
-        # The router knows a process by its certificate's name alone: as this one it would
-        # drop, in silence, everything this process sends as itself.
-        raise ValueError(
-            f"{directory / name / CERT} is {presented}'s certificate, not {name}'s: "
-            f"the router would take this process for {presented}"
-        )
+    directory = check_secure_folder(directory, name)
 
     def put(key: str, value: object) -> None:
         config.insert_json5(key, json.dumps(value))
@@ -141,6 +125,38 @@ def apply_security(
         put("transport/link/tls/connect_certificate", str(directory / name / CERT))
         put("transport/link/tls/connect_private_key", str(directory / name / KEY))
         put("access_control", access_control(read_identities(directory)))
+
+
+def check_secure_folder(directory: Path, name: str) -> Path:
+    """The secure folder ``directory`` (resolved) if it holds what identity ``name``
+    presents: ``ca.pem``, ``name/cert.pem`` (a certificate of that name) and
+    ``name/key.pem``, and for the router (``name`` ``router``) a readable
+    ``identities.json``; else ValueError saying what is wrong, so a misconfigured process
+    (or a launcher, before it starts anything) fails in one line instead of running
+    unsecured or being refused by the router in silence."""
+    directory = Path(directory).resolve()
+    if name != ROUTER:
+        require_identities(directory, [name])  # names the command that issues it
+    needed = [CA, f"{name}/{CERT}", f"{name}/{KEY}"]
+    if name == ROUTER:
+        needed.append(IDENTITIES)
+    missing = [n for n in needed if not (directory / n).is_file()]
+    if missing:
+        raise ValueError(f"secure folder {directory} lacks {', '.join(missing)}")
+    try:
+        presented = certificate_names(directory / name / CERT).common_name
+    except OSError as exc:
+        raise ValueError(f"cannot read {directory / name / CERT}: {exc.strerror}") from None
+    if presented != name:
+        # The router knows a process by its certificate's name alone: as this one it would
+        # drop, in silence, everything this process sends as itself.
+        raise ValueError(
+            f"{directory / name / CERT} is {presented}'s certificate, not {name}'s: "
+            f"the router would take this process for {presented}"
+        )
+    if name == ROUTER:
+        read_identities(directory)  # its access-control list: malformed, said here
+    return directory
 
 
 def require_identities(directory: Path, names: Iterable[str]) -> None:
@@ -247,6 +263,25 @@ def _router_alt_names(hosts: Iterable[str]) -> list[str]:
     return list(dict.fromkeys(names))
 
 
+def check_credentials_target(directory: Path) -> None:
+    """ValueError unless ``directory`` may receive credentials: a new or empty folder, or
+    a credentials folder already (it has ``ca/``, ``ca.pem`` or ``identities.json``), to
+    which identities are added. Any other folder would get the CA's private key among
+    files of its own (``covswarm credentials ..``), named in the message."""
+    directory = Path(directory)
+    if not directory.is_dir() or any(
+        (directory / n).exists() for n in (CA_KEY.parent, CA, IDENTITIES)
+    ):
+        return
+    found = sorted(entry.name for entry in directory.iterdir())
+    if found:
+        shown = ", ".join(found[:5]) + (f" and {len(found) - 5} more" if len(found) > 5 else "")
+        raise ValueError(
+            f"{directory} is not a credentials folder (no ca/, identities.json) but holds "
+            f"{shown}: give a new folder, e.g. ./secure"
+        )
+
+
 def issue_credentials(
     directory: Path,
     agents: Sequence[int] = (),
@@ -259,18 +294,21 @@ def issue_credentials(
     """Write (or extend) a secure folder and return its path.
 
     Creates the CA on first use (kept in ``ca/ca.key``, owner-only), the router's
-    certificate (127.0.0.1, localhost and ``hosts``), the coordinator, bridge, console and
+    certificate (127.0.0.1, localhost and ``hosts``; issued again when ``hosts`` are given,
+    with the names it had kept), the coordinator, bridge, console and
     operator, one agent per id of ``agents``, one robot per id of ``robots``, one agent
     and one robot per group of ``groups`` (a process running several brains or simulated
     robots, ``--ids``, presents one certificate for them all), one agent per group of
     ``agent_groups`` and one robot per group of ``robot_groups``.
     Run again on the same folder, it adds identities signed by the same CA and keeps the
-    existing ones. Private files are owner-only. RuntimeError without ``openssl``.
+    existing ones; a folder of other files is refused (:func:`check_credentials_target`).
+    Private files are owner-only. RuntimeError without ``openssl``.
     """
     alt_names = _router_alt_names(hosts)  # bad input refused before anything is written
+    directory = Path(directory)
+    check_credentials_target(directory)
     if shutil.which("openssl") is None:
         raise RuntimeError("covswarm credentials needs the 'openssl' command-line tool")
-    directory = Path(directory)
     directory.mkdir(parents=True, exist_ok=True)
     known = read_identities(directory) if (directory / IDENTITIES).exists() else []
     if not (directory / CA_KEY).is_file():
@@ -295,7 +333,14 @@ def issue_credentials(
     wanted += [("agent", sorted(set(group))) for group in agent_groups]
     wanted += [("robot", sorted(set(group))) for group in robot_groups]
     names = {entry["name"] for entry in known}
-    if hosts or not (directory / ROUTER / CERT).is_file():
+    router = directory / ROUTER / CERT
+    if hosts or not router.is_file():
+        if router.is_file():  # --host adds names: clients of the earlier ones keep working
+            try:
+                earlier = certificate_names(router).alt_names
+            except ValueError:
+                earlier = frozenset()  # not a certificate: nothing to keep
+            alt_names += sorted(earlier - set(alt_names))
         _issue(directory, ROUTER, alt_names)
     for role, ids in wanted:
         name = identity_name(role, ids or None)
@@ -378,6 +423,10 @@ def credentials_command(
     if not str(directory).strip() or directory == Path("."):
         # the CA's private key among whatever else the working directory holds
         raise click.BadParameter("name a folder of its own, e.g. ./secure", param_hint="DIRECTORY")
+    try:
+        check_credentials_target(directory)
+    except ValueError as exc:
+        raise click.BadParameter(str(exc), param_hint="DIRECTORY") from None
     both = list(range(agents)) if agents is not None else ids
     try:
         issue_credentials(

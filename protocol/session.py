@@ -17,7 +17,13 @@ from pathlib import Path
 import zenoh
 
 from covswarm.protocol.certificates import certificate_names
-from covswarm.protocol.security import CERT, ROUTER, apply_security, identity_name
+from covswarm.protocol.security import (
+    CERT,
+    ROUTER,
+    apply_security,
+    check_secure_folder,
+    identity_name,
+)
 
 MODES = ("client", "peer", "router")
 RECONNECT_PERIOD_MS = 1000  # longest wait between attempts to reach a lost router
@@ -103,6 +109,15 @@ def check_open_listen(listen: Iterable[str]) -> None:
         f"credentials once (covswarm credentials DIR{hosts}), listen on {tls} and give "
         "every process --secure DIR (docs/security.md); or listen on 127.0.0.1"
     )
+
+
+def check_router_folder(directory: Path, listen: Iterable[str] = ()) -> None:
+    """ValueError (one line) unless the secure folder ``directory`` holds what a router of it
+    needs (``ca.pem``, ``router/cert.pem`` and ``key.pem``, ``identities.json``) and its
+    certificate names every host of ``listen``: what :func:`session_config` checks for a
+    router, for a launcher to check before it writes or starts anything."""
+    check_secure_folder(directory, ROUTER)
+    check_router_hosts(directory, listen)
 
 
 def check_router_hosts(directory: Path, listen: Iterable[str]) -> None:

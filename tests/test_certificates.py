@@ -112,3 +112,44 @@ def test_the_commands_refuse_them_in_one_line(secure: Path, tmp_path: Path) -> N
     assert not (tmp_path / "run" / "logs").exists()
     for done in (robot, run):
         assert "Traceback" not in done.stderr
+
+
+@pytest.mark.e2e  # a run that got past its checks would start a router and children
+def test_covswarm_run_checks_its_routers_files_first_as_covswarm_router_does(
+    secure: Path, tmp_path: Path
+) -> None:
+    """A secure folder without the router's certificate and key, without identities.json,
+    or with a router/cert.pem that is no certificate: ``covswarm run`` (whose embedded
+    router needs them) says so in one line and exits 2 as ``covswarm router`` does,
+    before it writes its output folder or starts anything."""
+    from click.testing import CliRunner
+
+    from covswarm.deploy.cli import main
+
+    broken = {}
+    for name, breaks in (
+        ("no-router", lambda d: shutil.rmtree(d / "router")),
+        ("no-identities", lambda d: (d / "identities.json").unlink()),
+        ("junk-router", lambda d: (d / "router" / "cert.pem").write_text("junk\n")),
+    ):
+        broken[name] = tmp_path / name
+        shutil.copytree(secure, broken[name])
+        breaks(broken[name])
+    said = {
+        "no-router": "lacks router/cert.pem, router/key.pem",
+        "no-identities": "lacks identities.json",
+        "junk-router": "router/cert.pem: no PEM certificate in it",
+    }
+    for name, folder in broken.items():
+        out = tmp_path / f"run-{name}"
+        run = CliRunner().invoke(
+            main, ["run", "--secure", str(folder), "--agents", "2", "--out", str(out)]
+        )
+        router = CliRunner().invoke(
+            main, ["router", "--secure", str(folder), "--listen", "tls/127.0.0.1:7447"]
+        )
+        for done in (run, router):
+            assert done.exit_code == 2, (name, done.output, done.exception)
+            assert said[name] in done.output, (name, done.output)
+            assert "Traceback" not in done.output
+        assert not out.exists()

@@ -96,10 +96,11 @@ def get(url: str, headers: dict[str, str] | None = None) -> tuple[int, bytes]:
         return error.code, error.read()
 
 
-def post_json(url: str, body: bytes) -> tuple[int, dict]:
+def post_json(url: str, body: bytes, headers: dict[str, str] | None = None) -> tuple[int, dict]:
     request = urllib.request.Request(
-        url, data=body, headers={"Content-Type": "application/json"}, method="POST"
-    )
+        url, data=body, headers={"Content-Type": "application/json", **(headers or {})},
+        method="POST",
+    )  # fmt: skip
     try:
         with urllib.request.urlopen(request, timeout=10) as response:
             return response.status, json.loads(response.read())
@@ -393,7 +394,7 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
 ) -> None:
     import zenoh
 
-    from covswarm.protocol import Domain, domain_key
+    from covswarm.protocol import Domain, Pose, domain_key, pose_key
     from covswarm.protocol.security import make_test_credentials
     from covswarm.protocol.session import session_config
 
@@ -408,19 +409,43 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
         zenoh.open(session_config(None, [endpoint], "router", secure=secure)),
         # The Domain is the coordinator's to publish (protocol.access): the test acts as it.
         zenoh.open(session_config([endpoint], secure=secure, role="coordinator")) as member,
+        zenoh.open(session_config([endpoint], secure=secure, role="robot", id=9)) as robot_9,
         console(endpoint, swarm, "--secure", str(secure)) as url,
     ):
+        # Its steering requests carry the console's certificate: on loopback too, only the
+        # holder of the printed URL's token may use it (another local user may not).
+        assert url.startswith("http://127.0.0.1:") and "?token=" in url
+        base, token = url.split("?token=")
+        signed = {"Authorization": f"token {token}"}
         domain = Domain(seq=0, stamp=time.time(), t=1.0, state="running", vertices=square,
                         velocities=[(0.0, 0.0)] * 4, kappa=2.0)  # fmt: skip
 
+        def state() -> dict:
+            status, raw = get(base + "api/state", signed)
+            assert status == 200, raw
+            return json.loads(raw)
+
         def polygon_seen() -> bool:
             member.put(domain_key(swarm), domain.encode())
-            return json.loads(get(url + "api/state")[1])["polygon"] == [list(v) for v in square]
+            return state()["polygon"] == [list(v) for v in square]
 
         assert wait_until(polygon_seen, timeout=10, period=0.2)
+        assert get(base + "api/state")[0] == 403
+        steer = b'{"kind": "translate", "dx": 1, "dy": 0}'
+        assert post_json(base + "api/steer", steer)[0] == 403  # never reaches the swarm
         # Steering goes over the same secured session: with no coordinator, nobody answers.
-        status, reply = post_json(url + "api/steer", b'{"kind": "translate", "dx": 1, "dy": 0}')
+        status, reply = post_json(base + "api/steer", steer, signed)
         assert status == 504 and "no coordinator" in reply["reason"]
+        # Robot 9's certificate puts only robot/9/pose, and a pose there saying it is robot 0
+        # is dropped: the console shows robot 0 where robot 0's own key says, or not at all.
+        forged = Pose(id=0, x=0.5, y=0.5, theta=0.0, stamp=time.time(), seq=1)
+
+        def forgery_dropped() -> bool:
+            robot_9.put(pose_key(swarm, 9), forged.encode())
+            return state()["dropped"].get("wrong_id", 0) > 0
+
+        assert wait_until(forgery_dropped, timeout=10, period=0.2)
+        assert state()["robots"] == []
         # The page offers no steering then (S drawn, no handles): a drag sends nothing.
         page = browser.new_page(viewport={"width": 900, "height": 600})
         page.goto(url)
@@ -501,3 +526,44 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
         assert not listening(port)  # the console went with the run
         resources = json.loads((out / "resources.json").read_text())
         assert len(resources["cpu_percent_of_core"]["console"]) == 1
+
+
+def test_a_secured_run_console_needs_the_token_the_launcher_prints(require, tmp_path: Path) -> None:
+    """``covswarm run --secure DIR --console``: the console steers with the swarm's
+    credentials, so on 127.0.0.1 too it serves only requests with its token. The launcher
+    prints the URL with it (one line); the token reaches the console in an owner-only file,
+    never on a command line or in a log, and goes with the run."""
+    from covswarm.protocol.security import make_test_credentials
+
+    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
+    secure = make_test_credentials(tmp_path / "secure", ids=range(2))
+    swarm, out = new_swarm(), tmp_path / "run"
+    launcher_log = tmp_path / "run.launcher.log"
+    with launch(
+        out, "--agents", "2", "--scenario", "formation", "--duration", "15", "--console",
+        "--console-port", "0", "--secure", str(secure), swarm=swarm,
+    ) as launcher:  # fmt: skip
+        assert wait_until(lambda: (out / "launch.json").exists(), timeout=60)
+        launched = json.loads((out / "launch.json").read_text())
+        base, token_file = launched["console"], Path(launched["console_token_file"])
+        printed = [
+            line for line in launcher_log.read_text().splitlines() if "operator console" in line
+        ]
+        assert printed and printed[0].endswith(f"{base}?token={token_file.read_text().strip()}")
+        token = printed[0].rpartition("?token=")[2]
+        assert token_file.stat().st_mode & 0o077 == 0
+        assert token not in json.dumps(launched)  # not in its argv either
+        port = int(base.rstrip("/").rpartition(":")[2])
+        assert wait_until(lambda: listening(port), timeout=60)
+        signed = {"Authorization": f"token {token}"}
+        assert wait_until(lambda: get(base + "api/state", signed)[0] == 200, timeout=30)
+        assert get(base + "api/state")[0] == 403
+        steer = b'{"kind": "translate", "dx": 0.1, "dy": 0}'
+        assert post_json(base + "api/steer", steer)[0] == 403
+        # The printed URL opens the page (its token moves into a cookie, as in a browser).
+        browser_like = urllib.request.build_opener(urllib.request.HTTPCookieProcessor())
+        with browser_like.open(base + f"?token={token}", timeout=10) as page:
+            assert page.status == 200 and b"<canvas" in page.read()
+        assert launcher.wait(timeout=120) == 0, launcher_log.read_text()
+    assert not token_file.exists()
+    assert token not in (out / "logs" / "console-0.log").read_text()

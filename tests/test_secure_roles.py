@@ -620,3 +620,47 @@ def test_credentials_want_a_folder_of_their_own(tmp_path: Path, monkeypatch) -> 
         credentials_command, [str(tmp_path / "file" / "secure"), "--ids", "0"]
     )
     assert done.exit_code == 1 and "Not a directory" in done.output, done.output
+
+
+def test_credentials_go_only_into_a_new_folder_or_a_credentials_folder(
+    tmp_path: Path, monkeypatch
+) -> None:
+    """``covswarm credentials ..`` or a folder of other files would put the CA's private
+    key among them: refused, naming what is there, and nothing written. An empty folder
+    and a credentials folder (to add identities to) are fine."""
+    from click.testing import CliRunner
+
+    from covswarm.protocol.security import credentials_command
+
+    project = tmp_path / "project"
+    (project / "src").mkdir(parents=True)
+    (project / "notes.txt").write_text("mine\n")
+    for directory, cwd in ((str(project), tmp_path), ("..", project / "src")):
+        monkeypatch.chdir(cwd)
+        done = CliRunner().invoke(credentials_command, [directory, "--ids", "0"])
+        assert done.exit_code == 2, done.output
+        assert "is not a credentials folder" in done.output and "give a new folder" in done.output
+        assert sorted(p.name for p in project.iterdir()) == ["notes.txt", "src"]
+    assert "notes.txt, src" in done.output  # the files found, named
+    with pytest.raises(ValueError, match="not a credentials folder"):
+        issue_credentials(project, agents=[0])  # the library refuses it too
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "empty").mkdir()
+    for args in (["empty", "--ids", "0"], ["empty", "--ids", "1"]):  # new, then added to
+        done = CliRunner().invoke(credentials_command, args)
+        assert done.exit_code == 0, done.output
+    assert {"agent-0", "agent-1"} <= {e["name"] for e in read_identities(tmp_path / "empty")}
+
+
+def test_a_new_router_host_keeps_the_names_given_before(tmp_path: Path) -> None:
+    """``--host`` issues the router's certificate again: with the new names and the ones it
+    had, so the clients of an address named before are not refused after it."""
+    from covswarm.protocol.certificates import certificate_names
+
+    folder = issue_credentials(tmp_path / "lab", hosts=["10.0.0.7", "robots.lab"])
+    issue_credentials(folder, hosts=["192.168.1.10"])
+    names = certificate_names(folder / "router" / "cert.pem")
+    for host in ("127.0.0.1", "localhost", "10.0.0.7", "robots.lab", "192.168.1.10"):
+        assert names.covers(host), (host, names)
+    issue_credentials(folder, agents=[4])  # no --host: the certificate is not issued again
+    assert certificate_names(folder / "router" / "cert.pem") == names
