@@ -25,7 +25,6 @@ import json
 import os
 import sys
 from dataclasses import replace
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -69,6 +68,8 @@ from covswarm.runtime.options import (
     RUN_TIME_SCALE_OPTION,
     agents_option,
     check_deploy_options,
+    check_new_folder,
+    default_out,
     deploy_options,
     float_option,
     kappa_option,
@@ -349,7 +350,8 @@ def run_swarm(run: RunConfig) -> None:
         robot_packing = auto_robots_per_process(here, cores)
     out_dir = run.out
     if out_dir is None:
-        out_dir = Path("runs") / f"run-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+        out_dir = default_out("run", scenario.name)
+    check_new_folder(out_dir)
     run = replace(run, swarm=swarm, out=out_dir)
     if run.secure is not None:
         # Every child needs its own certificate: one missing would make that child exit and

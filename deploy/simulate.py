@@ -17,7 +17,6 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +31,9 @@ from covswarm.protocol.keys import parse_ids
 from covswarm.runtime.options import (
     agents_option,
     check_deploy_options,
+    check_new_folder,
     count_option,
+    default_out,
     deploy_options,
     float_option,
     kappa_option,
@@ -773,6 +774,8 @@ def sim_command(
         check_deploy_kappa(deploy_error, deploy_kappa)
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
+    if out_dir is not None:
+        check_new_folder(out_dir)  # before the simulation, which may take minutes
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
     results: list[SimResult] = []
@@ -806,7 +809,7 @@ def sim_command(
     if (crowd := Crowding.from_dict(summary["crowding"])).crowded:
         console.print(f"[yellow]warning: {crowd.warning(summary['agents'], safety=safety)}")
     if out_dir is None:
-        out_dir = Path("runs") / f"sim-{scenario.name}-{datetime.now():%Y%m%d-%H%M%S}"
+        out_dir = default_out("sim", scenario.name)
     obstacles = [o.vertices for o in scenario.world.obstacles]  # whatever their shape
     write_outputs(
         out_dir,

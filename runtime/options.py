@@ -306,6 +306,36 @@ def id_selection(robot_id: int | None, ids: str | None) -> list[int]:
         raise click.BadParameter(str(exc), param_hint="--ids") from None
 
 
+def default_out(kind: str, name: str) -> Path:
+    """runs/<kind>-<name>-<date-time>, a folder that does not exist yet (-2, -3, ... added
+    when two runs start within the same second)."""
+    from datetime import datetime
+
+    stem = Path("runs") / f"{kind}-{name}-{datetime.now():%Y%m%d-%H%M%S}"
+    path, k = stem, 1
+    while path.exists():
+        k += 1
+        path = stem.with_name(f"{stem.name}-{k}")
+    return path
+
+
+def check_new_folder(path: Path, option: str = "--out") -> None:
+    """BadParameter unless ``path`` is new or an empty folder: a run's files are never mixed
+    with an earlier run's (a replay reads every run-N.mcap of its folder, a plot or log left
+    over reads as this run's)."""
+    if not path.exists():
+        return
+    if not path.is_dir():
+        raise click.BadParameter(f"{path} is a file, not a folder", param_hint=option)
+    entries = sorted(entry.name for entry in path.iterdir())
+    if entries:
+        shown = ", ".join(entries[:5]) + (", ..." if len(entries) > 5 else "")
+        raise click.BadParameter(
+            f"{path} already holds {shown}: give a new folder, or remove that one",
+            param_hint=option,
+        )
+
+
 def config_argv(config: Any) -> list[str]:
     """The command-line options that rebuild ``config``, a process's config dataclass whose
     field names are its command's option names (``time_scale`` is ``--time-scale``).

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import json
 import shlex
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -31,6 +32,7 @@ from covswarm.deploy.plan import covswarm_argv
 
 def run_once(out: Path, agents: int, delay: float, loss: float, extra: list[str]) -> dict:
     """One run; its summary.json."""
+    shutil.rmtree(out, ignore_errors=True)  # this script's own folder: a run needs a new one
     subprocess.run(
         [*covswarm_argv(), "run", "--scenario", "passage", "--agents", str(agents),
          "--pose-delay", repr(delay), "--pose-loss", repr(loss), "--out", str(out), *extra],

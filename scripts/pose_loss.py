@@ -8,6 +8,7 @@ Prints a Markdown table (docs/faults.md) of the steady-state (second half), fina
 from __future__ import annotations
 
 import json
+import shutil
 import subprocess
 from pathlib import Path
 
@@ -21,6 +22,7 @@ SETTLED = 10.0  # s: the random start has converged by then in a healthy run
 
 def run_once(loss: float, out: Path, agents: int, delay: float) -> dict:
     """One run at ``loss``; its summary plus the peak e_a after SETTLED."""
+    shutil.rmtree(out, ignore_errors=True)  # this script's own folder: a run needs a new one
     subprocess.run(
         [*covswarm_argv(), "run", "--scenario", "passage", "--agents", str(agents),
          "--pose-loss", repr(loss), "--pose-delay", repr(delay), "--out", str(out)],

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import json
 import secrets
+import shutil
 import signal
 import subprocess
 import sys
@@ -82,6 +83,7 @@ def ros2_run(scenario: str, agents: int, duration: float, seed: int, out: Path) 
                     stderr=subprocess.STDOUT,
                 )  # fmt: skip
             )
+            shutil.rmtree(out / "ros2", ignore_errors=True)  # a run needs a new folder
             subprocess.run(
                 [*covswarm_argv(), "run", "--robots", "none", "--connect", endpoint,
                  "--swarm", swarm, "--scenario", scenario, "--agents", str(agents),
@@ -96,6 +98,7 @@ def ros2_run(scenario: str, agents: int, duration: float, seed: int, out: Path) 
 
 
 def sim_run(scenario: str, agents: int, duration: float, seed: int, out: Path) -> dict:
+    shutil.rmtree(out, ignore_errors=True)  # this script's own folder: a run needs a new one
     subprocess.run(
         [*covswarm_argv(), "run", "--scenario", scenario, "--agents", str(agents),
          "--duration", repr(duration), "--seed", str(seed), "--out", str(out)],

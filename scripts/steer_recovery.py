@@ -17,6 +17,7 @@ from __future__ import annotations
 import json
 import os
 import secrets
+import shutil
 import signal
 import subprocess
 import time
@@ -89,6 +90,7 @@ def main(scenario: str, agents: int, speeds: str, repeats: int, out: Path) -> No
     swarm = f"steer-{secrets.token_hex(4)}"
     plan = [None if v == "default" else float(v) for v in speeds.split(",") for _ in range(repeats)]
     duration = SETTLE + len(plan) * GAP
+    shutil.rmtree(out, ignore_errors=True)  # this script's own folder: a run needs a new one
     launcher = subprocess.Popen(
         [*covswarm_argv(), "run", "--scenario", scenario, "--agents", str(agents),
          "--duration", repr(duration), "--swarm", swarm, "--out", str(out)],

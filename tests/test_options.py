@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import click
 import pytest
 from click.testing import CliRunner
@@ -185,3 +187,34 @@ def test_every_option_of_every_command_says_what_it_is() -> None:
 
     walk(main, [], click.Context(main))
     assert not silent, silent
+
+
+def test_a_run_never_writes_into_an_earlier_runs_folder(tmp_path) -> None:
+    from covswarm.deploy.cli import main
+    from covswarm.runtime.options import check_new_folder
+
+    check_new_folder(tmp_path / "new")  # new: fine
+    (tmp_path / "empty").mkdir()
+    check_new_folder(tmp_path / "empty")  # empty: fine
+    used = tmp_path / "used"
+    used.mkdir()
+    (used / "run-1.mcap").write_bytes(b"")  # an earlier, resumed run's record
+    for command in (["run", "--agents", "2"], ["sim", "--scenario", "circle"]):
+        done = CliRunner().invoke(main, [*command, "--out", str(used)])
+        assert done.exit_code == 2, done.output
+        said = " ".join(done.output.split())
+        assert f"{used} already holds run-1.mcap: give a new folder" in said
+    (tmp_path / "file").write_text("")
+    with pytest.raises(click.BadParameter, match="is a file"):
+        check_new_folder(tmp_path / "file")
+
+
+def test_the_default_folder_is_new_even_within_the_same_second(tmp_path, monkeypatch) -> None:
+    from covswarm.runtime.options import default_out
+
+    monkeypatch.chdir(tmp_path)
+    first = default_out("sim", "circle")
+    assert first.parent == Path("runs") and first.name.startswith("sim-circle-")
+    first.mkdir(parents=True)
+    second = default_out("sim", "circle")  # "-2" within the same second, else the next one
+    assert second != first and not second.exists()
