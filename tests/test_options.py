@@ -189,6 +189,7 @@ def test_every_option_of_every_command_says_what_it_is() -> None:
     assert not silent, silent
 
 
+@pytest.mark.e2e  # were the refusal lost, the run would start its processes
 def test_a_run_never_writes_into_an_earlier_runs_folder(tmp_path) -> None:
     from covswarm.deploy.cli import main
     from covswarm.runtime.options import check_new_folder
