@@ -1,12 +1,14 @@
-"""What an X.509 certificate says of whom it names: its subject's common name and its
-subject alternative names, read from a PEM file with a small DER reader (no crypto
-library: nothing is verified here, zenoh's TLS does that).
+"""What an X.509 certificate says of whom it names (its subject's common name and its
+subject alternative names) and of its trust (its validity period, its key identifier and
+its issuer's), read from a PEM file with a small DER reader (no crypto library: no
+signature is verified here, zenoh's TLS does that).
 
 The secured mode (covswarm.protocol.security) checks with it before a session opens what
 would otherwise fail in silence: a process presenting another identity's certificate (the
 router then takes it for that identity and drops what it sends as its own), and a router
-listening on an address its certificate does not name (every client is refused with
-zenoh's "Unable to connect").
+listening on an address its certificate does not name, a certificate expired or not yet
+valid, and one issued by another CA than the folder's (each refused by TLS with zenoh's
+bare "Unable to connect", the same words as no router at all).
 """
 
 from __future__ import annotations
@@ -14,12 +16,20 @@ from __future__ import annotations
 import base64
 import ipaddress
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime, timezone
 from pathlib import Path
+from typing import TypeVar
 
 _PEM = re.compile(rb"-----BEGIN CERTIFICATE-----(.+?)-----END CERTIFICATE-----", re.DOTALL)
 _COMMON_NAME = bytes.fromhex("550403")  # OID 2.5.4.3
 _ALT_NAMES = bytes.fromhex("551d11")  # OID 2.5.29.17
+_SUBJECT_KEY_ID = bytes.fromhex("551d0e")  # OID 2.5.29.14
+_AUTHORITY_KEY_ID = bytes.fromhex("551d23")  # OID 2.5.29.35
+_UTC_TIME, _GENERALIZED_TIME = 0x17, 0x18
+_KEY_ID = 0x80  # AuthorityKeyIdentifier's keyIdentifier [0]
+_T = TypeVar("_T")
 _SEQUENCE, _SET, _OID, _OCTETS = 0x30, 0x31, 0x06, 0x04
 _VERSION, _EXTENSIONS = 0xA0, 0xA3  # [0] and [3] of TBSCertificate
 _DNS, _IP = 0x82, 0x87  # GeneralName's dNSName [2] and iPAddress [7]
@@ -105,10 +115,75 @@ def read_names(der: bytes) -> Names:
 def certificate_names(path: Path) -> Names:
     """The names of the first certificate of the PEM file at ``path``; ValueError naming
     the file if it holds none that reads."""
+    return _read_first(path, read_names)
+
+
+def _read_first(path: Path, read: Callable[[bytes], _T]) -> _T:
+    """``read`` of the first certificate of the PEM file at ``path``; ValueError naming the
+    file if it holds none that reads."""
     match = _PEM.search(Path(path).read_bytes())
     if match is None:
         raise ValueError(f"{path}: no PEM certificate in it")
     try:
-        return read_names(base64.b64decode(b"".join(match.group(1).split())))
+        return read(base64.b64decode(b"".join(match.group(1).split())))
     except (ValueError, IndexError) as exc:
         raise ValueError(f"{path}: not a readable certificate ({exc})") from None
+
+
+@dataclass(frozen=True)
+class Trust:
+    """``not_before``, ``not_after``: the validity period (UTC); ``key_id``: its subject
+    key identifier, ``authority_key_id``: its issuer's (None without the extension; a CA
+    of ``covswarm credentials`` and the certificates it issues have both)."""
+
+    not_before: datetime
+    not_after: datetime
+    key_id: bytes | None
+    authority_key_id: bytes | None
+
+
+def _time(der: bytes, tag: int, start: int, end: int) -> datetime:
+    text = der[start:end].decode("ascii")
+    if tag == _UTC_TIME:  # YYMMDDHHMMSSZ, 1950-2049 (RFC 5280)
+        year = int(text[:2])
+        text = f"{1900 + year if year >= 50 else 2000 + year}{text[2:]}"
+    elif tag != _GENERALIZED_TIME:
+        raise ValueError("bad validity time")
+    return datetime.strptime(text, "%Y%m%d%H%M%SZ").replace(tzinfo=timezone.utc)
+
+
+def read_trust(der: bytes) -> Trust:
+    """The validity and key identifiers of the DER certificate ``der``; ValueError if it is
+    not one."""
+    tag, s, e = _tlv(der, 0)
+    if tag != _SEQUENCE:
+        raise ValueError("not a certificate")
+    tbs = _children(der, s, e)[0]
+    fields = _children(der, tbs[1], tbs[2])
+    if fields and fields[0][0] == _VERSION:
+        fields = fields[1:]
+    if len(fields) < 6:
+        raise ValueError("not a certificate")
+    not_before, not_after = (_time(der, *t) for t in _children(der, *fields[3][1:])[:2])
+    key_id = authority = None
+    for tag, s, e in fields[6:]:
+        if tag != _EXTENSIONS:
+            continue
+        for _, xs, xe in _children(der, *_children(der, s, e)[0][1:]):
+            parts = _children(der, xs, xe)
+            oid = der[parts[0][1] : parts[0][2]]
+            _, os_, _ = parts[-1]  # OCTET STRING wrapping the extension's value
+            _, vs, ve = _tlv(der, os_)
+            if oid == _SUBJECT_KEY_ID:  # an OCTET STRING
+                key_id = der[vs:ve]
+            elif oid == _AUTHORITY_KEY_ID:  # SEQUENCE {[0] keyIdentifier, ...}
+                for kind, ks, ke in _children(der, vs, ve):
+                    if kind == _KEY_ID:
+                        authority = der[ks:ke]
+    return Trust(not_before, not_after, key_id, authority)
+
+
+def certificate_trust(path: Path) -> Trust:
+    """:func:`read_trust` of the first certificate of the PEM file at ``path``; ValueError
+    naming the file if it holds none that reads."""
+    return _read_first(path, read_trust)

@@ -32,12 +32,13 @@ import shutil
 import subprocess
 import tempfile
 from collections.abc import Iterable, Sequence
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import click
 
-from covswarm.protocol.certificates import certificate_names
+from covswarm.protocol.certificates import certificate_names, certificate_trust
 from covswarm.protocol.keys import check_id, format_ids, parse_ids
 
 CA, CERT, KEY, IDENTITIES = "ca.pem", "cert.pem", "key.pem", "identities.json"
@@ -156,7 +157,40 @@ def check_secure_folder(directory: Path, name: str) -> Path:
         )
     if name == ROUTER:
         read_identities(directory)  # its access-control list: malformed, said here
+    check_trust(directory, name)
     return directory
+
+
+def check_trust(directory: Path, name: str, now: datetime | None = None) -> None:
+    """ValueError when the TLS handshake of identity ``name`` (its certificate against the
+    folder's ``ca.pem``) would fail for a reason a certificate shows: either of them
+    expired or not yet valid at ``now`` (default: this machine's clock), or the
+    certificate issued by another CA (its authority key identifier is not the CA's key
+    identifier). zenoh says only "Unable to connect", the same as for no router at all."""
+    now = datetime.now(timezone.utc) if now is None else now
+    ca_path, cert_path = directory / CA, directory / name / CERT
+    ca, cert = certificate_trust(ca_path), certificate_trust(cert_path)
+    for path, trust in ((ca_path, ca), (cert_path, cert)):
+        if now < trust.not_before:
+            raise ValueError(
+                f"{path} is valid only from {trust.not_before:%Y-%m-%d %H:%M} UTC: is this "
+                "machine's clock behind?"
+            )
+        if now > trust.not_after:
+            again = (
+                "make a new secure folder"
+                if path == ca_path
+                else f"remove {name}/ and issue it again"
+            )
+            raise ValueError(
+                f"{path} expired on {trust.not_after:%Y-%m-%d %H:%M} UTC: {again} "
+                "(covswarm credentials)"
+            )
+    if cert.authority_key_id and ca.key_id and cert.authority_key_id != ca.key_id:
+        raise ValueError(
+            f"{cert_path} was issued by another CA than {ca_path}: copy {name}/ from the "
+            "folder whose CA issued it, or issue it again from this one"
+        )
 
 
 def require_identities(directory: Path, names: Iterable[str]) -> None:

@@ -8,12 +8,13 @@ from __future__ import annotations
 import re
 import shutil
 import subprocess
+from datetime import datetime, timedelta, timezone
 from pathlib import Path
 
 import pytest
 
-from covswarm.protocol.certificates import Names, certificate_names
-from covswarm.protocol.security import issue_credentials
+from covswarm.protocol.certificates import Names, certificate_names, certificate_trust
+from covswarm.protocol.security import check_trust, issue_credentials
 from covswarm.protocol.session import check_router_hosts, session_config
 
 
@@ -78,6 +79,50 @@ def test_another_identitys_certificate_is_refused_before_the_session(
     with pytest.raises(ValueError, match="is robot-1's certificate, not robot-0's"):
         session_config(["tls/127.0.0.1:7447"], secure=swapped, role="robot", id=0)
     session_config(["tls/127.0.0.1:7447"], secure=secure, role="robot", id=0)  # its own
+
+
+def openssl_trust(path: Path) -> tuple[datetime, datetime, bytes | None, bytes | None]:
+    text = subprocess.run(
+        ["openssl", "x509", "-noout", "-dates", "-text", "-in", str(path)],
+        capture_output=True, text=True, check=True,
+    ).stdout  # fmt: skip
+
+    def when(field: str) -> datetime:
+        stamp = re.search(rf"{field}=(.+)", text).group(1).strip()  # type: ignore[union-attr]
+        return datetime.strptime(stamp, "%b %d %H:%M:%S %Y GMT").replace(tzinfo=timezone.utc)
+
+    def key_id(title: str) -> bytes | None:
+        found = re.search(rf"{title} Key Identifier:\s*\n\s*(?:keyid:)?([0-9A-F:]+)", text)
+        return bytes.fromhex(found.group(1).replace(":", "")) if found else None
+
+    return when("notBefore"), when("notAfter"), key_id("Subject"), key_id("Authority")
+
+
+def test_the_validity_and_key_ids_read_are_openssls(secure: Path) -> None:
+    for path in [secure / "ca.pem", *sorted(secure.glob("*/cert.pem"))]:
+        trust = certificate_trust(path)
+        expected = openssl_trust(path)
+        assert (trust.not_before, trust.not_after, trust.key_id) == expected[:3], path
+        assert trust.authority_key_id == expected[3], path
+    ca = certificate_trust(secure / "ca.pem")
+    assert certificate_trust(secure / "agent-0" / "cert.pem").authority_key_id == ca.key_id
+
+
+def test_an_expired_or_foreign_certificate_is_refused_before_the_session(
+    secure: Path, tmp_path: Path
+) -> None:
+    check_trust(secure, "robot-0")  # today: fine
+    until = certificate_trust(secure / "robot-0" / "cert.pem").not_after
+    with pytest.raises(ValueError, match="ca.pem expired on .*: make a new secure folder"):
+        check_trust(secure, "robot-0", now=until + timedelta(days=1))
+    before = certificate_trust(secure / "ca.pem").not_before
+    with pytest.raises(ValueError, match="valid only from .*clock behind"):
+        check_trust(secure, "robot-0", now=before - timedelta(days=1))
+    other = issue_credentials(tmp_path / "other", agents=[0], robots=[0])
+    shutil.rmtree(other / "robot-0")
+    shutil.copytree(secure / "robot-0", other / "robot-0")  # another CA's robot 0
+    with pytest.raises(ValueError, match="robot-0/cert.pem was issued by another CA than"):
+        session_config(["tls/127.0.0.1:7447"], secure=other, role="robot", id=0)
 
 
 def test_a_router_on_an_address_its_certificate_does_not_name_is_refused(secure: Path) -> None:
