@@ -300,6 +300,8 @@ def run_swarm(run: RunConfig) -> None:
         raise click.UsageError("--foxglove: the coordinator serves the live view; run it there")
     if run.foxglove is not None and not port_is_free(run.foxglove):
         raise click.UsageError(f"--foxglove: {LIVE_HOST}:{run.foxglove} is already in use")
+    if run.foxglove == 0:  # a free one, chosen here so that the launcher can say which
+        run = replace(run, foxglove=free_port(LIVE_HOST))
     try:
         scenario = load_scenario(run.scenario, run.agents)
     except ValueError as exc:
@@ -398,10 +400,7 @@ def run_swarm(run: RunConfig) -> None:
             per_process=packing, robots_per_process=robot_packing, cmd_timeout=timeout,
         )  # fmt: skip
         if run.foxglove is not None:
-            port = "a free port (see the coordinator's log)" if run.foxglove == 0 else (
-                f"ws://{LIVE_HOST}:{run.foxglove}"
-            )  # fmt: skip
-            console.log(f"Foxglove live view on {port} (docs/records.md)")
+            console.log(f"Foxglove live view on ws://{LIVE_HOST}:{run.foxglove} (docs/records.md)")
         console_url = token_file = None
         if run.console:
             port = run.console_port or free_port()
@@ -422,6 +421,7 @@ def run_swarm(run: RunConfig) -> None:
             ))  # fmt: skip
         (out_dir / "launch.json").write_text(
             json.dumps({"swarm": swarm, "endpoint": endpoint, "console": console_url,
+                        "foxglove": run.foxglove,
                         "console_token_file": None if token_file is None else str(token_file),
                         "agents_per_process": packing,
                         "robots_per_process": robot_packing,

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from live_runs import launch, new_swarm
+from live_runs import launch, new_swarm, wait_until
 from mcap.reader import make_reader
 from mcap.records import Schema
 from mcap_protobuf.decoder import DecoderFactory
@@ -65,12 +65,16 @@ async def first_robots_message(port: int, timeout: float) -> tuple[dict, bytes]:
 
 
 def test_run_records_run_mcap_and_serves_it_live(tmp_path: Path) -> None:
-    out, port, swarm = tmp_path / "run", free_port(), new_swarm()
+    out, swarm = tmp_path / "run", new_swarm()
     router = f"tcp/127.0.0.1:{free_port()}"
     with launch(
         out, "--scenario", "passage", "--agents", str(AGENTS), "--duration", str(DURATION),
-        "--seed", "5", "--foxglove", str(port), "--router-listen", router, swarm=swarm,
+        "--seed", "5", "--foxglove", "0", "--router-listen", router, swarm=swarm,
     ) as process:  # fmt: skip
+        # --foxglove 0: the launcher picks the port, says it and writes it in launch.json
+        assert wait_until(lambda: (out / "launch.json").exists(), timeout=60)
+        port = json.loads((out / "launch.json").read_text())["foxglove"]
+        assert isinstance(port, int) and port > 0
         channel, data = asyncio.run(first_robots_message(port, timeout=90))
         # The mission runs: one steering request (accepted or refused, it is an event).
         steer = subprocess.run(
