@@ -231,6 +231,16 @@ def _trajectory_figure(
             zorder=3,
             label="final robots + Voronoi cells",
         )
+    goals = np.asarray(summary.get("goal_list") or [], float).reshape(-1, 2)
+    if len(goals):  # where S's centroid was sent: filled once reached
+        times = list(summary.get("goal_times") or [None] * len(goals))
+        reached = np.array([when is not None for when in times])
+        for rows, face, label in ((reached, "gold", "goal reached"), (~reached, "none", "goal")):
+            if rows.any():
+                ax.scatter(*goals[rows].T, marker="*", s=220, fc=face, ec="k", zorder=5,
+                           label=label)  # fmt: skip
+        for k, (x, y) in enumerate(goals, start=1):
+            ax.annotate(str(k), (x, y), xytext=(6, 6), textcoords="offset points", zorder=5)
     still = list(summary.get("still", ()))  # covswarm sim --still's dead robots
     if still:
         ax.scatter(

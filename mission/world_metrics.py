@@ -202,8 +202,8 @@ def world_summary(
     """summary.json keys: ``obstacle_contacts`` (episodes), ``obstacle_contact_list`` (the
     first LISTED_CONTACTS), ``min_obstacle_clearance`` (m, null with nothing to touch) and
     ``min_obstacle_clearance_t`` (s), ``domain_obstacle_overlap`` (m^2) and its time
-    ``domain_obstacle_overlap_t`` (null when 0), ``goals``, ``goals_reached`` and
-    ``goal_times`` (s, null if not reached).
+    ``domain_obstacle_overlap_t`` (null when 0), ``goals``, ``goals_reached``,
+    ``goal_times`` (s, null if not reached) and ``goal_list`` (the goals, [x, y] m).
 
     t: (T,) s; trajectories: (T, n, 2) m; polygons: T arrays (k, 2), S at each sample;
     radius: the robots' body radius, m; goals: [(x, y), ...] m in order.
@@ -231,6 +231,7 @@ def world_summary(
         "goals": len(reached),
         "goals_reached": sum(r is not None for r in reached),
         "goal_times": reached,
+        "goal_list": [[float(x), float(y)] for x, y in goals],
     }
 
 

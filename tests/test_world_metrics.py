@@ -156,6 +156,7 @@ def test_goals_reached_in_order_within_a_millimetre() -> None:
         1,
         [7.0, None],
     )
+    assert summary["goal_list"] == [[2.0, 0.0], [5.0, 0.0]]  # what the plot marks
     with pytest.raises(ValueError, match="finite"):
         goal_times(t, polygons, [(np.nan, 0.0)])
 
@@ -180,3 +181,24 @@ def test_domain_csv_round_trip(tmp_path: Path) -> None:
     assert rows[:, 0].tolist() == [0, 0, 0, 0, 0.04, 0.04, 0.04]
     with pytest.raises(ValueError, match="polygons"):
         write_domain_csv(tmp_path / "bad.csv", np.array([0.0]), polygons)
+
+
+def test_the_plot_marks_the_goals_filled_once_reached() -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from covswarm.mission.report import _trajectory_figure
+
+    square = np.array([[-0.5, -0.5], [0.5, -0.5], [0.5, 0.5], [-0.5, 0.5]])
+    trajectories = np.zeros((2, 2, 2)) + [[-0.2, 0.0], [0.2, 0.0]]
+    summary = {"goal_list": [[1.0, 0.0], [2.0, 1.0]], "goal_times": [3.5, None]}
+    fig = _trajectory_figure(plt, summary, trajectories, [square, square], [], None, None)
+    marked = {
+        c.get_label(): c.get_offsets().tolist()
+        for c in fig.axes[0].collections
+        if c.get_label().startswith("goal")
+    }
+    plt.close(fig)
+    assert marked == {"goal reached": [[1.0, 0.0]], "goal": [[2.0, 1.0]]}
