@@ -16,7 +16,7 @@ from __future__ import annotations
 import base64
 import ipaddress
 import re
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -75,8 +75,10 @@ def _children(data: bytes, start: int, end: int) -> list[tuple[int, int, int]]:
     return out
 
 
-def read_names(der: bytes) -> Names:
-    """The names of the DER certificate ``der``; ValueError if it is not one."""
+def _fields(der: bytes) -> list[tuple[int, int, int]]:
+    """The TBSCertificate fields of the DER certificate ``der`` after its version: serial,
+    signature algorithm, issuer, validity, subject, public key, [extensions]; ValueError if
+    it is not one."""
     tag, s, e = _tlv(der, 0)
     if tag != _SEQUENCE:
         raise ValueError("not a certificate")
@@ -84,9 +86,25 @@ def read_names(der: bytes) -> Names:
     fields = _children(der, tbs[1], tbs[2])
     if fields and fields[0][0] == _VERSION:
         fields = fields[1:]
-    # serial, signature algorithm, issuer, validity, subject, public key, [extensions]
     if len(fields) < 6:
         raise ValueError("not a certificate")
+    return fields
+
+
+def _extensions(der: bytes, fields: list[tuple[int, int, int]]) -> Iterator[tuple[bytes, int]]:
+    """(OID, where its value starts) of each extension: the value's own DER element, which
+    the extension's OCTET STRING wraps."""
+    for tag, s, e in fields[6:]:
+        if tag != _EXTENSIONS:
+            continue
+        for _, xs, xe in _children(der, *_children(der, s, e)[0][1:]):
+            parts = _children(der, xs, xe)
+            yield der[parts[0][1] : parts[0][2]], parts[-1][1]
+
+
+def read_names(der: bytes) -> Names:
+    """The names of the DER certificate ``der``; ValueError if it is not one."""
+    fields = _fields(der)
     common_name = None
     _, s, e = fields[4]
     for _, rs, re_ in _children(der, s, e):  # SET of SEQUENCE {OID, value}
@@ -95,20 +113,15 @@ def read_names(der: bytes) -> Names:
             if der[oid[1] : oid[2]] == _COMMON_NAME:
                 common_name = der[value[1] : value[2]].decode("utf-8", errors="replace")
     alt_names: set[str] = set()
-    for tag, s, e in fields[6:]:
-        if tag != _EXTENSIONS:
+    for oid, at in _extensions(der, fields):
+        if oid != _ALT_NAMES:
             continue
-        for _, xs, xe in _children(der, *_children(der, s, e)[0][1:]):
-            parts = _children(der, xs, xe)
-            if der[parts[0][1] : parts[0][2]] != _ALT_NAMES:
-                continue
-            _, os_, oe = parts[-1]  # OCTET STRING wrapping a SEQUENCE of GeneralName
-            _, gs, ge = _tlv(der, os_)
-            for kind, ns, ne in _children(der, gs, ge):
-                if kind == _DNS:
-                    alt_names.add("DNS:" + der[ns:ne].decode("ascii", errors="replace"))
-                elif kind == _IP:
-                    alt_names.add(f"IP:{ipaddress.ip_address(der[ns:ne])}")
+        _, gs, ge = _tlv(der, at)  # a SEQUENCE of GeneralName
+        for kind, ns, ne in _children(der, gs, ge):
+            if kind == _DNS:
+                alt_names.add("DNS:" + der[ns:ne].decode("ascii", errors="replace"))
+            elif kind == _IP:
+                alt_names.add(f"IP:{ipaddress.ip_address(der[ns:ne])}")
     return Names(common_name, frozenset(alt_names))
 
 
@@ -155,31 +168,17 @@ def _time(der: bytes, tag: int, start: int, end: int) -> datetime:
 def read_trust(der: bytes) -> Trust:
     """The validity and key identifiers of the DER certificate ``der``; ValueError if it is
     not one."""
-    tag, s, e = _tlv(der, 0)
-    if tag != _SEQUENCE:
-        raise ValueError("not a certificate")
-    tbs = _children(der, s, e)[0]
-    fields = _children(der, tbs[1], tbs[2])
-    if fields and fields[0][0] == _VERSION:
-        fields = fields[1:]
-    if len(fields) < 6:
-        raise ValueError("not a certificate")
+    fields = _fields(der)
     not_before, not_after = (_time(der, *t) for t in _children(der, *fields[3][1:])[:2])
     key_id = authority = None
-    for tag, s, e in fields[6:]:
-        if tag != _EXTENSIONS:
-            continue
-        for _, xs, xe in _children(der, *_children(der, s, e)[0][1:]):
-            parts = _children(der, xs, xe)
-            oid = der[parts[0][1] : parts[0][2]]
-            _, os_, _ = parts[-1]  # OCTET STRING wrapping the extension's value
-            _, vs, ve = _tlv(der, os_)
-            if oid == _SUBJECT_KEY_ID:  # an OCTET STRING
-                key_id = der[vs:ve]
-            elif oid == _AUTHORITY_KEY_ID:  # SEQUENCE {[0] keyIdentifier, ...}
-                for kind, ks, ke in _children(der, vs, ve):
-                    if kind == _KEY_ID:
-                        authority = der[ks:ke]
+    for oid, at in _extensions(der, fields):
+        _, vs, ve = _tlv(der, at)
+        if oid == _SUBJECT_KEY_ID:  # an OCTET STRING
+            key_id = der[vs:ve]
+        elif oid == _AUTHORITY_KEY_ID:  # SEQUENCE {[0] keyIdentifier, ...}
+            for kind, ks, ke in _children(der, vs, ve):
+                if kind == _KEY_ID:
+                    authority = der[ks:ke]
     return Trust(not_before, not_after, key_id, authority)
 
 
