@@ -46,35 +46,62 @@ def proximity(
     ids = list(range(n)) if ids is None else list(ids)
     steps = np.diff(t, append=t[-1]) if t.size else t
     smallest, when = np.inf, None
-    open_: dict[tuple[int, int], list] = {}  # pair -> [start, duration, closest, at]
-    done: list[CloseApproach] = []
+    # The open episodes as arrays sorted by pair code (i n + j, i < j), so that a sample's
+    # pairs are matched in bulk: a crowded team has millions of pair-samples, and one Python
+    # step each took 87 % of a 20 000-robot sim (py-spy, 3 Dec 2026).
+    codes = np.zeros(0, dtype=np.int64)
+    start, duration, closest = np.zeros(0), np.zeros(0), np.zeros(0)
+    at = np.zeros((0, 2))
+    done: list[tuple[np.ndarray, ...]] = []  # closed episodes: (codes, start, ...) batches
     for k in range(t.size):
         known = np.flatnonzero(np.isfinite(trajectories[k]).all(axis=1))
-        if known.size < 2:
-            pairs: set[tuple[int, int]] = set()
-        else:
+        new_codes, dist, mid = np.zeros(0, dtype=np.int64), np.zeros(0), np.zeros((0, 2))
+        if known.size >= 2:
             points = trajectories[k, known]
             tree = cKDTree(points)
             d, _ = tree.query(points, k=2)
             if d[:, 1].min() < smallest:
                 smallest, when = float(d[:, 1].min()), float(t[k])
-            pairs = set()
-            for a, b in tree.query_pairs(diameter, output_type="ndarray"):
-                i, j = sorted((int(known[a]), int(known[b])))
-                dist = float(np.linalg.norm(points[a] - points[b]))
-                if dist >= diameter:
-                    continue  # query_pairs is inclusive
-                pairs.add((i, j))
-                mid = tuple(0.5 * (points[a] + points[b]))
-                entry = open_.setdefault((i, j), [float(t[k]), 0.0, dist, mid])
-                entry[1] += float(steps[k])
-                if dist < entry[2]:
-                    entry[2], entry[3] = dist, mid
-        for pair in [p for p in open_ if p not in pairs]:
-            done.append(_approach(pair, open_.pop(pair), ids))
-    done.extend(_approach(pair, entry, ids) for pair, entry in open_.items())
-    done.sort(key=lambda a: (a.start, a.pair))
-    return (None if when is None else smallest), when, done
+            pairs = tree.query_pairs(diameter, output_type="ndarray").reshape(-1, 2)
+            gaps = points[pairs[:, 0]] - points[pairs[:, 1]]
+            dist = np.sqrt(np.einsum("ij,ij->i", gaps, gaps))
+            near = dist < diameter  # query_pairs is inclusive
+            pairs, dist = pairs[near], dist[near]
+            mid = 0.5 * (points[pairs[:, 0]] + points[pairs[:, 1]])
+            ends = np.sort(known[pairs], axis=1)
+            new_codes = ends[:, 0].astype(np.int64) * n + ends[:, 1]
+            order = np.argsort(new_codes)
+            new_codes, dist, mid = new_codes[order], dist[order], mid[order]
+        going_on = np.isin(codes, new_codes, assume_unique=True)
+        done.append((codes[~going_on], start[~going_on], duration[~going_on],
+                     closest[~going_on], at[~going_on]))  # fmt: skip
+        codes, start, duration = codes[going_on], start[going_on], duration[going_on]
+        closest, at = closest[going_on], at[going_on]
+        row = np.searchsorted(codes, new_codes)
+        seen = row < codes.size
+        seen[seen] = codes[row[seen]] == new_codes[seen]
+        rows = row[seen]  # episodes going on, in new_codes' order
+        nearer = dist[seen] < closest[rows]
+        closest[rows[nearer]] = dist[seen][nearer]
+        at[rows[nearer]] = mid[seen][nearer]
+        duration += steps[k]
+        fresh = ~seen
+        codes = np.concatenate((codes, new_codes[fresh]))
+        start = np.concatenate((start, np.full(int(fresh.sum()), t[k])))
+        duration = np.concatenate((duration, np.full(int(fresh.sum()), steps[k])))
+        closest = np.concatenate((closest, dist[fresh]))
+        at = np.concatenate((at, mid[fresh]))
+        order = np.argsort(codes, kind="stable")
+        codes, start, duration = codes[order], start[order], duration[order]
+        closest, at = closest[order], at[order]
+    done.append((codes, start, duration, closest, at))
+    approaches = [
+        _approach((int(code) // n, int(code) % n), [s, d, c, a], ids)
+        for batch in done
+        for code, s, d, c, a in zip(*(x.tolist() for x in batch), strict=True)
+    ]
+    approaches.sort(key=lambda a: (a.start, a.pair))
+    return (None if when is None else smallest), when, approaches
 
 
 def _approach(pair: tuple[int, int], entry: list, ids: list[int]) -> CloseApproach:

@@ -78,3 +78,49 @@ def test_sim_summary_reports_physical_figures(tmp_path) -> None:
     single = simulate(scenario, agents=6, dynamics="single", **options)
     summary = build_summary(scenario, single, feedforward=True, dynamics="single", **options)
     assert summary["max_wheel_speed_used"] is None
+
+
+def brute_force_approaches(t, traj, diameter, ids):
+    """Episodes by every pair at every sample (O(T n^2)): the reference for proximity."""
+    n = traj.shape[1]
+    steps = np.diff(t, append=t[-1])
+    open_, done = {}, []
+    for k in range(len(t)):
+        now = set()
+        for i in range(n):
+            for j in range(i + 1, n):
+                if not (np.isfinite(traj[k, i]).all() and np.isfinite(traj[k, j]).all()):
+                    continue
+                dist = float(np.hypot(*(traj[k, i] - traj[k, j])))
+                if dist >= diameter:
+                    continue
+                now.add((i, j))
+                mid = tuple(0.5 * (traj[k, i] + traj[k, j]))
+                entry = open_.setdefault((i, j), [t[k], 0.0, dist, mid])
+                entry[1] += steps[k]
+                if dist < entry[2]:
+                    entry[2], entry[3] = dist, mid
+        for pair in [p for p in open_ if p not in now]:
+            done.append((pair, *open_.pop(pair)))
+    done += [(pair, *entry) for pair, entry in open_.items()]
+    rows = [(tuple(sorted((ids[i], ids[j]))), s, d, c, a) for (i, j), s, d, c, a in done]
+    return sorted(rows, key=lambda r: (r[1], r[0]))
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_close_approaches_are_the_brute_force_episodes(seed: int) -> None:
+    """Random walks packed in a small box (many episodes opening, closing and reopening),
+    some robots unknown at some samples, ids not 0..n-1."""
+    rng = np.random.default_rng(seed)
+    T, n, diameter = 40, 18, 0.14
+    traj = rng.uniform(0.0, 0.6, (1, n, 2)) + np.cumsum(rng.normal(0, 0.03, (T, n, 2)), axis=0)
+    traj[rng.random((T, n)) < 0.05] = np.nan
+    t = np.cumsum(rng.uniform(0.05, 0.15, T))
+    ids = list(rng.permutation(100)[:n])
+    _, _, approaches = proximity(t, traj, diameter, ids)
+    expected = brute_force_approaches(t, traj, diameter, ids)
+    assert len(expected) > 20
+    assert [a.pair for a in approaches] == [r[0] for r in expected]
+    got = np.array([[a.start, a.duration, a.closest, *a.at] for a in approaches])
+    want = np.array([[s, d, c, *at] for _, s, d, c, at in expected])
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-12)
