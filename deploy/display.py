@@ -29,7 +29,6 @@ class Progress:
 # s of wall time between two progress lines when the output is not a terminal (a pipe, a
 # log file), where the live display does not refresh.
 PLAIN_PERIOD = 10.0
-ROLES_SHOWN = ("coordinator", "robot", "agent")  # the start-up's counts, in this order
 
 
 class PlainLines:
@@ -47,15 +46,23 @@ class PlainLines:
             self._next = time.monotonic() + PLAIN_PERIOD
 
 
+def ready_counts(progress: Progress) -> list[tuple[str, int, int]]:
+    """(label, processes ready, expected) of the start-up, per role."""
+    n = progress.agents
+    return [
+        (label, sum(1 for r, _ in progress.ready if r == role), total)
+        for label, role, total in (
+            ("coordinator", "coordinator", 1), ("robots", "robot", n), ("agents", "agent", n)
+        )
+    ]  # fmt: skip
+
+
 def progress_line(progress: Progress) -> str:
     """What :func:`render` shows, on one plain line (for an output that is not a terminal)."""
     n, status = progress.agents, progress.status
     if status is None or status.state == "waiting":
-        ready = {role: sum(1 for r, _ in progress.ready if r == role) for role in ROLES_SHOWN}
-        return (
-            f"start-up: coordinator {ready['coordinator']}/1, robots {ready['robot']}/{n}, "
-            f"agents {ready['agent']}/{n} ready"
-        )
+        counts = ", ".join(f"{label} {k}/{total}" for label, k, total in ready_counts(progress))
+        return f"start-up: {counts} ready"
     script = status.t if status.script_t is None else status.script_t
     error = "-" if status.error is None else f"{status.error:.4f} m"
     pace = "" if status.pace is None or status.pace >= 1.0 else f" at {status.pace:.2f}x"
@@ -82,10 +89,7 @@ def render(progress: Progress) -> Any:
     status = progress.status
     if status is None or status.state == "waiting":
         table.add_row("phase", "start-up (waiting for liveliness tokens)")
-        for label, role, total in (
-            ("coordinator", "coordinator", 1), ("robots", "robot", n), ("agents", "agent", n)
-        ):  # fmt: skip
-            count = sum(1 for r, _ in progress.ready if r == role)
+        for label, count, total in ready_counts(progress):
             table.add_row(f"{label} ready", bar(count, total, f"{count}/{total}"))
         return table
     table.add_row("phase", status.state)

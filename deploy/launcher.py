@@ -352,8 +352,9 @@ def run_swarm(run: RunConfig) -> None:
         robot_packing = auto_robots_per_process(here, cores)
     out_dir = run.out
     if out_dir is None:
-        out_dir = default_out("run", scenario.name)
-    check_new_folder(out_dir)
+        out_dir = default_out("run", scenario.name)  # new by construction
+    else:
+        check_new_folder(out_dir)
     run = replace(run, swarm=swarm, out=out_dir)
     if run.secure is not None:
         # Every child needs its own certificate: one missing would make that child exit and
