@@ -242,8 +242,9 @@ MAX_UNCONFIRMED_FOLLOWED = 8
 # without a brain stands where its command timeout stopped it, and a static S's neighbours
 # drove into it once they forgot it (AgentBrain._still_there).
 OBSTACLE_MEMORY = 30.0
-# s: the oldest beacon of a robot known only from beacons that the safety filter takes as a
-# robot there (AgentBrain._safety_inputs). A robot driving through S beacons every
+# s: the oldest beacon of a robot known only from beacons that the safety filter and the
+# local diagram take as a robot there (AgentBrain._safety_inputs, Neighborhood.relevant),
+# while its AgentState is awaited. A robot driving through S beacons every
 # BEACON_MOVE (0.08 m) of its move: this spans its beacons from 0.16 m/s up. One riding S
 # beacons every beacon_period (10 s) and is then up to ~2 m on: its old spot is a phantom
 # at rest, which the team behind it ran into. Such a robot is followed (near_ids) and
@@ -1150,7 +1151,11 @@ class AgentBrain:
             # so are the others, or each robot sees the one ahead of it that much closer and
             # the one behind as much farther (a column S set moving lost its order).
             relevant = self.neighborhood.relevant(
-                now, (self.pose.x, self.pose.y), self.reach, self.config.command_latency
+                now,
+                (self.pose.x, self.pose.y),
+                self.reach,
+                self.config.command_latency,
+                BEACON_TRUST,
             )
             return self._view(relevant, now, now_wall, started)
         except Exception as exc:  # noqa: BLE001 -- see _failed

@@ -99,6 +99,17 @@ def check_step_queries(nb: Neighborhood, now: float, rng: random.Random) -> None
     assert set(relevant) == set(near) | (two_hop_reference(nb, now) & reckoned.keys())
     assert all(relevant[rid] == reckoned[rid][:2] for rid in relevant)
     assert nb.relevant(now, me, None) == {rid: v[:2] for rid, v in reckoned.items()}
+    # with a trust horizon: less the beacon-only robots whose beacon is older than it while
+    # their AgentState is awaited (fresh_rows' rule, below), in the diagram's ring and in
+    # the two-hop set alike
+    trust = rng.choice((0.0, 0.3, 1.0))
+    awaited = {
+        rid for rid in nb.beacon_only
+        if now - nb.beacons[rid].received > trust
+        and now - nb.asked.get(rid, now) <= nb.confirmation
+    }  # fmt: skip
+    trusted = nb.relevant(now, me, reach, trust=trust)
+    assert trusted == {rid: xy for rid, xy in relevant.items() if rid not in awaited}
     assert nb.two_hop(now) == two_hop_reference(nb, now)
     # wanted_state_ids: one-hop, and two-hop ids no fresh relay of a neighbour carries,
     # lingering
