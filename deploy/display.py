@@ -24,6 +24,9 @@ class Progress:
     duration: float
     ready: set[tuple[str, int]] = field(default_factory=set)  # (role, id) seen alive
     status: Any = None  # latest protocol.Status
+    # A planned route's lines, one per goal (mission.scenarios.route_lines): shown with
+    # the start-up, before the mission starts.
+    routes: tuple[str, ...] = ()
 
 
 # s of wall time between two progress lines when the output is not a terminal (a pipe, a
@@ -91,6 +94,8 @@ def render(progress: Progress) -> Any:
         table.add_row("phase", "start-up (waiting for liveliness tokens)")
         for label, count, total in ready_counts(progress):
             table.add_row(f"{label} ready", bar(count, total, f"{count}/{total}"))
+        for line in progress.routes:
+            table.add_row("route", line.removeprefix("route "))
         return table
     table.add_row("phase", status.state)
     script = status.t if status.script_t is None else status.script_t

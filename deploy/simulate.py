@@ -26,7 +26,7 @@ import numpy as np
 from covswarm.coordinator.config import DEPLOY_TIMEOUT
 from covswarm.mission.crowding import Crowding, crowding
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.mission.scenarios import SCENARIO_HELP, Scenario
+from covswarm.mission.scenarios import SCENARIO_HELP, Scenario, route_lines
 from covswarm.protocol.keys import parse_ids
 from covswarm.runtime.options import (
     agents_option,
@@ -778,6 +778,8 @@ def sim_command(
         check_new_folder(out_dir)  # before the simulation, which may take minutes
     runs = [not no_feedforward] + ([False] if compare else [])
     console = Console()
+    for line in route_lines(scenario.motion):  # the plan, before the mission is simulated
+        console.print(line, markup=False, highlight=False)
     results: list[SimResult] = []
     started, cpu_started = time.perf_counter(), time.process_time()
     with Progress(

@@ -234,15 +234,21 @@ def run_processes(
     log_dir: Path,
     startup_timeout: float,
     console: Any,
+    routes: tuple[str, ...] = (),
 ) -> RunResult:
     """Start the children, follow the run until the coordinator exits, stop everyone.
 
     Without a coordinator among ``specs`` (it runs on another host) the run ends when the
-    coordinator's Status says "done".
+    coordinator's Status says "done". routes: a planned route's lines
+    (mission.scenarios.route_lines), shown with the start-up (logged once when the output
+    is not a terminal, where the live display shows nothing).
     """
     from rich.live import Live
 
-    progress = Progress(agents, duration)
+    progress = Progress(agents, duration, routes=tuple(routes))
+    if not console.is_terminal:
+        for line in routes:
+            console.log(line)
     has_coordinator = any(spec.role == "coordinator" for spec in specs)
     exit_code = 0
     with interrupts() as received:

@@ -96,7 +96,13 @@ from covswarm.mission.scenarios import (
     route_duration,
 )
 from covswarm.tvd.geometry import polygons_intersect
-from covswarm.world.maps import OccupancyMap, finite_number, read_map, read_regular_file
+from covswarm.world.maps import (
+    MAX_OBSTACLES,
+    OccupancyMap,
+    finite_number,
+    read_map,
+    read_regular_file,
+)
 from covswarm.world.model import Obstacle, World, box_vertices, make_obstacle
 from covswarm.world.route import RouteMotion
 
@@ -229,8 +235,13 @@ def _world(data: dict[str, Any], base: Path | None) -> tuple[World, OccupancyMap
             grid.check_workspace(workspace)
     if workspace is not None:
         _check_inside(obstacles, workspace)
-    if grid is not None:
-        obstacles += _keyed("map", grid.obstacles)
+    if grid is not None:  # the file's obstacles and the map's pieces share one World message
+        obstacles += _keyed("map", grid.obstacles, "map piece", 1, MAX_OBSTACLES, len(obstacles))
+    elif len(obstacles) > MAX_OBSTACLES:
+        raise ValueError(
+            f"obstacles: {len(obstacles)} entries, at most {MAX_OBSTACLES} fit a World message: "
+            "give fewer obstacles (merge neighbouring boxes)"
+        )
     return World(workspace, tuple(obstacles)), grid
 
 

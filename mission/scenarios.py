@@ -222,6 +222,27 @@ def route_duration(motion: RouteMotion) -> float:
     return math.ceil(motion.end) + SETTLE
 
 
+def route_lines(motion: DomainMotion) -> list[str]:
+    """What ``covswarm sim`` and ``covswarm run`` say of a planned route before the mission,
+    one line per goal, from the plan itself (RouteMotion.legs, covswarm.world.planner's
+    figures; nothing is planned again): the plan's stops (start and goal included), the
+    length of S's centroid path, the mission time S arrives, and on the last goal's line the
+    mission the route needs (:func:`route_duration`: its end, holds included, plus SETTLE).
+    [] for a motion that is no planned tour."""
+    legs = getattr(motion, "legs", ())
+    lines = []
+    for k, leg in enumerate(legs):
+        x, y = leg.goal
+        line = (
+            f"route to goal ({x!r}, {y!r}): {leg.waypoints} waypoints, {leg.length:.1f} m, "
+            f"arrives at {leg.arrival:.1f} s"
+        )
+        if k == len(legs) - 1:
+            line += f" (mission {route_duration(motion):g} s)"
+        lines.append(line)
+    return lines
+
+
 def check_route_duration(motion: DomainMotion, duration: float, option: str = "duration") -> None:
     """ValueError unless a planned route (world.route.RouteMotion) ends within a mission of
     ``duration`` s, the effective one (a scenario's, or ``covswarm sim/run --duration``,

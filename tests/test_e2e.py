@@ -30,6 +30,7 @@ pytestmark = pytest.mark.e2e
 
 def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> None:
     swarm, out = new_swarm(), tmp_path / "run"
+    began = time.time()
     # TVD-D1: the law docs/results.md's "within 20 %" of the simulation was measured with.
     with launch(out, "--agents", "4", "--scenario", "passage", "--duration", "15", "--law", "d1",
                 "--no-safety", "--no-prediction", swarm=swarm) as launcher:  # fmt: skip
@@ -56,6 +57,13 @@ def test_run_covers_the_moving_domain_and_leaves_no_process(tmp_path: Path) -> N
     assert summary["error_samples_clipped"] < 0.05 * summary["samples"]
     rows = (out / "error.csv").read_text().splitlines()
     assert rows[0] == "t,e_a" and len(rows) > 100
+    # The README's resume files (docs/faults.md): when the mission started and where the
+    # script's clock stood last; no steering.jsonl, as nobody steered.
+    mission = json.loads((out / "mission.json").read_text())
+    assert mission["swarm"] == swarm and began < mission["started_wall"] < time.time()
+    clock = json.loads((out / "script.json").read_text())
+    assert clock["swarm"] == swarm and 7.5 < clock["script_t"] <= 15.0 and clock["pace"] > 0
+    assert not (out / "steering.jsonl").exists()
     assert swarm_pids(swarm) == set()
     # docs/results.md: the distributed run's steady-state e_a is within 30 % below and 20 %
     # above the in-process simulation of the same robots (same seed, law, unicycle model,

@@ -146,6 +146,24 @@ def test_display_shows_start_up_then_the_mission() -> None:
     assert "robots alive  2/3" in text
 
 
+def test_the_start_up_table_shows_the_planned_route() -> None:
+    """A route scenario's lines (mission.scenarios.route_lines, from its plan) are rows of
+    the start-up table, one per goal, and leave it once the mission runs."""
+    from covswarm.mission.scenarios import route_lines
+    from covswarm.protocol import Status
+
+    path = Path(__file__).resolve().parent / "data" / "through_the_wall_route.toml"
+    lines = route_lines(load_scenario(path).motion)
+    assert len(lines) == 1 and lines[0].startswith("route to goal (1.8, 0.0): ")
+    progress = Progress(agents=10, duration=59.0, routes=tuple(lines))
+    text = " ".join(_text(render(progress)).split())
+    assert "start-up" in text and f"route {lines[0].removeprefix('route ')}" in text
+    progress.status = Status(stamp=1.0, t=5.0, state="running", error=0.01, alive_agents=10,
+                             alive_robots=10)  # fmt: skip
+    assert "route to goal" not in " ".join(_text(render(progress)).split())
+    assert "route" not in _text(render(Progress(agents=3, duration=20.0)))  # no plan, no row
+
+
 def test_display_says_when_the_mission_runs_slower_than_its_script(tmp_path: Path) -> None:
     from covswarm.deploy.display import summary_table
     from covswarm.deploy.processes import RunResult

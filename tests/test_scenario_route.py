@@ -8,6 +8,7 @@ the team's least S.
 from __future__ import annotations
 
 import json
+import math
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,7 @@ from click.testing import CliRunner
 from covswarm.deploy.cli import main
 from covswarm.mission.crowding import least_domain
 from covswarm.mission.scenario_files import load_scenario, scenario_from_dict
+from covswarm.mission.scenarios import route_lines
 
 try:
     import tomllib
@@ -143,13 +145,64 @@ def test_sim_runs_the_warehouse(tmp_path: Path) -> None:
     assert summary["goals_reached"] == summary["goals"] == 1
 
 
+def _planned_legs(scenario, polygon, goals, speed: float, hold: float) -> list[str]:
+    """The route lines sim and run print, from plan_route called here leg by leg on the
+    scenario's world (not from the scenario's own plan): stops, length, arrival, and the
+    mission the whole route needs (its end to the second, up, plus 10 s) on the last."""
+    from covswarm.world.planner import plan_route
+
+    least_area, least_width = least_domain(scenario.agents, scenario.robot_diameter)
+    lines, current, t = [], np.array(polygon, dtype=float), 0.0
+    for x, y in goals:
+        route = plan_route(
+            scenario.world, current, (x, y), min_area=least_area, min_width=least_width,
+            max_speed=speed, t0=t, hold=hold,
+        )  # fmt: skip
+        arrival = route.motion.end - hold
+        lines.append(
+            f"route to goal ({x!r}, {y!r}): {len(route.waypoints)} waypoints, "
+            f"{route.length:.1f} m, arrives at {arrival:.1f} s"
+        )
+        current, t = route.motion.polygons[-1], route.motion.end
+    lines[-1] += f" (mission {math.ceil(t) + 10:g} s)"
+    return lines
+
+
+def test_the_route_lines_are_each_goals_plan() -> None:
+    """Two goals (the lab's map, 5 s held at each): one line per goal, the mission on the
+    last; the figures are the planner's for each leg."""
+    scenario = load_scenario(ROOT / "scenarios" / "lab-route.toml")
+    domain = tomllib.loads((ROOT / "scenarios" / "lab-route.toml").read_text())["domain"]
+    expect = _planned_legs(
+        scenario, domain["polygon"], [tuple(g) for g in domain["goals"]], domain["speed"],
+        domain["hold"],
+    )  # fmt: skip
+    assert route_lines(scenario.motion) == expect
+    assert len(expect) == 2 and "mission" not in expect[0] and "(mission 1" in expect[1]
+    leg = scenario.motion.legs[0]  # arrival and end: the hold apart, the end the next start
+    assert leg.end - leg.arrival == pytest.approx(5.0)
+    assert scenario.motion.legs[1].end == pytest.approx(scenario.motion.end)
+    assert route_lines(load_scenario("circle").motion) == []  # nothing planned, nothing said
+    page = (ROOT / "docs" / "world.md").read_text(encoding="utf-8")  # its quoted example
+    block = page.split("`scenarios/lab-route.toml`:\n\n```text\n", 1)[1].split("```", 1)[0]
+    assert block.splitlines() == expect
+
+
 def test_sim_gets_through_the_wall_mission_by_route(tmp_path: Path) -> None:
     """Issue 20's check: the mission refused at load as keyframes gets through as a route,
-    the whole mission simulated: no contact, S never over the wall, the goal reached."""
+    the whole mission simulated: no contact, S never over the wall, the goal reached. sim
+    says the planned route before simulating it."""
     out = tmp_path / "run"
-    args = ["sim", "--scenario", str(DATA / "through_the_wall_route.toml"), "--out", str(out)]
+    path = DATA / "through_the_wall_route.toml"
+    args = ["sim", "--scenario", str(path), "--out", str(out)]
     result = CliRunner().invoke(main, args, catch_exceptions=False)
     assert result.exit_code == 0, result.output
+    domain = tomllib.loads(path.read_text())["domain"]
+    (line,) = _planned_legs(
+        load_scenario(path), domain["polygon"], [(1.8, 0.0)], domain["speed"], domain["hold"]
+    )
+    assert line.startswith("route to goal (1.8, 0.0): ") and line.endswith("(mission 59 s)")
+    assert result.output.startswith(line + "\n")  # before the simulation's progress
     summary = json.loads((out / "summary.json").read_text())
     assert summary["obstacle_contacts"] == 0 and summary["domain_obstacle_overlap"] == 0.0
     assert summary["goals"] == 1 and summary["goals_reached"] == 1

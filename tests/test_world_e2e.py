@@ -120,4 +120,12 @@ def test_warehouse_world_goto_and_a_wall(tmp_path: Path) -> None:
     assert summary["unexpected"]["total"] == 0
     rows = np.loadtxt(out / "domain.csv", delimiter=",", skiprows=1)
     assert rows.shape[1] == 4 and len(rows) > 100
+    # The README's resume files: the accepted goto journaled (the refused request is not),
+    # beside the mission's start and the script's clock.
+    journal = (out / "steering.jsonl").read_text().splitlines()
+    assert [json.loads(line)["request"]["goal"] for line in journal] == [list(GOAL)]
+    for name in ("mission.json", "script.json"):
+        assert json.loads((out / name).read_text())["swarm"] == swarm, name
+    # The planned route, said before the mission (the log is a file: logged once).
+    assert "route to goal (2.7, 0.1): " in (out.parent / "warehouse.launcher.log").read_text()
     assert swarm_pids(swarm) == set()

@@ -210,6 +210,50 @@ def test_a_speckled_map_is_refused_in_seconds_saying_what_to_do(tmp_path) -> Non
     assert elapsed < 10.0, elapsed
 
 
+def _dotted_map_scenario(tmp_path: Path, boxes: int) -> Path:
+    """A 10 m x 10 m map of 4000 isolated occupied pixels (4000 pieces: within a World
+    message's 4096 alone) and a file adding ``boxes`` small boxes of its own."""
+    grey = np.full((200, 200), FREE)
+    grey[0:160:2, 0:100:2] = OCC  # 80 x 50 dots, the map's upper left
+    write_map(tmp_path, grey, origin=(-5.0, -5.0))
+    entries = ", ".join(
+        f"[{1 + 0.03 * i:.2f}, {1.01 + 0.03 * i:.2f}, 2.0, 2.01]" for i in range(boxes)
+    )
+    still = [[2.0, -4.0], [3.0, -4.0], [3.0, -3.0], [2.0, -3.0]]
+    return write(tmp_path, keyframes_text(f'map = "lab.yaml"\nobstacles = [{entries}]\n', still))
+
+
+def test_the_files_obstacles_and_the_maps_pieces_are_counted_together(tmp_path) -> None:
+    """4000 map pieces and 97 boxes of the file: over the 4096 a World message carries,
+    refused at load in one line naming both counts (not later by check_broadcastable);
+    with 96 boxes the 4096 obstacles load and broadcast."""
+    path = _dotted_map_scenario(tmp_path, 97)
+    started = time.monotonic()
+    with pytest.raises(ValueError) as refused:
+        load_scenario(path)
+    assert time.monotonic() - started < 5.0  # counted, not built
+    message = str(refused.value)
+    one_line(message)
+    assert "4000 occupied rectangles and the scenario's 97 other obstacles make 4097" in message
+    assert "at most 4096 fit a World message" in message
+    assert "give fewer obstacles" in message and "coarser resolution" in message
+    scenario = load_scenario(_dotted_map_scenario(tmp_path, 96))
+    assert len(scenario.world.obstacles) == 4096
+    check_broadcastable(scenario, scenario.kappa, scenario.duration)
+
+
+def test_a_file_of_more_obstacles_than_a_world_message_is_refused_at_load(tmp_path) -> None:
+    entries = ", ".join(
+        f"[{0.01 * i:.2f}, {0.01 * i + 0.005:.3f}, 1.0, 1.005]" for i in range(4097)
+    )
+    with pytest.raises(ValueError) as refused:
+        load_scenario(write(tmp_path, keyframes_text(f"obstacles = [{entries}]\n")))
+    message = str(refused.value)
+    one_line(message)
+    assert "obstacles: 4097 entries, at most 4096 fit a World message" in message
+    assert "give fewer obstacles" in message
+
+
 def test_a_noise_map_of_16_million_pixels_is_refused_in_seconds(tmp_path) -> None:
     rng = np.random.default_rng(3)
     grey = np.where(rng.random((4000, 4000)) < 0.5, OCC, FREE)

@@ -79,12 +79,25 @@ class OccupancyMap:
             )
 
     def obstacles(
-        self, prefix: str = "map piece", first: int = 1, limit: int = MAX_OBSTACLES
+        self,
+        prefix: str = "map piece",
+        first: int = 1,
+        limit: int = MAX_OBSTACLES,
+        others: int = 0,
     ) -> tuple[Obstacle, ...]:
         """The occupied cells as rectangles (cover_rectangles), named "<prefix> <first + i>";
         ValueError naming the map and what to do if there are more than ``limit`` (counted
-        first, in a fraction of a second, so none is built)."""
+        first, in a fraction of a second, so none is built). others: obstacles the world
+        holds besides the map's pieces (a scenario file's own ``obstacles``), which count
+        against ``limit`` with them (the message names both counts)."""
         count = count_rectangles(self.occupied)
+        if others and count + others > limit:
+            raise ValueError(
+                f"{self.path}: {count} occupied rectangles and the scenario's {others} other "
+                f"obstacles make {count + others}, at most {limit} fit a World message: give "
+                "fewer obstacles, or use a coarser resolution, clean speckle (isolated "
+                "occupied pixels) or crop the map to the lab"
+            )
         if count > limit:
             raise ValueError(
                 f"{self.path}: {count} occupied rectangles, at most {limit} fit a World "

@@ -68,7 +68,7 @@ from scipy.spatial import ConvexHull
 
 from covswarm.tvd.geometry import area, validate_convex
 from covswarm.world.model import World
-from covswarm.world.route import RouteMotion, centroid, merge_coincident, width
+from covswarm.world.route import Leg, RouteMotion, centroid, merge_coincident, width
 from covswarm.world.sweep import first_contact
 
 # Least ratio between consecutive scale levels (geometric ladder from 1 to s_min).
@@ -326,6 +326,7 @@ def plan_tour(
     holds: list[float] = [0.0]
     turns: list[float] = []
     waypoints: list[Waypoint] = []
+    legs: list[Leg] = []  # each goal's figures, as its plan gave them
     length, t, cell = 0.0, 0.0, 0.0
     for k, goal in enumerate(goals):
         try:
@@ -344,6 +345,9 @@ def plan_tour(
         holds += list(leg.motion.holds[1:])
         waypoints += list(leg.waypoints if not waypoints else leg.waypoints[1:])
         length += leg.length
+        end = leg.motion.end
+        goal_xy = (float(goal[0]), float(goal[1]))
+        legs.append(Leg(goal_xy, len(leg.waypoints), leg.length, end - hold, end))
         cell = max(cell, leg.resolution)
         t = leg.motion.end
         current = leg.motion.polygons[-1]
@@ -356,6 +360,7 @@ def plan_tour(
         speed=max_speed if speed is None else speed,
         hold=hold,
         turns=tuple(turns),
+        legs=tuple(legs),
     )
     return Route(tuple(waypoints), motion, motion.end, length, cell)
 

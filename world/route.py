@@ -116,6 +116,21 @@ def _normal_angles(polygon: np.ndarray) -> np.ndarray:
     return np.arctan2(-edges[:, 0], edges[:, 1])
 
 
+@dataclass(frozen=True)
+class Leg:
+    """A planned tour's way to one of its goals, as its plan (covswarm.world.planner's
+    Route for that goal) gave it: the goal (m), the plan's stops (``len(Route.waypoints)``,
+    the start and the goal included), the length of the centroid's path (m,
+    ``Route.length``), the mission time S arrives at the goal (s) and the time its hold there
+    ends (s, the time the next leg starts)."""
+
+    goal: tuple[float, float]
+    waypoints: int
+    length: float
+    arrival: float
+    end: float
+
+
 @dataclass(frozen=True, eq=False)
 class RouteMotion:
     """S(t) through waypoint polygons (module docstring); a DomainMotion.
@@ -127,7 +142,9 @@ class RouteMotion:
     the route (``[domain] kind = "route"``) that :meth:`to_toml` writes, when it has one.
     turns: n angles (rad, CCW), S turning by turns[i] about its centroid on segment i
     (module docstring, "Rotation"; polygons[i + 1] must then be a similarity of
-    polygons[i], vertex for vertex); default none turns.
+    polygons[i], vertex for vertex); default none turns. legs: a planned tour's figures per
+    goal (:class:`Leg`, covswarm.world.planner.plan_tour), what ``covswarm sim`` and ``run``
+    print before the mission; () for a route not planned from goals.
     """
 
     polygons: tuple[np.ndarray, ...]
@@ -138,6 +155,7 @@ class RouteMotion:
     speed: float | None = None
     hold: float = 0.0
     turns: tuple[float, ...] = ()
+    legs: tuple[Leg, ...] = ()
     starts: np.ndarray = field(init=False, repr=False)  # (n,) segment start times, s
     _pairs: tuple[np.ndarray, ...] = field(init=False, repr=False)
 
