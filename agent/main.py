@@ -99,7 +99,7 @@ from covswarm.agent.link import ZenohBus
 from covswarm.agent.metrics import Counters
 from covswarm.agent.pack import Pack, collect_less
 from covswarm.protocol.keys import format_ids
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, watch_expiry
 from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker, scaled
@@ -383,6 +383,7 @@ def run_agent_process(config: AgentProcessConfig) -> None:
     except ValueError as exc:  # an empty or non-finite --workspace
         raise click.BadParameter(str(exc), param_hint="--workspace") from exc
     delay_steps(brains, config.fault_step_delay)
-    run_agents(
-        brains, config.swarm, zenoh_config, config.rate, config.time_scale, config.tick_phase
-    )
+    with watch_expiry(config.secure, "agent", robot_ids):  # its certificate's end stops it
+        run_agents(
+            brains, config.swarm, zenoh_config, config.rate, config.time_scale, config.tick_phase
+        )

@@ -46,7 +46,7 @@ from covswarm.bridge.rmw_zenoh import (
     topic_selector,
 )
 from covswarm.protocol.inbound import MAX_CLOCK_SKEW
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, watch_expiry
 from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime.claims import claim_or_refuse
 from covswarm.runtime.clock import StopFlag, Ticker
@@ -440,4 +440,5 @@ def ros2_command(
         config = session_config(list(connect), None, "client", secure=secure, role="bridge")
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    run_bridge(brains, swarm, config, options, rate)
+    with watch_expiry(secure, "bridge"):  # its certificate's end stops it
+        run_bridge(brains, swarm, config, options, rate)

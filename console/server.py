@@ -46,7 +46,7 @@ from covswarm.console.access import (
 from covswarm.console.model import SwarmView
 from covswarm.console.steer_input import MAX_BODY, BadSteerInput, parse_steer_body
 from covswarm.protocol.inbound import RateLimit
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, watch_expiry
 from covswarm.runtime.options import connect_option, float_option
 from covswarm.runtime.ratelog import RateLog
 
@@ -513,7 +513,7 @@ def console_command(
     except SessionError as exc:
         where = ", ".join(connect)
         raise click.ClickException(f"cannot reach the swarm at {where}: {exc}") from None
-    with session:
+    with watch_expiry(secure, "console"), session:  # its certificate's end stops it
         feed = SwarmFeed(session, swarm, SwarmView(swarm))
         client = SteeringClient(session, swarm, timeout=steer_timeout)
         console = Console(feed, client.request, token=token, rate=rate)

@@ -46,7 +46,7 @@ from covswarm.coordinator.pace import pace_sentence
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.mission.scenarios import SCENARIO_HELP
 from covswarm.protocol import check_swarm
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, watch_expiry
 from covswarm.protocol.session import open_session, session_config
 from covswarm.records.live import FOXGLOVE_OPTION
 from covswarm.records.recorder import LiveViewError
@@ -96,9 +96,12 @@ def run_coordinator(config: CoordinatorConfig) -> None:
         except ValueError as exc:
             raise click.UsageError(f"--resume: {exc}") from None
     stop = StopFlag()
-    with open_session(
-        session_config(list(config.connect), secure=config.secure, role="coordinator")
-    ) as session:
+    zenoh_config = session_config(list(config.connect), secure=config.secure, role="coordinator")
+    # The planned run: the mission and its longest deploy hold, in wall seconds.
+    planned = (settings.duration + settings.deploy_timeout) / settings.time_scale
+    expiry = watch_expiry(config.secure, "coordinator", planned=planned)
+    with open_session(zenoh_config) as session:
+        expiry.start()  # its certificate's end stops the run; the outputs are still written
         claim = claim_exclusive(session, config.swarm, "coordinator", 0)
         if claim is None:
             raise click.ClickException(f"swarm {config.swarm!r} already has a coordinator")
@@ -121,6 +124,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
             if recorder is not None:
                 recorder.note("recording", {**core.recording_note(), **recorder.counts})
                 recorder.close()
+    expiry.cancel()
     if recorder is not None and core.phase.state != WAITING:
         mission = core.phase.mission_time(core.phase.stopped_at or 0.0)
         cost = core.recording
@@ -135,6 +139,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     if not core.observed.record.t:
         # run.mcap holds what was heard before the start (tokens, steering): kept
         log.info("no samples recorded (the mission never started): no summary or plots written")
+        expiry.exit_if_expired()
         return
     disk = None if recorder is None else recorder.disk
     try:
@@ -145,6 +150,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
     pace = core.pace.summary(core.observed.agent_stats, core.observed.mission_time())
     log.info("%s", pace_sentence(pace))
     log.info("wrote %s", config.out)
+    expiry.exit_if_expired()
 
 
 @click.command("coordinator")

@@ -25,6 +25,7 @@ import json
 import os
 import sys
 from dataclasses import replace
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
@@ -56,10 +57,16 @@ from covswarm.deploy.router import free_port, zenoh_session
 from covswarm.deploy.supervisor import run_processes
 from covswarm.mission.crowding import crowding
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.mission.scenarios import SCENARIO_HELP
+from covswarm.mission.scenarios import SCENARIO_HELP, route_lines
 from covswarm.protocol import check_swarm, new_swarm_name
 from covswarm.protocol.keys import parse_ids
-from covswarm.protocol.security import SECURE_OPTION, require_identities
+from covswarm.protocol.security import (
+    ROUTER,
+    SECURE_OPTION,
+    credentials_end,
+    expiry_warning,
+    require_identities,
+)
 from covswarm.records.live import FOXGLOVE_OPTION, LIVE_HOST, port_is_free
 from covswarm.runtime.options import (
     ENDPOINT,
@@ -372,8 +379,15 @@ def run_swarm(run: RunConfig) -> None:
             require_identities(run.secure, sorted(names))
             if run.connect is None:  # the embedded router's files, as covswarm router's
                 check_router_folder(run.secure, run.router_listen or ())
+                names.add(ROUTER)
+            end, ending = credentials_end(run.secure, sorted(names))
         except ValueError as exc:
             raise click.UsageError(str(exc)) from None
+        # Said here once for the run (each child also logs it): the mission and its longest
+        # deploy hold, in wall seconds.
+        wall = (duration + run.deploy_timeout) / run.time_scale
+        if (warning := expiry_warning(ending, end, datetime.now(timezone.utc), wall)) is not None:
+            console.log(f"[yellow]warning: {warning}")
     log_dir = out_dir / "logs"
     log_dir.mkdir(parents=True, exist_ok=True)
     if (crowd := crowding(scenario, n, duration)).crowded:
@@ -435,6 +449,7 @@ def run_swarm(run: RunConfig) -> None:
             result = run_processes(
                 specs, session=session, swarm=swarm, agents=n, duration=duration,
                 log_dir=log_dir, startup_timeout=run.startup_timeout, console=console,
+                routes=tuple(route_lines(scenario.motion)),
             )  # fmt: skip
         finally:
             if token_file is not None:

@@ -13,7 +13,7 @@ from typing import Any
 
 import click
 
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, watch_expiry
 from covswarm.runtime.options import ENDPOINT
 
 ROUTER_HOST = "127.0.0.1"
@@ -148,6 +148,7 @@ def router_command(
             stack.enter_context(zenoh_session(None, max_sessions, listen, peers, secure=secure))
         except ValueError as exc:  # the session's configuration (secure folder, endpoints)
             raise click.UsageError(str(exc)) from None
+        stack.enter_context(watch_expiry(secure, "router"))  # its certificate's end stops it
         stop = StopFlag()
         print(f"router listening on {', '.join(listen)}", flush=True)
         while not stop.is_set():

@@ -1,38 +1,46 @@
-"""What an X.509 certificate says of whom it names (its subject's common name and its
-subject alternative names) and of its trust (its validity period, its key identifier and
-its issuer's), read from a PEM file with a small DER reader (no crypto library: no
-signature is verified here, zenoh's TLS does that).
+"""X.509 for the secured mode, with pyca ``cryptography``: what a certificate says of whom
+it names (its subject's common name and its subject alternative names) and of its trust
+(its validity period, its key identifier and its issuer's), whether a private key is the
+one a certificate certifies, and the keys and certificates ``covswarm credentials`` issues.
+No signature is verified here: zenoh's TLS does that.
 
 The secured mode (covswarm.protocol.security) checks with it before a session opens what
 would otherwise fail in silence: a process presenting another identity's certificate (the
 router then takes it for that identity and drops what it sends as its own), and a router
 listening on an address its certificate does not name, a certificate expired or not yet
-valid, and one issued by another CA than the folder's (each refused by TLS with zenoh's
-bare "Unable to connect", the same words as no router at all).
+valid, one issued by another CA than the folder's, and a private key that is not the
+certificate's (each refused by TLS with zenoh's bare "Unable to connect", the same words
+as no router at all).
+
+Importing this module loads ``cryptography`` (some 30 ms): the modules every process imports
+(protocol.security, protocol.session) import it only where a secure folder is read.
 """
 
 from __future__ import annotations
 
-import base64
 import ipaddress
 import re
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from datetime import datetime, timezone
+from datetime import datetime, timedelta
 from pathlib import Path
 from typing import TypeVar
 
-_PEM = re.compile(rb"-----BEGIN CERTIFICATE-----(.+?)-----END CERTIFICATE-----", re.DOTALL)
-_COMMON_NAME = bytes.fromhex("550403")  # OID 2.5.4.3
-_ALT_NAMES = bytes.fromhex("551d11")  # OID 2.5.29.17
-_SUBJECT_KEY_ID = bytes.fromhex("551d0e")  # OID 2.5.29.14
-_AUTHORITY_KEY_ID = bytes.fromhex("551d23")  # OID 2.5.29.35
-_UTC_TIME, _GENERALIZED_TIME = 0x17, 0x18
-_KEY_ID = 0x80  # AuthorityKeyIdentifier's keyIdentifier [0]
+from cryptography import x509
+from cryptography.exceptions import UnsupportedAlgorithm
+from cryptography.hazmat.primitives import hashes, serialization
+from cryptography.hazmat.primitives.asymmetric import ec
+from cryptography.hazmat.primitives.asymmetric.types import (
+    CertificateIssuerPrivateKeyTypes,
+    PrivateKeyTypes,
+)
+from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
+
+# The PEM armour only: a file of several certificates is read for its first, as before.
+_PEM = re.compile(rb"-----BEGIN CERTIFICATE-----.+?-----END CERTIFICATE-----", re.DOTALL)
 _T = TypeVar("_T")
-_SEQUENCE, _SET, _OID, _OCTETS = 0x30, 0x31, 0x06, 0x04
-_VERSION, _EXTENSIONS = 0xA0, 0xA3  # [0] and [3] of TBSCertificate
-_DNS, _IP = 0x82, 0x87  # GeneralName's dNSName [2] and iPAddress [7]
+# What cryptography raises for a certificate whose DER or extensions do not read.
+_UNREADABLE = (ValueError, x509.DuplicateExtension, x509.UnsupportedGeneralNameType)
 
 
 @dataclass(frozen=True)
@@ -51,98 +59,6 @@ class Names:
             return f"dns:{host.lower()}" in {n.lower() for n in self.alt_names}
 
 
-def _tlv(data: bytes, at: int) -> tuple[int, int, int]:
-    """(tag, start, end) of the DER element at ``at``: its content is data[start:end]."""
-    if at + 2 > len(data):
-        raise ValueError("truncated DER")
-    tag, length, start = data[at], data[at + 1], at + 2
-    if length & 0x80:
-        count = length & 0x7F
-        if count == 0 or count > 4 or start + count > len(data):
-            raise ValueError("bad DER length")
-        length, start = int.from_bytes(data[start : start + count], "big"), start + count
-    if start + length > len(data):
-        raise ValueError("truncated DER")
-    return tag, start, start + length
-
-
-def _children(data: bytes, start: int, end: int) -> list[tuple[int, int, int]]:
-    out, at = [], start
-    while at < end:
-        tag, s, e = _tlv(data, at)
-        out.append((tag, s, e))
-        at = e
-    return out
-
-
-def _fields(der: bytes) -> list[tuple[int, int, int]]:
-    """The TBSCertificate fields of the DER certificate ``der`` after its version: serial,
-    signature algorithm, issuer, validity, subject, public key, [extensions]; ValueError if
-    it is not one."""
-    tag, s, e = _tlv(der, 0)
-    if tag != _SEQUENCE:
-        raise ValueError("not a certificate")
-    tbs = _children(der, s, e)[0]
-    fields = _children(der, tbs[1], tbs[2])
-    if fields and fields[0][0] == _VERSION:
-        fields = fields[1:]
-    if len(fields) < 6:
-        raise ValueError("not a certificate")
-    return fields
-
-
-def _extensions(der: bytes, fields: list[tuple[int, int, int]]) -> Iterator[tuple[bytes, int]]:
-    """(OID, where its value starts) of each extension: the value's own DER element, which
-    the extension's OCTET STRING wraps."""
-    for tag, s, e in fields[6:]:
-        if tag != _EXTENSIONS:
-            continue
-        for _, xs, xe in _children(der, *_children(der, s, e)[0][1:]):
-            parts = _children(der, xs, xe)
-            yield der[parts[0][1] : parts[0][2]], parts[-1][1]
-
-
-def read_names(der: bytes) -> Names:
-    """The names of the DER certificate ``der``; ValueError if it is not one."""
-    fields = _fields(der)
-    common_name = None
-    _, s, e = fields[4]
-    for _, rs, re_ in _children(der, s, e):  # SET of SEQUENCE {OID, value}
-        for _, as_, ae in _children(der, rs, re_):
-            oid, value = _children(der, as_, ae)[:2]
-            if der[oid[1] : oid[2]] == _COMMON_NAME:
-                common_name = der[value[1] : value[2]].decode("utf-8", errors="replace")
-    alt_names: set[str] = set()
-    for oid, at in _extensions(der, fields):
-        if oid != _ALT_NAMES:
-            continue
-        _, gs, ge = _tlv(der, at)  # a SEQUENCE of GeneralName
-        for kind, ns, ne in _children(der, gs, ge):
-            if kind == _DNS:
-                alt_names.add("DNS:" + der[ns:ne].decode("ascii", errors="replace"))
-            elif kind == _IP:
-                alt_names.add(f"IP:{ipaddress.ip_address(der[ns:ne])}")
-    return Names(common_name, frozenset(alt_names))
-
-
-def certificate_names(path: Path) -> Names:
-    """The names of the first certificate of the PEM file at ``path``; ValueError naming
-    the file if it holds none that reads."""
-    return _read_first(path, read_names)
-
-
-def _read_first(path: Path, read: Callable[[bytes], _T]) -> _T:
-    """``read`` of the first certificate of the PEM file at ``path``; ValueError naming the
-    file if it holds none that reads."""
-    match = _PEM.search(Path(path).read_bytes())
-    if match is None:
-        raise ValueError(f"{path}: no PEM certificate in it")
-    try:
-        return read(base64.b64decode(b"".join(match.group(1).split())))
-    except (ValueError, IndexError) as exc:
-        raise ValueError(f"{path}: not a readable certificate ({exc})") from None
-
-
 @dataclass(frozen=True)
 class Trust:
     """``not_before``, ``not_after``: the validity period (UTC); ``key_id``: its subject
@@ -155,34 +71,210 @@ class Trust:
     authority_key_id: bytes | None
 
 
-def _time(der: bytes, tag: int, start: int, end: int) -> datetime:
-    text = der[start:end].decode("ascii")
-    if tag == _UTC_TIME:  # YYMMDDHHMMSSZ, 1950-2049 (RFC 5280)
-        year = int(text[:2])
-        text = f"{1900 + year if year >= 50 else 2000 + year}{text[2:]}"
-    elif tag != _GENERALIZED_TIME:
-        raise ValueError("bad validity time")
-    return datetime.strptime(text, "%Y%m%d%H%M%SZ").replace(tzinfo=timezone.utc)
+def _extension(certificate: x509.Certificate, kind: type[_T]) -> _T | None:
+    try:
+        return certificate.extensions.get_extension_for_class(kind).value
+    except x509.ExtensionNotFound:
+        return None
+
+
+def _names(certificate: x509.Certificate) -> Names:
+    # The last CN, as a reader of the RDN sequence in order would keep.
+    common = certificate.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+    value = common[-1].value if common else None
+    common_name = value.decode("utf-8", errors="replace") if isinstance(value, bytes) else value
+    alt_names: set[str] = set()
+    if (alt := _extension(certificate, x509.SubjectAlternativeName)) is not None:
+        alt_names |= {f"DNS:{name}" for name in alt.get_values_for_type(x509.DNSName)}
+        alt_names |= {f"IP:{address}" for address in alt.get_values_for_type(x509.IPAddress)}
+    return Names(common_name, frozenset(alt_names))
+
+
+def _trust(certificate: x509.Certificate) -> Trust:
+    own = _extension(certificate, x509.SubjectKeyIdentifier)
+    issuer = _extension(certificate, x509.AuthorityKeyIdentifier)
+    return Trust(
+        certificate.not_valid_before_utc,
+        certificate.not_valid_after_utc,
+        None if own is None else own.key_identifier,
+        None if issuer is None else issuer.key_identifier,
+    )
+
+
+def read_names(der: bytes) -> Names:
+    """The names of the DER certificate ``der``; ValueError if it is not one."""
+    return _from_der(der, _names)
 
 
 def read_trust(der: bytes) -> Trust:
     """The validity and key identifiers of the DER certificate ``der``; ValueError if it is
     not one."""
-    fields = _fields(der)
-    not_before, not_after = (_time(der, *t) for t in _children(der, *fields[3][1:])[:2])
-    key_id = authority = None
-    for oid, at in _extensions(der, fields):
-        _, vs, ve = _tlv(der, at)
-        if oid == _SUBJECT_KEY_ID:  # an OCTET STRING
-            key_id = der[vs:ve]
-        elif oid == _AUTHORITY_KEY_ID:  # SEQUENCE {[0] keyIdentifier, ...}
-            for kind, ks, ke in _children(der, vs, ve):
-                if kind == _KEY_ID:
-                    authority = der[ks:ke]
-    return Trust(not_before, not_after, key_id, authority)
+    return _from_der(der, _trust)
+
+
+def _from_der(der: bytes, read: Callable[[x509.Certificate], _T]) -> _T:
+    try:
+        return read(x509.load_der_x509_certificate(der))
+    except _UNREADABLE as exc:
+        raise ValueError(f"not a certificate ({exc})") from None
+
+
+def load_certificate(path: Path) -> x509.Certificate:
+    """The first certificate of the PEM file at ``path``, its extensions read; ValueError
+    naming the file if it holds none that reads."""
+    match = _PEM.search(Path(path).read_bytes())
+    if match is None:
+        raise ValueError(f"{path}: no PEM certificate in it")
+    try:
+        certificate = x509.load_pem_x509_certificate(match.group(0))
+        certificate.extensions  # noqa: B018 (parsed on first use: a bad one fails here)
+    except _UNREADABLE as exc:
+        raise ValueError(f"{path}: not a readable certificate ({exc})") from None
+    return certificate
+
+
+def certificate_names(path: Path) -> Names:
+    """The names of the first certificate of the PEM file at ``path``; ValueError naming
+    the file if it holds none that reads."""
+    return _names(load_certificate(path))
 
 
 def certificate_trust(path: Path) -> Trust:
     """:func:`read_trust` of the first certificate of the PEM file at ``path``; ValueError
     naming the file if it holds none that reads."""
-    return _read_first(path, read_trust)
+    return _trust(load_certificate(path))
+
+
+def load_private_key(path: Path) -> PrivateKeyTypes:
+    """The private key of the PEM file at ``path``; ValueError naming the file, in one line,
+    unless it holds an unencrypted one that reads (zenoh takes no passphrase)."""
+    data = Path(path).read_bytes()
+    if b"PRIVATE KEY-----" not in data:
+        raise ValueError(f"{path}: no PEM private key in it")
+    try:
+        return serialization.load_pem_private_key(data, password=None)
+    except TypeError:  # cryptography's word for "encrypted, and no password given"
+        raise ValueError(
+            f"{path}: an encrypted private key (zenoh reads unencrypted ones)"
+        ) from None
+    except (ValueError, UnsupportedAlgorithm):
+        raise ValueError(f"{path}: not a readable private key") from None
+
+
+def key_matches(key: PrivateKeyTypes, certificate: x509.Certificate) -> bool:
+    """Whether ``key`` is the private key of the public key ``certificate`` certifies."""
+    der, spki = serialization.Encoding.DER, serialization.PublicFormat.SubjectPublicKeyInfo
+    return key.public_key().public_bytes(der, spki) == certificate.public_key().public_bytes(
+        der, spki
+    )
+
+
+def new_key() -> ec.EllipticCurvePrivateKey:
+    """A new EC P-256 private key (what ``openssl req -newkey ec`` made with P-256)."""
+    return ec.generate_private_key(ec.SECP256R1())
+
+
+def key_pem(key: PrivateKeyTypes) -> bytes:
+    """``key`` as unencrypted PKCS#8 PEM ("BEGIN PRIVATE KEY"), which zenoh's rustls reads."""
+    return key.private_bytes(
+        serialization.Encoding.PEM,
+        serialization.PrivateFormat.PKCS8,
+        serialization.NoEncryption(),
+    )
+
+
+def certificate_pem(certificate: x509.Certificate) -> bytes:
+    return certificate.public_bytes(serialization.Encoding.PEM)
+
+
+def _general_name(name: str) -> x509.GeneralName:
+    """``"IP:10.0.0.5"`` or ``"DNS:robots.lab"`` (openssl's spelling, as :class:`Names`)."""
+    kind, _, value = name.partition(":")
+    if kind == "IP":
+        return x509.IPAddress(ipaddress.ip_address(value))
+    if kind == "DNS":
+        return x509.DNSName(value)
+    raise ValueError(f"subject alternative name {name!r}: expected IP:... or DNS:...")
+
+
+def _builder(
+    common_name: str, key: PrivateKeyTypes, issuer: x509.Name, now: datetime, days: int
+) -> x509.CertificateBuilder:
+    # Whole seconds: the validity times are encoded to the second.
+    start = now.replace(microsecond=0)
+    return (
+        x509.CertificateBuilder()
+        .subject_name(x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)]))
+        .issuer_name(issuer)
+        .public_key(key.public_key())
+        .serial_number(x509.random_serial_number())
+        .not_valid_before(start)
+        .not_valid_after(start + timedelta(days=days))
+        .add_extension(
+            x509.SubjectKeyIdentifier.from_public_key(key.public_key()),
+            critical=False,
+        )
+    )
+
+
+def make_ca(
+    key: CertificateIssuerPrivateKeyTypes, common_name: str, now: datetime, days: int
+) -> x509.Certificate:
+    """A self-signed CA certificate of ``key`` valid ``days`` from ``now`` (UTC), with the
+    extensions ``openssl req -x509`` gave it: CA:TRUE and keyCertSign, cRLSign (both
+    critical), and its key identifier as its subject's and its authority's."""
+    name = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, common_name)])
+    own = x509.SubjectKeyIdentifier.from_public_key(key.public_key())
+    usage = x509.KeyUsage(
+        digital_signature=False, content_commitment=False, key_encipherment=False,
+        data_encipherment=False, key_agreement=False, key_cert_sign=True, crl_sign=True,
+        encipher_only=False, decipher_only=False,
+    )  # fmt: skip
+    return (
+        _builder(common_name, key, name, now, days)
+        .add_extension(x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(own), False)
+        .add_extension(x509.BasicConstraints(ca=True, path_length=None), critical=True)
+        .add_extension(usage, critical=True)
+        .sign(key, hashes.SHA256())
+    )
+
+
+def make_certificate(
+    key: PrivateKeyTypes,
+    common_name: str,
+    alt_names: Sequence[str],
+    ca: x509.Certificate,
+    ca_key: CertificateIssuerPrivateKeyTypes,
+    now: datetime,
+    days: int,
+) -> x509.Certificate:
+    """The certificate of ``key`` for ``common_name``, signed by ``ca`` (whose private key
+    is ``ca_key``) and valid ``days`` from ``now`` (UTC), for TLS on either side: CA:FALSE,
+    digitalSignature and keyEncipherment (both critical), serverAuth and clientAuth, the
+    subject alternative names ``alt_names`` (``"IP:..."``, ``"DNS:..."``) if any, and the
+    key identifiers of its subject and of the CA's (which the start-up check compares)."""
+    ca_key_id = ca.extensions.get_extension_for_class(x509.SubjectKeyIdentifier).value
+    usage = x509.KeyUsage(
+        digital_signature=True, content_commitment=False, key_encipherment=True,
+        data_encipherment=False, key_agreement=False, key_cert_sign=False, crl_sign=False,
+        encipher_only=False, decipher_only=False,
+    )  # fmt: skip
+    builder = (
+        _builder(common_name, key, ca.subject, now, days)
+        .add_extension(
+            x509.AuthorityKeyIdentifier.from_issuer_subject_key_identifier(ca_key_id), False
+        )
+        .add_extension(x509.BasicConstraints(ca=False, path_length=None), critical=True)
+        .add_extension(usage, critical=True)
+        .add_extension(
+            x509.ExtendedKeyUsage(
+                [ExtendedKeyUsageOID.SERVER_AUTH, ExtendedKeyUsageOID.CLIENT_AUTH]
+            ),
+            critical=False,
+        )
+    )
+    if alt_names:
+        builder = builder.add_extension(
+            x509.SubjectAlternativeName([_general_name(n) for n in alt_names]), critical=False
+        )
+    return builder.sign(ca_key, hashes.SHA256())

@@ -19,32 +19,45 @@ and answers steering requests, and so on. The folder holds:
 
 A machine receives only ``ca.pem`` and its own sub-folders (the router's machine also
 ``identities.json``). ``covswarm credentials DIR`` (:func:`issue_credentials`) writes the
-folder with the ``openssl`` command-line tool.
+folder: EC P-256 keys and certificates valid ``CERT_DAYS`` days, made in-process
+(:mod:`protocol.certificates`).
+
+At start-up a secured process checks its files (:func:`check_secure_folder`) and, while it
+runs, ends with an error when its certificate or the CA's expires (:func:`watch_expiry`):
+zenoh closes its links then, and a process that ran on would hear and be heard by nobody.
 """
 
 from __future__ import annotations
 
 import ipaddress
 import json
+import logging
 import os
 import re
-import shutil
-import subprocess
+import signal
 import tempfile
-from collections.abc import Iterable, Sequence
+import threading
+from collections.abc import Callable, Iterable, Sequence
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
 import click
 
-from covswarm.protocol.certificates import certificate_names, certificate_trust
 from covswarm.protocol.keys import check_id, format_ids, parse_ids
+
+# protocol.certificates (cryptography, ~30 ms to import) is imported where a secure folder
+# is read: every process imports this module for its --secure option, most never use it.
+
+log = logging.getLogger("covswarm.security")
 
 CA, CERT, KEY, IDENTITIES = "ca.pem", "cert.pem", "key.pem", "identities.json"
 CA_KEY = Path("ca") / "ca.key"
 ROUTER = "router"
 CERT_DAYS = 365
+# s: how far ahead a process that does not know how long it will run warns of its
+# certificate's end (watch_expiry).
+EXPIRY_NOTICE = 24 * 3600.0
 # Roles with one identity per robot id, and roles with a single identity.
 ID_ROLES = ("agent", "robot")
 # ros2: the ROS 2 nodes (rmw_zenoh) a bridge talks to, when they share the swarm's router.
@@ -130,11 +143,14 @@ def apply_security(
 
 def check_secure_folder(directory: Path, name: str) -> Path:
     """The secure folder ``directory`` (resolved) if it holds what identity ``name``
-    presents: ``ca.pem``, ``name/cert.pem`` (a certificate of that name) and
-    ``name/key.pem``, and for the router (``name`` ``router``) a readable
+    presents: ``ca.pem``, ``name/cert.pem`` (a certificate of that name, valid now and
+    issued by that CA: :func:`check_trust`) and ``name/key.pem`` (its key:
+    :func:`check_key`), and for the router (``name`` ``router``) a readable
     ``identities.json``; else ValueError saying what is wrong, so a misconfigured process
     (or a launcher, before it starts anything) fails in one line instead of running
     unsecured or being refused by the router in silence."""
+    from covswarm.protocol.certificates import certificate_names
+
     directory = Path(directory).resolve()
     if name != ROUTER:
         require_identities(directory, [name])  # names the command that issues it
@@ -158,6 +174,7 @@ def check_secure_folder(directory: Path, name: str) -> Path:
     if name == ROUTER:
         read_identities(directory)  # its access-control list: malformed, said here
     check_trust(directory, name)
+    check_key(directory, name)
     return directory
 
 
@@ -167,6 +184,8 @@ def check_trust(directory: Path, name: str, now: datetime | None = None) -> None
     expired or not yet valid at ``now`` (default: this machine's clock), or the
     certificate issued by another CA (its authority key identifier is not the CA's key
     identifier). zenoh says only "Unable to connect", the same as for no router at all."""
+    from covswarm.protocol.certificates import certificate_trust
+
     now = datetime.now(timezone.utc) if now is None else now
     ca_path, cert_path = directory / CA, directory / name / CERT
     ca, cert = certificate_trust(ca_path), certificate_trust(cert_path)
@@ -178,19 +197,205 @@ def check_trust(directory: Path, name: str, now: datetime | None = None) -> None
             )
         if now > trust.not_after:
             again = (
-                "make a new secure folder"
+                "make a new secure folder (covswarm credentials)"
                 if path == ca_path
-                else f"remove {name}/ and issue it again"
+                else issue_again(directory, name)
             )
-            raise ValueError(
-                f"{path} expired on {trust.not_after:%Y-%m-%d %H:%M} UTC: {again} "
-                "(covswarm credentials)"
-            )
+            raise ValueError(f"{path} expired on {trust.not_after:%Y-%m-%d %H:%M} UTC: {again}")
     if cert.authority_key_id and ca.key_id and cert.authority_key_id != ca.key_id:
         raise ValueError(
             f"{cert_path} was issued by another CA than {ca_path}: copy {name}/ from the "
             "folder whose CA issued it, or issue it again from this one"
         )
+
+
+def check_key(directory: Path, name: str) -> None:
+    """ValueError, in one line naming both files, unless identity ``name``'s ``key.pem`` is
+    an unencrypted private key that reads and is the key of its ``cert.pem`` (say one copied
+    from another identity's folder, or left by an earlier issue): TLS would fail the
+    handshake with zenoh's bare "Unable to connect"."""
+    from covswarm.protocol.certificates import key_matches, load_certificate, load_private_key
+
+    key_path, cert_path = directory / name / KEY, directory / name / CERT
+    try:
+        key = load_private_key(key_path)
+    except OSError as exc:
+        raise ValueError(f"cannot read {key_path}: {exc.strerror}") from None
+    except ValueError as exc:
+        raise ValueError(f"{exc}: {issue_again(directory, name)}") from None
+    if not key_matches(key, load_certificate(cert_path)):
+        raise ValueError(
+            f"{key_path} does not belong to {cert_path} (another key's certificate): "
+            f"{issue_again(directory, name)}"
+        )
+
+
+def issue_again(directory: Path, name: str) -> str:
+    """What to do about identity ``name`` of the secure folder ``directory`` whose files are
+    spoilt or expire: its ``covswarm credentials`` command, said as the end of a refusal."""
+    from covswarm.protocol.certificates import certificate_names
+
+    options = issue_options([name])
+    if name == ROUTER:  # the names it has, or its clients on other hosts would be refused
+        try:
+            named = certificate_names(directory / ROUTER / CERT).alt_names
+        except (OSError, ValueError):
+            named = frozenset()
+        hosts = sorted(n.partition(":")[2] for n in named)
+        options = "".join(f" --host {h}" for h in hosts if h not in ("127.0.0.1", "localhost"))
+    command = f"covswarm credentials {directory}{options}"
+    if not (directory / CA_KEY).is_file():  # a robot's or a host's folder: no CA key here
+        command = (
+            f"on the machine that holds the CA's key ({CA_KEY}), covswarm credentials "
+            f"<its folder>{options}, then copy {name}/ here"
+        )
+    return f"remove {name}/ and issue it again ({command})"
+
+
+def credentials_end(directory: Path, names: Iterable[str]) -> tuple[datetime, Path]:
+    """(instant, file) of the first certificate to end among those of the identities
+    ``names`` of the secure folder ``directory`` and its ``ca.pem`` (whose end makes every
+    certificate of the folder untrusted): when zenoh closes the first of their links.
+    ValueError naming a file that is no certificate."""
+    from covswarm.protocol.certificates import certificate_trust
+
+    directory = Path(directory)
+    # The CA first: of two that end together, issuing the CA's anew is what is needed.
+    paths = [directory / CA, *(directory / name / CERT for name in names)]
+    return min(((certificate_trust(p).not_after, p) for p in paths), key=lambda end: end[0])
+
+
+def expires_in(not_after: datetime, now: datetime) -> float:
+    """Seconds from ``now`` until ``not_after`` (a certificate's end; negative once past)."""
+    return (not_after - now).total_seconds()
+
+
+def _span(seconds: float) -> str:
+    """``seconds`` for a person: "40 s", "12 min", "5.5 h", "3 days"."""
+    for unit, size in (("days", 86400.0), ("h", 3600.0), ("min", 60.0)):
+        if seconds >= 2 * size:
+            return f"{seconds / size:.3g} {unit}"
+    return f"{max(seconds, 0.0):.0f} s"
+
+
+def expiry_warning(
+    path: Path, not_after: datetime, now: datetime, planned: float | None = None
+) -> str | None:
+    """A process's start-up warning about the certificate ``path`` it relies on (its own or
+    the CA's), which ends at ``not_after``: a sentence when that falls within ``planned`` s
+    of ``now`` (the run the process plans, if it knows it) or else within
+    :data:`EXPIRY_NOTICE`; None when it outlasts them."""
+    left = expires_in(not_after, now)
+    if left > (EXPIRY_NOTICE if planned is None else planned):
+        return None
+    within = (
+        f"within the {_span(planned)} this run plans"
+        if planned is not None
+        else f"within {_span(EXPIRY_NOTICE)}"
+    )
+    return (
+        f"{path} expires on {not_after:%Y-%m-%d %H:%M:%S} UTC, in {_span(left)} ({within}): "
+        "zenoh then closes the links that rely on it, and their processes stop"
+    )
+
+
+def expired_error(path: Path, not_after: datetime, advice: str) -> str:
+    """The error a running process logs when the certificate ``path`` ends at ``not_after``."""
+    return (
+        f"{path} expired on {not_after:%Y-%m-%d %H:%M:%S} UTC: zenoh closed this process's "
+        f"links, so it stops (exit status 1); {advice}"
+    )
+
+
+class ExpiryWatch:
+    """A process's timer for the end of the certificate it presents (``path``, ending at
+    ``not_after``; ``path`` None: open mode, nothing to watch).
+
+    Zenoh closes a link when its certificate expires (``close_link_on_expiration``); the
+    process then hears nothing and is heard by nobody, with nothing in its log. At that
+    instant the timer logs :func:`expired_error` and calls ``stop`` (default: SIGTERM to the
+    main thread, whose handler ends the process's loop as Ctrl-C would: robots held, tokens
+    undeclared); leaving the ``with`` block then raises SystemExit(1).
+    """
+
+    def __init__(
+        self,
+        path: Path | None,
+        not_after: datetime | None = None,
+        advice: str = "",
+        stop: Callable[[], None] | None = None,
+    ) -> None:
+        self.path, self.not_after, self.advice = path, not_after, advice
+        self.expired = False
+        self._stop = _terminate_main_thread if stop is None else stop
+        self._timer: threading.Timer | None = None
+
+    def start(self, now: datetime | None = None) -> None:
+        if self.path is None or self.not_after is None:
+            return
+        now = datetime.now(timezone.utc) if now is None else now
+        delay = min(max(expires_in(self.not_after, now), 0.0), threading.TIMEOUT_MAX)
+        self._timer = threading.Timer(delay, self._expire)
+        self._timer.daemon = True  # never what keeps a finished process alive
+        self._timer.start()
+
+    def cancel(self) -> None:
+        if self._timer is not None:
+            self._timer.cancel()
+
+    def _expire(self) -> None:
+        self.expired = True
+        assert self.path is not None and self.not_after is not None
+        log.error("%s", expired_error(self.path, self.not_after, self.advice))
+        self._stop()
+
+    def exit_if_expired(self) -> None:
+        """SystemExit(1) once the certificate expired while the process ran."""
+        if self.expired:
+            raise SystemExit(1)
+
+    def __enter__(self) -> ExpiryWatch:
+        self.start()
+        return self
+
+    def __exit__(self, kind: type[BaseException] | None, *rest: object) -> None:
+        self.cancel()
+        if kind is None or issubclass(kind, SystemExit):
+            self.exit_if_expired()
+
+
+def _terminate_main_thread() -> None:
+    # The main thread's own handler (runtime.clock.StopFlag, the console's event loop) runs
+    # at once, even from a sleep: a signal sent to the process could wake another thread.
+    signal.pthread_kill(threading.main_thread().ident or 0, signal.SIGTERM)
+
+
+def watch_expiry(
+    directory: Path | None,
+    role: str,
+    ids: int | Sequence[int] | None = None,
+    planned: float | None = None,
+    now: datetime | None = None,
+) -> ExpiryWatch:
+    """The :class:`ExpiryWatch` of a process presenting the certificate of ``role`` and
+    ``ids`` (``router``: the router's) of the secure folder ``directory`` (None: open mode,
+    a watch that does nothing), once it logged :func:`expiry_warning` if that or the CA's
+    certificate ends within ``planned`` s (the run it plans; None: unknown). The files
+    were checked (:func:`check_secure_folder`) when its session was configured."""
+    if directory is None:
+        return ExpiryWatch(None)
+    directory = Path(directory).resolve()
+    name = ROUTER if role == ROUTER else identity_name(role, ids)
+    now = datetime.now(timezone.utc) if now is None else now
+    not_after, path = credentials_end(directory, [name])
+    advice = (
+        issue_again(directory, name)
+        if path.name == CERT
+        else "make a new secure folder (covswarm credentials into a fresh folder)"
+    )
+    if (warning := expiry_warning(path, not_after, now, planned)) is not None:
+        log.warning("%s; %s before then", warning, advice)
+    return ExpiryWatch(path, not_after, advice)
 
 
 def require_identities(directory: Path, names: Iterable[str]) -> None:
@@ -249,39 +454,47 @@ def issue_options(names: Iterable[str]) -> str:
     return options
 
 
-def _openssl(*args: str) -> None:
-    subprocess.run(["openssl", *args], check=True, capture_output=True, timeout=60)
+def _write_file(path: Path, data: bytes, mode: int = 0o600) -> None:
+    """``data`` into ``path``, replaced whole: written to a file created owner-only (never
+    readable by others, even for an instant, whatever the umask), then given ``mode``."""
+    fd, scratch = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.")
+    try:
+        with os.fdopen(fd, "wb") as file:
+            file.write(data)
+        os.chmod(scratch, mode)
+        os.replace(scratch, path)
+    except BaseException:
+        Path(scratch).unlink(missing_ok=True)
+        raise
 
 
-_EC = ("-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:P-256", "-nodes")
+def _load_ca(directory: Path) -> tuple[Any, Any]:
+    """The CA's certificate and private key, for issuing; ValueError if they do not read or
+    do not go together (whatever it signed would be trusted by nobody)."""
+    from covswarm.protocol.certificates import key_matches, load_certificate, load_private_key
+
+    ca, ca_key = load_certificate(directory / CA), load_private_key(directory / CA_KEY)
+    if not key_matches(ca_key, ca):
+        raise ValueError(f"{directory / CA_KEY} is not the key of {directory / CA}: cannot issue")
+    return ca, ca_key
 
 
-def _issue(directory: Path, name: str, alt_names: Sequence[str]) -> None:
+def _issue(directory: Path, name: str, alt_names: Sequence[str], ca: Any, ca_key: Any) -> None:
     """Key and certificate for ``name`` in ``directory/name/``, signed by the CA."""
+    from covswarm.protocol.certificates import (
+        certificate_pem,
+        key_pem,
+        make_certificate,
+        new_key,
+    )
+
     folder = directory / name
     folder.mkdir(mode=0o700, exist_ok=True)
-    with tempfile.TemporaryDirectory() as scratch:
-        extensions = Path(scratch) / "ext.cnf"
-        lines = [
-            "[ext]",
-            "basicConstraints=critical,CA:FALSE",
-            "keyUsage=critical,digitalSignature,keyEncipherment",
-            "extendedKeyUsage=serverAuth,clientAuth",
-        ]
-        if alt_names:
-            lines.append(f"subjectAltName={','.join(alt_names)}")
-        extensions.write_text("\n".join(lines) + "\n")
-        # umask: the key is created owner-only, never readable by others even for an instant.
-        old = os.umask(0o077)
-        try:
-            _openssl(
-                "req", "-x509", *_EC, "-keyout", str(folder / KEY), "-out", str(folder / CERT),
-                "-CA", str(directory / CA), "-CAkey", str(directory / CA_KEY),
-                "-days", str(CERT_DAYS), "-subj", f"/CN={name}",
-                "-config", str(extensions), "-extensions", "ext",
-            )  # fmt: skip
-        finally:
-            os.umask(old)
+    key = new_key()
+    now = datetime.now(timezone.utc)
+    certificate = make_certificate(key, name, alt_names, ca, ca_key, now, CERT_DAYS)
+    _write_file(folder / KEY, key_pem(key))
+    _write_file(folder / CERT, certificate_pem(certificate))
 
 
 def _router_alt_names(hosts: Iterable[str]) -> list[str]:
@@ -335,32 +548,31 @@ def issue_credentials(
     robots, ``--ids``, presents one certificate for them all), one agent per group of
     ``agent_groups`` and one robot per group of ``robot_groups``.
     Run again on the same folder, it adds identities signed by the same CA and keeps the
-    existing ones; a folder of other files is refused (:func:`check_credentials_target`).
-    Private files are owner-only. RuntimeError without ``openssl``.
+    existing ones (issuing again one whose folder was removed); a folder of other files is
+    refused (:func:`check_credentials_target`). Private files are owner-only from creation.
     """
+    from covswarm.protocol.certificates import (
+        certificate_names,
+        certificate_pem,
+        key_pem,
+        make_ca,
+        new_key,
+    )
+
     alt_names = _router_alt_names(hosts)  # bad input refused before anything is written
     directory = Path(directory)
     check_credentials_target(directory)
-    if shutil.which("openssl") is None:
-        raise RuntimeError("covswarm credentials needs the 'openssl' command-line tool")
     directory.mkdir(parents=True, exist_ok=True)
     known = read_identities(directory) if (directory / IDENTITIES).exists() else []
     if not (directory / CA_KEY).is_file():
         if (directory / CA).exists():
             raise ValueError(f"{directory} has a ca.pem but not its key {CA_KEY}: cannot issue")
         (directory / CA_KEY.parent).mkdir(mode=0o700, exist_ok=True)
-        old = os.umask(0o077)
-        try:
-            _openssl(
-                "req", "-x509", *_EC, "-keyout", str(directory / CA_KEY),
-                "-out", str(directory / CA), "-days", str(CERT_DAYS),
-                "-subj", "/CN=covswarm CA",
-                "-addext", "basicConstraints=critical,CA:TRUE",
-                "-addext", "keyUsage=critical,keyCertSign,cRLSign",
-            )  # fmt: skip
-        finally:
-            os.umask(old)
-        (directory / CA).chmod(0o644)
+        ca_key = new_key()
+        ca = make_ca(ca_key, "covswarm CA", datetime.now(timezone.utc), CERT_DAYS)
+        _write_file(directory / CA_KEY, key_pem(ca_key))
+        _write_file(directory / CA, certificate_pem(ca), mode=0o644)
+    ca, ca_key = _load_ca(directory)
     wanted: list[tuple[str, list[int]]] = [(role, []) for role in SINGLE_ROLES]
     wanted += [("agent", [i]) for i in agents] + [("robot", [i]) for i in robots]
     wanted += [(role, sorted(set(group))) for group in groups for role in ID_ROLES]
@@ -375,14 +587,15 @@ def issue_credentials(
             except ValueError:
                 earlier = frozenset()  # not a certificate: nothing to keep
             alt_names += sorted(earlier - set(alt_names))
-        _issue(directory, ROUTER, alt_names)
+        _issue(directory, ROUTER, alt_names, ca, ca_key)
     for role, ids in wanted:
         name = identity_name(role, ids or None)
-        if name in names:
+        if name in names and (directory / name / CERT).is_file():
             continue
-        _issue(directory, name, ())
-        known.append({"name": name, "role": role, "ids": ids})
-        names.add(name)
+        _issue(directory, name, (), ca, ca_key)
+        if name not in names:
+            known.append({"name": name, "role": role, "ids": ids})
+            names.add(name)
     (directory / IDENTITIES).write_text(json.dumps(known, indent=1) + "\n")
     return directory
 
@@ -469,7 +682,7 @@ def credentials_command(
             agent_groups=[parse_ids(group) for group in agent_groups],
             robot_groups=[parse_ids(group) for group in robot_groups],
         )  # fmt: skip
-    except (RuntimeError, ValueError, subprocess.CalledProcessError) as exc:
+    except ValueError as exc:
         raise click.ClickException(str(exc)) from exc
     except OSError as exc:  # a folder that cannot be made there
         raise click.ClickException(f"{directory}: {exc.strerror or exc}") from None

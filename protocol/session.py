@@ -16,7 +16,6 @@ from pathlib import Path
 
 import zenoh
 
-from covswarm.protocol.certificates import certificate_names
 from covswarm.protocol.security import (
     CERT,
     ROUTER,
@@ -125,6 +124,8 @@ def check_router_hosts(directory: Path, listen: Iterable[str]) -> None:
     every host of the ``listen`` endpoints (a wildcard address aside: this host's processes
     reach it on loopback, which it always names): a client connecting to an address the
     certificate does not name is refused with no reason but "Unable to connect"."""
+    from covswarm.protocol.certificates import certificate_names  # cryptography: secure only
+
     names = certificate_names(Path(directory) / ROUTER / CERT)
     for endpoint in listen:
         host = _host_port(endpoint)[0]

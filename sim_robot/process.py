@@ -55,7 +55,7 @@ from covswarm.protocol.inbound import (
     accept_command,
 )
 from covswarm.protocol.messages import MAX_ANGLE, MAX_COORD, MAX_SEQ, MAX_STAMP, SCHEMA_VERSION
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, watch_expiry
 from covswarm.protocol.session import open_session, session_config
 from covswarm.runtime import options
 from covswarm.runtime.claims import claim_or_refuse
@@ -612,4 +612,5 @@ def run_robot_process(config: RobotConfig) -> None:
         )
     except ValueError as exc:
         raise click.BadParameter(str(exc)) from exc
-    run_robots(sims, config.swarm, session, config.rate, config.pose_rate, config.time_scale)
+    with watch_expiry(config.secure, "robot", robot_ids):  # its certificate's end stops it
+        run_robots(sims, config.swarm, session, config.rate, config.pose_rate, config.time_scale)

@@ -1,7 +1,8 @@
 """What a certificate names (covswarm.protocol.certificates), read against openssl's own
-reading of the certificates ``covswarm credentials`` issues, and the two silent failures it
-turns into refusals at start-up: another identity's certificate, and a router listening on
-an address its certificate does not name."""
+reading of the certificates ``covswarm credentials`` issues (made with cryptography: openssl
+is the independent reference here), and the silent failures it turns into refusals at
+start-up: another identity's certificate, a router listening on an address its certificate
+does not name, a certificate expired or of another CA."""
 
 from __future__ import annotations
 
@@ -14,7 +15,7 @@ from pathlib import Path
 import pytest
 
 from covswarm.protocol.certificates import Names, certificate_names, certificate_trust
-from covswarm.protocol.security import check_trust, issue_credentials
+from covswarm.protocol.security import CERT_DAYS, check_trust, issue_credentials
 from covswarm.protocol.session import check_router_hosts, session_config
 
 
@@ -106,6 +107,42 @@ def test_the_validity_and_key_ids_read_are_openssls(secure: Path) -> None:
         assert trust.authority_key_id == expected[3], path
     ca = certificate_trust(secure / "ca.pem")
     assert certificate_trust(secure / "agent-0" / "cert.pem").authority_key_id == ca.key_id
+
+
+def openssl_text(*args: str) -> str:
+    return subprocess.run(["openssl", *args], capture_output=True, text=True, check=True).stdout
+
+
+def test_openssl_verifies_what_covswarm_credentials_issues(secure: Path) -> None:
+    """The keys and certificates made in-process (cryptography), read by openssl: every
+    certificate verifies against ca.pem, carries the extensions the openssl command line
+    gave it (and zenoh's TLS was given), lasts CERT_DAYS days, and certifies the P-256 key
+    beside it, which is unencrypted PKCS#8 PEM."""
+    ca = openssl_text("x509", "-noout", "-text", "-in", str(secure / "ca.pem"))
+    assert re.search(r"Basic Constraints: critical\s+CA:TRUE", ca)
+    assert re.search(r"Key Usage: critical\s+Certificate Sign, CRL Sign", ca)
+    for folder in sorted(p.parent for p in secure.glob("*/cert.pem")):
+        cert, key = folder / "cert.pem", folder / "key.pem"
+        verified = subprocess.run(
+            ["openssl", "verify", "-x509_strict", "-CAfile", str(secure / "ca.pem"), str(cert)],
+            capture_output=True, text=True,
+        )  # fmt: skip
+        assert verified.returncode == 0 and verified.stdout.strip().endswith("OK"), verified
+        text = openssl_text("x509", "-noout", "-text", "-in", str(cert))
+        assert re.search(r"Basic Constraints: critical\s+CA:FALSE", text), folder
+        assert re.search(r"Key Usage: critical\s+Digital Signature, Key Encipherment", text)
+        assert "TLS Web Server Authentication, TLS Web Client Authentication" in text
+        assert "Signature Algorithm: ecdsa-with-SHA256" in text
+        start, end, _, _ = openssl_trust(cert)
+        assert end - start == timedelta(days=CERT_DAYS), folder
+        assert key.read_text().startswith("-----BEGIN PRIVATE KEY-----\n"), folder  # PKCS#8
+        assert "ASN1 OID: prime256v1" in openssl_text("pkey", "-noout", "-text", "-in", str(key))
+        public = openssl_text("pkey", "-pubout", "-in", str(key))
+        assert public == openssl_text("x509", "-noout", "-pubkey", "-in", str(cert)), folder
+    router = openssl_text(
+        "x509", "-noout", "-ext", "subjectAltName", "-in", str(secure / "router" / "cert.pem")
+    )
+    assert "IP Address:127.0.0.1, DNS:localhost" in router
 
 
 def test_an_expired_or_foreign_certificate_is_refused_before_the_session(

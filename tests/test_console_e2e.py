@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 import secrets
-import shutil
 import socket
 import subprocess
 import time
@@ -390,7 +389,7 @@ def test_a_console_off_the_default_address_needs_its_token(swarm_run, browser) -
 
 
 def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
-    require, tmp_path: Path, browser
+    tmp_path: Path, browser
 ) -> None:
     import zenoh
 
@@ -398,7 +397,6 @@ def test_a_secured_console_joins_with_the_credentials_and_only_with_them(
     from covswarm.protocol.security import make_test_credentials
     from covswarm.protocol.session import session_config
 
-    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
     secure = make_test_credentials(tmp_path / "secure")
     with socket.socket() as probe:
         probe.bind(("127.0.0.1", 0))
@@ -528,14 +526,13 @@ def test_covswarm_run_console_serves_the_page_and_stops_with_the_run(
         assert len(resources["cpu_percent_of_core"]["console"]) == 1
 
 
-def test_a_secured_run_console_needs_the_token_the_launcher_prints(require, tmp_path: Path) -> None:
+def test_a_secured_run_console_needs_the_token_the_launcher_prints(tmp_path: Path) -> None:
     """``covswarm run --secure DIR --console``: the console steers with the swarm's
     credentials, so on 127.0.0.1 too it serves only requests with its token. The launcher
     prints the URL with it (one line); the token reaches the console in an owner-only file,
     never on a command line or in a log, and goes with the run."""
     from covswarm.protocol.security import make_test_credentials
 
-    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
     secure = make_test_credentials(tmp_path / "secure", ids=range(2))
     swarm, out = new_swarm(), tmp_path / "run"
     launcher_log = tmp_path / "run.launcher.log"

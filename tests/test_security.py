@@ -24,12 +24,6 @@ from covswarm.protocol.session import session_config
 zenoh = pytest.importorskip("zenoh")
 
 
-@pytest.fixture(scope="module", autouse=True)
-def openssl(require) -> None:
-    """Credentials are made with openssl: skipped without it here, a failure under CI."""
-    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
-
-
 REPO = Path(__file__).resolve().parent.parent
 COVSWARM = str(Path(sys.executable).with_name("covswarm"))
 

@@ -139,15 +139,12 @@ def test_steer_without_a_coordinator_exits_non_zero(tmp_path: Path) -> None:
     assert "no coordinator" in done.stderr
 
 
-def test_steering_a_secured_swarm_needs_the_credentials(tmp_path: Path, require) -> None:
-    import shutil
-
+def test_steering_a_secured_swarm_needs_the_credentials(tmp_path: Path) -> None:
     import zenoh
 
     from covswarm.protocol import session_config
     from covswarm.protocol.security import make_test_credentials
 
-    require(shutil.which("openssl") is not None, "needs openssl (apt-get install openssl)")
     secure = make_test_credentials(tmp_path / "secure")
     endpoint = f"tls/127.0.0.1:{free_port()}"
     swarm = new_swarm()
