@@ -7,8 +7,11 @@ deploy.netsim (the agents' own code over a simulated network) of scenarios/circl
 timeout 0.5 s, per seed, twice: as main filters (covswarm.agent.brain.BEACON_TRUST: a robot
 known only from a beacon older than that is no row while its AgentState is awaited) and
 with every beacon-only robot a row however old its beacon (BEACON_TRUST infinite, the rule
-before 30 Nov 2026). Prints a Markdown row per seed and rule: e_a's second-half mean and
-final value (m), and the team's safety_relaxed steps. docs/scaling.md quotes it (~5 min of
+before 30 Nov 2026). Since 3 Dec 2026 the same horizon also keeps such robots out of the
+local diagrams (scripts/phantom_diagrams.py): the first row has them in the filter and the
+diagrams, as before 30 Nov, the second in neither; figures from before 3 Dec had them in
+the diagrams in both rows. Prints a Markdown row per seed and rule: e_a's second-half mean
+and final value (m), and the team's safety_relaxed steps. docs/scaling.md quotes it (~5 min of
 CPU a run at 400 robots).
 """
 
