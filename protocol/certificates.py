@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import ipaddress
 import re
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime, timedelta
 from pathlib import Path
@@ -101,24 +101,6 @@ def _trust(certificate: x509.Certificate) -> Trust:
     )
 
 
-def read_names(der: bytes) -> Names:
-    """The names of the DER certificate ``der``; ValueError if it is not one."""
-    return _from_der(der, _names)
-
-
-def read_trust(der: bytes) -> Trust:
-    """The validity and key identifiers of the DER certificate ``der``; ValueError if it is
-    not one."""
-    return _from_der(der, _trust)
-
-
-def _from_der(der: bytes, read: Callable[[x509.Certificate], _T]) -> _T:
-    try:
-        return read(x509.load_der_x509_certificate(der))
-    except _UNREADABLE as exc:
-        raise ValueError(f"not a certificate ({exc})") from None
-
-
 def load_certificate(path: Path) -> x509.Certificate:
     """The first certificate of the PEM file at ``path``, its extensions read; ValueError
     naming the file if it holds none that reads."""
@@ -140,8 +122,8 @@ def certificate_names(path: Path) -> Names:
 
 
 def certificate_trust(path: Path) -> Trust:
-    """:func:`read_trust` of the first certificate of the PEM file at ``path``; ValueError
-    naming the file if it holds none that reads."""
+    """The validity and key identifiers of the first certificate of the PEM file at
+    ``path``; ValueError naming the file if it holds none that reads."""
     return _trust(load_certificate(path))
 
 
