@@ -20,6 +20,12 @@ SCRIPT_FILE = "script.json"  # in --out: where the script's clock stands, for --
 DEPLOY_TIMEOUT = 60.0  # s of mission time a deploy hold lasts at most, by default
 
 
+def planned_wall(duration: float, deploy_timeout: float, time_scale: float) -> float:
+    """Wall seconds a run may last: its mission (``duration``, s of mission time) and its
+    longest deploy hold (``deploy_timeout``, s), at ``time_scale`` mission s per wall s."""
+    return (duration + deploy_timeout) / time_scale
+
+
 @dataclass(frozen=True)
 class CoordinatorConfig:
     """Every ``covswarm coordinator`` option; times in s, distances in m, rates in Hz."""

@@ -28,6 +28,7 @@ from covswarm.coordinator.config import (
     SCRIPT_FILE,
     STEERING_JOURNAL,
     CoordinatorConfig,
+    planned_wall,
 )
 from covswarm.coordinator.core import (
     TILE_SPACINGS,
@@ -97,8 +98,7 @@ def run_coordinator(config: CoordinatorConfig) -> None:
             raise click.UsageError(f"--resume: {exc}") from None
     stop = StopFlag()
     zenoh_config = session_config(list(config.connect), secure=config.secure, role="coordinator")
-    # The planned run: the mission and its longest deploy hold, in wall seconds.
-    planned = (settings.duration + settings.deploy_timeout) / settings.time_scale
+    planned = planned_wall(settings.duration, settings.deploy_timeout, settings.time_scale)
     expiry = watch_expiry(config.secure, "coordinator", planned=planned)
     with open_session(zenoh_config) as session:
         expiry.start()  # its certificate's end stops the run; the outputs are still written

@@ -33,7 +33,7 @@ import click
 from rich.console import Console
 
 from covswarm.coordinator.broadcastable import check_broadcastable
-from covswarm.coordinator.config import DEPLOY_TIMEOUT
+from covswarm.coordinator.config import DEPLOY_TIMEOUT, planned_wall
 from covswarm.coordinator.main import OUTPUTS_NOT_WRITTEN
 from covswarm.coordinator.pace import check_deploy_kappa
 from covswarm.deploy.display import live_brain_tick, summary_table
@@ -383,9 +383,8 @@ def run_swarm(run: RunConfig) -> None:
             end, ending = credentials_end(run.secure, sorted(names))
         except ValueError as exc:
             raise click.UsageError(str(exc)) from None
-        # Said here once for the run (each child also logs it): the mission and its longest
-        # deploy hold, in wall seconds.
-        wall = (duration + run.deploy_timeout) / run.time_scale
+        # Said here once for the run (each child also logs it).
+        wall = planned_wall(duration, run.deploy_timeout, run.time_scale)
         if (warning := expiry_warning(ending, end, datetime.now(timezone.utc), wall)) is not None:
             console.log(f"[yellow]warning: {warning}")
     log_dir = out_dir / "logs"

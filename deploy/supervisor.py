@@ -245,7 +245,7 @@ def run_processes(
     """
     from rich.live import Live
 
-    progress = Progress(agents, duration, routes=tuple(routes))
+    progress = Progress(agents, duration, routes=routes)
     if not console.is_terminal:
         for line in routes:
             console.log(line)
