@@ -26,13 +26,14 @@ from __future__ import annotations
 
 import math
 from collections.abc import Sequence
+from datetime import datetime, timezone
 from typing import Any
 
 import click
 
 from covswarm.protocol.keys import check_swarm, steer_key
 from covswarm.protocol.messages import MAX_ANGLE
-from covswarm.protocol.security import SECURE_OPTION
+from covswarm.protocol.security import SECURE_OPTION, credentials_end, expiry_warning
 from covswarm.protocol.steering import MAX_DURATION, SteerReply, SteerRequest
 from covswarm.runtime.options import FiniteFloat, connect_option
 
@@ -236,6 +237,12 @@ def steer_command(
         config = session_config(list(connect), secure=secure, role="operator")
     except ValueError as exc:
         raise click.UsageError(str(exc)) from None
+    if secure is not None:
+        # A request lasts seconds: the operator is told of credentials about to end (one
+        # that ended already was refused above), not watched as a long-lived process is.
+        end, ending = credentials_end(secure, ["operator"])
+        if (warning := expiry_warning(ending, end, datetime.now(timezone.utc))) is not None:
+            click.echo(f"warning: {warning}", err=True)
     try:
         session = open_session(config)
     except SessionError as exc:  # no router there, or it refused our credentials

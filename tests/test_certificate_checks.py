@@ -340,6 +340,31 @@ def test_covswarm_run_warns_of_a_certificate_that_ends_before_the_run_would(
     assert run.exit_code == 1 and "expires on" not in run.output, run.output
 
 
+def test_covswarm_steer_warns_of_an_operator_certificate_about_to_end(
+    secure: Path, tmp_path: Path
+) -> None:
+    """A steering request lasts seconds, so it is not watched; the operator is told when
+    the credentials it presents end within EXPIRY_NOTICE (here it then finds no router)."""
+    from click.testing import CliRunner
+
+    from covswarm.deploy.cli import main
+
+    folder = copy_of(secure, tmp_path)
+    now = datetime.now(timezone.utc)
+    nowhere = f"tls/127.0.0.1:{free_port()}"
+    args = ["steer", "--secure", str(folder), "--connect", nowhere, "--swarm", "s"]
+    args += ["--translate", "0.1,0"]
+    build_certificate(folder, "operator", now - timedelta(minutes=1), now + timedelta(hours=3))
+    run = CliRunner().invoke(main, args)
+    said = " ".join(run.output.split())
+    assert run.exit_code == 3 and "no answer: cannot join" in said, run.output
+    assert "warning: " in said and "operator/cert.pem expires on" in said, run.output
+    assert "in 3 h (within 24 h)" in said
+    build_certificate(folder, "operator", now - timedelta(minutes=1), now + timedelta(days=2))
+    run = CliRunner().invoke(main, args)
+    assert run.exit_code == 3 and "expires on" not in run.output, run.output
+
+
 @pytest.mark.e2e
 def test_a_robot_whose_certificate_expires_mid_run_exits_with_the_reason(
     secure: Path, tmp_path: Path
