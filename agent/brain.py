@@ -67,6 +67,7 @@ from covswarm.tvd.drive import (
     DiffDrive,
     pass_sides,
     steer_one,
+    stopped_beside,
     stopped_dead_one,
     turn_in_place,
     twist_from_wheels,
@@ -1293,10 +1294,14 @@ class AgentBrain:
                 self._stopped_since = None
             elif self._stopped_since is None:
                 self._stopped_since = now
-            elif (
-                self._slide_side is None
+            if (
+                self._stopped_since is not None
+                and self._slide_side is None
                 and self._hold <= ARC_HOLD
-                and now - self._stopped_since >= SLIDE_AFTER
+                and (
+                    now - self._stopped_since >= SLIDE_AFTER
+                    or stopped_beside((x, y), heading, filtering.near, self._safe_distance)
+                )
             ):
                 # From the next step on it aims at its slide until the way is clear
                 # (_safety_inputs), not back at the robot that stopped it; dead ahead, on

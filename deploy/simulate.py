@@ -150,6 +150,7 @@ def simulate(
         SLIDE_AFTER,
         integrate,
         pass_sides,
+        stopped_beside,
         stopped_dead,
         turn_in_place,
         twist_from_wheels,
@@ -340,11 +341,13 @@ def simulate(
                 sides = np.ones(n)
                 held = np.flatnonzero(active)
                 sides[held] = pass_sides(positions[held], aim[held], positions, SAFETY_RADIUS)
-                # stopped dead for SLIDE_AFTER s, toward the slide (covswarm.tvd.drive.steer),
-                # as an agent
+                # stopped dead for SLIDE_AFTER s, or with no robot that stops it ahead of it,
+                # toward the slide (covswarm.tvd.drive.steer), as an agent
                 stopped = stopped_dead(headings, velocity, aim) & (active > 0) & moving
                 stopped_since = np.where(stopped, np.fmin(stopped_since, tk), np.inf)
                 waited = tk - stopped_since >= SLIDE_AFTER - 1e-9
+                for i in np.flatnonzero(stopped & ~waited & np.isnan(slide_side)):
+                    waited[i] = stopped_beside(positions[i], headings[i], positions, safe_distance)
                 dead = np.flatnonzero(stopped & waited & np.isnan(slide_side))
                 if len(dead):
                     slides = _slides(filtered, aim, sides, dead, safe_distance, walls)

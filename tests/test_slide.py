@@ -9,17 +9,26 @@ degrees off its aim, for the last 10 s of the mission)."""
 from __future__ import annotations
 
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from script_modules import load_script
 
+from covswarm.deploy.netsim import run_netsim
+from covswarm.deploy.plan import initial_poses
+from covswarm.mission.physical import proximity
+from covswarm.mission.scenario_files import load_scenario
+from covswarm.tvd.coverage import mass_centroid
 from covswarm.tvd.drive import (
+    BESIDE_ANGLE,
+    BESIDE_REACH,
     KHEPERA_IV,
     SLIDE_MIN,
     STOPPED_SPEED,
     steer,
     steer_one,
+    stopped_beside,
     stopped_dead,
     stopped_dead_one,
 )
@@ -160,3 +169,69 @@ def test_a_robot_held_at_the_safe_distance_is_stopped_dead_whatever_the_rounding
         assert stopped_dead(np.zeros(1), np.array([[forward, 0.05]]), np.array([aim]))[0]
     assert not stopped_dead_one(0.0, 2.0 * STOPPED_SPEED, 0.0, aim)
     assert not stopped_dead_one(0.0, 0.0, 0.0, (-0.3, 0.1))  # its aim behind it: not held
+
+
+def test_stopped_beside_against_a_restatement() -> None:
+    """stopped_beside against the angles themselves (atan2), on random neighbourhoods: some
+    with a robot ahead, some with all beside or behind, some with none close."""
+    rng = np.random.default_rng(11)
+    safe = 0.16
+    seen = {True: 0, False: 0}
+    for _ in range(600):
+        me = rng.uniform(-1.0, 1.0, 2)
+        heading = float(rng.uniform(-math.pi, math.pi))
+        m = int(rng.integers(0, 5))
+        bearings = rng.uniform(-math.pi, math.pi, m)
+        distances = rng.uniform(0.12, 0.2, m)
+        others = me + distances[:, None] * np.stack([np.cos(bearings), np.sin(bearings)], 1)
+        rows = np.concatenate([others, rng.normal(0.0, 0.1, (m, 2))], axis=1)  # x, y, vx, vy
+        close = [
+            math.atan2(oy - me[1], ox - me[0])
+            for ox, oy in others.tolist()
+            if math.hypot(ox - me[0], oy - me[1]) <= safe + BESIDE_REACH
+        ]
+        off = [abs((b - heading + math.pi) % (2.0 * math.pi) - math.pi) for b in close]
+        expected = bool(close) and all(a > BESIDE_ANGLE for a in off)
+        if any(abs(a - BESIDE_ANGLE) < 1e-9 for a in off):
+            continue  # on the boundary: rounding decides
+        got = stopped_beside(tuple(me.tolist()), heading, rows, safe)
+        assert got == expected, (me, heading, others)
+        seen[expected] += 1
+    assert min(seen.values()) > 100
+    # Its own row (distance 0) is itself, not a robot beside it.
+    assert not stopped_beside((0.0, 0.0), 0.0, np.zeros((1, 4)), safe)
+
+
+@pytest.mark.parametrize("degrees", [75, 90, -75])
+def test_a_robot_stopped_dead_with_none_ahead_slides_at_once(degrees: int) -> None:
+    # The still robot beside it (more than BESIDE_ANGLE off its heading) is in no file it
+    # could wait its turn in: it slides from its first stopped step, where SLIDE_AFTER (1 s)
+    # alone kept it standing for the first 0.6 s (tests/test_beside_slide_script.py).
+    brain, path, neighbour = escape.drive_past(math.radians(degrees), seconds=0.6)
+    assert brain.counters.slid >= 2
+    assert escape.closest(path, neighbour) >= 0.15
+
+
+def test_a_robot_stopped_dead_behind_one_ahead_waits_its_turn() -> None:
+    # 30 degrees off its heading, the still robot is ahead of it: it waits SLIDE_AFTER.
+    brain, _, _ = escape.drive_past(math.radians(30.0), seconds=0.6)
+    assert brain.counters.slid == 0
+
+
+SQUARE_200 = load_scenario(Path(__file__).parent / "data" / "square-200.toml")
+
+
+def test_two_robots_side_by_side_no_longer_hold_up_the_corner_behind_them() -> None:
+    """Robots 58 and 167 of tests/data/square-200.toml stop each other dead side by side
+    (their aims converge) with robot 132 queued behind them at the corner S's trailing edge
+    passes first; brains stepped every 0.08-0.14 s (deploy.netsim, phase seed 2). Waiting
+    out SLIDE_AFTER together, they held 132 back until it stood 0.127 m off its centroid at
+    1.6 s (e_a 0.17 m); sliding at once, 0.040 m (measured 3 Dec 2026)."""
+    run = run_netsim(
+        SQUARE_200, seed=2, duration=2.0, poses=initial_poses(SQUARE_200, 200, 0),
+        turn_gaps=(0.08, 0.14), hold_after=0.3,
+    )  # fmt: skip
+    k = int(np.argmin(np.abs(run.t - 1.6)))
+    _, centroids = mass_centroid(run.trajectories[k], SQUARE_200.domain(run.t[k])[0])
+    assert np.linalg.norm(run.trajectories[k][132] - centroids[132]) < 0.08
+    assert proximity(run.t, run.trajectories, KHEPERA_IV.body_diameter)[0] >= 0.14

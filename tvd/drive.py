@@ -52,6 +52,15 @@ SLIDE_MIN = 0.1
 # ... once it has been stopped dead for SLIDE_AFTER s on end: a robot waits its turn in a
 # file that sets off, and takes a slide only where it would otherwise wait for ever.
 SLIDE_AFTER = 1.0
+# ... or at once when no robot that stops it is ahead of it (:func:`stopped_beside`): every
+# robot within BESIDE_REACH m beyond the safe distance more than BESIDE_ANGLE rad off its
+# heading. Two robots side by side whose aims converge stop each other dead, neither in
+# the other's way, and waited out SLIDE_AFTER together while S's edge passed the robots
+# queued behind them (tests/data/square-200.toml in deploy.netsim with brains stepped every
+# 0.08-0.14 s, phase seeds 0-5: e_a's second half 0.061-0.130 m, mean 0.076; 0.036-0.064 m,
+# mean 0.052 with this rule: scripts/beside_slide.py, 3 Dec 2026).
+BESIDE_ANGLE = math.pi / 3
+BESIDE_REACH = 0.01
 # A slide is taken for safe distances SLIDE_CLEARANCE (m) larger than the filter's: at the
 # safe distance the slide runs along it, which a robot turning toward it reaches only in the
 # limit, its forward speed held at zero all the while; a little farther out, the slide
@@ -119,6 +128,31 @@ def stopped_dead_one(heading: float, vx: float, vy: float, aim: tuple[float, flo
     """:func:`stopped_dead` for one robot in plain floats."""
     cos, sin = math.cos(heading), math.sin(heading)
     return aim[0] * cos + aim[1] * sin > 0.0 and vx * cos + vy * sin <= STOPPED_SPEED
+
+
+def stopped_beside(
+    position: tuple[float, float],
+    heading: float,
+    others: np.ndarray,
+    safe_distance: float,
+    reach: float = BESIDE_REACH,
+    angle: float = BESIDE_ANGLE,
+) -> bool:
+    """Whether a robot at ``position`` (m) facing ``heading`` (rad) is held back beside the
+    robots near it, none ahead: at least one of ``others`` ((m, 2) m, or rows whose first
+    two columns are positions) lies within ``safe_distance`` + ``reach`` m of it, and every
+    such one more than ``angle`` rad off its heading. A robot of ``others`` at its own
+    position is itself. Such a robot stopped dead takes its slide at once (SLIDE_AFTER)."""
+    others = np.asarray(others, dtype=float)
+    if len(others) == 0:
+        return False
+    rel = others.reshape(len(others), -1)[:, :2] - np.asarray(position, dtype=float)
+    distance = np.hypot(rel[:, 0], rel[:, 1])
+    close = (distance > 0.0) & (distance <= safe_distance + reach)
+    if not close.any():
+        return False
+    along = rel[close] @ np.array([math.cos(heading), math.sin(heading)])
+    return bool(np.all(along < math.cos(angle) * distance[close]))
 
 
 def takes_slide(
