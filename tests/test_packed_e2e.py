@@ -27,14 +27,16 @@ AGENTS = 200
 # runs with the other worker busy (2 Dec 2026): half that, for the margin.
 TIME_SCALE = 0.05
 # Steady-state e_a of the run over that of `covswarm sim` of the same mission stepped at
-# 10 Hz. e_a is the norm over the team, so one or two robots decide it: a corner robot left
-# outside S as it moves, turning in place for most of a second before it drives (robot 132
-# of a run with the machine's two cores kept busy beside it, 0.18 m off its centroid at
-# 1.6 s). Measured (4 s at 0.05x, 3 Dec 2026): 0.47-0.58 in five runs on an idle machine,
-# 0.93 with one core kept busy, 1.10 and 1.48 with both (the agents run at niceness +5),
-# 2.72 in a clean-clone CI run beside the suite's other worker. The target (1.5)
-# belongs to the 1000-robot run of the README; this bound is the measured spread's, and a
-# team that flies apart (tens of metres) is hundreds of times the reference.
+# 10 Hz. e_a is the norm over the team, so one or two robots decide it: before 3 Dec 2026 a
+# corner robot held back outside S by two robots that stopped each other dead side by side
+# ahead of it (docs/real-robots.md, "Side by side, none ahead"): 0.47-0.58 idle, 0.93 with
+# one core kept busy, 1.10 and 1.48 with both, 2.72 in a clean-clone CI run, against a
+# reference of 0.0624 m. With their slide at once the reference is 0.0364 m (the simulator
+# has the rule too) and the runs (4 s at 0.05x, 3 Dec 2026): 0.97-0.98 in three on an idle
+# machine, 1.88 with one core kept busy, 1.02 with both, 1.26 and 1.01 beside tests/test_e2e.py
+# (no robot's cell empty in any). The target (1.5) belongs to the 1000-robot run of
+# the README; this bound is twice the measured spread's top, and a team that flies apart
+# (tens of metres) is hundreds of times the reference.
 RATIO_BOUND = 4.0
 SCENARIO = Path(__file__).parent / "data" / "square-200.toml"
 DURATION = 4.0  # s of mission (the file's 6 s in docs/scaling.md)
