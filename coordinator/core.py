@@ -41,6 +41,7 @@ import numpy as np
 
 from covswarm.coordinator.config import DEPLOY_TIMEOUT, CoordinatorConfig
 from covswarm.coordinator.monitor import (
+    DISCOVERY_WAIT,
     DONE,
     RUNNING,
     START_SETTLE,
@@ -51,6 +52,7 @@ from covswarm.coordinator.monitor import (
     MissionPhase,
     TeamChange,
     clip_sample_time,
+    discovery_gaps,
     mean_pose_time,
     positions_at,
     start_settle,
@@ -248,6 +250,9 @@ class Observed:
     # robot's credentials (covswarm.protocol.KeyIds); dropped and counted.
     wrong_ids: int = 0
     started_wall: float | None = None
+    # What was missing from the team's neighbour discovery when the mission started after
+    # DISCOVERY_WAIT without it (coordinator.monitor.discovery_gaps; empty: nothing).
+    undiscovered_start: list[str] = field(default_factory=list)
     team_changes: list[TeamChange] = field(default_factory=list)
     # Who may be a team member (ids 0..N-1) and what came from any other id (issue 21);
     # None only for an Observed built outside a core.
@@ -415,8 +420,12 @@ class CoordinatorCore:
         )
         self.observed = Observed(roster=self.roster, pace=self.pace)
         self.phase = MissionPhase(
-            math.inf if settings.script_ends else settings.duration, settle=START_SETTLE
+            math.inf if settings.script_ends else settings.duration,
+            settle=START_SETTLE,
+            discovery_wait=DISCOVERY_WAIT,
         )
+        # id -> the neighbours its last AgentState before the start names (discovery_gaps)
+        self._listed: dict[int, frozenset[int]] = {}
         # Each agent's round of the neighbour exchange while waiting: the start waits for
         # START_ROUNDS of the slowest (coordinator.monitor.start_settle), not only 1.5 s.
         self.exchange = ExchangeGaps()
@@ -640,6 +649,7 @@ class CoordinatorCore:
             if backlog is not None:
                 self._waiting_states[rid] = payload
             self.exchange.add(rid, stamp)
+            self._listed[rid] = frozenset(neighbors)
         elif backlog is not None and self.phase.state != DONE:  # no record comes after done
             if len(backlog) == backlog.maxlen:
                 self.recording["state_backlog_overflow"] += 1
@@ -705,6 +715,13 @@ class CoordinatorCore:
                 self.settings.swarm,
             )
 
+    def discovery_gaps(self) -> list[str]:
+        """What the AgentStates heard before the start say is missing from the team's
+        neighbour discovery (coordinator.monitor.discovery_gaps; the team: robots whose
+        agent and robot both hold their tokens)."""
+        team = self.roster.members(self.observed.liveness.alive)
+        return discovery_gaps(self._listed, team)
+
     def team_ready(self) -> bool:
         live = self.observed.liveness
         n = self.settings.agents
@@ -747,7 +764,8 @@ class CoordinatorCore:
         before = phase.state
         if before == WAITING:
             phase.settle = start_settle(self.exchange.slowest())
-        state = phase.update(now, self.team_ready())
+        gaps = self.discovery_gaps() if before == WAITING else []
+        state = phase.update(now, self.team_ready(), not gaps)
         if state == WAITING and stopping:
             log.info("stopped before the mission started")
             return [Finished(started=False)]
@@ -762,6 +780,16 @@ class CoordinatorCore:
                 now - (phase.ready_since if phase.ready_since is not None else now),
                 self.exchange.slowest(),
             )
+            if phase.started_undiscovered:
+                log.warning(
+                    "mission started %.1f s after the team was up with its neighbour discovery "
+                    "incomplete (coordinator.monitor.DISCOVERY_WAIT): %s%s; a robot that does "
+                    "not know the one next to it may drive into it",
+                    phase.settle + phase.discovery_wait,
+                    "; ".join(gaps[:5]),
+                    f" and {len(gaps) - 5} more" if len(gaps) > 5 else "",
+                )
+                self.observed.undiscovered_start = gaps
             actions.append(MissionStarted(settings.swarm, wall))
         t = phase.mission_time(now)
         if state == RUNNING and self.pace.deploying:

@@ -211,6 +211,7 @@ def build_summary(
         "guards": agent_guards(observed.agent_stats),
         "rejected_messages": observed.rejected,
         "foreign_domains": observed.foreign_domains,
+        "undiscovered_start": observed.undiscovered_start,
         "wrong_id_messages": observed.wrong_ids,
         "error_samples_clipped": observed.clipped_samples,
         "tile_size": settings.tile_size,

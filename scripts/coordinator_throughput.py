@@ -43,9 +43,11 @@ STATS = 30  # entries of an AgentState's stats (an agent sends ~30, agent.brain.
 
 
 def agent_state(i: int, agents: int, x: float, y: float, stamp: float, k: int, stats: bool):
-    """Agent i's AgentState at (x, y) as an agent builds one: neighbours i+1.. (mod the
-    team), their positions relayed, and with ``stats`` (k: its steps so far) its stats."""
-    neighbors = sorted({(i + j) % agents for j in range(1, STATE_NEIGHBORS + 1)} - {i})
+    """Agent i's AgentState at (x, y) as an agent builds one: the STATE_NEIGHBORS around it
+    (mod the team, each named back), their positions relayed, and with ``stats`` (k: its
+    steps so far) its stats."""
+    half = STATE_NEIGHBORS // 2
+    neighbors = sorted({(i + j) % agents for j in range(-half, half + 1)} - {i})
     relay = [(j, x + 0.1 * n, y - 0.1 * n, 0.01, -0.02) for n, j in enumerate(neighbors)]
     table = {"mission_steps": k, "rate_hz": 10.0, "step_us_p50": 850.5}
     table.update({f"counter_{n}": float(n) for n in range(STATS - len(table))})

@@ -64,6 +64,12 @@ class Team:
             for role in ("robot", "agent"):
                 core.on_liveliness(alive_key(SWARM, role, i), True, 0.0, WALL0)
 
+    def ring(self, i: int) -> tuple[int, ...]:
+        """Agent ``i``'s neighbours: those next to it in a ring of the team (each names the
+        other, so nothing is missing from the team's discovery)."""
+        n = len(self.steps)
+        return tuple({(i - 1) % n, (i + 1) % n} - {i})
+
     def run(self, now: float, until: float) -> tuple[float, list]:
         """Tick the core every TICK from ``now`` to ``until``; (now, every tick's actions)."""
         ticks = []
@@ -76,13 +82,15 @@ class Team:
                 for i, steps in self.steps.items():
                     stats = {"rate_hz": self.held, "mission_steps": round(steps), "late_held": 0.5}
                     state = AgentState(
-                        id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=(), stats=stats
+                        id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=self.ring(i), stats=stats
                     )
                     self.core.on_agent_state(agent_state_key(SWARM, i), state.encode())
                 self.next_report = now + 1.0
             if now >= self.next_step:  # (with the stats' state of this tick: one round)
                 for i in self.steps:
-                    state = AgentState(id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=())
+                    state = AgentState(
+                        id=i, x=0.0, y=0.0, stamp=WALL0 + now, neighbors=self.ring(i)
+                    )
                     self.core.on_agent_state(agent_state_key(SWARM, i), state.encode())
                 self.next_step = now + 1.0 / self.held
             ticks.append((now, self.core.tick(now, WALL0 + now)))
