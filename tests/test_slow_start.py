@@ -53,7 +53,8 @@ def test_the_settle_is_start_rounds_of_the_slowest_exchange_within_bounds() -> N
 
 def core_start(gap: float) -> float:
     """When a coordinator of two (joined at 0) starts the mission, ticking at 20 Hz, the
-    agents' AgentStates 0.1 s and ``gap`` s apart."""
+    agents' AgentStates 0.1 s and ``gap`` s apart, each naming the other (nothing missing
+    from their discovery: coordinator.monitor.discovery_gaps)."""
     settings = CoordinatorSettings(
         scenario=load_scenario("circle"), swarm=SWARM, agents=2, duration=3.0, kappa=2.0,
         rate=20.0, sample_rate=10.0, feedforward=True, tile_size=0.5,
@@ -64,7 +65,7 @@ def core_start(gap: float) -> float:
             core.on_liveliness(alive_key(SWARM, role, i), True, 0.0, WALL)
     for rid, spacing in ((0, 0.1), (1, gap)):
         for stamp in (WALL - spacing, WALL):
-            state = AgentState(rid, 0.5 * rid, 0.0, stamp, ())
+            state = AgentState(rid, 0.5 * rid, 0.0, stamp, (1 - rid,))  # each names the other
             core.on_agent_state(agent_state_key(SWARM, rid), state.encode())
     now = 0.0
     while core.phase.state == WAITING:
