@@ -28,6 +28,7 @@ from covswarm.deploy.netsim import NetsimResult, run_netsim, steady_state
 from covswarm.deploy.plan import initial_poses
 from covswarm.mission.physical import proximity
 from covswarm.mission.scenario_files import load_scenario
+from covswarm.mission.scenarios import Scenario
 from covswarm.tvd import drive
 from covswarm.tvd.coverage import mass_centroid
 from covswarm.tvd.drive import KHEPERA_IV
@@ -53,24 +54,23 @@ def slides_only_after_waiting() -> Iterator[None]:
         brain.stopped_beside = drive.stopped_beside = beside
 
 
-def worst_at(result: NetsimResult, scenario: object, t: float) -> float:
+def worst_at(result: NetsimResult, scenario: Scenario, t: float) -> float:
     """The largest distance (m) of a robot from its centroid at the sample nearest ``t``."""
     k = int(np.argmin(np.abs(result.t - t)))
-    _, centroids = mass_centroid(result.trajectories[k], scenario.domain(result.t[k])[0])  # type: ignore[attr-defined]
+    _, centroids = mass_centroid(result.trajectories[k], scenario.domain(result.t[k])[0])
     return float(np.max(np.linalg.norm(result.trajectories[k] - centroids, axis=1)))
 
 
 def compare(
-    scenario: str, seed: int, duration: float, gaps: tuple[float, float] | None, layout: int
+    scenario: Scenario, seed: int, duration: float, gaps: tuple[float, float] | None, layout: int
 ) -> dict[str, NetsimResult]:
     """The netsim run under each rule of RULES (module docstring)."""
-    loaded = load_scenario(scenario)
-    poses = initial_poses(loaded, loaded.agents, layout)
+    poses = initial_poses(scenario, scenario.agents, layout)
     late = {} if gaps is None else {"turn_gaps": gaps, "hold_after": HOLD_AFTER}
     results = {}
     for rule in RULES:
         with slides_only_after_waiting() if rule != "main" else nullcontext():
-            results[rule] = run_netsim(loaded, seed=seed, duration=duration, poses=poses, **late)
+            results[rule] = run_netsim(scenario, seed=seed, duration=duration, poses=poses, **late)
     return results
 
 
@@ -86,7 +86,7 @@ def main(scenario: str, seeds: str, duration: float, gaps: str, layout_seed: int
     print("| seed | rule | e_a 2nd half, m | worst at 1.6 s, m | closest, m | steps slid |")
     print("|---|---|---|---|---|---|")
     for seed in (int(s) for s in seeds.split(",")):
-        for rule, result in compare(scenario, seed, duration, drawn, layout_seed).items():  # type: ignore[arg-type]
+        for rule, result in compare(loaded, seed, duration, drawn, layout_seed).items():
             closest = proximity(result.t, result.trajectories, KHEPERA_IV.body_diameter)[0]
             slid = sum(stats.get("slid", 0) for stats in result.stats.values())
             print(
