@@ -251,6 +251,13 @@ OBSTACLE_MEMORY = 30.0
 # at rest, which the team behind it ran into. Such a robot is followed (near_ids) and
 # enters the filter with its AgentState.
 BEACON_TRUST = 0.5
+# The local diagram also takes a beacon heard since the brain's previous view of its
+# neighbours, up to IDLE_STEP_PERIOD old, as a robot there (diagram_trust). A brain stepped
+# once a second before the mission (or in turn in an overloaded process) otherwise never
+# met a neighbour beyond the safety filter's reach known from beacons alone: its beacons
+# came once a second, phase-locked to our steps ~0.9 s before each, older than BEACON_TRUST
+# at every view; its brain named no neighbour and the coordinator's start waited out its
+# DISCOVERY_WAIT (deploy.netsim, passage, six robots, brains 0 and 3 dead: robot 1).
 # m: the near-identity mapping's projection distance the agents use. The heading loop it
 # closes has gain |u| / l (1/s); with a residual, uncompensated latency tau it is stable only
 # while tau |u| / l < pi / 2. Measured (scripts/projection_distance.py: deploy.netsim,
@@ -576,6 +583,16 @@ def _tile_block(tx: int, ty: int, r: int) -> frozenset[tuple[int, int]]:
     return frozenset((tx + i, ty + j) for i in range(-r, r + 1) for j in range(-r, r + 1))
 
 
+def diagram_trust(now: float, last_view: float | None) -> float:
+    """s: the oldest beacon of a robot known only from beacons, its AgentState awaited, that
+    the local diagram takes as a robot there at ``now`` (Neighborhood.relevant's ``trust``):
+    BEACON_TRUST, or every beacon heard since the brain's previous view ``last_view`` (None:
+    none yet), up to IDLE_STEP_PERIOD old."""
+    if last_view is None:
+        return BEACON_TRUST
+    return max(BEACON_TRUST, min(now - last_view, IDLE_STEP_PERIOD))
+
+
 def sampled_gain(kappa: float, period: float) -> float:
     """The gain to hold over one control period of ``period`` s in place of ``kappa`` (1/s).
 
@@ -677,6 +694,7 @@ class AgentBrain:
         self.stop_after: float | None = None
         self._was_running = False  # whether the last step that reached _view was a mission's
         self._last_idle_step = -math.inf
+        self._last_view: float | None = None  # ``now`` of the last view (diagram_trust)
         # The domain whose start velocities were fitted last, and their field (_standing).
         self._start_field: tuple[protocol.Domain, AffineField] | None = None
         self._next_stats = -math.inf
@@ -1156,8 +1174,9 @@ class AgentBrain:
                 (self.pose.x, self.pose.y),
                 self.reach,
                 self.config.command_latency,
-                BEACON_TRUST,
+                diagram_trust(now, self._last_view),
             )
+            self._last_view = now
             return self._view(relevant, now, now_wall, started)
         except Exception as exc:  # noqa: BLE001 -- see _failed
             return self._failed(exc)

@@ -58,7 +58,13 @@ from covswarm.agent.brain import (
 )
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import PoseImpairment
-from covswarm.coordinator.monitor import MAX_START_SETTLE, ExchangeGaps, start_settle
+from covswarm.coordinator.monitor import (
+    DISCOVERY_WAIT,
+    MAX_START_SETTLE,
+    ExchangeGaps,
+    discovery_gaps,
+    start_settle,
+)
 from covswarm.coordinator.pace import broadcast_motion
 from covswarm.mission.scenarios import Scenario
 from covswarm.tvd.drive import DiffDrive
@@ -115,6 +121,9 @@ class NetsimResult:
     headings: np.ndarray
     stats: dict[int, dict] = field(default_factory=dict)
     started: float = math.nan  # s of the simulated clock at which the mission started
+    # what was missing from the team's neighbour discovery when it started without it
+    # (covswarm.coordinator.monitor.discovery_gaps; empty: nothing known)
+    undiscovered: list[str] = field(default_factory=list)
 
 
 def run_netsim(
@@ -150,8 +159,11 @@ def run_netsim(
     a real start), and with ``settle`` not before the coordinator would start it: every
     agent's token taken, then held for covswarm.coordinator.monitor.start_settle of the
     slowest agent's time between AgentStates (at 10 Hz 1.5 s, within the 2 s warmup; brains
-    stepped at ~1.25 Hz wait longer). A team some agent of which has not declared itself
-    alive starts MAX_START_SETTLE s after the warmup. clock_skew: s added to the robots'
+    stepped at ~1.25 Hz wait longer), and then until the AgentStates heard show no gap in
+    the team's neighbour discovery (covswarm.coordinator.monitor.discovery_gaps), at most
+    DISCOVERY_WAIT s longer (what was still missing then: ``undiscovered``). A team some
+    agent of which has not declared itself alive starts MAX_START_SETTLE s after the
+    warmup. clock_skew: s added to the robots'
     pose stamps (their host's clock ahead).
     robot_model: the robots' true geometry when it differs from what the agents assume
     (``config.robot``), to measure how model error degrades the agents' prediction.
@@ -282,6 +294,7 @@ def run_netsim(
             elif isinstance(action, PublishState):
                 if started is None:
                     exchange.add(index, action.state.stamp)
+                    listed[index] = frozenset(action.state.neighbors)
                 payload = action.state.encode()
                 send(now + transit, ("state", index), "state", index, payload)
             elif isinstance(action, PublishBeacon):
@@ -316,6 +329,8 @@ def run_netsim(
     end = math.inf
     tokens: dict[int, float] = {}
     exchange = ExchangeGaps()
+    listed: dict[int, frozenset[int]] = {}  # id -> the neighbours its last state names
+    undiscovered: list[str] = []
     seq = 0
     wheels = np.zeros((n, 2))
     t_log: list[float] = []
@@ -343,7 +358,13 @@ def run_netsim(
             if len(tokens) < n - int(standing.sum()):  # (a brain without its pose: no endless wait)
                 ready = now >= warmup + MAX_START_SETTLE
             else:
-                ready = now - max(tokens.values()) >= start_settle(exchange.slowest())
+                up = now - max(tokens.values())
+                ready = up >= start_settle(exchange.slowest())
+                gaps = discovery_gaps(listed, tokens.keys()) if ready else []
+                if gaps and up < start_settle(exchange.slowest()) + DISCOVERY_WAIT:
+                    ready = False
+                else:
+                    undiscovered = gaps
             if ready or not settle:
                 # (on the first tick at the warmup's end: from the warmup's end exactly)
                 started = now if held else warmup
@@ -421,6 +442,7 @@ def run_netsim(
     return NetsimResult(
         np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log),
         np.array(heading_log), dict(stats), math.nan if started is None else started,
+        undiscovered,
     )  # fmt: skip
 
 

@@ -10,6 +10,7 @@ import logging
 import pytest
 from warehouse_core import SWARM, WALL0, join, make_core
 
+from covswarm.agent.brain import BEACON_TRUST, IDLE_STEP_PERIOD, diagram_trust
 from covswarm.coordinator.core import RUNNING, WAITING, CoordinatorCore
 from covswarm.coordinator.monitor import (
     DISCOVERY_WAIT,
@@ -17,6 +18,8 @@ from covswarm.coordinator.monitor import (
     MissionPhase,
     discovery_gaps,
 )
+from covswarm.deploy.netsim import Stall, run_netsim
+from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import AgentState, agent_state_key
 
 
@@ -90,3 +93,34 @@ def test_without_discovery_the_coordinator_starts_after_the_wait_and_says_so(
     ]
     assert core.observed.undiscovered_start == gaps
     assert "neighbour discovery incomplete" in caplog.text and gaps[0] in caplog.text
+
+
+def test_netsim_holds_the_start_for_a_brain_that_stalled_before_it_met_anyone() -> None:
+    # Brain 3 takes its first turn (its token, a state naming nobody), then stalls past the
+    # settle: the coordinator's rule, which the netsim mirrors, waits for its next states.
+    scenario = load_scenario("circle")
+    stall_end = 0.1 + 2.0
+    held = run_netsim(scenario, agents=12, duration=0.2, stall=Stall({3}, 0.1, 2.0))
+    assert stall_end < held.started <= stall_end + 2.0, held.started
+    assert held.undiscovered == []
+    # Stalled beyond DISCOVERY_WAIT, it starts without it and says what was missing.
+    late = run_netsim(scenario, agents=12, duration=0.2, stall=Stall({3}, 0.1, 10.0))
+    assert late.started == pytest.approx(0.1 + START_SETTLE + DISCOVERY_WAIT, abs=0.2)
+    assert "agent 3 names no neighbour" in late.undiscovered
+
+
+def test_the_diagram_takes_every_beacon_heard_since_the_last_view() -> None:
+    assert diagram_trust(5.0, None) == BEACON_TRUST
+    assert diagram_trust(5.0, 4.9) == BEACON_TRUST  # a 10 Hz step: the rule as ever
+    assert diagram_trust(5.0, 4.0) == pytest.approx(1.0)  # an idle step a second later
+    assert diagram_trust(50.0, 4.0) == IDLE_STEP_PERIOD  # a stalled brain: no older
+
+
+def test_a_lone_brain_meets_neighbours_known_only_from_their_beacons_before_the_start() -> None:
+    # Passage, brains 0 and 3 dead: robot 1's live neighbours are beyond its safety filter's
+    # reach, known from beacons that came ~0.9 s before each of its idle steps. Taken only
+    # when younger than BEACON_TRUST, they never entered its diagram: it named no neighbour
+    # and the start waited out DISCOVERY_WAIT (6.6 s).
+    result = run_netsim(load_scenario("passage"), agents=6, duration=0.2, dead=(0, 3))
+    assert result.undiscovered == []
+    assert result.started < 2.0 + 1.0, result.started
