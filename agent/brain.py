@@ -252,12 +252,16 @@ OBSTACLE_MEMORY = 30.0
 # enters the filter with its AgentState.
 BEACON_TRUST = 0.5
 # The local diagram also takes a beacon heard since the brain's previous view of its
-# neighbours, up to IDLE_STEP_PERIOD old, as a robot there (diagram_trust). A brain stepped
+# neighbours as a robot there (diagram_trust): news it has not used yet. A brain stepped
 # once a second before the mission (or in turn in an overloaded process) otherwise never
 # met a neighbour beyond the safety filter's reach known from beacons alone: its beacons
 # came once a second, phase-locked to our steps ~0.9 s before each, older than BEACON_TRUST
 # at every view; its brain named no neighbour and the coordinator's start waited out its
-# DISCOVERY_WAIT (deploy.netsim, passage, six robots, brains 0 and 3 dead: robot 1).
+# DISCOVERY_WAIT (deploy.netsim, passage, six robots, brains 0 and 3 dead: robot 1). A
+# beacon's age counts from the turn that took it off the bus, so it is at most the time
+# between two views (1.6 s for a brain stepped at 1.25 Hz before the mission, which views
+# every other turn): a robot riding S is then ~0.3 m past its beacon, not the ~2 m of the
+# beacon_period that BEACON_TRUST keeps out.
 # m: the near-identity mapping's projection distance the agents use. The heading loop it
 # closes has gain |u| / l (1/s); with a residual, uncompensated latency tau it is stable only
 # while tau |u| / l < pi / 2. Measured (scripts/projection_distance.py: deploy.netsim,
@@ -586,11 +590,11 @@ def _tile_block(tx: int, ty: int, r: int) -> frozenset[tuple[int, int]]:
 def diagram_trust(now: float, last_view: float | None) -> float:
     """s: the oldest beacon of a robot known only from beacons, its AgentState awaited, that
     the local diagram takes as a robot there at ``now`` (Neighborhood.relevant's ``trust``):
-    BEACON_TRUST, or every beacon heard since the brain's previous view ``last_view`` (None:
-    none yet), up to IDLE_STEP_PERIOD old."""
+    BEACON_TRUST, or every beacon heard since the brain's previous view at ``last_view``
+    (None: none yet)."""
     if last_view is None:
         return BEACON_TRUST
-    return max(BEACON_TRUST, min(now - last_view, IDLE_STEP_PERIOD))
+    return max(BEACON_TRUST, now - last_view)
 
 
 def sampled_gain(kappa: float, period: float) -> float:

@@ -112,8 +112,8 @@ def test_netsim_holds_the_start_for_a_brain_that_stalled_before_it_met_anyone() 
 def test_the_diagram_takes_every_beacon_heard_since_the_last_view() -> None:
     assert diagram_trust(5.0, None) == BEACON_TRUST
     assert diagram_trust(5.0, 4.9) == BEACON_TRUST  # a 10 Hz step: the rule as ever
-    assert diagram_trust(5.0, 4.0) == pytest.approx(1.0)  # an idle step a second later
-    assert diagram_trust(50.0, 4.0) == IDLE_STEP_PERIOD  # a stalled brain: no older
+    assert diagram_trust(5.0, 4.0) == pytest.approx(IDLE_STEP_PERIOD)  # idle steps
+    assert diagram_trust(5.6, 4.0) == pytest.approx(1.6)  # idle, every other of its turns
 
 
 def test_a_lone_brain_meets_neighbours_known_only_from_their_beacons_before_the_start() -> None:
