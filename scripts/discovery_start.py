@@ -76,7 +76,10 @@ def run_case(
 @click.option("--seeds", type=click.IntRange(min=1), default=3, show_default=True)
 def main(seeds: int) -> None:
     """Start times and gaps under both rules (module docstring)."""
-    print("| case | seed | diagram's beacons | started (s) | gaps left | e_a 2nd half (m) | closest (m) |")
+    print(
+        "| case | seed | diagram's beacons | started (s) | gaps left | e_a 2nd half (m) "
+        "| closest (m) |"
+    )
     print("|---|---|---|---|---|---|---|")
     for label, scenario, agents, rate, dead in CASES:
         for seed in range(seeds):
