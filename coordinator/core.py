@@ -41,6 +41,9 @@ import numpy as np
 
 from covswarm.coordinator.config import DEPLOY_TIMEOUT, CoordinatorConfig
 from covswarm.coordinator.monitor import (
+    DISCOVERY_EDGE,
+    DISCOVERY_PERIOD,
+    DISCOVERY_REACH,
     DISCOVERY_WAIT,
     DONE,
     RUNNING,
@@ -92,7 +95,7 @@ from covswarm.protocol import (
 from covswarm.protocol.keys import format_ids
 from covswarm.records.observations import timed_layers
 from covswarm.runtime.ratelog import RateLog
-from covswarm.tvd.coverage import aggregate_error, cells
+from covswarm.tvd.coverage import aggregate_error, cells, neighbour_pairs
 from covswarm.tvd.drive import KHEPERA_IV
 from covswarm.world.map_image import map_image
 from covswarm.world.wire import to_message
@@ -426,6 +429,9 @@ class CoordinatorCore:
         )
         # id -> the neighbours its last AgentState before the start names (discovery_gaps)
         self._listed: dict[int, frozenset[int]] = {}
+        # The pairs whose cells meet (discovery_gaps), as of when (monotonic s)
+        self._pairs = np.empty((0, 2), dtype=np.int64)
+        self._pairs_at = -math.inf
         # Each agent's round of the neighbour exchange while waiting: the start waits for
         # START_ROUNDS of the slowest (coordinator.monitor.start_settle), not only 1.5 s.
         self.exchange = ExchangeGaps()
@@ -715,12 +721,33 @@ class CoordinatorCore:
                 self.settings.swarm,
             )
 
-    def discovery_gaps(self) -> list[str]:
+    def discovery_gaps(self, now: float) -> list[str]:
         """What the AgentStates heard before the start say is missing from the team's
-        neighbour discovery (coordinator.monitor.discovery_gaps; the team: robots whose
-        agent and robot both hold their tokens)."""
+        neighbour discovery (coordinator.monitor.discovery_gaps): the pairs whose cells meet
+        in S(0), tessellated from the team's latest poses (robots whose agent and robot both
+        hold their tokens; stranded robots as still generators, as the agents take them) at
+        most DISCOVERY_PERIOD s ago."""
+        if now - self._pairs_at >= DISCOVERY_PERIOD:
+            self._pairs_at, self._pairs = now, self._meeting_pairs()
         team = self.roster.members(self.observed.liveness.alive)
-        return discovery_gaps(self._listed, team)
+        return discovery_gaps(self._listed, team, self._pairs)
+
+    def _meeting_pairs(self) -> np.ndarray:
+        """(m, 2) ids of the team members within DISCOVERY_REACH of each other whose cells in
+        S(0) share an edge of at least DISCOVERY_EDGE, from their latest poses
+        (covswarm.tvd.coverage.neighbour_pairs)."""
+        positions = self.alive_positions()
+        obs = self.observed
+        stranded = [i for i in self.roster.stranded(obs.liveness.alive) if i in obs.poses]
+        ids = [*positions, *stranded]
+        if len(positions) < 2:
+            return np.empty((0, 2), dtype=np.int64)
+        points = np.array([*positions.values(), *(obs.poses[i] for i in stranded)], dtype=float)
+        still = np.arange(len(ids)) >= len(positions)
+        polygon = self.steering.domain(0.0)[0]
+        still_ones = still if stranded else None
+        pairs = neighbour_pairs(points, polygon, DISCOVERY_EDGE, still_ones, DISCOVERY_REACH)
+        return np.asarray(ids, dtype=np.int64)[pairs].reshape(-1, 2)
 
     def team_ready(self) -> bool:
         live = self.observed.liveness
@@ -764,7 +791,9 @@ class CoordinatorCore:
         before = phase.state
         if before == WAITING:
             phase.settle = start_settle(self.exchange.slowest())
-        gaps = self.discovery_gaps() if before == WAITING else []
+        # The poses' cells only once the settle is over: the start waits for nothing else.
+        settled = phase.ready_since is not None and now - phase.ready_since >= phase.settle
+        gaps = self.discovery_gaps(now) if before == WAITING and settled else []
         state = phase.update(now, self.team_ready(), not gaps)
         if state == WAITING and stopping:
             log.info("stopped before the mission started")

@@ -14,6 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from covswarm.tvd.safety import SAFETY_RADIUS
+
 WAITING, RUNNING, DONE = "waiting", "running", "done"
 
 # s the whole team holds its tokens before the mission starts: every agent has then had its
@@ -49,26 +51,48 @@ MAX_START_SETTLE = 10.0
 # the robot next to it drives into it at its first mission step, at up to top speed: 100
 # robots at 30 Hz on an overloaded host, robot 14 at 0.76 m/s into robot 39, 0.162 m away,
 # to 0.055 m, 39's last state before the start naming no neighbour (docs/scaling.md, 3 Dec
-# 2026). A neighbour relation of one side only can also be a knife-edge of the geometry at
-# rest, which no waiting resolves: hence the bound.
+# 2026). A pair can also sit on a knife-edge of the geometry that no waiting resolves: hence
+# the bound.
 DISCOVERY_WAIT = 5.0
+# m: the shortest shared edge of two robots' cells, in the tessellation of their measured
+# poses, for which the start waits until each agent names the other (:func:`discovery_gaps`).
+# Shorter, the pair meets at a near-degenerate vertex (four robots on the corners of a
+# square), which the agents' own diagrams, from positions heard rather than measured, may
+# resolve the other way: their cells barely touch, and each filters against the other as a
+# robot within its safety radius whether or not it names it.
+DISCOVERY_EDGE = 0.02
+# m: only pairs this close are waited for: the agents' safety radius
+# (covswarm.tvd.safety.SAFETY_RADIUS), beyond which their speed limit already assumes
+# robots they do not know (unseen_speed_limit). Farther apart, two brains that do not know
+# each other cover S badly for a while, not dangerously: robots put down outside S whose
+# cells reach into it from two sides (scenarios/scatter-in.toml, live: five such pairs,
+# 0.7-2.6 m apart, held the start for DISCOVERY_WAIT) meet as they drive in.
+DISCOVERY_REACH = SAFETY_RADIUS
+# s between two tessellations of the team's poses for :func:`discovery_gaps` while the start
+# waits (the coordinator's, CoordinatorCore.discovery_gaps): robots stand still meanwhile,
+# and 1000 robots' cells cost tens of ms.
+DISCOVERY_PERIOD = 0.5
 
 
-def discovery_gaps(listed: dict[int, frozenset[int]], team: AbstractSet[int]) -> list[str]:
+def discovery_gaps(
+    listed: Mapping[int, AbstractSet[int]], team: AbstractSet[int], pairs: np.ndarray
+) -> list[str]:
     """What the AgentStates heard before the start say is missing from the team's neighbour
-    discovery (none: nothing known to be missing): an agent of ``team`` (ids, more than one)
-    whose last state (``listed``: id -> the neighbours it names) names no neighbour, and a
-    pair of which one names the other and is not named back (Voronoi neighbours are
-    neighbours both ways). Agents not heard yet are not held against it (their rounds are
-    the settle's, :func:`start_settle`)."""
-    if len(team) < 2:
-        return []
-    silent = [rid for rid in sorted(team) if rid in listed and not listed[rid]]
-    gaps = [f"agent {rid} names no neighbour" for rid in silent]
-    for rid in sorted(team):
-        for other in sorted(listed.get(rid, ())):
-            if other in team and other in listed and rid not in listed[other]:
-                gaps.append(f"agent {rid} names {other}, which does not name it")
+    discovery (none: nothing known to be missing). ``pairs``: (m, 2) robot ids whose cells
+    in S, tessellated from their measured poses, share an edge of at least DISCOVERY_EDGE
+    and which stand within DISCOVERY_REACH of each other
+    (covswarm.tvd.coverage.neighbour_pairs); ``listed``: id -> the neighbours its agent's
+    last state names; ``team``: the ids that count. A gap is a pair of the team one agent of
+    which does not name the other. Agents not heard yet are not held against it (their
+    rounds are the settle's, :func:`start_settle`); neither are robots outside S, whose
+    cells are empty and whose brains name nobody."""
+    gaps = []
+    for i, j in np.asarray(pairs, dtype=np.int64).reshape(-1, 2).tolist():
+        if i not in team or j not in team:
+            continue
+        for me, other in ((i, j), (j, i)):
+            if me in listed and other not in listed[me]:
+                gaps.append(f"agent {me} does not name {other}, whose cell meets its own")
     return gaps
 
 

@@ -59,6 +59,9 @@ from covswarm.agent.brain import (
 from covswarm.agent.decoding import MessageDecoder
 from covswarm.agent.faults import PoseImpairment
 from covswarm.coordinator.monitor import (
+    DISCOVERY_EDGE,
+    DISCOVERY_PERIOD,
+    DISCOVERY_REACH,
     DISCOVERY_WAIT,
     MAX_START_SETTLE,
     ExchangeGaps,
@@ -124,6 +127,8 @@ class NetsimResult:
     # what was missing from the team's neighbour discovery when it started without it
     # (covswarm.coordinator.monitor.discovery_gaps; empty: nothing known)
     undiscovered: list[str] = field(default_factory=list)
+    # id -> the neighbours its agent's last AgentState before the start named
+    listed: dict[int, frozenset[int]] = field(default_factory=dict)
 
 
 def run_netsim(
@@ -193,7 +198,7 @@ def run_netsim(
     """
     from covswarm.deploy.plan import initial_poses
     from covswarm.sim_robot.process import RobotSim
-    from covswarm.tvd.coverage import aggregate_error
+    from covswarm.tvd.coverage import aggregate_error, neighbour_pairs
 
     n = scenario.agents if agents is None else agents
     standing = np.zeros(n, dtype=bool)
@@ -330,6 +335,7 @@ def run_netsim(
     tokens: dict[int, float] = {}
     exchange = ExchangeGaps()
     listed: dict[int, frozenset[int]] = {}  # id -> the neighbours its last state names
+    pairs, pairs_at = np.empty((0, 2), dtype=np.int64), -math.inf  # cells that meet, when
     undiscovered: list[str] = []
     seq = 0
     wheels = np.zeros((n, 2))
@@ -360,7 +366,17 @@ def run_netsim(
             else:
                 up = now - max(tokens.values())
                 ready = up >= start_settle(exchange.slowest())
-                gaps = discovery_gaps(listed, tokens.keys()) if ready else []
+                if ready and now - pairs_at >= DISCOVERY_PERIOD:
+                    positions = np.array([robot.pose[:2] for robot in robots])
+                    pairs_at = now
+                    pairs = neighbour_pairs(
+                        positions,
+                        scenario.domain(0.0)[0],
+                        DISCOVERY_EDGE,
+                        standing if dead else None,
+                        DISCOVERY_REACH,
+                    )
+                gaps = discovery_gaps(listed, tokens.keys(), pairs) if ready else []
                 if gaps and up < start_settle(exchange.slowest()) + DISCOVERY_WAIT:
                     ready = False
                 else:
@@ -442,7 +458,7 @@ def run_netsim(
     return NetsimResult(
         np.array(t_log), np.array(e_log), np.array(traj), np.array(wheel_log),
         np.array(heading_log), dict(stats), math.nan if started is None else started,
-        undiscovered,
+        undiscovered, listed,
     )  # fmt: skip
 
 

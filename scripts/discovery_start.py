@@ -9,14 +9,15 @@ diagram's beacons: main's (covswarm.agent.brain.diagram_trust: a beacon heard si
 brain's previous view enters it, up to IDLE_STEP_PERIOD old) and the rule before 3 Dec 2026
 evening (only those younger than BEACON_TRUST, 0.5 s). Prints a Markdown row per case, seed
 and rule: when the mission started (s of the simulated clock; the warmup ends at 2 s), the
-gaps left when it started, e_a's second half (m) and the closest two robots came (m).
+gaps left when it started, the agents whose last state before it named no neighbour, e_a's
+second half (m) and the closest two robots came (m).
 docs/scaling.md quotes it (~1 minute of CPU for three seeds).
 """
 
 from __future__ import annotations
 
 from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import contextmanager, nullcontext
 
 import click
 from scipy.spatial.distance import pdist
@@ -54,21 +55,21 @@ def closest(result: NetsimResult) -> float:
 
 
 def run_case(
-    scenario: str, agents: int, rate: float, dead: tuple[int, ...], seed: int
+    scenario: str,
+    agents: int,
+    rate: float,
+    dead: tuple[int, ...],
+    seed: int,
+    duration: float = DURATION,
 ) -> dict[str, NetsimResult]:
     """The netsim run of one case under each rule of RULES."""
     loaded = load_scenario(scenario)
     results = {}
     for rule in RULES:
-        if rule == "main":
+        with young_beacons_only() if rule != "main" else nullcontext():
             results[rule] = run_netsim(
-                loaded, agents=agents, seed=seed, duration=DURATION, rate=rate, dead=dead
+                loaded, agents=agents, seed=seed, duration=duration, rate=rate, dead=dead
             )
-        else:
-            with young_beacons_only():
-                results[rule] = run_netsim(
-                    loaded, agents=agents, seed=seed, duration=DURATION, rate=rate, dead=dead
-                )
     return results
 
 
@@ -77,17 +78,18 @@ def run_case(
 def main(seeds: int) -> None:
     """Start times and gaps under both rules (module docstring)."""
     print(
-        "| case | seed | diagram's beacons | started (s) | gaps left | e_a 2nd half (m) "
-        "| closest (m) |"
+        "| case | seed | diagram's beacons | started (s) | gaps left | naming none "
+        "| e_a 2nd half (m) | closest (m) |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|")
     for label, scenario, agents, rate, dead in CASES:
         for seed in range(seeds):
             for rule, result in run_case(scenario, agents, rate, dead, seed).items():
+                silent = sorted(rid for rid, names in result.listed.items() if not names)
                 print(
                     f"| {label} | {seed} | {rule} | {result.started:.2f} "
-                    f"| {len(result.undiscovered)} | {steady_state(result):.4f} "
-                    f"| {closest(result):.4f} |",
+                    f"| {len(result.undiscovered)} | {', '.join(map(str, silent)) or '-'} "
+                    f"| {steady_state(result):.4f} | {closest(result):.4f} |",
                     flush=True,
                 )
 

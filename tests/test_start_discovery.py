@@ -6,13 +6,19 @@ mission step (docs/scaling.md, "A near-collision at the start of an overloaded 3
 from __future__ import annotations
 
 import logging
+import math
 
+import numpy as np
 import pytest
+import shapely
+from shapely.geometry import MultiPoint, Point, Polygon, box
 from warehouse_core import SWARM, WALL0, join, make_core
 
 from covswarm.agent.brain import BEACON_TRUST, IDLE_STEP_PERIOD, diagram_trust
 from covswarm.coordinator.core import RUNNING, WAITING, CoordinatorCore
 from covswarm.coordinator.monitor import (
+    DISCOVERY_EDGE,
+    DISCOVERY_REACH,
     DISCOVERY_WAIT,
     START_SETTLE,
     MissionPhase,
@@ -20,21 +26,64 @@ from covswarm.coordinator.monitor import (
 )
 from covswarm.deploy.netsim import Stall, run_netsim
 from covswarm.mission.scenario_files import load_scenario
-from covswarm.protocol import AgentState, agent_state_key
+from covswarm.protocol import AgentState, Pose, agent_state_key, pose_key
+from covswarm.tvd.coverage import neighbour_pairs
 
 
-def test_discovery_gaps_name_silent_agents_and_one_sided_neighbours() -> None:
+def test_discovery_gaps_are_meeting_pairs_one_agent_of_which_does_not_name_the_other() -> None:
     team = {0, 1, 2}
-    assert discovery_gaps({}, team) == []  # nobody heard yet: the settle's business
+    pairs = np.array([[0, 1], [1, 2]])  # a row: 0 and 2 do not meet
+    assert discovery_gaps({}, team, pairs) == []  # nobody heard yet: the settle's business
     both = {0: frozenset({1}), 1: frozenset({0, 2}), 2: frozenset({1})}
-    assert discovery_gaps(both, team) == []
-    one_sided = {0: frozenset({1}), 1: frozenset({2}), 2: frozenset({1})}
-    assert discovery_gaps(one_sided, team) == ["agent 0 names 1, which does not name it"]
-    silent = {0: frozenset(), 1: frozenset({2}), 2: frozenset({1})}
-    assert discovery_gaps(silent, team) == ["agent 0 names no neighbour"]
-    # Not held against it: an agent not heard yet, a robot outside the team, a team of one.
-    assert discovery_gaps({0: frozenset({1}), 2: frozenset({7})}, team) == []
-    assert discovery_gaps({0: frozenset()}, {0}) == []
+    assert discovery_gaps(both, team, pairs) == []
+    # Naming a robot whose cell does not meet ours is no gap (a near-degenerate vertex).
+    extra = {0: frozenset({1, 2}), 1: frozenset({0, 2}), 2: frozenset({1})}
+    assert discovery_gaps(extra, team, pairs) == []
+    silent = {0: frozenset(), 1: frozenset({0, 2}), 2: frozenset({1})}
+    assert discovery_gaps(silent, team, pairs) == [
+        "agent 0 does not name 1, whose cell meets its own"
+    ]
+    unaware = {0: frozenset({1}), 1: frozenset({0}), 2: frozenset()}
+    assert discovery_gaps(unaware, team, pairs) == [
+        "agent 1 does not name 2, whose cell meets its own",
+        "agent 2 does not name 1, whose cell meets its own",
+    ]
+    # Not held against it: an agent not heard yet, a robot outside the team, no pairs (a
+    # robot outside S names nobody, and its empty cell meets no one's).
+    assert discovery_gaps({0: frozenset({1})}, team, pairs) == []
+    assert discovery_gaps({1: frozenset({0}), 2: frozenset()}, {0, 1}, pairs) == []
+    assert discovery_gaps(silent, team, np.empty((0, 2), dtype=np.int64)) == []
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_meeting_pairs_are_the_cells_that_share_an_edge_in_shapely(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(2, 30))
+    points = rng.uniform(-2.0, 2.0, (n, 2))  # some outside S: empty cells
+    polygon = np.array([[-1.5, -1.0], [1.5, -1.2], [1.2, 1.4], [-1.3, 1.1]])
+    still = rng.random(n) < 0.2
+    still[0] = False
+    min_edge = [0.0, DISCOVERY_EDGE, 0.2][seed % 3]
+    within = [math.inf, DISCOVERY_REACH][seed % 2]
+    expected = set()
+    region = Polygon(polygon)
+    extent = box(-10.0, -10.0, 10.0, 10.0)
+    diagram = shapely.voronoi_polygons(MultiPoint(points), extend_to=extent)
+    cell = [
+        next(g for g in diagram.geoms if g.contains(Point(p))).intersection(region) for p in points
+    ]
+    for i in range(n):
+        for j in range(i + 1, n):
+            if still[i] or still[j] or cell[i].is_empty or cell[j].is_empty:
+                continue
+            shared = cell[i].boundary.intersection(cell[j].boundary).length
+            apart = math.dist(points[i], points[j])
+            if shared > 1e-9 and shared >= min_edge and apart <= within:
+                expected.add((i, j))
+    got = {
+        tuple(pair) for pair in neighbour_pairs(points, polygon, min_edge, still, within).tolist()
+    }
+    assert got == expected
 
 
 def test_the_phase_waits_for_discovery_at_most_discovery_wait() -> None:
@@ -54,28 +103,52 @@ def state(rid: int, neighbours: list[int], now: float) -> bytes:
     return AgentState(id=rid, x=0.1 * rid, y=0.0, stamp=WALL0 + now, neighbors=neighbours).encode()
 
 
+# Three robots in a row inside the warehouse's S(0): 0 meets 1, 1 meets 2, 0 and 2 do not;
+# robot 3 (when there) outside S.
+ROW = {0: (-3.0, -0.3), 1: (-2.7, -0.3), 2: (-2.4, -0.3), 3: (-2.7, 2.0)}
+
+
 def ticks(core: CoordinatorCore, start: float, end: float, heard: dict[int, list[int]]) -> float:
     """Tick ``core`` every 0.05 s from ``start`` while waiting, until ``end``, each agent's
-    AgentState naming ``heard[agent]`` before each tick; the time of the last tick."""
+    AgentState naming ``heard[agent]`` and its robot's pose at ROW before each tick; the
+    time of the last tick."""
     now = start
     while core.phase.state == WAITING and now < end:
         for rid, names in heard.items():
             core.on_agent_state(agent_state_key(SWARM, rid), state(rid, names, now))
+            x, y = ROW[rid]
+            pose = Pose(id=rid, x=x, y=y, theta=0.0, stamp=WALL0 + now, seq=int(now * 20))
+            core.on_pose(pose_key(SWARM, rid), pose.encode())
         core.tick(now, WALL0 + now)
         now = round(now + 0.05, 10)
     return now - 0.05
 
 
 def test_the_coordinator_starts_once_the_neighbours_name_each_other() -> None:
-    core = make_core(agents=3)
-    join(core, range(3))
-    # Agent 2 names nobody, and agent 1 names 2: the start waits past its settle.
-    now = ticks(core, 0.0, START_SETTLE + 1.0, {0: [1], 1: [0, 2], 2: []})
+    core = make_core(agents=4)
+    join(core, range(4))
+    # Agent 2 names nobody, and agent 1 names 2: the start waits past its settle. Robot 3,
+    # outside S, names nobody either, and is not waited for.
+    now = ticks(core, 0.0, START_SETTLE + 1.0, {0: [1], 1: [0, 2], 2: [], 3: []})
     assert core.phase.state == WAITING and now >= START_SETTLE + 0.9
     # Agent 2 finds its neighbour: the next tick starts the mission.
-    now = ticks(core, now + 0.05, now + 1.0, {0: [1], 1: [0, 2], 2: [1]})
+    now = ticks(core, now + 0.05, now + 1.0, {0: [1], 1: [0, 2], 2: [1], 3: []})
     assert core.phase.state == RUNNING and now <= START_SETTLE + 1.1
     assert not core.phase.started_undiscovered and core.observed.undiscovered_start == []
+
+
+def test_two_agents_unaware_of_each_other_hold_the_start_though_their_lists_agree() -> None:
+    # 1 and 2 meet, and neither names the other: their lists agree with each other and say
+    # nothing is missing. The poses' cells show the pair.
+    core = make_core(agents=3)
+    join(core, range(3))
+    heard = {0: [1], 1: [0], 2: []}
+    now = ticks(core, 0.0, START_SETTLE + 1.0, heard)
+    assert core.phase.state == WAITING and now >= START_SETTLE + 0.9
+    assert core.discovery_gaps(now) == [
+        "agent 1 does not name 2, whose cell meets its own",
+        "agent 2 does not name 1, whose cell meets its own",
+    ]
 
 
 def test_without_discovery_the_coordinator_starts_after_the_wait_and_says_so(
@@ -87,10 +160,7 @@ def test_without_discovery_the_coordinator_starts_after_the_wait_and_says_so(
         now = ticks(core, 0.0, 60.0, {0: [1], 1: [0, 2], 2: [0]})
     assert core.phase.state == RUNNING
     assert now == pytest.approx(START_SETTLE + DISCOVERY_WAIT, abs=0.06)
-    gaps = [
-        "agent 1 names 2, which does not name it",
-        "agent 2 names 0, which does not name it",
-    ]
+    gaps = ["agent 2 does not name 1, whose cell meets its own"]
     assert core.observed.undiscovered_start == gaps
     assert "neighbour discovery incomplete" in caplog.text and gaps[0] in caplog.text
 
@@ -106,7 +176,7 @@ def test_netsim_holds_the_start_for_a_brain_that_stalled_before_it_met_anyone() 
     # Stalled beyond DISCOVERY_WAIT, it starts without it and says what was missing.
     late = run_netsim(scenario, agents=12, duration=0.2, stall=Stall({3}, 0.1, 10.0))
     assert late.started == pytest.approx(0.1 + START_SETTLE + DISCOVERY_WAIT, abs=0.2)
-    assert "agent 3 names no neighbour" in late.undiscovered
+    assert any(gap.startswith("agent 3 does not name") for gap in late.undiscovered)
 
 
 def test_the_diagram_takes_every_beacon_heard_since_the_last_view() -> None:
@@ -117,10 +187,10 @@ def test_the_diagram_takes_every_beacon_heard_since_the_last_view() -> None:
 
 
 def test_a_lone_brain_meets_neighbours_known_only_from_their_beacons_before_the_start() -> None:
-    # Passage, brains 0 and 3 dead: robot 1's live neighbours are beyond its safety filter's
-    # reach, known from beacons that came ~0.9 s before each of its idle steps. Taken only
-    # when younger than BEACON_TRUST, they never entered its diagram: it named no neighbour
-    # and the start waited out DISCOVERY_WAIT (6.6 s).
+    # Passage, brains 0 and 3 dead: robot 1's live neighbours stand beyond its safety
+    # filter's reach, known from beacons that came ~0.9 s before each of its idle steps.
+    # Taken only when younger than BEACON_TRUST, they never entered its diagram: it named no
+    # neighbour and covered all of S alone when the mission started.
     result = run_netsim(load_scenario("passage"), agents=6, duration=0.2, dead=(0, 3))
+    assert result.stats[1]["neighbors"] >= 2, result.stats[1]
     assert result.undiscovered == []
-    assert result.started < 2.0 + 1.0, result.started

@@ -51,6 +51,7 @@ depend on phi.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from functools import cache
 from typing import NamedTuple, Protocol, runtime_checkable
@@ -991,6 +992,32 @@ def cells(
     check_density(density)
     points, _, batch = tessellate(positions, polygon)
     return [batch.vertices(i) for i in range(len(points))]
+
+
+def neighbour_pairs(
+    positions: np.ndarray,
+    polygon: np.ndarray,
+    min_edge: float = 0.0,
+    still: np.ndarray | None = None,
+    within: float = math.inf,
+) -> np.ndarray:
+    """The pairs of robots at most ``within`` m apart whose cells in S share an edge at
+    least ``min_edge`` m long.
+
+    positions: (n, 2) m; polygon: (k, 2) vertices of S; still: (n,) bool, robots that stand
+    still (covswarm.tvd.control's module notes): generators of the cells, in no pair
+    themselves. Returns (m, 2) int indices, each row i < j, rows sorted. A robot with an
+    empty cell (outside S and dominated) is in no pair.
+    """
+    points, _, batch = tessellate(positions, polygon)
+    fixed = still_mask(still, len(points))
+    length = np.abs(batch.end - batch.start)
+    rows, lines = np.nonzero(batch.shared & (length >= min_edge))
+    pairs = np.sort(np.stack([batch.owners[rows], batch.labels[rows, lines]], axis=1), axis=1)
+    if fixed is not None:
+        pairs = pairs[~(fixed[pairs[:, 0]] | fixed[pairs[:, 1]])]
+    apart = np.hypot(*(points[pairs[:, 0]] - points[pairs[:, 1]]).T)
+    return np.unique(pairs[apart <= within].reshape(-1, 2), axis=0).astype(np.int64)
 
 
 def mass_centroid(
