@@ -256,8 +256,8 @@ BEACON_TRUST = 0.5
 # once a second before the mission (or in turn in an overloaded process) otherwise never
 # met a neighbour beyond the safety filter's reach known from beacons alone: its beacons
 # came once a second, phase-locked to our steps ~0.9 s before each, older than BEACON_TRUST
-# at every view; its brain named no neighbour and the coordinator's start waited out its
-# DISCOVERY_WAIT (deploy.netsim, passage, six robots, brains 0 and 3 dead: robot 1). A
+# at every view; it named no neighbour, its diagram giving it all of S, when the mission
+# started (deploy.netsim, passage, six robots, brains 0 and 3 dead: robot 1). A
 # beacon's age counts from the turn that took it off the bus, so it is at most the time
 # between two views (1.6 s for a brain stepped at 1.25 Hz before the mission, which views
 # every other turn): a robot riding S is then ~0.3 m past its beacon, not the ~2 m of the

@@ -165,11 +165,11 @@ def run_netsim(
     agent's token taken, then held for covswarm.coordinator.monitor.start_settle of the
     slowest agent's time between AgentStates (at 10 Hz 1.5 s, within the 2 s warmup; brains
     stepped at ~1.25 Hz wait longer), and then until the AgentStates heard show no gap in
-    the team's neighbour discovery (covswarm.coordinator.monitor.discovery_gaps), at most
-    DISCOVERY_WAIT s longer (what was still missing then: ``undiscovered``). A team some
-    agent of which has not declared itself alive starts MAX_START_SETTLE s after the
-    warmup. clock_skew: s added to the robots'
-    pose stamps (their host's clock ahead).
+    the team's neighbour discovery (covswarm.coordinator.monitor.discovery_gaps over the
+    robots' true poses), at most DISCOVERY_WAIT s longer (what was still missing then:
+    ``undiscovered``; what each agent named: ``listed``). A team some agent of which has
+    not declared itself alive starts MAX_START_SETTLE s after the warmup. clock_skew: s
+    added to the robots' pose stamps (their host's clock ahead).
     robot_model: the robots' true geometry when it differs from what the agents assume
     (``config.robot``), to measure how model error degrades the agents' prediction.
     command_delay: s between a command's stamp and when the robot acts on it, on top of
