@@ -111,6 +111,29 @@ class Stall:
         return t
 
 
+@dataclass(frozen=True)
+class Mute:
+    """The AgentStates and beacons of brains ``ids`` are lost from ``start`` s of the
+    simulated clock for ``length`` s, to the other agents and the coordinator alike (a link
+    or router that drops them): nobody learns where those robots are but the coordinator,
+    from their poses. Their brains run, and hear the others."""
+
+    ids: frozenset[int]
+    start: float
+    length: float
+
+    def __init__(self, ids: Collection[int], start: float, length: float) -> None:
+        object.__setattr__(self, "ids", frozenset(ids))
+        object.__setattr__(self, "start", float(start))
+        object.__setattr__(self, "length", float(length))
+        if not (self.start >= 0.0 and self.length > 0.0):
+            raise ValueError(f"a mute needs start >= 0 and length > 0, not {self!r}")
+
+    def drops(self, index: int, t: float) -> bool:
+        """Whether brain ``index``'s AgentState or beacon sent at ``t`` is lost."""
+        return index in self.ids and self.start <= t < self.start + self.length
+
+
 @dataclass
 class NetsimResult:
     """t (T,), e_a (T,), trajectories (T, n, 2), wheels (T, n, 2) (the commands held at each
@@ -151,6 +174,7 @@ def run_netsim(
     pace: float = 1.0,
     turn_gaps: tuple[float, float] | None = None,
     stall: Stall | None = None,
+    mute: Mute | None = None,
     hold_after: float | None = None,
     dead: Collection[int] = (),
 ) -> NetsimResult:
@@ -183,7 +207,8 @@ def run_netsim(
     s, each brain's next turn comes a gap drawn uniformly in [lo, hi] after its last (its
     first within hi of the start), and each brain is told the gap since its previous turn
     (AgentBrain.pace), as a packed process that cannot hold ``rate`` steps its brains in
-    turn; None: every 1 / ``rate`` s; stall: brains that take no turn for a while.
+    turn; None: every 1 / ``rate`` s; stall: brains that take no turn for a while; mute:
+    brains whose AgentStates and beacons are lost for a while (:class:`Mute`).
     hold_after: with ``turn_gaps``, a running brain whose next turn comes more than
     max(``hold_after``, its AgentBrain.command_hold) s after its last stops its robot then
     (AgentBrain.hold), as a packed process does for a brain whose turn is late
@@ -297,12 +322,16 @@ def run_netsim(
                 heapq.heappush(commands, (due, order, index, command.encode()))
                 order += 1
             elif isinstance(action, PublishState):
+                if mute is not None and mute.drops(index, now):
+                    continue
                 if started is None:
                     exchange.add(index, action.state.stamp)
                     listed[index] = frozenset(action.state.neighbors)
                 payload = action.state.encode()
                 send(now + transit, ("state", index), "state", index, payload)
             elif isinstance(action, PublishBeacon):
+                if mute is not None and mute.drops(index, now):
+                    continue
                 payload = action.beacon.encode()
                 send(now + transit, ("beacon", action.tile), "beacon", index, payload)
             elif isinstance(action, FollowStates):

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -24,7 +25,8 @@ from covswarm.coordinator.monitor import (
     MissionPhase,
     discovery_gaps,
 )
-from covswarm.deploy.netsim import Stall, run_netsim
+from covswarm.deploy import netsim
+from covswarm.deploy.netsim import Mute, NetsimResult, Stall, run_netsim
 from covswarm.mission.scenario_files import load_scenario
 from covswarm.protocol import AgentState, Pose, agent_state_key, pose_key
 from covswarm.tvd.coverage import neighbour_pairs
@@ -194,3 +196,31 @@ def test_a_lone_brain_meets_neighbours_known_only_from_their_beacons_before_the_
     result = run_netsim(load_scenario("passage"), agents=6, duration=0.2, dead=(0, 3))
     assert result.stats[1]["neighbors"] >= 2, result.stats[1]
     assert result.undiscovered == []
+
+
+def test_the_gate_keeps_a_team_off_robots_it_has_not_heard_of() -> None:
+    # The robot-14 case, made deterministic: every 7th of 100 robots on the circle has its
+    # AgentStates and beacons lost for the first 4 s. Started when the settle allows (the
+    # gate off), their neighbours drive into them (0.003 m between centres, 3 Dec 2026); the
+    # gate waits until they are heard and named, and nobody comes within a body diameter.
+    muted = list(range(0, 100, 7))
+
+    def run() -> NetsimResult:
+        return run_netsim(
+            load_scenario("circle"), agents=100, duration=1.5, mute=Mute(muted, 0.0, 4.0)
+        )
+
+    def closest_to_muted(result: NetsimResult) -> float:
+        others = np.setdiff1d(np.arange(100), muted)
+        return min(
+            float(np.hypot(*(frame[muted, None] - frame[None, others]).transpose(2, 0, 1)).min())
+            for frame in result.trajectories
+        )
+
+    with mock.patch.object(netsim, "discovery_gaps", lambda *args: []):
+        ungated = run()
+    assert ungated.started == pytest.approx(2.0)
+    assert closest_to_muted(ungated) < 0.10
+    gated = run()
+    assert gated.started > 4.0 and gated.undiscovered == []
+    assert closest_to_muted(gated) >= 0.14 - 1e-3
