@@ -87,51 +87,42 @@ Slot = tuple[str, int | None, Topic]
 
 
 @dataclass(frozen=True)
-class Stall:
+class BrainWindow:
+    """Brains ``ids`` from ``start`` s of the simulated clock for ``length`` s."""
+
+    ids: frozenset[int]
+    start: float
+    length: float
+
+    def __init__(self, ids: Collection[int], start: float, length: float) -> None:
+        object.__setattr__(self, "ids", frozenset(ids))
+        object.__setattr__(self, "start", float(start))
+        object.__setattr__(self, "length", float(length))
+        if not (self.start >= 0.0 and self.length > 0.0):
+            raise ValueError(f"{type(self).__name__}: needs start >= 0 and length > 0")
+
+    def covers(self, index: int, t: float) -> bool:
+        """Whether brain ``index`` is in the window at ``t``."""
+        return index in self.ids and self.start <= t < self.start + self.length
+
+
+class Stall(BrainWindow):
     """Brains ``ids`` take no turn from ``start`` s of the simulated clock for ``length`` s:
     an agent process that stops stepping for a while (a packed process's brains on a host
     busy elsewhere), their robots running on their last commands until their command
     timeout."""
 
-    ids: frozenset[int]
-    start: float
-    length: float
-
-    def __init__(self, ids: Collection[int], start: float, length: float) -> None:
-        object.__setattr__(self, "ids", frozenset(ids))
-        object.__setattr__(self, "start", float(start))
-        object.__setattr__(self, "length", float(length))
-        if not (self.start >= 0.0 and self.length > 0.0):
-            raise ValueError(f"a stall needs start >= 0 and length > 0, not {self!r}")
-
     def resume(self, index: int, t: float) -> float:
         """When brain ``index``, due at ``t``, takes its turn."""
-        if index in self.ids and self.start <= t < self.start + self.length:
-            return self.start + self.length
-        return t
+        return self.start + self.length if self.covers(index, t) else t
 
 
-@dataclass(frozen=True)
-class Mute:
+class Mute(BrainWindow):
     """The AgentStates and beacons of brains ``ids`` are lost from ``start`` s of the
     simulated clock for ``length`` s, to the other agents and the coordinator alike (a link
     or router that drops them): nobody learns where those robots are but the coordinator,
-    from their poses. Their brains run, and hear the others."""
-
-    ids: frozenset[int]
-    start: float
-    length: float
-
-    def __init__(self, ids: Collection[int], start: float, length: float) -> None:
-        object.__setattr__(self, "ids", frozenset(ids))
-        object.__setattr__(self, "start", float(start))
-        object.__setattr__(self, "length", float(length))
-        if not (self.start >= 0.0 and self.length > 0.0):
-            raise ValueError(f"a mute needs start >= 0 and length > 0, not {self!r}")
-
-    def drops(self, index: int, t: float) -> bool:
-        """Whether brain ``index``'s AgentState or beacon sent at ``t`` is lost."""
-        return index in self.ids and self.start <= t < self.start + self.length
+    from their poses. Their brains run, and hear the others (:meth:`covers`: whether one
+    sent at ``t`` is lost)."""
 
 
 @dataclass
@@ -322,7 +313,7 @@ def run_netsim(
                 heapq.heappush(commands, (due, order, index, command.encode()))
                 order += 1
             elif isinstance(action, PublishState):
-                if mute is not None and mute.drops(index, now):
+                if mute is not None and mute.covers(index, now):
                     continue
                 if started is None:
                     exchange.add(index, action.state.stamp)
@@ -330,7 +321,7 @@ def run_netsim(
                 payload = action.state.encode()
                 send(now + transit, ("state", index), "state", index, payload)
             elif isinstance(action, PublishBeacon):
-                if mute is not None and mute.drops(index, now):
+                if mute is not None and mute.covers(index, now):
                     continue
                 payload = action.beacon.encode()
                 send(now + transit, ("beacon", action.tile), "beacon", index, payload)
