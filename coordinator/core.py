@@ -432,6 +432,7 @@ class CoordinatorCore:
         # The pairs whose cells meet (discovery_gaps), as of when (monotonic s)
         self._pairs = np.empty((0, 2), dtype=np.int64)
         self._pairs_at = -math.inf
+        self._said_discovery_wait = False  # the log said the start waits for discovery
         # Each agent's round of the neighbour exchange while waiting: the start waits for
         # START_ROUNDS of the slowest (coordinator.monitor.start_settle), not only 1.5 s.
         self.exchange = ExchangeGaps()
@@ -800,6 +801,15 @@ class CoordinatorCore:
             return [Finished(started=False)]
         if state == WAITING:
             self._report_waiting(now)
+            if gaps and not self._said_discovery_wait:
+                self._said_discovery_wait = True
+                log.info(
+                    "the team is up; the start waits (at most %.0f s) for neighbours to name "
+                    "each other: %s%s",
+                    phase.discovery_wait,
+                    "; ".join(gaps[:3]),
+                    f" and {len(gaps) - 3} more" if len(gaps) > 3 else "",
+                )
         actions: list[Action] = []
         if before == WAITING and state == RUNNING:
             self.observed.started_wall = wall

@@ -139,18 +139,25 @@ def test_the_coordinator_starts_once_the_neighbours_name_each_other() -> None:
     assert not core.phase.started_undiscovered and core.observed.undiscovered_start == []
 
 
-def test_two_agents_unaware_of_each_other_hold_the_start_though_their_lists_agree() -> None:
+def test_two_agents_unaware_of_each_other_hold_the_start_though_their_lists_agree(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
     # 1 and 2 meet, and neither names the other: their lists agree with each other and say
     # nothing is missing. The poses' cells show the pair.
     core = make_core(agents=3)
     join(core, range(3))
     heard = {0: [1], 1: [0], 2: []}
-    now = ticks(core, 0.0, START_SETTLE + 1.0, heard)
+    with caplog.at_level(logging.INFO, logger="covswarm.coordinator"):
+        now = ticks(core, 0.0, START_SETTLE + 1.0, heard)
     assert core.phase.state == WAITING and now >= START_SETTLE + 0.9
-    assert core.discovery_gaps(now) == [
+    gaps = [
         "agent 1 does not name 2, whose cell meets its own",
         "agent 2 does not name 1, whose cell meets its own",
     ]
+    assert core.discovery_gaps(now) == gaps
+    # The log says why the start waits, once.
+    said = [r.message for r in caplog.records if "the start waits" in r.message]
+    assert len(said) == 1 and gaps[0] in said[0]
 
 
 def test_without_discovery_the_coordinator_starts_after_the_wait_and_says_so(
