@@ -739,15 +739,14 @@ class CoordinatorCore:
         (covswarm.tvd.coverage.neighbour_pairs)."""
         positions = self.alive_positions()
         obs = self.observed
-        stranded = [i for i in self.roster.stranded(obs.liveness.alive) if i in obs.poses]
-        ids = [*positions, *stranded]
         if len(positions) < 2:
             return np.empty((0, 2), dtype=np.int64)
+        stranded = [i for i in self.roster.stranded(obs.liveness.alive) if i in obs.poses]
+        ids = [*positions, *stranded]
         points = np.array([*positions.values(), *(obs.poses[i] for i in stranded)], dtype=float)
-        still = np.arange(len(ids)) >= len(positions)
+        still = np.arange(len(ids)) >= len(positions)  # none still: still_mask's None
         polygon = self.steering.domain(0.0)[0]
-        still_ones = still if stranded else None
-        pairs = neighbour_pairs(points, polygon, DISCOVERY_EDGE, still_ones, DISCOVERY_REACH)
+        pairs = neighbour_pairs(points, polygon, DISCOVERY_EDGE, still, DISCOVERY_REACH)
         return np.asarray(ids, dtype=np.int64)[pairs].reshape(-1, 2)
 
     def team_ready(self) -> bool:

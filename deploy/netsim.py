@@ -393,7 +393,7 @@ def run_netsim(
                         positions,
                         scenario.domain(0.0)[0],
                         DISCOVERY_EDGE,
-                        standing if dead else None,
+                        standing,
                         DISCOVERY_REACH,
                     )
                 gaps = discovery_gaps(listed, tokens.keys(), pairs) if ready else []
