@@ -1,0 +1,30 @@
+"""scripts/brain_tick_floor.py measures what docs/scaling.md says it does: a second of the
+pack's own payloads (a tenth of its states with stats), the decode beside msgpack alone, and
+Zenoh's costs over a router of its own on loopback."""
+
+from __future__ import annotations
+
+import math
+
+from script_modules import load_script
+
+from covswarm.deploy import bench
+
+script = load_script("brain_tick_floor")
+
+
+def test_the_messages_are_a_second_of_the_packs_own_payloads() -> None:
+    layout = bench.make_layout(30, "cvt", 0, spacing=bench.BRAIN_TICK_SPACING)
+    costs = script.messages(30, layout)
+    # each brain sends stats with one state a second: one period in ten
+    assert 5.0 <= costs["AgentStates with stats (%)"] <= 20.0
+    # the decode unpacks, then checks and derives the facts: never cheaper than unpacking
+    assert costs["AgentState: decode (checks, StateFacts)"] > costs["AgentState: msgpack unpack"]
+    assert all(math.isfinite(value) and value > 0.0 for value in costs.values())
+
+
+def test_python_calls_and_zenoh_costs_are_counted() -> None:
+    layout = bench.make_layout(20, "cvt", 0, spacing=bench.BRAIN_TICK_SPACING)
+    assert script.calls_per_brain_tick(20, layout) > 50.0
+    zenoh = script.zenoh_costs(publishers=20, rounds=3)
+    assert all(math.isfinite(value) and value > 0.0 for value in zenoh.values())
