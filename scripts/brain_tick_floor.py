@@ -18,7 +18,10 @@ apart, 10 Hz, deploy.bench) and prints, in microseconds of CPU:
    (try_recv, key, bytes): loopback only, scouting off.
 3. **Python's calls.** The function calls (built-ins included) a brain-tick makes, by
    cProfile over ten periods of the pack.
-4. **The tables' size.** Two packs stepped in turn (interleaved: this VM's speed drifts)
+4. **The math by batch size.** One tick's views and safety filters of the pack (as its
+   chunks handed them to covswarm.tvd.control.local_steps and agent.brain.filter_all),
+   stepped again in batches of 32 (the pack's CHUNK) to all of them at once: CPU per brain.
+5. **The tables' size.** Two packs stepped in turn (interleaved: this VM's speed drifts)
    whose brains differ only in the beacon timeout (25 s, the default, and 3 s), which
    sets how many beacon-only robots each brain keeps as candidates: CPU per brain-tick
    and the mean number of candidates of each.
@@ -29,6 +32,7 @@ docs/scaling.md quotes it.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import cProfile
 import json
 import math
@@ -43,6 +47,7 @@ import msgpack
 import numpy as np
 
 from covswarm import protocol
+from covswarm.agent import pack as pack_module
 from covswarm.agent.brain import AgentBrain, AgentConfig
 from covswarm.agent.decoding import MessageDecoder, _received
 from covswarm.agent.pack import LocalBus, Pack, collect_less
@@ -125,6 +130,55 @@ def calls_per_brain_tick(brains: int, layout: bench.Layout) -> float:
         tick(bus, pack, layout, k)
     profile.disable()
     return pstats.Stats(profile).total_calls / (periods * brains)
+
+
+@contextlib.contextmanager
+def batches_kept(kept: dict[str, list]) -> Any:
+    """Within: the pack's batched local steps and filters record their inputs in ``kept``
+    ("steps": (views, arguments) per batch; "filters": filterings per batch)."""
+    steps, filters = pack_module.local_steps, pack_module.filter_all
+
+    def keep_steps(views: Any, *arguments: Any) -> Any:
+        kept["steps"].append((list(views), arguments))
+        return steps(views, *arguments)
+
+    def keep_filters(filterings: Any) -> Any:
+        kept["filters"].append(list(filterings))
+        return filters(filterings)
+
+    pack_module.local_steps, pack_module.filter_all = keep_steps, keep_filters
+    try:
+        yield
+    finally:
+        pack_module.local_steps, pack_module.filter_all = steps, filters
+
+
+def math_by_batch(
+    brains: int, layout: bench.Layout, sizes: tuple[int, ...]
+) -> dict[int, tuple[float, float]]:
+    """Batch size -> (local steps, safety filter) us of CPU per brain over one tick's inputs."""
+    bus, pack = make_pack(brains, AgentConfig())
+    for k in range(bench.BRAIN_TICK_WARM):
+        tick(bus, pack, layout, k)
+    kept: dict[str, list] = {"steps": [], "filters": []}
+    with batches_kept(kept):
+        tick(bus, pack, layout, bench.BRAIN_TICK_WARM)
+    views = [view for batch, _ in kept["steps"] for view in batch]
+    arguments = kept["steps"][0][1]
+    filterings = [one for batch in kept["filters"] for one in batch]
+    out = {}
+    for size in sizes:
+        batches = range(0, len(views), size)
+        steps = per_item(
+            [views[s : s + size] for s in batches],
+            lambda batch: pack_module.local_steps(batch, *arguments),
+        )
+        filters = per_item(
+            [filterings[s : s + size] for s in range(0, len(filterings), size)],
+            pack_module.filter_all,
+        )
+        out[size] = (steps * len(batches) / len(views), filters * len(batches) / len(views))
+    return out
 
 
 def zenoh_costs(publishers: int = 500, rounds: int = 20) -> dict[str, float]:
@@ -212,6 +266,11 @@ def main() -> None:
         print(f"| {name} | {value:.1f} |")
     calls = calls_per_brain_tick(args.brains, layout)
     print(f"\nPython function calls per brain-tick (cProfile, built-ins included): {calls:.0f}")
+    print("\n| brains per batch | local steps, us a brain | safety filter, us a brain |")
+    print("|---|---|---|")
+    sizes = (pack_module.CHUNK, 64, 128, args.brains)
+    for size, (steps, filters) in math_by_batch(args.brains, layout, sizes).items():
+        print(f"| {size} | {steps:.0f} | {filters:.0f} |")
     print(f"\n| {args.brains} brains, interleaved | CPU per brain-tick, us | candidates |")
     print("|---|---|---|")
     for name, (cpu, candidates) in table_size(args.brains, layout, args.ticks).items():
