@@ -153,16 +153,23 @@ def batches_kept(kept: dict[str, list]) -> Any:
         pack_module.local_steps, pack_module.filter_all = steps, filters
 
 
-def math_by_batch(
-    brains: int, layout: bench.Layout, sizes: tuple[int, ...]
-) -> dict[int, tuple[float, float]]:
-    """Batch size -> (local steps, safety filter) us of CPU per brain over one tick's inputs."""
+def one_ticks_batches(brains: int, layout: bench.Layout) -> dict[str, list]:
+    """The batched local steps' and filters' inputs (batches_kept) of the period after the
+    bench's warm-up, in a pack of ``brains`` brains over ``layout``."""
     bus, pack = make_pack(brains, AgentConfig())
     for k in range(bench.BRAIN_TICK_WARM):
         tick(bus, pack, layout, k)
     kept: dict[str, list] = {"steps": [], "filters": []}
     with batches_kept(kept):
         tick(bus, pack, layout, bench.BRAIN_TICK_WARM)
+    return kept
+
+
+def math_by_batch(
+    brains: int, layout: bench.Layout, sizes: tuple[int, ...]
+) -> dict[int, tuple[float, float]]:
+    """Batch size -> (local steps, safety filter) us of CPU per brain over one tick's inputs."""
+    kept = one_ticks_batches(brains, layout)
     views = [view for batch, _ in kept["steps"] for view in batch]
     arguments = kept["steps"][0][1]
     filterings = [one for batch in kept["filters"] for one in batch]

@@ -27,7 +27,6 @@ from typing import Any
 
 import numpy as np
 
-from covswarm.agent.brain import AgentConfig
 from covswarm.deploy import bench
 
 try:
@@ -111,16 +110,8 @@ def tick_views(brains: int) -> tuple[list[tuple[np.ndarray, np.ndarray, np.ndarr
     inside the pack's own batches)."""
     from covswarm.tvd import control
 
-    floor = _sibling("brain_tick_floor")
-    batches_kept, make_pack, tick = floor.batches_kept, floor.make_pack, floor.tick
-
     layout = bench.make_layout(brains, "cvt", 0, spacing=bench.BRAIN_TICK_SPACING)
-    bus, pack = make_pack(brains, AgentConfig())
-    for k in range(bench.BRAIN_TICK_WARM):
-        tick(bus, pack, layout, k)
-    kept: dict[str, list] = {"steps": [], "filters": []}
-    with batches_kept(kept):
-        tick(bus, pack, layout, bench.BRAIN_TICK_WARM)
+    kept = _sibling("brain_tick_floor").one_ticks_batches(brains, layout)
     spent, cells = [0.0], control._view_cells
 
     def timed(*arguments: Any) -> Any:
